@@ -1,0 +1,347 @@
+"""``motorctl``: send one protocol command to a motorctl device and print the answer."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import re
+import sys
+from collections.abc import Callable, Sequence
+
+import serial
+
+from daemon.client import Client, DeviceError, LinkError, hex_bytes
+from daemon.codec import FRAME_LEN, CodecOptions
+from daemon.crc import SMBUS, Crc8, crc8_by_name
+
+__all__ = ["build_parser", "main"]
+
+POS_MIN, POS_MAX = -(1 << 23), (1 << 23) - 1
+
+_UNITS = """\
+All numbers are the raw protocol values the host sends, not physical units: MOTOR, PIN,
+waypoint N and --speed/--acc/--dec are single bytes (0..255; 0 = the motor's configured
+default); with the default factors InitMove/Move speed = SPEED x 4096 step/s, MoveTo and
+waypoint speed = SPEED x 4 step/s, ramps = ACC/DEC x 16 step/s^2. POS is a signed 24-bit
+step count (-8388608..8388607). Times are milliseconds (0..65535). Integers may be given
+in decimal or with a 0x/0o/0b prefix.
+
+exit status: 0 ok, 1 the device answered with an error (printed by name, e.g.
+"error: E3 motor not ready"), 2 usage error or link error (no/short/corrupt response)."""
+
+
+def _int_in(lo: int, hi: int, what: str) -> Callable[[str], int]:
+    """argparse type: an integer in [lo, hi] (decimal or 0x/0o/0b)."""
+
+    def parse(text: str) -> int:
+        text = text.strip()
+        try:
+            value = int(text, 0)
+        except ValueError:
+            try:
+                value = int(text, 10)
+            except ValueError:
+                raise argparse.ArgumentTypeError(f"{what}: {text!r} is not an integer") from None
+        if not lo <= value <= hi:
+            raise argparse.ArgumentTypeError(f"{what}: {value} is not in {lo}..{hi}")
+        return value
+
+    parse.__name__ = what
+    return parse
+
+
+_byte = _int_in(0, 255, "byte")
+_u16 = _int_in(0, 0xFFFF, "milliseconds")
+_pos = _int_in(POS_MIN, POS_MAX, "position")
+
+
+def _seconds(text: str) -> float:
+    """argparse type: a positive number of seconds."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
+    if not value > 0:
+        raise argparse.ArgumentTypeError(f"timeout must be positive, got {text.strip()}")
+    return value
+
+
+def _choice(mapping: dict[str, bool], what: str) -> Callable[[str], bool]:
+    """argparse type: one of the words in ``mapping`` (case-insensitive)."""
+
+    def parse(text: str) -> bool:
+        try:
+            return mapping[text.lower()]
+        except KeyError:
+            words = ", ".join(mapping)
+            raise argparse.ArgumentTypeError(f"{what}: {text!r} is not one of {words}") from None
+
+    parse.__name__ = what
+    return parse
+
+
+_updown = _choice({"up": True, "down": False}, "direction")
+_highlow = _choice({"high": True, "low": False}, "level")
+_inout = _choice({"in": False, "input": False, "out": True, "output": True}, "pin mode")
+
+
+def _add_ramp(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--speed", type=_byte, default=0, metavar="N", help="SPEED byte (0=default)")
+    p.add_argument("--acc", type=_byte, default=0, metavar="N", help="ACC byte (0=default)")
+    p.add_argument("--dec", type=_byte, default=0, metavar="N", help="DEC byte (0=default)")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """Build the ``motorctl`` argument parser."""
+    parser = argparse.ArgumentParser(
+        prog="motorctl",
+        description="Send one command to a motorctl device and print the answer.",
+        epilog=_UNITS,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    parser.add_argument(
+        "-p", "--port", metavar="PATH", default=os.environ.get("MOTORCTL_PORT"),
+        help="serial port (default: $MOTORCTL_PORT)",
+    )
+    parser.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    parser.add_argument(
+        "--timeout", type=_seconds, default=5.0, metavar="SECONDS",
+        help="response timeout in seconds (default 5; wait adds its TIMEOUT_MS)",
+    )
+    parser.add_argument(
+        "--checksum", default="crc8", metavar="NAME",
+        help='"crc8" (CRC-8/SMBUS, default), "none", or a CRC-8 catalogue name',
+    )
+    parser.add_argument(
+        "--crc-covers-ack", action="store_true", help="the response CRC covers R0..R3"
+    )
+    parser.add_argument(
+        "--raw", action="store_true", help="print the bytes sent (->) and received (<-) as hex"
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+
+    def add(name: str, help_text: str) -> argparse.ArgumentParser:
+        return sub.add_parser(
+            name, help=help_text, description=help_text, epilog=_UNITS,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+
+    p = add("init", "InitMove: home MOTOR towards its end stop (position becomes 0)")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("direction", type=_updown, metavar="up|down")
+    _add_ramp(p)
+
+    p = add("moveto", "MoveTo: queue a move of MOTOR to the absolute step position POS")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("position", type=_pos, metavar="POS")
+    _add_ramp(p)
+    p.add_argument(
+        "--dir", dest="direction", type=_updown, default=True, metavar="up|down",
+        help="DIR byte (used on rotary axes only; default up)",
+    )
+
+    p = add("wait", "WaitMoved: wait until MOTOR is idle (E3 after TIMEOUT_MS)")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("timeout_ms", type=_u16, nargs="?", default=60000, metavar="TIMEOUT_MS",
+                   help="device-side timeout in ms (default 60000)")
+
+    p = add("ready", "IsReady: is MOTOR idle with an empty queue?")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+
+    p = add("move", "Move: run MOTOR continuously until stopped")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("direction", type=_updown, metavar="up|down")
+    _add_ramp(p)
+
+    p = add("stop", "StopMove: stop MOTOR and empty its queue")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("--hard", action="store_true", help="stop without a ramp")
+
+    p = add("pos", "GetAbsPos: print the position of MOTOR")
+    p.add_argument("motor", type=_byte, metavar="MOTOR")
+
+    p = add("pin", "SetPin / GetPin / ConfigPin")
+    pin_sub = p.add_subparsers(dest="pin_command", metavar="ACTION", required=True)
+    q = pin_sub.add_parser("set", help="drive output PIN high or low")
+    q.add_argument("pin", type=_byte, metavar="PIN")
+    q.add_argument("level", type=_highlow, metavar="high|low")
+    q = pin_sub.add_parser("get", help="read PIN")
+    q.add_argument("pin", type=_byte, metavar="PIN")
+    q = pin_sub.add_parser("config", help="make PIN an input or an output")
+    q.add_argument("pin", type=_byte, metavar="PIN")
+    q.add_argument("output", type=_inout, metavar="in|out")
+
+    p = add("home", "SaveHome / GoHome")
+    home_sub = p.add_subparsers(dest="home_command", metavar="ACTION", required=True)
+    q = home_sub.add_parser("save", help="store the current position of MOTOR as home")
+    q.add_argument("motor", type=_byte, metavar="MOTOR")
+    q = home_sub.add_parser("go", help="queue a move of MOTOR to its home")
+    q.add_argument("motor", type=_byte, metavar="MOTOR")
+
+    p = add("waypoint", "SaveWayPoint / MoveToWayPoint")
+    wp_sub = p.add_subparsers(dest="waypoint_command", metavar="ACTION", required=True)
+    q = wp_sub.add_parser("save", help="store the current position of MOTOR as a waypoint")
+    q.add_argument("motor", type=_byte, metavar="MOTOR")
+    q = wp_sub.add_parser("go", help="queue a move of MOTOR to waypoint N")
+    q.add_argument("motor", type=_byte, metavar="MOTOR")
+    q.add_argument("waypoint", type=_byte, metavar="N")
+    _add_ramp(q)
+
+    p = add("dc", "DcMove: run the DC motor TIME_MS, then brake (default) or coast")
+    p.add_argument("direction", type=_choice({"forward": True, "reverse": False}, "direction"),
+                   metavar="forward|reverse")
+    p.add_argument("time_ms", type=_u16, metavar="TIME_MS", help="run time in ms (0 = stop)")
+    end = p.add_mutually_exclusive_group()
+    end.add_argument("--brake", dest="hiz", action="store_false", default=False,
+                     help="end with the bridge braking (GO_HiZ FALSE, default)")
+    end.add_argument("--hiz", dest="hiz", action="store_true",
+                     help="end with the bridge in high impedance (GO_HiZ TRUE, coasting)")
+
+    p = add("send", "send an arbitrary frame given as hex and print the decoded response")
+    p.add_argument("hex", nargs="+", metavar="HEX",
+                   help="9 bytes (checksum appended) or 10 bytes (sent as is), "
+                        'e.g. "03 00 00 00 00 00 00 00 00" or 030000000000000000')
+    return parser
+
+
+_NEGATIVE = re.compile(r"-\d")
+
+
+def _protect_negatives(argv: Sequence[str]) -> list[str]:
+    """Let negative numbers through argparse as positionals.
+
+    argparse reads "-0x10" (and, if an option ever looks numeric, "-500") as an option. An
+    argument that does not start with "-" is never an option, so prefix a space; the
+    integer parsers strip it.
+    """
+    return [" " + arg if _NEGATIVE.match(arg) else arg for arg in argv]
+
+
+def _parse_hex(words: Sequence[str]) -> bytes:
+    text = "".join(w.replace("0x", "").replace("0X", "").replace(":", "") for w in words)
+    text = "".join(text.split())
+    try:
+        return bytes.fromhex(text)
+    except ValueError:
+        raise ValueError(f"not hex bytes: {' '.join(words)!r}") from None
+
+
+def _crc_from_name(name: str) -> Crc8 | None:
+    key = name.strip().lower()
+    if key == "none":
+        return None
+    if key == "crc8":
+        return SMBUS
+    return crc8_by_name(name)
+
+
+def _send(client: Client, frame: bytes) -> str:
+    """Send an arbitrary frame; return "ok, payload ..." or raise DeviceError."""
+    client.send_frame(frame)
+    resp = client.read_response()
+    if not resp.ack:
+        code = resp.error_code
+        raise DeviceError(code if code is not None else resp.payload[0])
+    return f"ok, payload {hex_bytes(resp.payload)}"
+
+
+def _run(client: Client, args: argparse.Namespace) -> str:
+    """Execute the subcommand; return the line to print."""
+    cmd: str = args.command
+    if cmd == "init":
+        client.init_move(args.motor, args.direction, args.speed, args.acc, args.dec)
+    elif cmd == "moveto":
+        client.move_to(args.motor, args.position, args.speed, args.acc, args.dec, args.direction)
+    elif cmd == "wait":
+        client.wait_moved(args.motor, args.timeout_ms)
+    elif cmd == "ready":
+        state = "ready" if client.is_ready(args.motor) else "busy"
+        return f"motor {args.motor} {state}"
+    elif cmd == "move":
+        client.move(args.motor, args.direction, args.speed, args.acc, args.dec)
+    elif cmd == "stop":
+        client.stop(args.motor, args.hard)
+    elif cmd == "pos":
+        return f"motor {args.motor} at {client.position(args.motor)}"
+    elif cmd == "pin":
+        if args.pin_command == "set":
+            client.set_pin(args.pin, args.level)
+        elif args.pin_command == "get":
+            return f"pin {args.pin} {'high' if client.get_pin(args.pin) else 'low'}"
+        else:
+            client.config_pin(args.pin, args.output)
+    elif cmd == "home":
+        if args.home_command == "save":
+            client.save_home(args.motor)
+        else:
+            client.go_home(args.motor)
+    elif cmd == "waypoint":
+        if args.waypoint_command == "save":
+            number = client.save_waypoint(args.motor)
+            return f"waypoint {number} saved on motor {args.motor}"
+        client.move_to_waypoint(args.motor, args.waypoint, args.speed, args.acc, args.dec)
+    elif cmd == "dc":
+        client.dc_move(args.direction, args.time_ms, args.hiz)
+    else:  # pragma: no cover - argparse only yields the commands above
+        raise AssertionError(cmd)
+    return "ok"
+
+
+def _print_raw(client: Client) -> None:
+    if client.last_request:
+        print(f"-> {hex_bytes(client.last_request)}")
+    if client.last_response:
+        print(f"<- {hex_bytes(client.last_response)}")
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``motorctl`` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(_protect_negatives(sys.argv[1:] if argv is None else argv))
+    if not args.port:
+        parser.error("no serial port: pass -p PATH or set MOTORCTL_PORT")
+    try:
+        crc = _crc_from_name(args.checksum)
+    except ValueError as exc:
+        parser.error(f"--checksum: {exc}")
+    options = CodecOptions(crc=crc, crc_covers_ack=args.crc_covers_ack)
+
+    frame: bytes | None = None
+    if args.command == "send":
+        try:
+            data = _parse_hex(args.hex)
+        except ValueError as exc:
+            parser.error(f"send: {exc}")
+        if len(data) == FRAME_LEN - 1:
+            frame = data + bytes([crc.compute(data) if crc is not None else 0])
+        elif len(data) == FRAME_LEN:
+            frame = data
+        else:
+            parser.error(f"send: need {FRAME_LEN - 1} or {FRAME_LEN} bytes, got {len(data)}")
+
+    try:
+        client = Client(args.port, args.baud, args.timeout, options)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        print(f"error: cannot open {args.port}: {exc}", file=sys.stderr)
+        return 2
+    with client:
+        try:
+            line = _send(client, frame) if frame is not None else _run(client, args)
+            status = 0
+        except DeviceError as exc:
+            line, status = f"error: {exc}", 1
+        except LinkError as exc:
+            line, status = f"error: {exc}", 2
+        except ValueError as exc:  # a field the codec refuses
+            line, status = f"error: {exc}", 2
+        except KeyboardInterrupt:
+            line, status = "interrupted", 130
+        if args.raw:
+            _print_raw(client)
+        sys.stdout.flush()
+        print(line, file=sys.stdout if status == 0 else sys.stderr)
+    return status
+
+
+if __name__ == "__main__":
+    sys.exit(main())
