@@ -1,0 +1,536 @@
+"""Tests for daemon.config: the embedded default, defaults, every kind of error, docs."""
+
+from __future__ import annotations
+
+import dataclasses
+import tomllib
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from daemon.codec import CodecOptions
+from daemon.config import (
+    Config,
+    ConfigError,
+    DcConfig,
+    EndstopConfig,
+    HalConfig,
+    HomingConfig,
+    LinkConfig,
+    MockAxisConfig,
+    MockConfig,
+    MotorConfig,
+    PinConfig,
+    StepThreadConfig,
+    UnitsConfig,
+    default_config_text,
+    describe_keys,
+    load_config,
+    parse_config,
+)
+from daemon.crc import SMBUS, crc8_by_name
+
+SOURCE = "/etc/motorctl.toml"
+MOTOR = "[[motors]]\n"
+DOCS = Path(__file__).resolve().parent.parent / "docs" / "config.md"
+
+
+def error_of(text: str) -> str:
+    """The ConfigError message that parsing `text` produces."""
+    with pytest.raises(ConfigError) as info:
+        parse_config(text, SOURCE)
+    return str(info.value)
+
+
+def lookup(config: Any, path: str) -> Any:
+    """Follow a describe_keys path ('motors[].homing.speed') into motor 0 / pin 0."""
+    value = config
+    for part in path.split("."):
+        value = getattr(value, part[:-2])[0] if part.endswith("[]") else getattr(value, part)
+    return value
+
+
+# --- the embedded default ---------------------------------------------------------------------
+
+
+def test_embedded_default_world() -> None:
+    config = load_config(None)
+    assert config.source == "<embedded default>"
+    assert [m.name for m in config.motors] == ["x", "y", "z"]
+    for motor in config.motors:
+        assert not motor.rotary
+        assert motor.steps_per_rev == 0
+        assert (motor.mock.endstop_min, motor.mock.endstop_max) == (-10000, 10000)
+        assert motor.max_speed == 25000.0
+        assert motor.queue_depth == 16
+        assert motor.max_waypoints == 255
+        assert motor.soft_limit_min is None and motor.soft_limit_max is None
+    assert config.dc is not None
+    assert [p.number for p in config.pins] == list(range(8))
+    for pin in config.pins[:4]:
+        assert pin.is_output and pin.mode == "output"
+        assert (pin.initial, pin.safe) == (False, False)
+    for pin in config.pins[4:]:
+        assert not pin.is_output and pin.mode == "input"
+    assert config.mock.wires == ((0, 4), (1, 5), (2, 6), (3, 7))
+    assert config.hal.backend == "mock"
+    assert config.link.codec_options() == CodecOptions()
+
+
+def test_embedded_default_matches_schema_defaults() -> None:
+    """default.toml writes every key out; its values must be the schema's defaults."""
+    embedded = load_config(None)
+    minimal = parse_config(MOTOR + "[dc]\n", "minimal")
+    for motor in embedded.motors:
+        assert dataclasses.replace(motor, name="motor0") == minimal.motors[0]
+    for table in ("link", "units", "hal", "step_thread", "dc"):
+        assert getattr(embedded, table) == getattr(minimal, table)
+
+
+def test_default_config_text_is_the_packaged_file() -> None:
+    text = default_config_text()
+    packaged = Path(__file__).resolve().parent.parent / "daemon" / "default.toml"
+    assert text == packaged.read_text(encoding="utf-8")
+    assert parse_config(text, "copy") == dataclasses.replace(load_config(None), source="copy")
+
+
+# --- defaults and values ----------------------------------------------------------------------
+
+
+def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
+    path = tmp_path / "motorctl.toml"
+    path.write_text(MOTOR, encoding="utf-8")
+    config = load_config(path)
+    assert config.source == str(path)
+    assert len(config.motors) == 1
+    motor = config.motors[0]
+    assert motor.name == "motor0"
+    assert (motor.max_speed, motor.default_speed, motor.max_accel) == (25000.0, 2000.0, 200000.0)
+    assert (motor.default_accel, motor.default_decel) == (8000.0, 8000.0)
+    assert motor.homing == HomingConfig("endstop", 2000.0, 40000, 0, 250.0)
+    assert motor.endstop == EndstopConfig(False, 0.0)
+    assert motor.mock == MockAxisConfig(-10000, 10000)
+    assert config.pins == ()
+    assert config.dc is None
+    assert config.mock == MockConfig(wires=())
+    assert config.link == LinkConfig(10.0, "crc8", False, True, 16)
+    assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
+    assert config.hal == HalConfig("mock")
+    assert config.step_thread == StepThreadConfig(5.0, 2.0, 100.0, 200.0, 50, True, 100.0, 10.0)
+    assert load_config(str(path)) == config
+
+
+def test_defaults_agree_with_describe_keys() -> None:
+    """Every key's documented default is the value a file without it gets."""
+    config = parse_config(MOTOR + "[dc]\n[[pins]]\nnumber = 0\n", SOURCE)
+    checked = 0
+    for path, type_, default, _ in describe_keys():
+        if type_ in ("table", "array of tables") or default in ("required", "unset"):
+            continue
+        if path in ("motors[].name", "mock.wires"):
+            continue
+        expected = tomllib.loads(f"v = {default}")["v"]
+        actual = lookup(config, path)
+        assert actual == expected, path
+        assert type(actual) is (float if type_ == "number" else type(expected)), path
+        checked += 1
+    assert checked >= 40
+
+
+def test_default_wires_apply_when_mock_table_is_written() -> None:
+    pins = "".join(f"[[pins]]\nnumber = {n}\n" for n in range(8))
+    config = parse_config(MOTOR + pins + "[mock]\n", SOURCE)
+    assert config.mock.wires == ((0, 4), (1, 5), (2, 6), (3, 7))
+
+
+def test_describe_keys_covers_every_dataclass_field() -> None:
+    paths = {row[0] for row in describe_keys()}
+    tables: list[tuple[str, type[Any]]] = [
+        ("link", LinkConfig),
+        ("units", UnitsConfig),
+        ("hal", HalConfig),
+        ("step_thread", StepThreadConfig),
+        ("dc", DcConfig),
+        ("motors[]", MotorConfig),
+        ("motors[].homing", HomingConfig),
+        ("motors[].endstop", EndstopConfig),
+        ("motors[].mock", MockAxisConfig),
+        ("pins[]", PinConfig),
+        ("mock", MockConfig),
+    ]
+    expected = {f"{prefix}.{f.name}" for prefix, cls in tables for f in dataclasses.fields(cls)}
+    expected |= {f.name for f in dataclasses.fields(Config) if f.name != "source"}
+    assert expected == paths
+
+
+def test_values_are_converted_and_frozen() -> None:
+    config = parse_config(
+        MOTOR
+        + "name = 'a'\nsteps_per_rev = 200\nmax_speed = 3000\ndefault_speed = 2999\n"
+        + "[[motors]]\nname = 'b'\nsoft_limit_min = -5\nsoft_limit_max = 5\n"
+        + "[[pins]]\nnumber = 9\nmode = 'input'\ninitial = true\nsafe = true\n",
+        SOURCE,
+    )
+    a, b = config.motors
+    assert a.rotary and not b.rotary
+    assert isinstance(a.max_speed, float) and a.max_speed == 3000.0
+    assert (b.soft_limit_min, b.soft_limit_max) == (-5, 5)
+    assert config.pins == (PinConfig(9, "input", True, True),)
+    assert not config.pins[0].is_output
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        a.max_speed = 5.0  # type: ignore[misc]
+
+
+def test_bounds_are_inclusive_where_documented() -> None:
+    config = parse_config(
+        "[link]\nframe_gap_ms = 0\nheld_frames = 1024\n"
+        "[step_thread]\npriority = 0\nstep_pulse_us = 0.1\n"
+        + MOTOR
+        + "max_speed = 200000\ndefault_speed = 200000\nmax_waypoints = 1\n"
+        "[motors.mock]\nendstop_min = -8388608\nendstop_max = 8388607\n",
+        SOURCE,
+    )
+    assert config.link.frame_gap_ms == 0.0
+    assert config.motors[0].default_speed == config.motors[0].max_speed
+
+
+# --- codec options ----------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("checksum", "expected"),
+    [
+        ("crc8", SMBUS),
+        ("none", None),
+        ("CRC-8/MAXIM-DOW", crc8_by_name("CRC-8/MAXIM-DOW")),
+        ("maxim-dow", crc8_by_name("CRC-8/MAXIM-DOW")),
+        ("CRC-8/ROHC", crc8_by_name("CRC-8/ROHC")),
+    ],
+)
+def test_codec_options(checksum: str, expected: Any) -> None:
+    text = f'[link]\nchecksum = "{checksum}"\ncrc_covers_ack = true\nstrict_padding = false\n'
+    options = parse_config(text + MOTOR, SOURCE).link.codec_options()
+    assert options == CodecOptions(crc=expected, crc_covers_ack=True, strict_padding=False)
+    assert parse_config(text + MOTOR, SOURCE).link.checksum == checksum
+
+
+def test_named_variant_differs_from_smbus() -> None:
+    crc = parse_config('[link]\nchecksum = "CRC-8/MAXIM-DOW"\n' + MOTOR, SOURCE).link
+    options = crc.codec_options()
+    assert options.crc is not None and options.crc != SMBUS
+    assert options.crc.compute(b"123456789") == 0xA1
+
+
+# --- errors -----------------------------------------------------------------------------------
+
+PINS_0_TO_3 = "".join(f"[[pins]]\nnumber = {n}\n" for n in range(4))
+
+ERRORS: list[tuple[str, str, list[str]]] = [
+    # (id, file text, fragments the message must contain besides SOURCE)
+    # unknown keys, at every level
+    ("unknown-top", "foo = 1\n" + MOTOR, ["unknown key 'foo'", "link, mock, motors, pins"]),
+    (
+        "unknown-link",
+        "[link]\nframe_gap = 1\n" + MOTOR,
+        [
+            "unknown key 'link.frame_gap'; accepted keys in [link]: checksum, crc_covers_ack, "
+            "frame_gap_ms, held_frames, strict_padding"
+        ],
+    ),
+    ("unknown-units", "[units]\nspeed = 1\n" + MOTOR, ["'units.speed'", "accel_factor"]),
+    ("unknown-hal", "[hal]\nbackends = 1\n" + MOTOR, ["'hal.backends'", "in [hal]: backend"]),
+    ("unknown-step", "[step_thread]\nprio = 1\n" + MOTOR, ["'step_thread.prio'", "priority"]),
+    ("unknown-dc", "[dc]\nmax_time = 1\n" + MOTOR, ["'dc.max_time'", "invert_hiz, max_time_ms"]),
+    ("unknown-motor", MOTOR + "speed = 1\n", ["'motors[0].speed'", "in [[motors]]", "max_speed"]),
+    (
+        "unknown-homing",
+        MOTOR + "[motors.homing]\nspd = 1\n",
+        ["'motors[0].homing.spd'", "in [motors.homing]", "second_speed, source, speed"],
+    ),
+    (
+        "unknown-endstop",
+        MOTOR + MOTOR + "[motors.endstop]\nlow = true\n",
+        ["'motors[1].endstop.low'", "in [motors.endstop]: active_low, debounce_ms"],
+    ),
+    (
+        "unknown-motor-mock",
+        MOTOR + "[motors.mock]\nmin = 1\n",
+        ["'motors[0].mock.min'", "in [motors.mock]: endstop_max, endstop_min"],
+    ),
+    (
+        "unknown-pin",
+        MOTOR + "[[pins]]\nnumber = 1\nlevel = 1\n",
+        ["'pins[0].level'", "in [[pins]]: initial, mode, number, safe"],
+    ),
+    ("unknown-mock", MOTOR + "[mock]\nwire = []\n", ["'mock.wire'", "in [mock]: wires"]),
+    # wrong types
+    (
+        "str-for-number",
+        MOTOR + 'max_speed = "fast"\n',
+        ['motors[0].max_speed = "fast"', "wrong type (string)", "a number > 0 and <= 200000"],
+    ),
+    (
+        "float-for-int",
+        MOTOR + "queue_depth = 16.0\n",
+        ["motors[0].queue_depth = 16.0", "wrong type (float)", "an integer in 1..1024"],
+    ),
+    (
+        "bool-for-int",
+        "[link]\nheld_frames = true\n" + MOTOR,
+        ["link.held_frames = true", "wrong type (boolean)", "an integer in 1..1024"],
+    ),
+    (
+        "bool-for-float",
+        "[link]\nframe_gap_ms = false\n" + MOTOR,
+        ["link.frame_gap_ms = false", "wrong type (boolean)", "a number in 0..10000"],
+    ),
+    (
+        "int-for-bool",
+        "[link]\nstrict_padding = 1\n" + MOTOR,
+        ["link.strict_padding = 1", "wrong type (integer)", "true or false"],
+    ),
+    (
+        "int-for-str",
+        MOTOR + "[motors.homing]\nsource = 1\n",
+        ["motors[0].homing.source = 1", "wrong type (integer)", '"endstop", "stall"'],
+    ),
+    ("value-for-table", "link = 5\n" + MOTOR, ["link = 5", "wrong type", "a table [link]"]),
+    (
+        "value-for-subtable",
+        MOTOR + "homing = 5\n",
+        ["motors[0].homing = 5", "a table [motors.homing]"],
+    ),
+    (
+        "table-for-array",
+        '[motors]\nname = "a"\n',
+        ["motors = ", "wrong type (table)", "1..64 [[motors]] tables"],
+    ),
+    ("wires-not-array", MOTOR + "[mock]\nwires = 5\n", ["mock.wires = 5", "[pin, pin] pairs"]),
+    (
+        "wire-not-pair",
+        MOTOR + PINS_0_TO_3 + "[mock]\nwires = [[0, 1, 2]]\n",
+        ["mock.wires[0] = [0, 1, 2]", "not a [pin, pin] pair", "[pin, pin] pairs"],
+    ),
+    (
+        "wire-pin-range",
+        MOTOR + PINS_0_TO_3 + "[mock]\nwires = [[0, 256]]\n",
+        ["mock.wires[0] = [0, 256]", "out of range", "pin numbers 0..255"],
+    ),
+    # out of range
+    (
+        "out-of-range-open",
+        MOTOR + MOTOR + "max_speed = 0\n",
+        ["motors[1].max_speed = 0: out of range; accepted: a number > 0 and <= 200000"],
+    ),
+    (
+        "out-of-range-high",
+        MOTOR + "max_accel = 1e8\n",
+        ["motors[0].max_accel = 100000000.0", "out of range", "<= 10000000"],
+    ),
+    (
+        "out-of-range-int",
+        "[step_thread]\npriority = 100\n" + MOTOR,
+        ["step_thread.priority = 100", "out of range", "an integer in 0..99"],
+    ),
+    (
+        "out-of-range-low",
+        "[step_thread]\nstep_pulse_us = 0.05\n" + MOTOR,
+        ["step_thread.step_pulse_us = 0.05", "out of range", "a number in 0.1..10000"],
+    ),
+    ("nan", "[units]\naccel_factor = nan\n" + MOTOR, ["units.accel_factor = nan", "out of range"]),
+    ("inf", "[units]\naccel_factor = inf\n" + MOTOR, ["units.accel_factor = inf", "out of range"]),
+    ("huge-int", MOTOR + "max_speed = 10000000000\n", ["motors[0].max_speed", "out of range"]),
+    (
+        "position-range",
+        MOTOR + "[motors.mock]\nendstop_max = 8388608\n",
+        ["motors[0].mock.endstop_max = 8388608", "-8388608..8388607"],
+    ),
+    # cross-key rules
+    (
+        "default-speed-above-max",
+        MOTOR + "max_speed = 1000\ndefault_speed = 1001\n",
+        ["motors[0].default_speed = 1001", "out of range", "<= max_speed (max_speed = 1000)"],
+    ),
+    (
+        "default-speed-broken-by-max",
+        MOTOR + "max_speed = 1000\n",
+        ["motors[0].default_speed = 2000.0", "the default value", "<= max_speed"],
+    ),
+    (
+        "default-accel-above-max",
+        MOTOR + "max_accel = 100\ndefault_accel = 50\ndefault_decel = 101\n",
+        ["motors[0].default_decel = 101", "<= max_accel (max_accel = 100)"],
+    ),
+    (
+        "homing-speed-above-max",
+        MOTOR + "max_speed = 300\ndefault_speed = 1\n"
+        "[motors.homing]\nspeed = 100\nsecond_speed = 301\n",
+        ["motors[0].homing.second_speed = 301", "<= max_speed (max_speed = 300)"],
+    ),
+    (
+        "soft-limit-min-only",
+        MOTOR + "soft_limit_min = -5\n",
+        ["motors[0].soft_limit_min = -5", "soft_limit_max is not set", "both", "or neither"],
+    ),
+    (
+        "soft-limit-max-only",
+        MOTOR + "soft_limit_max = 5\n",
+        ["motors[0].soft_limit_max = 5", "soft_limit_min is not set", "or neither"],
+    ),
+    (
+        "soft-limits-reversed",
+        MOTOR + "soft_limit_min = 5\nsoft_limit_max = 5\n",
+        ["motors[0].soft_limit_min = 5", "soft_limit_min < soft_limit_max"],
+    ),
+    (
+        "soft-limits-rotary",
+        MOTOR + "steps_per_rev = 200\nsoft_limit_min = 0\nsoft_limit_max = 100\n",
+        ["motors[0].soft_limit_min = 0", "rotary", "only on a linear axis (steps_per_rev = 0)"],
+    ),
+    (
+        "mock-endstops-reversed",
+        MOTOR + "[motors.mock]\nendstop_min = 10\nendstop_max = -10\n",
+        ["motors[0].mock.endstop_min = 10", "endstop_min < endstop_max"],
+    ),
+    (
+        "duplicate-pin",
+        MOTOR + "[[pins]]\nnumber = 3\n[[pins]]\nnumber = 4\n[[pins]]\nnumber = 3\n",
+        ["pins[2].number = 3", "duplicate (pins[0].number is also 3)", "no other [[pins]]"],
+    ),
+    (
+        "duplicate-motor-name",
+        MOTOR + '[[motors]]\nname = "motor0"\n',
+        ['motors[1].name = "motor0"', "duplicate", "no other [[motors]]"],
+    ),
+    (
+        "pin-number-missing",
+        MOTOR + "[[pins]]\nmode = 'input'\n",
+        ["pins[0].number: missing", "an integer in 0..255 (required)"],
+    ),
+    (
+        "wire-to-missing-pin",
+        MOTOR + PINS_0_TO_3 + "[mock]\nwires = [[0, 1], [2, 9]]\n",
+        ["mock.wires[1] = [2, 9]", "pin 9 is not in [[pins]]", "listed in [[pins]]"],
+    ),
+    (
+        "default-wires-missing-pins",
+        MOTOR + PINS_0_TO_3 + "[mock]\n",
+        ["mock.wires[0] = [0, 4]", "pin 4", "the default value", "listed in [[pins]]"],
+    ),
+    (
+        "pin-in-two-wires",
+        MOTOR + PINS_0_TO_3 + "[mock]\nwires = [[0, 1], [2, 1]]\n",
+        ["mock.wires[1] = [2, 1]", "pin 1 is also in mock.wires[0]", "at most one wire"],
+    ),
+    (
+        "pin-wired-to-itself",
+        MOTOR + PINS_0_TO_3 + "[mock]\nwires = [[2, 2]]\n",
+        ["mock.wires[0] = [2, 2]", "pin 2 is also in this wire", "at most one wire"],
+    ),
+    (
+        "unknown-backend",
+        '[hal]\nbackend = "gpiod"\n' + MOTOR,
+        ['hal.backend = "gpiod"', 'one of "mock"', "only backend"],
+    ),
+    (
+        "unknown-checksum",
+        '[link]\nchecksum = "crc16"\n' + MOTOR,
+        ['link.checksum = "crc16"', "unknown CRC-8", '"crc8"', '"none"', "CRC-8/MAXIM-DOW"],
+    ),
+    (
+        "bad-motor-name",
+        MOTOR + 'name = "x axis"\n',
+        ['motors[0].name = "x axis"', "letters, digits"],
+    ),
+    ("no-motors", "[link]\n", ["motors: missing", "1..64 [[motors]] tables"]),
+    ("zero-motors", "motors = []\n", ["motors: 0 entries", "1..64 [[motors]] tables"]),
+    ("too-many-motors", MOTOR * 65, ["motors: 65 entries", "1..64 [[motors]] tables"]),
+]
+
+
+@pytest.mark.parametrize(
+    ("text", "fragments"), [(t, f) for _, t, f in ERRORS], ids=[i for i, _, _ in ERRORS]
+)
+def test_error_messages(text: str, fragments: list[str]) -> None:
+    message = error_of(text)
+    assert message.startswith(SOURCE + ": ")
+    assert "accepted" in message
+    for fragment in fragments:
+        assert fragment in message
+
+
+def test_unknown_key_lists_the_schema_keys_of_its_table() -> None:
+    for path, type_, _, _ in describe_keys():
+        if type_ != "table" or path.startswith("motors"):
+            continue
+        message = error_of(f"[{path}]\nbogus = 1\n" + MOTOR)
+        own = sorted(p.split(".")[-1] for p, *_ in describe_keys() if p.startswith(path + "."))
+        assert message.endswith(f"accepted keys in [{path}]: {', '.join(own)}")
+
+
+def test_toml_syntax_error_keeps_line_and_column() -> None:
+    text = "[link]\nframe_gap_ms = 5\n\nchecksum = crc8\n" + MOTOR
+    message = error_of(text)
+    assert message.startswith(f"{SOURCE}: line 4: TOML syntax error: ")
+    assert "line 4, column" in message
+
+
+def test_toml_syntax_error_at_end_of_document() -> None:
+    message = error_of('[[motors]]\nname = "x')
+    assert message.startswith(f"{SOURCE}: line 2: TOML syntax error: ")
+
+
+def test_missing_file(tmp_path: Path) -> None:
+    path = tmp_path / "nope.toml"
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}: config file not found")
+    assert "fix:" in message
+
+
+def test_unreadable_and_undecodable_files(tmp_path: Path) -> None:
+    with pytest.raises(ConfigError, match=r"cannot read config file.*fix:"):
+        load_config(tmp_path)
+    path = tmp_path / "latin1.toml"
+    path.write_bytes(b"[[motors]]\n# caf\xe9\n")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value).startswith(f"{path}: line 2: not valid UTF-8")
+
+
+def test_error_from_file_names_the_file(tmp_path: Path) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(MOTOR + "max_speed = -1\n", encoding="utf-8")
+    with pytest.raises(ConfigError) as info:
+        load_config(path)
+    assert str(info.value).startswith(f"{path}: motors[0].max_speed = -1: out of range")
+
+
+# --- documentation ----------------------------------------------------------------------------
+
+
+def doc_row(row: tuple[str, str, str, str]) -> str:
+    """The markdown table row docs/config.md carries for one describe_keys() row."""
+    path, type_, default, accepted = (cell.replace("|", "\\|") for cell in row)
+    return f"| `{path}` | {type_} | {default} | {accepted} |"
+
+
+def test_describe_keys_shape() -> None:
+    rows = describe_keys()
+    paths = [row[0] for row in rows]
+    assert len(paths) == len(set(paths))
+    assert all(all(cell for cell in row) for row in rows)
+    max_speed = rows[paths.index("motors[].max_speed")]
+    assert max_speed[:3] == ("motors[].max_speed", "number", "25000.0")
+
+
+def test_docs_list_every_key() -> None:
+    lines = set(DOCS.read_text(encoding="utf-8").splitlines())
+    missing = [row[0] for row in describe_keys() if doc_row(row) not in lines]
+    assert missing == [], f"docs/config.md is out of date for: {missing}"
+
+
+def test_docs_mention_check_config() -> None:
+    assert "motorctld --check-config" in DOCS.read_text(encoding="utf-8")
