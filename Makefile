@@ -1,0 +1,39 @@
+# Two commands do all set-up on a fresh Debian machine:
+#   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
+#   make test   the test suite (what .ci/run calls)
+# Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
+
+PYTHON ?= python3
+VENV   ?= .venv
+PTY    ?= $(CURDIR)/motorctl.pty
+STATE  ?= $(CURDIR)/.run/state
+JOBS   ?= 2
+BIN     = $(VENV)/bin
+
+.PHONY: run test lint bench clean venv
+
+venv: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	@$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q python3-venv; \
+	  else echo "python3-venv is missing: run 'sudo apt-get install python3-venv'" >&2; exit 1; fi; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e '.[dev]'
+	touch $@
+
+run: venv
+	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
+
+test: venv
+	$(BIN)/ruff check .
+	$(BIN)/mypy
+	$(BIN)/pytest -q -n $(JOBS)
+
+bench: venv
+	$(BIN)/python bench/latency.py
+	$(BIN)/python bench/steps.py
+
+clean:
+	rm -rf $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info

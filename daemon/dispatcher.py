@@ -1,0 +1,294 @@
+"""The dispatcher: one explicit command table from typed commands to responses.
+
+Protocol units are converted here (and only here) to steps, step/s and step/s^2,
+with the factors from config; out-of-range values are clamped to the motor's
+maximum and counted. Error precedence is PROTOCOL.md section 5:
+E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+from daemon.codec import (
+    Command,
+    ConfigPin,
+    DcMove,
+    ErrorCode,
+    GetAbsPos,
+    GetPin,
+    GoHome,
+    InitMove,
+    IsReady,
+    Move,
+    MoveTo,
+    MoveToWayPoint,
+    Response,
+    SaveHome,
+    SaveWayPoint,
+    SetPin,
+    StopMove,
+    WaitMoved,
+)
+from daemon.config import Config, MotorConfig
+from hal.interfaces import BridgeState, Pin
+from motion.engine import MotionEngine
+from motion.motor import Motor
+from motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
+
+E = ErrorCode
+OK = Response.ok()
+
+
+class Reject(Exception):
+    """Raised inside a handler to answer with an error code."""
+
+    def __init__(self, code: ErrorCode) -> None:
+        super().__init__(code.short)
+        self.code = code
+
+
+@dataclass
+class Wait:
+    """A held WaitMoved: the motor and the time its timeout expires."""
+
+    motor: Motor
+    deadline: float
+
+
+class Dispatcher:
+    def __init__(
+        self,
+        config: Config,
+        engine: MotionEngine,
+        pins: dict[int, Pin],
+        on_saved: Callable[[], None] = lambda: None,
+    ) -> None:
+        self.config = config
+        self.engine = engine
+        self.pins = pins
+        self.on_saved = on_saved
+        self.clamped: Counter[str] = Counter()
+        self.table: dict[type[Any], Callable[[Any], Response]] = {
+            InitMove: self.init_move,
+            MoveTo: self.move_to,
+            IsReady: self.is_ready,
+            Move: self.move,
+            StopMove: self.stop_move,
+            GetAbsPos: self.get_abs_pos,
+            SetPin: self.set_pin,
+            GetPin: self.get_pin,
+            ConfigPin: self.config_pin,
+            SaveHome: self.save_home,
+            GoHome: self.go_home,
+            SaveWayPoint: self.save_waypoint,
+            MoveToWayPoint: self.move_to_waypoint,
+            DcMove: self.dc_move,
+        }
+
+    # -- entry points -----------------------------------------------------------
+    def handle(self, cmd: Command) -> Response:
+        """Execute any command but WaitMoved (see :meth:`wait_begin`)."""
+        handler = self.table.get(type(cmd))
+        if handler is None:
+            return Response.error(E.INVALID_COMMAND)
+        try:
+            with self.engine.lock:
+                return handler(cmd)
+        except Reject as r:
+            return Response.error(r.code)
+
+    def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
+        """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
+        try:
+            with self.engine.lock:
+                m = self._motor(cmd.motor)
+                self._not_faulted(m)
+                if m.idle:
+                    return OK
+        except Reject as r:
+            return Response.error(r.code)
+        if cmd.timeout_ms == 0:
+            return Response.error(E.MOTOR_NOT_READY)
+        return Wait(m, now + cmd.timeout_ms / 1000.0)
+
+    def wait_poll(self, wait: Wait, now: float) -> Response | None:
+        """The held WaitMoved's answer once it has one: ACK, E4 on a fault, E3 at timeout."""
+        with self.engine.lock:
+            m = wait.motor
+            if m.fault is not None:
+                return Response.error(E.MOTOR_ERROR)
+            if m.idle:
+                return OK
+        if now >= wait.deadline:
+            return Response.error(E.MOTOR_NOT_READY)
+        return None
+
+    # -- checks, in precedence order ----------------------------------------------
+    def _motor(self, index: int) -> Motor:
+        if not 0 <= index < len(self.engine.motors):
+            raise Reject(E.INVALID_ADDRESS)
+        return self.engine.motors[index]
+
+    def _pin(self, number: int) -> Pin:
+        pin = self.pins.get(number)
+        if pin is None:
+            raise Reject(E.INVALID_ADDRESS)
+        return pin
+
+    @staticmethod
+    def _not_faulted(m: Motor) -> None:
+        if m.fault is not None:
+            raise Reject(E.MOTOR_ERROR)
+
+    @staticmethod
+    def _position_known(m: Motor) -> None:
+        if m.position_lost:
+            raise Reject(E.MOTOR_ERROR)
+
+    @staticmethod
+    def _idle(m: Motor) -> None:
+        if not m.idle:
+            raise Reject(E.MOTOR_NOT_READY)
+
+    def _submit(self, m: Motor, cmd: MotionCmd) -> Response:
+        if m.queue_full:
+            raise Reject(E.FULL_BUFFER)
+        m.submit(cmd, self.engine.clock.now())
+        self.engine.wake.set()
+        return OK
+
+    def _target(self, m: Motor, position: int) -> None:
+        if not m.target_allowed(position):
+            raise Reject(E.INVALID_COMMAND)
+
+    # -- unit conversion --------------------------------------------------------------
+    def _ramp(self, mc: MotorConfig, speed: int, acc: int, dec: int, factor: float,
+              default_speed: float) -> Ramp:
+        u = self.config.units
+        return Ramp(
+            self._scale("speed", speed, factor, default_speed, mc.max_speed),
+            self._scale("acc", acc, u.accel_factor, mc.default_accel, mc.max_accel),
+            self._scale("dec", dec, u.accel_factor, mc.default_decel, mc.max_accel),
+        )
+
+    def _scale(self, what: str, raw: int, factor: float, default: float, limit: float) -> float:
+        if raw == 0:
+            return default
+        value = raw * factor
+        if value > limit:
+            self.clamped[what] += 1
+            return limit
+        return value
+
+    def _move_ramp(self, m: Motor, speed: int, acc: int, dec: int) -> Ramp:
+        mc = self.config.motors[m.index]
+        return self._ramp(mc, speed, acc, dec, self.config.units.move_speed_factor,
+                          mc.default_speed)
+
+    def _run_ramp(self, m: Motor, speed: int, acc: int, dec: int, default: float) -> Ramp:
+        mc = self.config.motors[m.index]
+        return self._ramp(mc, speed, acc, dec, self.config.units.run_speed_factor, default)
+
+    # -- the command table's handlers ---------------------------------------------------
+    def init_move(self, c: InitMove) -> Response:
+        m = self._motor(c.motor)
+        self._not_faulted(m)  # a lost position is what homing is for
+        ramp = self._run_ramp(m, c.speed, c.acc, c.dec, self.config.motors[m.index].homing.speed)
+        return self._submit(m, HomeCmd(1 if c.direction else -1, ramp))
+
+    def move_to(self, c: MoveTo) -> Response:
+        m = self._motor(c.motor)
+        self._target(m, c.position)
+        self._not_faulted(m)
+        self._position_known(m)
+        ramp = self._move_ramp(m, c.speed, c.acc, c.dec)
+        return self._submit(m, MoveToCmd(c.position, ramp, 1 if c.direction else -1))
+
+    def is_ready(self, c: IsReady) -> Response:
+        m = self._motor(c.motor)
+        self._not_faulted(m)
+        return Response.boolean(m.idle)
+
+    def move(self, c: Move) -> Response:
+        m = self._motor(c.motor)
+        self._not_faulted(m)
+        self._position_known(m)
+        mc = self.config.motors[m.index]
+        ramp = self._run_ramp(m, c.speed, c.acc, c.dec, mc.default_speed)
+        return self._submit(m, RunCmd(1 if c.direction else -1, ramp))
+
+    def stop_move(self, c: StopMove) -> Response:
+        m = self._motor(c.motor)
+        if not m.stop(c.hard, self.engine.clock.now()):
+            raise Reject(E.MOTOR_ERROR)
+        self.engine.wake.set()
+        return OK
+
+    def get_abs_pos(self, c: GetAbsPos) -> Response:
+        return Response.position(self._motor(c.motor).position)
+
+    def set_pin(self, c: SetPin) -> Response:
+        pin = self._pin(c.pin)
+        if not pin.is_output:
+            raise Reject(E.INVALID_COMMAND)
+        pin.write(c.high)
+        return OK
+
+    def get_pin(self, c: GetPin) -> Response:
+        return Response.boolean(self._pin(c.pin).read())
+
+    def config_pin(self, c: ConfigPin) -> Response:
+        self._pin(c.pin).configure(c.output)
+        return OK
+
+    def save_home(self, c: SaveHome) -> Response:
+        m = self._motor(c.motor)
+        self._not_faulted(m)
+        self._idle(m)
+        m.home = m.position
+        self.on_saved()
+        return OK
+
+    def go_home(self, c: GoHome) -> Response:
+        m = self._motor(c.motor)
+        self._target(m, m.home)
+        self._not_faulted(m)
+        self._position_known(m)
+        mc = self.config.motors[m.index]
+        ramp = Ramp(mc.default_speed, mc.default_accel, mc.default_decel)
+        return self._submit(m, MoveToCmd(m.home, ramp, 1))
+
+    def save_waypoint(self, c: SaveWayPoint) -> Response:
+        m = self._motor(c.motor)
+        self._not_faulted(m)
+        self._idle(m)
+        if len(m.waypoints) >= m.params.max_waypoints:
+            raise Reject(E.FULL_WAYPOINT_BUFFER)
+        m.waypoints.append(m.position)
+        self.on_saved()
+        return Response.ok(bytes([len(m.waypoints) - 1]))
+
+    def move_to_waypoint(self, c: MoveToWayPoint) -> Response:
+        m = self._motor(c.motor)
+        if c.waypoint >= len(m.waypoints):
+            raise Reject(E.INVALID_WAYPOINT)
+        target = m.waypoints[c.waypoint]
+        self._target(m, target)
+        self._not_faulted(m)
+        self._position_known(m)
+        ramp = self._move_ramp(m, c.speed, c.acc, c.dec)
+        return self._submit(m, MoveToCmd(target, ramp, 1))
+
+    def dc_move(self, c: DcMove) -> Response:
+        dc = self.config.dc
+        if dc is None or self.engine.dc is None:
+            raise Reject(E.INVALID_ADDRESS)
+        hiz = c.hiz != dc.invert_hiz
+        end = BridgeState.COAST if hiz else BridgeState.BRAKE
+        time_ms = min(c.time_ms, dc.max_time_ms)
+        self.engine.dc_run(c.direction, time_ms / 1000.0, end)
+        return OK

@@ -1,0 +1,128 @@
+"""The motion engine: all motors and the DC motor on one clock.
+
+``service(now)`` does everything that is due (step edges, the end of a DC run,
+driver polls) and ``next_deadline()`` says when the next thing is due. The real
+step thread (:mod:`motion.stepthread`) calls them against the monotonic clock;
+tests call :meth:`run_until` against a virtual clock.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable, Sequence
+
+from hal.interfaces import BridgeState, Hardware, VirtualClock
+from motion.dc import DcMotor
+from motion.latency import LatencyStats
+from motion.motor import Motor
+from motion.types import MotorParams
+
+Listener = Callable[[Motor, str], None]
+
+
+class MotionEngine:
+    def __init__(
+        self,
+        hw: Hardware,
+        params: Sequence[MotorParams],
+        *,
+        endstop_active_low: Sequence[bool] | None = None,
+        driver_poll_s: float = 0.01,
+        late_threshold_s: float = 100e-6,
+    ) -> None:
+        if len(params) != len(hw.steppers):
+            raise ValueError(f"{len(params)} motors configured, hardware has {len(hw.steppers)}")
+        self.hw = hw
+        self.clock = hw.clock
+        self.lock = threading.RLock()
+        self.wake = threading.Event()
+        self.stats = LatencyStats(late_threshold_s)
+        self.listeners: list[Listener] = []
+        lows = list(endstop_active_low or [False] * len(params))
+        self.motors = [
+            Motor(i, p, hw.steppers[i], self.stats, self._notify, lows[i])
+            for i, p in enumerate(params)
+        ]
+        self.dc = DcMotor(hw.dc) if hw.dc is not None else None
+        self.driver_poll_s = driver_poll_s
+        self._next_poll = self.clock.now() + driver_poll_s
+
+    # -- notifications -------------------------------------------------------
+    def _notify(self, motor: Motor, event: str) -> None:
+        for listener in self.listeners:
+            listener(motor, event)
+        self.wake.set()
+
+    @property
+    def any_active(self) -> bool:
+        return any(m.active for m in self.motors) or (self.dc is not None and self.dc.running)
+
+    # -- commands (callers hold self.lock) -------------------------------------
+    def dc_run(self, forward: bool, duration_s: float, end: BridgeState) -> None:
+        if self.dc is None:
+            raise LookupError("no DC motor")
+        self.dc.run(forward, duration_s, end, self.clock.now())
+        self.wake.set()
+
+    # -- the clock's side --------------------------------------------------------
+    def next_deadline(self) -> float | None:
+        best: float | None = self._next_poll
+        for m in self.motors:
+            step = m.next_step
+            if step is not None and (best is None or step[0] < best):
+                best = step[0]
+        if self.dc is not None and self.dc.deadline is not None:
+            d = self.dc.deadline
+            if best is None or d < best:
+                best = d
+        return best
+
+    def service(self, now: float) -> None:
+        """Do everything due at or before ``now``."""
+        for m in self.motors:
+            while m.next_step is not None and m.next_step[0] <= now:
+                m.fire(now)
+        if self.dc is not None:
+            self.dc.service(now)
+        if now >= self._next_poll:
+            self._next_poll = now + self.driver_poll_s
+            for m in self.motors:
+                m.poll_driver(now)
+
+    def run_until(self, t: float) -> None:
+        """Drive a virtual clock to ``t``, doing everything due on the way, in time order."""
+        clock = self.clock
+        if not isinstance(clock, VirtualClock):
+            raise TypeError("run_until needs a VirtualClock")
+        with self.lock:
+            while True:
+                d = self.next_deadline()
+                if d is None or d > t:
+                    break
+                clock.advance_to(d)
+                self.service(clock.now())
+            clock.advance_to(t)
+
+    def run_until_idle(self, limit_s: float = 600.0) -> None:
+        """Virtual clock: run until no motor moves and no DC run is on (or ``limit_s``)."""
+        clock = self.clock
+        if not isinstance(clock, VirtualClock):
+            raise TypeError("run_until_idle needs a VirtualClock")
+        end = clock.now() + limit_s
+        with self.lock:
+            while self.any_active or any(m.queue for m in self.motors):
+                d = self.next_deadline()
+                if d is None or d > end:
+                    raise TimeoutError("motion did not finish")
+                clock.advance_to(d)
+                self.service(clock.now())
+
+    def shutdown(self) -> None:
+        """Soft-stop every motor (callers then wait until idle), brake the DC motor."""
+        with self.lock:
+            now = self.clock.now()
+            for m in self.motors:
+                m.stop(hard=False, now=now)
+            if self.dc is not None:
+                self.dc.stop(BridgeState.BRAKE)
+            self.wake.set()

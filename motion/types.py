@@ -1,0 +1,76 @@
+"""Motion commands and per-motor parameters, in steps, step/s and step/s^2."""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Ramp:
+    speed: float  # step/s
+    acc: float  # step/s^2
+    dec: float  # step/s^2
+
+
+@dataclass(frozen=True)
+class MoveToCmd:
+    """Go to ``target`` (a position as the host counts it). ``direction`` matters on rotary axes."""
+
+    target: int
+    ramp: Ramp
+    direction: int = 1
+
+
+@dataclass(frozen=True)
+class RunCmd:
+    """Run continuously in ``direction`` (+1/-1) until stopped (or a soft limit)."""
+
+    direction: int
+    ramp: Ramp
+
+
+@dataclass(frozen=True)
+class HomeCmd:
+    """Seek the end stop in ``direction``; position 0 there."""
+
+    direction: int
+    ramp: Ramp
+
+
+MotionCmd = MoveToCmd | RunCmd | HomeCmd
+
+
+class MotorState(enum.Enum):
+    IDLE = "idle"
+    MOVING = "moving"
+    RUNNING = "running"
+    HOMING = "homing"
+    STOPPING = "stopping"
+    FAULT = "fault"
+
+
+@dataclass(frozen=True)
+class HomingParams:
+    source: str = "endstop"  # "endstop" or "stall"
+    max_travel: int = 40_000
+    pull_off: int = 0  # 0 = one-phase homing
+    second_speed: float = 250.0
+
+
+@dataclass(frozen=True)
+class MotorParams:
+    name: str = "motor"
+    steps_per_rev: int = 0  # 0 = linear axis
+    queue_depth: int = 16
+    max_waypoints: int = 255
+    soft_min: int | None = None
+    soft_max: int | None = None
+    homing: HomingParams = HomingParams()
+    debounce_s: float = 0.0
+    dir_setup_s: float = 5e-6
+    pulse_s: float = 2e-6
+
+    @property
+    def rotary(self) -> bool:
+        return self.steps_per_rev > 0

@@ -1,0 +1,89 @@
+"""Run motorctld as a real subprocess on a real PTY, for end-to-end tests."""
+
+from __future__ import annotations
+
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+from daemon.client import Client
+from daemon.status import read_status
+
+READY_TIMEOUT_S = 30.0
+
+
+class DaemonProcess:
+    def __init__(self, workdir: Path, config_text: str | None = None,
+                 state_dir: Path | None = None, extra: list[str] | None = None) -> None:
+        self.workdir = workdir
+        self.pty = workdir / "motorctl.pty"
+        self.state_dir = state_dir or workdir / "state"
+        self.config: Path | None = None
+        if config_text is not None:
+            self.config = workdir / "motorctl.toml"
+            self.config.write_text(config_text)
+        self.extra = extra or []
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.ready_line = ""
+        self.stderr_path = workdir / "motorctld.stderr"
+
+    def start(self) -> DaemonProcess:
+        cmd = [sys.executable, "-m", "daemon.main", "--pty", str(self.pty),
+               "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
+        if self.config is not None:
+            cmd += ["--config", str(self.config)]
+        stderr = open(self.stderr_path, "ab")  # noqa: SIM115
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr,
+                                     cwd=Path(__file__).resolve().parent.parent)
+        stderr.close()
+        assert self.proc.stdout is not None
+        sel = selectors.DefaultSelector()
+        sel.register(self.proc.stdout, selectors.EVENT_READ)
+        line = b""
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while not line.endswith(b"\n"):
+            left = deadline - time.monotonic()
+            if left <= 0 or not sel.select(left):
+                self.kill()
+                raise RuntimeError(f"motorctld not ready: {self.stderr()}")
+            chunk = os.read(self.proc.stdout.fileno(), 1)
+            if not chunk:
+                raise RuntimeError(f"motorctld exited: {self.stderr()}")
+            line += chunk
+        sel.close()
+        self.ready_line = line.decode()
+        assert "ready" in self.ready_line, self.ready_line
+        return self
+
+    def stderr(self) -> str:
+        return self.stderr_path.read_text() if self.stderr_path.exists() else ""
+
+    def client(self, timeout: float = 5.0, **kw: Any) -> Client:
+        return Client(str(self.pty), timeout=timeout, **kw)
+
+    def status(self) -> dict[str, Any]:
+        return read_status(self.state_dir / "status.sock")
+
+    def terminate(self, timeout: float = 20.0) -> int:
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout)
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+
+    def close(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            try:
+                self.terminate()
+            except subprocess.TimeoutExpired:
+                self.kill()
+        if self.proc is not None and self.proc.stdout is not None:
+            self.proc.stdout.close()

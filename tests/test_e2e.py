@@ -1,0 +1,445 @@
+"""End to end: motorctld as a subprocess on a real PTY, driven through the client library."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+
+import pytest
+
+from daemon.client import Client, DeviceError
+from daemon.codec import (
+    CodecOptions,
+    Command,
+    ErrorCode,
+    GetAbsPos,
+    IsReady,
+    MoveTo,
+    Response,
+    StopMove,
+    WaitMoved,
+    encode_command,
+)
+from daemon.crc import SMBUS
+from tests.daemon_proc import DaemonProcess
+
+E = ErrorCode
+OPTS = CodecOptions()
+
+SMALL = """
+[[motors]]
+name = "a"
+queue_depth = 2
+max_waypoints = 2
+soft_limit_min = -500
+soft_limit_max = 500
+  [motors.homing]
+  max_travel = 300
+
+[[motors]]
+name = "r"
+steps_per_rev = 400
+default_speed = 4000
+
+[[pins]]
+number = 0
+mode = "output"
+
+[[pins]]
+number = 1
+mode = "input"
+"""
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[DaemonProcess]:
+    d = DaemonProcess(tmp_path).start()
+    yield d
+    d.close()
+
+
+@pytest.fixture
+def client(daemon: DaemonProcess) -> Iterator[Client]:
+    with daemon.client() as c:
+        yield c
+
+
+@pytest.fixture
+def small(tmp_path: Path) -> Iterator[DaemonProcess]:
+    d = DaemonProcess(tmp_path, SMALL).start()
+    yield d
+    d.close()
+
+
+def code_of(exc: pytest.ExceptionInfo[DeviceError]) -> ErrorCode:
+    return ErrorCode(exc.value.code)
+
+
+def pipeline(c: Client, cmds: Sequence[Command], timeout: float = 10.0) -> list[Response]:
+    for cmd in cmds:
+        c.send_frame(encode_command(cmd, OPTS))
+    return [c.read_response(timeout) for _ in cmds]
+
+
+def frame(payload: bytes) -> bytes:
+    body = payload.ljust(9, b"\0")
+    return body + bytes([SMBUS.compute(body)])
+
+
+# -- every command ---------------------------------------------------------------------
+def test_example_frame_from_protocol(client: Client) -> None:
+    client.send_frame(bytes.fromhex("03 00 00 00 00 00 00 00 00 8B"))
+    assert client.read_raw(5) == bytes([0x01, 0x01, 0x00, 0x00, SMBUS.compute(b"\x01\x00\x00")])
+
+
+def test_moveto_wait_position(client: Client) -> None:
+    assert client.is_ready(0)
+    client.move_to(0, 300)
+    assert not client.is_ready(0)
+    client.wait_moved(0, 10_000)
+    assert client.is_ready(0)
+    assert client.position(0) == 300
+    client.move_to(0, -250, speed=255, acc=255, dec=255)
+    client.wait_moved(0, 10_000)
+    assert client.position(0) == -250
+
+
+def test_position_while_moving(client: Client) -> None:
+    client.move(0, True, speed=1)  # 4096 step/s
+    positions = [client.position(0)]
+    while positions[-1] < 200:
+        positions.append(client.position(0))
+    client.stop(0, hard=True)
+    client.wait_moved(0, 5000)
+    assert positions == sorted(positions) and positions[-1] > positions[0]
+    assert client.position(0) >= positions[-1]
+
+
+def test_move_change_speed_and_soft_stop(client: Client) -> None:
+    client.move(1, True, speed=1)
+    client.move(1, False, speed=1)  # reverses along the ramps, at once
+    while client.position(1) >= 0:
+        pass
+    client.stop(1, hard=False)
+    client.wait_moved(1, 5000)
+    assert client.position(1) < 0
+    assert client.is_ready(1)
+
+
+def test_init_move_homes_at_end_stop(client: Client) -> None:
+    client.init_move(2, False, speed=1)  # 4096 step/s towards the end stop at -10000
+    client.wait_moved(2, 20_000)
+    assert client.position(2) == 0
+    client.move_to(2, 500)
+    client.wait_moved(2, 10_000)
+    assert client.position(2) == 500
+
+
+def test_home_and_waypoints(client: Client) -> None:
+    client.move_to(0, 120)
+    client.wait_moved(0, 5000)
+    client.save_home(0)
+    assert client.save_waypoint(0) == 0
+    client.move_to(0, -80)
+    client.wait_moved(0, 5000)
+    assert client.save_waypoint(0) == 1
+    client.go_home(0)
+    client.wait_moved(0, 5000)
+    assert client.position(0) == 120
+    client.move_to_waypoint(0, 1)
+    client.wait_moved(0, 5000)
+    assert client.position(0) == -80
+    client.move_to_waypoint(0, 0, speed=200)
+    client.wait_moved(0, 5000)
+    assert client.position(0) == 120
+
+
+def test_pins_wired_in_the_mock(client: Client) -> None:
+    assert client.get_pin(4) is False
+    client.set_pin(1, True)
+    assert client.get_pin(5) is True
+    assert client.get_pin(1) is True
+    client.set_pin(1, False)
+    assert client.get_pin(5) is False
+    client.config_pin(5, True)  # turn the input into an output
+    client.set_pin(5, True)
+    client.config_pin(1, False)
+    assert client.get_pin(1) is True  # reads what pin 5 now drives
+
+
+def test_dc_move(client: Client, daemon: DaemonProcess) -> None:
+    client.dc_move(True, 200, hiz=False)
+    client.dc_move(False, 0, hiz=True)  # TIME 0 stops at once
+    assert daemon.status()["link"]["counters"]["frames_good"] == 2
+
+
+def test_queue_runs_in_order(client: Client) -> None:
+    for target in (100, -100, 50):
+        client.move_to(0, target)
+    client.wait_moved(0, 10_000)
+    assert client.position(0) == 50
+
+
+# -- every error code ------------------------------------------------------------------
+def test_e0_queue_full(client: Client) -> None:
+    client.move(0, True, speed=1)  # runs until stopped; commands wait behind it
+    for i in range(16):
+        client.move_to(0, i)
+    with pytest.raises(DeviceError) as exc:
+        client.move_to(0, 99)
+    assert code_of(exc) is E.FULL_BUFFER
+    client.stop(0, hard=True)  # empties the queue
+    client.wait_moved(0, 5000)
+    assert client.is_ready(0)
+
+
+def test_e1_bad_checksum_and_padding_not_executed(client: Client, daemon: DaemonProcess) -> None:
+    good = encode_command(MoveTo(0, True, 1000, 0, 0, 0), OPTS)
+    client.send_frame(good[:9] + bytes([good[9] ^ 0x55]))
+    assert client.read_response().error_code is E.INVALID_COMMAND
+    padded = frame(bytes([0x03, 0x00, 0x07]))  # IsReady with garbage padding
+    client.send_frame(padded)
+    assert client.read_response().error_code is E.INVALID_COMMAND
+    client.send_frame(frame(bytes([0x0F, 0x00])))  # unknown code
+    assert client.read_response().error_code is E.INVALID_COMMAND
+    assert client.is_ready(0) and client.position(0) == 0
+    counters = daemon.status()["link"]["counters"]
+    assert counters["checksum_errors"] == 1
+    assert counters["padding_errors"] == 1
+    assert counters["unknown_errors"] == 1
+    assert counters["sent_E1"] == 3
+
+
+def test_e1_parameters(small: DaemonProcess) -> None:
+    with small.client() as c:
+        with pytest.raises(DeviceError) as exc:
+            c.move_to(0, 501)  # beyond the soft limit
+        assert code_of(exc) is E.INVALID_COMMAND
+        with pytest.raises(DeviceError) as exc:
+            c.set_pin(1, True)  # an input
+        assert code_of(exc) is E.INVALID_COMMAND
+        assert c.is_ready(0) and c.position(0) == 0
+
+
+def test_e2_addresses(client: Client) -> None:
+    for call in (lambda: client.is_ready(3), lambda: client.move_to(7, 1),
+                 lambda: client.get_pin(8), lambda: client.set_pin(200, True),
+                 lambda: client.position(255)):
+        with pytest.raises(DeviceError) as exc:
+            call()
+        assert code_of(exc) is E.INVALID_ADDRESS
+
+
+def test_e2_no_dc_motor(small: DaemonProcess) -> None:
+    with small.client() as c, pytest.raises(DeviceError) as exc:
+        c.dc_move(True, 100, hiz=False)
+    assert code_of(exc) is E.INVALID_ADDRESS
+
+
+def test_e3_busy_and_wait_timeout(client: Client) -> None:
+    client.move(0, True, speed=1)
+    for call in (lambda: client.save_home(0), lambda: client.save_waypoint(0),
+                 lambda: client.wait_moved(0, 30)):
+        with pytest.raises(DeviceError) as exc:
+            call()
+        assert code_of(exc) is E.MOTOR_NOT_READY
+    client.stop(0, hard=True)
+    client.wait_moved(0, 5000)
+
+
+def test_e4_end_stop_hit_latches_fault(client: Client) -> None:
+    client.move(0, True, speed=2)  # runs into the simulated end stop at +10000
+    with pytest.raises(DeviceError) as exc:
+        client.wait_moved(0, 20_000)
+    assert code_of(exc) is E.MOTOR_ERROR
+    for call in (lambda: client.is_ready(0), lambda: client.move_to(0, 0),
+                 lambda: client.save_home(0)):
+        with pytest.raises(DeviceError) as exc:
+            call()
+        assert code_of(exc) is E.MOTOR_ERROR
+    assert client.position(0) == 10_000  # GetAbsPos still answers
+    client.stop(0)  # clears the fault
+    assert client.is_ready(0)
+    client.move_to(0, 9000)
+    client.wait_moved(0, 10_000)
+    assert client.position(0) == 9000
+
+
+def test_e4_failed_homing(small: DaemonProcess) -> None:
+    with small.client() as c:
+        c.init_move(0, True)  # max_travel 300, end stop 10000 away
+        with pytest.raises(DeviceError) as exc:
+            c.wait_moved(0, 20_000)
+        assert code_of(exc) is E.MOTOR_ERROR
+        c.stop(0)
+        assert c.is_ready(0)
+
+
+def test_e5_waypoints_full_e6_unknown(small: DaemonProcess) -> None:
+    with small.client() as c:
+        with pytest.raises(DeviceError) as exc:
+            c.move_to_waypoint(0, 0)
+        assert code_of(exc) is E.INVALID_WAYPOINT
+        assert [c.save_waypoint(0), c.save_waypoint(0)] == [0, 1]
+        with pytest.raises(DeviceError) as exc:
+            c.save_waypoint(0)
+        assert code_of(exc) is E.FULL_WAYPOINT_BUFFER
+        with pytest.raises(DeviceError) as exc:
+            c.move_to_waypoint(0, 2)
+        assert code_of(exc) is E.INVALID_WAYPOINT
+
+
+def test_queue_depth_from_config(small: DaemonProcess) -> None:
+    with small.client() as c:
+        c.move(0, True, speed=1)  # stops at the soft limit 500
+        c.move_to(0, 0)
+        c.move_to(0, 10)
+        with pytest.raises(DeviceError) as exc:
+            c.move_to(0, 20)
+        assert code_of(exc) is E.FULL_BUFFER
+        c.wait_moved(0, 10_000)
+        assert c.position(0) == 10
+
+
+def test_rotary_axis_wraps(small: DaemonProcess) -> None:
+    with small.client() as c:
+        c.move_to(1, 300, direction=False)  # from 0 down to 300: 100 steps
+        c.wait_moved(1, 5000)
+        assert c.position(1) == 300
+        c.move_to(1, 100, direction=True)  # up through 0: 200 steps
+        c.wait_moved(1, 5000)
+        assert c.position(1) == 100
+
+
+# -- framing ---------------------------------------------------------------------------
+def test_gap_discard(client: Client, daemon: DaemonProcess) -> None:
+    partial = encode_command(MoveTo(0, True, 500, 0, 0, 0), OPTS)[:5]
+    client.send_bytes(partial)
+    assert client.read_raw(1, timeout=0.1) == b""  # an incomplete frame gets no response
+    # The gap itself: wait well past frame_gap_ms (10 ms) before the next byte.
+    deadline = time.monotonic() + 0.05
+    while time.monotonic() < deadline:
+        pass
+    client.send_frame(encode_command(IsReady(0), OPTS))
+    assert client.read_response().as_bool is True
+    assert client.position(0) == 0
+    assert daemon.status()["link"]["counters"]["gap_discards"] == 1
+
+
+def test_split_frames_within_gap(client: Client) -> None:
+    data = encode_command(GetAbsPos(0), OPTS) + encode_command(IsReady(0), OPTS)
+    for i in range(0, len(data), 3):
+        client.send_bytes(data[i : i + 3])
+    assert client.read_response().as_position == 0
+    assert client.read_response().as_bool is True
+
+
+# -- WaitMoved holds the link ------------------------------------------------------------
+def test_wait_moved_held_with_stop_behind_it(client: Client) -> None:
+    client.move(0, True, speed=1)
+    while client.position(0) == 0:
+        pass
+    responses = pipeline(client, [WaitMoved(0, 20_000), IsReady(1), StopMove(0, True),
+                                  GetAbsPos(0), IsReady(0)])
+    assert [r.ack for r in responses] == [True] * 5
+    assert responses[1].as_bool is True
+    stopped_at = responses[3].as_position
+    assert stopped_at > 0
+    assert responses[4].as_bool is True
+    assert client.position(0) == stopped_at
+
+
+def test_held_frames_overflow_gets_e0_in_turn(client: Client) -> None:
+    client.move(0, True, speed=1)
+    # 1 WaitMoved (times out after 2 s), 18 frames behind it, then a StopMove as the 20th:
+    # 16 are kept, the rest get E0 in their turn and are not executed.
+    cmds: list[Command] = [WaitMoved(0, 2000), *[IsReady(1)] * 18, StopMove(0, True)]
+    answers = pipeline(client, cmds)
+    assert answers[0].error_code is E.MOTOR_NOT_READY
+    assert all(a.ack and a.as_bool for a in answers[1:17])
+    assert all(a.error_code is E.FULL_BUFFER for a in answers[17:])
+    assert client.is_ready(0) is False  # the StopMove beyond the buffer was not executed
+    client.stop(0, hard=True)
+    client.wait_moved(0, 5000)
+
+
+def test_wait_moved_reports_fault(client: Client) -> None:
+    client.move(2, False, speed=2)
+    responses = pipeline(client, [WaitMoved(2, 20_000), GetAbsPos(2)], timeout=25.0)
+    assert responses[0].error_code is E.MOTOR_ERROR
+    assert responses[1].as_position == -10_000
+
+
+# -- persistence -------------------------------------------------------------------------
+def test_home_and_waypoints_survive_restart(tmp_path: Path) -> None:
+    d = DaemonProcess(tmp_path).start()
+    with d.client() as c:
+        c.move_to(0, 200)
+        c.wait_moved(0, 5000)
+        c.save_home(0)
+        c.move_to(0, -100)
+        c.wait_moved(0, 5000)
+        assert c.save_waypoint(0) == 0
+    assert d.terminate() == 0
+    d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
+    try:
+        with d2.client() as c:
+            assert c.position(0) == -100
+            c.go_home(0)
+            c.wait_moved(0, 5000)
+            assert c.position(0) == 200
+            c.move_to_waypoint(0, 0)
+            c.wait_moved(0, 5000)
+            assert c.position(0) == -100
+            assert c.save_waypoint(0) == 1
+    finally:
+        d2.close()
+
+
+def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
+    d = DaemonProcess(tmp_path).start()
+    with d.client() as c:
+        c.move(0, True, speed=1)
+        while c.position(0) < 100:
+            pass
+    assert d.terminate() == 0
+    d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
+    try:
+        with d2.client() as c:
+            pos = c.position(0)
+            assert pos > 100
+            c.move_to(0, 0)  # position still known: accepted
+            c.wait_moved(0, 10_000)
+            assert c.position(0) == 0
+    finally:
+        d2.close()
+
+
+def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
+    d = DaemonProcess(tmp_path).start()
+    with d.client() as c:
+        c.move(0, True, speed=1)
+        while c.position(0) < 100:
+            pass
+    d.kill()
+    d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
+    try:
+        with d2.client() as c:
+            calls: list[Callable[[], None]] = [
+                lambda: c.move_to(0, 0), lambda: c.move(0, True), lambda: c.go_home(0)]
+            for call in calls:
+                with pytest.raises(DeviceError) as exc:
+                    call()
+                assert code_of(exc) is E.MOTOR_ERROR
+            assert c.is_ready(0)
+            c.init_move(0, False, speed=1)
+            c.wait_moved(0, 20_000)
+            assert c.position(0) == 0
+            c.move_to(0, 10)
+            c.wait_moved(0, 5000)
+            assert c.position(0) == 10
+            c.move_to(1, 5)  # other motors were at rest: unaffected
+            c.wait_moved(1, 5000)
+    finally:
+        d2.close()
