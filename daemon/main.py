@@ -29,7 +29,7 @@ from hal.registry import open_hardware
 from hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motion.engine import MotionEngine
 from motion.motor import Motor
-from motion.stepthread import GcPolicy, StepThread
+from motion.stepthread import GcPolicy, StepThread, set_realtime
 from motion.types import HomingParams, MotorParams
 
 log = logging.getLogger("motorctl")
@@ -202,6 +202,7 @@ class Daemon:
                 for m in self.engine.motors
             ]
             steps = self.engine.stats.summary()
+            steps["histogram_us"] = self.engine.stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "clamped": dict(self.dispatcher.clamped),
                                "state_writes": self.writer.writes}
@@ -310,6 +311,12 @@ def serve(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     st = config.step_thread
     sys.setswitchinterval(st.switch_interval_us / 1e6)
+    if st.priority > 1:
+        # Every thread of the daemon inherits SCHED_FIFO one below the step thread, so no
+        # ordinary process can preempt a thread while it holds the GIL the step thread needs.
+        why = set_realtime(st.priority - 1)
+        if why is not None:
+            log.warning("SCHED_FIFO not permitted for the daemon's threads (%s)", why)
     daemon = Daemon.build(config, args.state_dir)
     uart: Any = None
     slave: int | None = None

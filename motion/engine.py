@@ -65,17 +65,26 @@ class MotionEngine:
         self.wake.set()
 
     # -- the clock's side --------------------------------------------------------
-    def next_deadline(self) -> float | None:
-        best: float | None = self._next_poll
+    def next_step_deadline(self) -> float | None:
+        """The next step edge: the only deadline worth spinning for."""
+        best: float | None = None
         for m in self.motors:
             step = m.next_step
             if step is not None and (best is None or step[0] < best):
                 best = step[0]
-        if self.dc is not None and self.dc.deadline is not None:
-            d = self.dc.deadline
-            if best is None or d < best:
-                best = d
         return best
+
+    def next_coarse_deadline(self) -> float:
+        """The next driver poll or end of a DC run: millisecond matters, no spinning."""
+        best = self._next_poll
+        if self.dc is not None and self.dc.deadline is not None and self.dc.deadline < best:
+            best = self.dc.deadline
+        return best
+
+    def next_deadline(self) -> float:
+        step = self.next_step_deadline()
+        coarse = self.next_coarse_deadline()
+        return coarse if step is None or coarse < step else step
 
     def service(self, now: float) -> None:
         """Do everything due at or before ``now``."""
@@ -97,7 +106,7 @@ class MotionEngine:
         with self.lock:
             while True:
                 d = self.next_deadline()
-                if d is None or d > t:
+                if d > t:
                     break
                 clock.advance_to(d)
                 self.service(clock.now())
@@ -112,7 +121,7 @@ class MotionEngine:
         with self.lock:
             while self.any_active or any(m.queue for m in self.motors):
                 d = self.next_deadline()
-                if d is None or d > end:
+                if d > end:
                     raise TimeoutError("motion did not finish")
                 clock.advance_to(d)
                 self.service(clock.now())

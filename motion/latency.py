@@ -40,6 +40,10 @@ class LatencyStats:
                 return float(us) if us < _BINS else self.max_s * 1e6
         return self.max_s * 1e6
 
+    def histogram(self) -> dict[int, int]:
+        """Non-empty bins: lateness in whole microseconds -> count (the last bin: beyond)."""
+        return {us: n for us, n in enumerate(self.bins) if n}
+
     def summary(self) -> dict[str, Any]:
         return {
             "steps": self.count,

@@ -125,15 +125,21 @@ class StepThread:
         while not self._stop.is_set():
             wake.clear()
             with lock:
-                deadline = engine.next_deadline()
-            if deadline is None:
-                wake.wait()
+                step = engine.next_step_deadline()
+                coarse = engine.next_coarse_deadline()
+            if step is None or coarse < step - spin:
+                # Nothing to spin for before the coarse deadline: just sleep until it.
+                wait = coarse - clock.now()
+                if wait > 0 and wake.wait(wait):
+                    continue
+                with lock:
+                    engine.service(clock.now())
                 continue
-            wait = deadline - spin - clock.now()
+            wait = step - spin - clock.now()
             if wait > 0 and wake.wait(wait):
                 continue  # new work may have an earlier deadline
             now = clock.now()
-            while now < deadline and not wake.is_set():
+            while now < step and not wake.is_set():
                 now = clock.now()
             with lock:
                 engine.service(clock.now())
