@@ -90,6 +90,7 @@ class StepThreadConfig:
     lock_memory: bool
     switch_interval_us: float
     driver_poll_ms: float
+    cpu: int
 
 
 @dataclass(frozen=True)
@@ -474,6 +475,13 @@ _STEP_THREAD = _Table(
             0.1,
             10000,
             "How often driver status (faults, stall) is polled while a motor moves.",
+        ),
+        _int(
+            "cpu",
+            -1,
+            -1,
+            1023,
+            "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
         ),
     ),
 )

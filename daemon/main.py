@@ -317,6 +317,10 @@ def serve(args: argparse.Namespace) -> int:
         why = set_realtime(st.priority - 1)
         if why is not None:
             log.warning("SCHED_FIFO not permitted for the daemon's threads (%s)", why)
+    if st.cpu >= 0:
+        others = os.sched_getaffinity(0) - {st.cpu}
+        if others:  # every thread but the step thread keeps off its CPU
+            os.sched_setaffinity(0, others)
     daemon = Daemon.build(config, args.state_dir)
     uart: Any = None
     slave: int | None = None
@@ -331,7 +335,7 @@ def serve(args: argparse.Namespace) -> int:
                 c.held_frames)
     daemon.link = link
     stepper = StepThread(daemon.engine, daemon.clock, spin_s=st.spin_us / 1e6,
-                         priority=st.priority, lock_memory=st.lock_memory)
+                         priority=st.priority, lock_memory=st.lock_memory, cpu=st.cpu)
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
 
     def on_signal(signum: int, frame: FrameType | None) -> None:

@@ -72,6 +72,7 @@ class StepThread:
         spin_s: float = 200e-6,
         priority: int = 50,
         lock_memory: bool = True,
+        cpu: int = -1,
         name: str = "motorctl-steps",
     ) -> None:
         if clock.is_virtual:
@@ -81,6 +82,7 @@ class StepThread:
         self.spin_s = spin_s
         self.priority = priority
         self.lock_memory = lock_memory
+        self.cpu = cpu
         self.warnings: list[str] = []
         self.realtime = False
         self._stop = threading.Event()
@@ -101,6 +103,11 @@ class StepThread:
         self._thread.join()
 
     def _setup(self) -> None:
+        if self.cpu >= 0:
+            try:
+                os.sched_setaffinity(0, {self.cpu})
+            except OSError as exc:
+                self.warnings.append(f"cannot pin the step thread to CPU {self.cpu}: {exc}")
         if self.lock_memory:
             why = lock_memory()
             if why is not None:

@@ -1,0 +1,104 @@
+"""IsReady round trips through motorctld's PTY against a bare echo peer on a PTY, same run.
+
+Prints p50/p99 of both and their ratio, and the daemon's own processing time per command
+(last byte read to reply written, measured inside the daemon). Targets: round-trip p99
+<= 2x the echo peer's; processing p99 <= 108 us.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import serial
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from daemon.codec import CodecOptions, IsReady, encode_command  # noqa: E402
+from daemon.status import read_status  # noqa: E402
+from tests.daemon_proc import DaemonProcess  # noqa: E402
+
+
+def pct(values: list[float], q: float) -> float:
+    ordered = sorted(values)
+    return ordered[min(len(ordered) - 1, int(q / 100 * len(ordered)))]
+
+
+def round_trips(port: str, n: int, frame: bytes) -> list[float]:
+    times = []
+    with serial.Serial(port, 115200, timeout=2) as s:
+        for _ in range(50):  # warm up
+            s.write(frame)
+            s.read(5)
+        for _ in range(n):
+            t0 = time.perf_counter()
+            s.write(frame)
+            got = s.read(5)
+            times.append(time.perf_counter() - t0)
+            if len(got) != 5:
+                raise RuntimeError(f"short reply from {port}: {got!r}")
+    return times
+
+
+def summary(times: list[float]) -> dict[str, float]:
+    return {"p50_us": round(pct(times, 50) * 1e6, 1), "p99_us": round(pct(times, 99) * 1e6, 1),
+            "max_us": round(max(times) * 1e6, 1), "mean_us": round(statistics.mean(times) * 1e6, 1)}
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("-n", type=int, default=5000, help="round trips per peer and round")
+    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--json", metavar="FILE")
+    args = ap.parse_args()
+    frame = encode_command(IsReady(0), CodecOptions())
+    with tempfile.TemporaryDirectory() as tmp:
+        work = Path(tmp)
+        echo_link = work / "echo.pty"
+        echo = subprocess.Popen([sys.executable, str(ROOT / "bench" / "echo_peer.py"),
+                                 str(echo_link)], stdout=subprocess.PIPE)
+        assert echo.stdout is not None
+        echo.stdout.readline()
+        daemon = DaemonProcess(work).start()
+        try:
+            echo_t: list[float] = []
+            daemon_t: list[float] = []
+            for _ in range(args.rounds):  # interleaved rounds: drift hits both alike
+                echo_t += round_trips(str(echo_link), args.n, frame)
+                daemon_t += round_trips(str(daemon.pty), args.n, frame)
+            status = read_status(daemon.state_dir / "status.sock")
+        finally:
+            daemon.close()
+            echo.kill()
+            echo.wait()
+    result: dict[str, Any] = {
+        "echo_peer": summary(echo_t),
+        "daemon": summary(daemon_t),
+        "processing": status["link"]["processing"],
+    }
+    result["p99_ratio"] = round(result["daemon"]["p99_us"] / result["echo_peer"]["p99_us"], 2)
+    result["p50_ratio"] = round(result["daemon"]["p50_us"] / result["echo_peer"]["p50_us"], 2)
+    e, d, p = result["echo_peer"], result["daemon"], result["processing"]
+    print(f"IsReady round trip over a PTY, {len(daemon_t)} each:")
+    for name, r in (("echo peer", e), ("motorctld", d)):
+        print(f"  {name:<10} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
+              f"max {r['max_us']:.0f}")
+    print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  (target p99 <= 2.0)")
+    print(f"daemon processing (last byte read -> reply written), {p['steps']} commands:")
+    print(f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
+          f"max {p['max_us']} us  (target p99 <= 108 us)")
+    if args.json:
+        Path(args.json).write_text(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
