@@ -159,6 +159,9 @@ class Link:
         result = self.dispatcher.wait_begin(cmd, self.clock())
         if isinstance(result, Wait):
             self.wait = result
+            # The motor may have stopped between the check and now, when wake() still
+            # saw no wait to report: look once more.
+            self._poll_wait(self.clock())
         else:
             self._send(result, t_read)
 

@@ -48,9 +48,6 @@ def set_realtime(priority: int) -> str | None:
 class GcPolicy:
     """Automatic GC off while anything moves; objects alive at ready are frozen."""
 
-    def __init__(self) -> None:
-        self.collect_pending = False
-
     def ready(self) -> None:
         gc.collect()
         gc.freeze()
@@ -60,7 +57,6 @@ class GcPolicy:
             gc.disable()
         else:
             gc.enable()
-            self.collect_pending = True
 
 
 class StepThread:
