@@ -61,6 +61,7 @@ class MockAxis:
     def __init__(self, spec: AxisSpec) -> None:
         self.spec = spec
         self.position = 0
+        self.heading: bool | None = None  # the logical DIR last set (True = up)
         self.fault: str | None = None
         self.forced_stall = False
         self.forced_endstop: dict[str, bool | None] = {"min": None, "max": None}
@@ -75,11 +76,14 @@ class MockAxis:
 
     @property
     def stalled(self) -> bool:
-        """Pushing past a simulated end stop stalls the motor (as sensorless homing sees it)."""
+        """Pushing past a simulated end stop stalls the motor (as sensorless homing sees it).
+
+        Only while DIR points further past it: a motor backing out is not stalled.
+        """
         return (
             self.forced_stall
-            or self.position > self.spec.endstop_max
-            or self.position < self.spec.endstop_min
+            or (self.position > self.spec.endstop_max and self.heading is True)
+            or (self.position < self.spec.endstop_min and self.heading is False)
         )
 
 
@@ -90,6 +94,7 @@ class MockStepPort(StepPort):
         self._index = index
 
     def _write_dir(self, level: bool) -> None:
+        self._world.axes[self._index].heading = self.direction
         self._world.timeline.record(self.clock.now(), "dir", self._index, level)
 
     def _pulse(self, width_s: float) -> float:

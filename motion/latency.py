@@ -25,14 +25,16 @@ class LatencyStats:
             self.max_s = lateness_s
         if lateness_s > self.threshold_s:
             self.late += 1
-        us = int(lateness_s * 1e6)
+        # The epsilon keeps whole microseconds whole (15e-6 * 1e6 is 14.999999999999998).
+        us = int(lateness_s * 1e6 + 1e-6)
         self.bins[us if 0 <= us < _BINS else (0 if us < 0 else _BINS)] += 1
 
     def percentile_us(self, q: float) -> float:
         """The q-th percentile (0..100) in microseconds, at 1 us resolution."""
         if self.count == 0:
             return 0.0
-        rank = max(1, math.ceil(q / 100.0 * self.count))
+        exact = q / 100.0 * self.count
+        rank = max(1, math.ceil(exact - 1e-12 * exact))  # 99.9% of 1000 is 999, not 1000
         seen = 0
         for us, n in enumerate(self.bins):
             seen += n

@@ -231,6 +231,8 @@ class Motor:
         self.traj = None
         self._steps = None
         self.next_step = None
+        for endstop in self._endstops.values():
+            endstop.reset()  # unwatched from now on: a later motion debounces afresh
 
     def _become_idle(self, now: float) -> None:
         self._halt()
@@ -251,6 +253,7 @@ class Motor:
             self._install(plan_move_to(now, s, v, target, r.speed, r.acc, r.dec), MotorState.MOVING)
         elif isinstance(cmd, RunCmd):
             limit = self._soft_limit_abs(cmd.direction)
+            r = self._ramp = self._dec_to_stop_in_limits(s, v, r)
             traj = plan_run(now, s, v, cmd.direction * r.speed, r.acc, r.dec, limit)
             self._install(traj, MotorState.RUNNING)
         else:
@@ -282,6 +285,20 @@ class Motor:
         limit = p.soft_max if direction > 0 else p.soft_min
         return float(self.abs_steps + (limit - self.position))
 
+    def _dec_to_stop_in_limits(self, s: float, v: float, r: Ramp) -> Ramp:
+        """``r`` with DEC raised just enough to stop short of the soft limit ahead of ``v``.
+
+        A Move replanned with a lower DEC near a limit would otherwise overshoot it; the
+        raised DEC is at most the one the running plan already stopped in time with.
+        """
+        ahead = self._soft_limit_abs(1 if v > 0 else -1) if v != 0 else None
+        if ahead is None:
+            return r
+        room = abs(ahead - s) if (ahead - s) * v > 0 else 0.0
+        if room <= 0 or v * v <= 2.0 * r.dec * room:
+            return r
+        return Ramp(r.speed, r.acc, v * v / (2.0 * room) * (1 + 1e-9))
+
     def _home_trigger(self, direction: int, now: float) -> bool:
         if self.params.homing.source == "stall":
             return self.hw.driver.status().stall
@@ -289,6 +306,7 @@ class Motor:
 
     def _check_after_step(self, now: float, d: int) -> bool:
         """End-stop logic after a step; True when it ended the current trajectory."""
+        self._endstops[-d].reset()  # only the end stop ahead is watched
         if self.state is MotorState.HOMING:
             cmd = self._home_cmd
             assert cmd is not None
