@@ -397,12 +397,18 @@ def test_home_and_waypoints_survive_restart(tmp_path: Path) -> None:
         d2.close()
 
 
-def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
+def running_daemon(tmp_path: Path) -> DaemonProcess:
+    """A daemon whose motor 0 is running continuously, already past position 100."""
     d = DaemonProcess(tmp_path).start()
     with d.client() as c:
         c.move(0, True, speed=1)
         while c.position(0) < 100:
             pass
+    return d
+
+
+def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
+    d = running_daemon(tmp_path)
     assert d.terminate() == 0
     d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
     try:
@@ -417,11 +423,7 @@ def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
 
 
 def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
-    d = DaemonProcess(tmp_path).start()
-    with d.client() as c:
-        c.move(0, True, speed=1)
-        while c.position(0) < 100:
-            pass
+    d = running_daemon(tmp_path)
     d.kill()
     d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
     try:
