@@ -22,8 +22,8 @@ import serial
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from daemon.codec import CodecOptions, IsReady, encode_command  # noqa: E402
-from daemon.status import read_status  # noqa: E402
+from motorctl.daemon.status import read_status  # noqa: E402
+from motorctl.protocol.codec import CodecOptions, IsReady, encode_command  # noqa: E402
 from tests.daemon_proc import DaemonProcess  # noqa: E402
 
 

@@ -102,7 +102,7 @@ def flood(port: str, seconds: float, cpu: int) -> subprocess.Popen[bytes]:
     code = (
         "import os,sys,time,serial\n"
         f"os.sched_setaffinity(0, {{{cpu}}})\n"
-        "from daemon.codec import CodecOptions, IsReady, GetAbsPos, encode_command\n"
+        "from motorctl.protocol.codec import CodecOptions, IsReady, GetAbsPos, encode_command\n"
         "o=CodecOptions(); f=[encode_command(IsReady(0),o), encode_command(GetAbsPos(1),o)]\n"
         f"s=serial.Serial({port!r},115200,timeout=2); end=time.monotonic()+{seconds}; n=0\n"
         "while time.monotonic()<end:\n"

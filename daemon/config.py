@@ -18,7 +18,7 @@ from importlib import resources
 from typing import TYPE_CHECKING, Any, Final
 
 if TYPE_CHECKING:
-    from daemon.codec import CodecOptions
+    from motorctl.protocol.codec import CodecOptions
 
 EMBEDDED_SOURCE: Final = "<embedded default>"
 """`Config.source` of the embedded default configuration."""
@@ -47,8 +47,8 @@ class LinkConfig:
 
     def codec_options(self) -> CodecOptions:
         """The codec settings this table selects (crc None for checksum "none")."""
-        from daemon.codec import CodecOptions
-        from daemon.crc import SMBUS, Crc8, crc8_by_name
+        from motorctl.protocol.codec import CodecOptions
+        from motorctl.protocol.crc import SMBUS, Crc8, crc8_by_name
 
         crc: Crc8 | None
         if self.checksum == "none":
@@ -276,7 +276,7 @@ def _check_checksum(value: str) -> str | None:
     """Problem with a checksum name, or None when it is usable."""
     if value in ("crc8", "none"):
         return None
-    from daemon.crc import crc8_by_name
+    from motorctl.protocol.crc import crc8_by_name
 
     try:
         crc8_by_name(value)
@@ -286,7 +286,7 @@ def _check_checksum(value: str) -> str | None:
 
 
 def _checksum_names() -> str:
-    from daemon.crc import CATALOGUE
+    from motorctl.protocol.crc import CATALOGUE
 
     return ", ".join(sorted(CATALOGUE))
 

@@ -13,7 +13,12 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
-from daemon.codec import (
+from motorctl.daemon.config import Config, MotorConfig
+from motorctl.hal.interfaces import BridgeState, Pin
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.motor import Motor
+from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
+from motorctl.protocol.codec import (
     Command,
     ConfigPin,
     DcMove,
@@ -33,11 +38,6 @@ from daemon.codec import (
     StopMove,
     WaitMoved,
 )
-from daemon.config import Config, MotorConfig
-from hal.interfaces import BridgeState, Pin
-from motion.engine import MotionEngine
-from motion.motor import Motor
-from motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
 
 E = ErrorCode
 OK = Response.ok()

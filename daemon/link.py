@@ -21,7 +21,9 @@ from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from daemon.codec import (
+from motorctl.daemon.dispatcher import Dispatcher, Wait
+from motorctl.motion.latency import LatencyStats
+from motorctl.protocol.codec import (
     CodecOptions,
     Command,
     ErrorCode,
@@ -32,9 +34,7 @@ from daemon.codec import (
     decode_command,
     encode_response,
 )
-from daemon.dispatcher import Dispatcher, Wait
-from daemon.framing import Framer
-from motion.latency import LatencyStats
+from motorctl.protocol.framing import Framer
 
 log = logging.getLogger("motorctl.link")
 

@@ -17,20 +17,20 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from daemon.config import Config, ConfigError, load_config
-from daemon.dispatcher import Dispatcher
-from daemon.link import Link
-from daemon.service import Watchdog, sd_notify, watchdog_interval
-from daemon.state import StateError, StateWriter, read_state
-from daemon.status import StatusServer, read_status
-from hal.interfaces import Clock, HalError, Hardware, MonotonicClock
-from hal.mock import MockHardware
-from hal.registry import open_hardware
-from hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motion.engine import MotionEngine
-from motion.motor import Motor
-from motion.stepthread import GcPolicy, StepThread, set_realtime
-from motion.types import HomingParams, MotorParams
+from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.dispatcher import Dispatcher
+from motorctl.daemon.link import Link
+from motorctl.daemon.service import Watchdog, sd_notify, watchdog_interval
+from motorctl.daemon.state import StateError, StateWriter, read_state
+from motorctl.daemon.status import StatusServer, read_status
+from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
+from motorctl.hal.mock import MockHardware
+from motorctl.hal.registry import open_hardware
+from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.motor import Motor
+from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
+from motorctl.motion.types import HomingParams, MotorParams
 
 log = logging.getLogger("motorctl")
 
@@ -273,7 +273,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
                         format="motorctld %(levelname)s %(name)s: %(message)s")
     if args.print_default_config:
-        from daemon.config import default_config_text
+        from motorctl.daemon.config import default_config_text
 
         sys.stdout.write(default_config_text())
         return 0

@@ -12,7 +12,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Any
 
-from hal.interfaces import (
+from motorctl.hal.interfaces import (
     BridgeState,
     Clock,
     DcBridge,
@@ -24,7 +24,7 @@ from hal.interfaces import (
     StepperHardware,
     StepPort,
 )
-from hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spec import AxisSpec, HardwareSpec
 
 
 @dataclass(frozen=True)

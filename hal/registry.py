@@ -10,14 +10,14 @@ import importlib
 from collections.abc import Callable
 from typing import cast
 
-from hal.interfaces import Clock, HalError, Hardware
-from hal.spec import HardwareSpec
+from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.spec import HardwareSpec
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
 
 #: name -> (module, function, how to install what it needs)
 BACKENDS: dict[str, tuple[str, str, str]] = {
-    "mock": ("hal.mock", "build", "nothing: it is part of motorctl"),
+    "mock": ("motorctl.hal.mock", "build", "nothing: it is part of motorctl"),
 }
 
 

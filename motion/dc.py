@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hal.interfaces import BridgeState, DcBridge
+from motorctl.hal.interfaces import BridgeState, DcBridge
 
 
 class DcMotor:

@@ -11,11 +11,11 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable, Sequence
 
-from hal.interfaces import BridgeState, Hardware, VirtualClock
-from motion.dc import DcMotor
-from motion.latency import LatencyStats
-from motion.motor import Motor
-from motion.types import MotorParams
+from motorctl.hal.interfaces import BridgeState, Hardware, VirtualClock
+from motorctl.motion.dc import DcMotor
+from motorctl.motion.latency import LatencyStats
+from motorctl.motion.motor import Motor
+from motorctl.motion.types import MotorParams
 
 Listener = Callable[[Motor, str], None]
 

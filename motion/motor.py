@@ -13,10 +13,18 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 
-from hal.interfaces import InputLine, StepperHardware
-from motion.latency import LatencyStats
-from motion.profile import Steps, Trajectory, plan_move_to, plan_run, plan_stop
-from motion.types import HomeCmd, MotionCmd, MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from motorctl.hal.interfaces import InputLine, StepperHardware
+from motorctl.motion.latency import LatencyStats
+from motorctl.motion.profile import Steps, Trajectory, plan_move_to, plan_run, plan_stop
+from motorctl.motion.types import (
+    HomeCmd,
+    MotionCmd,
+    MotorParams,
+    MotorState,
+    MoveToCmd,
+    Ramp,
+    RunCmd,
+)
 
 _POS_SPAN = 1 << 24
 _POS_MIN = -(1 << 23)

@@ -16,8 +16,8 @@ import logging
 import os
 import threading
 
-from hal.interfaces import Clock
-from motion.engine import MotionEngine
+from motorctl.hal.interfaces import Clock
+from motorctl.motion.engine import MotionEngine
 
 log = logging.getLogger("motorctl.steps")
 

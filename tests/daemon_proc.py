@@ -11,8 +11,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from daemon.client import Client
-from daemon.status import read_status
+from motorctl.client.client import Client
+from motorctl.daemon.status import read_status
 
 READY_TIMEOUT_S = 30.0
 
@@ -33,7 +33,7 @@ class DaemonProcess:
         self.stderr_path = workdir / "motorctld.stderr"
 
     def start(self) -> DaemonProcess:
-        cmd = [sys.executable, "-m", "daemon.main", "--pty", str(self.pty),
+        cmd = [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(self.pty),
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
         if self.config is not None:
             cmd += ["--config", str(self.config)]

@@ -14,9 +14,9 @@ from typing import Any
 
 import pytest
 
-from daemon import cli
-from daemon.client import Client, DeviceError, LinkError
-from daemon.codec import (
+from motorctl.client import cli
+from motorctl.client.client import Client, DeviceError, LinkError
+from motorctl.protocol.codec import (
     CodecOptions,
     ErrorCode,
     FrameError,
@@ -25,13 +25,13 @@ from daemon.codec import (
     decode_command,
     encode_response,
 )
-from daemon.crc import crc8_by_name
+from motorctl.protocol.crc import crc8_by_name
 
 # -- reference checksum and frames --------------------------------------------------------
 
 
 def ref_crc8(data: bytes, poly: int = 0x07) -> int:
-    """Bitwise CRC-8/SMBUS (init 0, not reflected, xorout 0), independent of daemon.crc."""
+    """Bitwise CRC-8/SMBUS (init 0, not reflected, xorout 0); independent of protocol.crc."""
     crc = 0
     for byte in data:
         crc ^= byte

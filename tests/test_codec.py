@@ -1,4 +1,4 @@
-"""Tests for daemon.codec."""
+"""Tests for motorctl.protocol.codec."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from daemon.codec import (
+from motorctl.protocol.codec import (
     FRAME_LEN,
     POS_MAX,
     POS_MIN,
@@ -45,7 +45,7 @@ from daemon.codec import (
     used_bytes,
     wrap24,
 )
-from daemon.crc import crc8_by_name
+from motorctl.protocol.crc import crc8_by_name
 
 OPTS = CodecOptions()
 NO_CRC = CodecOptions(crc=None)

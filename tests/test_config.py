@@ -9,8 +9,7 @@ from typing import Any
 
 import pytest
 
-from daemon.codec import CodecOptions
-from daemon.config import (
+from motorctl.daemon.config import (
     Config,
     ConfigError,
     DcConfig,
@@ -29,7 +28,8 @@ from daemon.config import (
     load_config,
     parse_config,
 )
-from daemon.crc import SMBUS, crc8_by_name
+from motorctl.protocol.codec import CodecOptions
+from motorctl.protocol.crc import SMBUS, crc8_by_name
 
 SOURCE = "/etc/motorctl.toml"
 MOTOR = "[[motors]]\n"

@@ -1,4 +1,4 @@
-"""Tests for daemon.crc."""
+"""Tests for motorctl.protocol.crc."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from daemon.crc import ALIASES, CATALOGUE, SMBUS, Crc8, crc8_by_name
+from motorctl.protocol.crc import ALIASES, CATALOGUE, SMBUS, Crc8, crc8_by_name
 
 EXPECTED_NAMES = {
     "CRC-8/AUTOSAR",

@@ -6,7 +6,12 @@ from pathlib import Path
 
 import pytest
 
-from daemon.codec import (
+from motorctl.daemon.config import parse_config
+from motorctl.daemon.dispatcher import Wait
+from motorctl.daemon.main import Daemon
+from motorctl.hal.interfaces import BridgeState, VirtualClock
+from motorctl.hal.mock import world_of
+from motorctl.protocol.codec import (
     ConfigPin,
     DcMove,
     ErrorCode,
@@ -24,11 +29,6 @@ from daemon.codec import (
     StopMove,
     WaitMoved,
 )
-from daemon.config import parse_config
-from daemon.dispatcher import Wait
-from daemon.main import Daemon
-from hal.interfaces import BridgeState, VirtualClock
-from hal.mock import world_of
 
 E = ErrorCode
 

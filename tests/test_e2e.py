@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from daemon.client import Client, DeviceError
-from daemon.codec import (
+from motorctl.client.client import Client, DeviceError
+from motorctl.protocol.codec import (
     CodecOptions,
     Command,
     ErrorCode,
@@ -21,7 +21,7 @@ from daemon.codec import (
     WaitMoved,
     encode_command,
 )
-from daemon.crc import SMBUS
+from motorctl.protocol.crc import SMBUS
 from tests.daemon_proc import DaemonProcess
 
 E = ErrorCode

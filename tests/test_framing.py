@@ -1,4 +1,4 @@
-"""Tests for daemon.framing."""
+"""Tests for motorctl.protocol.framing."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from daemon.framing import Framer
+from motorctl.protocol.framing import Framer
 
 FRAME = 10
 

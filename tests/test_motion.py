@@ -11,14 +11,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hal.interfaces import BridgeState, Hardware, MonotonicClock, VirtualClock
-from hal.mock import Event, MockWorld, build, world_of
-from hal.spec import AxisSpec, HardwareSpec
-from motion.engine import MotionEngine
-from motion.latency import LatencyStats
-from motion.motor import Motor, wrap24
-from motion.profile import Steps, plan_move_to
-from motion.types import (
+from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, VirtualClock
+from motorctl.hal.mock import Event, MockWorld, build, world_of
+from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.latency import LatencyStats
+from motorctl.motion.motor import Motor, wrap24
+from motorctl.motion.profile import Steps, plan_move_to
+from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
     MotionCmd,

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
-from motion.profile import (
+from motorctl.motion.profile import (
     Segment,
     Steps,
     Trajectory,

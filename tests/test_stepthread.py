@@ -13,13 +13,21 @@ from dataclasses import dataclass
 
 import pytest
 
-from hal.interfaces import BridgeState, MonotonicClock, VirtualClock
-from hal.mock import MockWorld, build, world_of
-from hal.spec import AxisSpec, HardwareSpec
-from motion.engine import MotionEngine
-from motion.motor import Motor
-from motion.stepthread import GcPolicy, StepThread
-from motion.types import HomeCmd, MotionCmd, MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
+from motorctl.hal.mock import MockWorld, build, world_of
+from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.motor import Motor
+from motorctl.motion.stepthread import GcPolicy, StepThread
+from motorctl.motion.types import (
+    HomeCmd,
+    MotionCmd,
+    MotorParams,
+    MotorState,
+    MoveToCmd,
+    Ramp,
+    RunCmd,
+)
 
 TIMEOUT = 20.0
 FAST = Ramp(4000.0, 40000.0, 40000.0)

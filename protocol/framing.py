@@ -6,7 +6,7 @@ than `gap_s` passes between two of its bytes.
 
 from __future__ import annotations
 
-from daemon.codec import FRAME_LEN
+from motorctl.protocol.codec import FRAME_LEN
 
 
 class Framer:

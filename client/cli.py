@@ -10,9 +10,9 @@ from collections.abc import Callable, Sequence
 
 import serial
 
-from daemon.client import Client, DeviceError, LinkError, hex_bytes
-from daemon.codec import FRAME_LEN, CodecOptions
-from daemon.crc import SMBUS, Crc8, crc8_by_name
+from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
+from motorctl.protocol.codec import FRAME_LEN, CodecOptions
+from motorctl.protocol.crc import SMBUS, Crc8, crc8_by_name
 
 __all__ = ["build_parser", "main"]
 

@@ -13,7 +13,7 @@ from types import TracebackType
 
 import serial
 
-from daemon.codec import (
+from motorctl.protocol.codec import (
     FRAME_LEN,
     RESPONSE_LEN,
     CodecOptions,

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, ClassVar, Literal, TypeAlias
 
-from daemon.crc import SMBUS, Crc8
+from motorctl.protocol.crc import SMBUS, Crc8
 
 FRAME_LEN = 10
 RESPONSE_LEN = 5
