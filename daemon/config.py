@@ -91,6 +91,7 @@ class StepThreadConfig:
     switch_interval_us: float
     driver_poll_ms: float
     cpu: int
+    max_lateness_us: float
 
 
 @dataclass(frozen=True)
@@ -482,6 +483,14 @@ _STEP_THREAD = _Table(
             -1,
             1023,
             "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
+        ),
+        _float(
+            "max_lateness_us",
+            2000.0,
+            10,
+            1e7,
+            "A step that would be later than this is not made: that motor stops and latches "
+            "E4 'step timing lost' (position lost if it ran faster than its start speed).",
         ),
     ),
 )

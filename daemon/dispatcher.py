@@ -97,6 +97,7 @@ class Dispatcher:
             return Response.error(E.INVALID_COMMAND)
         try:
             with self.engine.lock:
+                self.engine.process_events(self.engine.clock.now())
                 return handler(cmd)
         except Reject as r:
             return Response.error(r.code)
@@ -105,6 +106,7 @@ class Dispatcher:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
         try:
             with self.engine.lock:
+                self.engine.process_events(now)
                 m = self._motor(cmd.motor)
                 self._not_faulted(m)
                 if m.idle:
@@ -118,6 +120,7 @@ class Dispatcher:
     def wait_poll(self, wait: Wait, now: float) -> Response | None:
         """The held WaitMoved's answer once it has one: ACK, E4 on a fault, E3 at timeout."""
         with self.engine.lock:
+            self.engine.process_events(now)
             m = wait.motor
             if m.fault is not None:
                 return Response.error(E.MOTOR_ERROR)

@@ -1,4 +1,8 @@
-"""What a backend is asked to build: plain data, no config-file knowledge."""
+"""What a backend is asked to build: plain, picklable data, no config-file knowledge.
+
+A :class:`HardwareSpec` crosses a process boundary unchanged: the step executor's own
+process builds its step/dir/end-stop lines from it (``registry.open_step_io``).
+"""
 
 from __future__ import annotations
 
@@ -7,12 +11,30 @@ from dataclasses import dataclass, field
 
 @dataclass(frozen=True)
 class AxisSpec:
-    """One stepper axis. ``endstop_min``/``endstop_max`` place the mock's simulated end stops."""
+    """One stepper axis.
+
+    ``wiring`` names the lines by role as the backend understands them, e.g.
+    ``(("step", "gpiochip0:17"), ("dir", "GPIO27"), ("min", "gpiochip0:5"))``; roles:
+    step, dir, enable, min, max. ``endstop_active_low`` is the end stops' polarity (backends
+    report logical levels). ``dir_setup_s``/``dir_hold_s``: DIR must be stable this long
+    before a STEP rise / after a STEP fall. ``endstop_min``/``endstop_max`` place the mock's
+    simulated end stops (the mock only).
+    """
 
     invert_dir: bool = False
     endstop_active_low: bool = False
     endstop_min: int = -10_000
     endstop_max: int = 10_000
+    wiring: tuple[tuple[str, str], ...] = ()
+    dir_setup_s: float = 5e-6
+    dir_hold_s: float = 0.0
+    endstop_debounce_s: float = 0.0
+
+    def line(self, role: str) -> str | None:
+        for r, name in self.wiring:
+            if r == role:
+                return name
+        return None
 
 
 @dataclass(frozen=True)

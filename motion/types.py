@@ -70,6 +70,8 @@ class MotorParams:
     debounce_s: float = 0.0
     dir_setup_s: float = 5e-6
     pulse_s: float = 2e-6
+    max_speed: float = 100_000.0  # step/s: no plan is faster (the executor's spacing bound)
+    start_speed: float = 100.0  # step/s: a motor stopped from above may have lost steps
 
     @property
     def rotary(self) -> bool:
