@@ -11,12 +11,11 @@ from collections.abc import Callable, Sequence
 import serial
 
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
-from motorctl.protocol.codec import FRAME_LEN, CodecOptions
+from motorctl.protocol.codec import FRAME_LEN, POS_MAX, POS_MIN, CodecOptions
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
 
 __all__ = ["build_parser", "main"]
 
-POS_MIN, POS_MAX = -(1 << 23), (1 << 23) - 1
 
 _UNITS = """\
 All numbers are the raw protocol values the host sends, not physical units: MOTOR, PIN,

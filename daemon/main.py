@@ -32,6 +32,7 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
 from motorctl.motion.types import HomingParams, MotorParams
+from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")
 
@@ -76,6 +77,7 @@ def motor_params(config: Config) -> list[MotorParams]:
             debounce_s=m.endstop.debounce_ms / 1000.0,
             dir_setup_s=st.dir_setup_us / 1e6,
             pulse_s=st.step_pulse_us / 1e6,
+            host_position=wrap24,
         )
         for m in config.motors
     ]
