@@ -17,6 +17,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link
@@ -253,6 +254,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
     )
+    p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", metavar="PATH", type=Path,
                        help="serve on a new pseudo-terminal; PATH becomes a symlink to it")
