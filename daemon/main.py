@@ -45,18 +45,24 @@ class StartupError(Exception):
 
 
 def hardware_spec(config: Config) -> HardwareSpec:
+    """What the backend builds; every backend's config sections travel along (`sections`)."""
     axes = tuple(
         AxisSpec(
             invert_dir=m.invert_dir,
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
+            sections=m.sections,
         )
         for m in config.motors
     )
-    pins = tuple(PinSpec(p.number, p.is_output, p.initial) for p in config.pins)
+    pins = tuple(
+        PinSpec(p.number, p.is_output, p.initial, sections=p.sections) for p in config.pins
+    )
     wires = config.section(MockConfig).wires
-    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=wires)
+    return HardwareSpec(
+        axes, pins, dc=config.dc is not None, wires=wires, sections=config.sections
+    )
 
 
 def motor_params(config: Config) -> list[MotorParams]:
