@@ -350,18 +350,21 @@ def test_wait_moved_held_with_stop_behind_it(client: Client) -> None:
     assert client.position(0) == stopped_at
 
 
-def test_held_frames_overflow_gets_e0_in_turn(client: Client) -> None:
+def test_held_frames_overflow_gets_e0_in_turn_but_a_stop_is_never_refused(
+        client: Client) -> None:
     client.move(0, True, speed=1)
-    # 1 WaitMoved (times out after 2 s), 18 frames behind it, then a StopMove as the 20th:
-    # 16 are kept, the rest get E0 in their turn and are not executed.
-    cmds: list[Command] = [WaitMoved(0, 2000), *[IsReady(1)] * 18, StopMove(0, True)]
+    # 1 WaitMoved, 18 frames behind it, then a StopMove as the 20th: 16 are kept, the next
+    # 2 get E0 in their turn and are not executed; the StopMove is executed on arrival
+    # although the buffer is full, which ends the WaitMoved (ACK), and answered in its turn.
+    cmds: list[Command] = [WaitMoved(0, 20_000), *[IsReady(1)] * 18, StopMove(0, True),
+                           IsReady(0)]
     answers = pipeline(client, cmds)
-    assert answers[0].error_code is E.MOTOR_NOT_READY
+    assert answers[0].ack
     assert all(a.ack and a.as_bool for a in answers[1:17])
-    assert all(a.error_code is E.FULL_BUFFER for a in answers[17:])
-    assert client.is_ready(0) is False  # the StopMove beyond the buffer was not executed
-    client.stop(0, hard=True)
-    client.wait_moved(0, 5000)
+    assert all(a.error_code is E.FULL_BUFFER for a in answers[17:19])
+    assert answers[19].ack
+    assert answers[20].as_bool is True
+    assert client.is_ready(0) is True
 
 
 def test_wait_moved_reports_fault(client: Client) -> None:
