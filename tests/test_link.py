@@ -111,14 +111,15 @@ class Host:
 class Served:
     """A Link serving a PTY on a thread, with a daemon on a virtual clock behind it."""
 
-    def __init__(self, tmp: Path, port: Any = None, fd: int | None = None, **kw: Any) -> None:
+    def __init__(self, tmp: Path, port: Any = None, fd: int | None = None,
+                 gap_s: float = 0.010, **kw: Any) -> None:
         self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state", VirtualClock())
         self.path = tmp / "pty"
         if fd is None:
             fd, self.name = open_pty(self.path)
             kw.setdefault("on_hangup", lambda: flush_pty_input(self.name))
         self.fd = fd
-        self.link = Link(fd, port or self.daemon.dispatcher, OPTS, 0.010, 16, **kw)
+        self.link = Link(fd, port or self.daemon.dispatcher, OPTS, gap_s, 16, **kw)
         self.daemon.link = self.link
         self.thread = threading.Thread(target=self.link.serve, name="link", daemon=True)
         self.thread.start()
@@ -200,20 +201,23 @@ def test_slow_reader_loses_nothing(served: Served) -> None:
 
 
 def test_bytes_buffered_while_busy_are_not_a_gap(tmp_path: Path) -> None:
-    """Byte by byte, 2 ms apart (below the 10 ms gap), to a daemon that takes 30 ms per
-    command: each read finds bytes that waited while it was busy. None is a gap."""
+    """Byte by byte, 20 ms apart (well below a 100 ms gap, so that a loaded machine does
+    not stretch it into a real one), to a daemon that takes 300 ms per command: each read
+    finds bytes, often part of a frame, that waited while it was busy. None is a gap."""
     base = Served(tmp_path / "a")
     base.close()
-    s = Served(tmp_path, port=SlowPort(base.daemon.dispatcher, 0.030))
+    s = Served(tmp_path, port=SlowPort(base.daemon.dispatcher, 0.300), gap_s=0.100)
     try:
         host = s.host()
-        data = b"".join(frame(IsReady(0)) for _ in range(20))
+        data = b"".join(frame(IsReady(0)) for _ in range(6))
         for b in data:
             host.write(bytes([b]))
-            time.sleep(0.002)
-        rs = host.responses(20)
+            time.sleep(0.020)
+        rs = host.responses(6)
         assert all(r.as_bool for r in rs)
-        assert s.counters()["gap_discards"] == 0
+        c = s.counters()
+        assert c["gap_discards"] == 0
+        assert c["reads"] < len(data)  # bytes did pile up while the daemon was busy
         host.close()
     finally:
         s.close()
