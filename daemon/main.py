@@ -13,6 +13,7 @@ import time
 import tty
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -20,7 +21,7 @@ from typing import Any
 from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.link import Link
+from motorctl.daemon.link import Link, flush_pty_input
 from motorctl.daemon.service import Watchdog, sd_notify, watchdog_interval
 from motorctl.daemon.state import StateError, StateWriter, read_state
 from motorctl.daemon.status import StatusServer, read_status
@@ -222,8 +223,14 @@ class Daemon:
         return out
 
 
-def open_pty(path: Path) -> tuple[int, int, str]:
-    """A new PTY in raw mode; ``path`` becomes a symlink to its slave. Returns fds and name."""
+def open_pty(path: Path) -> tuple[int, str]:
+    """A new PTY in raw mode; ``path`` becomes a symlink to its slave. Returns the master fd
+    and the slave's name.
+
+    The daemon does not keep the slave open: the master then sees the host close the port
+    (POLLHUP, EIO) and drops what was meant for it, as a UART's bytes to a closed port are
+    lost, instead of leaving stale responses for the next host. The raw mode stays set while
+    the master is open."""
     if (path.exists() or path.is_symlink()) and not path.is_symlink():
         raise StartupError(f"{path} exists and is not a symlink; remove it or choose "
                            "another --pty path")
@@ -231,6 +238,7 @@ def open_pty(path: Path) -> tuple[int, int, str]:
     tty.setraw(slave, termios.TCSANOW)
     name = os.ttyname(slave)
     os.chmod(name, 0o666)
+    os.close(slave)
     os.set_blocking(master, False)
     tmp = path.with_name(f".{path.name}.{os.getpid()}")
     try:
@@ -238,7 +246,7 @@ def open_pty(path: Path) -> tuple[int, int, str]:
         os.replace(tmp, path)
     except OSError as exc:
         raise StartupError(f"cannot create symlink {path}: {exc.strerror}") from exc
-    return master, slave, name
+    return master, name
 
 
 def open_uart(device: str, baud: int) -> tuple[Any, int]:
@@ -336,16 +344,15 @@ def serve(args: argparse.Namespace) -> int:
             os.sched_setaffinity(0, others)
     daemon = Daemon.build(config, args.state_dir)
     uart: Any = None
-    slave: int | None = None
     if args.pty is not None:
-        fd, slave, name = open_pty(args.pty)
+        fd, name = open_pty(args.pty)
         where = f"{args.pty} -> {name}"
     else:
         uart, fd = open_uart(args.port, args.baud)
         where = f"{args.port} at {args.baud} baud"
     c = config.link
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
-                c.held_frames)
+                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name))
     daemon.link = link
     stepper = StepThread(daemon.engine, daemon.clock, spin_s=st.spin_us / 1e6,
                          priority=st.priority, lock_memory=st.lock_memory, cpu=st.cpu)
@@ -383,8 +390,6 @@ def serve(args: argparse.Namespace) -> int:
             uart.close()
         else:
             os.close(fd)
-            if slave is not None:
-                os.close(slave)
             if args.pty.is_symlink():
                 args.pty.unlink()
         daemon.hw.close()
