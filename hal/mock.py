@@ -94,11 +94,13 @@ class MockStepPort(StepPort):
         self._index = index
 
     def _write_dir(self, level: bool) -> None:
+        self._world.raise_injected("dir", self._index)
         self._world.axes[self._index].heading = self.direction
         self._world.timeline.record(self.clock.now(), "dir", self._index, level)
 
     def _pulse(self, width_s: float) -> float:
         clock = self.clock
+        self._world.raise_injected("step", self._index)
         rise = clock.now()
         self._world.timeline.record(rise, "step", self._index, self.direction)
         axis = self._world.axes[self._index]
@@ -140,6 +142,7 @@ class MockPin(Pin):
             self._world.timeline.record(self._world.clock.now(), "pin", self.number, level)
 
     def _write(self, level: bool) -> None:
+        self._world.raise_injected("pin", self.number)
         self._world.timeline.record(self._world.clock.now(), "pin", self.number, level)
 
     def _read(self) -> bool:
@@ -169,6 +172,7 @@ class MockWorld:
         self.pins: dict[int, MockPin] = {
             p.number: MockPin(self, p.number, p.output, p.initial) for p in spec.pins
         }
+        self.line_errors: dict[tuple[str, int], OSError] = {}
         self._wires: dict[int, int] = {}
         for a, b in spec.wires:
             self._wires[a] = b
@@ -183,6 +187,20 @@ class MockWorld:
     def inject_fault(self, motor: int, fault: str | None) -> None:
         """Make motor's driver report ``fault`` (None clears it)."""
         self.axes[motor].fault = fault
+
+    def inject_line_error(self, kind: str, index: int, error: OSError | None) -> None:
+        """Make every write to a line raise ``error`` (None heals it): ``kind`` is "step" or
+        "dir" (``index`` a motor) or "pin" (``index`` a pin number), as a line whose chip went
+        away makes gpiod raise."""
+        if error is None:
+            self.line_errors.pop((kind, index), None)
+        else:
+            self.line_errors[(kind, index)] = error
+
+    def raise_injected(self, kind: str, index: int) -> None:
+        error = self.line_errors.get((kind, index))
+        if error is not None:
+            raise error
 
     def inject_stall(self, motor: int, stalled: bool) -> None:
         self.axes[motor].forced_stall = stalled
