@@ -21,6 +21,10 @@ Parts (each reports its figures and every invariant violation; exit status 1 if 
   or SaveHome ACK, mid-move, at rest), restart on the same state directory, then check that
   no motor reports a wrong position as valid and that home and every acknowledged waypoint
   are there (and hold the right values).
+- faults: the state directory turns read-only (a tmpfs remounted; needs root, else
+  skipped and said so): SaveHome/SaveWayPoint must answer E4 and change nothing, the
+  daemon keeps serving, and after a kill -9 every acknowledged save is there. (Line and
+  driver faults are injected in-process: tests/test_hal_faults.py.)
 - soak: mixed traffic as fast as the host can send while 3 motors move, for --soak-s
   seconds: RSS and open file descriptors of the daemon sampled; error counters must only
   grow by what the traffic provokes.
@@ -837,7 +841,75 @@ def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
             d.terminate()
 
 
+# -- part 4: the state directory turns read-only ---------------------------------------
+def part_faults(workdir: Path, report: Report) -> None:
+    """SaveHome/SaveWayPoint while the state directory is read-only must answer E4 (the
+    state cannot be written) and change nothing; the daemon keeps serving; once writable
+    again, saves work, and a kill -9 loses none of the acknowledged ones."""
+    mnt = workdir / "state"
+    mnt.mkdir()
+    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)],
+                             capture_output=True, text=True)
+    if mounted.returncode != 0:
+        report.figures["faults"] = {"state_dir_read_only": "skipped: cannot mount a tmpfs "
+                                    f"({mounted.stderr.strip()}); run as root"}
+        return
+    answers: dict[str, str] = {}
+    d = Daemon(workdir, mnt).start()
+    port = Port(d.pty)
+    try:
+        exchange(port, [cmd(MOVE_TO, 0, 1, 500, 0, 0, 0)], report, [ok()], "MoveTo")
+        wait_idle(port, 0, report)
+        exchange(port, [cmd(SAVE_HOME, 0), cmd(SAVE_WP, 0)], report, [ok(), ok()], "saves")
+        exchange(port, [cmd(MOVE_TO, 0, 1, 700, 0, 0, 0)], report, [ok()], "MoveTo")
+        wait_idle(port, 0, report)
+        time.sleep(0.2)  # the motor's rest has been written
+        remount(mnt, "ro")
+        for name, frame in (("SaveHome", cmd(SAVE_HOME, 0)), ("SaveWayPoint", cmd(SAVE_WP, 0))):
+            r = ask(port, frame, report, name)
+            answers[name + " read-only"] = r.hex()
+            if r != err(E4):
+                report.violation(f"faults: {name} on a read-only state directory answered "
+                                 f"{r.hex()}, not E4 (PROTOCOL.md §4: ACK only once written)")
+        r = ask(port, cmd(IS_READY, 0), report, "IsReady")
+        if r != ok(b"\x01\0\0"):
+            report.violation(f"faults: IsReady after the failed saves answered {r.hex()}")
+        remount(mnt, "rw")
+        r = ask(port, cmd(SAVE_WP, 0), report, "SaveWayPoint")
+        answers["SaveWayPoint writable again"] = r.hex()
+        expected_wps = 2 if r == ok(b"\x01\0\0") else 1
+        if r[:1] != b"\x01":
+            report.violation(f"faults: SaveWayPoint once writable again answered {r.hex()}")
+        d.kill()
+        port.close()
+        d = Daemon(workdir, mnt).start()
+        port = Port(d.pty)
+        for n in range(expected_wps):
+            if ask(port, cmd(MOVE_TO_WP, 0, n, 0, 0, 0), report, "MoveToWayPoint") == err(E6):
+                report.violation(f"faults: acknowledged waypoint {n} lost")
+            wait_idle(port, 0, report)
+        if ask(port, cmd(MOVE_TO_WP, 0, expected_wps, 0, 0, 0), report, "") != err(E6):
+            report.violation("faults: a waypoint whose save was refused exists")
+        exchange(port, [cmd(GO_HOME, 0)], report, [ok()], "GoHome")
+        wait_idle(port, 0, report)
+        home = pos_of(ask(port, cmd(GET_POS, 0), report, "GetAbsPos"))
+        answers["home after restart"] = str(home)
+        if home != 500:
+            report.violation(f"faults: home is {home} after the refused SaveHome, not 500")
+    finally:
+        port.close()
+        d.kill()
+        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+    report.figures["faults"] = {"state_dir_read_only": answers}
+
+
+def remount(mnt: Path, mode: str) -> None:
+    subprocess.run(["mount", "-o", f"remount,{mode}", str(mnt)], check=True,
+                   capture_output=True)
+
+
 PARTS: dict[str, Callable[[Path, argparse.Namespace, Report], None]] = {
+    "faults": lambda w, a, r: part_faults(w, r),
     "frames": lambda w, a, r: part_frames(w, a.frames, a.seed, r),
     "kill": lambda w, a, r: part_kill(w, a.kills, a.seed, r),
     "soak": lambda w, a, r: part_soak(w, a.soak_s, a.seed, r),
@@ -846,7 +918,7 @@ PARTS: dict[str, Callable[[Path, argparse.Namespace, Report], None]] = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
-    p.add_argument("--parts", default="frames,kill,soak", help="comma-separated: "
+    p.add_argument("--parts", default="frames,kill,faults,soak", help="comma-separated: "
                    + ", ".join(PARTS))
     p.add_argument("--frames", type=int, default=1_000_000)
     p.add_argument("--kills", type=int, default=100)
