@@ -450,6 +450,7 @@ class Movers:
 
 def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
     rng = random.Random(seed)
+    violations_before = len(report.violations)
     d = Daemon(workdir, workdir / "state").start()
     port = Port(d.pty)
     sent = {"burst": 0, "bytewise": 0, "random_bytes": 0, "flipped": 0, "padding": 0,
@@ -462,7 +463,7 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
     t0 = time.monotonic()
     last_print = t0
     try:
-        while frames_total < total and not report.violations:
+        while frames_total < total and len(report.violations) == violations_before:
             movers.kick()
             kind = rng.choices(["burst", "bytewise", "random_bytes", "flipped", "padding",
                                 "truncated", "valid_random"],
@@ -479,9 +480,12 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                     port.write(bytes([byte]))
                     time.sleep(rng.uniform(0, 0.6 * GAP_S))
                 data = port.take(5 * len(frames))
-                if [data[i : i + 5] for i in range(0, len(data), 5)] != answers:
+                each = [data[i : i + 5] for i in range(0, len(data), 5)]
+                if len(each) != len(answers) or any(
+                        malformed(g) or (a is not None and g != a)
+                        for g, a in zip(each, answers, strict=True)):
                     report.violation(f"byte by byte: got {data.hex()}, expected "
-                                     f"{b''.join(a or b'' for a in answers).hex()}")
+                                     f"{[a.hex() if a else 'any' for a in answers]}")
                 sent["bytewise"] += len(frames)
                 frames_total += len(frames)
             elif kind in ("random_bytes", "truncated"):
@@ -736,7 +740,7 @@ def provoke(port: Port, models: list[MotorModel], rng: random.Random, moment: st
             report.violation(f"{moment}: motor {i} answered {r.hex()} at rest: "
                              f"{state_of(port, i)}")
         return  # killed right after the ACK
-    m.position = {here, target}  # from the moment it is sent, either may be right
+    m.position = {here, target}  # sent, not acknowledged: either may be right
     if moment == "during_burst":
         port.write(move + b"".join(cmd(GET_POS, i) for _ in range(500)))
         time.sleep(rng.uniform(0, 0.01))
@@ -744,6 +748,10 @@ def provoke(port: Port, models: list[MotorModel], rng: random.Random, moment: st
     r = ask(port, move, report, moment)
     if r != ok():
         report.violation(f"{moment}: MoveTo answered {r.hex()}")
+    # Acknowledged: the motor is moving. After a kill it is either lost, or at rest at the
+    # target (the move was over and written); the start position reported as valid is the
+    # stale-position hole of PROTOCOL.md §4.
+    m.position = {target}
     if moment == "motion_start":
         time.sleep(rng.uniform(0, 0.005))
     elif moment == "mid_move":
@@ -757,6 +765,7 @@ def provoke(port: Port, models: list[MotorModel], rng: random.Random, moment: st
 # -- part 3: soak ----------------------------------------------------------------------
 def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
     rng = random.Random(seed)
+    violations_before = len(report.violations)
     d = Daemon(workdir, workdir / "soak-state").start()
     port = Port(d.pty)
     samples: list[dict[str, float]] = []
@@ -773,7 +782,7 @@ def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
         frames: list[bytes] = []
         answers: list[bytes | None] = []
         up = True
-        while time.monotonic() - t0 < seconds and not report.violations:
+        while time.monotonic() - t0 < seconds and len(report.violations) == violations_before:
             now = time.monotonic()
             if now >= flip:
                 flip = now + 1.0
