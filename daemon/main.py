@@ -18,6 +18,7 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link, flush_pty_input
@@ -33,6 +34,7 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
 from motorctl.motion.types import HomingParams, MotorParams
+from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")
 
@@ -44,18 +46,24 @@ class StartupError(Exception):
 
 
 def hardware_spec(config: Config) -> HardwareSpec:
+    """What the backend builds; every backend's config sections travel along (`sections`)."""
     axes = tuple(
         AxisSpec(
             invert_dir=m.invert_dir,
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
+            sections=m.sections,
         )
         for m in config.motors
     )
-    pins = tuple(PinSpec(p.number, p.is_output, p.initial) for p in config.pins)
+    pins = tuple(
+        PinSpec(p.number, p.is_output, p.initial, sections=p.sections) for p in config.pins
+    )
     wires = config.section(MockConfig).wires
-    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=wires)
+    return HardwareSpec(
+        axes, pins, dc=config.dc is not None, wires=wires, sections=config.sections
+    )
 
 
 def motor_params(config: Config) -> list[MotorParams]:
@@ -77,6 +85,7 @@ def motor_params(config: Config) -> list[MotorParams]:
             debounce_s=m.endstop.debounce_ms / 1000.0,
             dir_setup_s=st.dir_setup_us / 1e6,
             pulse_s=st.step_pulse_us / 1e6,
+            host_position=wrap24,
         )
         for m in config.motors
     ]
@@ -259,6 +268,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
     )
+    p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", metavar="PATH", type=Path,
                        help="serve on a new pseudo-terminal; PATH becomes a symlink to it")
