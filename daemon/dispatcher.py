@@ -8,13 +8,14 @@ E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5.
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 from motorctl.daemon.config import Config, MotorConfig
-from motorctl.hal.interfaces import BridgeState, Pin
+from motorctl.hal.interfaces import BridgeState, HalError, Pin
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
@@ -38,6 +39,8 @@ from motorctl.protocol.codec import (
     StopMove,
     WaitMoved,
 )
+
+log = logging.getLogger("motorctl.dispatcher")
 
 E = ErrorCode
 OK = Response.ok()
@@ -72,6 +75,7 @@ class Dispatcher:
         self.pins = pins
         self.on_saved = on_saved
         self.clamped: Counter[str] = Counter()
+        self.hardware_errors = 0
         self.table: dict[type[Any], Callable[[Any], Response]] = {
             InitMove: self.init_move,
             MoveTo: self.move_to,
@@ -100,6 +104,15 @@ class Dispatcher:
                 return handler(cmd)
         except Reject as r:
             return Response.error(r.code)
+        except (HalError, OSError) as exc:  # a line or device that failed: never an ACK
+            self.hardware_errors += 1
+            log.error("%s: hardware error: %s", type(cmd).__name__, exc)
+            index = getattr(cmd, "motor", None)
+            if isinstance(index, int) and 0 <= index < len(self.engine.motors):
+                with self.engine.lock:  # a motion half started: stop it, latched
+                    m = self.engine.motors[index]
+                    m.latch_fault(f"hardware error: {exc}", self.engine.clock.now())
+            return Response.error(E.MOTOR_ERROR)
 
     def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
