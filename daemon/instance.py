@@ -67,7 +67,7 @@ class InstanceLock:
     path: Path
     what: str  # "state directory /run/motorctl", for the message
     fd: int | None = None
-    ino: tuple[int, int] | None = None
+    ino: Identity | None = None
 
     def acquire(self) -> None:
         for _ in range(5):
@@ -101,7 +101,7 @@ class InstanceLock:
                 continue
             os.ftruncate(fd, 0)
             os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
-            self.fd, self.ino = fd, (st.st_dev, st.st_ino)
+            self.fd, self.ino = fd, _identity(self.path)
             return
         raise InstanceError(f"cannot take the lock {self.path}: it keeps being replaced")
 
@@ -114,15 +114,19 @@ class InstanceLock:
         self.fd = None
 
 
-def _identity(path: Path) -> tuple[int, int] | None:
+Identity = tuple[int, int, int]
+
+
+def _identity(path: Path) -> Identity | None:
+    """Device, inode and change time: an inode number alone is reused by the next file."""
     try:
         st = os.lstat(path)
     except OSError:
         return None
-    return st.st_dev, st.st_ino
+    return st.st_dev, st.st_ino, st.st_ctime_ns
 
 
-def _remove_if_same(path: Path, ino: tuple[int, int] | None) -> bool:
+def _remove_if_same(path: Path, ino: Identity | None) -> bool:
     if ino is None or _identity(path) != ino:
         return False
     try:
@@ -140,7 +144,7 @@ class Owned:
     """Files this daemon created; :meth:`cleanup` removes those that are still its own."""
 
     symlinks: list[tuple[Path, str]] = field(default_factory=list)  # path, target
-    files: list[tuple[Path, tuple[int, int] | None]] = field(default_factory=list)
+    files: list[tuple[Path, Identity | None]] = field(default_factory=list)
     locks: list[InstanceLock] = field(default_factory=list)
 
     def lock(self, path: Path, what: str) -> InstanceLock:
@@ -164,7 +168,8 @@ class Owned:
             except FileNotFoundError:
                 pass
             except OSError as exc:
-                log.warning("cannot remove %s: %s; remove it by hand", path, exc.strerror)
+                if exc.errno != errno.EINVAL:  # EINVAL: not a symlink, so not ours
+                    log.warning("cannot remove %s: %s; remove it by hand", path, exc.strerror)
         for path, ino in self.files:
             _remove_if_same(path, ino)
         for lock in reversed(self.locks):

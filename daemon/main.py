@@ -25,6 +25,7 @@ from motorctl.daemon.link import Link
 from motorctl.daemon.service import (
     StatusLine,
     Watchdog,
+    notify_backend,
     sd_notify,
     setup_logging,
     watchdog_interval,
@@ -295,7 +296,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    setup_logging(args.log_level)
+    logs_to = setup_logging(args.log_level)
     if args.print_default_config:
         from motorctl.daemon.config import default_config_text
 
@@ -324,6 +325,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE",
               file=sys.stderr)
         return 2
+    log.debug("logging to %s", logs_to)
     try:
         return serve(args)
     except (ConfigError, StartupError) as exc:
@@ -393,6 +395,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     print(f"motorctld ready: serving {where}; config {config.source}; "
           f"{len(config.motors)} motors; {config.hal.backend} hardware; "
           f"state in {args.state_dir}", flush=True)
+    if os.environ.get("NOTIFY_SOCKET"):
+        log.info("systemd notifications through %s", notify_backend()[0])
     sd_notify("READY=1")
     line.start()
     try:

@@ -239,3 +239,4 @@ class StatusLine:
         if final is not None and final != self.last:
             self.last = final
             self.send(f"STATUS={final}")
+            self.sent += 1

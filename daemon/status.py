@@ -35,8 +35,9 @@ class StatusServer:
             path.unlink()
         self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
         self._sock.bind(str(path))
+        os.chmod(path, 0o660)  # the service's group may ask (connecting needs write)
         st = os.lstat(path)
-        self.identity = (st.st_dev, st.st_ino)
+        self.identity = (st.st_dev, st.st_ino, st.st_ctime_ns)
         self._sock.listen(4)
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._run, name="motorctl-status", daemon=True)
@@ -78,7 +79,7 @@ class StatusServer:
             self._thread.join(2.0)
         try:
             st = os.lstat(self.path)
-            if (st.st_dev, st.st_ino) == self.identity:
+            if (st.st_dev, st.st_ino, st.st_ctime_ns) == self.identity:
                 os.unlink(self.path)
         except FileNotFoundError:
             pass
