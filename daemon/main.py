@@ -152,8 +152,9 @@ class Daemon:
             driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
             late_threshold_s=config.step_thread.late_threshold_us / 1e6,
         )
-        persistence = Persistence(state_dir, motor_identities(config), engine,
-                                  mock_extra(hw))
+        files_dir = state_files_dir(config, state_dir)
+        make_state_dir(files_dir)
+        persistence = Persistence(files_dir, motor_identities(config), engine, mock_extra(hw))
         dispatcher = Dispatcher(config, engine, hw.pins, persist=persistence)
         daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
         persistence.restore()
@@ -192,6 +193,11 @@ class Daemon:
         if self.link is not None:
             out["link"] = self.link.status()
         return out
+
+
+def state_files_dir(config: Config, state_dir: Path) -> Path:
+    """Where state.json lives: [state] directory, else the --state-dir (docs/service.md)."""
+    return Path(config.state.directory) if config.state.directory else state_dir
 
 
 def make_state_dir(state_dir: Path) -> None:
@@ -360,6 +366,10 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     make_state_dir(args.state_dir)
     try:  # one daemon per state directory and PTY path, before any file is touched
         owned.lock(args.state_dir / LOCK_NAME, f"state directory {args.state_dir}")
+        files_dir = state_files_dir(config, args.state_dir)
+        if files_dir != args.state_dir:
+            make_state_dir(files_dir)
+            owned.lock(files_dir / LOCK_NAME, f"state directory {files_dir}")
         if args.pty is not None:
             owned.lock(args.pty.with_name(f".{args.pty.name}.lock"), f"PTY {args.pty}")
     except InstanceError as exc:

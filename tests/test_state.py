@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 
 from motorctl.daemon import state as st
-from motorctl.daemon.config import parse_config
+from motorctl.daemon.config import ConfigError, parse_config
 from motorctl.daemon.main import Daemon
 from motorctl.daemon.state import (
     MotionJournal,
@@ -426,3 +426,15 @@ def test_identities_must_match_motors(tmp_path: Path) -> None:
     d = build(tmp_path)
     with pytest.raises(ValueError):
         st.Persistence(tmp_path, [], d.engine)
+
+
+def test_state_directory_option(tmp_path: Path) -> None:
+    elsewhere = tmp_path / "var-lib"
+    config = f'[state]\ndirectory = "{elsewhere}"\n' + CONFIG
+    d = build(tmp_path / "run", config)
+    move(d, 0, 9)
+    d.persistence.close()
+    assert json.loads((elsewhere / "state.json").read_text())["motors"][0]["position"] == 9
+    assert not (tmp_path / "run" / "state.json").exists()
+    with pytest.raises(ConfigError, match="absolute path"):
+        parse_config('[state]\ndirectory = "relative"\n' + CONFIG, "t.toml")
