@@ -12,7 +12,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test lint bench clean venv deb deb-deps test-deb
+.PHONY: run test lint bench clean venv deb deb-deps test-deb coverage
 
 venv: $(VENV)/.installed
 
@@ -32,6 +32,9 @@ test: venv
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
+
+coverage: venv
+	$(BIN)/pytest -q -n $(JOBS) --cov=motorctl.daemon --cov-report=term-missing
 
 bench: venv
 	$(BIN)/python bench/latency.py
