@@ -62,7 +62,7 @@ deb: deb-deps
 	rm -rf $(DEB_DIR) && mkdir -p $(DEB_DIR)
 	git ls-files -z --cached --others --exclude-standard -- . ':!debian' ':!.ci' \
 	  | tar --null -T - --sort=name --owner=0 --group=0 --mtime=@$$(git log -1 --format=%ct) \
-	    --transform='s,^,motorctl-$(DEB_VERSION)/,' -cf - \
+	    --transform='s,^,motorctl-$(DEB_VERSION)/,S' -cf - \
 	  | gzip -n > $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	tar -C $(DEB_DIR) -xzf $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	cp -a debian $(DEB_DIR)/motorctl-$(DEB_VERSION)/

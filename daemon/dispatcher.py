@@ -8,6 +8,7 @@ E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5.
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -38,6 +39,8 @@ from motorctl.protocol.codec import (
     StopMove,
     WaitMoved,
 )
+
+log = logging.getLogger("motorctl.dispatcher")
 
 E = ErrorCode
 OK = Response.ok()
@@ -144,6 +147,11 @@ class Dispatcher:
             # SaveHome/SaveWayPoint: no ACK for a change that is not on disk.
             with self.engine.lock:
                 undo()
+            name = type(cmd).__name__
+            log.warning("motor %d: %s not saved (the state file cannot be written): E4",
+                        getattr(cmd, "motor", -1), name,
+                        extra={"MOTOR": getattr(cmd, "motor", None), "COMMAND": name,
+                               "ERROR_CODE": "E4"})
             return Response.error(E.MOTOR_ERROR)
         return resp
 

@@ -23,6 +23,7 @@ from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.link import Link
 from motorctl.daemon.service import (
+    MotorEventLog,
     StatusLine,
     Watchdog,
     notify_backend,
@@ -391,8 +392,14 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     stepper = StepThread(daemon.engine, daemon.clock, spin_s=st.spin_us / 1e6,
                          priority=st.priority, lock_memory=st.lock_memory, cpu=st.cpu)
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
-    line = StatusLine(lambda: summary_line(daemon.status()))
-    daemon.engine.listeners.append(lambda motor, event: line.poke())
+    events = MotorEventLog()
+    line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
+
+    def on_motor_event(motor: Motor, event: str) -> None:  # step thread: no I/O
+        events.record(motor.index, motor.params.name, event, motor.fault)
+        line.poke()
+
+    daemon.engine.listeners.append(on_motor_event)
     daemon.writer.on_change = line.poke
     stop.attach(link.stop)
     daemon.persistence.start()

@@ -16,6 +16,7 @@ long). :class:`StatusLine` owns one thread that wakes on :meth:`StatusLine.poke`
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import logging
 import os
@@ -193,8 +194,9 @@ class StatusLine:
     """
 
     def __init__(self, summary: Callable[[], str], send: Callable[[str], bool] = sd_notify,
-                 period: float = 2.0) -> None:
+                 period: float = 2.0, before: Callable[[], None] = lambda: None) -> None:
         self.summary = summary
+        self.before = before  # e.g. MotorEventLog.flush, on this thread
         self.send = send
         self.period = period
         self.last: str | None = None
@@ -213,6 +215,7 @@ class StatusLine:
 
     def update(self) -> None:
         try:
+            self.before()
             line = self.summary()
         except Exception:  # a status line must never take the daemon down
             log.exception("cannot build the status line")
@@ -236,7 +239,45 @@ class StatusLine:
         self._wake.set()
         if self._thread.is_alive():
             self._thread.join(5.0)
+        with contextlib.suppress(Exception):
+            self.before()
         if final is not None and final != self.last:
             self.last = final
             self.send(f"STATUS={final}")
             self.sent += 1
+
+
+_EVENT_LEVELS = {"fault": logging.ERROR, "cleared": logging.INFO, "homed": logging.INFO}
+
+
+class MotorEventLog:
+    """Motor faults, clears and homings as journal entries, logged off the step thread.
+
+    ``record()`` is called from motor listeners (step thread, engine lock held): it only
+    appends to a bounded queue. ``flush()`` logs on the caller's thread (the status line's),
+    with the fields MOTOR, MOTOR_NAME, EVENT and FAULT.
+    """
+
+    def __init__(self, limit: int = 256) -> None:
+        self._pending: collections.deque[tuple[int, str, str, str | None]] = \
+            collections.deque(maxlen=limit)
+        self._lock = threading.Lock()
+
+    def record(self, index: int, name: str, event: str, fault: str | None) -> bool:
+        """Queue an event worth a log line; True when it was one."""
+        if event not in _EVENT_LEVELS:
+            return False
+        with self._lock:
+            self._pending.append((index, name, event, fault))
+        return True
+
+    def flush(self) -> None:
+        with self._lock:
+            events, self._pending = list(self._pending), collections.deque(
+                maxlen=self._pending.maxlen)
+        for index, name, event, fault in events:
+            text = {"fault": f"fault latched: {fault}; E4 until StopMove clears it",
+                    "cleared": "fault cleared", "homed": "homed: position 0"}[event]
+            log.log(_EVENT_LEVELS[event], "motor %d (%s): %s", index, name, text,
+                    extra={"MOTOR": index, "MOTOR_NAME": name, "EVENT": event,
+                           "FAULT": fault})

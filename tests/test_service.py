@@ -356,3 +356,21 @@ def test_owned_cleanup_on_read_only_dir(tmp_path: Path,
 def test_time_is_bounded() -> None:
     # The fixtures above wait with deadlines; this guards the constant.
     assert 0 < DEADLINE_S <= 10 and time.monotonic() > 0
+
+
+def test_motor_events_logged_off_the_step_thread(caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO)
+    events = service.MotorEventLog()
+    assert events.record(1, "y", "fault", "stall")
+    assert not events.record(1, "y", "start", None)  # not worth a line
+    assert events.record(1, "y", "cleared", None)
+    assert caplog.records == []  # nothing logged by record(): no I/O on the step thread
+    line = service.StatusLine(lambda: "x", send=lambda m: True, before=events.flush)
+    line.update()
+    fault, cleared = caplog.records
+    assert fault.getMessage() == "motor 1 (y): fault latched: stall; E4 until StopMove clears it"
+    assert fault.levelno == logging.ERROR
+    assert (fault.MOTOR, fault.EVENT, fault.FAULT) == (1, "fault", "stall")  # type: ignore[attr-defined]
+    assert cleared.getMessage() == "motor 1 (y): fault cleared"
+    events.flush()
+    assert len(caplog.records) == 2
