@@ -10,7 +10,9 @@
 #   ExecStart, a fake NOTIFY_SOCKET) reaching READY=1 via systemd-python, answering a
 #   command on its PTY (mode 0660, group motorctl), sending STATUS= and STOPPING=1;
 #   the installed unit scored by `systemd-analyze security --offline=true` (<= 2.0) and
-#   `systemd-analyze verify` clean, both against this root; and a clean purge.
+#   `systemd-analyze verify` clean, both against this root; the root booted with
+#   systemd-nspawn, so the service runs under a real systemd with its whole sandbox
+#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop); and a clean purge.
 set -euo pipefail
 deb=$(realpath "$1")
 here=$(cd "$(dirname "$0")/../.." && pwd)
@@ -96,6 +98,34 @@ echo "ExecStart: $cmd"
 in_root python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
   setpriv --reuid=motorctl --regid=motorctl --init-groups $cmd \
   || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
+
+step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
+for m in dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
+cp "$here/tests/deb/report.service" "$root/etc/systemd/system/"
+cp "$here/tests/deb/report.sh" "$root/root/"
+ln -sf /etc/systemd/system/report.service "$root/etc/systemd/system/multi-user.target.wants/"
+rm -f "$root/run/motorctl/"* "$root/root/report.txt"
+timeout 180 systemd-nspawn -D "$root" --boot --register=no --keep-unit --console=pipe \
+  </dev/null > "$build/deb-nspawn.log" 2>&1 || { tail -20 "$build/deb-nspawn.log"; fail "nspawn boot"; }
+report=$root/root/report.txt
+[ -f "$report" ] || { tail -20 "$build/deb-nspawn.log"; fail "no report from the booted root"; }
+cat "$report"
+expect() { grep -qx -- "$1" "$report" || fail "booted service: expected a line '$1'"; }
+expect "ActiveState=active"
+expect "SubState=running"
+expect "NRestarts=0"
+expect "User=motorctl"
+expect "pty: crw-rw---- motorctl motorctl"
+expect "client: motor 0 at 0"
+expect "status-socket: 1"
+expect "after-stop: inactive success"
+expect "left-in-run: state.json state.moving "
+expect "journal-fields: 1"
+grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STATUS= line"
+grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"
+mount -t proc proc "$root/proc"
+mount --bind /dev "$root/dev"
+mount --bind /dev/pts "$root/dev/pts"
 
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
