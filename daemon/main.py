@@ -20,7 +20,7 @@ from typing import Any
 
 from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
+from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
 from motorctl.daemon.link import Link
 from motorctl.daemon.service import (
     MotorEventLog,
@@ -271,6 +271,11 @@ def open_uart(device: str, baud: int) -> tuple[Any, int]:
     try:
         port = serial.Serial(device, baud, timeout=0, exclusive=True)
     except serial.SerialException as exc:
+        holder = flock_holder(Path(device)) if os.path.exists(device) else None
+        if holder is not None:
+            raise StartupError(
+                f"serial device {device} is held by another process (PID {holder}); "
+                "stop it first (another motorctld, a getty or a terminal program)") from exc
         raise StartupError(
             f"cannot open serial device {device}: {exc}; check the path (ls -l /dev/serial* "
             "/dev/tty{AMA,S,USB}*), that the UART is enabled, and that the user is in the "

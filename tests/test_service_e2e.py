@@ -178,3 +178,26 @@ def test_notifications_on_a_fake_notify_socket(tmp_path: Path) -> None:
             wait_for("STOPPING=1")
         finally:
             d.close()
+
+
+def test_a_held_uart_names_its_holder(tmp_path: Path) -> None:
+    """A UART (here a PTY's slave, opened like a serial device) flocked by someone else."""
+    import fcntl
+
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    holder = os.open(device, os.O_RDWR | os.O_NOCTTY)
+    fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # what pyserial's exclusive=True takes
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "motorctl.daemon.main", "--port", device,
+             "--state-dir", str(tmp_path / "state")],
+            capture_output=True, text=True, timeout=DEADLINE_S)
+    finally:
+        for fd in (holder, slave, master):
+            os.close(fd)
+    assert out.returncode == 1, out.stderr
+    assert f"serial device {device} is held by another process (PID {os.getpid()})" \
+        in out.stderr
+    assert "Traceback" not in out.stderr
+    assert not (tmp_path / "state" / "motorctld.lock").exists()  # released on the way out
