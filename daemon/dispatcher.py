@@ -302,6 +302,7 @@ class Dispatcher:
     def save_home(self, c: SaveHome) -> Response:
         m = self._motor(c.motor)
         self._not_faulted(m)
+        self._position_known(m)
         self._idle(m)
         old = m.home
         m.home = m.position
@@ -324,6 +325,7 @@ class Dispatcher:
     def save_waypoint(self, c: SaveWayPoint) -> Response:
         m = self._motor(c.motor)
         self._not_faulted(m)
+        self._position_known(m)
         self._idle(m)
         if len(m.waypoints) >= m.params.max_waypoints:
             raise Reject(E.FULL_WAYPOINT_BUFFER)
