@@ -21,6 +21,7 @@ from motorctl.daemon.config import (
     LinkConfig,
     MotorConfig,
     PinConfig,
+    StateConfig,
     StepThreadConfig,
     UnitsConfig,
     default_config_text,
@@ -180,6 +181,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         ("units", UnitsConfig),
         ("hal", HalConfig),
         ("step_thread", StepThreadConfig),
+        ("state", StateConfig),
         ("dc", DcConfig),
         ("motors[]", MotorConfig),
         ("motors[].homing", HomingConfig),
@@ -708,7 +710,7 @@ def test_table_of_the_whole_file() -> None:
     spec = schema()
     assert isinstance(spec, Table)
     assert [c.name for c in spec.children] == [
-        "link", "units", "hal", "step_thread", "dc", "motors", "pins", "mock"
+        "link", "units", "hal", "step_thread", "state", "dc", "motors", "pins", "mock"
     ]
 
 
