@@ -188,6 +188,7 @@ class StepOutputs(ABC):
         hold = self.last_fall[motor] + self.dir_hold_s[motor]
         if clock.now() < hold:
             clock.spin_until(hold)
+        self.direction[motor] = None  # unknown until the write succeeded
         self._write_dir(motor, up != self.invert_dir[motor])
         self.direction[motor] = up
         self.ready_at[motor] = clock.now() + self.dir_setup_s[motor]

@@ -7,6 +7,7 @@ inject end-stop levels, driver faults and stalls.
 
 from __future__ import annotations
 
+import enum
 import json
 import threading
 from collections import deque
@@ -33,12 +34,22 @@ from motorctl.hal.interfaces import (
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 
 
+class EventKind(enum.StrEnum):
+    """What a timeline event records."""
+
+    STEP = "step"  # a step pulse's rising edge; value = the logical direction (True = up)
+    DIR = "dir"  # the DIR line changed; value = the new level
+    PIN = "pin"  # an output pin's level was written; value = the level
+    CONFIG = "config"  # a pin changed direction; value = True for output
+    DC = "dc"  # the DC bridge changed state; value = the BridgeState's value
+
+
 @dataclass(frozen=True)
 class Event:
-    """One recorded change: ``kind`` is step/dir/pin/config/dc, ``index`` the motor or pin."""
+    """One recorded change: what (``kind``), when (``t``), ``index`` the motor or pin."""
 
     t: float
-    kind: str
+    kind: EventKind
     index: int
     value: Any
 
@@ -48,19 +59,19 @@ class Timeline:
 
     def __init__(self, maxlen: int | None = 100_000) -> None:
         self.events: deque[Event] = deque(maxlen=maxlen)
-        self.counts: dict[str, int] = {}
+        self.counts: dict[EventKind, int] = {}
 
-    def record(self, t: float, kind: str, index: int, value: Any) -> None:
+    def record(self, t: float, kind: EventKind, index: int, value: Any) -> None:
         self.events.append(Event(t, kind, index, value))
         self.counts[kind] = self.counts.get(kind, 0) + 1
 
-    def of(self, kind: str, index: int | None = None) -> list[Event]:
+    def of(self, kind: EventKind, index: int | None = None) -> list[Event]:
         # tuple() copies in one C call, so another thread appending meanwhile is harmless
         return [e for e in tuple(self.events)
                 if e.kind == kind and (index is None or e.index == index)]
 
     def step_times(self, motor: int) -> list[float]:
-        return [e.t for e in self.of("step", motor)]
+        return [e.t for e in self.of(EventKind.STEP, motor)]
 
 
 _POSITION, _HEADING, _FORCED_MIN, _FORCED_MAX, _FORCED_STALL, _GEN = range(6)
@@ -151,24 +162,22 @@ class MockStepOutputs(StepOutputs):
         )
         self._world = world
         self._inputs = inputs
-        self.fail: HalIOError | None = None  # tests: the next write raises this
 
     def _write_dir(self, motor: int, level: bool) -> None:
-        if self.fail is not None:
-            raise self.fail
+        self._world.raise_injected("dir", motor)
         self._world.axes[motor].heading = level != self.invert_dir[motor]
-        self._world.timeline.record(self.clock.now(), "dir", motor, level)
+        self._world.timeline.record(self.clock.now(), EventKind.DIR, motor, level)
 
     def _write_steps(self, motors: Sequence[int], level: bool) -> None:
-        if self.fail is not None:
-            raise self.fail
+        for m in motors:
+            self._world.raise_injected("step", m)
         if not level:
             return
         world = self._world
         t = self.clock.now()
         for m in motors:
             up = self.direction[m]
-            world.timeline.record(t, "step", m, up)
+            world.timeline.record(t, EventKind.STEP, m, up)
             axis = world.axes[m]
             axis.position = axis.position + (1 if up else -1)
             self._inputs.moved(m, t)
@@ -236,12 +245,13 @@ class MockPin(Pin):
         self.external = False  # the level an unwired input senses
 
     def _configure(self, output: bool, level: bool) -> None:
-        self._world.timeline.record(self._world.clock.now(), "config", self.number, output)
+        self._world.timeline.record(self._world.clock.now(), EventKind.CONFIG, self.number, output)
         if output:
-            self._world.timeline.record(self._world.clock.now(), "pin", self.number, level)
+            self._world.timeline.record(self._world.clock.now(), EventKind.PIN, self.number, level)
 
     def _write(self, level: bool) -> None:
-        self._world.timeline.record(self._world.clock.now(), "pin", self.number, level)
+        self._world.raise_injected("pin", self.number)
+        self._world.timeline.record(self._world.clock.now(), EventKind.PIN, self.number, level)
 
     def _read(self) -> bool:
         peer = self._world.wired_to(self.number)
@@ -256,7 +266,7 @@ class MockBridge(DcBridge):
         self._world = world
 
     def _apply(self, state: BridgeState) -> None:
-        self._world.timeline.record(self._world.clock.now(), "dc", 0, state.value)
+        self._world.timeline.record(self._world.clock.now(), EventKind.DC, 0, state.value)
 
 
 def _buffer(shm: shared_memory.SharedMemory) -> memoryview:
@@ -309,6 +319,7 @@ class MockWorld:
         self.pins: dict[int, MockPin] = {
             p.number: MockPin(self, p.number, p.output, p.initial) for p in spec.pins
         }
+        self.line_errors: dict[tuple[str, int], OSError] = {}
         self._wires: dict[int, int] = {}
         for a, b in spec.wires:
             self._wires[a] = b
@@ -344,6 +355,24 @@ class MockWorld:
     def inject_fault(self, motor: int, fault: str | None) -> None:
         """Make motor's driver report ``fault`` (None clears it)."""
         self.axes[motor].fault = fault
+
+    def inject_line_error(self, kind: str, index: int, error: OSError | None) -> None:
+        """Make every write to a line raise ``error`` (None heals it): ``kind`` is "step" or
+        "dir" (``index`` a motor) or "pin" (``index`` a pin number), as a line whose chip went
+        away makes gpiod raise. Step and DIR lines raise it as the HalIOError of the contract
+        (in this process's world: the executor's own process has a world of its own)."""
+        if error is None:
+            self.line_errors.pop((kind, index), None)
+        else:
+            self.line_errors[(kind, index)] = error
+
+    def raise_injected(self, kind: str, index: int) -> None:
+        error = self.line_errors.get((kind, index))
+        if error is None:
+            return
+        if kind == "pin":
+            raise error
+        raise HalIOError(f"motor {index} {kind.upper()} line: {error}") from error
 
     def inject_stall(self, motor: int, stalled: bool) -> None:
         self.axes[motor].forced_stall = stalled
@@ -423,7 +452,7 @@ def read_timeline(path: str) -> Timeline:
     with open(path, encoding="utf-8") as f:
         for line in f:
             t, kind, index, value = json.loads(line)
-            timeline.record(t, kind, index, value)
+            timeline.record(t, EventKind(kind), index, value)
     return timeline
 
 

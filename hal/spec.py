@@ -1,16 +1,23 @@
-"""What a backend is asked to build: plain, picklable data, no config-file knowledge.
+"""What a backend is asked to build: plain, picklable data, no config-file parsing.
 
 A :class:`HardwareSpec` crosses a process boundary unchanged: the step executor's own
 process builds its step/dir/end-stop lines from it (``registry.open_step_io``).
+``sections`` carry the backend's own config sections as loaded (the dataclasses its config
+module declares, see hal/registry.py): a backend reads them with ``spec.section(Cls)``,
+``spec.axes[i].section(Cls)`` and ``spec.pins[i].section(Cls)``.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
+
+from motorctl.schema import Sectioned
 
 
 @dataclass(frozen=True)
-class AxisSpec:
+class AxisSpec(Sectioned):
     """One stepper axis.
 
     ``wiring`` names the lines by role as the backend understands them, e.g.
@@ -29,6 +36,7 @@ class AxisSpec:
     dir_setup_s: float = 5e-6
     dir_hold_s: float = 0.0
     endstop_debounce_s: float = 0.0
+    sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [motors.<backend>]
 
     def line(self, role: str) -> str | None:
         for r, name in self.wiring:
@@ -38,16 +46,18 @@ class AxisSpec:
 
 
 @dataclass(frozen=True)
-class PinSpec:
+class PinSpec(Sectioned):
     number: int
     output: bool
     initial: bool = False
+    sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [pins.<backend>]
 
 
 @dataclass(frozen=True)
-class HardwareSpec:
+class HardwareSpec(Sectioned):
     axes: tuple[AxisSpec, ...]
     pins: tuple[PinSpec, ...] = ()
     dc: bool = False
     wires: tuple[tuple[int, int], ...] = ()
     options: dict[str, object] = field(default_factory=dict)
+    sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [<backend>]

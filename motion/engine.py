@@ -206,6 +206,11 @@ class MotionEngine:
         self._threads = []
 
     @property
+    def hardware_errors(self) -> int:
+        """Backend calls that failed: driver reads here, STEP/DIR/end-stop I/O in the executor."""
+        return self.driver_errors + self.executor.health().counters.get("io_errors", 0)
+
+    @property
     def threads_alive(self) -> bool:
         return bool(self._threads) and all(t.is_alive() for t in self._threads)
 

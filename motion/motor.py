@@ -1,8 +1,9 @@
 """One stepper motor: state machine, motion queue, homing, limits, faults.
 
 Positions: ``abs_steps`` is an unbounded count of the steps emitted since start;
-the host's position is ``abs_steps - offset`` wrapped to 24 bits (linear axis) or
-taken modulo ``steps_per_rev`` (rotary axis). Trajectories are planned in
+the host's position is ``abs_steps - offset`` mapped by ``params.host_position`` (linear
+axis; the daemon passes the protocol's 24-bit wrap) or taken modulo ``steps_per_rev``
+(rotary axis). Trajectories are planned in
 ``abs_steps`` coordinates, so wrapping never reaches the profile math.
 
 Owner: the motion engine's lock; every method is called with it held (dispatcher, planner
@@ -20,6 +21,8 @@ from motorctl.motion.executor import Committed, ExecEvent, ExecEventKind, Execut
 from motorctl.motion.profile import Trajectory, plan_move_to, plan_run, plan_stop
 from motorctl.motion.types import (
     HomeCmd,
+    HomingPhase,
+    HomingSource,
     MotionCmd,
     MotorParams,
     MotorState,
@@ -29,14 +32,6 @@ from motorctl.motion.types import (
 )
 
 K = ExecEventKind
-_POS_SPAN = 1 << 24
-_POS_MIN = -(1 << 23)
-
-
-def wrap24(value: int) -> int:
-    return (value - _POS_MIN) % _POS_SPAN + _POS_MIN
-
-
 class Motor:
     def __init__(
         self,
@@ -63,7 +58,7 @@ class Motor:
         self._awaiting: int | None = None  # a hard stop's generation, until it took effect
         self._then: Callable[[float], None] | None = None
         self._ramp = Ramp(1.0, 1.0, 1.0)
-        self._phase = ""  # homing: seek, backoff, approach
+        self._phase: HomingPhase | None = None  # while homing
         self._home_cmd: HomeCmd | None = None
 
     @property
@@ -74,10 +69,7 @@ class Motor:
     # -- what the host sees -------------------------------------------------
     @property
     def position(self) -> int:
-        rel = self.abs_steps - self.offset
-        if self.params.rotary:
-            return rel % self.params.steps_per_rev
-        return wrap24(rel)
+        return self._host(self.abs_steps)
 
     def set_position(self, position: int) -> None:
         """Declare the current physical position to be ``position`` (homing, restore)."""
@@ -157,7 +149,7 @@ class Motor:
         self.queue.clear()
         self.fault = reason
         self.state = MotorState.FAULT
-        self._phase = ""
+        self._phase = None
         self._home_cmd = None
         if lost:
             self.position_lost = True
@@ -193,9 +185,9 @@ class Motor:
             if (
                 self.state is MotorState.HOMING
                 and cmd is not None
-                and self._phase in ("seek", "approach")
+                and self._phase in (HomingPhase.SEEK, HomingPhase.APPROACH)
                 and ev.direction == cmd.direction
-                and self.params.homing.source == "endstop"
+                and self.params.homing.source is HomingSource.ENDSTOP
             ):
                 self._homing_triggered(max(ev.t, now))
             else:
@@ -203,8 +195,9 @@ class Motor:
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed
             self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost)
-        else:
-            self.latch_fault(ev.detail or "step executor fault", now, lost=True)
+        else:  # a line failed: a step may or may not have reached the driver
+            lost = ev.speed > self.params.start_speed
+            self.latch_fault(ev.detail or "step executor fault", now, lost=lost)
 
     def on_driver_status(self, status: DriverStatus, now: float) -> None:
         """A driver poll's result (read outside the engine lock, by the monitor)."""
@@ -214,7 +207,7 @@ class Motor:
             self.latch_fault(f"driver fault: {status.fault}", now)
         elif status.stall and self.active and self._awaiting is None:
             if self._stall_homing:
-                if self._phase in ("seek", "approach"):
+                if self._phase in (HomingPhase.SEEK, HomingPhase.APPROACH):
                     self._hard_stop(now, self._homing_triggered)
             else:
                 self.latch_fault("stall", now)
@@ -222,7 +215,7 @@ class Motor:
     # -- internals ----------------------------------------------------------
     @property
     def _stall_homing(self) -> bool:
-        return self.state is MotorState.HOMING and self.params.homing.source == "stall"
+        return self.state is MotorState.HOMING and self.params.homing.source is HomingSource.STALL
 
     def _hard_stop(self, now: float, then: Callable[[float], None]) -> None:
         """Stop at once; ``then`` runs once the executor has stopped (position final)."""
@@ -251,7 +244,7 @@ class Motor:
 
     def _become_idle(self, now: float) -> None:
         self.traj = None
-        self._phase = ""
+        self._phase = None
         self._home_cmd = None
         if self.queue:
             self._start(self.queue.popleft(), now)
@@ -279,7 +272,7 @@ class Motor:
                 self.state = MotorState.HOMING
                 self._homing_triggered(now)
                 return
-            self._phase = "seek"
+            self._phase = HomingPhase.SEEK
             limit = c.counter + cmd.direction * self.params.homing.max_travel
             traj = plan_run(t, s, v, cmd.direction * r.speed, r.acc, r.dec, float(limit))
             self._follow(traj, MotorState.HOMING, now)
@@ -288,7 +281,8 @@ class Motor:
         rel = counter - self.offset
         if self.params.rotary:
             return rel % self.params.steps_per_rev
-        return wrap24(rel)
+        wrap = self.params.host_position
+        return rel if wrap is None else wrap(rel)
 
     def _distance_to(self, target: int, direction: int, c: Committed) -> int:
         p = self.params
@@ -323,7 +317,7 @@ class Motor:
 
     def _home_trigger(self, direction: int) -> bool:
         """Already on the switch (or stalled) when homing starts."""
-        if self.params.homing.source == "stall":
+        if self.params.homing.source is HomingSource.STALL:
             return self.driver.status().stall
         return self.params.debounce_s == 0 and self.executor.endstop_active(
             self.index, direction
@@ -334,8 +328,8 @@ class Motor:
         assert cmd is not None
         self.traj = None
         h = self.params.homing
-        if h.pull_off > 0 and self._phase != "approach":
-            self._phase = "backoff"
+        if h.pull_off > 0 and self._phase is not HomingPhase.APPROACH:
+            self._phase = HomingPhase.BACKOFF
             c = self.executor.committed(self.index, now)
             counter = c.counter
             target = float(counter - cmd.direction * h.pull_off)
@@ -353,11 +347,11 @@ class Motor:
             cmd = self._home_cmd
             assert cmd is not None
             h = self.params.homing
-            if self._phase == "backoff":
+            if self._phase is HomingPhase.BACKOFF:
                 if self._still_on_switch(cmd.direction):
                     self.latch_fault("homing failed: end stop still active after pull-off", now)
                     return
-                self._phase = "approach"
+                self._phase = HomingPhase.APPROACH
                 c = self.executor.committed(self.index, now)
                 counter = c.counter
                 limit = float(counter + cmd.direction * 2 * h.pull_off)
@@ -367,12 +361,12 @@ class Motor:
                                 r.acc, r.dec, limit)
                 self._follow(traj, MotorState.HOMING, now)
                 return
-            travel = h.max_travel if self._phase == "seek" else 2 * h.pull_off
+            travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
             self.latch_fault(f"homing failed: no end stop within {travel} steps", now)
             return
         self._become_idle(now)
 
     def _still_on_switch(self, direction: int) -> bool:
-        if self.params.homing.source == "stall":
+        if self.params.homing.source is HomingSource.STALL:
             return False
         return self.executor.endstop_active(self.index, direction)

@@ -278,9 +278,11 @@ class StepCore:
         self.counters[IO_ERRORS] += 1
         for m in motors:
             gen = self.gen[m]
+            t = self.next_t[m]
+            speed = 0.0 if t is None else self._speed(m, t)
             self._halt(m)
             self.emit(ExecEvent(K.FAULT, m, gen, self.pos[m], self._now_s(), self.dir[m],
-                                0.0, f"step/dir I/O failed: {exc}"))
+                                speed, f"hardware error: {exc}"))
 
     def halt_all(self) -> None:
         for m in range(len(self.next_t)):

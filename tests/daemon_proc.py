@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,16 @@ from motorctl.client.client import Client
 from motorctl.daemon.status import read_status
 
 READY_TIMEOUT_S = 30.0
+WAIT_S = 30.0  # a deadline for conditions that take milliseconds (a loaded 2-core machine)
+
+
+def until(what: str, cond: Callable[[], bool], timeout: float = WAIT_S) -> None:
+    """Poll ``cond`` until it holds; fail naming ``what`` after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.001)
 
 #: Test daemons run without real-time priority on a shared machine: their step timing is
 #: best effort, so a step is only "timing lost" after this long (tests about the fail-safe
@@ -44,7 +55,8 @@ def for_tests(text: str, force: bool = False) -> str:
 
 class DaemonProcess:
     def __init__(self, workdir: Path, config_text: str | None = None,
-                 state_dir: Path | None = None, extra: list[str] | None = None) -> None:
+                 state_dir: Path | None = None, extra: list[str] | None = None,
+                 env: dict[str, str] | None = None) -> None:
         self.workdir = workdir
         self.pty = workdir / "motorctl.pty"
         self.state_dir = state_dir or workdir / "state"
@@ -56,6 +68,7 @@ class DaemonProcess:
         else:
             self.config.write_text(for_tests(config_text))
         self.extra = extra or []
+        self.env = env  # added to this process's environment (e.g. NOTIFY_SOCKET)
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready_line = ""
         self.stderr_path = workdir / "motorctld.stderr"
@@ -65,7 +78,8 @@ class DaemonProcess:
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
         cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr,
+        env = {**os.environ, **self.env} if self.env is not None else None
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
                                      cwd=Path(__file__).resolve().parent.parent)
         stderr.close()
         assert self.proc.stdout is not None
