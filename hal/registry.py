@@ -33,4 +33,15 @@ def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
     except ImportError as exc:
         raise HalError(f"hardware backend {backend!r} failed to load: {exc}; needs {fix}") from exc
     build = cast(Builder, getattr(module, func_name))
-    return build(spec, clock)
+    hw = build(spec, clock)
+    drivers = [a.driver for a in spec.axes]
+    if any(drivers):
+        from motorctl.hal.tmc_backend import attach_drivers  # imports py-spidev lazily
+
+        names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
+        try:
+            attach_drivers(hw, drivers, clock, names)
+        except BaseException:
+            hw.close()
+            raise
+    return hw

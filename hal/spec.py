@@ -3,6 +3,10 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from motorctl.hal.tmc import TmcSpec
 
 
 @dataclass(frozen=True)
@@ -13,6 +17,8 @@ class AxisSpec:
     endstop_active_low: bool = False
     endstop_min: int = -10_000
     endstop_max: int = 10_000
+    name: str = ""
+    driver: TmcSpec | None = None  # a TMC2130/TMC5160 on SPI; None: no driver to talk to
 
 
 @dataclass(frozen=True)

@@ -388,6 +388,19 @@ def register_values(s: TmcSettings) -> dict[int, int]:
     return regs
 
 
+@dataclass(frozen=True)
+class TmcSpec:
+    """What a backend needs to open one motor's driver: where, how fast, how configured."""
+
+    spi: str  # "/dev/spidevB.C"
+    settings: TmcSettings
+    spi_speed_hz: int = 1_000_000
+    ramp: bool = False  # TMC5160 motion-controller mode (its ramp generator moves the motor)
+    ref_left_active_low: bool = False
+    ref_right_active_low: bool = False
+    disable_at_exit: bool = True
+
+
 # ------------------------------------------------------------------------------ decoding
 
 
@@ -564,7 +577,11 @@ class TmcDriver(StepperDriver):
                 )
             self.configure()
         except SpiError as exc:
+            self.device.close()
             raise TmcError(f"{self.name}: {exc}") from exc
+        except BaseException:
+            self.device.close()
+            raise
 
     def configure(self) -> None:
         """Write every configuration register, then read back the readable ones."""
@@ -824,7 +841,11 @@ class Tmc5160(TmcDriver):
                 )
             self.ramp_init()
         except SpiError as exc:
+            self.device.close()
             raise TmcError(f"{self.name}: {exc}") from exc
+        except BaseException:
+            self.device.close()
+            raise
 
     def ramp_init(self) -> None:
         """Hold still where it is, with the ramp registers the datasheet requires non-zero."""

@@ -9,16 +9,19 @@ from __future__ import annotations
 
 import errno
 import math
+import sys
 import threading
 import time
+import types
 from collections.abc import Callable
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.mock import build, world_of
+from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
 from motorctl.hal.tmc import (
@@ -36,6 +39,7 @@ from motorctl.hal.tmc import (
     TmcError,
     TmcLink,
     TmcSettings,
+    TmcSpec,
     current_setting,
     mres_of,
     register_values,
@@ -631,3 +635,62 @@ def test_stall_homing_ends_on_the_drivers_stall_flag(bench: Bench) -> None:
     assert motor.fault is None
     assert 1500 <= homed_at[0] <= 1500 + 2000 * 0.05  # within a few polls of the stall
     assert motor.position == 0
+
+
+# ------------------------------------------------------------------ the backend layer
+
+
+def fake_spidev_module(monkeypatch: pytest.MonkeyPatch, kernel: FakeKernel) -> None:
+    """Install the fake as the module ``spidev``: the backend's lazy import finds it."""
+    monkeypatch.setitem(sys.modules, "spidev", types.SimpleNamespace(SpiDev=kernel.factory()))
+
+
+def spec_with(*drivers: TmcSpec | None) -> HardwareSpec:
+    return HardwareSpec(tuple(AxisSpec(name=f"m{i}", driver=d) for i, d in enumerate(drivers)))
+
+
+def test_open_hardware_starts_configured_drivers_and_their_monitor(
+    bench: Bench, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    model = bench.chip("tmc2130", cs=1)
+    fake_spidev_module(monkeypatch, bench.kernel)
+    settings_ = TmcSettings(poll_ms=1.0)
+    hw = open_hardware("mock", spec_with(None, TmcSpec("/dev/spidev0.1", settings_)),
+                       MonotonicClock())
+    try:
+        drv = hw.steppers[1].driver
+        assert isinstance(drv, TmcDriver) and drv.name == "m1"
+        assert not isinstance(hw.steppers[0].driver, TmcDriver)
+        assert model.regs[tm.A_CHOPCONF] & 0xF == 3  # configured, energised
+        deadline = time.monotonic() + 10.0
+        while drv.polls < 3:
+            assert time.monotonic() < deadline, "the monitor did not poll within 10 s"
+            time.sleep(0.005)
+    finally:
+        hw.close()
+    polls = drv.polls
+    assert model.regs[tm.A_CHOPCONF] & 0xF == 0  # disabled at exit
+    time.sleep(0.02)
+    assert drv.polls == polls  # the monitor stopped
+
+
+def test_a_failing_driver_closes_the_ones_already_opened(
+    bench: Bench, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    bench.chip("tmc2130", cs=0)
+    bench.chip("tmc5160", cs=1)
+    fake_spidev_module(monkeypatch, bench.kernel)
+    good, wrong = TmcSpec("/dev/spidev0.0", S2130), TmcSpec("/dev/spidev0.1", S2130)
+    with pytest.raises(TmcError, match=r"m1.*found a TMC5160"):
+        open_hardware("mock", spec_with(good, wrong), MonotonicClock())
+    assert all(dev._fd == -1 for dev in bench.kernel.opened)  # nothing left open
+
+
+def test_without_py_spidev_a_configured_driver_says_how_to_install_it(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    monkeypatch.setitem(sys.modules, "spidev", None)  # import spidev -> ImportError
+    with pytest.raises(HalError, match=r"pip install spidev"):
+        open_hardware("mock", spec_with(TmcSpec("/dev/spidev0.0", S2130)), MonotonicClock())
+    hw = open_hardware("mock", spec_with(None), MonotonicClock())  # no driver: no spidev needed
+    hw.close()
