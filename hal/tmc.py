@@ -720,11 +720,13 @@ class TmcDriver(StepperDriver):
         }
 
     def probe(self) -> list[str]:
-        """Read-only report for ``motorctld --probe``: chip, version, DRV_STATUS decoded."""
+        """Read-only report for ``motorctld --probe``: chip, version, DRV_STATUS decoded.
+
+        Reads IOIN and DRV_STATUS only (not GSTAT, which a TMC2130 clears on reading)."""
         self.device.open()
         try:
             version = identify(self.link)
-            ioin, drv_raw, gstat = self.link.read_many([Reg.IOIN, Reg.DRV_STATUS, Reg.GSTAT])
+            ioin, drv_raw = self.link.read_many([Reg.IOIN, Reg.DRV_STATUS])
         except (SpiError, TmcError) as exc:
             return [f"{self.name}: {exc}"]
         other = CHIP_BY_VERSION.get(version)
@@ -734,7 +736,7 @@ class TmcDriver(StepperDriver):
         lines = [
             f"{self.name}: {self.device.path}: {found} (IOIN=0x{ioin:08x}) {verdict}",
             f"  {DrvStatus(drv_raw, chip).describe()}",
-            f"  GSTAT=0x{gstat:x} SPI status: "
+            f"  SPI status: "
             f"{' '.join(decode_spi_status(self.link.last_status, chip)) or 'none'}",
         ]
         if chip is TMC5160:

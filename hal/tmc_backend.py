@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from typing import Protocol
 
-from motorctl.hal.interfaces import Clock, Hardware
+from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.spec import HardwareSpec
 from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiFactory, spidev_factory
 from motorctl.hal.tmc import DriverMonitor, RefSwitches, Tmc5160, TmcDriver, TmcError, TmcSpec
 
@@ -83,3 +85,53 @@ def attach_drivers(
     log.info("drivers: %s", ", ".join(f"{d.name} {d.chip.name} on {d.device.path}"
                                        for d in drivers))
     return drivers
+
+
+class Report(Protocol):
+    """What ``motorctld --probe`` collects (motorctl.hal.wiring.ProbeReport)."""
+
+    problems: list[str]
+
+    def add(self, title: str, lines: list[str]) -> None: ...
+
+
+def probe(
+    spec: HardwareSpec, clock: Clock, report: Report, factory: SpiFactory | None = None
+) -> None:
+    """``--probe``: each configured driver's chip and version, DRV_STATUS decoded, SPI status;
+    reads registers only (nothing is written, nothing moves). Problems go to the report."""
+    del clock
+    configured = [(i, a) for i, a in enumerate(spec.axes) if a.driver is not None]
+    if not configured:
+        return
+    try:
+        factory = factory or spidev_factory()
+    except HalError as exc:
+        report.problems.append(str(exc))
+        return
+    buses = SpiBuses()
+    lines: list[str] = []
+    for i, axis in configured:
+        assert axis.driver is not None
+        name = axis.name or f"motor {i}"
+        try:
+            driver = open_driver(name, axis.driver, buses, factory)
+        except (HalError, ValueError) as exc:
+            report.problems.append(f"{name}: {exc}")
+            continue
+        try:
+            found = driver.probe()
+        except HalError as exc:
+            report.problems.append(f"{name}: {exc}")
+            continue
+        finally:
+            driver.device.close()
+        lines += found
+        if any("MISMATCH" in line or "no driver chip answers" in line for line in found):
+            report.problems.append(found[0])
+        elif axis.driver.ramp and any("SD_MODE=1" in line for line in found):
+            report.problems.append(
+                f"{name}: configured for the TMC5160's ramp generator but its SD_MODE pin is "
+                "high (STEP/DIR); tie SD_MODE to GND"
+            )
+    report.add("SPI stepper drivers", lines)

@@ -14,6 +14,7 @@ import threading
 import time
 import types
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 import pytest
 from hypothesis import given, settings
@@ -44,6 +45,7 @@ from motorctl.hal.tmc import (
     mres_of,
     register_values,
 )
+from motorctl.hal.tmc_backend import probe
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.types import HomeCmd, HomingParams, MotorParams, MotorState, Ramp, RunCmd
 from tests import tmc_model as tm
@@ -694,3 +696,36 @@ def test_without_py_spidev_a_configured_driver_says_how_to_install_it(
         open_hardware("mock", spec_with(TmcSpec("/dev/spidev0.0", S2130)), MonotonicClock())
     hw = open_hardware("mock", spec_with(None), MonotonicClock())  # no driver: no spidev needed
     hw.close()
+
+
+@dataclass
+class Report:
+    sections: list[tuple[str, list[str]]] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    def add(self, title: str, lines: list[str]) -> None:
+        self.sections.append((title, lines))
+
+
+def test_probe_reports_chip_versions_and_drv_status_without_writing(bench: Bench) -> None:
+    ok = bench.chip("tmc2130", cs=0)
+    ok.faults.add(tm.OTPW)
+    bench.chip("tmc2130", cs=1)  # configured as a TMC5160 below: a mismatch
+    spec = spec_with(
+        TmcSpec("/dev/spidev0.0", S2130),
+        TmcSpec("/dev/spidev0.1", S5160),
+        TmcSpec("/dev/spidev0.2", S2130),  # no such device
+    )
+    report = Report()
+    probe(spec, bench.clock, report, factory=bench.kernel.factory())
+    ((title, lines),) = report.sections
+    assert title == "SPI stepper drivers"
+    text = "\n".join(lines)
+    assert "m0: /dev/spidev0.0: TMC2130 (IOIN=0x11000040) ok" in text
+    assert "flags: stst otpw" in text and "CS_ACTUAL=" in text
+    assert "reset_flag" in text  # the SPI status byte, decoded
+    assert "m1: /dev/spidev0.1: TMC2130" in text and "MISMATCH: configured TMC5160" in text
+    assert any("/dev/spidev0.2 does not exist" in p for p in report.problems)
+    assert any("MISMATCH" in p for p in report.problems)
+    assert all(not tx[0] & 0x80 for tx, _ in ok.log)  # reads only
+    assert ok.gstat & 1  # GSTAT untouched
