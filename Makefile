@@ -2,6 +2,8 @@
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
 #   make test   the test suite (what .ci/run calls)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
+# The editable install filters setuptools' informational "Editable installation" note only: the
+# checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -20,7 +22,7 @@ $(VENV)/.installed: pyproject.toml
 	  else echo "python3-venv is missing: run 'sudo apt-get install python3-venv'" >&2; exit 1; fi; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[dev]'
+	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/pip install -q -e '.[dev]'
 	touch $@
 
 run: venv

@@ -25,6 +25,7 @@ from motorctl.daemon.state import StateError, StateWriter, read_state
 from motorctl.daemon.status import StatusServer, read_status
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import MockHardware
+from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.motion.engine import MotionEngine
@@ -46,13 +47,14 @@ def hardware_spec(config: Config) -> HardwareSpec:
         AxisSpec(
             invert_dir=m.invert_dir,
             endstop_active_low=m.endstop.active_low,
-            endstop_min=m.mock.endstop_min,
-            endstop_max=m.mock.endstop_max,
+            endstop_min=m.section(MockAxisConfig).endstop_min,
+            endstop_max=m.section(MockAxisConfig).endstop_max,
         )
         for m in config.motors
     )
     pins = tuple(PinSpec(p.number, p.is_output, p.initial) for p in config.pins)
-    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=config.mock.wires)
+    wires = config.section(MockConfig).wires
+    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=wires)
 
 
 def motor_params(config: Config) -> list[MotorParams]:

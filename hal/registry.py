@@ -2,37 +2,79 @@
 
 A backend that fails to import is an error that says why and how to fix it;
 there is no silent fallback to another backend.
+
+Each backend names two modules: the one that builds it (imported only when the backend is
+chosen: it may import its hardware library) and the one that declares its config sections
+(imported whenever a config is read: it must import no hardware library). The config module
+exports ``CONFIG_SECTIONS``, a tuple of `motorctl.schema.Extension`.
+
+Adding a backend's config section:
+  1. write ``hal/<backend>_config.py``: one ``@section`` dataclass per table, whose fields
+     declare the keys (`motorctl.schema`), and ``CONFIG_SECTIONS = (Extension("", "<name>",
+     TopConfig, owner=...), Extension("motors", "<name>", AxisConfig, owner=...), ...)``
+     (parent "" = top-level ``[<name>]``, "motors" = ``[motors.<name>]`` in every motor,
+     "pins" = ``[pins.<name>]`` in every pin);
+  2. name it in ``BACKENDS`` below;
+  3. read it in the backend: ``config.section(TopConfig)``, ``motor.section(AxisConfig)``;
+  4. regenerate docs/config.md: ``python -m motorctl.daemon.config.docs --write``.
+
+The registry is a constant; lookups are pure and thread-safe.
 """
 
 from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from typing import cast
+from dataclasses import dataclass
+from typing import Any, cast
 
 from motorctl.hal.interfaces import Clock, HalError, Hardware
 from motorctl.hal.spec import HardwareSpec
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
 
-#: name -> (module, function, how to install what it needs)
-BACKENDS: dict[str, tuple[str, str, str]] = {
-    "mock": ("motorctl.hal.mock", "build", "nothing: it is part of motorctl"),
+
+@dataclass(frozen=True)
+class Backend:
+    """Where a backend lives and what it needs."""
+
+    module: str  # builds it: imported only when chosen (may import its hardware library)
+    function: str  # the Builder in `module`
+    fix: str  # how to install what it needs
+    config: str | None = None  # declares its config sections: imports no hardware library
+
+
+BACKENDS: dict[str, Backend] = {
+    "mock": Backend(
+        "motorctl.hal.mock", "build", "nothing: it is part of motorctl", "motorctl.hal.mock_config"
+    ),
 }
+
+
+def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
+    """(backend name, its CONFIG_SECTIONS) of every backend that declares config sections."""
+    found = []
+    for name, backend in BACKENDS.items():
+        if backend.config is not None:
+            module = importlib.import_module(backend.config)
+            found.append((name, tuple(module.CONFIG_SECTIONS)))
+    return found
 
 
 def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
     try:
-        module_name, func_name, fix = BACKENDS[backend]
+        entry = BACKENDS[backend]
     except KeyError:
         raise HalError(
             f"unknown hardware backend {backend!r}; available: {', '.join(sorted(BACKENDS))}"
         ) from None
     try:
-        module = importlib.import_module(module_name)
+        module = importlib.import_module(entry.module)
     except ImportError as exc:
-        raise HalError(f"hardware backend {backend!r} failed to load: {exc}; needs {fix}") from exc
-    build = cast(Builder, getattr(module, func_name))
+        raise HalError(
+            f"hardware backend {backend!r} failed to load: {exc}; needs {entry.fix}"
+        ) from exc
+    build = cast(Builder, getattr(module, entry.function))
     hw = build(spec, clock)
     drivers = [a.driver for a in spec.axes]
     if any(drivers):

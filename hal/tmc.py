@@ -826,6 +826,7 @@ class Tmc5160(TmcDriver):
         self.units = RampUnits(settings.clock_hz)
         self.switches = switches or RefSwitches()
         self.sw_mode = self._sw_mode_base()
+        self.sg_stopped = False  # the chip stopped itself on stallGuard (set by the executor)
 
     def _sw_mode_base(self) -> int:
         sw = F.POL_STOP_L.put(0, int(self.switches.left_active_low))
@@ -872,6 +873,29 @@ class Tmc5160(TmcDriver):
                 f"{self.device.path} ({self.name}): ramp registers read back wrong "
                 f"(RAMPMODE={mode}, XTARGET={signed32(target)}, SW_MODE=0x{sw:x})"
             )
+
+    def watch(self, direction: int, stall: bool = False) -> None:
+        """Stop switches for the next motion: the one ahead in ``direction`` (+1: REFR,
+        -1: REFL, 0: none) stops the motor hard and latches XACTUAL into XLATCH on its active
+        edge; ``stall``: stallGuard stops it (sg_stop). Old latches and events are cleared."""
+        sw = self._sw_mode_base()
+        if direction > 0:
+            sw = F.LATCH_R_ACTIVE.put(F.STOP_R_ENABLE.put(sw, 1), 1)
+        elif direction < 0:
+            sw = F.LATCH_L_ACTIVE.put(F.STOP_L_ENABLE.put(sw, 1), 1)
+        if stall:
+            sw = F.SG_STOP.put(sw, 1)
+        with self.device.session():
+            self.link.write(Reg.RAMP_STAT, RAMP_STAT_WC)
+            self.link.write(Reg.SW_MODE, sw)
+        self.sg_stopped = False
+
+    def status(self) -> DriverStatus:
+        """As :meth:`TmcDriver.status`; a stop by stallGuard (seen by the executor) is a stall."""
+        status = super().status()
+        if self.sg_stopped and not status.stall:
+            return DriverStatus(status.fault, stall=True)
+        return status
 
     def _ramps(self, acc: float, dec: float) -> None:
         a, d = self.units.accel(acc), self.units.accel(dec)
@@ -927,16 +951,8 @@ class Tmc5160(TmcDriver):
     def home_start(self, direction: int, speed: float, acc: float, source: str) -> None:
         """Run toward the reference switch (REFR for +, REFL for -) or until stallGuard stops
         the chip; the switch's active edge latches XACTUAL into XLATCH."""
-        sw = self._sw_mode_base()
-        if source == "stall":
-            sw = F.SG_STOP.put(sw, 1)
-        elif direction > 0:
-            sw = F.LATCH_R_ACTIVE.put(F.STOP_R_ENABLE.put(sw, 1), 1)
-        else:
-            sw = F.LATCH_L_ACTIVE.put(F.STOP_L_ENABLE.put(sw, 1), 1)
         with self.device.session():
-            self.link.write(Reg.RAMP_STAT, RAMP_STAT_WC)  # clear old latches and events
-            self.link.write(Reg.SW_MODE, sw)
+            self.watch(0 if source == "stall" else direction, stall=source == "stall")
             self.run(direction, speed, acc)
 
     def home_event(self, state: RampState, direction: int, source: str) -> bool:

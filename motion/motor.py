@@ -18,6 +18,7 @@ from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Steps, Trajectory, plan_move_to, plan_run, plan_stop
 from motorctl.motion.types import (
     HomeCmd,
+    HomingSource,
     MotionCmd,
     MotorParams,
     MotorState,
@@ -214,7 +215,7 @@ class Motor:
     # -- internals ----------------------------------------------------------
     @property
     def _stall_homing(self) -> bool:
-        return self.state is MotorState.HOMING and self.params.homing.source == "stall"
+        return self.state is MotorState.HOMING and self.params.homing.source is HomingSource.STALL
 
     def _kinematics(self, now: float) -> tuple[float, float]:
         """Continuous position and velocity now, consistent with the step counter."""
@@ -308,7 +309,7 @@ class Motor:
         return Ramp(r.speed, r.acc, v * v / (2.0 * room) * (1 + 1e-9))
 
     def _home_trigger(self, direction: int, now: float) -> bool:
-        if self.params.homing.source == "stall":
+        if self.params.homing.source is HomingSource.STALL:
             return self.hw.driver.status().stall
         return self._endstops[direction].triggered(now)
 

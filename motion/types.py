@@ -50,9 +50,16 @@ class MotorState(enum.Enum):
     FAULT = "fault"
 
 
+class HomingSource(enum.StrEnum):
+    """What ends a homing run."""
+
+    ENDSTOP = "endstop"  # the end-stop input
+    STALL = "stall"  # the driver's stall flag (sensorless homing)
+
+
 @dataclass(frozen=True)
 class HomingParams:
-    source: str = "endstop"  # "endstop" or "stall"
+    source: HomingSource = HomingSource.ENDSTOP
     max_travel: int = 40_000
     pull_off: int = 0  # 0 = one-phase homing
     second_speed: float = 250.0

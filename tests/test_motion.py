@@ -21,6 +21,7 @@ from motorctl.motion.profile import Steps, plan_move_to
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
+    HomingSource,
     MotionCmd,
     MotorParams,
     MotorState,
@@ -458,7 +459,7 @@ def test_two_phase_homing_with_second_speed_above_the_ramp_uses_the_ramp() -> No
 
 
 def test_stall_homing() -> None:
-    rig = make(MotorParams(homing=HomingParams(source="stall")))
+    rig = make(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     # The mock stalls once it is pushed past its end stop.
@@ -468,7 +469,7 @@ def test_stall_homing() -> None:
 
 
 def test_two_phase_stall_homing() -> None:
-    homing = HomingParams(source="stall", pull_off=30, second_speed=300.0)
+    homing = HomingParams(source=HomingSource.STALL, pull_off=30, second_speed=300.0)
     rig = make(MotorParams(homing=homing))
     rig.submit(HomeCmd(-1, RAMP))
     rig.engine.run_until_idle()
@@ -477,7 +478,7 @@ def test_two_phase_stall_homing() -> None:
 
 
 def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None:
-    rig = make(MotorParams(homing=HomingParams(source="stall")))
+    rig = make(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     rig.advance(0.1)

@@ -47,7 +47,15 @@ from motorctl.hal.tmc import (
 )
 from motorctl.hal.tmc_backend import probe
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.types import HomeCmd, HomingParams, MotorParams, MotorState, Ramp, RunCmd
+from motorctl.motion.types import (
+    HomeCmd,
+    HomingParams,
+    HomingSource,
+    MotorParams,
+    MotorState,
+    Ramp,
+    RunCmd,
+)
 from tests import tmc_model as tm
 from tests.tmc_model import FakeKernel, FakeSpiDev, TmcModel
 
@@ -622,7 +630,8 @@ def test_a_driver_fault_stops_the_motor_and_latches_e4(bench: Bench) -> None:
 
 
 def test_stall_homing_ends_on_the_drivers_stall_flag(bench: Bench) -> None:
-    engine, model, tick = engine_with_tmc(bench, HomingParams(source="stall", max_travel=100_000))
+    homing = HomingParams(source=HomingSource.STALL, max_travel=100_000)
+    engine, model, tick = engine_with_tmc(bench, homing)
     motor = engine.motors[0]
     world = world_of(engine.hw)
     with engine.lock:
