@@ -565,23 +565,27 @@ class TmcDriver(StepperDriver):
         """Open the device, check the chip, write the configuration and verify it."""
         self.device.open()
         try:
-            version = identify(self.link)
-            if version != self.chip.version:
-                other = CHIP_BY_VERSION.get(version)
-                found = f"a {other.name}" if other else f"an unknown chip (version 0x{version:02x})"
-                raise TmcError(
-                    f"{self.device.path} ({self.name}): configured as {self.chip.name} "
-                    f"(IOIN version 0x{self.chip.version:02x}) but found {found}; set "
-                    f"driver = \"{other.name.lower() if other else '...'}\" or check which "
-                    "chip select this driver is wired to"
-                )
-            self.configure()
+            self._bring_up()
         except SpiError as exc:
             self.device.close()
             raise TmcError(f"{self.name}: {exc}") from exc
         except BaseException:
             self.device.close()
             raise
+
+    def _bring_up(self) -> None:
+        """Check the chip's version and configure it (the device is open)."""
+        version = identify(self.link)
+        if version != self.chip.version:
+            other = CHIP_BY_VERSION.get(version)
+            found = f"a {other.name}" if other else f"an unknown chip (version 0x{version:02x})"
+            raise TmcError(
+                f"{self.device.path} ({self.name}): configured as {self.chip.name} "
+                f"(IOIN version 0x{self.chip.version:02x}) but found {found}; set "
+                f"driver = \"{other.name.lower() if other else '...'}\" or check which "
+                "chip select this driver is wired to"
+            )
+        self.configure()
 
     def configure(self) -> None:
         """Write every configuration register, then read back the readable ones."""
@@ -832,23 +836,15 @@ class Tmc5160(TmcDriver):
         sw = F.POL_STOP_L.put(0, int(self.switches.left_active_low))
         return F.POL_STOP_R.put(sw, int(self.switches.right_active_low))
 
-    def start(self) -> None:
-        super().start()
-        try:
-            ioin = self.link.read(Reg.IOIN)
-            if F.SD_MODE.get(ioin):
-                raise TmcError(
-                    f"{self.device.path} ({self.name}): the TMC5160's SD_MODE pin is high, so "
-                    "it takes STEP/DIR and its ramp generator is off; tie SD_MODE to GND or "
-                    "configure the motor with mode = \"step_dir\""
-                )
-            self.ramp_init()
-        except SpiError as exc:
-            self.device.close()
-            raise TmcError(f"{self.name}: {exc}") from exc
-        except BaseException:
-            self.device.close()
-            raise
+    def _bring_up(self) -> None:
+        super()._bring_up()
+        if F.SD_MODE.get(self.link.read(Reg.IOIN)):
+            raise TmcError(
+                f"{self.device.path} ({self.name}): the TMC5160's SD_MODE pin is high, so "
+                "it takes STEP/DIR and its ramp generator is off; tie SD_MODE to GND or "
+                "configure the motor with mode = \"step_dir\""
+            )
+        self.ramp_init()
 
     def ramp_init(self) -> None:
         """Hold still where it is, with the ramp registers the datasheet requires non-zero."""
