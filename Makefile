@@ -12,7 +12,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test lint bench clean venv
+.PHONY: run test lint bench coverage robustness clean venv
 
 venv: $(VENV)/.installed
 
@@ -32,6 +32,16 @@ test: venv
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
+
+# Unit coverage of the daemon's modules (the link, its session, state, service, status).
+coverage: venv
+	$(BIN)/pytest -q -n $(JOBS) --cov=motorctl.daemon --cov=motorctl.protocol.framing \
+	  --cov-report=term-missing
+
+# The robustness harness (docs/robustness.md): 10^6 frames, kill -9 cycles, HAL faults, soak.
+# ARGS="--quick" for a short run; the full run takes about 20 minutes.
+robustness: venv
+	$(BIN)/python -m bench.robustness $(ARGS)
 
 bench: venv
 	$(BIN)/python bench/latency.py

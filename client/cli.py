@@ -10,13 +10,13 @@ from collections.abc import Callable, Sequence
 
 import serial
 
+from motorctl import __version__
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
-from motorctl.protocol.codec import FRAME_LEN, CodecOptions
+from motorctl.protocol.codec import FRAME_LEN, POS_MAX, POS_MIN, CodecOptions
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
 
 __all__ = ["build_parser", "main"]
 
-POS_MIN, POS_MAX = -(1 << 23), (1 << 23) - 1
 
 _UNITS = """\
 All numbers are the raw protocol values the host sends, not physical units: MOTOR, PIN,
@@ -99,6 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_UNITS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"motorctl {__version__}")
     parser.add_argument(
         "-p", "--port", metavar="PATH", default=os.environ.get("MOTORCTL_PORT"),
         help="serial port (default: $MOTORCTL_PORT)",

@@ -15,7 +15,9 @@ Adding a backend's config section:
      (parent "" = top-level ``[<name>]``, "motors" = ``[motors.<name>]`` in every motor,
      "pins" = ``[pins.<name>]`` in every pin);
   2. name it in ``BACKENDS`` below;
-  3. read it in the backend: ``config.section(TopConfig)``, ``motor.section(AxisConfig)``;
+  3. read it in the backend's build(spec, clock): ``spec.section(TopConfig)``,
+     ``spec.axes[i].section(AxisConfig)``, ``spec.pins[i].section(PinConfig)`` (the daemon
+     passes every backend's sections along in the HardwareSpec; daemon/main.hardware_spec);
   4. regenerate docs/config.md: ``python -m motorctl.daemon.config.docs --write``.
 
 The registry is a constant; lookups are pure and thread-safe.

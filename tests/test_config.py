@@ -736,3 +736,17 @@ def test_old_embedded_default_file_still_loads_the_same() -> None:
     assert dataclasses.replace(load_config(old), source="x") == dataclasses.replace(
         load_config(None), source="x"
     )
+
+
+def test_backends_get_their_sections_in_the_hardware_spec() -> None:
+    from motorctl.daemon.main import hardware_spec
+
+    config = parse_config(
+        MOTOR + "[motors.mock]\nendstop_min = -5\n" + PINS_0_TO_3 + "[mock]\nwires = [[0, 1]]\n",
+        SOURCE,
+    )
+    spec = hardware_spec(config)
+    assert spec.section(MockConfig).wires == ((0, 1),) == spec.wires
+    assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000)
+    assert spec.axes[0].endstop_min == -5
+    assert all(pin.sections == {} for pin in spec.pins)  # no backend declares [pins.x] yet

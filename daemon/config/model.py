@@ -236,7 +236,7 @@ class HomingConfig:
         2000.0, 0, "max_speed", "step/s used when InitMove's SPEED = 0.", lo_open=True
     )
     max_travel: int = integer(
-        40000, 1, 16777215, "Steps; no trigger within this distance -> the motor faults."
+        40000, 1, POS_MAX - POS_MIN, "Steps; no trigger within this distance -> the motor faults."
     )
     pull_off: int = integer(
         0,
@@ -333,7 +333,7 @@ class MotorConfig(Sectioned):
         default_text='"motor0", "motor1", ... (by index)',
     )
     steps_per_rev: int = integer(
-        0, 0, 8388607, "0 = linear axis; > 0 = rotary axis, position kept in [0, steps_per_rev)."
+        0, 0, POS_MAX, "0 = linear axis; > 0 = rotary axis, position kept in [0, steps_per_rev)."
     )
     invert_dir: bool = boolean(False, "Swap the DIR wiring (not the protocol's direction).")
     max_speed: float = number(
