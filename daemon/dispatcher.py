@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from motorctl.daemon.config import Config, MotorConfig
-from motorctl.hal.interfaces import BridgeState, Pin
+from motorctl.hal.interfaces import BridgeState, HalError, Pin
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
@@ -104,6 +104,7 @@ class Dispatcher:
         self.persist: Persist = persist or NoPersistence()
         self._undo: Callable[[], None] | None = None
         self.clamped: Counter[str] = Counter()
+        self.hardware_errors = 0
         self.table: dict[type[Any], Callable[[Any], Response]] = {
             InitMove: self.init_move,
             MoveTo: self.move_to,
@@ -139,6 +140,15 @@ class Dispatcher:
                 resp = handler(cmd)
         except Reject as r:
             resp = Response.error(r.code)
+        except (HalError, OSError) as exc:  # a line or device that failed: never an ACK
+            self.hardware_errors += 1
+            log.error("%s: hardware error: %s", type(cmd).__name__, exc)
+            index = getattr(cmd, "motor", None)
+            if isinstance(index, int) and 0 <= index < len(self.engine.motors):
+                with self.engine.lock:  # a motion half started: stop it, latched
+                    m = self.engine.motors[index]
+                    m.latch_fault(f"hardware error: {exc}", self.engine.clock.now())
+            resp = Response.error(E.MOTOR_ERROR)
         finally:
             if journalled is not None:
                 self.persist.after_motion(journalled)

@@ -319,7 +319,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    "world, see docs/config.md)")
     p.add_argument("--check-config", metavar="FILE", help="check FILE and exit")
     p.add_argument("--print-default-config", action="store_true",
-                   help="print the embedded default config and exit")
+                   help="print the embedded default config, every key written out and "
+                   "commented, and exit")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
                    help="the runtime directory: lock, status socket and, unless [state] "
                    "directory says otherwise, the state file (default /run/motorctl)")
