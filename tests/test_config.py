@@ -21,6 +21,7 @@ from motorctl.daemon.config import (
     LinkConfig,
     MotorConfig,
     PinConfig,
+    StateConfig,
     StepThreadConfig,
     UnitsConfig,
     default_config_text,
@@ -180,6 +181,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         ("units", UnitsConfig),
         ("hal", HalConfig),
         ("step_thread", StepThreadConfig),
+        ("state", StateConfig),
         ("dc", DcConfig),
         ("motors[]", MotorConfig),
         ("motors[].homing", HomingConfig),
@@ -708,7 +710,7 @@ def test_table_of_the_whole_file() -> None:
     spec = schema()
     assert isinstance(spec, Table)
     assert [c.name for c in spec.children] == [
-        "link", "units", "hal", "step_thread", "dc", "motors", "pins", "mock"
+        "link", "units", "hal", "step_thread", "state", "dc", "motors", "pins", "mock"
     ]
 
 
@@ -740,3 +742,33 @@ def test_backends_get_their_sections_in_the_hardware_spec() -> None:
     assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000)
     assert spec.axes[0].endstop_min == -5
     assert all(pin.sections == {} for pin in spec.pins)  # no backend declares [pins.x] yet
+
+
+def test_motorctld_prints_and_checks_the_default_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from motorctl.daemon.main import main
+
+    assert main(["--print-default-config"]) == 0
+    text = capsys.readouterr().out
+    assert text == default_config_text()
+    path = tmp_path / "motorctl.toml"
+    path.write_text(text, encoding="utf-8")
+    assert main(["--check-config", str(path)]) == 0
+    assert capsys.readouterr().out == (
+        f"{path}: OK (3 motors, 8 pins, a DC motor, backend mock)\n"
+    )
+    path.write_text(text.replace("max_travel = 40000", "max_travel = 0", 1), encoding="utf-8")
+    assert main(["--check-config", str(path)]) == 1
+    assert "motors[0].homing.max_travel = 0: out of range" in capsys.readouterr().err
+
+
+def test_motion_defaults_are_the_configs() -> None:
+    """motion.types keeps construction defaults for its own tests; the daemon always passes
+    every value from the config (daemon.main.motor_params). They must not drift apart."""
+    from motorctl.daemon.main import motor_params
+    from motorctl.motion.types import HomingParams, MotorParams
+
+    built = motor_params(parse_config(MOTOR, SOURCE))[0]
+    assert dataclasses.replace(built, name="motor", host_position=None) == MotorParams()
+    assert built.homing == HomingParams()
