@@ -311,6 +311,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
+        epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
+               "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
+               "state written, exit 0). Under systemd it logs to the journal and reports "
+               "READY/STATUS/STOPPING. See docs/service.md.",
     )
     p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
@@ -325,7 +329,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="print the embedded default config, every key written out and "
                    "commented, and exit")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
-                   help="where state and the status socket live (default /run/motorctl)")
+                   help="the runtime directory: lock, status socket and, unless [state] "
+                   "directory says otherwise, the state file (default /run/motorctl)")
     p.add_argument("--status", action="store_true",
                    help="print the running daemon's status (JSON) from --state-dir and exit")
     p.add_argument("--log-level", default="info",

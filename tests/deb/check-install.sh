@@ -56,6 +56,10 @@ grep -iE "^(E|W):|warning|error" "$build/deb-install.log" && fail "apt or a main
 in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl | grep -qx installed || fail "not installed"
 [ -z "$(in_root dpkg --audit)" ] || fail "dpkg --audit: $(in_root dpkg --audit)"
 echo "installed: $(in_root dpkg-query -W -f='${Package} ${Version}' motorctl)"
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --reinstall \
+  /tmp/motorctl.deb > "$build/deb-reinstall.log" 2>&1 || { tail -30 "$build/deb-reinstall.log"; fail "reinstall"; }
+grep -iE "^(E|W):|warning|error" "$build/deb-reinstall.log" && fail "reinstall complained"
+echo "reinstalled (the upgrade path of the maintainer scripts): clean"
 
 step "user, groups, conffiles, udev rules"
 in_root getent passwd motorctl | grep -q ':/usr/sbin/nologin$' || fail "no motorctl system user"
