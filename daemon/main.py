@@ -40,6 +40,7 @@ from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
+from motorctl.hal.tmc import TmcDriver
 from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
@@ -217,6 +218,9 @@ class Daemon:
                                "state": self.persistence.status()}
         if self.link is not None:
             out["link"] = self.link.status()
+        drivers = [s.driver.stats() for s in self.hw.steppers if isinstance(s.driver, TmcDriver)]
+        if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
+            out["drivers"] = drivers
         return out
 
 
