@@ -40,6 +40,7 @@ from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
+from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
@@ -63,6 +64,8 @@ def hardware_spec(config: Config) -> HardwareSpec:
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
+            name=m.name,
+            driver=driver_spec(m),
             sections=m.sections,
         )
         for m in config.motors

@@ -53,13 +53,20 @@ BACKENDS: dict[str, Backend] = {
 }
 
 
+#: layers that work with any backend and own config sections: name -> config module (which
+#: imports no hardware library). "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C.
+LAYERS: dict[str, str] = {
+    "spidev": "motorctl.hal.tmc_config",
+}
+
+
 def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
-    """(backend name, its CONFIG_SECTIONS) of every backend that declares config sections."""
+    """(backend or layer name, its CONFIG_SECTIONS) of everything that declares sections."""
+    modules = [(name, b.config) for name, b in BACKENDS.items() if b.config is not None]
     found = []
-    for name, backend in BACKENDS.items():
-        if backend.config is not None:
-            module = importlib.import_module(backend.config)
-            found.append((name, tuple(module.CONFIG_SECTIONS)))
+    for name, module_name in [*modules, *LAYERS.items()]:
+        module = importlib.import_module(module_name)
+        found.append((name, tuple(module.CONFIG_SECTIONS)))
     return found
 
 
@@ -77,4 +84,15 @@ def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
             f"hardware backend {backend!r} failed to load: {exc}; needs {entry.fix}"
         ) from exc
     build = cast(Builder, getattr(module, entry.function))
-    return build(spec, clock)
+    hw = build(spec, clock)
+    drivers = [a.driver for a in spec.axes]
+    if any(drivers):
+        from motorctl.hal.tmc_backend import attach_drivers  # imports py-spidev lazily
+
+        names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
+        try:
+            attach_drivers(hw, drivers, clock, names)
+        except BaseException:
+            hw.close()
+            raise
+    return hw
