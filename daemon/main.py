@@ -21,7 +21,7 @@ from types import FrameType
 from typing import Any
 
 from motorctl import __version__
-from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
 from motorctl.daemon.link import Link, flush_pty_input
@@ -42,6 +42,8 @@ from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
+from motorctl.hal.tmc import TmcDriver
+from motorctl.hal.tmc_config import TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
@@ -74,6 +76,8 @@ def hardware_spec(config: Config) -> HardwareSpec:
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
+            name=m.name,
+            driver=driver_spec(m),
             dir_setup_s=st.dir_setup_us / 1e6,
             sections=m.sections,
         )
@@ -115,14 +119,20 @@ def motor_params(config: Config) -> list[MotorParams]:
     ]
 
 
+def motor_geometry(config: Config, m: MotorConfig) -> dict[str, object]:
+    """What gives a motor's saved positions their meaning: a change restores nothing."""
+    tmc = m.section(TmcAxisConfig)
+    return {"steps_per_rev": m.steps_per_rev, "invert_dir": m.invert_dir,
+            "backend": config.hal.backend,
+            "microsteps": tmc.microsteps if isinstance(tmc, TmcAxisConfig) else None}
+
+
 def motor_identities(config: Config) -> list[MotorIdentity]:
     """Names and geometry fingerprints: a saved motor is restored only onto its own match."""
     return [
         MotorIdentity(
             name=m.name,
-            fingerprint=geometry_fingerprint({"steps_per_rev": m.steps_per_rev,
-                                              "invert_dir": m.invert_dir,
-                                              "backend": config.hal.backend}),
+            fingerprint=geometry_fingerprint(motor_geometry(config, m)),
             max_waypoints=m.max_waypoints,
             steps_per_rev=m.steps_per_rev,
         )
@@ -224,6 +234,9 @@ class Daemon:
                                "state": self.persistence.status()}
         if self.link is not None:
             out["link"] = self.link.status()
+        drivers = [s.driver.stats() for s in self.hw.steppers if isinstance(s.driver, TmcDriver)]
+        if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
+            out["drivers"] = drivers
         return out
 
 
@@ -325,6 +338,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
+        epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
+               "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
+               "state written, exit 0). Under systemd it logs to the journal and reports "
+               "READY/STATUS/STOPPING. See docs/service.md.",
     )
     p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
@@ -339,7 +356,8 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="print the embedded default config, every key written out and "
                    "commented, and exit")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
-                   help="where state and the status socket live (default /run/motorctl)")
+                   help="the runtime directory: lock, status socket and, unless [state] "
+                   "directory says otherwise, the state file (default /run/motorctl)")
     p.add_argument("--status", action="store_true",
                    help="print the running daemon's status (JSON) from --state-dir and exit")
     p.add_argument("--log-level", default="info",

@@ -11,9 +11,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motorctl.schema import Sectioned
+
+if TYPE_CHECKING:
+    from motorctl.hal.tmc import TmcSpec
 
 
 @dataclass(frozen=True)
@@ -32,6 +35,8 @@ class AxisSpec(Sectioned):
     endstop_active_low: bool = False
     endstop_min: int = -10_000
     endstop_max: int = 10_000
+    name: str = ""
+    driver: TmcSpec | None = None  # a TMC2130/TMC5160 on SPI; None: no driver to talk to
     wiring: tuple[tuple[str, str], ...] = ()
     dir_setup_s: float = 5e-6
     dir_hold_s: float = 0.0

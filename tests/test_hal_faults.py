@@ -30,7 +30,7 @@ from motorctl.protocol.codec import (
     WaitMoved,
     encode_command,
 )
-from tests.daemon_proc import until
+from tests.daemon_proc import for_tests, until
 from tests.test_link import Host
 
 E = ErrorCode
@@ -55,7 +55,8 @@ mode = "output"
 class Live:
     def __init__(self, tmp: Path) -> None:
         clock = MonotonicClock()
-        self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state", clock)
+        config = parse_config(for_tests(CONFIG), "t.toml")  # best-effort step timing
+        self.daemon = Daemon.build(config, tmp / "state", clock)
         self.world: MockWorld = world_of(self.daemon.hw)
         self.fd, name = open_pty(tmp / "pty")
         self.link = Link(self.fd, self.daemon.dispatcher, OPTS, 0.010, 16,

@@ -249,7 +249,9 @@ def test_host_closes_and_reopens(served: Served) -> None:
     assert rs[0].as_bool is True  # the answer to this frame: nothing stale, nothing misaligned
     assert host.nothing_within(0.1)
     c = served.counters()
-    assert c["peer_reopened"] >= 1 and c["hangup_partial_bytes"] == 4
+    assert c["peer_reopened"] >= 1
+    # The 4 bytes went with the hang-up, or before it by the gap rule (a slow test machine).
+    assert (c["hangup_partial_bytes"], c["gap_discards"]) in ((4, 0), (0, 1))
     host.close()
 
 
