@@ -144,8 +144,12 @@ class Motor:
                          MotorState.STOPPING, now)
         return True
 
-    def latch_fault(self, reason: str, now: float, *, lost: bool = False) -> None:
-        """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4."""
+    def latch_fault(
+        self, reason: str, now: float, *, lost: bool = False, stopped: bool = False
+    ) -> None:
+        """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4.
+
+        ``stopped``: the executor already stopped the axis itself (and was answered)."""
         self.queue.clear()
         self.fault = reason
         self.state = MotorState.FAULT
@@ -153,7 +157,10 @@ class Motor:
         self._home_cmd = None
         if lost:
             self.position_lost = True
-        self._hard_stop(now, lambda t: None)
+        if stopped:
+            self.traj = None
+        else:
+            self._hard_stop(now, lambda t: None)
         self._notify(self, "fault")
 
     # -- what the executor reports (engine lock held) --------------------------
@@ -172,7 +179,8 @@ class Motor:
                 self._trajectory_done(ev.t)
             return
         if k is K.DIED:
-            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True)
+            self._awaiting = self._then = None  # nothing will answer any more
+            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True, stopped=True)
             return
         # the executor stopped the axis itself: answer (lifts its block), then decide
         if self._awaiting is not None and ev.gen < self._awaiting:
@@ -191,13 +199,13 @@ class Motor:
             ):
                 self._homing_triggered(max(ev.t, now))
             else:
-                self.latch_fault("end stop hit", now)
+                self.latch_fault("end stop hit", now, stopped=True)
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost)
+            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost, stopped=True)
         else:  # a line failed: a step may or may not have reached the driver
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(ev.detail or "step executor fault", now, lost=lost)
+            self.latch_fault(ev.detail or "step executor fault", now, lost=lost, stopped=True)
 
     def on_driver_status(self, status: DriverStatus, now: float) -> None:
         """A driver poll's result (read outside the engine lock, by the monitor)."""
