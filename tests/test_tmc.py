@@ -50,6 +50,7 @@ from motorctl.hal.tmc import (
 from motorctl.hal.tmc_backend import attach_drivers, probe
 from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
+from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -588,9 +589,12 @@ def engine_with_tmc(
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
-    hw = build(HardwareSpec((AxisSpec(),)), bench.clock)
+    spec = HardwareSpec((AxisSpec(),))
+    hw = build(spec, bench.clock)
     hw.steppers[0].driver = drv  # the mock's STEP/DIR, a TMC2130 for the status
-    engine = MotionEngine(hw, [MotorParams(homing=homing)], driver_poll_s=0.005)
+    params = [MotorParams(homing=homing)]
+    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 1e-3, 0.0))
+    engine = MotionEngine(hw, params, executor, driver_poll_s=0.005)
 
     def monitor_tick() -> None:  # what the monitor thread does, in virtual time
         moving = engine.motors[0].active
