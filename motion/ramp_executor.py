@@ -90,6 +90,9 @@ class RampExecutor(Executor):
         self._lock = threading.Lock()
         self._progress = 0
         self.counters = {"polls": 0, "spi_errors": 0, "endstops": 0, "sg_stops": 0}
+        for i, chip in enumerate(self.chips):  # the counters are XACTUAL from the start:
+            with suppress(HalError):  # the daemon restores positions before start()
+                self._refresh(i, chip.state())
 
     # -- lifecycle -----------------------------------------------------------------
     def start(self) -> None:

@@ -326,3 +326,10 @@ def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
         engine.run_until(rig.clock.now() + 0.01)
     assert m.state is MotorState.FAULT and m.position_lost
     assert m.fault is not None and "reset" in m.fault
+
+
+def test_positions_are_xactual_from_construction_for_a_restore_before_start() -> None:
+    rig = Rig()
+    rig.chips[0].set_position(12_345)  # where an earlier daemon left the chip
+    ex = RampExecutor(rig.chips, rig.clock)
+    assert ex.position(0) == 12_345  # before start(): the daemon restores offsets now
