@@ -20,7 +20,7 @@ from types import FrameType
 from typing import Any
 
 from motorctl import __version__
-from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
 from motorctl.daemon.link import Link, flush_pty_input
@@ -41,7 +41,7 @@ from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.hal.tmc import TmcDriver
-from motorctl.hal.tmc_config import SpidevConfig, driver_spec
+from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
@@ -114,14 +114,20 @@ def motor_params(config: Config) -> list[MotorParams]:
     ]
 
 
+def motor_geometry(config: Config, m: MotorConfig) -> dict[str, object]:
+    """What gives a motor's saved positions their meaning: a change restores nothing."""
+    tmc = m.section(TmcAxisConfig)
+    return {"steps_per_rev": m.steps_per_rev, "invert_dir": m.invert_dir,
+            "backend": config.hal.backend,
+            "microsteps": tmc.microsteps if isinstance(tmc, TmcAxisConfig) else None}
+
+
 def motor_identities(config: Config) -> list[MotorIdentity]:
     """Names and geometry fingerprints: a saved motor is restored only onto its own match."""
     return [
         MotorIdentity(
             name=m.name,
-            fingerprint=geometry_fingerprint({"steps_per_rev": m.steps_per_rev,
-                                              "invert_dir": m.invert_dir,
-                                              "backend": config.hal.backend}),
+            fingerprint=geometry_fingerprint(motor_geometry(config, m)),
             max_waypoints=m.max_waypoints,
             steps_per_rev=m.steps_per_rev,
         )
