@@ -52,8 +52,8 @@ bench: venv
 # there (never in the work tree). Result: build/deb/motorctl_<version>-1_all.deb.
 DEB_DEPS = build-essential debhelper dh-python pybuild-plugin-pyproject python3-all \
            python3-setuptools python3-build python3-installer python3-wheel lintian \
-           debootstrap fakeroot systemd-container
-DEB_VERSION = $(shell sed -n 's/^__version__ = "\(.*\)"/\1/p' motorctl/__init__.py)
+           debootstrap fakeroot systemd-container help2man
+DEB_VERSION = $(shell awk 'NR == 1 { v = $$2; gsub(/[()]/, "", v); sub(/-[^-]*$$/, "", v); print v }' debian/changelog)
 DEB_DIR = build/deb
 SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's python3, not a venv's or pyenv's
 

@@ -336,17 +336,24 @@ class MotionJournal:
             self._gen[index] += 1
             if self._flags[index]:
                 return
-            try:
-                if self._fd is None:
-                    raise OSError(errno.EBADF, "the motion journal is not open")
-                t0 = time.perf_counter()
-                os.pwrite(self._fd, b"1", index)
-                os.fdatasync(self._fd)
-                self.mark_seconds += time.perf_counter() - t0
-                self.marks += 1
-            except OSError:
+            fd = self._fd
+        # The disk is waited for outside the lock: a snapshot (taken under the engine lock)
+        # asks for a token meanwhile and must not wait for an fdatasync. While this start is
+        # pending no token is handed out, so nothing clears the byte behind our back.
+        try:
+            if fd is None:
+                raise OSError(errno.EBADF, "the motion journal is not open")
+            t0 = time.perf_counter()
+            os.pwrite(fd, b"1", index)
+            os.fdatasync(fd)
+            elapsed = time.perf_counter() - t0
+        except OSError:
+            with self._lock:
                 self._pending[index] -= 1
-                raise
+            raise
+        with self._lock:
+            self.mark_seconds += elapsed
+            self.marks += 1
             self._flags[index] = True
 
     def end(self, index: int) -> None:

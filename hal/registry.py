@@ -1,7 +1,17 @@
 """Backends by name, as python-can's interface registry: a config string picks one.
 
-A backend that fails to import is an error that says why and how to fix it;
-there is no silent fallback to another backend.
+A backend module provides two entry points:
+
+- ``build(spec, clock) -> Hardware``: what the daemon's process owns (drivers, pins, DC).
+- ``build_step_io(spec, clock, parent) -> StepIO``: the STEP/DIR outputs and end-stop inputs
+  of every axis, opened by the step executor in the process and thread that uses them.
+  ``parent`` is the daemon's :class:`Hardware` when the executor runs in the same process
+  (a backend may share state with it, as the mock shares its timeline), None in the
+  executor's own process, which rebuilds everything from the picklable ``spec``.
+
+The hardware library is imported only inside the backend module, when it is chosen. A
+backend that fails to import is an error that says why and how to fix it; there is no
+silent fallback to another backend.
 
 Each backend names two modules: the one that builds it (imported only when the backend is
 chosen: it may import its hardware library) and the one that declares its config sections
@@ -28,12 +38,14 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Any, cast
 
-from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.interfaces import Clock, HalError, Hardware, StepIO
 from motorctl.hal.spec import HardwareSpec
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
+StepIOBuilder = Callable[[HardwareSpec, Clock, Hardware | None], StepIO]
 
 
 @dataclass(frozen=True)
@@ -53,17 +65,24 @@ BACKENDS: dict[str, Backend] = {
 }
 
 
+#: layers that work with any backend and own config sections: name -> config module (which
+#: imports no hardware library). "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C.
+LAYERS: dict[str, str] = {
+    "spidev": "motorctl.hal.tmc_config",
+}
+
+
 def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
-    """(backend name, its CONFIG_SECTIONS) of every backend that declares config sections."""
+    """(backend or layer name, its CONFIG_SECTIONS) of everything that declares sections."""
+    modules = [(name, b.config) for name, b in BACKENDS.items() if b.config is not None]
     found = []
-    for name, backend in BACKENDS.items():
-        if backend.config is not None:
-            module = importlib.import_module(backend.config)
-            found.append((name, tuple(module.CONFIG_SECTIONS)))
+    for name, module_name in [*modules, *LAYERS.items()]:
+        module = importlib.import_module(module_name)
+        found.append((name, tuple(module.CONFIG_SECTIONS)))
     return found
 
 
-def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
+def _module(backend: str) -> ModuleType:
     try:
         entry = BACKENDS[backend]
     except KeyError:
@@ -71,10 +90,33 @@ def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
             f"unknown hardware backend {backend!r}; available: {', '.join(sorted(BACKENDS))}"
         ) from None
     try:
-        module = importlib.import_module(entry.module)
+        return importlib.import_module(entry.module)
     except ImportError as exc:
         raise HalError(
             f"hardware backend {backend!r} failed to load: {exc}; needs {entry.fix}"
         ) from exc
-    build = cast(Builder, getattr(module, entry.function))
-    return build(spec, clock)
+
+
+def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
+    """The daemon's part of the machine (drivers, pins, DC bridge), with any SPI drivers."""
+    build = cast(Builder, getattr(_module(backend), BACKENDS[backend].function))
+    hw = build(spec, clock)
+    drivers = [a.driver for a in spec.axes]
+    if any(drivers):
+        from motorctl.hal.tmc_backend import attach_drivers  # imports py-spidev lazily
+
+        names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
+        try:
+            attach_drivers(hw, drivers, clock, names)
+        except BaseException:
+            hw.close()
+            raise
+    return hw
+
+
+def open_step_io(
+    backend: str, spec: HardwareSpec, clock: Clock, parent: Hardware | None = None
+) -> StepIO:
+    """The step executor's lines, opened by (and in) the executor that drives them."""
+    build = cast(StepIOBuilder, _module(backend).build_step_io)
+    return build(spec, clock, parent)
