@@ -473,6 +473,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
             uart, fd = open_uart(args.port, args.baud)
             where = f"{args.port} at {args.baud} baud"
     except BaseException:
+        daemon.engine.executor.close()  # the process executor's shared memory
         daemon.hw.close()  # e.g. the mock's shared memory
         raise
     c = config.link
