@@ -46,7 +46,6 @@ from motorctl.hal.tmc import TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
-from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
 from motorctl.motion.ramp_executor import with_ramp_motors
@@ -228,9 +227,6 @@ class Daemon:
         health = self.engine.executor.health()
         steps = dict(health.latency)
         steps.update(health.counters)
-        stats = getattr(self.engine.executor, "stats", None)
-        if isinstance(stats, LatencyStats):
-            steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "executor": {"alive": health.alive, "reason": health.reason,
                                             "kind": self.config.step_thread.executor,
@@ -477,7 +473,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
             uart, fd = open_uart(args.port, args.baud)
             where = f"{args.port} at {args.baud} baud"
     except BaseException:
-        daemon.engine.executor.close()  # its shared memory; nothing was started yet
+        daemon.engine.executor.close()  # the process executor's shared memory
         daemon.hw.close()  # e.g. the mock's shared memory
         raise
     c = config.link

@@ -149,7 +149,9 @@ class Motor:
     ) -> None:
         """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4.
 
-        ``stopped``: the executor already stopped the axis itself (and was answered)."""
+        ``stopped``: the executor already stopped the axis itself and was answered, so the
+        position is final now (a StopMove right after makes the motor ready at once).
+        """
         self.queue.clear()
         self.fault = reason
         self.state = MotorState.FAULT
@@ -159,6 +161,8 @@ class Motor:
             self.position_lost = True
         if stopped:
             self.traj = None
+            self._awaiting = None
+            self._then = None
         else:
             self._hard_stop(now, lambda t: None)
         self._notify(self, "fault")
@@ -179,8 +183,7 @@ class Motor:
                 self._trajectory_done(ev.t)
             return
         if k is K.DIED:
-            self._awaiting = self._then = None  # nothing will answer any more
-            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True, stopped=True)
+            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True)
             return
         # the executor stopped the axis itself: answer (lifts its block), then decide
         if self._awaiting is not None and ev.gen < self._awaiting:
@@ -351,13 +354,16 @@ class Motor:
         self._become_idle(now)
 
     def _trajectory_done(self, now: float) -> None:
+        """The executor made every step of the trajectory: the axis is at rest."""
         if self.state is MotorState.HOMING:
             cmd = self._home_cmd
             assert cmd is not None
             h = self.params.homing
             if self._phase is HomingPhase.BACKOFF:
                 if self._still_on_switch(cmd.direction):
-                    self.latch_fault("homing failed: end stop still active after pull-off", now)
+                    self.latch_fault(
+                        "homing failed: end stop still active after pull-off", now, stopped=True
+                    )
                     return
                 self._phase = HomingPhase.APPROACH
                 c = self.executor.committed(self.index, now)
@@ -370,7 +376,7 @@ class Motor:
                 self._follow(traj, MotorState.HOMING, now)
                 return
             travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
-            self.latch_fault(f"homing failed: no end stop within {travel} steps", now)
+            self.latch_fault(f"homing failed: no end stop within {travel} steps", now, stopped=True)
             return
         self._become_idle(now)
 
