@@ -1,6 +1,8 @@
 # Two commands do all set-up on a fresh Debian machine:
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
-#   make test   the test suite (what .ci/run calls)
+#   make test   the test suite (what .ci/run calls first)
+#   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
+#               builds its VM into ~/.cache/motorctl-gpio-sim on first use, as root)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
 
 PYTHON ?= python3
@@ -10,7 +12,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test lint bench clean venv
+.PHONY: run test test-hw lint bench clean venv
 
 venv: $(VENV)/.installed
 
@@ -30,6 +32,9 @@ test: venv
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
+
+test-hw:
+	hwtest/run all
 
 bench: venv
 	$(BIN)/python bench/latency.py

@@ -6,6 +6,7 @@ ConfigError naming the file, the key path, the problem and what is accepted.
 
 from __future__ import annotations
 
+import dataclasses
 import datetime
 import json
 import math
@@ -18,6 +19,7 @@ from importlib import resources
 from typing import TYPE_CHECKING, Any, Final
 
 if TYPE_CHECKING:
+    from motorctl.hal.wiring import GpioWiring
     from motorctl.protocol.codec import CodecOptions
 
 EMBEDDED_SOURCE: Final = "<embedded default>"
@@ -189,6 +191,7 @@ class Config:
     dc: DcConfig | None
     mock: MockConfig
     source: str
+    gpiod: GpioWiring | None = None
 
 
 # --------------------------------------------------------------------------------------------
@@ -425,9 +428,9 @@ _HAL = _Table(
         _choice(
             "backend",
             "mock",
-            ("mock",),
-            'Hardware backend; "mock" simulates motors, end stops and wired pins.',
-            note="the only backend in this version",
+            ("mock", "gpiod"),
+            'Hardware backend; "mock" simulates motors, end stops and wired pins; "gpiod" '
+            "drives real GPIO lines, wired in [gpiod] (docs/hardware.md).",
         ),
     ),
 )
@@ -1025,9 +1028,33 @@ def parse_config(text: str, source: str) -> Config:
         else:  # "(at end of document)"
             line = max(1, text.count("\n") + (0 if text.endswith("\n") else 1))
         raise ConfigError(f"{source}: line {line}: TOML syntax error: {message}") from None
+    gpiod_raw = document.pop("gpiod", None)
     parser = _Parser(source)
     values = parser.table(_TOP, document, "", {})
-    return Config(**values, source=source)
+    config = Config(**values, source=source)
+    return _with_gpiod(config, gpiod_raw)
+
+
+def _with_gpiod(config: Config, raw: Any) -> Config:
+    """The [gpiod] section: owned and parsed by the gpiod backend (motorctl.hal.wiring)."""
+    from motorctl.hal.wiring import WiringError, check_against, parse_wiring
+
+    source = config.source
+    if raw is None:
+        if config.hal.backend == "gpiod":
+            raise ConfigError(f"{source}: [hal] backend = \"gpiod\" needs a [gpiod] section that "
+                              "wires the motors, end stops, DC bridge and pins "
+                              "(docs/hardware.md)")
+        return config
+    try:
+        wiring = parse_wiring(raw)
+    except WiringError as exc:
+        raise ConfigError(f"{source}: {exc}") from None
+    problem = check_against(wiring, len(config.motors), {p.number for p in config.pins},
+                            config.dc is not None)
+    if problem is not None:
+        raise ConfigError(f"{source}: {problem}")
+    return dataclasses.replace(config, gpiod=wiring)
 
 
 def default_config_text() -> str:
@@ -1101,4 +1128,7 @@ def describe_keys() -> list[tuple[str, str, str, str]]:
     """
     rows: list[tuple[str, str, str, str]] = []
     _describe(_TOP, "", {}, rows)
+    rows.append(("gpiod", "table", "absent", "a table [gpiod], required by backend \"gpiod\". "
+                 "The wiring of the gpiod backend (lines of the motors, end stops, DC bridge and "
+                 "pins); its keys are in docs/hardware.md."))
     return rows

@@ -25,7 +25,7 @@ from motorctl.daemon.state import StateError, StateWriter, read_state
 from motorctl.daemon.status import StatusServer, read_status
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import MockHardware
-from motorctl.hal.registry import open_hardware
+from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
@@ -48,11 +48,13 @@ def hardware_spec(config: Config) -> HardwareSpec:
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.mock.endstop_min,
             endstop_max=m.mock.endstop_max,
+            debounce_s=m.endstop.debounce_ms / 1000.0,
         )
         for m in config.motors
     )
     pins = tuple(PinSpec(p.number, p.is_output, p.initial) for p in config.pins)
-    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=config.mock.wires)
+    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=config.mock.wires,
+                        gpio=config.gpiod)
 
 
 def motor_params(config: Config) -> list[MotorParams]:
@@ -259,6 +261,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--check-config", metavar="FILE", help="check FILE and exit")
     p.add_argument("--print-default-config", action="store_true",
                    help="print the embedded default config and exit")
+    p.add_argument("--probe", action="store_true",
+                   help="open every line and device the --config names, without moving "
+                   "anything; print chips, lines and their current consumers, end-stop levels "
+                   "and driver status; exit 1 if something is missing or busy")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
                    help="where state and the status socket live (default /run/motorctl)")
     p.add_argument("--status", action="store_true",
@@ -286,6 +292,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{args.check_config}: OK ({len(cfg.motors)} motors, {len(cfg.pins)} pins, "
               f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})")
         return 0
+    if args.probe:
+        return probe(args.config)
     if args.status:
         try:
             import json
@@ -305,6 +313,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+
+
+def probe(config_path: str | None) -> int:
+    """``--probe``: what the configured hardware looks like, moving nothing."""
+    try:
+        config = load_config(config_path)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    report = probe_hardware(config.hal.backend, hardware_spec(config), MonotonicClock())
+    print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
+    sys.stdout.write(report.text())
+    return 1 if report.problems else 0
 
 
 def serve(args: argparse.Namespace) -> int:

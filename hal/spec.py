@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from motorctl.hal.wiring import GpioWiring
+
 
 @dataclass(frozen=True)
 class AxisSpec:
@@ -13,6 +15,7 @@ class AxisSpec:
     endstop_active_low: bool = False
     endstop_min: int = -10_000
     endstop_max: int = 10_000
+    debounce_s: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -29,3 +32,5 @@ class HardwareSpec:
     dc: bool = False
     wires: tuple[tuple[int, int], ...] = ()
     options: dict[str, object] = field(default_factory=dict)
+    #: the gpiod backend's wiring ([gpiod] in the config), if configured
+    gpio: GpioWiring | None = None
