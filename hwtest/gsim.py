@@ -104,3 +104,13 @@ def trace_lost() -> int:
 def sets(events: list[Ev], gpio: int) -> list[Ev]:
     """The levels a program set on one line (not the kernel's reads), in order."""
     return [e for e in events if e.event == "gpio_value" and e.op == "set" and e.gpio == gpio]
+
+
+def changes(events: list[Ev]) -> list[Ev]:
+    """Only the sets that change the level (libgpiod v1 rewrites every line of a multi-line
+    handle on each write, so a line's own level repeats in the trace)."""
+    out: list[Ev] = []
+    for e in events:
+        if not out or e.value != out[-1].value:
+            out.append(e)
+    return out
