@@ -4,6 +4,8 @@
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
 #               builds its VM into ~/.cache/motorctl-gpio-sim on first use, as root)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
+# The editable install filters setuptools' informational "Editable installation" note only: the
+# checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
 PYTHON ?= python3
 VENV   ?= .venv
@@ -12,7 +14,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-hw lint bench clean venv
+.PHONY: run test test-hw lint bench coverage robustness clean venv
 
 venv: $(VENV)/.installed
 
@@ -22,7 +24,7 @@ $(VENV)/.installed: pyproject.toml
 	  else echo "python3-venv is missing: run 'sudo apt-get install python3-venv'" >&2; exit 1; fi; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e '.[dev]'
+	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/pip install -q -e '.[dev]'
 	touch $@
 
 run: venv
@@ -35,6 +37,16 @@ test: venv
 
 test-hw:
 	hwtest/run all
+
+# Unit coverage of the daemon's modules (the link, its session, state, service, status).
+coverage: venv
+	$(BIN)/pytest -q -n $(JOBS) --cov=motorctl.daemon --cov=motorctl.protocol.framing \
+	  --cov-report=term-missing
+
+# The robustness harness (docs/robustness.md): 10^6 frames, kill -9 cycles, HAL faults, soak.
+# ARGS="--quick" for a short run; the full run takes about 20 minutes.
+robustness: venv
+	$(BIN)/python -m bench.robustness $(ARGS)
 
 bench: venv
 	$(BIN)/python bench/latency.py

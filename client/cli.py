@@ -10,13 +10,13 @@ from collections.abc import Callable, Sequence
 
 import serial
 
+from motorctl import __version__
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
-from motorctl.protocol.codec import FRAME_LEN, CodecOptions
-from motorctl.protocol.crc import SMBUS, Crc8, crc8_by_name
+from motorctl.protocol.codec import FRAME_LEN, POS_MAX, POS_MIN, CodecOptions
+from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
 
 __all__ = ["build_parser", "main"]
 
-POS_MIN, POS_MAX = -(1 << 23), (1 << 23) - 1
 
 _UNITS = """\
 All numbers are the raw protocol values the host sends, not physical units: MOTOR, PIN,
@@ -99,6 +99,7 @@ def build_parser() -> argparse.ArgumentParser:
         epilog=_UNITS,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
+    parser.add_argument("--version", action="version", version=f"motorctl {__version__}")
     parser.add_argument(
         "-p", "--port", metavar="PATH", default=os.environ.get("MOTORCTL_PORT"),
         help="serial port (default: $MOTORCTL_PORT)",
@@ -109,8 +110,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="response timeout in seconds (default 5; wait adds its TIMEOUT_MS)",
     )
     parser.add_argument(
-        "--checksum", default="crc8", metavar="NAME",
-        help='"crc8" (CRC-8/SMBUS, default), "none", or a CRC-8 catalogue name',
+        "--checksum", default=CHECKSUM_DEFAULT, metavar="NAME",
+        help=f"{CHECKSUM_TEXT}; default {CHECKSUM_DEFAULT}",
     )
     parser.add_argument(
         "--crc-covers-ack", action="store_true", help="the response CRC covers R0..R3"
@@ -226,15 +227,6 @@ def _parse_hex(words: Sequence[str]) -> bytes:
         raise ValueError(f"not hex bytes: {' '.join(words)!r}") from None
 
 
-def _crc_from_name(name: str) -> Crc8 | None:
-    key = name.strip().lower()
-    if key == "none":
-        return None
-    if key == "crc8":
-        return SMBUS
-    return crc8_by_name(name)
-
-
 def _send(client: Client, frame: bytes) -> str:
     """Send an arbitrary frame; return "ok, payload ..." or raise DeviceError."""
     client.send_frame(frame)
@@ -301,7 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     if not args.port:
         parser.error("no serial port: pass -p PATH or set MOTORCTL_PORT")
     try:
-        crc = _crc_from_name(args.checksum)
+        crc = checksum_by_name(args.checksum)
     except ValueError as exc:
         parser.error(f"--checksum: {exc}")
     options = CodecOptions(crc=crc, crc_covers_ack=args.crc_covers_ack)

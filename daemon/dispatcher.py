@@ -248,6 +248,7 @@ class Dispatcher:
     def save_home(self, c: SaveHome) -> Response:
         m = self._motor(c.motor)
         self._not_faulted(m)
+        self._position_known(m)
         self._idle(m)
         m.home = m.position
         self.on_saved()
@@ -265,6 +266,7 @@ class Dispatcher:
     def save_waypoint(self, c: SaveWayPoint) -> Response:
         m = self._motor(c.motor)
         self._not_faulted(m)
+        self._position_known(m)
         self._idle(m)
         if len(m.waypoints) >= m.params.max_waypoints:
             raise Reject(E.FULL_WAYPOINT_BUFFER)

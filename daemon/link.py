@@ -1,12 +1,30 @@
-"""The link: bytes in, frames out, exactly one response per complete frame, in order.
+"""The link: the poll/read/write loop around a pure :class:`~motorctl.daemon.session.LinkSession`.
 
-One thread does all of it (as pyserial's ReaderThread does the reading): it waits
-in select() on the serial/PTY file descriptor and a wake-up pipe, stamps every
-read with the monotonic clock (pyserial's inter_byte_timeout has 0.1 s resolution,
-useless for a 10 ms gap), frames, decodes, dispatches and writes. While a
-WaitMoved is pending, later frames are kept in arrival order (up to
-``held_frames``; beyond that each gets E0 in its turn); a StopMove among them is
-executed on arrival and its response waits its turn.
+One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
+on the serial/PTY file descriptor and a wake-up pipe, and in the dispatcher's engine lock.
+:meth:`Link.wake` and :meth:`Link.stop` are the only calls other threads (the step thread,
+signal handlers) make: they write a byte to the pipe. :meth:`Link.status` may be called from
+the status thread: it only copies counters whose keys all exist from the start.
+
+What the shell does, and why:
+- **Gaps are watched, not inferred.** Before each ``poll()`` it notes the time; when the poll
+  returns without input (a timeout or a wake-up), it reads the clock and then confirms with a
+  non-blocking read that nothing came. Only then does it tell the session that the line was
+  silent for that stretch, while ready to read. Bytes that waited in the kernel's buffer while
+  the daemon was busy or not scheduled are read as contiguous, however late. (What this can
+  and cannot detect: docs/protocol.md, "Framing".)
+- **Writes never block.** Responses go into an output buffer written as the descriptor takes
+  them. While more than ``out_limit`` bytes or ``backlog_limit`` responses are owed, the
+  shell stops reading: the host's writes then wait in the kernel (back pressure), nothing is
+  lost and memory stays bounded. Reads resume as soon as the host reads again.
+- **The peer may go away.** A PTY whose other side is closed reports POLLHUP and EIO; a USB
+  UART that is unplugged does the same. The partial frame and unsent responses are dropped
+  (like bytes sent down a UART to a closed port; ``on_hangup`` also flushes what the kernel
+  still holds for the closed PTY, see :func:`flush_pty_input`), and the shell looks every
+  ``retry_s`` whether the port is open again, executing held frames meanwhile. Any other
+  read or write error is logged, counted and treated the same way: the thread never dies.
+- **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
+  at most ``drain_s`` to leave.
 """
 
 from __future__ import annotations
@@ -16,58 +34,74 @@ import errno
 import logging
 import os
 import select
+import termios
 import time
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass
 
-from motorctl.daemon.dispatcher import Dispatcher, Wait
+from motorctl.daemon.session import CommandPort, LinkSession
 from motorctl.motion.latency import LatencyStats
-from motorctl.protocol.codec import (
-    CodecOptions,
-    Command,
-    ErrorCode,
-    FrameError,
-    Response,
-    StopMove,
-    WaitMoved,
-    decode_command,
-    encode_response,
-)
-from motorctl.protocol.framing import Framer
+from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
 
 log = logging.getLogger("motorctl.link")
 
+POLLIN, POLLOUT = select.POLLIN, select.POLLOUT
+POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
-@dataclass
-class Held:
-    """A frame kept behind a pending WaitMoved: a command, or an answer already decided."""
+SHELL_COUNTERS = (
+    "reads", "read_eagain", "write_eagain", "link_errors", "peer_closed", "peer_reopened",
+    "hangup_partial_bytes", "responses_dropped", "backpressure",
+)
 
-    command: Command | None
-    response: Response | None
-    counts: bool = True  # E0 overflow answers do not occupy the buffer
+
+def flush_pty_input(slave: str) -> None:
+    """Discard what was written to a PTY and not read before its host closed it.
+
+    The kernel keeps such bytes for whoever opens the slave next, which would then read
+    answers to someone else's questions. Opening the slave for a moment and flushing its
+    input is the only way from the master's side; failures are logged, never raised."""
+    try:
+        fd = os.open(slave, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    except OSError as exc:
+        log.warning("cannot open %s to flush stale responses: %s", slave, exc)
+        return
+    try:
+        termios.tcflush(fd, termios.TCIFLUSH)
+    except termios.error as exc:
+        log.warning("cannot flush stale responses on %s: %s", slave, exc)
+    finally:
+        os.close(fd)
 
 
 class Link:
     def __init__(
         self,
         fd: int,
-        dispatcher: Dispatcher,
+        dispatcher: CommandPort,
         options: CodecOptions,
         frame_gap_s: float,
         held_frames: int = 16,
-        clock: Callable[[], float] = time.perf_counter,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        backlog_limit: int = 4096,
+        read_size: int = 4096,
+        retry_s: float = 0.02,
+        drain_s: float = 0.5,
+        on_hangup: Callable[[], None] | None = None,
     ) -> None:
         self.fd = fd
-        self.dispatcher = dispatcher
-        self.options = options
-        self.framer = Framer(frame_gap_s)
-        self.held_limit = held_frames
+        self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
         self.clock = clock
-        self.counters: Counter[str] = Counter()
+        self.read_size = read_size
+        self.out_limit = backlog_limit * RESPONSE_LEN
+        self.retry_s = retry_s
+        self.drain_s = drain_s
+        self.on_hangup = on_hangup
+        self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
         self.processing = LatencyStats(threshold_s=108e-6)
-        self.wait: Wait | None = None
-        self.held: list[Held] = []
+        self.peer_gone = False
+        self._out = bytearray()
+        self._reading = True
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
@@ -75,12 +109,13 @@ class Link:
 
     # -- thread-safe pokes ---------------------------------------------------------
     def wake(self) -> None:
-        """Make the loop re-check a held WaitMoved (called on motor idle/fault)."""
-        if self.wait is not None:
+        """Make the loop re-check a held WaitMoved (called on motor events)."""
+        if self.session.waiting:
             with contextlib.suppress(BlockingIOError):
                 os.write(self._wake_w, b"\0")
 
     def stop(self) -> None:
+        """End :meth:`serve` at its next turn (from any thread or a signal handler)."""
         self._running = False
         with contextlib.suppress(BlockingIOError):
             os.write(self._wake_w, b"\1")
@@ -88,122 +123,170 @@ class Link:
     # -- the loop --------------------------------------------------------------------
     def serve(self) -> None:
         self._running = True
-        fd, wake_r = self.fd, self._wake_r
+        poller = select.poll()
+        poller.register(self._wake_r, POLLIN)
         while self._running:
-            timeout = self._timeout()
-            ready, _, _ = select.select([fd, wake_r], [], [], timeout)
-            now = self.clock()
-            if wake_r in ready:
-                with contextlib.suppress(BlockingIOError):
-                    os.read(wake_r, 4096)
-            if fd in ready:
-                try:
-                    data = os.read(fd, 4096)
-                except OSError as exc:
-                    if exc.errno in (errno.EAGAIN, errno.EINTR):
-                        continue
-                    if exc.errno == errno.EIO:  # PTY with no reader: wait for one
-                        self._sleep_on_wake(0.05)
-                        continue
-                    raise
-                if data:
-                    self.counters["bytes_in"] += len(data)
-                    for frame in self.framer.feed(data, now):
-                        self._on_frame(frame, now)
-            self.framer.expire(now)
-            if self.wait is not None:
-                self._poll_wait(now)
+            self.turn(poller)
+        self._drain()
 
-    def _sleep_on_wake(self, seconds: float) -> None:
-        select.select([self._wake_r], [], [], seconds)
+    def turn(self, poller: select.poll) -> None:
+        """One turn of the loop: answer what is due, write, wait, read or watch the silence."""
+        session, fd = self.session, self.fd
+        if session.waiting:
+            session.poll(self.clock())
+        self._flush()
+        if self.peer_gone:
+            self._look_for_peer()
+            return
+        reading = session.wants_input() and len(self._out) < self.out_limit
+        if reading != self._reading:
+            self._reading = reading
+            if not reading:
+                self.counters["backpressure"] += 1
+        poller.register(fd, (POLLIN if reading else 0) | (POLLOUT if self._out else 0))
+        t_enter = self.clock()
+        ready = dict(poller.poll(self._timeout_ms(t_enter, reading)))
+        if self._wake_r in ready:
+            with contextlib.suppress(BlockingIOError):
+                os.read(self._wake_r, 4096)
+        events = ready.get(fd, 0)
+        if events & POLLIN:
+            self._read(None)
+        elif events & POLLGONE:
+            self._hangup("closed")
+        elif reading:
+            self._read(t_enter)
 
-    def _timeout(self) -> float | None:
-        now = self.clock()
-        deadlines = [d for d in (self.framer.deadline(),) if d is not None]
-        if self.wait is not None:
-            deadlines.append(self.wait.deadline)
-        if not deadlines:
+    def _timeout_ms(self, now: float, reading: bool) -> float | None:
+        limits = []
+        deadline = self.session.deadline()
+        if deadline is not None:
+            limits.append(deadline - now)
+        gap = self.session.gap_left() if reading else None
+        if gap is not None:
+            limits.append(gap)
+        if not limits:
             return None
-        return max(0.0, min(deadlines) - now)
+        return max(0.0, min(limits)) * 1000.0
 
-    # -- frames ------------------------------------------------------------------------
-    def _on_frame(self, frame: bytes, t_read: float) -> None:
+    def _read(self, watched_since: float | None) -> None:
+        """Read what is there. With ``watched_since`` the poll saw no input: a read that finds
+        nothing confirms that the line was silent from then until the clock was read."""
+        now = self.clock()
         try:
-            cmd: Command | None = decode_command(frame, self.options)
-            self.counters["frames_good"] += 1
-        except FrameError as exc:
-            self.counters[f"{exc.reason}_errors"] += 1
-            cmd = None
-        if self.wait is not None:
-            self._hold(cmd)
+            data = os.read(self.fd, self.read_size)
+        except (BlockingIOError, InterruptedError):
+            self.counters["read_eagain"] += 1
+            if watched_since is not None:
+                self.session.idle(now - watched_since)
             return
-        if cmd is None:
-            self._send(Response.error(ErrorCode.INVALID_COMMAND), t_read)
-        elif isinstance(cmd, WaitMoved):
-            self._begin_wait(cmd, t_read)
-        else:
-            self._send(self.dispatcher.handle(cmd), t_read)
-
-    def _hold(self, cmd: Command | None) -> None:
-        if cmd is None:
-            self.held.append(Held(None, Response.error(ErrorCode.INVALID_COMMAND)))
-        elif sum(h.counts for h in self.held) >= self.held_limit:
-            self.held.append(Held(None, Response.error(ErrorCode.FULL_BUFFER), counts=False))
-        elif isinstance(cmd, StopMove):
-            self.held.append(Held(None, self.dispatcher.handle(cmd)))
-            self._poll_wait(self.clock())
-        else:
-            self.held.append(Held(cmd, None))
-
-    def _begin_wait(self, cmd: WaitMoved, t_read: float | None) -> None:
-        result = self.dispatcher.wait_begin(cmd, self.clock())
-        if isinstance(result, Wait):
-            self.wait = result
-            # The motor may have stopped between the check and now, when wake() still
-            # saw no wait to report: look once more.
-            self._poll_wait(self.clock())
-        else:
-            self._send(result, t_read)
-
-    def _poll_wait(self, now: float) -> None:
-        wait = self.wait
-        assert wait is not None
-        result = self.dispatcher.wait_poll(wait, now)
-        if result is None:
+        except OSError as exc:
+            self._hangup("closed" if exc.errno == errno.EIO else f"read failed: {exc}")
             return
-        self.wait = None
-        self._send(result, None)
-        while self.held and self.wait is None:
-            item = self.held.pop(0)
-            if item.response is not None:
-                self._send(item.response, None)
-            elif isinstance(item.command, WaitMoved):
-                self._begin_wait(item.command, None)
-            elif item.command is not None:
-                self._send(self.dispatcher.handle(item.command), None)
+        if not data:  # end of file: nobody is on the other side
+            self._hangup("closed")
+            return
+        self.counters["reads"] += 1
+        self.session.receive(data, now)
+        if self._flush():
+            self.processing.record(self.clock() - now)
 
-    def _send(self, resp: Response, t_read: float | None) -> None:
-        data = encode_response(resp, self.options)
-        view = memoryview(data)
-        while view:
+    def _flush(self) -> bool:
+        """Write what the descriptor takes without blocking; True if anything new was queued."""
+        data = self.session.take_output()
+        if data:
+            if self.peer_gone:
+                self.counters["responses_dropped"] += len(data) // RESPONSE_LEN
+                return False
+            self._out += data
+        while self._out:
             try:
-                n = os.write(self.fd, view)
+                n = os.write(self.fd, self._out[:65536])
             except BlockingIOError:
-                select.select([], [self.fd], [], 1.0)
+                self.counters["write_eagain"] += 1
+                break
+            except InterruptedError:
                 continue
-            view = view[n:]
-        if t_read is not None:
-            self.processing.record(self.clock() - t_read)
-        code = resp.error_code
-        self.counters["responses"] += 1
-        if code is not None:
-            self.counters[f"sent_{code.short}"] += 1
+            except OSError as exc:
+                self._hangup("closed" if exc.errno == errno.EIO else f"write failed: {exc}")
+                break
+            del self._out[:n]
+        return bool(data)
+
+    def _hangup(self, why: str) -> None:
+        if self.peer_gone:
+            return
+        self.peer_gone = True
+        if why == "closed":
+            self.counters["peer_closed"] += 1
+            log.info("the host closed the port; serving again when it is reopened")
+        else:
+            self.counters["link_errors"] += 1
+            log.error("link: %s; retrying every %.0f ms", why, self.retry_s * 1000)
+        self.counters["hangup_partial_bytes"] += self.session.peer_gone()
+        self.counters["responses_dropped"] += len(self._out) // RESPONSE_LEN
+        self._out.clear()
+        if self.on_hangup is not None:
+            self.on_hangup()
+
+    def _look_for_peer(self) -> None:
+        """Peer gone: wait ``retry_s`` (or a wake-up), then see whether the port is open."""
+        deadline = self.session.deadline()
+        wait = self.retry_s
+        if deadline is not None:
+            wait = max(0.0, min(wait, deadline - self.clock()))
+        with contextlib.suppress(InterruptedError):
+            select.select([self._wake_r], [], [], wait)
+        with contextlib.suppress(BlockingIOError):
+            os.read(self._wake_r, 4096)
+        probe = select.poll()
+        probe.register(self.fd, POLLIN)
+        events = dict(probe.poll(0)).get(self.fd, 0)
+        if events & POLLGONE and not events & POLLIN:
+            return
+        try:
+            data = os.read(self.fd, self.read_size) if events & POLLIN else b""
+        except (BlockingIOError, InterruptedError):
+            data = b""
+        except OSError:
+            return
+        if events & POLLGONE and not data:
+            return
+        self.peer_gone = False
+        self.counters["peer_reopened"] += 1
+        log.info("the port is open again")
+        if data:
+            self.counters["reads"] += 1
+            self.session.receive(data, self.clock())
+
+    def _drain(self) -> None:
+        """After stop(): give unsent responses at most ``drain_s`` to leave."""
+        end = self.clock() + self.drain_s
+        poller = select.poll()
+        poller.register(self.fd, POLLOUT)
+        self._flush()
+        while self._out and not self.peer_gone:
+            left = end - self.clock()
+            if left <= 0:
+                self.counters["responses_dropped"] += len(self._out) // RESPONSE_LEN
+                log.warning("shutdown: %d unsent response bytes dropped", len(self._out))
+                self._out.clear()
+                break
+            poller.poll(left * 1000.0)
+            self._flush()
 
     def status(self) -> dict[str, object]:
-        counts: dict[str, object] = dict(self.counters)
-        counts["gap_discards"] = self.framer.discarded
-        return {"counters": counts, "processing": self.processing.summary(),
-                "held": len(self.held), "waiting": self.wait is not None}
+        session = self.session
+        counts: dict[str, object] = dict(session.counters)
+        counts.update(self.counters)
+        return {
+            "counters": counts,
+            "processing": self.processing.summary(),
+            "held": session.held,
+            "waiting": session.waiting,
+            "peer": "closed" if self.peer_gone else "open",
+            "unsent_bytes": len(self._out),
+        }
 
     def close(self) -> None:
         os.close(self._wake_r)

@@ -13,24 +13,28 @@ import time
 import tty
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import partial
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
+from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.link import Link
+from motorctl.daemon.link import Link, flush_pty_input
 from motorctl.daemon.service import Watchdog, sd_notify, watchdog_interval
 from motorctl.daemon.state import StateError, StateWriter, read_state
 from motorctl.daemon.status import StatusServer, read_status
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import MockHardware
+from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
 from motorctl.motion.types import HomingParams, MotorParams
+from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")
 
@@ -42,19 +46,25 @@ class StartupError(Exception):
 
 
 def hardware_spec(config: Config) -> HardwareSpec:
+    """What the backend builds; every backend's config sections travel along (`sections`)."""
     axes = tuple(
         AxisSpec(
             invert_dir=m.invert_dir,
             endstop_active_low=m.endstop.active_low,
-            endstop_min=m.mock.endstop_min,
-            endstop_max=m.mock.endstop_max,
+            endstop_min=m.section(MockAxisConfig).endstop_min,
+            endstop_max=m.section(MockAxisConfig).endstop_max,
             debounce_s=m.endstop.debounce_ms / 1000.0,
+            sections=m.sections,
         )
         for m in config.motors
     )
-    pins = tuple(PinSpec(p.number, p.is_output, p.initial) for p in config.pins)
-    return HardwareSpec(axes, pins, dc=config.dc is not None, wires=config.mock.wires,
-                        gpio=config.gpiod)
+    pins = tuple(
+        PinSpec(p.number, p.is_output, p.initial, sections=p.sections) for p in config.pins
+    )
+    wires = config.section(MockConfig).wires
+    return HardwareSpec(
+        axes, pins, dc=config.dc is not None, wires=wires, sections=config.sections
+    )
 
 
 def motor_params(config: Config) -> list[MotorParams]:
@@ -76,6 +86,7 @@ def motor_params(config: Config) -> list[MotorParams]:
             debounce_s=m.endstop.debounce_ms / 1000.0,
             dir_setup_s=st.dir_setup_us / 1e6,
             pulse_s=st.step_pulse_us / 1e6,
+            host_position=wrap24,
         )
         for m in config.motors
     ]
@@ -213,8 +224,14 @@ class Daemon:
         return out
 
 
-def open_pty(path: Path) -> tuple[int, int, str]:
-    """A new PTY in raw mode; ``path`` becomes a symlink to its slave. Returns fds and name."""
+def open_pty(path: Path) -> tuple[int, str]:
+    """A new PTY in raw mode; ``path`` becomes a symlink to its slave. Returns the master fd
+    and the slave's name.
+
+    The daemon does not keep the slave open: the master then sees the host close the port
+    (POLLHUP, EIO) and drops what was meant for it, as a UART's bytes to a closed port are
+    lost, instead of leaving stale responses for the next host. The raw mode stays set while
+    the master is open."""
     if (path.exists() or path.is_symlink()) and not path.is_symlink():
         raise StartupError(f"{path} exists and is not a symlink; remove it or choose "
                            "another --pty path")
@@ -222,6 +239,7 @@ def open_pty(path: Path) -> tuple[int, int, str]:
     tty.setraw(slave, termios.TCSANOW)
     name = os.ttyname(slave)
     os.chmod(name, 0o666)
+    os.close(slave)
     os.set_blocking(master, False)
     tmp = path.with_name(f".{path.name}.{os.getpid()}")
     try:
@@ -229,7 +247,7 @@ def open_pty(path: Path) -> tuple[int, int, str]:
         os.replace(tmp, path)
     except OSError as exc:
         raise StartupError(f"cannot create symlink {path}: {exc.strerror}") from exc
-    return master, slave, name
+    return master, name
 
 
 def open_uart(device: str, baud: int) -> tuple[Any, int]:
@@ -251,6 +269,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
     )
+    p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", metavar="PATH", type=Path,
                        help="serve on a new pseudo-terminal; PATH becomes a symlink to it")
@@ -344,16 +363,15 @@ def serve(args: argparse.Namespace) -> int:
             os.sched_setaffinity(0, others)
     daemon = Daemon.build(config, args.state_dir)
     uart: Any = None
-    slave: int | None = None
     if args.pty is not None:
-        fd, slave, name = open_pty(args.pty)
+        fd, name = open_pty(args.pty)
         where = f"{args.pty} -> {name}"
     else:
         uart, fd = open_uart(args.port, args.baud)
         where = f"{args.port} at {args.baud} baud"
     c = config.link
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
-                c.held_frames)
+                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name))
     daemon.link = link
     stepper = StepThread(daemon.engine, daemon.clock, spin_s=st.spin_us / 1e6,
                          priority=st.priority, lock_memory=st.lock_memory, cpu=st.cpu)
@@ -391,8 +409,6 @@ def serve(args: argparse.Namespace) -> int:
             uart.close()
         else:
             os.close(fd)
-            if slave is not None:
-                os.close(slave)
             if args.pty.is_symlink():
                 args.pty.unlink()
         daemon.hw.close()

@@ -23,6 +23,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from motorctl.hal.gpiochip import Edge, GpioApi, LineRequest, LineSettings, load_api
+from motorctl.hal.gpiod_config import (
+    GpiodAxisConfig,
+    GpiodConfig,
+    GpiodPinConfig,
+    WiringMissing,
+    wiring_from,
+)
 from motorctl.hal.interfaces import (
     BridgeState,
     Clock,
@@ -44,21 +51,22 @@ from motorctl.hal.wiring import (
     ProbeReport,
     PwmWiring,
     ResolvedLine,
-    check_against,
 )
 
 log = logging.getLogger("motorctl.gpiod")
 
 
 def wiring_of(spec: HardwareSpec) -> GpioWiring:
-    wiring = spec.gpio
-    if wiring is None:
-        raise HalError("the gpiod backend needs a [gpiod] section in the config "
-                       "(docs/hardware.md)")
-    problem = check_against(wiring, len(spec.axes), {p.number for p in spec.pins}, spec.dc)
-    if problem is not None:
-        raise HalError(problem)
-    return wiring
+    """The wiring from the config sections ([gpiod], [motors.gpiod], [pins.gpiod])."""
+    try:
+        return wiring_from(
+            spec.sections.get(GpiodConfig),
+            [a.sections.get(GpiodAxisConfig) for a in spec.axes],
+            [(p.number, p.sections.get(GpiodPinConfig)) for p in spec.pins],
+            spec.dc,
+        )
+    except WiringMissing as exc:
+        raise HalError(str(exc)) from None
 
 
 # --------------------------------------------------------------------------------------------

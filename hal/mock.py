@@ -7,6 +7,7 @@ inject end-stop levels, driver faults and stalls.
 
 from __future__ import annotations
 
+import enum
 import threading
 from collections import deque
 from dataclasses import dataclass
@@ -27,12 +28,22 @@ from motorctl.hal.interfaces import (
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 
 
+class EventKind(enum.StrEnum):
+    """What a timeline event records."""
+
+    STEP = "step"  # a step pulse's rising edge; value = the DIR level
+    DIR = "dir"  # the DIR line changed; value = the new level
+    PIN = "pin"  # an output pin's level was written; value = the level
+    CONFIG = "config"  # a pin changed direction; value = True for output
+    DC = "dc"  # the DC bridge changed state; value = the BridgeState's value
+
+
 @dataclass(frozen=True)
 class Event:
-    """One recorded change: ``kind`` is step/dir/pin/config/dc, ``index`` the motor or pin."""
+    """One recorded change: what (``kind``), when (``t``), ``index`` the motor or pin."""
 
     t: float
-    kind: str
+    kind: EventKind
     index: int
     value: Any
 
@@ -42,17 +53,17 @@ class Timeline:
 
     def __init__(self, maxlen: int | None = 100_000) -> None:
         self.events: deque[Event] = deque(maxlen=maxlen)
-        self.counts: dict[str, int] = {}
+        self.counts: dict[EventKind, int] = {}
 
-    def record(self, t: float, kind: str, index: int, value: Any) -> None:
+    def record(self, t: float, kind: EventKind, index: int, value: Any) -> None:
         self.events.append(Event(t, kind, index, value))
         self.counts[kind] = self.counts.get(kind, 0) + 1
 
-    def of(self, kind: str, index: int | None = None) -> list[Event]:
+    def of(self, kind: EventKind, index: int | None = None) -> list[Event]:
         return [e for e in self.events if e.kind == kind and (index is None or e.index == index)]
 
     def step_times(self, motor: int) -> list[float]:
-        return [e.t for e in self.of("step", motor)]
+        return [e.t for e in self.of(EventKind.STEP, motor)]
 
 
 class MockAxis:
@@ -95,12 +106,12 @@ class MockStepPort(StepPort):
 
     def _write_dir(self, level: bool) -> None:
         self._world.axes[self._index].heading = self.direction
-        self._world.timeline.record(self.clock.now(), "dir", self._index, level)
+        self._world.timeline.record(self.clock.now(), EventKind.DIR, self._index, level)
 
     def _pulse(self, width_s: float) -> float:
         clock = self.clock
         rise = clock.now()
-        self._world.timeline.record(rise, "step", self._index, self.direction)
+        self._world.timeline.record(rise, EventKind.STEP, self._index, self.direction)
         axis = self._world.axes[self._index]
         axis.position += 1 if self.direction else -1
         if clock.is_virtual:
@@ -135,12 +146,14 @@ class MockPin(Pin):
         self.external = False  # the level an unwired input senses
 
     def _configure(self, output: bool, level: bool) -> None:
-        self._world.timeline.record(self._world.clock.now(), "config", self.number, output)
+        now = self._world.clock.now()
+        self._world.timeline.record(now, EventKind.CONFIG, self.number, output)
         if output:
-            self._world.timeline.record(self._world.clock.now(), "pin", self.number, level)
+            self._world.timeline.record(now, EventKind.PIN, self.number, level)
 
     def _write(self, level: bool) -> None:
-        self._world.timeline.record(self._world.clock.now(), "pin", self.number, level)
+        now = self._world.clock.now()
+        self._world.timeline.record(now, EventKind.PIN, self.number, level)
 
     def _read(self) -> bool:
         peer = self._world.wired_to(self.number)
@@ -155,7 +168,7 @@ class MockBridge(DcBridge):
         self._world = world
 
     def _apply(self, state: BridgeState) -> None:
-        self._world.timeline.record(self._world.clock.now(), "dc", 0, state.value)
+        self._world.timeline.record(self._world.clock.now(), EventKind.DC, 0, state.value)
 
 
 class MockWorld:

@@ -1,22 +1,39 @@
 """Backends by name, as python-can's interface registry: a config string picks one.
 
-A backend is a module with ``build(spec, clock) -> Hardware`` and, optionally,
-``probe(spec, clock, report)`` which opens what the config names without moving anything
-and adds what it found to a :class:`~motorctl.hal.wiring.ProbeReport` (``motorctld
---probe``). Besides the backend chosen by ``[hal] backend``, other modules (an SPI driver
-layer, for example) can add to the probe through :data:`PROBES`. Modules are imported only
-when used, so a hardware library is needed only by the backend that uses it.
-
 A backend that fails to import is an error that says why and how to fix it;
 there is no silent fallback to another backend.
+
+Each backend names two modules: the one that builds it (imported only when the backend is
+chosen: it may import its hardware library) and the one that declares its config sections
+(imported whenever a config is read: it must import no hardware library). The config module
+exports ``CONFIG_SECTIONS``, a tuple of `motorctl.schema.Extension`.
+
+Adding a backend's config section:
+  1. write ``hal/<backend>_config.py``: one ``@section`` dataclass per table, whose fields
+     declare the keys (`motorctl.schema`), and ``CONFIG_SECTIONS = (Extension("", "<name>",
+     TopConfig, owner=...), Extension("motors", "<name>", AxisConfig, owner=...), ...)``
+     (parent "" = top-level ``[<name>]``, "motors" = ``[motors.<name>]`` in every motor,
+     "pins" = ``[pins.<name>]`` in every pin);
+  2. name it in ``BACKENDS`` below;
+  3. read it in the backend's build(spec, clock): ``spec.section(TopConfig)``,
+     ``spec.axes[i].section(AxisConfig)``, ``spec.pins[i].section(PinConfig)`` (the daemon
+     passes every backend's sections along in the HardwareSpec; daemon/main.hardware_spec);
+  4. regenerate docs/config.md: ``python -m motorctl.daemon.config.docs --write``.
+
+A backend module may also define ``probe(spec, clock, report)``: it opens what the config
+names without moving anything and adds what it found to a `ProbeReport` (``motorctld
+--probe``). Other layers (an SPI driver layer, for example) add their part through
+`PROBES`, each run when its ``applies(spec)`` says the config uses it.
+
+The registry is a constant; lookups are pure and thread-safe.
 """
 
 from __future__ import annotations
 
 import importlib
 from collections.abc import Callable
-from types import ModuleType
-from typing import cast
+from dataclasses import dataclass
+from typing import Any, cast
 
 from motorctl.hal.interfaces import Clock, HalError, Hardware
 from motorctl.hal.spec import HardwareSpec
@@ -25,44 +42,68 @@ from motorctl.hal.wiring import ProbeReport
 Builder = Callable[[HardwareSpec, Clock], Hardware]
 Prober = Callable[[HardwareSpec, Clock, ProbeReport], None]
 
-#: name -> (module, function, how to install what it needs)
-BACKENDS: dict[str, tuple[str, str, str]] = {
-    "mock": ("motorctl.hal.mock", "build", "nothing: it is part of motorctl"),
-    "gpiod": (
+
+@dataclass(frozen=True)
+class Backend:
+    """Where a backend lives and what it needs."""
+
+    module: str  # builds it: imported only when chosen (may import its hardware library)
+    function: str  # the Builder in `module`
+    fix: str  # how to install what it needs
+    config: str | None = None  # declares its config sections: imports no hardware library
+
+
+BACKENDS: dict[str, Backend] = {
+    "mock": Backend(
+        "motorctl.hal.mock", "build", "nothing: it is part of motorctl", "motorctl.hal.mock_config"
+    ),
+    "gpiod": Backend(
         "motorctl.hal.gpiod_backend",
         "build",
         "libgpiod's Python binding: pip install 'motorctl[hardware]' (gpiod>=2) or "
         "apt install python3-libgpiod",
+        "motorctl.hal.gpiod_config",
     ),
 }
 
-#: extra probe hooks: name -> (module, function, applies(spec) -> bool). They run after the
-#: backend's own probe, each only when ``applies`` says the config uses it.
+#: extra probe hooks: name -> (module, function, applies(spec)); run after the backend's own
 PROBES: dict[str, tuple[str, str, Callable[[HardwareSpec], bool]]] = {}
 
 
-def _module(backend: str) -> tuple[ModuleType, str]:
+def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
+    """(backend name, its CONFIG_SECTIONS) of every backend that declares config sections."""
+    found = []
+    for name, backend in BACKENDS.items():
+        if backend.config is not None:
+            module = importlib.import_module(backend.config)
+            found.append((name, tuple(module.CONFIG_SECTIONS)))
+    return found
+
+
+def _module(backend: str) -> tuple[Any, Backend]:
     try:
-        module_name, func_name, fix = BACKENDS[backend]
+        entry = BACKENDS[backend]
     except KeyError:
         raise HalError(
             f"unknown hardware backend {backend!r}; available: {', '.join(sorted(BACKENDS))}"
         ) from None
     try:
-        module = importlib.import_module(module_name)
+        module = importlib.import_module(entry.module)
     except ImportError as exc:
-        raise HalError(f"hardware backend {backend!r} failed to load: {exc}; needs {fix}") from exc
-    return module, func_name
+        raise HalError(
+            f"hardware backend {backend!r} failed to load: {exc}; needs {entry.fix}"
+        ) from exc
+    return module, entry
 
 
 def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
-    module, func_name = _module(backend)
-    build = cast(Builder, getattr(module, func_name))
+    module, entry = _module(backend)
+    build = cast(Builder, getattr(module, entry.function))
     return build(spec, clock)
 
 
 def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeReport:
-    """Everything the backend (and any applicable extra probe) finds; problems are listed
+    """Everything the backend (and each applicable extra probe) finds; problems are listed
     in the report, not raised, so one missing device does not hide the rest."""
     report = ProbeReport()
     try:

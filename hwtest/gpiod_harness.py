@@ -7,7 +7,8 @@ import os
 from collections.abc import Sequence
 
 from hwtest import gsim
-from hwtest.layout import DC, MOTORS, PINS, where, wiring
+from hwtest.layout import DC, MOTORS, PINS, axis_section, pin_section, top_section, where
+from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig
 from motorctl.hal.interfaces import BridgeState
 from motorctl.hal.spec import HardwareSpec, PinSpec
 from tests.contract.harness import Harness
@@ -27,8 +28,12 @@ class GpiodHarness(Harness):
     def spec(self, motors: int, pins: Sequence[PinSpec], dc: bool,
              endstop_active_low: bool = False, invert_dir: bool = False) -> HardwareSpec:
         base = super().spec(motors, pins, dc, endstop_active_low, invert_dir)
-        w = wiring(motors, [p.number for p in pins], dc, api=self.api)
-        return dataclasses.replace(base, gpio=w)
+        axes = tuple(dataclasses.replace(a, sections={GpiodAxisConfig: axis_section(i)})
+                     for i, a in enumerate(base.axes))
+        wired = tuple(dataclasses.replace(p, sections={GpiodPinConfig: pin_section(p.number)})
+                      for p in base.pins)
+        return dataclasses.replace(base, axes=axes, pins=wired,
+                                   sections={GpiodConfig: top_section(self.api)})
 
     def drive_pin(self, number: int, level: bool) -> None:
         chip, off = where(PINS[number])

@@ -8,14 +8,13 @@ way of naming a line.
 
 from __future__ import annotations
 
-from motorctl.hal.wiring import (
-    DcWiring,
-    EndstopWiring,
-    GpioWiring,
-    LineRef,
-    MotorWiring,
-    PinWiring,
+from motorctl.hal.gpiod_config import (
+    GpiodAxisConfig,
+    GpiodConfig,
+    GpiodDcConfig,
+    GpiodPinConfig,
 )
+from motorctl.hal.wiring import LineRef
 
 #: step, dir, enable, min, max
 MOTORS = [
@@ -40,18 +39,17 @@ def where(text: str) -> tuple[str, int]:
     return ref.chip, ref.offset
 
 
-def wiring(motors: int, pins: list[int], dc: bool, api: str = "auto",
-           dead_time_ms: float = 0.0, dir_hold_us: float = 0.0) -> GpioWiring:
-    mw = tuple(
-        MotorWiring(
-            step=LineRef.parse(s), dir=LineRef.parse(d), enable=LineRef.parse(e),
-            endstop_min=EndstopWiring(LineRef.parse(lo)),
-            endstop_max=EndstopWiring(LineRef.parse(hi)),
-            dir_hold_us=dir_hold_us,
-        )
-        for s, d, e, lo, hi in MOTORS[:motors]
-    )
-    in1, in2, en = (LineRef.parse(x) for x in DC)
-    dcw = DcWiring(in1, in2, en, dead_time_ms=dead_time_ms) if dc else None
-    return GpioWiring(api=api, motors=mw, dc=dcw,
-                      pins=tuple(PinWiring(n, LineRef.parse(PINS[n])) for n in pins))
+def top_section(api: str = "auto", dead_time_ms: float = 0.0) -> GpiodConfig:
+    in1, in2, en = DC
+    return GpiodConfig(api=api, consumer="motorctl",
+                       dc=GpiodDcConfig(in1=in1, in2=in2, en=en, dead_time_ms=dead_time_ms))
+
+
+def axis_section(motor: int, dir_hold_us: float = 0.0) -> GpiodAxisConfig:
+    s, d, e, lo, hi = MOTORS[motor]
+    return GpiodAxisConfig(step=s, dir=d, enable=e, dir_hold_us=dir_hold_us, endstop_min=lo,
+                           endstop_max=hi)
+
+
+def pin_section(number: int) -> GpiodPinConfig:
+    return GpiodPinConfig(line=PINS[number])

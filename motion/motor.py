@@ -1,8 +1,9 @@
 """One stepper motor: state machine, motion queue, homing, limits, faults.
 
 Positions: ``abs_steps`` is an unbounded count of the steps emitted since start;
-the host's position is ``abs_steps - offset`` wrapped to 24 bits (linear axis) or
-taken modulo ``steps_per_rev`` (rotary axis). Trajectories are planned in
+the host's position is ``abs_steps - offset`` mapped by ``params.host_position`` (linear
+axis; the daemon passes the protocol's 24-bit wrap) or taken modulo ``steps_per_rev``
+(rotary axis). Trajectories are planned in
 ``abs_steps`` coordinates, so wrapping never reaches the profile math.
 
 All methods are called with the engine's lock held.
@@ -18,6 +19,8 @@ from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Steps, Trajectory, plan_move_to, plan_run, plan_stop
 from motorctl.motion.types import (
     HomeCmd,
+    HomingPhase,
+    HomingSource,
     MotionCmd,
     MotorParams,
     MotorState,
@@ -25,13 +28,6 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
-
-_POS_SPAN = 1 << 24
-_POS_MIN = -(1 << 23)
-
-
-def wrap24(value: int) -> int:
-    return (value - _POS_MIN) % _POS_SPAN + _POS_MIN
 
 
 class Debounce:
@@ -85,7 +81,7 @@ class Motor:
         self._steps: Steps | None = None
         self.next_step: tuple[float, int] | None = None
         self._ramp = Ramp(1.0, 1.0, 1.0)
-        self._phase = ""  # homing: seek, backoff, approach
+        self._phase: HomingPhase | None = None  # while homing
         self._home_cmd: HomeCmd | None = None
         self._endstops = {
             1: Debounce(hw.endstop_max, endstop_active_low, params.debounce_s),
@@ -98,7 +94,8 @@ class Motor:
         rel = self.abs_steps - self.offset
         if self.params.rotary:
             return rel % self.params.steps_per_rev
-        return wrap24(rel)
+        wrap = self.params.host_position
+        return rel if wrap is None else wrap(rel)
 
     def set_position(self, position: int) -> None:
         """Declare the current physical position to be ``position`` (homing, restore)."""
@@ -176,7 +173,7 @@ class Motor:
         self.queue.clear()
         self.fault = reason
         self.state = MotorState.FAULT
-        self._phase = ""
+        self._phase = None
         self._notify(self, "fault")
 
     # -- the step thread's side ----------------------------------------------
@@ -214,7 +211,7 @@ class Motor:
     # -- internals ----------------------------------------------------------
     @property
     def _stall_homing(self) -> bool:
-        return self.state is MotorState.HOMING and self.params.homing.source == "stall"
+        return self.state is MotorState.HOMING and self.params.homing.source is HomingSource.STALL
 
     def _kinematics(self, now: float) -> tuple[float, float]:
         """Continuous position and velocity now, consistent with the step counter."""
@@ -244,7 +241,7 @@ class Motor:
 
     def _become_idle(self, now: float) -> None:
         self._halt()
-        self._phase = ""
+        self._phase = None
         self._home_cmd = None
         if self.queue:
             self._start(self.queue.popleft(), now)
@@ -270,7 +267,7 @@ class Motor:
             if self._home_trigger(cmd.direction, now):
                 self._homing_triggered(now)
                 return
-            self._phase = "seek"
+            self._phase = HomingPhase.SEEK
             limit = self.abs_steps + cmd.direction * self.params.homing.max_travel
             traj = plan_run(now, s, v, cmd.direction * r.speed, r.acc, r.dec, float(limit))
             self._install(traj, MotorState.HOMING)
@@ -308,7 +305,7 @@ class Motor:
         return Ramp(r.speed, r.acc, v * v / (2.0 * room) * (1 + 1e-9))
 
     def _home_trigger(self, direction: int, now: float) -> bool:
-        if self.params.homing.source == "stall":
+        if self.params.homing.source is HomingSource.STALL:
             return self.hw.driver.status().stall
         return self._endstops[direction].triggered(now)
 
@@ -318,7 +315,8 @@ class Motor:
         if self.state is MotorState.HOMING:
             cmd = self._home_cmd
             assert cmd is not None
-            if self._phase in ("seek", "approach") and self._home_trigger(cmd.direction, now):
+            seeking = self._phase in (HomingPhase.SEEK, HomingPhase.APPROACH)
+            if seeking and self._home_trigger(cmd.direction, now):
                 self._homing_triggered(now)
                 return True
             return False
@@ -332,8 +330,8 @@ class Motor:
         assert cmd is not None
         self._halt()
         h = self.params.homing
-        if h.pull_off > 0 and self._phase != "approach":
-            self._phase = "backoff"
+        if h.pull_off > 0 and self._phase is not HomingPhase.APPROACH:
+            self._phase = HomingPhase.BACKOFF
             target = float(self.abs_steps - cmd.direction * h.pull_off)
             r = cmd.ramp
             traj = plan_move_to(now, float(self.abs_steps), 0.0, target, r.speed, r.acc, r.dec)
@@ -349,12 +347,12 @@ class Motor:
             cmd = self._home_cmd
             assert cmd is not None
             h = self.params.homing
-            if self._phase == "backoff":
+            if self._phase is HomingPhase.BACKOFF:
                 self._endstops[cmd.direction].reset()
                 if self._endstops[cmd.direction].active():
                     self.latch_fault("homing failed: end stop still active after pull-off", now)
                     return
-                self._phase = "approach"
+                self._phase = HomingPhase.APPROACH
                 limit = float(self.abs_steps + cmd.direction * 2 * h.pull_off)
                 r = cmd.ramp
                 speed = min(h.second_speed, r.speed)
@@ -364,7 +362,7 @@ class Motor:
                 if self.next_step is None:
                     self._trajectory_done(now)
                 return
-            travel = h.max_travel if self._phase == "seek" else 2 * h.pull_off
+            travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
             self.latch_fault(f"homing failed: no end stop within {travel} steps", now)
             return
         self._become_idle(now)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import enum
+from collections.abc import Callable
 from dataclasses import dataclass
 
 
@@ -50,9 +51,24 @@ class MotorState(enum.Enum):
     FAULT = "fault"
 
 
+class HomingSource(enum.StrEnum):
+    """What ends a homing run."""
+
+    ENDSTOP = "endstop"  # the end-stop input
+    STALL = "stall"  # the driver's stall flag (sensorless homing)
+
+
+class HomingPhase(enum.Enum):
+    """Where a homing run is: towards the end stop, backing off it, or re-approaching it."""
+
+    SEEK = "seek"
+    BACKOFF = "backoff"
+    APPROACH = "approach"
+
+
 @dataclass(frozen=True)
 class HomingParams:
-    source: str = "endstop"  # "endstop" or "stall"
+    source: HomingSource = HomingSource.ENDSTOP
     max_travel: int = 40_000
     pull_off: int = 0  # 0 = one-phase homing
     second_speed: float = 250.0
@@ -70,6 +86,10 @@ class MotorParams:
     debounce_s: float = 0.0
     dir_setup_s: float = 5e-6
     pulse_s: float = 2e-6
+    # How a linear axis shows its step count to the host: the daemon passes the protocol's
+    # counter (motorctl.protocol.codec.wrap24: 24-bit two's complement). None: unbounded.
+    # Motion does not know the protocol, so the wrap is passed in, not defined here.
+    host_position: Callable[[int], int] | None = None
 
     @property
     def rotary(self) -> bool:

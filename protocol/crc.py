@@ -126,3 +126,33 @@ def crc8_by_name(name: str) -> Crc8:
             return CATALOGUE[canonical]
     accepted = ", ".join([*sorted(CATALOGUE), *sorted(ALIASES)])
     raise ValueError(f"unknown CRC-8 variant {name!r}; accepted names: {accepted}")
+
+
+# --- checksum names: what a config file (link.checksum) and the CLI (--checksum) accept ------
+
+CHECKSUM_DEFAULT = "crc8"
+"""The protocol's checksum: CRC-8/SMBUS."""
+
+CHECKSUM_NONE = "none"
+"""No checksum: ignored on input, sent as 0x00."""
+
+CHECKSUM_TEXT = (
+    '"crc8" (= CRC-8/SMBUS), "none", or a CRC-8 catalogue name '
+    '(e.g. "CRC-8/MAXIM-DOW"; case-insensitive, the "CRC-8/" prefix may be left out)'
+)
+"""What a checksum name may be, for error messages and help texts."""
+
+
+def checksum_by_name(name: str) -> Crc8 | None:
+    """The CRC a checksum name selects; None for "none" (any case). "crc8" is CRC-8/SMBUS.
+
+    Raises ValueError (listing the accepted names) for an unknown name.
+    """
+    if name.strip().lower() == CHECKSUM_NONE:
+        return None
+    return crc8_by_name(name)
+
+
+def checksum_names() -> str:
+    """The catalogue's canonical names, comma-separated (for error messages)."""
+    return ", ".join(sorted(CATALOGUE))

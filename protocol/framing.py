@@ -1,7 +1,12 @@
 """Splits a byte stream into 10-byte command frames with the inter-byte gap rule (PROTOCOL §2).
 
-Pure: the caller passes monotonic timestamps. A partial frame is discarded when strictly more
-than `gap_s` passes between two of its bytes.
+Pure: no clock. The gap is a property of the line as the reader observed it: the caller says
+which bytes it read (:meth:`Framer.feed`; bytes read together, or one after another with no
+observed idle time between them, are contiguous however late they were read) and how long it
+*watched* the line stay silent while it was ready to read (:meth:`Framer.idle`). A partial
+frame is discarded once the observed silence since its last byte is strictly more than
+``gap_s``. Time in which the reader was busy never counts, so a backlog in the input buffer
+never looks like a gap.
 """
 
 from __future__ import annotations
@@ -16,47 +21,47 @@ class Framer:
         self.gap_s = gap_s
         self.discarded = 0  # partial frames dropped by the gap rule
         self._buf = bytearray()
-        self._last = 0.0
+        self._idle = 0.0  # silence observed since the partial frame's last byte
 
     @property
     def pending(self) -> int:
         """Bytes of the partial frame held."""
         return len(self._buf)
 
-    def _gap_passed(self, now: float) -> bool:
-        # Compared against last + gap (not now - last > gap) so that expire(deadline()) is
-        # exactly on time whatever the float rounding.
-        return bool(self._buf) and self.gap_s > 0 and now > self._last + self.gap_s
-
-    def _discard(self) -> None:
-        self._buf.clear()
-        self.discarded += 1
-
-    def feed(self, data: bytes, now: float) -> list[bytes]:
-        """Add bytes that all arrived at `now`; return the frames completed, in order."""
+    def feed(self, data: bytes) -> list[bytes]:
+        """Add bytes contiguous with the partial frame; return the frames completed, in order."""
         if not data:
             return []
-        if self._gap_passed(now):
-            self._discard()
+        self._idle = 0.0
         self._buf += data
-        self._last = now
         count = len(self._buf) // FRAME_LEN
         frames = [bytes(self._buf[i * FRAME_LEN : (i + 1) * FRAME_LEN]) for i in range(count)]
         del self._buf[: count * FRAME_LEN]
         return frames
 
-    def expire(self, now: float) -> bool:
-        """Discard the partial frame if its gap has passed at `now`; True if it did."""
-        if self._gap_passed(now):
-            self._discard()
+    def idle(self, seconds: float) -> bool:
+        """The line was watched and stayed silent for ``seconds`` more; True if that discarded
+        the partial frame (strictly more than ``gap_s`` of silence since its last byte)."""
+        if not self._buf or self.gap_s <= 0 or seconds <= 0:
+            return False
+        self._idle += seconds
+        if self._idle > self.gap_s:
+            self._buf.clear()
+            self._idle = 0.0
+            self.discarded += 1
             return True
         return False
 
-    def deadline(self) -> float | None:
-        """Time after which the partial frame expires; None if nothing pending or gap off.
-
-        The gap rule is strict: expire(deadline()) still keeps the bytes, any later time drops them.
-        """
+    def gap_left(self) -> float | None:
+        """Silence still to be watched before the partial frame goes; None if nothing pending
+        or the gap rule is off. Exactly this much still keeps the bytes (the rule is strict)."""
         if not self._buf or self.gap_s <= 0:
             return None
-        return self._last + self.gap_s
+        return self.gap_s - self._idle
+
+    def reset(self) -> int:
+        """Drop the partial frame unconditionally (the peer went away); the bytes dropped."""
+        n = len(self._buf)
+        self._buf.clear()
+        self._idle = 0.0
+        return n

@@ -8,6 +8,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,16 @@ from motorctl.client.client import Client
 from motorctl.daemon.status import read_status
 
 READY_TIMEOUT_S = 30.0
+WAIT_S = 30.0  # a deadline for conditions that take milliseconds (a loaded 2-core machine)
+
+
+def until(what: str, cond: Callable[[], bool], timeout: float = WAIT_S) -> None:
+    """Poll ``cond`` until it holds; fail naming ``what`` after ``timeout`` seconds."""
+    end = time.monotonic() + timeout
+    while not cond():
+        if time.monotonic() > end:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(0.001)
 
 
 class DaemonProcess:

@@ -1,8 +1,11 @@
-"""Tests for daemon.config: the embedded default, defaults, every kind of error, docs."""
+"""Tests for motorctl.daemon.config and motorctl.schema: the embedded default, defaults, every
+kind of error, backend sections, docs."""
 
 from __future__ import annotations
 
 import dataclasses
+import enum
+import re
 import tomllib
 from pathlib import Path
 from typing import Any
@@ -17,8 +20,6 @@ from motorctl.daemon.config import (
     HalConfig,
     HomingConfig,
     LinkConfig,
-    MockAxisConfig,
-    MockConfig,
     MotorConfig,
     PinConfig,
     StepThreadConfig,
@@ -27,13 +28,24 @@ from motorctl.daemon.config import (
     describe_keys,
     load_config,
     parse_config,
+    schema,
 )
+from motorctl.daemon.config.docs import DOCS, render
+from motorctl.hal.gpiod_config import (
+    GpiodAxisConfig,
+    GpiodConfig,
+    GpiodDcConfig,
+    GpiodPinConfig,
+    GpiodPwmConfig,
+)
+from motorctl.hal.mock_config import MockAxisConfig, MockConfig
+from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import CodecOptions
 from motorctl.protocol.crc import SMBUS, crc8_by_name
+from motorctl.schema import Table
 
 SOURCE = "/etc/motorctl.toml"
 MOTOR = "[[motors]]\n"
-DOCS = Path(__file__).resolve().parent.parent / "docs" / "config.md"
 
 
 def error_of(text: str) -> str:
@@ -44,10 +56,19 @@ def error_of(text: str) -> str:
 
 
 def lookup(config: Any, path: str) -> Any:
-    """Follow a describe_keys path ('motors[].homing.speed') into motor 0 / pin 0."""
-    value = config
+    """Follow a describe_keys path ('motors[].homing.speed') into motor 0 / pin 0; a backend's
+    section ('motors[].mock') is read from the parent's sections, as the code reads it."""
+    value, spec = config, schema()
     for part in path.split("."):
-        value = getattr(value, part[:-2])[0] if part.endswith("[]") else getattr(value, part)
+        name = part.removesuffix("[]")
+        child = next((c for c in spec.children if c.name == name), None)
+        if child is None:
+            value = getattr(value, name)
+            continue
+        value = value.section(child.table.cls) if child.extension else getattr(value, name)
+        if part.endswith("[]"):
+            value = value[0]
+        spec = child.table
     return value
 
 
@@ -61,7 +82,8 @@ def test_embedded_default_world() -> None:
     for motor in config.motors:
         assert not motor.rotary
         assert motor.steps_per_rev == 0
-        assert (motor.mock.endstop_min, motor.mock.endstop_max) == (-10000, 10000)
+        mock = motor.section(MockAxisConfig)
+        assert (mock.endstop_min, mock.endstop_max) == (-10000, 10000)
         assert motor.max_speed == 25000.0
         assert motor.queue_depth == 16
         assert motor.max_waypoints == 255
@@ -73,13 +95,13 @@ def test_embedded_default_world() -> None:
         assert (pin.initial, pin.safe) == (False, False)
     for pin in config.pins[4:]:
         assert not pin.is_output and pin.mode == "input"
-    assert config.mock.wires == ((0, 4), (1, 5), (2, 6), (3, 7))
+    assert config.section(MockConfig).wires == ((0, 4), (1, 5), (2, 6), (3, 7))
     assert config.hal.backend == "mock"
     assert config.link.codec_options() == CodecOptions()
 
 
 def test_embedded_default_matches_schema_defaults() -> None:
-    """default.toml writes every key out; its values must be the schema's defaults."""
+    """The embedded world sets names, [dc], pins and [mock] only: all else is at the defaults."""
     embedded = load_config(None)
     minimal = parse_config(MOTOR + "[dc]\n", "minimal")
     for motor in embedded.motors:
@@ -88,11 +110,24 @@ def test_embedded_default_matches_schema_defaults() -> None:
         assert getattr(embedded, table) == getattr(minimal, table)
 
 
-def test_default_config_text_is_the_packaged_file() -> None:
+def test_default_config_text_loads_back_to_the_embedded_default() -> None:
+    """--print-default-config's text is the embedded default, every key written out."""
     text = default_config_text()
-    packaged = Path(__file__).resolve().parent.parent / "daemon" / "default.toml"
-    assert text == packaged.read_text(encoding="utf-8")
     assert parse_config(text, "copy") == dataclasses.replace(load_config(None), source="copy")
+    lines = text.splitlines()
+    assert lines[0].startswith("# motorctl: the embedded default configuration")
+    left_out = re.findall(r"^# \[([\w.]+)\]: left out", text, re.M)
+    for path, type_, _, _ in describe_keys():
+        if any(path.replace("[]", "").startswith(t + ".") for t in left_out):
+            continue  # inside a table the default leaves out (another backend's wiring)
+        if type_ in ("table", "array of tables"):
+            assert f"[{path.replace('[]', '')}]" in text or f"[[{path}]]" in text, path
+            continue
+        name = path.split(".")[-1]
+        written = [ln for ln in lines if ln.startswith((f"{name} = ", f"# {name} = (unset)"))]
+        assert written, f"{path} is not written out"
+    # every value is commented with what it accepts
+    assert "# Steps; no trigger within this distance -> the motor faults. Accepted: an" in text
 
 
 # --- defaults and values ----------------------------------------------------------------------
@@ -108,12 +143,13 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert motor.name == "motor0"
     assert (motor.max_speed, motor.default_speed, motor.max_accel) == (25000.0, 2000.0, 200000.0)
     assert (motor.default_accel, motor.default_decel) == (8000.0, 8000.0)
-    assert motor.homing == HomingConfig("endstop", 2000.0, 40000, 0, 250.0)
+    assert motor.homing == HomingConfig(HomingSource.ENDSTOP, 2000.0, 40000, 0, 250.0)
     assert motor.endstop == EndstopConfig(False, 0.0)
-    assert motor.mock == MockAxisConfig(-10000, 10000)
+    assert motor.homing.source is HomingSource.ENDSTOP
+    assert motor.section(MockAxisConfig) == MockAxisConfig(-10000, 10000)
     assert config.pins == ()
     assert config.dc is None
-    assert config.mock == MockConfig(wires=())
+    assert config.section(MockConfig) == MockConfig(wires=())
     assert config.link == LinkConfig(10.0, "crc8", False, True, 16)
     assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
     assert config.hal == HalConfig("mock")
@@ -130,9 +166,13 @@ def test_defaults_agree_with_describe_keys() -> None:
             continue
         if path in ("motors[].name", "mock.wires"):
             continue
+        if path.split(".")[0] == "gpiod" or ".gpiod" in path:
+            continue  # not in this config; tests/test_gpiod_config.py checks those defaults
         expected = tomllib.loads(f"v = {default}")["v"]
         actual = lookup(config, path)
         assert actual == expected, path
+        if isinstance(actual, enum.Enum):  # a choice the code reads as an enum member
+            actual = actual.value
         assert type(actual) is (float if type_ == "number" else type(expected)), path
         checked += 1
     assert checked >= 40
@@ -141,10 +181,12 @@ def test_defaults_agree_with_describe_keys() -> None:
 def test_default_wires_apply_when_mock_table_is_written() -> None:
     pins = "".join(f"[[pins]]\nnumber = {n}\n" for n in range(8))
     config = parse_config(MOTOR + pins + "[mock]\n", SOURCE)
-    assert config.mock.wires == ((0, 4), (1, 5), (2, 6), (3, 7))
+    assert config.section(MockConfig).wires == ((0, 4), (1, 5), (2, 6), (3, 7))
 
 
 def test_describe_keys_covers_every_dataclass_field() -> None:
+    """Each field of each table's dataclass is a documented key (except the `sections` that
+    hold backends' tables and Config.source), and nothing else is."""
     paths = {row[0] for row in describe_keys()}
     tables: list[tuple[str, type[Any]]] = [
         ("link", LinkConfig),
@@ -158,9 +200,21 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         ("motors[].mock", MockAxisConfig),
         ("pins[]", PinConfig),
         ("mock", MockConfig),
+        ("gpiod", GpiodConfig),
+        ("gpiod.dc", GpiodDcConfig),
+        ("gpiod.dc.pwm", GpiodPwmConfig),
+        ("motors[].gpiod", GpiodAxisConfig),
+        ("pins[].gpiod", GpiodPinConfig),
     ]
-    expected = {f"{prefix}.{f.name}" for prefix, cls in tables for f in dataclasses.fields(cls)}
-    expected |= {f.name for f in dataclasses.fields(Config) if f.name != "source"}
+    expected = {
+        f"{prefix}.{f.name}"
+        for prefix, cls in tables
+        for f in dataclasses.fields(cls)
+        if f.name != "sections"
+    }
+    expected |= {f.name for f in dataclasses.fields(Config) if f.name not in ("sections", "source")}
+    expected |= {"mock", "motors[].mock"}  # the mock backend's tables, in `sections`
+    expected |= {"gpiod", "motors[].gpiod", "pins[].gpiod"}  # the gpiod backend's
     assert expected == paths
 
 
@@ -176,7 +230,7 @@ def test_values_are_converted_and_frozen() -> None:
     assert a.rotary and not b.rotary
     assert isinstance(a.max_speed, float) and a.max_speed == 3000.0
     assert (b.soft_limit_min, b.soft_limit_max) == (-5, 5)
-    assert config.pins == (PinConfig(9, "input", True, True),)
+    assert config.pins == (PinConfig(9, "input", True, True, sections=config.pins[0].sections),)
     assert not config.pins[0].is_output
     with pytest.raises(dataclasses.FrozenInstanceError):
         a.max_speed = 5.0  # type: ignore[misc]
@@ -261,7 +315,7 @@ ERRORS: list[tuple[str, str, list[str]]] = [
     (
         "unknown-pin",
         MOTOR + "[[pins]]\nnumber = 1\nlevel = 1\n",
-        ["'pins[0].level'", "in [[pins]]: initial, mode, number, safe"],
+        ["'pins[0].level'", "in [[pins]]: gpiod, initial, mode, number, safe"],
     ),
     ("unknown-mock", MOTOR + "[mock]\nwire = []\n", ["'mock.wire'", "in [mock]: wires"]),
     # wrong types
@@ -462,10 +516,11 @@ def test_error_messages(text: str, fragments: list[str]) -> None:
 
 def test_unknown_key_lists_the_schema_keys_of_its_table() -> None:
     for path, type_, _, _ in describe_keys():
-        if type_ != "table" or path.startswith("motors") or path == "gpiod":  # docs/hardware.md
+        if type_ != "table" or path.startswith(("motors", "pins", "gpiod.dc.")):  # required keys
             continue
         message = error_of(f"[{path}]\nbogus = 1\n" + MOTOR)
-        own = sorted(p.split(".")[-1] for p, *_ in describe_keys() if p.startswith(path + "."))
+        own = sorted(p.split(".")[-1] for p, *_ in describe_keys()
+                     if p.startswith(path + ".") and p.count(".") == path.count(".") + 1)
         assert message.endswith(f"accepted keys in [{path}]: {', '.join(own)}")
 
 
@@ -532,5 +587,176 @@ def test_docs_list_every_key() -> None:
     assert missing == [], f"docs/config.md is out of date for: {missing}"
 
 
+def test_docs_are_generated() -> None:
+    assert DOCS.read_text(encoding="utf-8") == render(), (
+        "docs/config.md is out of date: run python -m motorctl.daemon.config.docs --write"
+    )
+
+
 def test_docs_mention_check_config() -> None:
     assert "motorctld --check-config" in DOCS.read_text(encoding="utf-8")
+
+
+# --- owners: backends' sections, the schema engine -----------------------------------------
+
+
+def test_backend_choices_come_from_the_registry(monkeypatch: pytest.MonkeyPatch) -> None:
+    from motorctl.hal import registry
+
+    backends = dict(registry.BACKENDS)
+    backends["fake"] = registry.Backend("no.such.module", "build", "a fake library")
+    monkeypatch.setattr(registry, "BACKENDS", backends)
+    assert parse_config('[hal]\nbackend = "fake"\n' + MOTOR, SOURCE).hal.backend == "fake"
+    message = error_of('[hal]\nbackend = "gpio"\n' + MOTOR)
+    assert 'one of "mock", "gpiod", "fake" (the backends of motorctl.hal.registry)' in message
+
+
+FAKE_CONFIG = '''
+from __future__ import annotations
+from dataclasses import dataclass
+from motorctl.schema import Extension, integer, section, text
+
+@section("Wiring of the fake backend.")
+@dataclass(frozen=True)
+class FakeConfig:
+    chip: str = text("/dev/gpiochip0", "The chip.", pattern=r"/dev/\\S+", pattern_text="a path")
+
+@section("One motor's fake lines.")
+@dataclass(frozen=True)
+class FakeAxisConfig:
+    step_line: int = integer(0, 0, 511, "STEP line offset.")
+
+CONFIG_SECTIONS = (
+    Extension("", "fake", FakeConfig, owner="the fake backend"),
+    Extension("motors", "fake", FakeAxisConfig, owner="the fake backend"),
+)
+'''
+
+
+def test_a_backend_registers_its_sections_without_loading_its_library(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A backend's config module is read to check a config; its build module (which would
+    import the hardware library) is not imported."""
+    import sys
+
+    from motorctl.hal import registry
+
+    (tmp_path / "fake_backend_config.py").write_text(FAKE_CONFIG, encoding="utf-8")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    backends = dict(registry.BACKENDS)
+    backends["fake"] = registry.Backend(
+        "fake_backend_hw", "build", "a fake library", "fake_backend_config"
+    )
+    monkeypatch.setattr(registry, "BACKENDS", backends)
+    config = parse_config(
+        '[hal]\nbackend = "fake"\n[fake]\nchip = "/dev/gpiochip4"\n'
+        + MOTOR + "[motors.fake]\nstep_line = 17\n" + MOTOR,
+        SOURCE,
+    )
+    module = sys.modules["fake_backend_config"]
+    assert config.section(module.FakeConfig).chip == "/dev/gpiochip4"
+    assert [m.section(module.FakeAxisConfig).step_line for m in config.motors] == [17, 0]
+    assert config.section(MockConfig) == MockConfig(wires=())  # other backends' sections too
+    assert "fake_backend_hw" not in sys.modules
+    message = error_of(MOTOR + "[motors.fake]\nstep_line = 512\n")
+    assert "motors[0].fake.step_line = 512: out of range; accepted: an integer in 0..511" in message
+    message = error_of(MOTOR + "[fake]\nchips = 1\n")
+    assert message.endswith("unknown key 'fake.chips'; accepted keys in [fake]: chip")
+    rows = {row[0] for row in describe_keys()}
+    assert {"fake", "fake.chip", "motors[].fake", "motors[].fake.step_line"} <= rows
+    assert "### [fake] (the fake backend)" in render()
+
+
+def test_checking_a_config_imports_no_backend_module() -> None:
+    """Loading a config (even naming the mock) never imports a backend's build module."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from motorctl.daemon.config import load_config, default_config_text\n"
+        "load_config(None); default_config_text()\n"
+        "print(sorted(m for m in sys.modules if m == 'motorctl.hal.mock' or "
+        "m.split('.')[0] in ('gpiod', 'spidev', 'systemd')))\n"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
+    assert out.stdout.strip() == "[]"
+
+
+def test_section_checks_annotations_against_declarations() -> None:
+    from dataclasses import dataclass
+
+    from motorctl.schema import integer, number, section
+
+    with pytest.raises(TypeError, match=r"Bad\.x: annotate it `float`"):
+
+        @section("bad")
+        @dataclass(frozen=True)
+        class Bad:
+            x: int = number(1.0, 0, 2, "a number declared as int")
+
+    with pytest.raises(TypeError, match=r"not declared with motorctl\.schema"):
+
+        @section("bad")
+        @dataclass(frozen=True)
+        class Bad2:
+            x: int = integer(1, 0, 2, "fine")
+            y: int = 3
+
+
+def test_checksum_names_agree_with_the_client() -> None:
+    """One definition (motorctl.protocol.crc.checksum_by_name) for the config and the CLI."""
+    from motorctl.client.cli import build_parser
+    from motorctl.protocol.crc import checksum_by_name
+
+    for name in ("none", "NONE", "crc8", "CRC8", "maxim-dow"):
+        config = parse_config(f'[link]\nchecksum = "{name}"\n' + MOTOR, SOURCE)
+        assert config.link.codec_options().crc == checksum_by_name(name)
+    assert checksum_by_name("NONE") is None and checksum_by_name("crc8") == SMBUS
+    assert build_parser().parse_args(["ready", "0"]).checksum == "crc8"
+
+
+def test_homing_source_is_an_enum() -> None:
+    config = parse_config(MOTOR + "[motors.homing]\nsource = 'stall'\n", SOURCE)
+    assert config.motors[0].homing.source is HomingSource.STALL
+
+
+def test_table_of_the_whole_file() -> None:
+    spec = schema()
+    assert isinstance(spec, Table)
+    assert [c.name for c in spec.children] == [
+        "link", "units", "hal", "step_thread", "dc", "motors", "pins", "mock", "gpiod"
+    ]
+
+
+def test_mock_position_range_is_the_protocols() -> None:
+    from motorctl.hal import mock_config
+    from motorctl.protocol.codec import POS_MAX, POS_MIN
+
+    assert (mock_config.POSITION_MIN, mock_config.POSITION_MAX) == (POS_MIN, POS_MAX)
+
+
+def test_old_embedded_default_file_still_loads_the_same() -> None:
+    """The embedded default as a file of the last release (daemon/default.toml, every key
+    written out) loads to exactly today's embedded default."""
+    old = Path(__file__).resolve().parent / "data" / "default-0.2.0.toml"
+    assert dataclasses.replace(load_config(old), source="x") == dataclasses.replace(
+        load_config(None), source="x"
+    )
+
+
+def test_backends_get_their_sections_in_the_hardware_spec() -> None:
+    from motorctl.daemon.main import hardware_spec
+
+    config = parse_config(
+        MOTOR + "[motors.mock]\nendstop_min = -5\n" + PINS_0_TO_3 + "[mock]\nwires = [[0, 1]]\n",
+        SOURCE,
+    )
+    spec = hardware_spec(config)
+    assert spec.section(MockConfig).wires == ((0, 1),) == spec.wires
+    assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000)
+    assert spec.axes[0].endstop_min == -5
+    assert all(pin.section(GpiodPinConfig) is None for pin in spec.pins)  # not wired

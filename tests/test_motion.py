@@ -12,15 +12,16 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, VirtualClock
-from motorctl.hal.mock import Event, MockWorld, build, world_of
+from motorctl.hal.mock import Event, EventKind, MockWorld, build, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.latency import LatencyStats
-from motorctl.motion.motor import Motor, wrap24
+from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Steps, plan_move_to
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
+    HomingSource,
     MotionCmd,
     MotorParams,
     MotorState,
@@ -28,6 +29,7 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
+from motorctl.protocol.codec import wrap24
 
 FAST = settings(max_examples=40, deadline=None)
 RAMP = Ramp(2000.0, 8000.0, 8000.0)
@@ -65,7 +67,7 @@ class Rig:
             return self.engine.motors[i].stop(hard, self.clock.now())
 
     def steps(self, i: int = 0) -> list[Event]:
-        return self.world.timeline.of("step", i)
+        return self.world.timeline.of(EventKind.STEP, i)
 
     def times(self, i: int = 0) -> list[float]:
         return self.world.timeline.step_times(i)
@@ -172,7 +174,7 @@ def test_move_timeline_is_the_planned_one(target: int, ramp: Ramp) -> None:
     assert rig.event_times("start") == [t0]
     assert rig.event_times("idle") == [times[-1]]
     # DIR was set once, a setup time before the first step; no step was late.
-    dir_events = rig.world.timeline.of("dir", 0)
+    dir_events = rig.world.timeline.of(EventKind.DIR, 0)
     assert len(dir_events) == 1 and dir_events[0].value == (target > 0)
     assert times[0] - dir_events[0].t >= rig.m.params.dir_setup_s
     assert rig.engine.stats.count == abs(target)
@@ -191,7 +193,7 @@ def test_invert_dir_swaps_the_dir_line_not_the_motion() -> None:
     rig = make(axes=[AxisSpec(invert_dir=True)])
     rig.submit(MoveToCmd(30, RAMP))
     rig.engine.run_until_idle()
-    assert [e.value for e in rig.world.timeline.of("dir", 0)] == [False]
+    assert [e.value for e in rig.world.timeline.of(EventKind.DIR, 0)] == [False]
     assert rig.m.position == 30 == rig.axis()
 
 
@@ -303,7 +305,7 @@ def test_run_speed_change_replans_at_once() -> None:
     assert gaps[-1] == pytest.approx(1 / 3000)
     assert min(gaps) >= 1 / 3000 * (1 - 1e-9)
     assert set(rig.dirs()) == {True}
-    assert len(rig.world.timeline.of("dir", 0)) == 1
+    assert len(rig.world.timeline.of(EventKind.DIR, 0)) == 1
     # Slow down again, with the new command's deceleration.
     ts2 = rig.clock.now()
     rig.submit(RunCmd(1, Ramp(500.0, 5000.0, 1000.0)))
@@ -329,7 +331,7 @@ def test_run_reversal_changes_direction_once() -> None:
     assert len(runs) == 2 and runs[0][0] is True and runs[1][0] is False
     # Stopping from 2000 step/s with the new DEC 4000 takes 2000^2/(2*4000) = 500 steps.
     assert 499 <= runs[0][1] - up_before <= 501
-    assert len(rig.world.timeline.of("dir", 0)) == 2
+    assert len(rig.world.timeline.of(EventKind.DIR, 0)) == 2
     assert rig.m.position == runs[0][1] - runs[1][1] == rig.axis()
     times = rig.times()
     assert times[-1] - times[-2] == pytest.approx(1 / 1000)
@@ -458,7 +460,7 @@ def test_two_phase_homing_with_second_speed_above_the_ramp_uses_the_ramp() -> No
 
 
 def test_stall_homing() -> None:
-    rig = make(MotorParams(homing=HomingParams(source="stall")))
+    rig = make(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     # The mock stalls once it is pushed past its end stop.
@@ -468,7 +470,7 @@ def test_stall_homing() -> None:
 
 
 def test_two_phase_stall_homing() -> None:
-    homing = HomingParams(source="stall", pull_off=30, second_speed=300.0)
+    homing = HomingParams(source=HomingSource.STALL, pull_off=30, second_speed=300.0)
     rig = make(MotorParams(homing=homing))
     rig.submit(HomeCmd(-1, RAMP))
     rig.engine.run_until_idle()
@@ -477,7 +479,7 @@ def test_two_phase_stall_homing() -> None:
 
 
 def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None:
-    rig = make(MotorParams(homing=HomingParams(source="stall")))
+    rig = make(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     rig.advance(0.1)
@@ -805,7 +807,10 @@ def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
 
 
 def test_linear_position_wraps_at_24_bits() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(
+        MotorParams(host_position=wrap24),
+        axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)],
+    )
     with rig.engine.lock:
         rig.m.set_position(8_388_600)
     assert rig.m.position == 8_388_600
@@ -825,11 +830,14 @@ def test_linear_position_wraps_at_24_bits() -> None:
     assert rig.m.position == 8_388_600 + rig.axis() and rig.m.position > 0
 
 
-def test_wrap24() -> None:
-    assert wrap24(8_388_607) == 8_388_607
-    assert wrap24(8_388_608) == -8_388_608
-    assert wrap24(-8_388_609) == 8_388_607
-    assert wrap24(1 << 24) == 0
+def test_linear_position_unbounded_without_a_host_counter() -> None:
+    """Motion itself counts without bound; the 24-bit wrap is the protocol's, passed in."""
+    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    with rig.engine.lock:
+        rig.m.set_position(8_388_600)
+    rig.submit(MoveToCmd(8_388_610, RAMP))
+    rig.engine.run_until_idle()
+    assert rig.m.position == 8_388_610 and rig.axis() == 10
 
 
 # ---------------------------------------------------------------- DC motor
@@ -843,7 +851,7 @@ def test_dc_run_ends_at_exactly_now_plus_duration(end: BridgeState) -> None:
         rig.engine.dc_run(False, 0.25, end)
     assert rig.engine.any_active
     rig.engine.run_until_idle()
-    dc = [(e.t, e.value) for e in rig.world.timeline.of("dc")]
+    dc = [(e.t, e.value) for e in rig.world.timeline.of(EventKind.DC)]
     assert dc == [(t0, "reverse"), (t0 + 0.25, end.value)]
     assert rig.world.bridge is not None and rig.world.bridge.state is end
 
@@ -860,7 +868,7 @@ def test_dc_new_run_replaces_the_old_one() -> None:
     with rig.engine.lock:
         rig.engine.dc_run(False, 0.5, BridgeState.COAST)
     rig.advance(2.0)
-    dc = [(e.t, e.value) for e in rig.world.timeline.of("dc")]
+    dc = [(e.t, e.value) for e in rig.world.timeline.of(EventKind.DC)]
     assert dc == [(t0, "forward"), (t2, "reverse"), (t2 + 0.5, "coast")]
     assert t1 + 0.5 > t2  # the second run never got to brake
 
@@ -875,7 +883,7 @@ def test_dc_duration_zero_stops_at_once() -> None:
         rig.engine.dc_run(True, 0.0, BridgeState.BRAKE)
     assert rig.engine.dc is not None and not rig.engine.dc.running
     rig.advance(2.0)
-    dc = [(e.t, e.value) for e in rig.world.timeline.of("dc")]
+    dc = [(e.t, e.value) for e in rig.world.timeline.of(EventKind.DC)]
     assert dc == [(t0, "forward"), (t1, "brake")]
 
 
@@ -1046,14 +1054,14 @@ def test_random_run_changes_keep_counter_and_mechanics_together(
         assert after <= v * v / (2 * 15000.0) + 1
     assert rig.m.idle and rig.m.position == rig.axis()
     # DIR changes on the line match the direction changes of the steps.
-    dir_events = rig.world.timeline.of("dir", 0)
+    dir_events = rig.world.timeline.of(EventKind.DIR, 0)
     assert len(dir_events) >= len(direction_runs(rig.dirs()))
     line: bool | None = None
     for e in rig.world.timeline.events:
-        if e.kind == "dir":
+        if e.kind is EventKind.DIR:
             assert e.value != line  # only real changes are written
             line = e.value
-        elif e.kind == "step":
+        elif e.kind is EventKind.STEP:
             assert e.value == line
 
 

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import pytest
 
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
-from motorctl.hal.mock import MockWorld, build, world_of
+from motorctl.hal.mock import EventKind, MockWorld, build, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
@@ -64,7 +64,7 @@ class Live:
         done = threading.Event()
         for _ in range(int(TIMEOUT / 0.002)):
             with self.engine.lock:
-                if len(self.world.timeline.of("step", 0)) >= n:
+                if len(self.world.timeline.of(EventKind.STEP, 0)) >= n:
                     return
             done.wait(0.002)
         raise AssertionError(f"fewer than {n} steps within {TIMEOUT} s")
@@ -72,7 +72,8 @@ class Live:
     def settled(self) -> tuple[int, int, int]:
         """Motor position, mock axis position and the number of recorded steps."""
         with self.engine.lock:
-            return self.m.position, self.world.axes[0].position, self.world.timeline.counts["step"]
+            steps = self.world.timeline.counts[EventKind.STEP]
+            return self.m.position, self.world.axes[0].position, steps
 
 
 @pytest.fixture
@@ -115,7 +116,7 @@ def test_a_short_move_completes(live: Live) -> None:
     live.submit(MoveToCmd(400, FAST))
     live.wait("idle")
     assert live.settled() == (400, 400, 400)
-    assert {e.value for e in live.world.timeline.of("step", 0)} == {True}
+    assert {e.value for e in live.world.timeline.of(EventKind.STEP, 0)} == {True}
     assert live.m.state is MotorState.IDLE and live.m.idle
     assert live.engine.stats.count == 400
 
@@ -125,7 +126,7 @@ def test_queued_moves_run_in_order(live: Live) -> None:
     live.submit(MoveToCmd(-200, FAST))
     live.submit(MoveToCmd(50, FAST))
     live.wait("idle")
-    values = [e.value for e in live.world.timeline.of("step", 0)]
+    values = [e.value for e in live.world.timeline.of(EventKind.STEP, 0)]
     assert values == [True] * 300 + [False] * 500 + [True] * 250
     assert live.settled() == (50, 50, 1050)
 
@@ -185,7 +186,7 @@ def test_dc_run_on_the_real_clock(live: Live) -> None:
                 break
         done.wait(0.005)
     assert bridge.state is BridgeState.COAST
-    assert [e.value for e in live.world.timeline.of("dc")] == ["forward", "coast"]
+    assert [e.value for e in live.world.timeline.of(EventKind.DC)] == ["forward", "coast"]
 
 
 def test_gc_policy_switches_automatic_collection() -> None:

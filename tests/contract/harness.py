@@ -12,7 +12,7 @@ from abc import ABC, abstractmethod
 from collections.abc import Sequence
 
 from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock
-from motorctl.hal.mock import MockWorld, world_of
+from motorctl.hal.mock import EventKind, MockWorld, world_of
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 
@@ -111,7 +111,7 @@ class MockHarness(Harness):
         self._w().force_endstop(motor, which, level != self.lows[motor])
 
     def dir_level(self, motor: int) -> bool:
-        events = self._w().timeline.of("dir", motor)
+        events = self._w().timeline.of(EventKind.DIR, motor)
         assert events, "DIR was never set"
         return bool(events[-1].value)
 
@@ -120,7 +120,7 @@ class MockHarness(Harness):
 
     def steps(self, motor: int) -> int:
         events = list(self._w().timeline.events)[self.mark:]
-        return sum(1 for e in events if e.kind == "step" and e.index == motor)
+        return sum(1 for e in events if e.kind == EventKind.STEP and e.index == motor)
 
     def bridge(self) -> BridgeState:
         bridge = self._w().bridge

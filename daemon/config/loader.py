@@ -1,0 +1,196 @@
+"""Loading a config: the composed schema, the file reader and the embedded default.
+
+`schema()` is the core model (`model.Config`) with every HAL backend's sections attached,
+from the registry. `load_config(path)` reads and validates a file; `load_config(None)` is
+the embedded default, a mock world described by `EMBEDDED_WORLD` (only what differs from the
+keys' defaults); `default_config_text()` writes it out with every key and its doc.
+
+Runs on the caller's thread; blocks only on reading the file.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import textwrap
+import tomllib
+from typing import Any, Final
+
+from motorctl.daemon.config.model import Config
+from motorctl.hal.registry import config_sections
+from motorctl.schema import (
+    Child,
+    ConfigError,
+    Extension,
+    Parser,
+    Table,
+    accepted,
+    header,
+    table_of,
+    toml_value,
+)
+
+EMBEDDED_SOURCE: Final = "<embedded default>"
+"""`Config.source` of the embedded default configuration."""
+
+EMBEDDED_WORLD: Final = """\
+[dc]
+[[motors]]
+name = "x"
+[[motors]]
+name = "y"
+[[motors]]
+name = "z"
+[[pins]]
+number = 0
+[[pins]]
+number = 1
+[[pins]]
+number = 2
+[[pins]]
+number = 3
+[[pins]]
+number = 4
+mode = "input"
+[[pins]]
+number = 5
+mode = "input"
+[[pins]]
+number = 6
+mode = "input"
+[[pins]]
+number = 7
+mode = "input"
+[mock]
+"""
+"""The embedded default world: three linear motors x, y, z, a DC motor, output pins 0-3 and
+input pins 4-7 wired to them by the [mock] default. Every other key takes its declared
+default; `default_config_text()` writes them all out."""
+
+_HEADER: Final = """\
+# motorctl: the embedded default configuration.
+#
+# Used when motorctld is started without a config file. It describes a simulated ("mock")
+# world in which every protocol command can be tried: three linear motors x, y and z, a DC
+# motor, output pins 0-3 wired to input pins 4-7. Every key is written out with its default
+# value and what it accepts, so this text doubles as a commented example; docs/config.md is
+# the full reference. Check an edited copy with:  motorctld --check-config FILE
+"""
+
+
+def extensions() -> list[Extension]:
+    """Every registered backend's config sections."""
+    found: list[Extension] = []
+    for name, sections in config_sections():
+        for ext in sections:
+            if not isinstance(ext, Extension):
+                raise TypeError(f"backend {name!r}: CONFIG_SECTIONS holds {ext!r}")
+            found.append(ext)
+    return found
+
+
+def schema() -> Table:
+    """The whole file's schema: the core model plus the backends' sections."""
+    return table_of(Config).extended(extensions())
+
+
+_TOML_POSITION = re.compile(r"\(at line (\d+), column (\d+)\)$")
+
+
+def parse_config(text: str, source: str) -> Config:
+    """Validate TOML `text`; `source` (a path, usually) starts every error message."""
+    try:
+        document = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        message = str(exc)
+        match = _TOML_POSITION.search(message)
+        if match is not None:
+            line = int(match.group(1))
+        else:  # "(at end of document)"
+            line = max(1, text.count("\n") + (0 if text.endswith("\n") else 1))
+        raise ConfigError(f"{source}: line {line}: TOML syntax error: {message}") from None
+    config = Parser(source).build(schema(), document, source=source)
+    assert isinstance(config, Config)
+    return config
+
+
+def load_config(path: str | os.PathLike[str] | None) -> Config:
+    """Read and validate the config file at `path`; None loads the embedded default."""
+    if path is None:
+        return parse_config(EMBEDDED_WORLD, EMBEDDED_SOURCE)
+    source = os.fspath(path)
+    try:
+        with open(source, "rb") as file:
+            data = file.read()
+    except FileNotFoundError:
+        raise ConfigError(
+            f"{source}: config file not found; fix: create it (`motorctld "
+            "--print-default-config` prints a commented example; docs/config.md describes "
+            "every key) or give the path of an existing file"
+        ) from None
+    except OSError as exc:
+        raise ConfigError(
+            f"{source}: cannot read config file: {exc.strerror}; "
+            "fix: give the path of a readable TOML file"
+        ) from None
+    try:
+        text = data.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise ConfigError(
+            f"{source}: line {line}: not valid UTF-8; accepted: a UTF-8 encoded TOML file"
+        ) from None
+    return parse_config(text, source)
+
+
+# --------------------------------------------------------------------------------------------
+# Writing a config out as commented TOML
+
+
+def default_config_text() -> str:
+    """The embedded default configuration, every key written out with its doc."""
+    return _HEADER + "\n" + to_toml(load_config(None))
+
+
+def to_toml(config: Config) -> str:
+    """`config` as a TOML file that loads back to it, every key written out and documented."""
+    out: list[str] = []
+    _write_table(schema(), config, "", True, out)
+    return "\n".join(out).strip("\n") + "\n"
+
+
+def _comment(text: str) -> list[str]:
+    return ["# " + line for line in textwrap.wrap(text, 96)]
+
+
+def _write_table(spec: Table, value: Any, path: str, documented: bool, out: list[str]) -> None:
+    for key in spec.keys:
+        v = getattr(value, key.name)
+        if documented:
+            out.extend(_comment(f"{key.doc} Accepted: {accepted(key)}."))
+        if v is None:
+            out.append(f"# {key.name} = (unset)")
+        else:
+            out.append(f"{key.name} = {toml_value(v, limit=1 << 20)}")
+    for child in spec.children:
+        _write_child(spec, child, value, path, documented, out)
+
+
+def _write_child(
+    parent: Table, child: Child, value: Any, path: str, documented: bool, out: list[str]
+) -> None:
+    sub = f"{path}.{child.name}" if path else child.name
+    where = header(sub, child.array)
+    v = value.sections[child.table.cls] if child.extension else getattr(value, child.name)
+    if v is None:
+        out += ["", f"# {where}: left out ({child.absent_text}). {child.table.doc}"]
+        return
+    if not child.array:
+        out += ["", f"{where}", *(_comment(child.table.doc) if documented else [])]
+        _write_table(child.table, v, sub, documented, out)
+        return
+    for i, item in enumerate(v):
+        first = documented and i == 0
+        note = child.table.doc if first else f"{child.name}[{i}]: keys as documented above"
+        out += ["", where, *_comment(note)]
+        _write_table(child.table, item, sub, first, out)

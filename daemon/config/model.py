@@ -1,0 +1,421 @@
+"""The daemon's configuration model: every core key, declared once.
+
+Each dataclass below is both the schema of its table and the frozen value the code reads
+(`motorctl.schema`): a field's helper call holds the key's default, bounds and doc. Sections
+owned elsewhere (a HAL backend's tables) are not here: they are declared next to their owner
+and attached at load time (`motorctl.daemon.config.loader.schema`).
+
+Adding a key: add one field to the dataclass of its table, then regenerate the docs
+(`python -m motorctl.daemon.config.docs --write`). Adding a core table: declare a dataclass
+with `@section(...)` and give `Config` a `table(...)` field for it. A backend's table: see
+`motorctl.hal.registry`.
+
+Pure declarations: no state, no I/O; built once per load on the loading thread.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+from motorctl.motion.types import HomingSource
+from motorctl.protocol.codec import POS_MAX, POS_MIN
+from motorctl.protocol.crc import (
+    CHECKSUM_DEFAULT,
+    CHECKSUM_TEXT,
+    checksum_by_name,
+    checksum_names,
+)
+from motorctl.schema import (
+    REQUIRED,
+    Rule,
+    Sectioned,
+    Violation,
+    boolean,
+    choice,
+    extension_sections,
+    given,
+    integer,
+    number,
+    section,
+    table,
+    tables,
+    text,
+)
+
+if TYPE_CHECKING:
+    from motorctl.protocol.codec import CodecOptions
+
+
+def _check_checksum(value: str) -> str | None:
+    """Problem with a checksum name, or None when it is usable."""
+    try:
+        checksum_by_name(value)
+    except ValueError:
+        return "unknown CRC-8 name"
+    return None
+
+
+@section(
+    "Framing and checksum of the UART protocol.",
+    prose="The UART protocol's framing and checksum (PROTOCOL.md §1 and §2).",
+    notes="""\
+`checksum` names any CRC-8 of the reveng catalogue, or one of the catalogue's aliases
+({crc_aliases}):
+{crc_names}
+
+`"crc8"` is the protocol's default, CRC-8/SMBUS. With `"none"` the checksum byte is ignored
+on input and sent as 0x00, so a corrupted frame can be executed: use it only for hosts that
+cannot compute a CRC. Names are case-insensitive, as for the client's `--checksum`. An
+unknown name is an error that lists the accepted names.""",
+)
+@dataclass(frozen=True)
+class LinkConfig:
+    """[link]: framing and checksum of the UART protocol."""
+
+    frame_gap_ms: float = number(
+        10.0,
+        0,
+        10000,
+        "Longest silence between two bytes of one frame; a longer gap discards the "
+        "partial frame (framing error). 0 turns the gap rule off.",
+    )
+    checksum: str = text(
+        CHECKSUM_DEFAULT,
+        'Checksum byte B9 / R4. "none": ignored on input, sent as 0x00.',
+        check=_check_checksum,
+        check_listing=checksum_names,
+        check_text=CHECKSUM_TEXT,
+    )
+    crc_covers_ack: bool = boolean(False, "true: the response CRC covers R0..R3, not R1..R3.")
+    strict_padding: bool = boolean(
+        True, "true: a non-zero padding byte gets E1; false accepts any padding."
+    )
+    held_frames: int = integer(
+        16,
+        1,
+        1024,
+        "Frames kept in arrival order while a WaitMoved response is held; "
+        "beyond that each gets E0.",
+    )
+
+    def codec_options(self) -> CodecOptions:
+        """The codec settings this table selects (crc None for checksum "none")."""
+        from motorctl.protocol.codec import CodecOptions
+
+        return CodecOptions(
+            crc=checksum_by_name(self.checksum),
+            crc_covers_ack=self.crc_covers_ack,
+            strict_padding=self.strict_padding,
+        )
+
+
+@section(
+    "Factors from protocol bytes to step/s and step/s^2.",
+    prose="""\
+Factors that turn the protocol's SPEED, ACC and DEC bytes into step/s and step/s^2
+(PROTOCOL.md §3). A byte of 0 always means the motor's configured default, and a result
+above the motor's maximum is clamped, never refused.""",
+)
+@dataclass(frozen=True)
+class UnitsConfig:
+    """[units]: protocol byte -> physical unit factors."""
+
+    run_speed_factor: float = number(
+        4096.0, 0, 1e6, "step/s per SPEED unit for InitMove and Move.", lo_open=True
+    )
+    move_speed_factor: float = number(
+        4.0, 0, 1e6, "step/s per SPEED unit for MoveTo and MoveToWayPoint.", lo_open=True
+    )
+    accel_factor: float = number(16.0, 0, 1e7, "step/s^2 per ACC / DEC unit.", lo_open=True)
+
+
+def _backend_names() -> tuple[str, ...]:
+    from motorctl.hal.registry import BACKENDS
+
+    return tuple(BACKENDS)
+
+
+def _backend_note() -> str:
+    if len(_backend_names()) == 1:
+        return "the only backend in this version"
+    return "the backends of motorctl.hal.registry"
+
+
+@section(
+    "Hardware backend.",
+    prose="""\
+The backend drives the outputs and reads the inputs. Each backend owns a config section of
+its own (its tables are marked with the backend's name below); every registered backend's
+section is checked, whichever backend is chosen, and only the chosen backend's hardware
+library is loaded.""",
+)
+@dataclass(frozen=True)
+class HalConfig:
+    """[hal]: which hardware backend drives the outputs."""
+
+    backend: str = choice(
+        "mock",
+        _backend_names,
+        'Hardware backend; "mock" simulates motors, end stops and wired pins.',
+        note=_backend_note,
+    )
+
+
+@section(
+    "Timing of the thread that generates step pulses.",
+    prose="""\
+Timing of the thread that generates step pulses. The defaults suit the mock backend and
+most hosts; change them only if the step-timing statistics report late edges.""",
+)
+@dataclass(frozen=True)
+class StepThreadConfig:
+    """[step_thread]: timing of the step-generating thread."""
+
+    dir_setup_us: float = number(
+        5.0, 0, 10000, "DIR is set this long before the next step edge."
+    )
+    step_pulse_us: float = number(2.0, 0.1, 10000, "Minimum step pulse width.")
+    late_threshold_us: float = number(
+        100.0, 1, 1e6, "A step edge later than this counts as late."
+    )
+    spin_us: float = number(
+        200.0, 0, 100000, "Sleep until this long before a deadline, busy-wait the rest."
+    )
+    priority: int = integer(
+        50, 0, 99, "SCHED_FIFO priority of the step thread; 0 = do not ask for real-time."
+    )
+    lock_memory: bool = boolean(True, "mlockall() when permitted.")
+    switch_interval_us: float = number(
+        100.0, 10, 100000, "sys.setswitchinterval() for the daemon process."
+    )
+    driver_poll_ms: float = number(
+        10.0,
+        0.1,
+        10000,
+        "How often driver status (faults, stall) is polled while a motor moves.",
+    )
+    cpu: int = integer(
+        -1,
+        -1,
+        1023,
+        "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
+    )
+
+
+@section(
+    "The DC motor. Absent: no DC motor (DcMove answers E2). Present, even empty: a DC motor.",
+    prose="""\
+Leave the table out for a machine without a DC motor: DcMove then answers E2. A `[dc]`
+line on its own (an empty table) configures a DC motor with the defaults below.""",
+    notes="""\
+GO_HiZ TRUE leaves the bridge in high impedance (coasting) after the run, FALSE brakes it,
+as the field's name says (PROTOCOL.md §4); `invert_hiz = true` swaps the two for hosts
+written against the original's prose.""",
+)
+@dataclass(frozen=True)
+class DcConfig:
+    """[dc]: the DC motor (only present when configured)."""
+
+    invert_hiz: bool = boolean(False, "true inverts the meaning of DcMove's GO_HiZ byte.")
+    max_time_ms: int = integer(65535, 1, 65535, "Cap for the TIME of one run.")
+
+
+@section("How InitMove finds the end stop.")
+@dataclass(frozen=True)
+class HomingConfig:
+    """[motors.homing]: how InitMove finds the end stop."""
+
+    source: HomingSource = choice(
+        HomingSource.ENDSTOP,
+        HomingSource,
+        "What stops homing: the end-stop input, or the driver's stall flag.",
+    )
+    speed: float = number(
+        2000.0, 0, "max_speed", "step/s used when InitMove's SPEED = 0.", lo_open=True
+    )
+    max_travel: int = integer(
+        40000, 1, POS_MAX - POS_MIN, "Steps; no trigger within this distance -> the motor faults."
+    )
+    pull_off: int = integer(
+        0,
+        0,
+        1000000,
+        "0 = one-phase homing; > 0 = back off this many steps after the first trigger "
+        "and re-approach at second_speed.",
+    )
+    second_speed: float = number(
+        250.0, 0, "max_speed", "step/s of the slow re-approach.", lo_open=True
+    )
+
+
+@section("The end-stop input.")
+@dataclass(frozen=True)
+class EndstopConfig:
+    """[motors.endstop]: the end-stop input."""
+
+    active_low: bool = boolean(False, "true: the input is active when it reads low.")
+    debounce_ms: float = number(
+        0.0, 0, 1000, "The input must read active this long before it counts."
+    )
+
+
+def _soft_limits_paired(v: Mapping[str, Any]) -> Violation | None:
+    lo, hi = v["soft_limit_min"], v["soft_limit_max"]
+    if lo is not None and hi is None:
+        return ("soft_limit_min", lo, "soft_limit_max is not set")
+    if hi is not None and lo is None:
+        return ("soft_limit_max", hi, "soft_limit_min is not set")
+    return None
+
+
+def _soft_limits_ordered(v: Mapping[str, Any]) -> Violation | None:
+    lo, hi = v["soft_limit_min"], v["soft_limit_max"]
+    if lo is not None and hi is not None and lo >= hi:
+        return ("soft_limit_min", lo, f"not below soft_limit_max = {hi}")
+    return None
+
+
+def _soft_limits_linear(v: Mapping[str, Any]) -> Violation | None:
+    spr = v["steps_per_rev"]
+    if spr > 0:
+        for key in ("soft_limit_min", "soft_limit_max"):
+            if v[key] is not None:
+                return (key, v[key], f"soft limit on a rotary axis (steps_per_rev = {spr})")
+    return None
+
+
+_SOFT_LIMITS = ("soft_limit_min", "soft_limit_max")
+
+
+@section(
+    "Stepper motors, numbered 0..N-1 in file order.",
+    rules=(
+        Rule(
+            _SOFT_LIMITS,
+            "set both soft_limit_min and soft_limit_max, or neither",
+            _soft_limits_paired,
+        ),
+        Rule(_SOFT_LIMITS, "soft_limit_min < soft_limit_max", _soft_limits_ordered),
+        Rule(_SOFT_LIMITS, "only on a linear axis (steps_per_rev = 0)", _soft_limits_linear),
+    ),
+    prose="""\
+One `[[motors]]` table per stepper motor, numbered 0, 1, ... N-1 in file order: that number
+is the protocol's MOTOR byte. At least one is required, at most 64. A `[motors.homing]`,
+`[motors.endstop]` or backend table (`[motors.mock]`...) written after a `[[motors]]` line
+belongs to that motor; left out, it takes its defaults.""",
+    notes="""\
+Notes:
+
+- `max_speed`, `max_accel`: a SPEED, ACC or DEC byte whose value exceeds them is clamped
+  (and counted), never refused.
+- `default_speed`, `homing.speed` and `homing.second_speed` must not exceed the same
+  motor's `max_speed`; `default_accel` and `default_decel` must not exceed its `max_accel`.
+- Soft limits are positions in steps; both or neither, `soft_limit_min < soft_limit_max`,
+  and only on a linear axis (on a rotary axis every position in `[0, steps_per_rev)` is
+  reachable).
+- `homing.max_travel` counts the steps of one homing run; without a trigger by then the
+  motor faults (E4 until StopMove clears it). With `pull_off > 0` homing backs off that far
+  after the first trigger and approaches again at `second_speed`.""",
+)
+@dataclass(frozen=True)
+class MotorConfig(Sectioned):
+    """One [[motors]] entry; its index in Config.motors is its protocol number."""
+
+    name: str = text(
+        "motor{index}",
+        "Name used in logs and tools.",
+        pattern=r"[A-Za-z0-9_.-]{1,64}",
+        pattern_text="1..64 letters, digits, '_', '-' or '.'",
+        unique=True,
+        indexed_default=True,
+        default_text='"motor0", "motor1", ... (by index)',
+    )
+    steps_per_rev: int = integer(
+        0, 0, POS_MAX, "0 = linear axis; > 0 = rotary axis, position kept in [0, steps_per_rev)."
+    )
+    invert_dir: bool = boolean(False, "Swap the DIR wiring (not the protocol's direction).")
+    max_speed: float = number(
+        25000.0, 0, 200000, "step/s; faster requests are clamped.", lo_open=True
+    )
+    max_accel: float = number(
+        200000.0, 0, 1e7, "step/s^2; larger ACC / DEC are clamped.", lo_open=True
+    )
+    default_speed: float = number(
+        2000.0, 0, "max_speed", "step/s used when SPEED = 0, and by GoHome.", lo_open=True
+    )
+    default_accel: float = number(
+        8000.0, 0, "max_accel", "step/s^2 used when ACC = 0.", lo_open=True
+    )
+    default_decel: float = number(
+        8000.0, 0, "max_accel", "step/s^2 used when DEC = 0.", lo_open=True
+    )
+    queue_depth: int = integer(
+        16, 1, 1024, "Motion commands that may wait behind the one executing; more -> E0."
+    )
+    max_waypoints: int = integer(255, 1, 255, "Size of the waypoint table; more -> E5.")
+    soft_limit_min: int | None = integer(
+        None,
+        POS_MIN,
+        POS_MAX,
+        "Lowest allowed target; a MoveTo outside the limits -> E1, a Move stops at them.",
+        optional=True,
+        default_text="unset",
+    )
+    soft_limit_max: int | None = integer(
+        None, POS_MIN, POS_MAX, "Highest allowed target.", optional=True, default_text="unset"
+    )
+    homing: HomingConfig = table(HomingConfig)
+    endstop: EndstopConfig = table(EndstopConfig)
+    sections: Mapping[type[Any], Any] = extension_sections()
+
+    @property
+    def rotary(self) -> bool:
+        """True for a rotary axis (steps_per_rev > 0)."""
+        return self.steps_per_rev > 0
+
+
+@section(
+    "IO pins the host addresses by PIN_NR; no other pin is reachable.",
+    prose="""\
+One `[[pins]]` table per IO pin the host may use, addressed by its PIN_NR. Any other PIN_NR
+answers E2. Without `[[pins]]` there are none.""",
+    notes="""\
+`initial` and `safe` are output levels (`true` = high). They also apply to a pin configured
+as an input, should the host switch it to an output with ConfigPin.""",
+)
+@dataclass(frozen=True)
+class PinConfig(Sectioned):
+    """One [[pins]] entry: a pin the host may address by PIN_NR."""
+
+    number: int = integer(REQUIRED, 0, 255, "The host's PIN_NR.", unique=True)
+    mode: str = choice(
+        "output", ("output", "input"), "Direction at start (ConfigPin changes it)."
+    )
+    initial: bool = boolean(False, "Output level at start (true = high).")
+    safe: bool = boolean(False, "Output level set at shutdown (true = high).")
+    sections: Mapping[type[Any], Any] = extension_sections()
+
+    @property
+    def is_output(self) -> bool:
+        """True when the pin starts as an output."""
+        return self.mode == "output"
+
+
+@section("The whole file.")
+@dataclass(frozen=True)
+class Config(Sectioned):
+    """The whole validated configuration; `source` is the file it came from."""
+
+    link: LinkConfig = table(LinkConfig)
+    units: UnitsConfig = table(UnitsConfig)
+    hal: HalConfig = table(HalConfig)
+    step_thread: StepThreadConfig = table(StepThreadConfig)
+    dc: DcConfig | None = table(DcConfig, absent=None, absent_text="no DC motor")
+    motors: tuple[MotorConfig, ...] = tables(
+        MotorConfig, 1, 64, absent=REQUIRED, absent_text="required"
+    )
+    pins: tuple[PinConfig, ...] = tables(PinConfig, 0, 256, absent=[], absent_text="no pins")
+    sections: Mapping[type[Any], Any] = extension_sections()
+    source: str = given("")

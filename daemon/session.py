@@ -1,0 +1,221 @@
+"""The link session: the protocol side of the link, pure (no file descriptors, no clock).
+
+Bytes and timestamps go in (:meth:`LinkSession.receive`, :meth:`LinkSession.idle`,
+:meth:`LinkSession.poll`); response bytes come out (:meth:`LinkSession.take_output`) in the
+order their frames arrived, exactly one per complete frame. Commands are executed through a
+narrow port (the dispatcher's ``handle``/``wait_begin``/``wait_poll``). The select loop in
+:mod:`motorctl.daemon.link` is a thin shell around it.
+
+Owned by the link thread; nothing here blocks except the port's calls (the engine lock).
+
+The rules (PROTOCOL.md §2, §4):
+- Framing by watched silence (:class:`motorctl.protocol.framing.Framer`).
+- A frame that fails its checks is answered E1 in its turn and never executed.
+- A WaitMoved holds the responses of later frames until it is answered. Later frames are kept
+  in arrival order; up to ``held_limit`` of them take a place in the held-frame buffer, each
+  one beyond it is answered E0 in its turn and not executed. A StopMove is executed on arrival
+  (its answer decided then) and answered in its turn; it never takes a place and is never
+  refused for lack of room. A frame that fails its checks is decided E1 on arrival and takes
+  no place either. When the WaitMoved is answered the kept frames run in order; a WaitMoved
+  among them is taken up then (its TIMEOUT counts from that moment) and holds again.
+"""
+
+from __future__ import annotations
+
+from collections import Counter, deque
+from typing import Protocol
+
+from motorctl.daemon.dispatcher import Wait
+from motorctl.protocol.codec import (
+    RESPONSE_LEN,
+    CodecOptions,
+    Command,
+    ErrorCode,
+    FrameError,
+    Response,
+    StopMove,
+    WaitMoved,
+    decode_command,
+    encode_response,
+)
+from motorctl.protocol.framing import Framer
+
+# Every counter exists from the start, so another thread may copy them at any time.
+COUNTERS = (
+    "bytes_in", "frames", "frames_good", "checksum_errors", "unknown_errors", "padding_errors",
+    "length_errors", "responses", "gap_discards", "held_max", "held_overflow",
+    "stops_while_held", "waits_taken_up",
+    *(f"sent_{code.short}" for code in ErrorCode),
+)
+_SENT = {code.value: f"sent_{code.short}" for code in ErrorCode}
+
+
+class CommandPort(Protocol):
+    """What the session needs from the dispatcher, and nothing more."""
+
+    def handle(self, cmd: Command) -> Response: ...
+
+    def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait: ...
+
+    def wait_poll(self, wait: Wait, now: float) -> Response | None: ...
+
+
+class LinkSession:
+    """Frames in, responses out, in order; WaitMoved holding and the held-frame buffer."""
+
+    def __init__(
+        self,
+        port: CommandPort,
+        options: CodecOptions,
+        frame_gap_s: float,
+        held_limit: int = 16,
+        backlog_limit: int = 4096,
+    ) -> None:
+        self.port = port
+        self.options = options
+        self.framer = Framer(frame_gap_s)
+        self.held_limit = held_limit
+        self.backlog_limit = backlog_limit
+        self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
+        self.wait: Wait | None = None
+        # Frames behind the held WaitMoved: a command still to execute, or an answer decided
+        # on arrival (E1, E0, a StopMove's), already encoded.
+        self._held: deque[Command | bytes] = deque()
+        self._held_places = 0  # commands in _held (they take a place in the buffer)
+        self._out = bytearray()
+
+    # -- what the shell asks ------------------------------------------------------------
+    @property
+    def waiting(self) -> bool:
+        return self.wait is not None
+
+    @property
+    def held(self) -> int:
+        return len(self._held)
+
+    @property
+    def owed(self) -> int:
+        """Responses owed to the host: held ones and ones not yet taken for writing."""
+        return len(self._held) + len(self._out) // RESPONSE_LEN
+
+    def wants_input(self) -> bool:
+        """False while too many responses are owed: the shell stops reading (back pressure on
+        the host) rather than let memory grow without bound."""
+        return self.owed < self.backlog_limit
+
+    def deadline(self) -> float | None:
+        """When :meth:`poll` must run at the latest (a held WaitMoved's timeout)."""
+        return None if self.wait is None else self.wait.deadline
+
+    def gap_left(self) -> float | None:
+        """Silence still to be watched before the partial frame is dropped."""
+        return self.framer.gap_left()
+
+    def take_output(self) -> bytes:
+        """The response bytes ready to send, in order; the session forgets them."""
+        data = bytes(self._out)
+        self._out.clear()
+        return data
+
+    # -- what the shell tells ------------------------------------------------------------
+    def receive(self, data: bytes, now: float) -> None:
+        """Bytes read at ``now``, contiguous with any partial frame."""
+        if not data:
+            return
+        self.counters["bytes_in"] += len(data)
+        for frame in self.framer.feed(data):
+            self._on_frame(frame, now)
+
+    def idle(self, seconds: float) -> None:
+        """The shell watched the line, ready to read, and no byte came for ``seconds``."""
+        if self.framer.idle(seconds):
+            self.counters["gap_discards"] += 1
+
+    def poll(self, now: float) -> None:
+        """Re-check a held WaitMoved (a motor event, or its deadline)."""
+        wait = self.wait
+        if wait is None:
+            return
+        result = self.port.wait_poll(wait, now)
+        if result is None:
+            return
+        self.wait = None
+        self._emit(result)
+        self._release(now)
+
+    def peer_gone(self) -> int:
+        """The host closed the port: its partial frame goes; returns the bytes dropped."""
+        return self.framer.reset()
+
+    # -- frames -----------------------------------------------------------------------------
+    def _on_frame(self, frame: bytes, now: float) -> None:
+        self.counters["frames"] += 1
+        try:
+            cmd: Command | None = decode_command(frame, self.options)
+            self.counters["frames_good"] += 1
+        except FrameError as exc:
+            self.counters[f"{exc.reason}_errors"] += 1
+            cmd = None
+        if self.wait is not None:
+            self._hold(cmd, now)
+        elif cmd is None:
+            self._emit(Response.error(ErrorCode.INVALID_COMMAND))
+        elif isinstance(cmd, WaitMoved):
+            self._take_up(cmd, now)
+        else:
+            self._emit(self.port.handle(cmd))
+
+    def _hold(self, cmd: Command | None, now: float) -> None:
+        if cmd is None:
+            self._held.append(self._encode(Response.error(ErrorCode.INVALID_COMMAND)))
+        elif isinstance(cmd, StopMove):
+            self.counters["stops_while_held"] += 1
+            self._held.append(self._encode(self.port.handle(cmd)))
+            self.poll(now)  # the stop may have ended the wait
+            return
+        elif self._held_places >= self.held_limit:
+            self.counters["held_overflow"] += 1
+            self._held.append(self._encode(Response.error(ErrorCode.FULL_BUFFER)))
+        else:
+            self._held.append(cmd)
+            self._held_places += 1
+        if len(self._held) > self.counters["held_max"]:
+            self.counters["held_max"] = len(self._held)
+
+    def _take_up(self, cmd: WaitMoved, now: float) -> None:
+        self.counters["waits_taken_up"] += 1
+        result = self.port.wait_begin(cmd, now)
+        if isinstance(result, Wait):
+            self.wait = result
+            # The motor may have stopped between the check and now, when no wait was there
+            # to be woken: look once more.
+            self.poll(now)
+        else:
+            self._emit(result)
+
+    def _release(self, now: float) -> None:
+        """The WaitMoved was answered: run the kept frames in order until another holds."""
+        held = self._held
+        while held and self.wait is None:
+            item = held.popleft()
+            if isinstance(item, bytes):
+                self._emit_encoded(item)
+                continue
+            self._held_places -= 1
+            if isinstance(item, WaitMoved):
+                self._take_up(item, now)
+            else:
+                self._emit(self.port.handle(item))
+
+    # -- responses --------------------------------------------------------------------------
+    def _encode(self, resp: Response) -> bytes:
+        return encode_response(resp, self.options)
+
+    def _emit(self, resp: Response) -> None:
+        self._emit_encoded(self._encode(resp))
+
+    def _emit_encoded(self, data: bytes) -> None:
+        self._out += data
+        self.counters["responses"] += 1
+        if data[0] == 0x00:
+            self.counters[_SENT[data[1]]] += 1

@@ -1,0 +1,114 @@
+"""The mock backend's config sections: the simulated world ([mock]) and axes ([motors.mock]).
+
+Declared here, not in the daemon's core schema: the mock backend owns them and registers this
+module in `motorctl.hal.registry.BACKENDS`. Like every backend's config module it imports no
+hardware library, so a config can be checked without loading any backend.
+
+Pure declarations: no state, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+from motorctl.schema import Extension, Rule, Violation, integer, pairs, section
+
+# The simulated end stops sit inside the protocol's 24-bit position range (PROTOCOL.md §3).
+# hal may not import protocol, so the range is written out here and checked against
+# motorctl.protocol.codec.POS_MIN/POS_MAX by tests/test_config.py.
+POSITION_MIN = -(1 << 23)
+POSITION_MAX = (1 << 23) - 1
+
+
+def _endstops_ordered(v: Mapping[str, Any]) -> Violation | None:
+    lo, hi = v["endstop_min"], v["endstop_max"]
+    if lo >= hi:
+        return ("endstop_min", lo, f"not below endstop_max = {hi}")
+    return None
+
+
+@section(
+    "The simulated axis (mock backend only).",
+    rules=(Rule(("endstop_min", "endstop_max"), "endstop_min < endstop_max", _endstops_ordered),),
+    notes="""\
+The simulated axis starts at position 0; its end stops sit at `endstop_min` and
+`endstop_max`. Only `endstop_min < endstop_max` is required, so both may lie on the same side
+of the start.""",
+)
+@dataclass(frozen=True)
+class MockAxisConfig:
+    """[motors.mock]: the simulated axis of one motor."""
+
+    endstop_min: int = integer(
+        -10000,
+        POSITION_MIN,
+        POSITION_MAX,
+        "Position of the simulated end stop below, relative to the start position 0.",
+    )
+    endstop_max: int = integer(
+        10000,
+        POSITION_MIN,
+        POSITION_MAX,
+        "Position of the simulated end stop above, relative to the start position 0.",
+    )
+
+
+@section(
+    "The simulated world of the mock backend. Absent: no wires.",
+    notes="""\
+A wire joins two pins: reading one that is an input gives the level of the other while it
+is an output. Both pins must be listed in `[[pins]]`, and each pin may be in one wire only.
+Without a `[mock]` table there are no wires; a `[mock]` table without `wires` gets the
+default `[[0, 4], [1, 5], [2, 6], [3, 7]]`, which needs pins 0-7.""",
+)
+@dataclass(frozen=True)
+class MockConfig:
+    """[mock]: wiring of the simulated world."""
+
+    wires: tuple[tuple[int, int], ...] = pairs(
+        [[0, 4], [1, 5], [2, 6], [3, 7]],
+        "Pins joined by a wire: an input reads the output it is wired to. This default "
+        "applies only when a [mock] table is written; without [mock] there are no wires.",
+    )
+
+
+def _wires_on_pins(v: Mapping[str, Any]) -> Violation | None:
+    numbers = {pin.number for pin in v["pins"]}
+    for i, wire in enumerate(v["mock"].wires):
+        for pin in wire:
+            if pin not in numbers:
+                listed = ", ".join(str(n) for n in sorted(numbers)) or "none"
+                problem = f"pin {pin} is not in [[pins]] (configured pins: {listed})"
+                return (f"mock.wires[{i}]", list(wire), problem)
+    return None
+
+
+def _wires_disjoint(v: Mapping[str, Any]) -> Violation | None:
+    seen: dict[int, int] = {}
+    for i, wire in enumerate(v["mock"].wires):
+        for pin in wire:
+            if pin in seen:
+                where = "this wire" if seen[pin] == i else f"mock.wires[{seen[pin]}]"
+                return (f"mock.wires[{i}]", list(wire), f"pin {pin} is also in {where}")
+            seen[pin] = i
+    return None
+
+
+CONFIG_SECTIONS = (
+    Extension(
+        "",
+        "mock",
+        MockConfig,
+        owner="the mock backend",
+        absent={"wires": []},
+        absent_text="no wires",
+        rules=(
+            Rule(("mock.wires",), "every wired pin is listed in [[pins]]", _wires_on_pins),
+            Rule(("mock.wires",), "each pin in at most one wire", _wires_disjoint),
+        ),
+    ),
+    Extension("motors", "mock", MockAxisConfig, owner="the mock backend"),
+)
+"""The sections the mock backend adds to the config file."""

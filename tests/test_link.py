@@ -1,0 +1,343 @@
+"""The link's shell on a real PTY (and a socket where a PTY cannot make the error), in-process.
+
+Every wait has a deadline and fails with a message. The dispatcher behind it runs on a
+virtual clock: these tests are about the bytes, not the motors.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+import select
+import socket
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from motorctl.daemon.config import parse_config
+from motorctl.daemon.dispatcher import Dispatcher, Wait
+from motorctl.daemon.link import Link, flush_pty_input
+from motorctl.daemon.main import Daemon, open_pty
+from motorctl.hal.interfaces import VirtualClock
+from motorctl.protocol.codec import (
+    CodecOptions,
+    Command,
+    ErrorCode,
+    GetAbsPos,
+    IsReady,
+    Move,
+    Response,
+    StopMove,
+    WaitMoved,
+    decode_response,
+    encode_command,
+)
+
+E = ErrorCode
+OPTS = CodecOptions()
+DEADLINE_S = 20.0  # generous: these tests must pass on a loaded 2-core machine
+
+CONFIG = """
+[[motors]]
+name = "a"
+[[motors]]
+name = "b"
+"""
+
+
+def frame(cmd: Command) -> bytes:
+    return encode_command(cmd, OPTS)
+
+
+class SlowPort:
+    """The dispatcher, made slow: the daemon is busy while bytes keep arriving."""
+
+    def __init__(self, inner: Dispatcher, delay_s: float) -> None:
+        self.inner = inner
+        self.delay_s = delay_s
+
+    def handle(self, cmd: Command) -> Response:
+        time.sleep(self.delay_s)
+        return self.inner.handle(cmd)
+
+    def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
+        return self.inner.wait_begin(cmd, now)
+
+    def wait_poll(self, wait: Wait, now: float) -> Response | None:
+        return self.inner.wait_poll(wait, now)
+
+
+class Host:
+    """The other side of the PTY, opened like a serial port by a host program."""
+
+    def __init__(self, path: str) -> None:
+        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY)
+
+    def write(self, data: bytes, stop: threading.Event | None = None) -> None:
+        """Write it all (blocking, as a host does), or until ``stop`` is set."""
+        view = memoryview(data)
+        end = time.monotonic() + 120.0
+        while view and not (stop is not None and stop.is_set()):
+            assert time.monotonic() < end, "the daemon never took the host's bytes"
+            if select.select([], [self.fd], [], 0.05)[1]:
+                view = view[os.write(self.fd, view[:4096]):]
+
+    def read(self, n: int, timeout: float = DEADLINE_S) -> bytes:
+        out = bytearray()
+        end = time.monotonic() + timeout
+        while len(out) < n:
+            left = end - time.monotonic()
+            if left <= 0 or not select.select([self.fd], [], [], left)[0]:
+                break
+            out += os.read(self.fd, n - len(out))
+        return bytes(out)
+
+    def responses(self, n: int, timeout: float = DEADLINE_S) -> list[Response]:
+        data = self.read(5 * n, timeout)
+        assert len(data) == 5 * n, f"got {len(data) // 5} of {n} responses in {timeout} s"
+        return [decode_response(data[i : i + 5], OPTS) for i in range(0, len(data), 5)]
+
+    def nothing_within(self, seconds: float) -> bool:
+        return not select.select([self.fd], [], [], seconds)[0]
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+class Served:
+    """A Link serving a PTY on a thread, with a daemon on a virtual clock behind it."""
+
+    def __init__(self, tmp: Path, port: Any = None, fd: int | None = None,
+                 gap_s: float = 0.010, **kw: Any) -> None:
+        self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state", VirtualClock())
+        self.path = tmp / "pty"
+        if fd is None:
+            fd, self.name = open_pty(self.path)
+            kw.setdefault("on_hangup", lambda: flush_pty_input(self.name))
+        self.fd = fd
+        self.link = Link(fd, port or self.daemon.dispatcher, OPTS, gap_s, 16, **kw)
+        self.daemon.link = self.link
+        self.thread = threading.Thread(target=self.link.serve, name="link", daemon=True)
+        self.thread.start()
+
+    def host(self) -> Host:
+        return Host(self.name)
+
+    def counters(self) -> dict[str, Any]:
+        counters = self.link.status()["counters"]
+        assert isinstance(counters, dict)
+        return counters
+
+    def until(self, what: str, cond: Any, timeout: float = DEADLINE_S) -> None:
+        end = time.monotonic() + timeout
+        while not cond():
+            assert time.monotonic() < end, f"timed out waiting for {what}: {self.counters()}"
+            time.sleep(0.005)
+
+    def stop(self, timeout: float = DEADLINE_S) -> float:
+        t = time.monotonic()
+        self.link.stop()
+        self.thread.join(timeout)
+        assert not self.thread.is_alive(), "the link thread did not stop"
+        return time.monotonic() - t
+
+    def close(self) -> None:
+        if self.thread.is_alive():
+            self.stop()
+        self.link.close()
+        os.close(self.fd)
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[Served]:
+    s = Served(tmp_path)
+    yield s
+    s.close()
+
+
+def test_serves_and_stops(served: Served) -> None:
+    host = served.host()
+    host.write(frame(IsReady(0)))
+    assert [r.as_bool for r in host.responses(1)] == [True]
+    assert served.stop() < 2.0
+    host.close()
+
+
+def test_burst_of_20000_frames_read_concurrently(served: Served) -> None:
+    host = served.host()
+    cmds = [GetAbsPos(i % 2) if i % 2 else IsReady(i % 2) for i in range(20_000)]
+    writer = threading.Thread(target=host.write, args=(b"".join(frame(c) for c in cmds),))
+    writer.start()
+    rs = host.responses(20_000, timeout=60.0)
+    writer.join(DEADLINE_S)
+    assert all(r.ack for r in rs)
+    assert all(r.as_bool for r in rs[::2])
+    c = served.counters()
+    assert c["frames_good"] == 20_000 and c["gap_discards"] == 0 and c["sent_E1"] == 0
+    host.close()
+
+
+def test_slow_reader_loses_nothing(served: Served) -> None:
+    """The host writes 10,000 frames and reads nothing for 2 s: the daemon stops reading
+    (back pressure) instead of blocking in a write or growing without bound."""
+    host = served.host()
+    data = b"".join(frame(GetAbsPos(i % 2)) for i in range(10_000))
+    writer = threading.Thread(target=host.write, args=(data,))
+    writer.start()
+    time.sleep(2.0)
+    assert served.thread.is_alive()
+    rs = host.responses(10_000, timeout=60.0)
+    writer.join(DEADLINE_S)
+    assert not writer.is_alive(), "the host's write never completed"
+    assert all(r.ack and r.as_position == 0 for r in rs)
+    c = served.counters()
+    assert c["write_eagain"] > 0 or c["backpressure"] > 0
+    assert c["frames_good"] == 10_000 and c["responses_dropped"] == 0
+    host.close()
+
+
+def test_bytes_buffered_while_busy_are_not_a_gap(tmp_path: Path) -> None:
+    """Byte by byte, 20 ms apart (well below a 100 ms gap, so that a loaded machine does
+    not stretch it into a real one), to a daemon that takes 300 ms per command: each read
+    finds bytes, often part of a frame, that waited while it was busy. None is a gap."""
+    base = Served(tmp_path / "a")
+    base.close()
+    s = Served(tmp_path, port=SlowPort(base.daemon.dispatcher, 0.300), gap_s=0.100)
+    try:
+        host = s.host()
+        data = b"".join(frame(IsReady(0)) for _ in range(6))
+        for b in data:
+            host.write(bytes([b]))
+            time.sleep(0.020)
+        rs = host.responses(6)
+        assert all(r.as_bool for r in rs)
+        c = s.counters()
+        assert c["gap_discards"] == 0
+        assert c["reads"] < len(data)  # bytes did pile up while the daemon was busy
+        host.close()
+    finally:
+        s.close()
+
+
+def test_a_real_gap_is_watched_and_discards(served: Served) -> None:
+    host = served.host()
+    host.write(frame(Move(0, True, 1, 0, 0))[:6])
+    served.until("the gap discard", lambda: served.counters()["gap_discards"] == 1)
+    host.write(frame(IsReady(0)))
+    assert [r.as_bool for r in host.responses(1)] == [True]
+    host.close()
+
+
+def test_host_closes_and_reopens(served: Served) -> None:
+    host = served.host()
+    host.write(frame(IsReady(0)))
+    assert len(host.responses(1)) == 1
+    # Half a frame and a whole one, then close without reading the answer.
+    host.write(frame(GetAbsPos(0)) + frame(IsReady(0))[:4])
+    served.until("the frame", lambda: served.counters()["frames_good"] == 2)
+    closed = served.counters()["peer_closed"]
+    host.close()
+    served.until("the hang-up", lambda: served.counters()["peer_closed"] > closed)
+    assert served.link.status()["peer"] == "closed"
+    host = served.host()
+    host.write(frame(IsReady(1)))
+    rs = host.responses(1)
+    assert rs[0].as_bool is True  # the answer to this frame: nothing stale, nothing misaligned
+    assert host.nothing_within(0.1)
+    c = served.counters()
+    assert c["peer_reopened"] >= 1 and c["hangup_partial_bytes"] == 4
+    host.close()
+
+
+def test_no_host_yet_then_host(served: Served) -> None:
+    served.until("the link to notice no host", lambda: served.link.peer_gone)
+    time.sleep(0.1)
+    host = served.host()
+    host.write(frame(IsReady(0)))
+    assert len(host.responses(1)) == 1
+    host.close()
+
+
+def test_wait_moved_woken_by_motor_event(served: Served) -> None:
+    host = served.host()
+    host.write(frame(Move(0, True, 1, 0, 0)) + frame(WaitMoved(0, 60_000)) + frame(IsReady(1)))
+    assert len(host.responses(1)) == 1
+    served.until("the WaitMoved to be held", lambda: served.link.status()["waiting"])
+    engine = served.daemon.engine
+    with engine.lock:
+        engine.motors[0].stop(hard=True, now=engine.clock.now())  # notifies: link.wake()
+    t = time.monotonic()
+    rs = host.responses(2)
+    assert time.monotonic() - t < 5.0
+    assert [r.ack for r in rs] == [True, True]
+    host.close()
+
+
+def test_wait_moved_times_out_on_the_link_clock(served: Served) -> None:
+    host = served.host()
+    host.write(frame(Move(0, True, 1, 0, 0)) + frame(WaitMoved(0, 200)))
+    rs = host.responses(2)
+    assert rs[1].error_code is E.MOTOR_NOT_READY
+    host.write(frame(StopMove(0, True)))
+    assert host.responses(1)[0].ack
+    host.close()
+
+
+def test_stop_bounded_while_host_does_not_read(tmp_path: Path) -> None:
+    s = Served(tmp_path, drain_s=0.3)
+    try:
+        host = s.host()
+        data = b"".join(frame(IsReady(0)) for _ in range(30_000))
+        stop = threading.Event()
+        writer = threading.Thread(target=host.write, args=(data, stop), daemon=True)
+        writer.start()
+        s.until("back pressure", lambda: s.counters()["backpressure"] > 0)
+        assert s.stop() < 5.0
+        assert s.counters()["responses_dropped"] > 0
+        stop.set()
+        writer.join(DEADLINE_S)
+        host.close()
+    finally:
+        s.close()
+
+
+def test_read_error_is_counted_and_survived(tmp_path: Path) -> None:
+    # A directory polls readable and fails every read (EISDIR): the stand-in for a device
+    # that errors. The thread must neither die nor spin, and stop() must still end it.
+    fd = os.open(tmp_path, os.O_RDONLY)
+    s = Served(tmp_path, fd=fd, retry_s=0.01)
+    try:
+        s.until("the link error", lambda: s.counters()["link_errors"] == 1)
+        time.sleep(0.1)
+        assert s.thread.is_alive() and s.counters()["link_errors"] == 1
+    finally:
+        s.close()
+
+
+def test_write_error_is_counted_and_survived(tmp_path: Path) -> None:
+    ours, theirs = socket.socketpair()
+    ours.setblocking(False)
+    ours.shutdown(socket.SHUT_WR)  # every write now fails with EPIPE
+    s = Served(tmp_path, fd=ours.fileno())
+    try:
+        theirs.sendall(frame(IsReady(0)))
+        s.until("the write error", lambda: s.counters()["link_errors"] == 1)
+        assert s.thread.is_alive()
+        assert s.link.peer_gone
+    finally:
+        s.stop()
+        s.link.close()
+        ours.close()
+        theirs.close()
+
+
+def test_eio_from_pty_without_host_is_not_an_error(served: Served) -> None:
+    served.until("no host", lambda: served.link.peer_gone)
+    with pytest.raises(OSError) as exc:
+        os.read(served.fd, 1)
+    assert exc.value.errno == errno.EIO
+    assert served.counters()["link_errors"] == 0

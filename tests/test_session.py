@@ -1,0 +1,312 @@
+"""The pure link session, without a PTY: framing by watched silence, held frames, WaitMoved.
+
+The real dispatcher and motion engine run on a virtual clock behind it, so "the motor is
+moving" and "the motor became idle" are the engine's own states, not a script.
+"""
+
+from __future__ import annotations
+
+import random
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from motorctl.daemon.config import parse_config
+from motorctl.daemon.dispatcher import Wait
+from motorctl.daemon.main import Daemon
+from motorctl.daemon.session import LinkSession
+from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.mock import world_of
+from motorctl.protocol.codec import (
+    CodecOptions,
+    Command,
+    ErrorCode,
+    GetAbsPos,
+    IsReady,
+    Move,
+    MoveTo,
+    Response,
+    SaveWayPoint,
+    SetPin,
+    StopMove,
+    WaitMoved,
+    decode_response,
+    encode_command,
+)
+
+E = ErrorCode
+OPTS = CodecOptions()
+GAP = 0.010
+
+CONFIG = """
+[[motors]]
+name = "a"
+[[motors]]
+name = "b"
+[[pins]]
+number = 0
+"""
+
+
+class World:
+    """A daemon on a virtual clock with a session in front of it."""
+
+    def __init__(self, tmp: Path, held: int = 16, backlog: int = 4096) -> None:
+        self.clock = VirtualClock()
+        self.daemon = Daemon.build(parse_config(CONFIG, "test.toml"), tmp, self.clock)
+        self.session = LinkSession(self.daemon.dispatcher, OPTS, GAP, held, backlog)
+        self.engine = self.daemon.engine
+
+    @property
+    def now(self) -> float:
+        return self.clock.now()
+
+    def send(self, *cmds: Command) -> None:
+        self.session.receive(b"".join(encode_command(c, OPTS) for c in cmds), self.now)
+
+    def run(self, dt: float) -> None:
+        """Let the motors move for ``dt`` seconds, then let the session look at its wait."""
+        self.engine.run_until(self.now + dt)
+        self.session.poll(self.now)
+
+    def responses(self) -> list[Response]:
+        data = self.session.take_output()
+        assert len(data) % 5 == 0
+        return [decode_response(data[i : i + 5], OPTS) for i in range(0, len(data), 5)]
+
+
+@pytest.fixture
+def w(tmp_path: Path) -> World:
+    return World(tmp_path)
+
+
+def codes(rs: Sequence[Response]) -> list[ErrorCode | None]:
+    return [r.error_code for r in rs]
+
+
+def frame(cmd: Command) -> bytes:
+    return encode_command(cmd, OPTS)
+
+
+def corrupt(data: bytes, bit: int) -> bytes:
+    out = bytearray(data)
+    out[bit // 8] ^= 1 << (bit % 8)
+    return bytes(out)
+
+
+# -- framing ---------------------------------------------------------------------------
+def test_burst_of_5000_frames_in_one_read(w: World) -> None:
+    cmds: list[Command] = [GetAbsPos(i % 2) if i % 3 else IsReady(i % 2) for i in range(5000)]
+    w.send(*cmds)
+    rs = w.responses()
+    assert len(rs) == 5000 and all(r.ack for r in rs)
+    assert w.session.counters["frames_good"] == 5000
+    assert w.session.counters["gap_discards"] == 0
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.lists(st.integers(1, 400), min_size=1, max_size=60), st.integers(0, 2**32))
+def test_any_split_without_watched_silence_is_contiguous(sizes: list[int], seed: int) -> None:
+    # However the stream is cut into reads, and however late each is read (the timestamps
+    # jump by seconds), frames come out whole: only watched silence is a gap.
+    with tempfile.TemporaryDirectory() as tmp:
+        check_split(sizes, seed, World(Path(tmp)))
+
+
+def check_split(sizes: list[int], seed: int, w: World) -> None:
+    rng = random.Random(seed)
+    cmds = [GetAbsPos(rng.randrange(2)) for _ in range(300)]
+    stream = b"".join(frame(c) for c in cmds)
+    pos = 0
+    t = w.now
+    for size in sizes:
+        if pos >= len(stream):
+            break
+        t += rng.choice([0.0, 0.001, 5.0])
+        w.session.receive(stream[pos : pos + size], t)
+        w.session.idle(rng.uniform(0, GAP))  # watched silence within the limit
+        pos += size
+    w.session.receive(stream[pos:], t)
+    rs = w.responses()
+    assert len(rs) == 300 and all(r.ack for r in rs)
+    assert w.session.counters["gap_discards"] == 0
+
+
+def test_watched_silence_discards_partial_and_resyncs(w: World) -> None:
+    good = frame(IsReady(0))
+    w.session.receive(frame(MoveTo(0, True, 500, 0, 0, 0))[:6], w.now)
+    w.session.idle(GAP / 2)
+    w.session.idle(GAP / 2)  # exactly the gap: still kept
+    assert w.session.framer.pending == 6
+    w.session.idle(0.0001)  # more than the gap
+    assert w.session.counters["gap_discards"] == 1
+    w.session.receive(good, w.now)
+    assert [r.as_bool for r in w.responses()] == [True]
+    assert w.engine.motors[0].idle  # the MoveTo fragment was not executed
+
+
+def test_bad_frames_answered_e1_and_not_executed(w: World) -> None:
+    move = frame(MoveTo(0, True, 500, 0, 0, 0))
+    pin = frame(SetPin(0, True))
+    bad = [corrupt(move, b) for b in range(80)] + [corrupt(pin, b) for b in range(80)]
+    w.session.receive(b"".join(bad), w.now)
+    rs = w.responses()
+    # An 8-bit CRC catches every single-bit error; padding and unknown codes are E1 as well.
+    assert codes(rs) == [E.INVALID_COMMAND] * 160
+    assert w.engine.motors[0].idle and w.engine.motors[0].position == 0
+    assert world_of(w.daemon.hw).pins[0].read() is False
+    c = w.session.counters
+    assert c["checksum_errors"] == 160 and c["sent_E1"] == 160 and c["frames_good"] == 0
+
+
+def test_unknown_code_and_bad_padding(w: World) -> None:
+    from motorctl.protocol.crc import SMBUS
+
+    unknown = bytes([0x0F]) + bytes(8)
+    padded = bytes([0x03, 0x00, 0x01]) + bytes(6)
+    w.session.receive(unknown + bytes([SMBUS.compute(unknown)]) + padded
+                      + bytes([SMBUS.compute(padded)]), w.now)
+    assert codes(w.responses()) == [E.INVALID_COMMAND] * 2
+    assert w.session.counters["unknown_errors"] == 1
+    assert w.session.counters["padding_errors"] == 1
+
+
+# -- WaitMoved ------------------------------------------------------------------------------
+def test_wait_idle_motor_answers_at_once(w: World) -> None:
+    w.send(WaitMoved(0, 100))
+    assert codes(w.responses()) == [None]
+    assert not w.session.waiting
+
+
+def test_wait_held_frames_answered_after_in_order(w: World) -> None:
+    w.send(MoveTo(0, True, 200, 0, 0, 0))
+    w.send(WaitMoved(0, 5000), IsReady(1), GetAbsPos(0), MoveTo(1, True, 50, 0, 0, 0))
+    assert codes(w.responses()) == [None]  # only the MoveTo before the wait
+    assert w.session.waiting and w.session.held == 3
+    assert w.engine.motors[1].idle  # held frames are not executed yet
+    w.run(10.0)
+    rs = w.responses()
+    assert [r.ack for r in rs] == [True] * 4
+    assert rs[1].as_bool is True and rs[2].as_position == 200
+    assert not w.engine.motors[1].idle  # the MoveTo ran after the wait
+
+
+def test_bad_frame_while_wait_held_keeps_its_turn(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 5000))
+    w.session.receive(corrupt(frame(StopMove(0, True)), 3) + frame(IsReady(1)), w.now)
+    w.run(0.01)
+    assert w.session.waiting  # the corrupted StopMove did not stop the motor
+    w.send(StopMove(0, False))
+    w.run(5.0)
+    assert codes(w.responses())[1:] == [None, E.INVALID_COMMAND, None, None]
+
+
+def test_wait_behind_wait_timeout_counts_from_take_up(w: World) -> None:
+    w.send(MoveTo(0, True, 2000, 0, 0, 0))  # about 1.2 s at the defaults
+    w.send(Move(1, True, 1, 0, 0))  # runs until stopped
+    t0 = w.now
+    w.send(WaitMoved(0, 10_000), WaitMoved(1, 500), GetAbsPos(1))
+    assert len(w.responses()) == 2
+    while w.session.wait is not None and w.session.wait.motor.index == 0:
+        w.run(0.05)
+        assert w.now - t0 < 5, "first WaitMoved never answered"
+    t_take_up = w.now
+    assert t_take_up - t0 > 0.5  # the second wait's TIMEOUT would be over if counted from arrival
+    assert codes(w.responses()) == [None]
+    wait = w.session.wait
+    assert isinstance(wait, Wait) and wait.deadline == pytest.approx(t_take_up + 0.5)
+    w.run(0.49)
+    assert w.session.waiting
+    w.run(0.02)
+    rs = w.responses()
+    assert codes(rs) == [E.MOTOR_NOT_READY, None]
+    w.send(StopMove(1, True))
+
+
+def test_held_overflow_e0_and_stop_never_refused(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 20_000), *[GetAbsPos(1)] * 18)
+    assert w.session.counters["held_overflow"] == 2
+    w.send(StopMove(0, True))  # buffer full: executed on arrival all the same
+    assert not w.engine.motors[0].active
+    w.send(IsReady(0))
+    rs = w.responses()[1:]
+    assert codes(rs) == [None] + [None] * 16 + [E.FULL_BUFFER] * 2 + [None, None]
+    assert rs[-1].as_bool is True
+    c = w.session.counters
+    assert c["stops_while_held"] == 1 and c["sent_E0"] == 2
+
+
+def test_stop_for_unknown_motor_while_held_is_e2_in_turn(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 20_000), StopMove(7, True), IsReady(1))
+    assert w.session.waiting
+    w.send(StopMove(0, False))
+    w.run(5.0)
+    assert codes(w.responses()[1:]) == [None, E.INVALID_ADDRESS, None, None]
+
+
+def test_stop_of_other_motor_while_held_keeps_wait(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0), Move(1, True, 1, 0, 0))
+    w.send(WaitMoved(0, 20_000), StopMove(1, True))
+    assert w.session.waiting and not w.engine.motors[1].active  # executed on arrival
+    w.send(StopMove(0, True))
+    assert codes(w.responses()[2:]) == [None, None, None]
+
+
+def test_wait_reports_fault_then_held_frames(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 20_000), IsReady(0), GetAbsPos(0))
+    world_of(w.daemon.hw).inject_fault(0, "overtemperature")
+    w.run(0.05)
+    rs = w.responses()[1:]
+    assert codes(rs) == [E.MOTOR_ERROR, E.MOTOR_ERROR, None]
+
+
+def test_wait_timeout_then_wait_zero(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 100))
+    w.run(0.099)
+    assert w.session.waiting
+    assert w.session.deadline() == pytest.approx(w.now + 0.001)
+    w.run(0.002)
+    w.send(WaitMoved(0, 0))
+    assert codes(w.responses()[1:]) == [E.MOTOR_NOT_READY, E.MOTOR_NOT_READY]
+    assert w.session.deadline() is None
+
+
+def test_wait_for_unknown_motor_is_e2_at_once(w: World) -> None:
+    w.send(WaitMoved(9, 100))
+    assert codes(w.responses()) == [E.INVALID_ADDRESS]
+
+
+def test_backlog_limit_asks_for_back_pressure(tmp_path: Path) -> None:
+    w = World(tmp_path, held=2, backlog=10)
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 20_000), *[IsReady(1)] * 8)
+    assert w.session.wants_input()
+    w.send(IsReady(1))
+    assert not w.session.wants_input()  # 10 answers owed
+    w.send(StopMove(0, True))
+    assert w.session.owed == 12
+    assert len(w.responses()) == 12
+    assert w.session.wants_input()
+
+
+def test_peer_gone_drops_partial_frame(w: World) -> None:
+    w.session.receive(frame(IsReady(0))[:4], w.now)
+    assert w.session.peer_gone() == 4
+    w.send(IsReady(0))
+    assert codes(w.responses()) == [None]
+
+
+def test_save_waypoint_on_lost_position_is_e4(w: World) -> None:
+    w.engine.motors[0].position_lost = True
+    w.send(SaveWayPoint(0), IsReady(0))
+    assert codes(w.responses()) == [E.MOTOR_ERROR, None]
+    assert w.engine.motors[0].waypoints == []
