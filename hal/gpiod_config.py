@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar, cast
 
 from motorctl.hal.wiring import (
     BIASES,
@@ -29,6 +29,7 @@ from motorctl.hal.wiring import (
 from motorctl.schema import (
     REQUIRED,
     Extension,
+    Parser,
     Rule,
     Violation,
     boolean,
@@ -37,8 +38,11 @@ from motorctl.schema import (
     number,
     section,
     table,
+    table_of,
     text,
 )
+
+S = TypeVar("S")
 
 LINE_TEXT = 'a GPIO line: "chip:offset" (gpiochip0:17, /dev/gpiochip0:17) or a line name (GPIO17)'
 
@@ -140,6 +144,12 @@ class GpiodPinConfig:
     bias: str = choice("as-is", BIASES, "Pull on the line.")
 
 
+def make(cls: type[S], **keys: Any) -> S:
+    """A section built from these keys as the config loader builds it (defaults filled in,
+    values checked): for code and tests that wire lines without a file."""
+    return cast(S, Parser(f"[{cls.__name__}]").build(table_of(cls), keys))
+
+
 class WiringMissing(ValueError):
     """A motor, pin or the bridge has no gpiod section: (key path, problem)."""
 
@@ -152,7 +162,7 @@ class WiringMissing(ValueError):
 def wiring_from(top: GpiodConfig | None, axes: Sequence[GpiodAxisConfig | None],
                 pins: Sequence[tuple[int, GpiodPinConfig | None]], dc: bool) -> GpioWiring:
     """The backend's wiring from the loaded sections."""
-    top = top or GpiodConfig()
+    top = top or make(GpiodConfig)
     motors = []
     for i, a in enumerate(axes):
         if a is None:

@@ -8,12 +8,7 @@ way of naming a line.
 
 from __future__ import annotations
 
-from motorctl.hal.gpiod_config import (
-    GpiodAxisConfig,
-    GpiodConfig,
-    GpiodDcConfig,
-    GpiodPinConfig,
-)
+from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
 from motorctl.hal.wiring import LineRef
 
 #: step, dir, enable, min, max
@@ -41,15 +36,15 @@ def where(text: str) -> tuple[str, int]:
 
 def top_section(api: str = "auto", dead_time_ms: float = 0.0) -> GpiodConfig:
     in1, in2, en = DC
-    return GpiodConfig(api=api, consumer="motorctl",
-                       dc=GpiodDcConfig(in1=in1, in2=in2, en=en, dead_time_ms=dead_time_ms))
+    return make(GpiodConfig, api=api,
+                dc={"in1": in1, "in2": in2, "en": en, "dead_time_ms": dead_time_ms})
 
 
 def axis_section(motor: int, dir_hold_us: float = 0.0) -> GpiodAxisConfig:
     s, d, e, lo, hi = MOTORS[motor]
-    return GpiodAxisConfig(step=s, dir=d, enable=e, dir_hold_us=dir_hold_us, endstop_min=lo,
-                           endstop_max=hi)
+    return make(GpiodAxisConfig, step=s, dir=d, enable=e, dir_hold_us=dir_hold_us,
+                endstop_min=lo, endstop_max=hi)
 
 
 def pin_section(number: int) -> GpiodPinConfig:
-    return GpiodPinConfig(line=PINS[number])
+    return make(GpiodPinConfig, line=PINS[number])

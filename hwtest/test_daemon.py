@@ -153,18 +153,25 @@ def test_end_stop_raised_by_the_sim_stops_homing_at_the_trigger(client: Client) 
     motor, endstop = 1, MOTORS[1][3]
     step = gpio(MOTORS[1][0])
     pull(endstop, True)
+    start = client.position(motor)
     gsim.trace_start()
     client.init_move(motor, False, speed=0)
-    wait_for("homing steps", lambda: len(gsim.sets(gsim.trace_read(), step)) >= 100)
+    wait_for("100 homing steps", lambda: start - client.position(motor) >= 100)
     trigger = time.monotonic()
     pull(endstop, False)  # pressed: active low
     client.wait_moved(motor, 30_000)
     gsim.trace_stop()
     rises = [e for e in gsim.sets(gsim.trace_read(), step) if e.value == 1]
     after = [e for e in rises if e.ts > trigger]
-    # the step thread sees the kernel's edge at its next step and stops there (debounce 0.5 ms
-    # at 2000 step/s is about one more step); emulation jitter allows a few
-    assert len(after) <= 5, f"{len(after)} steps after the trigger"
+    # The step thread sees the kernel's edge event at its next step and stops once the
+    # debounce (0.5 ms) has passed. On v2 the kernel debounces too, with a timer of jiffy
+    # resolution (4 ms at HZ=250), and under TCG on a loaded host the guest's clock runs in
+    # bursts: measured 1-14 steps, up to 45 ms. Without the end stop the run would go on for
+    # max_travel (250000 steps).
+    late = after[-1].ts - trigger if after else 0.0
+    print(f"homing: {len(after)} steps in {late * 1000:.2f} ms after the trigger")
+    assert len(after) <= 40 and late <= 0.2, \
+        f"{len(after)} steps, the last {late * 1000:.2f} ms after the trigger"
     assert client.position(motor) == 0  # homed: the trigger is the new zero
     pull(endstop, True)
 
@@ -223,8 +230,9 @@ def test_probe_on_free_lines_reads_end_stops_and_moves_nothing(tmp_path: Path,
     cfg = tmp_path / "pi.toml"
     # gpio-sim models a requested pull-up as the outside level, so z's end stop is requested
     # as-is here to let the test hold it pressed while the probe opens it
-    text = example_config().replace('{ line = "GPIO20", bias = "pull-up" }', '"GPIO20"')
-    assert '= "GPIO20"' in text
+    z = 'endstop_min = "GPIO20"\n  endstop_min_bias = "pull-up"'
+    assert z in example_config()
+    text = example_config().replace(z, 'endstop_min = "GPIO20"')
     cfg.write_text(text)
     end_stops_clear()
     pull(MOTORS[2][3], False)  # z's end stop pressed
@@ -239,3 +247,61 @@ def test_probe_on_free_lines_reads_end_stops_and_moves_nothing(tmp_path: Path,
     steps = [e for m in MOTORS for e in gsim.sets(gsim.trace_read(), gpio(m[0])) if e.value]
     assert steps == [], "the probe stepped a motor"
     pull(MOTORS[2][3], True)
+
+
+def test_a_line_held_by_another_consumer_is_a_clear_error(tmp_path: Path) -> None:
+    """Another program holds z's STEP line: the daemon refuses to start and names it."""
+    holder = subprocess.Popen(
+        [sys.executable, "-c", HOLD, *map(str, where(MOTORS[2][0]))],
+        stdout=subprocess.PIPE, text=True, cwd=REPO)
+    try:
+        assert holder.stdout is not None
+        assert holder.stdout.readline().strip() == "holding"
+        d = DaemonProcess(tmp_path, example_config())
+        with pytest.raises(RuntimeError) as err:
+            d.start()
+        d.kill()
+        message = str(err.value)
+        assert "motors[2].step: line gpiochip0:5 'GPIO5' is already in use by 'intruder'" \
+            in message, message
+        assert "Traceback" not in message
+    finally:
+        holder.kill()
+        holder.wait(10)
+
+
+HOLD = """
+import sys
+from motorctl.hal.gpiochip import LineSettings, load_api
+from motorctl.hal.wiring import LineRef
+api = load_api()
+(line,) = api.resolve([("held", LineRef(chip=sys.argv[1], offset=int(sys.argv[2])))])
+req = api.request("intruder", [(line, LineSettings(output=True))])
+print("holding", flush=True)
+import time
+time.sleep(3600)
+"""
+
+
+def test_shutdown_leaves_outputs_at_their_safe_values(tmp_path: Path) -> None:
+    """SIGTERM: the last level the daemon set on every pin output is its safe value, the
+    bridge brakes; pins set the other way first."""
+    end_stops_clear()
+    d = DaemonProcess(tmp_path, example_config()).start()
+    try:
+        with d.client(timeout=10.0) as c:
+            c.set_pin(0, True)  # safe = false
+            c.set_pin(1, False)  # safe = true
+            c.set_pin(2, True)
+            c.dc_move(True, 60_000, hiz=True)
+            assert level(DC[0]) is True
+        gsim.trace_start()
+        assert d.terminate() == 0
+    finally:
+        d.close()
+    gsim.trace_stop()
+    ev = gsim.trace_read()
+    last = {n: gsim.changes(gsim.sets(ev, gpio(PINS[n])))[-1].value for n in (0, 1, 2)}
+    assert last == {0: 0, 1: 1, 2: 0}
+    in1, in2 = (gsim.changes(gsim.sets(ev, gpio(x)))[-1].value for x in DC[:2])
+    assert (in1, in2) == (1, 1), "the DC motor was not braked at shutdown"
