@@ -8,13 +8,14 @@ E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5.
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 from motorctl.daemon.config import Config, MotorConfig
-from motorctl.hal.interfaces import BridgeState, Pin
+from motorctl.hal.interfaces import BridgeState, HalError, Pin
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
@@ -39,8 +40,38 @@ from motorctl.protocol.codec import (
     WaitMoved,
 )
 
+log = logging.getLogger("motorctl.dispatcher")
+
 E = ErrorCode
 OK = Response.ok()
+
+MOTION_COMMANDS = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)
+
+
+class Persist(Protocol):
+    """What the dispatcher needs from persistence (daemon.state.Persistence).
+
+    ``before_motion`` makes "this motor is moving" durable before a motion command may start
+    it (False: it cannot, the command answers E4); ``save`` writes a SaveHome/SaveWayPoint
+    before its ACK (False: not written, the change is undone and the command answers E4).
+    """
+
+    def before_motion(self, index: int) -> bool: ...
+    def after_motion(self, index: int) -> None: ...
+    def save(self) -> bool: ...
+
+
+class NoPersistence:
+    """Nothing is kept: every hook succeeds (tests of the command table alone)."""
+
+    def before_motion(self, index: int) -> bool:
+        return True
+
+    def after_motion(self, index: int) -> None:
+        pass
+
+    def save(self) -> bool:
+        return True
 
 
 class Reject(Exception):
@@ -65,13 +96,15 @@ class Dispatcher:
         config: Config,
         engine: MotionEngine,
         pins: dict[int, Pin],
-        on_saved: Callable[[], None] = lambda: None,
+        persist: Persist | None = None,
     ) -> None:
         self.config = config
         self.engine = engine
         self.pins = pins
-        self.on_saved = on_saved
+        self.persist: Persist = persist or NoPersistence()
+        self._undo: Callable[[], None] | None = None
         self.clamped: Counter[str] = Counter()
+        self.hardware_errors = 0
         self.table: dict[type[Any], Callable[[Any], Response]] = {
             InitMove: self.init_move,
             MoveTo: self.move_to,
@@ -95,11 +128,42 @@ class Dispatcher:
         handler = self.table.get(type(cmd))
         if handler is None:
             return Response.error(E.INVALID_COMMAND)
+        # Motion: "moving" is durable before the motor can start (PROTOCOL.md section 4),
+        # written outside the engine lock so the step thread never waits for a disk.
+        journalled: int | None = None
+        if isinstance(cmd, MOTION_COMMANDS) and 0 <= cmd.motor < len(self.engine.motors):
+            if not self.persist.before_motion(cmd.motor):
+                return Response.error(E.MOTOR_ERROR)
+            journalled = cmd.motor
         try:
             with self.engine.lock:
-                return handler(cmd)
+                resp = handler(cmd)
         except Reject as r:
-            return Response.error(r.code)
+            resp = Response.error(r.code)
+        except (HalError, OSError) as exc:  # a line or device that failed: never an ACK
+            self.hardware_errors += 1
+            log.error("%s: hardware error: %s", type(cmd).__name__, exc)
+            index = getattr(cmd, "motor", None)
+            if isinstance(index, int) and 0 <= index < len(self.engine.motors):
+                with self.engine.lock:  # a motion half started: stop it, latched
+                    m = self.engine.motors[index]
+                    m.latch_fault(f"hardware error: {exc}", self.engine.clock.now())
+            resp = Response.error(E.MOTOR_ERROR)
+        finally:
+            if journalled is not None:
+                self.persist.after_motion(journalled)
+        undo, self._undo = self._undo, None
+        if undo is not None and not self.persist.save():
+            # SaveHome/SaveWayPoint: no ACK for a change that is not on disk.
+            with self.engine.lock:
+                undo()
+            name = type(cmd).__name__
+            log.warning("motor %d: %s not saved (the state file cannot be written): E4",
+                        getattr(cmd, "motor", -1), name,
+                        extra={"MOTOR": getattr(cmd, "motor", None), "COMMAND": name,
+                               "ERROR_CODE": "E4"})
+            return Response.error(E.MOTOR_ERROR)
+        return resp
 
     def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
@@ -250,8 +314,13 @@ class Dispatcher:
         self._not_faulted(m)
         self._position_known(m)
         self._idle(m)
+        old = m.home
         m.home = m.position
-        self.on_saved()
+
+        def undo() -> None:
+            m.home = old
+
+        self._undo = undo
         return OK
 
     def go_home(self, c: GoHome) -> Response:
@@ -271,7 +340,12 @@ class Dispatcher:
         if len(m.waypoints) >= m.params.max_waypoints:
             raise Reject(E.FULL_WAYPOINT_BUFFER)
         m.waypoints.append(m.position)
-        self.on_saved()
+        count = len(m.waypoints)
+
+        def undo() -> None:
+            del m.waypoints[count - 1:]
+
+        self._undo = undo
         return Response.ok(bytes([len(m.waypoints) - 1]))
 
     def move_to_waypoint(self, c: MoveToWayPoint) -> Response:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import gc
 import logging
 import os
@@ -11,7 +12,7 @@ import sys
 import termios
 import time
 import tty
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from pathlib import Path
@@ -21,15 +22,25 @@ from typing import Any
 from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.dispatcher import Dispatcher
+from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
 from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.service import Watchdog, sd_notify, watchdog_interval
-from motorctl.daemon.state import StateError, StateWriter, read_state
-from motorctl.daemon.status import StatusServer, read_status
+from motorctl.daemon.service import (
+    MotorEventLog,
+    StatusLine,
+    Watchdog,
+    notify_backend,
+    sd_notify,
+    setup_logging,
+    watchdog_interval,
+)
+from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
+from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
+from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
@@ -54,6 +65,8 @@ def hardware_spec(config: Config) -> HardwareSpec:
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
             debounce_s=m.endstop.debounce_ms / 1000.0,
+            name=m.name,
+            driver=driver_spec(m),
             sections=m.sections,
         )
         for m in config.motors
@@ -92,6 +105,39 @@ def motor_params(config: Config) -> list[MotorParams]:
     ]
 
 
+def motor_identities(config: Config) -> list[MotorIdentity]:
+    """Names and geometry fingerprints: a saved motor is restored only onto its own match."""
+    return [
+        MotorIdentity(
+            name=m.name,
+            fingerprint=geometry_fingerprint({"steps_per_rev": m.steps_per_rev,
+                                              "invert_dir": m.invert_dir,
+                                              "backend": config.hal.backend}),
+            max_waypoints=m.max_waypoints,
+            steps_per_rev=m.steps_per_rev,
+        )
+        for m in config.motors
+    ]
+
+
+def mock_extra(hw: Hardware) -> tuple[Callable[[], dict[str, Any]],
+                                      Callable[[dict[str, Any]], None]] | None:
+    """The mock world's axis positions live and die with the state file."""
+    world = hw.world if isinstance(hw, MockHardware) else None
+    if world is None:
+        return None
+
+    def get() -> dict[str, Any]:
+        return {"mock": world.snapshot()}
+
+    def put(extra: dict[str, Any]) -> None:
+        mock = extra.get("mock")
+        if isinstance(mock, dict):
+            world.restore(mock)
+
+    return get, put
+
+
 @dataclass
 class Daemon:
     """Everything behind the serial port, wired together (no serial port yet)."""
@@ -102,22 +148,14 @@ class Daemon:
     hw: Hardware
     engine: MotionEngine
     dispatcher: Dispatcher
-    writer: StateWriter
+    persistence: Persistence
     gc_policy: GcPolicy = field(default_factory=GcPolicy)
     link: Link | None = None
 
     @classmethod
     def build(cls, config: Config, state_dir: Path, clock: Clock | None = None) -> Daemon:
         clock = clock or MonotonicClock()
-        try:
-            state_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise StartupError(
-                f"cannot create state directory {state_dir}: {exc.strerror}; "
-                "pass --state-dir with a writable directory"
-            ) from exc
-        if not os.access(state_dir, os.W_OK):
-            raise StartupError(f"state directory {state_dir} is not writable; pass --state-dir")
+        make_state_dir(state_dir)
         try:
             hw = open_hardware(config.hal.backend, hardware_spec(config), clock)
         except HalError as exc:
@@ -129,71 +167,19 @@ class Daemon:
             driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
             late_threshold_s=config.step_thread.late_threshold_us / 1e6,
         )
-        holder: list[Daemon] = []
-        writer = StateWriter(state_dir / "state.json", lambda: holder[0].snapshot())
-        dispatcher = Dispatcher(config, engine, hw.pins, on_saved=writer.request)
-        daemon = cls(config, state_dir, clock, hw, engine, dispatcher, writer)
-        holder.append(daemon)
-        daemon.restore()
+        files_dir = state_files_dir(config, state_dir)
+        make_state_dir(files_dir)
+        persistence = Persistence(files_dir, motor_identities(config), engine, mock_extra(hw))
+        dispatcher = Dispatcher(config, engine, hw.pins, persist=persistence)
+        daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
+        persistence.restore()
+        persistence.open()
         engine.listeners.append(daemon._on_motor_event)
         return daemon
 
-    # -- persistence -------------------------------------------------------------
-    def snapshot(self) -> dict[str, Any]:
-        with self.engine.lock:
-            motors = [
-                {
-                    "name": m.params.name,
-                    "position": m.position,
-                    "home": m.home,
-                    "waypoints": list(m.waypoints),
-                    "moving": m.active or bool(m.queue),
-                    "position_lost": m.position_lost,
-                }
-                for m in self.engine.motors
-            ]
-            data: dict[str, Any] = {"version": 1, "motors": motors}
-            if isinstance(self.hw, MockHardware) and self.hw.world is not None:
-                data["mock"] = self.hw.world.snapshot()
-        return data
-
-    def restore(self) -> None:
-        path = self.writer.path
-        try:
-            data = read_state(path)
-        except StateError as exc:
-            bad = path.with_name(path.name + ".bad")
-            os.replace(path, bad)
-            log.error("%s; kept it as %s; every motor must be homed again", exc, bad)
-            for m in self.engine.motors:
-                m.position_lost = True
-            return
-        if data is None:
-            return
-        for m, saved in zip(self.engine.motors, data["motors"], strict=False):
-            self._restore_motor(m, saved)
-        if isinstance(self.hw, MockHardware) and self.hw.world is not None:
-            mock = data.get("mock")
-            if isinstance(mock, dict):
-                self.hw.world.restore(mock)
-        log.info("restored state from %s", path)
-
-    @staticmethod
-    def _restore_motor(m: Motor, saved: Any) -> None:
-        if not isinstance(saved, dict):
-            m.position_lost = True
-            return
-        pos, home, wps = saved.get("position"), saved.get("home"), saved.get("waypoints")
-        if isinstance(pos, int):
-            m.set_position(pos)
-        if isinstance(home, int):
-            m.home = home
-        if isinstance(wps, list):
-            m.waypoints = [w for w in wps if isinstance(w, int)][: m.params.max_waypoints]
-        if saved.get("moving") or saved.get("position_lost") or not isinstance(pos, int):
-            m.position_lost = True
-            log.warning("motor %d (%s) was moving when the daemon stopped: position lost, "
-                        "home it with InitMove", m.index, m.params.name)
+    @property
+    def writer(self) -> StateWriter:
+        return self.persistence.writer
 
     def _on_motor_event(self, motor: Motor, event: str) -> None:
         # Runs with the engine lock held, often on the step thread: no I/O here.
@@ -218,10 +204,55 @@ class Daemon:
             steps["histogram_us"] = self.engine.stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "clamped": dict(self.dispatcher.clamped),
-                               "state_writes": self.writer.writes}
+                               "state": self.persistence.status()}
         if self.link is not None:
             out["link"] = self.link.status()
         return out
+
+
+def state_files_dir(config: Config, state_dir: Path) -> Path:
+    """Where state.json lives: [state] directory, else the --state-dir (docs/service.md)."""
+    return Path(config.state.directory) if config.state.directory else state_dir
+
+
+def make_state_dir(state_dir: Path) -> None:
+    try:
+        state_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise StartupError(
+            f"cannot create state directory {state_dir}: {exc.strerror}; "
+            "pass --state-dir with a writable directory"
+        ) from exc
+    if not os.access(state_dir, os.W_OK):
+        raise StartupError(f"state directory {state_dir} is not writable; pass --state-dir")
+
+
+class StopSignals:
+    """SIGTERM, SIGINT and SIGHUP all stop the daemon cleanly (docs/service.md says why).
+
+    Installed first thing, so a signal during start-up is not lost: it is remembered and
+    the daemon stops as soon as it could serve.
+    """
+
+    def __init__(self) -> None:
+        self.requested: str | None = None
+        self._stop: Callable[[], None] | None = None
+        for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
+            signal.signal(sig, self._on_signal)
+
+    def attach(self, stop: Callable[[], None]) -> None:
+        self._stop = stop
+        if self.requested is not None:
+            stop()
+
+    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
+        name = signal.Signals(signum).name
+        self.requested = name
+        how = " (the terminal closed, or someone asked): stopping as for SIGTERM" \
+            if signum == signal.SIGHUP else ": stopping"
+        log.info("%s%s", name, how, extra={"SIGNAL": name})
+        if self._stop is not None:
+            self._stop()
 
 
 def open_pty(path: Path) -> tuple[int, str]:
@@ -231,14 +262,18 @@ def open_pty(path: Path) -> tuple[int, str]:
     The daemon does not keep the slave open: the master then sees the host close the port
     (POLLHUP, EIO) and drops what was meant for it, as a UART's bytes to a closed port are
     lost, instead of leaving stale responses for the next host. The raw mode stays set while
-    the master is open."""
+    the master is open.
+
+    The slave is mode 0660 with the daemon's group (the ``motorctl`` group under systemd):
+    only that group's members may drive the motors."""
     if (path.exists() or path.is_symlink()) and not path.is_symlink():
         raise StartupError(f"{path} exists and is not a symlink; remove it or choose "
                            "another --pty path")
     master, slave = os.openpty()
     tty.setraw(slave, termios.TCSANOW)
     name = os.ttyname(slave)
-    os.chmod(name, 0o666)
+    os.chown(name, -1, os.getegid())
+    os.chmod(name, 0o660)
     os.close(slave)
     os.set_blocking(master, False)
     tmp = path.with_name(f".{path.name}.{os.getpid()}")
@@ -256,6 +291,11 @@ def open_uart(device: str, baud: int) -> tuple[Any, int]:
     try:
         port = serial.Serial(device, baud, timeout=0, exclusive=True)
     except serial.SerialException as exc:
+        holder = flock_holder(Path(device)) if os.path.exists(device) else None
+        if holder is not None:
+            raise StartupError(
+                f"serial device {device} is held by another process (PID {holder}); "
+                "stop it first (another motorctld, a getty or a terminal program)") from exc
         raise StartupError(
             f"cannot open serial device {device}: {exc}; check the path (ls -l /dev/serial* "
             "/dev/tty{AMA,S,USB}*), that the UART is enabled, and that the user is in the "
@@ -268,6 +308,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
+        epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
+               "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
+               "state written, exit 0). Under systemd it logs to the journal and reports "
+               "READY/STATUS/STOPPING. See docs/service.md.",
     )
     p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
@@ -279,13 +323,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    "world, see docs/config.md)")
     p.add_argument("--check-config", metavar="FILE", help="check FILE and exit")
     p.add_argument("--print-default-config", action="store_true",
-                   help="print the embedded default config and exit")
+                   help="print the embedded default config, every key written out and "
+                   "commented, and exit")
     p.add_argument("--probe", action="store_true",
                    help="open every line and device the --config names, without moving "
                    "anything; print chips, lines and their current consumers, end-stop levels "
                    "and driver status; exit 1 if something is missing or busy")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
-                   help="where state and the status socket live (default /run/motorctl)")
+                   help="the runtime directory: lock, status socket and, unless [state] "
+                   "directory says otherwise, the state file (default /run/motorctl)")
     p.add_argument("--status", action="store_true",
                    help="print the running daemon's status (JSON) from --state-dir and exit")
     p.add_argument("--log-level", default="info",
@@ -295,8 +341,7 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 
 def main(argv: Sequence[str] | None = None) -> int:
     args = parse_args(argv)
-    logging.basicConfig(level=args.log_level.upper(), stream=sys.stderr,
-                        format="motorctld %(levelname)s %(name)s: %(message)s")
+    logs_to = setup_logging(args.log_level)
     if args.print_default_config:
         from motorctl.daemon.config import default_config_text
 
@@ -327,6 +372,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         print("error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE",
               file=sys.stderr)
         return 2
+    log.debug("logging to %s", logs_to)
     try:
         return serve(args)
     except (ConfigError, StartupError) as exc:
@@ -349,6 +395,14 @@ def probe(config_path: str | None) -> int:
 
 def serve(args: argparse.Namespace) -> int:
     config = load_config(args.config)
+    stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
+    with contextlib.ExitStack() as cleanup:
+        owned = Owned()
+        cleanup.callback(owned.cleanup)
+        return _serve(args, config, stop, owned)
+
+
+def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: Owned) -> int:
     st = config.step_thread
     sys.setswitchinterval(st.switch_interval_us / 1e6)
     if st.priority > 1:
@@ -361,10 +415,22 @@ def serve(args: argparse.Namespace) -> int:
         others = os.sched_getaffinity(0) - {st.cpu}
         if others:  # every thread but the step thread keeps off its CPU
             os.sched_setaffinity(0, others)
+    make_state_dir(args.state_dir)
+    try:  # one daemon per state directory and PTY path, before any file is touched
+        owned.lock(args.state_dir / LOCK_NAME, f"state directory {args.state_dir}")
+        files_dir = state_files_dir(config, args.state_dir)
+        if files_dir != args.state_dir:
+            make_state_dir(files_dir)
+            owned.lock(files_dir / LOCK_NAME, f"state directory {files_dir}")
+        if args.pty is not None:
+            owned.lock(args.pty.with_name(f".{args.pty.name}.lock"), f"PTY {args.pty}")
+    except InstanceError as exc:
+        raise StartupError(str(exc)) from exc
     daemon = Daemon.build(config, args.state_dir)
     uart: Any = None
     if args.pty is not None:
         fd, name = open_pty(args.pty)
+        owned.symlink(args.pty, name)
         where = f"{args.pty} -> {name}"
     else:
         uart, fd = open_uart(args.port, args.baud)
@@ -376,16 +442,19 @@ def serve(args: argparse.Namespace) -> int:
     stepper = StepThread(daemon.engine, daemon.clock, spin_s=st.spin_us / 1e6,
                          priority=st.priority, lock_memory=st.lock_memory, cpu=st.cpu)
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
+    events = MotorEventLog()
+    line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
 
-    def on_signal(signum: int, frame: FrameType | None) -> None:
-        link.stop()
+    def on_motor_event(motor: Motor, event: str) -> None:  # step thread: no I/O
+        events.record(motor.index, motor.params.name, event, motor.fault)
+        line.poke()
 
-    signal.signal(signal.SIGTERM, on_signal)
-    signal.signal(signal.SIGINT, on_signal)
-    daemon.writer.start()
+    daemon.engine.listeners.append(on_motor_event)
+    daemon.writer.on_change = line.poke
+    stop.attach(link.stop)
+    daemon.persistence.start()
     stepper.start()
     status.start()
-    daemon.writer.request()
     daemon.gc_policy.ready()
     interval = watchdog_interval()
     watchdog = None
@@ -395,11 +464,16 @@ def serve(args: argparse.Namespace) -> int:
     print(f"motorctld ready: serving {where}; config {config.source}; "
           f"{len(config.motors)} motors; {config.hal.backend} hardware; "
           f"state in {args.state_dir}", flush=True)
+    if os.environ.get("NOTIFY_SOCKET"):
+        log.info("systemd notifications through %s", notify_backend()[0])
     sd_notify("READY=1")
+    line.start()
     try:
-        link.serve()
+        if not stop.requested:
+            link.serve()
     finally:
         sd_notify("STOPPING=1")
+        line.stop("stopping: motors ramping down, state being written")
         shutdown(daemon, stepper)
         if watchdog is not None:
             watchdog.stop()
@@ -409,8 +483,6 @@ def serve(args: argparse.Namespace) -> int:
             uart.close()
         else:
             os.close(fd)
-            if args.pty.is_symlink():
-                args.pty.unlink()
         daemon.hw.close()
     log.info("stopped")
     return 0
@@ -442,7 +514,7 @@ def shutdown(daemon: Daemon, stepper: StepThread) -> None:
         pin = daemon.hw.pins.get(p.number)
         if pin is not None and pin.is_output:
             pin.write(p.safe)
-    daemon.writer.close()
+    daemon.persistence.close()
     gc.enable()
 
 

@@ -22,6 +22,7 @@ The rules (PROTOCOL.md §2, §4):
 
 from __future__ import annotations
 
+import logging
 from collections import Counter, deque
 from typing import Protocol
 
@@ -40,11 +41,13 @@ from motorctl.protocol.codec import (
 )
 from motorctl.protocol.framing import Framer
 
+log = logging.getLogger("motorctl.link")
+
 # Every counter exists from the start, so another thread may copy them at any time.
 COUNTERS = (
     "bytes_in", "frames", "frames_good", "checksum_errors", "unknown_errors", "padding_errors",
     "length_errors", "responses", "gap_discards", "held_max", "held_overflow",
-    "stops_while_held", "waits_taken_up",
+    "stops_while_held", "waits_taken_up", "internal_errors",
     *(f"sent_{code.short}" for code in ErrorCode),
 )
 _SENT = {code.value: f"sent_{code.short}" for code in ErrorCode}
@@ -163,14 +166,24 @@ class LinkSession:
         elif isinstance(cmd, WaitMoved):
             self._take_up(cmd, now)
         else:
-            self._emit(self.port.handle(cmd))
+            self._emit(self._execute(cmd))
+
+    def _execute(self, cmd: Command) -> Response:
+        """Run a command; a failure the dispatcher did not turn into an error code (a bug)
+        is logged and answered E4, so the link never dies of one command."""
+        try:
+            return self.port.handle(cmd)
+        except Exception:
+            self.counters["internal_errors"] += 1
+            log.exception("%r failed", cmd)
+            return Response.error(ErrorCode.MOTOR_ERROR)
 
     def _hold(self, cmd: Command | None, now: float) -> None:
         if cmd is None:
             self._held.append(self._encode(Response.error(ErrorCode.INVALID_COMMAND)))
         elif isinstance(cmd, StopMove):
             self.counters["stops_while_held"] += 1
-            self._held.append(self._encode(self.port.handle(cmd)))
+            self._held.append(self._encode(self._execute(cmd)))
             self.poll(now)  # the stop may have ended the wait
             return
         elif self._held_places >= self.held_limit:
@@ -205,7 +218,7 @@ class LinkSession:
             if isinstance(item, WaitMoved):
                 self._take_up(item, now)
             else:
-                self._emit(self.port.handle(item))
+                self._emit(self._execute(item))
 
     # -- responses --------------------------------------------------------------------------
     def _encode(self, resp: Response) -> bytes:

@@ -1,73 +1,423 @@
 """Persistence: home positions, waypoints and positions of motors at rest.
 
-The state file lives under the runtime directory (default /run/motorctl, a tmpfs:
-it survives a daemon restart and is gone after a reboot, like a microcontroller's
-RAM). Every write is atomic: a temporary file, fsync, rename, fsync of the folder.
-Writes happen on a writer thread so neither the link nor the step thread waits
-for the disk; each change requests a write and the writer writes the newest state.
+Where: ``state.json`` and the motion journal ``state.moving`` live in one directory, by
+default the runtime directory /run/motorctl (a tmpfs: state survives a daemon restart and
+is gone after a reboot, like a microcontroller's RAM); ``[state] directory`` in the config
+moves them, e.g. to /var/lib/motorctl (docs/service.md says when that is wise).
+
+What is trusted: a state file is read strictly. Bad bytes, bad JSON, wrong types, a
+directory in its place, or a well-formed but inconsistent content (a position outside the
+24-bit range, more waypoints than any table holds) make the whole file unreadable: it is
+moved aside as ``state.json.bad`` and every motor must be homed again. A file that is fine
+but written for other motors (names, or a fingerprint of their geometry, that do not match
+the config) restores nothing for the motors concerned, and is kept aside too.
+
+How it is written: complete or absent. A temporary file is written in full (looping on
+short writes), fsynced, renamed over the state file, and the directory is fsynced.
+
+Moving before the ACK: a motion command must not be acknowledged while the state on disk
+still says its motor is at rest (a SIGKILL right then would restore a stale position).
+:class:`MotionJournal` is a write-ahead record of one byte per motor, set and fdatasynced
+before the motion starts; the writer clears it once a state file with the motor at rest
+again is durable. A motor whose byte is set when the daemon starts has lost its position.
+
+Threads: :class:`StateWriter` writes on its own thread on request (motor events, which come
+from the step thread and must not wait for a disk) and synchronously when asked by the link
+thread (SaveHome/SaveWayPoint, answered only after the write). Its write lock serialises
+both. :class:`MotionJournal` is called by the link thread (``begin``/``end``) and the writer
+thread (``clear_if_unchanged``) and guards itself with a lock; ``begin`` blocks on one
+``fdatasync`` of a tiny file, and only when the motor was at rest on disk.
 """
 
 from __future__ import annotations
 
+import contextlib
+import errno
+import hashlib
 import json
 import logging
 import os
 import threading
-from collections.abc import Callable
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from motorctl.motion.engine import MotionEngine as Engine
 
 log = logging.getLogger("motorctl.state")
 
-STATE_VERSION = 1
+STATE_VERSION = 2
+STATE_NAME = "state.json"
+JOURNAL_NAME = "state.moving"
+POS_MIN = -(1 << 23)
+POS_MAX = (1 << 23) - 1
+MAX_WAYPOINTS = 255  # the protocol's table size; a motor's configured table may be smaller
 
 
 class StateError(Exception):
-    pass
+    """The state file cannot be trusted; the message names the file and the problem."""
 
 
-def write_atomic(path: Path, data: dict[str, Any]) -> None:
-    tmp = path.with_name(path.name + ".tmp")
-    text = json.dumps(data, indent=1, sort_keys=True)
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+def geometry_fingerprint(fields: Mapping[str, object]) -> str:
+    """A short, stable hash of what gives a motor's positions their meaning."""
+    text = json.dumps(dict(fields), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass(frozen=True)
+class MotorIdentity:
+    """What a saved motor must match to be restored: its config name and geometry."""
+
+    name: str
+    fingerprint: str
+    max_waypoints: int = MAX_WAYPOINTS
+    steps_per_rev: int = 0  # > 0: rotary, positions in [0, steps_per_rev)
+
+
+@dataclass
+class SavedMotor:
+    name: str
+    fingerprint: str
+    position: int
+    home: int
+    waypoints: list[int]
+    moving: bool
+    position_lost: bool
+
+    def to_json(self) -> dict[str, Any]:
+        return {"name": self.name, "fingerprint": self.fingerprint, "position": self.position,
+                "home": self.home, "waypoints": list(self.waypoints), "moving": self.moving,
+                "position_lost": self.position_lost}
+
+
+@dataclass
+class SavedState:
+    motors: list[SavedMotor]
+    extra: dict[str, Any] = field(default_factory=dict)  # e.g. the mock world's axes
+
+    def to_bytes(self) -> bytes:
+        data: dict[str, Any] = {"version": STATE_VERSION,
+                                "motors": [m.to_json() for m in self.motors]}
+        data.update(self.extra)
+        return (json.dumps(data, indent=1, sort_keys=True) + "\n").encode()
+
+
+# -- reading --------------------------------------------------------------------------------
+def _int(value: object, where: str, lo: int = POS_MIN, hi: int = POS_MAX) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise StateError(f"{where} is {value!r}, not an integer")
+    if not lo <= value <= hi:
+        raise StateError(f"{where} is {value}, outside {lo}..{hi}")
+    return value
+
+
+def _bool(value: object, where: str) -> bool:
+    if not isinstance(value, bool):
+        raise StateError(f"{where} is {value!r}, not true or false")
+    return value
+
+
+def _str(value: object, where: str) -> str:
+    if not isinstance(value, str):
+        raise StateError(f"{where} is {value!r}, not a string")
+    return value
+
+
+def parse_state(raw: bytes) -> SavedState:
+    """Parse and check a state file's bytes; StateError says what is wrong (without a path)."""
     try:
-        os.write(fd, text.encode())
-        os.fsync(fd)
-    finally:
-        os.close(fd)
-    os.replace(tmp, path)
-    dfd = os.open(path.parent, os.O_RDONLY)
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise StateError(f"not UTF-8 text (byte {exc.start})") from exc
+    try:
+        data = json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise StateError(f"not valid JSON ({exc})") from exc
+    if not isinstance(data, dict):
+        raise StateError("not a JSON object")
+    if data.get("version") != STATE_VERSION:
+        raise StateError(f"version is {data.get('version')!r}, this daemon writes "
+                         f"{STATE_VERSION}")
+    motors = data.get("motors")
+    if not isinstance(motors, list):
+        raise StateError("'motors' is missing or not a list")
+    saved = []
+    for i, m in enumerate(motors):
+        where = f"motors[{i}]"
+        if not isinstance(m, dict):
+            raise StateError(f"{where} is not an object")
+        wps = m.get("waypoints")
+        if not isinstance(wps, list):
+            raise StateError(f"{where}.waypoints is not a list")
+        if len(wps) > MAX_WAYPOINTS:
+            raise StateError(f"{where} has {len(wps)} waypoints, the table holds "
+                             f"{MAX_WAYPOINTS}")
+        saved.append(SavedMotor(
+            name=_str(m.get("name"), f"{where}.name"),
+            fingerprint=_str(m.get("fingerprint"), f"{where}.fingerprint"),
+            position=_int(m.get("position"), f"{where}.position"),
+            home=_int(m.get("home"), f"{where}.home"),
+            waypoints=[_int(w, f"{where}.waypoints[{j}]") for j, w in enumerate(wps)],
+            moving=_bool(m.get("moving"), f"{where}.moving"),
+            position_lost=_bool(m.get("position_lost"), f"{where}.position_lost"),
+        ))
+    names = [m.name for m in saved]
+    if len(set(names)) != len(names):
+        raise StateError("two motors have the same name")
+    extra = {k: v for k, v in data.items() if k not in ("version", "motors")}
+    return SavedState(saved, extra)
+
+
+def read_state(path: Path) -> SavedState | None:
+    """The saved state, None when there is none; StateError when it cannot be trusted."""
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    except IsADirectoryError as exc:
+        raise StateError(f"{path} is a directory, not a state file") from exc
+    except OSError as exc:
+        raise StateError(f"{path} cannot be read: {exc.strerror}") from exc
+    try:
+        return parse_state(raw)
+    except StateError as exc:
+        raise StateError(f"{path}: {exc}") from exc
+
+
+def set_aside(path: Path) -> Path | None:
+    """Move an untrusted state file to ``<name>.bad`` (replacing an older one); None if not."""
+    bad = path.with_name(path.name + ".bad")
+    try:
+        if bad.is_dir() and not bad.is_symlink():
+            _remove_tree(bad)
+        os.replace(path, bad)
+    except OSError as exc:
+        log.error("cannot move %s aside to %s: %s", path, bad, exc.strerror,
+                  extra={"STATE_PATH": str(path), "ERRNO": exc.errno})
+        return None
+    return bad
+
+
+def _remove_tree(path: Path) -> None:
+    for child in path.iterdir():
+        if child.is_dir() and not child.is_symlink():
+            _remove_tree(child)
+        else:
+            child.unlink()
+    path.rmdir()
+
+
+@dataclass
+class Match:
+    """For one configured motor: what the state file had for it, or why nothing."""
+
+    saved: SavedMotor | None
+    problem: str | None = None
+
+
+def match_motors(state: SavedState, motors: Sequence[MotorIdentity]) -> list[Match]:
+    """Pair saved motors with configured ones by name; check geometry and table size."""
+    by_name = {m.name: m for m in state.motors}
+    out = []
+    for ident in motors:
+        saved = by_name.get(ident.name)
+        if saved is None:
+            out.append(Match(None, "not in the state file"))
+        elif saved.fingerprint != ident.fingerprint:
+            out.append(Match(None, "its geometry changed since the state was written"))
+        elif len(saved.waypoints) > ident.max_waypoints:
+            out.append(Match(None, f"{len(saved.waypoints)} waypoints saved, its table "
+                                   f"holds {ident.max_waypoints}"))
+        elif ident.steps_per_rev > 0 and not 0 <= saved.position < ident.steps_per_rev:
+            out.append(Match(None, f"position {saved.position} outside its revolution"))
+        else:
+            out.append(Match(saved))
+    return out
+
+
+# -- writing --------------------------------------------------------------------------------
+def write_all(fd: int, data: bytes) -> None:
+    """Write every byte, looping on short writes (a full disk raises OSError)."""
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        if n <= 0:
+            raise OSError(errno.EIO, "write returned 0")
+        view = view[n:]
+
+
+def fsync_dir(path: Path) -> None:
+    dfd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
     try:
         os.fsync(dfd)
     finally:
         os.close(dfd)
 
 
-def read_state(path: Path) -> dict[str, Any] | None:
-    """The saved state, None when there is none; StateError when it is unreadable."""
+def write_atomic(path: Path, data: bytes, mode: int = 0o640) -> None:
+    """Replace ``path`` with ``data``, complete or not at all; OSError when it cannot."""
+    tmp = path.with_name(path.name + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, mode)
     try:
-        text = path.read_text()
-    except FileNotFoundError:
-        return None
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise StateError(f"{path}: not valid JSON ({exc})") from exc
-    if not isinstance(data, dict) or data.get("version") != STATE_VERSION:
-        raise StateError(f"{path}: not a motorctl state file of version {STATE_VERSION}")
-    if not isinstance(data.get("motors"), list):
-        raise StateError(f"{path}: 'motors' missing")
-    return data
+        try:
+            write_all(fd, data)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(path.parent)
+
+
+# -- the motion journal ------------------------------------------------------------------------
+class MotionJournal:
+    """Write-ahead "moving" flags, one byte per motor (b"1" moving, b"0" at rest on disk).
+
+    The byte order is the order of the motors in the state file this daemon writes, which is
+    the config's order; :meth:`read` is used at start to find motors that were moving.
+    """
+
+    def __init__(self, path: Path, count: int) -> None:
+        self.path = path
+        self.count = count
+        self._lock = threading.Lock()
+        self._flags = [False] * count
+        self._gen = [0] * count
+        self._pending = [0] * count
+        self._fd: int | None = None
+        self.marks = 0
+        self.mark_seconds = 0.0  # total time spent in begin()'s write + fdatasync
+
+    @staticmethod
+    def read(path: Path) -> list[bool] | None:
+        """Which motors were marked moving; None when the journal exists but is unreadable."""
+        try:
+            raw = path.read_bytes()
+        except FileNotFoundError:
+            return []
+        except OSError:
+            return None
+        if raw.strip(b"01"):
+            return None
+        return [b == ord("1") for b in raw]
+
+    def reset(self) -> None:
+        """Start afresh, all at rest (after the state file says what is known). OSError."""
+        if self.path.is_dir() and not self.path.is_symlink():
+            set_aside(self.path)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+        try:
+            os.ftruncate(fd, 0)
+            write_all(fd, b"0" * self.count)
+            os.fsync(fd)
+        except OSError:
+            os.close(fd)
+            raise
+        if self._fd is not None:
+            os.close(self._fd)
+        self._fd = fd
+        with self._lock:
+            self._flags = [False] * self.count
+        fsync_dir(self.path.parent)
+
+    def begin(self, index: int) -> None:
+        """Before motor ``index`` may start: make "moving" durable. OSError when it cannot.
+
+        Pair every successful call with :meth:`end` once the command was handled.
+        """
+        with self._lock:
+            self._pending[index] += 1
+            self._gen[index] += 1
+            if self._flags[index]:
+                return
+            fd = self._fd
+        # The disk is waited for outside the lock: a snapshot (taken under the engine lock)
+        # asks for a token meanwhile and must not wait for an fdatasync. While this start is
+        # pending no token is handed out, so nothing clears the byte behind our back.
+        try:
+            if fd is None:
+                raise OSError(errno.EBADF, "the motion journal is not open")
+            t0 = time.perf_counter()
+            os.pwrite(fd, b"1", index)
+            os.fdatasync(fd)
+            elapsed = time.perf_counter() - t0
+        except OSError:
+            with self._lock:
+                self._pending[index] -= 1
+            raise
+        with self._lock:
+            self.mark_seconds += elapsed
+            self.marks += 1
+            self._flags[index] = True
+
+    def end(self, index: int) -> None:
+        with self._lock:
+            self._pending[index] -= 1
+
+    def token(self, index: int) -> int | None:
+        """Taken with the snapshot: None while a start is in flight (never clear then)."""
+        with self._lock:
+            return None if self._pending[index] else self._gen[index]
+
+    def clear_if_unchanged(self, index: int, token: int | None) -> None:
+        """After a durable state with the motor at rest: clear its flag unless it restarted.
+
+        Not fsynced: a clear that is lost only makes a restart more careful.
+        """
+        with self._lock:
+            if token is None or self._gen[index] != token or not self._flags[index]:
+                return
+            if self._fd is None:
+                return
+            try:
+                os.pwrite(self._fd, b"0", index)
+            except OSError as exc:
+                log.warning("cannot clear the motion journal %s: %s", self.path, exc.strerror)
+                return
+            self._flags[index] = False
+
+    def flagged(self) -> list[bool]:
+        with self._lock:
+            return list(self._flags)
+
+    def close(self) -> None:
+        with self._lock:
+            if self._fd is not None:
+                os.close(self._fd)
+                self._fd = None
+
+
+# -- the writer --------------------------------------------------------------------------------
+@dataclass
+class Snapshot:
+    """What the writer writes: the state, and the journal tokens of motors at rest in it."""
+
+    state: SavedState
+    at_rest: dict[int, int | None]  # motor index -> MotionJournal.token at snapshot time
 
 
 class StateWriter:
-    """Writes ``snapshot()`` to ``path`` on request, on its own thread."""
+    """Writes ``snapshot()`` to ``path``: on request on its own thread, or synchronously."""
 
-    def __init__(self, path: Path, snapshot: Callable[[], dict[str, Any]]) -> None:
+    def __init__(self, path: Path, snapshot: Callable[[], Snapshot],
+                 journal: MotionJournal | None = None,
+                 on_change: Callable[[], None] = lambda: None) -> None:
         self.path = path
         self.snapshot = snapshot
+        self.journal = journal
+        self.on_change = on_change  # e.g. refresh systemd's STATUS= line
         self.writes = 0
         self.errors = 0
+        self.last_error: str | None = None
+        self.last_write_s = 0.0
+        self.healthy = True
+        self._write_lock = threading.Lock()
         self._cond = threading.Condition()
         self._requested = False
         self._stopping = False
@@ -91,19 +441,208 @@ class StateWriter:
                 self._requested = False
             self.write_now()
 
-    def write_now(self) -> None:
-        try:
-            write_atomic(self.path, self.snapshot())
+    def write_now(self) -> bool:
+        """Write the newest state now; True when it is durable. Failures are logged once."""
+        with self._write_lock:
+            snap = self.snapshot()
+            t0 = time.perf_counter()
+            try:
+                write_atomic(self.path, snap.state.to_bytes())
+            except OSError as exc:
+                self.errors += 1
+                message = f"cannot write state file {self.path}: {exc.strerror or exc}"
+                if self.healthy or message != self.last_error:
+                    log.error("%s", message, extra={"STATE_PATH": str(self.path),
+                                                    "ERRNO": exc.errno})
+                self.last_error = message
+                was, self.healthy = self.healthy, False
+                if was:
+                    self.on_change()
+                return False
+            self.last_write_s = time.perf_counter() - t0
             self.writes += 1
-        except OSError as exc:
-            self.errors += 1
-            log.error("cannot write state file %s: %s", self.path, exc)
+            if not self.healthy:
+                log.info("state file %s written again", self.path)
+                self.healthy = True
+                self.on_change()
+            if self.journal is not None:
+                for index, token in snap.at_rest.items():
+                    self.journal.clear_if_unchanged(index, token)
+            return True
 
-    def close(self) -> None:
+    def status(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"file": str(self.path), "ok": self.healthy,
+                               "writes": self.writes, "errors": self.errors,
+                               "last_error": self.last_error,
+                               "last_write_ms": round(self.last_write_s * 1e3, 3)}
+        if self.journal is not None:
+            j = self.journal
+            out["journal"] = {"file": str(j.path), "marks": j.marks,
+                              "mean_mark_us": round(j.mark_seconds / j.marks * 1e6, 1)
+                              if j.marks else None}
+        return out
+
+    def close(self) -> bool:
         """Stop the thread after any pending write; then write the final state."""
         with self._cond:
             self._stopping = True
             self._cond.notify()
         if self._thread.is_alive():
             self._thread.join()
-        self.write_now()
+        ok = self.write_now()
+        if self.journal is not None:
+            self.journal.close()
+        return ok
+
+
+# -- the daemon's persistence: restore at start, snapshot, the dispatcher's hooks ---------------
+class Persistence:
+    """State of the motion engine's motors in ``directory``: restored, written, journalled.
+
+    ``extra`` is an optional (get, set) pair for more state of the same lifetime (the mock
+    world's axis positions), restored only when every motor matched.
+    """
+
+    def __init__(self, directory: Path, identities: Sequence[MotorIdentity], engine: Engine,
+                 extra: tuple[Callable[[], dict[str, Any]],
+                              Callable[[dict[str, Any]], None]] | None = None,
+                 on_change: Callable[[], None] = lambda: None) -> None:
+        if len(identities) != len(engine.motors):
+            raise ValueError("one identity per motor")
+        self.directory = directory
+        self.path = directory / STATE_NAME
+        self.identities = list(identities)
+        self.engine = engine
+        self.extra = extra
+        self.journal = MotionJournal(directory / JOURNAL_NAME, len(identities))
+        self.writer = StateWriter(self.path, self.snapshot, self.journal, on_change)
+        self.restored = "nothing to restore"
+        self.save_errors = 0
+        self.motion_refused = 0
+
+    # -- start and stop ----------------------------------------------------------------------
+    def restore(self) -> None:
+        """Load the state file into the motors; never raises for a bad file (see module doc)."""
+        motors = self.engine.motors
+        try:
+            state = read_state(self.path)
+        except StateError as exc:
+            self._lose_all(f"{exc}", set_aside(self.path))
+            return
+        marks = MotionJournal.read(self.journal.path)
+        if state is None:
+            if marks is None or any(marks):
+                self._lose_all(f"{self.journal.path} says a motor was moving and "
+                               f"{self.path} is missing", None)
+            return
+        if marks is None:
+            log.error("motion journal %s is unreadable: every motor counts as moved",
+                      self.journal.path, extra={"STATE_PATH": str(self.journal.path)})
+        matches = match_motors(state, self.identities)
+        index_of = {s.name: j for j, s in enumerate(state.motors)}
+        moved = []
+        with self.engine.lock:
+            for m, match, ident in zip(motors, matches, self.identities, strict=True):
+                saved = match.saved
+                if saved is None:
+                    m.position_lost = True
+                    continue
+                m.home = saved.home
+                m.waypoints = list(saved.waypoints)
+                m.set_position(saved.position)
+                j = index_of[ident.name]
+                journalled = marks is None or (j < len(marks) and marks[j])
+                if saved.moving or saved.position_lost or journalled:
+                    m.position_lost = True
+                    if not saved.position_lost:
+                        moved.append(f"{m.index} ({ident.name})")
+        for m, match, ident in zip(motors, matches, self.identities, strict=True):
+            if match.problem is not None:
+                log.warning("motor %d (%s): nothing restored from %s, %s: position lost, "
+                            "home it with InitMove", m.index, ident.name, self.path,
+                            match.problem, extra={"MOTOR": m.index, "STATE_PATH": str(self.path)})
+        if moved:
+            log.warning("motor %s was moving when the daemon stopped: position lost, home it "
+                        "with InitMove", ", ".join(moved), extra={"STATE_PATH": str(self.path)})
+        problems = [mt for mt in matches if mt.problem is not None]
+        if problems:
+            bad = set_aside(self.path)
+            self.restored = (f"restored {len(matches) - len(problems)} of {len(matches)} "
+                             f"motors; the file was kept as {bad}")
+        else:
+            if self.extra is not None:
+                self.extra[1](state.extra)
+            self.restored = f"restored {len(matches)} motors"
+        log.info("%s from %s", self.restored, self.path)
+
+    def _lose_all(self, why: str, bad: Path | None) -> None:
+        kept = f"kept it as {bad}" if bad is not None else "it stays where it is"
+        log.error("%s; %s; every motor must be homed again", why, kept,
+                  extra={"STATE_PATH": str(self.path)})
+        self.restored = f"nothing restored: {why}"
+        with self.engine.lock:
+            for m in self.engine.motors:
+                m.position_lost = True
+
+    def open(self) -> None:
+        """After :meth:`restore`: write what is known now, then start the journal afresh."""
+        if not self.writer.write_now():
+            return  # the journal keeps what it says: a restart must still see it
+        try:
+            self.journal.reset()
+        except OSError as exc:
+            log.error("cannot start the motion journal %s: %s; motion commands answer "
+                      "E4 until it can be written", self.journal.path, exc.strerror,
+                      extra={"STATE_PATH": str(self.journal.path), "ERRNO": exc.errno})
+
+    def start(self) -> None:
+        """Start the writer thread (motor events request writes from now on)."""
+        self.writer.start()
+
+    def close(self) -> bool:
+        return self.writer.close()
+
+    # -- snapshots ------------------------------------------------------------------------------
+    def snapshot(self) -> Snapshot:
+        at_rest: dict[int, int | None] = {}
+        with self.engine.lock:
+            motors = []
+            for m, ident in zip(self.engine.motors, self.identities, strict=True):
+                moving = m.active or bool(m.queue)
+                if not moving:
+                    at_rest[m.index] = self.journal.token(m.index)
+                motors.append(SavedMotor(ident.name, ident.fingerprint, m.position, m.home,
+                                         list(m.waypoints), moving, m.position_lost))
+            extra = self.extra[0]() if self.extra is not None else {}
+        return Snapshot(SavedState(motors, extra), at_rest)
+
+    # -- the dispatcher's hooks (link thread) ------------------------------------------------------
+    def before_motion(self, index: int) -> bool:
+        """Make "motor ``index`` is moving" durable before a motion command; False: cannot."""
+        try:
+            self.journal.begin(index)
+        except OSError as exc:
+            self.motion_refused += 1
+            log.error("motor %d: cannot record the start of a motion in %s: %s; answered E4",
+                      index, self.journal.path, exc.strerror or exc,
+                      extra={"MOTOR": index, "ERROR_CODE": "E4", "ERRNO": exc.errno})
+            return False
+        return True
+
+    def after_motion(self, index: int) -> None:
+        self.journal.end(index)
+        if not self.engine.motors[index].active:
+            self.writer.request()  # a refused command: let the writer clear the mark
+
+    def save(self) -> bool:
+        """SaveHome/SaveWayPoint: write now; True when the new state is durable."""
+        ok = self.writer.write_now()
+        if not ok:
+            self.save_errors += 1
+        return ok
+
+    def status(self) -> dict[str, Any]:
+        out = self.writer.status()
+        out.update(restored=self.restored, save_errors=self.save_errors,
+                   motion_refused=self.motion_refused)
+        return out

@@ -139,7 +139,11 @@ class StepPort(ABC):
         if self.direction is up:
             return
         self.direction = up
-        self._write_dir(up != self.invert)
+        try:
+            self._write_dir(up != self.invert)
+        except BaseException:
+            self.direction = None  # the line's level is unknown: write it again next time
+            raise
         self.direction_set_at = self.clock.now()
 
     def pulse(self, width_s: float) -> float:

@@ -105,11 +105,13 @@ class MockStepPort(StepPort):
         self._index = index
 
     def _write_dir(self, level: bool) -> None:
+        self._world.raise_injected("dir", self._index)
         self._world.axes[self._index].heading = self.direction
         self._world.timeline.record(self.clock.now(), EventKind.DIR, self._index, level)
 
     def _pulse(self, width_s: float) -> float:
         clock = self.clock
+        self._world.raise_injected("step", self._index)
         rise = clock.now()
         self._world.timeline.record(rise, EventKind.STEP, self._index, self.direction)
         axis = self._world.axes[self._index]
@@ -152,6 +154,7 @@ class MockPin(Pin):
             self._world.timeline.record(now, EventKind.PIN, self.number, level)
 
     def _write(self, level: bool) -> None:
+        self._world.raise_injected("pin", self.number)
         now = self._world.clock.now()
         self._world.timeline.record(now, EventKind.PIN, self.number, level)
 
@@ -182,6 +185,7 @@ class MockWorld:
         self.pins: dict[int, MockPin] = {
             p.number: MockPin(self, p.number, p.output, p.initial) for p in spec.pins
         }
+        self.line_errors: dict[tuple[str, int], OSError] = {}
         self._wires: dict[int, int] = {}
         for a, b in spec.wires:
             self._wires[a] = b
@@ -196,6 +200,20 @@ class MockWorld:
     def inject_fault(self, motor: int, fault: str | None) -> None:
         """Make motor's driver report ``fault`` (None clears it)."""
         self.axes[motor].fault = fault
+
+    def inject_line_error(self, kind: str, index: int, error: OSError | None) -> None:
+        """Make every write to a line raise ``error`` (None heals it): ``kind`` is "step" or
+        "dir" (``index`` a motor) or "pin" (``index`` a pin number), as a line whose chip went
+        away makes gpiod raise."""
+        if error is None:
+            self.line_errors.pop((kind, index), None)
+        else:
+            self.line_errors[(kind, index)] = error
+
+    def raise_injected(self, kind: str, index: int) -> None:
+        error = self.line_errors.get((kind, index))
+        if error is not None:
+            raise error
 
     def inject_stall(self, motor: int, stalled: bool) -> None:
         self.axes[motor].forced_stall = stalled

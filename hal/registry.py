@@ -66,17 +66,30 @@ BACKENDS: dict[str, Backend] = {
     ),
 }
 
+def _has_drivers(spec: HardwareSpec) -> bool:
+    return any(a.driver is not None for a in spec.axes)
+
+
 #: extra probe hooks: name -> (module, function, applies(spec)); run after the backend's own
-PROBES: dict[str, tuple[str, str, Callable[[HardwareSpec], bool]]] = {}
+PROBES: dict[str, tuple[str, str, Callable[[HardwareSpec], bool]]] = {
+    "spidev": ("motorctl.hal.tmc_backend", "probe", _has_drivers),
+}
+
+
+#: layers that work with any backend and own config sections: name -> config module (which
+#: imports no hardware library). "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C.
+LAYERS: dict[str, str] = {
+    "spidev": "motorctl.hal.tmc_config",
+}
 
 
 def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
-    """(backend name, its CONFIG_SECTIONS) of every backend that declares config sections."""
+    """(backend or layer name, its CONFIG_SECTIONS) of everything that declares sections."""
+    modules = [(name, b.config) for name, b in BACKENDS.items() if b.config is not None]
     found = []
-    for name, backend in BACKENDS.items():
-        if backend.config is not None:
-            module = importlib.import_module(backend.config)
-            found.append((name, tuple(module.CONFIG_SECTIONS)))
+    for name, module_name in [*modules, *LAYERS.items()]:
+        module = importlib.import_module(module_name)
+        found.append((name, tuple(module.CONFIG_SECTIONS)))
     return found
 
 
@@ -99,7 +112,18 @@ def _module(backend: str) -> tuple[Any, Backend]:
 def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
     module, entry = _module(backend)
     build = cast(Builder, getattr(module, entry.function))
-    return build(spec, clock)
+    hw = build(spec, clock)
+    drivers = [a.driver for a in spec.axes]
+    if any(drivers):
+        from motorctl.hal.tmc_backend import attach_drivers  # imports py-spidev lazily
+
+        names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
+        try:
+            attach_drivers(hw, drivers, clock, names)
+        except BaseException:
+            hw.close()
+            raise
+    return hw
 
 
 def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeReport:

@@ -9,9 +9,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motorctl.schema import Sectioned
+
+if TYPE_CHECKING:
+    from motorctl.hal.tmc import TmcSpec
 
 
 @dataclass(frozen=True)
@@ -23,6 +26,8 @@ class AxisSpec(Sectioned):
     endstop_min: int = -10_000
     endstop_max: int = 10_000
     debounce_s: float = 0.0
+    name: str = ""
+    driver: TmcSpec | None = None  # a TMC2130/TMC5160 on SPI; None: no driver to talk to
     sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [motors.<backend>]
 
 

@@ -8,6 +8,7 @@ tests call :meth:`run_until` against a virtual clock.
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Callable, Sequence
 
@@ -16,6 +17,8 @@ from motorctl.motion.dc import DcMotor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorParams
+
+log = logging.getLogger("motorctl.motion")
 
 Listener = Callable[[Motor, str], None]
 
@@ -45,6 +48,7 @@ class MotionEngine:
         ]
         self.dc = DcMotor(hw.dc) if hw.dc is not None else None
         self.driver_poll_s = driver_poll_s
+        self.hardware_errors = 0  # backend calls that raised in service()
         self._next_poll = self.clock.now() + driver_poll_s
 
     # -- notifications -------------------------------------------------------
@@ -87,16 +91,34 @@ class MotionEngine:
         return coarse if step is None or coarse < step else step
 
     def service(self, now: float) -> None:
-        """Do everything due at or before ``now``."""
+        """Do everything due at or before ``now``.
+
+        A line or device that fails (the backend raises) latches a fault on its motor; the
+        caller, usually the step thread, carries on."""
         for m in self.motors:
-            while m.next_step is not None and m.next_step[0] <= now:
-                m.fire(now)
+            try:
+                while m.next_step is not None and m.next_step[0] <= now:
+                    m.fire(now)
+            except Exception as exc:
+                self._hardware_fault(m, exc, now)
         if self.dc is not None:
-            self.dc.service(now)
+            try:
+                self.dc.service(now)
+            except Exception as exc:
+                self.hardware_errors += 1
+                log.error("DC motor: the bridge failed: %s", exc)
         if now >= self._next_poll:
             self._next_poll = now + self.driver_poll_s
             for m in self.motors:
-                m.poll_driver(now)
+                try:
+                    m.poll_driver(now)
+                except Exception as exc:
+                    self._hardware_fault(m, exc, now)
+
+    def _hardware_fault(self, m: Motor, exc: Exception, now: float) -> None:
+        self.hardware_errors += 1
+        log.error("motor %d (%s): hardware error: %s", m.index, m.params.name, exc)
+        m.latch_fault(f"hardware error: {exc}", now)
 
     def run_until(self, t: float) -> None:
         """Drive a virtual clock to ``t``, doing everything due on the way, in time order."""

@@ -1,7 +1,9 @@
 """motorctl: a Linux daemon that stands in for a motor-controller microcontroller on a UART.
 
-This folder holds only the namespace root. The rooms are the repository's top-level folders,
-mapped under this name by ``[tool.setuptools.package-dir]`` in pyproject.toml:
+This folder holds the namespace root, ``schema.py`` (the generic config-schema engine that
+every room may use: it imports nothing from motorctl) and, in a checkout, relative symlinks
+to the rooms. The rooms are the repository's top-level folders, mapped under this name by
+``[tool.setuptools.package-dir]`` in pyproject.toml:
 
     client/   -> motorctl.client    host side: library and the ``motorctl`` CLI
     protocol/ -> motorctl.protocol  pure, shared by both sides: codec, CRC, framing, positions

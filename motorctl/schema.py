@@ -339,7 +339,10 @@ def section(
         children: list[Child] = []
         extensible = False
         for f in dataclasses.fields(cls):
-            annotation = str(f.type)
+            # `from __future__ import annotations` leaves the annotation as written; without
+            # it, name the type the same way.
+            annotation = f.type if isinstance(f.type, str) else getattr(f.type, "__name__", "")
+            annotation = annotation or str(f.type)
             if _KEY in f.metadata:
                 key = dataclasses.replace(f.metadata[_KEY], name=f.name)
                 if key.enum is not None:

@@ -30,7 +30,8 @@ def until(what: str, cond: Callable[[], bool], timeout: float = WAIT_S) -> None:
 
 class DaemonProcess:
     def __init__(self, workdir: Path, config_text: str | None = None,
-                 state_dir: Path | None = None, extra: list[str] | None = None) -> None:
+                 state_dir: Path | None = None, extra: list[str] | None = None,
+                 env: dict[str, str] | None = None) -> None:
         self.workdir = workdir
         self.pty = workdir / "motorctl.pty"
         self.state_dir = state_dir or workdir / "state"
@@ -39,6 +40,7 @@ class DaemonProcess:
             self.config = workdir / "motorctl.toml"
             self.config.write_text(config_text)
         self.extra = extra or []
+        self.env = env  # added to this process's environment (e.g. NOTIFY_SOCKET)
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready_line = ""
         self.stderr_path = workdir / "motorctld.stderr"
@@ -49,7 +51,8 @@ class DaemonProcess:
         if self.config is not None:
             cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr,
+        env = {**os.environ, **self.env} if self.env is not None else None
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
                                      cwd=Path(__file__).resolve().parent.parent)
         stderr.close()
         assert self.proc.stdout is not None

@@ -249,7 +249,9 @@ def test_host_closes_and_reopens(served: Served) -> None:
     assert rs[0].as_bool is True  # the answer to this frame: nothing stale, nothing misaligned
     assert host.nothing_within(0.1)
     c = served.counters()
-    assert c["peer_reopened"] >= 1 and c["hangup_partial_bytes"] == 4
+    assert c["peer_reopened"] >= 1
+    # The 4 bytes went with the hang-up, or before it by the gap rule (a slow test machine).
+    assert (c["hangup_partial_bytes"], c["gap_discards"]) in ((4, 0), (0, 1))
     host.close()
 
 
@@ -327,7 +329,11 @@ def test_write_error_is_counted_and_survived(tmp_path: Path) -> None:
         theirs.sendall(frame(IsReady(0)))
         s.until("the write error", lambda: s.counters()["link_errors"] == 1)
         assert s.thread.is_alive()
-        assert s.link.peer_gone
+        # It looks again after retry_s, serves the next frame, and counts the next failure.
+        s.until("the retry", lambda: s.counters()["peer_reopened"] >= 1)
+        theirs.sendall(frame(IsReady(0)))
+        s.until("the second write error", lambda: s.counters()["link_errors"] == 2)
+        assert s.counters()["frames_good"] == 2 and s.thread.is_alive()
     finally:
         s.stop()
         s.link.close()

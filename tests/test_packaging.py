@@ -3,8 +3,9 @@
 Marked `packaging`: builds the wheel with `pip wheel` (setuptools from PyPI, in pip's build
 isolation) and installs it with python-daemon (whose import name is `daemon`) from PyPI in a
 throwaway virtual environment, in both orders, uninstalling either and checking the other
-still imports and works. Needs PyPI (or the configured index); pip's downloads are cached in
-the test's temporary directory. Deselect with `-m "not packaging"` when offline.
+still imports and works; mypy --strict type-checks code against the installed wheel. Needs
+PyPI (or the configured index); pip's downloads are cached in the test's temporary directory.
+Deselect with `-m "not packaging"` when offline.
 """
 
 from __future__ import annotations
@@ -71,6 +72,22 @@ class Env:
         else:
             assert "No module named 'motorctl'" in self.fails("import motorctl")
 
+    def mypy_sees_the_wheel(self, tmp: Path) -> None:
+        """mypy --strict, pointed at the venv, type-checks code using the installed wheel."""
+        user = tmp / "user"
+        user.mkdir()
+        (user / "use.py").write_text(
+            "from motorctl.daemon.config import load_config\n"
+            "from motorctl.protocol.codec import wrap24\n"
+            "position: int = wrap24(1 << 23)\n"
+            "reveal_type(load_config(None).motors[0].homing.source)\n",
+            encoding="utf-8",
+        )
+        out = run([sys.executable, "-m", "mypy", "--strict", "--python-executable",
+                   str(self.python), "--cache-dir", str(tmp / "mypy-cache"), "use.py"],
+                  self.env, user)
+        assert 'Revealed type is "motorctl.motion.types.HomingSource"' in out, out
+
     def fails(self, code: str) -> str:
         proc = subprocess.run([str(self.python), "-c", code], env=self.env, cwd=self.dir,
                               capture_output=True, text=True, timeout=STEP_TIMEOUT_S)
@@ -118,6 +135,7 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
     env.works(motorctl_installed=False, daemon_installed=True)
     env.pip("install", "-q", str(wheel))
     env.works(motorctl_installed=True, daemon_installed=True)
+    env.mypy_sees_the_wheel(tmp_path)
     env.pip("uninstall", "-y", "-q", "motorctl")
     env.works(motorctl_installed=False, daemon_installed=True)
 

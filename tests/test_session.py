@@ -310,3 +310,25 @@ def test_save_waypoint_on_lost_position_is_e4(w: World) -> None:
     w.send(SaveWayPoint(0), IsReady(0))
     assert codes(w.responses()) == [E.MOTOR_ERROR, None]
     assert w.engine.motors[0].waypoints == []
+
+
+class Broken:
+    """A dispatcher with a bug: every command raises."""
+
+    def handle(self, cmd: Command) -> Response:
+        raise ZeroDivisionError("a bug")
+
+    def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
+        return Response.ok()
+
+    def wait_poll(self, wait: Wait, now: float) -> Response | None:
+        return Response.ok()
+
+
+def test_a_command_that_raises_is_e4_and_the_session_goes_on() -> None:
+    session = LinkSession(Broken(), OPTS, GAP)
+    session.receive(frame(IsReady(0)) + frame(WaitMoved(0, 10)), 0.0)
+    data = session.take_output()
+    assert [decode_response(data[i : i + 5], OPTS).error_code for i in (0, 5)] == [
+        E.MOTOR_ERROR, None]
+    assert session.counters["internal_errors"] == 1

@@ -35,6 +35,7 @@ from motorctl.daemon.config.model import (
     LinkConfig,
     MotorConfig,
     PinConfig,
+    StateConfig,
     StepThreadConfig,
     UnitsConfig,
 )
@@ -51,6 +52,7 @@ __all__ = [
     "LinkConfig",
     "MotorConfig",
     "PinConfig",
+    "StateConfig",
     "StepThreadConfig",
     "UnitsConfig",
     "default_config_text",

@@ -403,6 +403,35 @@ class PinConfig(Sectioned):
         return self.mode == "output"
 
 
+def _check_state_dir(value: str) -> str | None:
+    """Problem with a state directory, or None: empty or an absolute path."""
+    return None if value == "" or value.startswith("/") else "not an absolute path"
+
+
+@section(
+    "Where home positions, waypoints and positions at rest are kept.",
+    prose="""Where the state file (home positions, waypoints, positions of motors at rest) and its
+motion journal live. By default in the runtime directory given by `--state-dir`
+(/run/motorctl under systemd): it survives a restart of the daemon and is gone after a
+reboot, like a microcontroller's RAM (PROTOCOL.md §4). docs/service.md says when to keep
+it across reboots instead.""",
+    notes="""`directory = "/var/lib/motorctl"` keeps the state across reboots (the packaged unit has
+`StateDirectory=motorctl`, so that directory exists and is writable for the service).
+Do that only when nothing moves the axes while the board is off: after a reboot the
+daemon trusts the saved positions of motors that were at rest.""",
+)
+@dataclass(frozen=True)
+class StateConfig:
+    """[state]: where the state file lives."""
+
+    directory: str = text(
+        "",
+        'Directory of state.json and state.moving; "" = the --state-dir (runtime directory).',
+        check=_check_state_dir,
+        check_text='"" or an absolute path',
+    )
+
+
 @section("The whole file.")
 @dataclass(frozen=True)
 class Config(Sectioned):
@@ -412,6 +441,7 @@ class Config(Sectioned):
     units: UnitsConfig = table(UnitsConfig)
     hal: HalConfig = table(HalConfig)
     step_thread: StepThreadConfig = table(StepThreadConfig)
+    state: StateConfig = table(StateConfig)
     dc: DcConfig | None = table(DcConfig, absent=None, absent_text="no DC motor")
     motors: tuple[MotorConfig, ...] = tables(
         MotorConfig, 1, 64, absent=REQUIRED, absent_text="required"

@@ -1,0 +1,144 @@
+"""Attach TMC2130/TMC5160 drivers over spidev to hardware that another backend built.
+
+A motor's STEP/DIR lines, end stops and pins come from the hardware backend (``mock``,
+``gpiod``); its driver chip, when the config names one, is opened here: each chip is
+identified, configured and verified before anything moves, and one :class:`DriverMonitor`
+thread polls their DRV_STATUS from then on. py-spidev is imported only when a driver is
+configured (through :func:`motorctl.hal.spi.spidev_factory`).
+
+Threads: :func:`attach_drivers` runs on the thread that opens the hardware; afterwards the
+drivers belong to the monitor thread (polls) and are read lock-free by the step path. The
+closer registered in ``Hardware.closers`` stops the monitor (bounded join) and leaves each
+driver disabled (TOFF = 0) when so configured.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from typing import Protocol
+
+from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiFactory, spidev_factory
+from motorctl.hal.tmc import DriverMonitor, RefSwitches, Tmc5160, TmcDriver, TmcError, TmcSpec
+
+log = logging.getLogger("motorctl.tmc")
+
+
+def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory) -> TmcDriver:
+    """A driver object for ``spec`` (not started); ValueError for an impossible setting."""
+    try:
+        address = SpiAddress.parse(spec.spi)
+    except ValueError as exc:
+        raise TmcError(f"{name}: {exc}") from exc
+    device = SpiDevice(address, buses, factory, spec.spi_speed_hz)
+    if spec.ramp:
+        switches = RefSwitches(spec.ref_left_active_low, spec.ref_right_active_low)
+        return Tmc5160(name, device, spec.settings, switches)
+    return TmcDriver(name, device, spec.settings)
+
+
+def attach_drivers(
+    hw: Hardware,
+    specs: Sequence[TmcSpec | None],
+    clock: Clock,
+    names: Sequence[str],
+    factory: SpiFactory | None = None,
+) -> list[TmcDriver]:
+    """Open, check and configure every configured driver, put each in place of its motor's
+    driver, start the monitor. On any error the drivers already opened are closed again and
+    a TmcError/SpiError (HalError) names the device and the fix."""
+    if not any(specs):
+        return []
+    if len(specs) > len(hw.steppers):
+        raise TmcError(f"{len(specs)} drivers configured for {len(hw.steppers)} motors")
+    for i, spec in enumerate(specs):
+        if spec is not None and spec.ramp:
+            raise TmcError(
+                f"{names[i]}: mode = \"ramp\" (the TMC5160's own ramp generator) needs the "
+                "executor seam, which this build's motion engine does not have yet; use "
+                "mode = \"step_dir\""
+            )
+    factory = factory or spidev_factory()
+    buses = SpiBuses()
+    started: list[tuple[int, TmcDriver, TmcSpec]] = []
+    try:
+        for i, spec in enumerate(specs):
+            if spec is None:
+                continue
+            driver = open_driver(names[i], spec, buses, factory)
+            driver.start()
+            started.append((i, driver, spec))
+    except BaseException:
+        for _, driver, _spec in started:
+            driver.device.close()
+        raise
+    for i, driver, _spec in started:
+        hw.steppers[i].driver = driver
+    drivers = [d for _, d, _ in started]
+    monitor = DriverMonitor(drivers, clock.now)
+    monitor.start()
+
+    def close() -> None:
+        monitor.stop()
+        for _, driver, spec in started:
+            if spec.disable_at_exit:
+                driver.close()
+            else:
+                driver.device.close()
+
+    hw.closers.append(close)
+    log.info("drivers: %s", ", ".join(f"{d.name} {d.chip.name} on {d.device.path}"
+                                       for d in drivers))
+    return drivers
+
+
+class Report(Protocol):
+    """What ``motorctld --probe`` collects (motorctl.hal.wiring.ProbeReport)."""
+
+    problems: list[str]
+
+    def add(self, title: str, lines: list[str]) -> None: ...
+
+
+def probe(
+    spec: HardwareSpec, clock: Clock, report: Report, factory: SpiFactory | None = None
+) -> None:
+    """``--probe``: each configured driver's chip and version, DRV_STATUS decoded, SPI status;
+    reads registers only (nothing is written, nothing moves). Problems go to the report."""
+    del clock
+    configured = [(i, a) for i, a in enumerate(spec.axes) if a.driver is not None]
+    if not configured:
+        return
+    try:
+        factory = factory or spidev_factory()
+    except HalError as exc:
+        report.problems.append(str(exc))
+        return
+    buses = SpiBuses()
+    lines: list[str] = []
+    for i, axis in configured:
+        assert axis.driver is not None
+        name = axis.name or f"motor {i}"
+        try:
+            driver = open_driver(name, axis.driver, buses, factory)
+        except (HalError, ValueError) as exc:
+            report.problems.append(f"{name}: {exc}")
+            continue
+        try:
+            found = driver.probe()
+        except HalError as exc:
+            report.problems.append(f"{name}: {exc}")
+            continue
+        finally:
+            driver.device.close()
+        lines += found
+        if any("MISMATCH" in line or "no driver chip answers" in line for line in found):
+            report.problems.append(found[0])
+        elif axis.driver.ramp and any("SD_MODE=1" in line for line in found):
+            report.problems.append(
+                f"{name}: configured for the TMC5160's ramp generator but its SD_MODE pin is "
+                "high (STEP/DIR); tie SD_MODE to GND"
+            )
+    report.add("SPI stepper drivers", lines)

@@ -1,0 +1,141 @@
+#!/usr/bin/env bash
+# Install the motorctl .deb on a fresh Debian 12 root and check it there (make test-deb).
+#
+# The root is a debootstrap --variant=minbase of bookworm, made once and cached as
+# build/bookworm-minbase.tar; every run unpacks a fresh copy into build/deb-root and
+# chroots into it (needs root: mounts /proc and /dev there). apt installs the package
+# with its dependencies from Debian's archive, then this script checks:
+#   the user and groups (sysusers.d), the conffiles, the udev rules, --check-config on the
+#   example config; the daemon started as the unit starts it (user motorctl, the unit's
+#   ExecStart, a fake NOTIFY_SOCKET) reaching READY=1 via systemd-python, answering a
+#   command on its PTY (mode 0660, group motorctl), sending STATUS= and STOPPING=1;
+#   the installed unit scored by `systemd-analyze security --offline=true` (<= 2.0) and
+#   `systemd-analyze verify` clean, both against this root; the root booted with
+#   systemd-nspawn, so the service runs under a real systemd with its whole sandbox
+#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop); and a clean purge.
+set -euo pipefail
+deb=$(realpath "$1")
+here=$(cd "$(dirname "$0")/../.." && pwd)
+build=$here/build
+cache=$build/bookworm-minbase.tar
+root=$build/deb-root
+mirror=${DEBIAN_MIRROR:-http://deb.debian.org/debian}
+max_exposure=${MAX_EXPOSURE:-2.0}
+
+step() { printf '\n== %s\n' "$*"; }
+fail() { echo "FAILED: $*" >&2; exit 1; }
+
+if [ ! -f "$cache" ]; then
+  step "debootstrap bookworm (minbase), once"
+  rm -rf "$build/debootstrap"
+  debootstrap --variant=minbase bookworm "$build/debootstrap" "$mirror" >"$build/debootstrap.log"
+  tar -C "$build/debootstrap" -cf "$cache" .
+  rm -rf "$build/debootstrap"
+fi
+
+cleanup() {
+  for m in dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
+  rm -rf "$root"
+}
+trap cleanup EXIT
+cleanup
+mkdir -p "$root"
+tar -C "$root" -xf "$cache"
+mount -t proc proc "$root/proc"
+mount --bind /dev "$root/dev"
+mount --bind /dev/pts "$root/dev/pts"
+cp /etc/resolv.conf "$root/etc/resolv.conf" 2>/dev/null || true
+in_root() { chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 "$@"; }
+
+step "apt-get install ./$(basename "$deb") on a fresh Debian $(cat "$root/etc/debian_version")"
+cp "$deb" "$root/tmp/motorctl.deb"
+in_root apt-get update -q >/dev/null
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+  /tmp/motorctl.deb > "$build/deb-install.log" 2>&1 || { tail -30 "$build/deb-install.log"; fail "install"; }
+grep -iE "^(E|W):|warning|error" "$build/deb-install.log" && fail "apt or a maintainer script complained"
+in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl | grep -qx installed || fail "not installed"
+[ -z "$(in_root dpkg --audit)" ] || fail "dpkg --audit: $(in_root dpkg --audit)"
+echo "installed: $(in_root dpkg-query -W -f='${Package} ${Version}' motorctl)"
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --reinstall \
+  /tmp/motorctl.deb > "$build/deb-reinstall.log" 2>&1 || { tail -30 "$build/deb-reinstall.log"; fail "reinstall"; }
+grep -iE "^(E|W):|warning|error" "$build/deb-reinstall.log" && fail "reinstall complained"
+echo "reinstalled (the upgrade path of the maintainer scripts): clean"
+
+step "user, groups, conffiles, udev rules"
+in_root getent passwd motorctl | grep -q ':/usr/sbin/nologin$' || fail "no motorctl system user"
+groups=$(in_root id -nG motorctl)
+for g in motorctl dialout gpio spi; do
+  echo " $groups " | grep -q " $g " || fail "motorctl is not in group $g ($groups)"
+done
+echo "motorctl groups: $groups"
+conffiles=$(in_root dpkg-query -W -f='${Conffiles}' motorctl)
+for f in /etc/motorctl/motorctl.toml /etc/default/motorctld; do
+  echo "$conffiles" | grep -q " $f " || fail "$f is not a conffile"
+done
+grep -q 'KERNEL=="gpiochip\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorctl.rules" \
+  || fail "udev rule for gpiochip"
+grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorctl.rules" \
+  || fail "udev rule for spidev"
+in_root motorctld --check-config /etc/motorctl/motorctl.toml
+in_root motorctl --help >/dev/null
+
+step "the installed unit: systemd-analyze security --offline=true and verify"
+unit=lib/systemd/system/motorctld.service
+systemd-analyze security --offline=true --root="$root" "/$unit" --no-pager \
+  > "$build/deb-security.txt" 2>&1 || true
+score=$(sed -n 's/.*Overall exposure level for motorctld.service: \([0-9.]*\).*/\1/p' \
+  "$build/deb-security.txt")
+[ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score"; }
+echo "exposure: $score (at most $max_exposure)"
+awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
+systemd-analyze verify --root="$root" "$unit" || fail "systemd-analyze verify"
+echo "verify: clean"
+
+step "the daemon as the unit starts it: user motorctl, fake NOTIFY_SOCKET, systemd-python"
+mkdir -p "$root/run/motorctl" && in_root chown motorctl:motorctl /run/motorctl
+in_root chmod 0750 /run/motorctl
+cp "$here/tests/deb/notify_listener.py" "$root/tmp/"
+exec_start=$(sed -n 's/^ExecStart=//p' "$root/$unit")
+serve=$(sed -n 's/^MOTORCTLD_SERVE="\(.*\)"$/\1/p' "$root/etc/default/motorctld")
+cmd=${exec_start//\$MOTORCTLD_SERVE/$serve}
+echo "ExecStart: $cmd"
+in_root python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
+  setpriv --reuid=motorctl --regid=motorctl --init-groups $cmd \
+  || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
+
+step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
+for m in dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
+cp "$here/tests/deb/report.service" "$root/etc/systemd/system/"
+cp "$here/tests/deb/report.sh" "$root/root/"
+ln -sf /etc/systemd/system/report.service "$root/etc/systemd/system/multi-user.target.wants/"
+rm -f "$root/run/motorctl/"* "$root/root/report.txt"
+timeout 180 systemd-nspawn -D "$root" --boot --register=no --keep-unit --console=pipe \
+  </dev/null > "$build/deb-nspawn.log" 2>&1 || { tail -20 "$build/deb-nspawn.log"; fail "nspawn boot"; }
+report=$root/root/report.txt
+[ -f "$report" ] || { tail -20 "$build/deb-nspawn.log"; fail "no report from the booted root"; }
+cat "$report"
+expect() { grep -qx -- "$1" "$report" || fail "booted service: expected a line '$1'"; }
+expect "ActiveState=active"
+expect "SubState=running"
+expect "NRestarts=0"
+expect "User=motorctl"
+expect "pty: crw-rw---- motorctl motorctl"
+expect "client: motor 0 at 0"
+expect "status-socket: 1"
+expect "after-stop: inactive success"
+expect "left-in-run: state.json state.moving "
+expect "journal-fields: 1"
+grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STATUS= line"
+grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"
+mount -t proc proc "$root/proc"
+mount --bind /dev "$root/dev"
+mount --bind /dev/pts "$root/dev/pts"
+
+step "purge"
+in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
+  || { tail -20 "$build/deb-purge.log"; fail "purge"; }
+in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl 2>/dev/null | grep -qx installed \
+  && fail "still installed after purge"
+[ ! -e "$root/etc/motorctl/motorctl.toml" ] || fail "conffile left after purge"
+echo
+echo "package check: 1 passed, 0 failed"

@@ -1,0 +1,61 @@
+"""debian/ stays in step with the tree: version, the setuptools patch, users, udev, unit.
+
+The package itself is built and installed on a fresh Debian 12 root by `make test-deb`
+(tests/deb/check-install.sh); these checks are quick and catch drift in every `make test`.
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from motorctl import __version__
+
+ROOT = Path(__file__).resolve().parent.parent
+DEBIAN = ROOT / "debian"
+
+
+def test_changelog_version_is_the_package_version() -> None:
+    first = (DEBIAN / "changelog").read_text().splitlines()[0]
+    m = re.match(r"motorctl \(([^)-]+)-\d+\) ", first)
+    assert m, first
+    assert m.group(1) == __version__, (
+        f"debian/changelog says {m.group(1)}, motorctl/__init__.py {__version__}: "
+        "add a changelog entry (dch -v VERSION-1)")
+
+
+@pytest.mark.skipif(shutil.which("patch") is None, reason="patch is not installed")
+def test_setuptools_patch_applies_to_pyproject(tmp_path: Path) -> None:
+    """The package build patches pyproject.toml for Debian 12's setuptools 66."""
+    shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
+    for name in (DEBIAN / "patches" / "series").read_text().split():
+        out = subprocess.run(["patch", "-p1", "--fuzz=0", "-i", str(DEBIAN / "patches" / name)],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=30)
+        assert out.returncode == 0, f"{name} no longer applies: {out.stdout}{out.stderr}"
+    text = (tmp_path / "pyproject.toml").read_text()
+    assert 'license = { text = "MIT" }' in text and "license-files" not in text
+    assert 'requires = ["setuptools>=66"]' in text
+
+
+def test_sysusers_and_udev() -> None:
+    users = (DEBIAN / "motorctl.sysusers").read_text()
+    assert re.search(r"^u motorctl - .* /usr/sbin/nologin$", users, re.M)
+    for group in ("dialout", "gpio", "spi"):
+        assert re.search(rf"^m motorctl {group}$", users, re.M), group
+    rules = (DEBIAN / "motorctl.udev").read_text()
+    assert 'KERNEL=="gpiochip*", GROUP="motorctl", MODE="0660"' in rules
+    assert 'KERNEL=="spidev*", GROUP="motorctl", MODE="0660"' in rules
+
+
+def test_unit_serves_what_the_default_file_says() -> None:
+    unit = (ROOT / "systemd" / "motorctld.service").read_text()
+    default = (ROOT / "systemd" / "motorctld.default").read_text()
+    assert "EnvironmentFile=-/etc/default/motorctld" in unit
+    assert "$MOTORCTLD_SERVE" in unit
+    assert re.search(r'^MOTORCTLD_SERVE="--pty /run/motorctl/motorctl.pty"$', default, re.M)
+    assert 'Environment="MOTORCTLD_SERVE=--pty /run/motorctl/motorctl.pty"' in unit
+    assert "--config /etc/motorctl/motorctl.toml" in unit

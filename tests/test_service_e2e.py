@@ -1,0 +1,203 @@
+"""The service end to end, as real processes on a real PTY: one instance, SIGHUP, bad state
+files, a read-only state directory, PTY permissions, kill -9 right after a motion's ACK,
+and systemd's notifications on a fake NOTIFY_SOCKET."""
+
+from __future__ import annotations
+
+import os
+import signal
+import socket
+import stat
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from motorctl.client.client import DeviceError
+from motorctl.protocol.codec import ErrorCode
+from tests.daemon_proc import DaemonProcess
+from tests.fsutil import read_only
+
+E = ErrorCode
+DEADLINE_S = 20.0
+
+
+@pytest.fixture
+def daemon(tmp_path: Path) -> Iterator[DaemonProcess]:
+    d = DaemonProcess(tmp_path).start()
+    yield d
+    d.close()
+
+
+def no_traceback(d: DaemonProcess) -> None:
+    assert "Traceback" not in d.stderr(), d.stderr()
+
+
+def test_second_daemon_exits_at_once_naming_the_first(daemon: DaemonProcess,
+                                                      tmp_path: Path) -> None:
+    assert daemon.proc is not None
+    target = os.readlink(daemon.pty)
+    second = subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(daemon.pty),
+         "--state-dir", str(daemon.state_dir)],
+        capture_output=True, text=True, timeout=DEADLINE_S)
+    assert second.returncode == 1
+    assert f"another motorctld (PID {daemon.proc.pid})" in second.stderr
+    assert "Traceback" not in second.stderr
+    # Another state dir, same PTY: refused too, by the PTY's lock.
+    third = subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(daemon.pty),
+         "--state-dir", str(tmp_path / "other")],
+        capture_output=True, text=True, timeout=DEADLINE_S)
+    assert third.returncode == 1 and f"PID {daemon.proc.pid}" in third.stderr
+    assert "PTY" in third.stderr
+    # The first is untouched and reachable.
+    assert os.readlink(daemon.pty) == target
+    with daemon.client() as c:
+        assert c.position(0) == 0
+    assert "motors" in daemon.status()
+    assert daemon.terminate() == 0
+    for name in ("status.sock", "motorctld.lock"):
+        assert not (daemon.state_dir / name).exists(), name
+    assert not daemon.pty.is_symlink()
+    assert not (tmp_path / ".motorctl.pty.lock").exists()
+
+
+def test_sighup_stops_cleanly_and_keeps_state(daemon: DaemonProcess, tmp_path: Path) -> None:
+    with daemon.client() as c:
+        c.move_to(0, 321)
+        c.wait_moved(0, 5000)
+    assert daemon.proc is not None
+    daemon.proc.send_signal(signal.SIGHUP)
+    assert daemon.proc.wait(DEADLINE_S) == 0
+    assert "SIGHUP" in daemon.stderr() and "stopping as for SIGTERM" in daemon.stderr()
+    no_traceback(daemon)
+    assert not daemon.pty.is_symlink()
+    d2 = DaemonProcess(tmp_path, state_dir=daemon.state_dir).start()
+    try:
+        with d2.client() as c:
+            assert c.position(0) == 321
+    finally:
+        d2.close()
+
+
+def test_pty_is_0660_with_the_daemons_group(daemon: DaemonProcess) -> None:
+    st = os.stat(daemon.pty)
+    assert stat.S_IMODE(st.st_mode) == 0o660
+    assert st.st_gid == os.getegid()
+
+
+@pytest.mark.parametrize("kind", ["bad bytes", "directory"])
+def test_bad_state_file_starts_with_every_motor_lost(tmp_path: Path, kind: str) -> None:
+    state = tmp_path / "state"
+    state.mkdir()
+    if kind == "directory":
+        (state / "state.json").mkdir()
+    else:
+        (state / "state.json").write_bytes(b"\xff\xfe{")
+    d = DaemonProcess(tmp_path, state_dir=state).start()
+    try:
+        assert "every motor must be homed again" in d.stderr()
+        assert (state / "state.json.bad").exists()
+        with d.client() as c:
+            with pytest.raises(DeviceError) as exc:
+                c.move_to(0, 10)
+            assert exc.value.code == E.MOTOR_ERROR
+            c.init_move(0, False, speed=1)
+            c.wait_moved(0, 20_000)
+            c.move_to(0, 10)  # homed: position known again
+        assert "nothing restored" in d.status()["state"]["restored"]
+    finally:
+        d.close()
+    no_traceback(d)
+
+
+def test_read_only_state_dir_while_running(daemon: DaemonProcess) -> None:
+    with daemon.client() as c:
+        c.move_to(0, 50)
+        c.wait_moved(0, 5000)
+        assert c.save_waypoint(0) == 0
+        with read_only(daemon.state_dir):
+            with pytest.raises(DeviceError) as exc:
+                c.save_waypoint(0)
+            assert exc.value.code == E.MOTOR_ERROR  # never "saved" for what is not
+            with pytest.raises(DeviceError):
+                c.save_home(0)
+            state = daemon.status()["state"]
+            assert state["ok"] is False and "Read-only" in state["last_error"]
+            assert daemon.terminate() == 0  # shutdown with an unwritable directory
+    no_traceback(daemon)
+    assert "cannot write state file" in daemon.stderr()
+    assert not daemon.pty.is_symlink()
+
+
+def test_kill_right_after_a_motion_ack_loses_the_position(daemon: DaemonProcess,
+                                                          tmp_path: Path) -> None:
+    with daemon.client() as c:
+        c.move_to(0, 100)
+        c.wait_moved(0, 5000)
+        c.move_to(0, 5000, speed=1)  # ACKed: "moving" is on disk already
+    daemon.kill()
+    d2 = DaemonProcess(tmp_path, state_dir=daemon.state_dir).start()
+    try:
+        assert "was moving when the daemon stopped" in d2.stderr()
+        with d2.client() as c, pytest.raises(DeviceError) as exc:
+            c.move_to(0, 0)
+        assert exc.value.code == E.MOTOR_ERROR
+    finally:
+        d2.close()
+
+
+def test_notifications_on_a_fake_notify_socket(tmp_path: Path) -> None:
+    path = tmp_path / "notify.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
+        sock.bind(str(path))
+        sock.settimeout(DEADLINE_S)
+        d = DaemonProcess(tmp_path, env={"NOTIFY_SOCKET": str(path)}).start()
+        try:
+            seen: list[str] = []
+
+            def wait_for(prefix: str) -> str:
+                while True:
+                    try:
+                        msg = sock.recv(4096).decode()
+                    except TimeoutError:
+                        raise AssertionError(f"no {prefix} in {DEADLINE_S} s: {seen}") from None
+                    seen.append(msg)
+                    if msg.startswith(prefix):
+                        return msg
+
+            wait_for("READY=1")
+            assert "0 moving" in wait_for("STATUS=")
+            with d.client() as c:
+                c.move(0, True, speed=1)
+                assert "1 moving" in wait_for("STATUS=")
+            assert d.terminate() == 0
+            wait_for("STOPPING=1")
+        finally:
+            d.close()
+
+
+def test_a_held_uart_names_its_holder(tmp_path: Path) -> None:
+    """A UART (here a PTY's slave, opened like a serial device) flocked by someone else."""
+    import fcntl
+
+    master, slave = os.openpty()
+    device = os.ttyname(slave)
+    holder = os.open(device, os.O_RDWR | os.O_NOCTTY)
+    fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # what pyserial's exclusive=True takes
+    try:
+        out = subprocess.run(
+            [sys.executable, "-m", "motorctl.daemon.main", "--port", device,
+             "--state-dir", str(tmp_path / "state")],
+            capture_output=True, text=True, timeout=DEADLINE_S)
+    finally:
+        for fd in (holder, slave, master):
+            os.close(fd)
+    assert out.returncode == 1, out.stderr
+    assert f"serial device {device} is held by another process (PID {os.getpid()})" \
+        in out.stderr
+    assert "Traceback" not in out.stderr
+    assert not (tmp_path / "state" / "motorctld.lock").exists()  # released on the way out

@@ -1,0 +1,443 @@
+"""Persistence in-process: bad state files of every kind, config changes, complete-or-absent
+writes (short writes, read-only directory), the motion journal, ACK-after-write of saves."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from motorctl.daemon import state as st
+from motorctl.daemon.config import ConfigError, parse_config
+from motorctl.daemon.main import Daemon
+from motorctl.daemon.state import (
+    MotionJournal,
+    MotorIdentity,
+    StateError,
+    parse_state,
+    read_state,
+    write_all,
+    write_atomic,
+)
+from motorctl.hal.interfaces import VirtualClock
+from motorctl.protocol.codec import ErrorCode, MoveTo, Response, SaveHome, SaveWayPoint
+from tests.fsutil import read_only
+
+E = ErrorCode
+
+CONFIG = """
+[[motors]]
+name = "a"
+max_speed = 3000.0
+max_waypoints = 3
+[[motors]]
+name = "b"
+max_speed = 3000.0
+"""
+ROTARY = CONFIG.replace('name = "b"', 'name = "b"\nsteps_per_rev = 400')
+
+
+def build(tmp_path: Path, config: str = CONFIG) -> Daemon:
+    return Daemon.build(parse_config(config, "test.toml"), tmp_path, VirtualClock())
+
+
+def move(d: Daemon, motor: int, pos: int) -> None:
+    assert d.dispatcher.handle(MoveTo(motor, True, pos, 0, 0, 0)).ack
+    d.engine.run_until_idle()
+
+
+def saved(tmp_path: Path) -> dict[str, Any]:
+    data = json.loads((tmp_path / "state.json").read_text())
+    assert isinstance(data, dict)
+    return data
+
+
+def lost(d: Daemon) -> list[bool]:
+    return [m.position_lost for m in d.engine.motors]
+
+
+def good_state(tmp_path: Path) -> dict[str, Any]:
+    """A state file written by a daemon: motor a at 120 with home 7 and one waypoint."""
+    d = build(tmp_path)
+    move(d, 0, 7)
+    assert d.dispatcher.handle(SaveHome(0)).ack
+    move(d, 0, 120)
+    assert d.dispatcher.handle(SaveWayPoint(0)).ack
+    d.persistence.close()
+    return saved(tmp_path)
+
+
+# -- a good file round-trips ---------------------------------------------------------------
+def test_restore_by_name(tmp_path: Path) -> None:
+    good_state(tmp_path)
+    d = build(tmp_path)
+    a = d.engine.motors[0]
+    assert (a.position, a.home, a.waypoints) == (120, 7, [120])
+    assert lost(d) == [False, False]
+    assert "restored 2 motors" in d.persistence.status()["restored"]
+    assert not (tmp_path / "state.json.bad").exists()
+
+
+def test_fresh_start_has_nothing_to_restore(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    assert lost(d) == [False, False]
+    assert d.persistence.restored == "nothing to restore"
+    assert saved(tmp_path)["version"] == st.STATE_VERSION  # written at once
+
+
+# -- every kind of unreadable file: moved aside, every motor must be homed ------------------
+BAD: dict[str, bytes] = {
+    "bad bytes": b'{"version": 2, "motors": []}\xff\xfe',
+    "bad json": b'{"version": 2, "motors": [',
+    "not an object": b"[1, 2]",
+    "old version": b'{"version": 1, "motors": []}',
+    "motors not a list": b'{"version": 2, "motors": {}}',
+}
+
+
+def _mutated(tmp_path: Path, key: str, value: Any) -> bytes:
+    data = good_state(tmp_path)
+    data["motors"][0][key] = value
+    return json.dumps(data).encode()
+
+
+@pytest.mark.parametrize("kind", sorted(BAD))
+def test_unreadable_file_is_set_aside(tmp_path: Path, kind: str,
+                                      caplog: pytest.LogCaptureFixture) -> None:
+    (tmp_path / "state.json").write_bytes(BAD[kind])
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert (tmp_path / "state.json.bad").read_bytes() == BAD[kind]
+    assert "every motor must be homed again" in caplog.text
+    assert "kept it as" in caplog.text
+    assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
+    assert saved(tmp_path)["motors"][0]["position_lost"] is True
+
+
+@pytest.mark.parametrize(("key", "value", "says"), [
+    ("position", "abc", "not an integer"),
+    ("position", True, "not an integer"),
+    ("position", 99_999_999, "outside"),
+    ("home", -(1 << 23) - 1, "outside"),
+    ("waypoints", "x", "not a list"),
+    ("waypoints", [1, "2"], "not an integer"),
+    ("waypoints", list(range(256)), "the table holds 255"),
+    ("moving", "no", "not true or false"),
+    ("name", 3, "not a string"),
+])
+def test_wrong_types_and_inconsistent_values(tmp_path: Path, key: str, value: Any,
+                                             says: str,
+                                             caplog: pytest.LogCaptureFixture) -> None:
+    bad = _mutated(tmp_path, key, value)
+    (tmp_path / "state.json").write_bytes(bad)
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert says in caplog.text
+    assert (tmp_path / "state.json.bad").read_bytes() == bad
+    assert d.engine.motors[0].waypoints == []
+
+
+def test_duplicate_names(tmp_path: Path) -> None:
+    data = good_state(tmp_path)
+    data["motors"][1]["name"] = "a"
+    with pytest.raises(StateError, match="same name"):
+        parse_state(json.dumps(data).encode())
+
+
+def test_a_motor_entry_that_is_not_an_object() -> None:
+    with pytest.raises(StateError, match=r"motors\[0\] is not an object"):
+        parse_state(b'{"version": 2, "motors": [3]}')
+
+
+def test_directory_in_place_of_the_file(tmp_path: Path,
+                                        caplog: pytest.LogCaptureFixture) -> None:
+    (tmp_path / "state.json").mkdir()
+    (tmp_path / "state.json" / "junk").write_text("x")
+    (tmp_path / "state.json.bad").mkdir()  # an older one, also a directory: replaced
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert "is a directory" in caplog.text
+    assert (tmp_path / "state.json.bad" / "junk").exists()
+    assert saved(tmp_path)["version"] == st.STATE_VERSION
+
+
+def test_unreadable_permissions(tmp_path: Path) -> None:
+    path = tmp_path / "state.json"
+    path.symlink_to(path)  # a loop: ELOOP, like any other OSError
+    with pytest.raises(StateError, match="cannot be read"):
+        read_state(path)
+
+
+# -- files for another config: restore nothing for the motors that changed --------------------
+def test_swapped_names_restore_by_name(tmp_path: Path) -> None:
+    good_state(tmp_path)
+    swapped = CONFIG.replace('"a"', '"tmp"').replace('"b"', '"a"').replace('"tmp"', '"b"')
+    d = build(tmp_path, swapped.replace("max_waypoints = 3", "max_waypoints = 5"))
+    b, a = d.engine.motors
+    assert (a.params.name, a.position, a.home, a.waypoints) == ("a", 120, 7, [120])
+    assert b.position == 0 and not b.position_lost
+
+
+def test_renamed_or_changed_geometry(tmp_path: Path,
+                                     caplog: pytest.LogCaptureFixture) -> None:
+    good_state(tmp_path)
+    caplog.set_level(logging.WARNING)
+    d = build(tmp_path, ROTARY.replace('"a"', '"x"'))
+    assert lost(d) == [True, True]
+    assert "motor 0 (x): nothing restored" in caplog.text
+    assert "not in the state file" in caplog.text
+    assert "motor 1 (b): nothing restored" in caplog.text
+    assert "geometry changed" in caplog.text
+    assert (tmp_path / "state.json.bad").exists()
+    assert "restored 0 of 2" in d.persistence.restored
+
+
+def test_more_waypoints_than_the_configured_table(tmp_path: Path,
+                                                  caplog: pytest.LogCaptureFixture) -> None:
+    data = good_state(tmp_path)
+    data["motors"][0]["waypoints"] = [1, 2, 3, 4]
+    (tmp_path / "state.json").write_text(json.dumps(data))
+    d = build(tmp_path)
+    assert lost(d) == [True, False]
+    assert "4 waypoints saved, its table holds 3" in caplog.text
+    assert d.engine.motors[0].waypoints == []
+
+
+def test_rotary_position_outside_its_revolution(tmp_path: Path) -> None:
+    build(tmp_path, ROTARY).persistence.close()
+    data = saved(tmp_path)
+    data["motors"][1]["position"] = 400
+    (tmp_path / "state.json").write_text(json.dumps(data))
+    d = build(tmp_path, ROTARY)
+    assert lost(d) == [False, True]
+
+
+def test_match_motors_unit() -> None:
+    state = parse_state(json.dumps({"version": 2, "motors": [
+        {"name": "a", "fingerprint": "f", "position": 1, "home": 0, "waypoints": [],
+         "moving": False, "position_lost": False}]}).encode())
+    out = st.match_motors(state, [MotorIdentity("a", "f"), MotorIdentity("a", "g"),
+                                  MotorIdentity("c", "f")])
+    assert out[0].saved is not None and out[0].problem is None
+    assert out[1].problem is not None and "geometry" in out[1].problem
+    assert out[2].problem == "not in the state file"
+
+
+# -- moving when the daemon died -----------------------------------------------------------------
+def test_saved_moving_means_lost_but_home_and_waypoints_kept(tmp_path: Path,
+                                                             caplog: pytest.LogCaptureFixture
+                                                             ) -> None:
+    data = good_state(tmp_path)
+    data["motors"][0]["moving"] = True
+    (tmp_path / "state.json").write_text(json.dumps(data))
+    d = build(tmp_path)
+    a = d.engine.motors[0]
+    assert a.position_lost and a.home == 7 and a.waypoints == [120]
+    assert "motor 0 (a) was moving when the daemon stopped" in caplog.text
+
+
+def test_journal_marks_moving_before_the_ack(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    journal = tmp_path / st.JOURNAL_NAME
+    assert journal.read_bytes() == b"00"
+    assert d.dispatcher.handle(MoveTo(1, True, 500, 0, 0, 0)).ack
+    # A SIGKILL now: state.json still says "at rest at 0", the journal says moving.
+    assert journal.read_bytes() == b"01"
+    assert saved(tmp_path)["motors"][1]["moving"] is False
+    d2 = build(tmp_path)  # what a restart would see
+    assert lost(d2) == [False, True]
+
+
+def test_journal_cleared_once_at_rest_is_durable(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    move(d, 1, 500)
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"01"
+    assert d.writer.write_now()  # what the writer thread does on the idle event
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+    d2 = build(tmp_path)
+    assert lost(d2) == [False, False]
+    assert d2.engine.motors[1].position == 500
+
+
+def test_a_rejected_motion_leaves_no_mark_after_the_next_write(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    # Out of the 24-bit range on a linear axis is fine, but a queue... use a fault instead:
+    d.engine.motors[0].fault = "test"
+    assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"10"
+    d.writer.write_now()
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+
+
+def test_journal_token_protects_a_start_in_flight(tmp_path: Path) -> None:
+    j = MotionJournal(tmp_path / "j", 1)
+    j.reset()
+    j.begin(0)
+    assert j.token(0) is None  # a snapshot now must not clear
+    j.clear_if_unchanged(0, None)
+    assert j.flagged() == [True]
+    j.end(0)
+    token = j.token(0)
+    j.begin(0)  # restarted after the snapshot: the old token no longer clears
+    j.end(0)
+    j.clear_if_unchanged(0, token)
+    assert j.flagged() == [True]
+    j.clear_if_unchanged(0, j.token(0))
+    assert j.flagged() == [False]
+    assert j.marks == 1  # the second begin found the flag already durable
+    j.close()
+    j.clear_if_unchanged(0, j.token(0))
+
+
+def test_journal_unreadable_or_missing_state(tmp_path: Path,
+                                             caplog: pytest.LogCaptureFixture) -> None:
+    good_state(tmp_path)
+    (tmp_path / st.JOURNAL_NAME).write_bytes(b"zz")
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert "motion journal" in caplog.text and "unreadable" in caplog.text
+    (tmp_path / "state.json").unlink()
+    (tmp_path / st.JOURNAL_NAME).write_bytes(b"01")
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert MotionJournal.read(tmp_path / "nothing") == []
+    (tmp_path / "dir").mkdir()
+    assert MotionJournal.read(tmp_path / "dir") is None
+
+
+def test_journal_directory_in_its_place(tmp_path: Path) -> None:
+    (tmp_path / st.JOURNAL_NAME).mkdir()
+    j = MotionJournal(tmp_path / st.JOURNAL_NAME, 2)
+    j.reset()
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+    assert (tmp_path / (st.JOURNAL_NAME + ".bad")).is_dir()
+    j.close()
+
+
+def test_journal_not_open_refuses_motion(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    d.persistence.journal.close()
+    r = d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0))
+    assert r.error_code is E.MOTOR_ERROR
+    assert d.persistence.status()["motion_refused"] == 1
+    assert d.engine.motors[0].idle
+
+
+# -- writes: complete or absent ------------------------------------------------------------------
+def test_short_writes_are_completed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = os.write
+    sizes: list[int] = []
+
+    def short(fd: int, data: Any) -> int:
+        sizes.append(len(data))
+        return real(fd, bytes(data)[:7])  # the kernel may write less than asked
+
+    monkeypatch.setattr(os, "write", short)
+    payload = b"x" * 100
+    write_atomic(tmp_path / "f", payload)
+    assert (tmp_path / "f").read_bytes() == payload
+    assert len(sizes) == 15
+
+
+def test_a_write_that_returns_zero_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "f").write_bytes(b"good")
+    monkeypatch.setattr(os, "write", lambda fd, data: 0)
+    with pytest.raises(OSError):
+        write_atomic(tmp_path / "f", b"new state")
+    assert (tmp_path / "f").read_bytes() == b"good"  # never a truncated file in its place
+    assert not (tmp_path / "f.tmp").exists()
+
+
+def test_write_all_full_disk() -> None:
+    r, w = os.pipe()
+    os.close(r)
+    with pytest.raises(OSError):
+        write_all(w, b"x")  # EPIPE: any OSError propagates
+    os.close(w)
+
+
+def test_read_only_directory_save_answers_e4(tmp_path: Path,
+                                             caplog: pytest.LogCaptureFixture) -> None:
+    caplog.set_level(logging.INFO)
+    d = build(tmp_path)
+    move(d, 0, 40)
+    before = saved(tmp_path)
+    with read_only(tmp_path):
+        r = d.dispatcher.handle(SaveWayPoint(0))
+        assert r.error_code is E.MOTOR_ERROR
+        assert d.engine.motors[0].waypoints == []  # undone: the host was not told "saved"
+        assert d.dispatcher.handle(SaveHome(0)).error_code is E.MOTOR_ERROR
+        assert d.engine.motors[0].home == 0
+        status = d.persistence.status()
+        assert status["ok"] is False and status["save_errors"] == 2
+        assert "cannot write state file" in status["last_error"]
+        assert not d.persistence.close()  # the final write fails without a traceback
+    assert saved(tmp_path) == before
+    assert caplog.text.count("cannot write state file") == 1  # logged once, not per write
+    assert "motor 0: SaveWayPoint not saved" in caplog.text
+    rec = next(r for r in caplog.records if "SaveHome not saved" in r.getMessage())
+    assert (rec.MOTOR, rec.COMMAND, rec.ERROR_CODE) == (0, "SaveHome", "E4")  # type: ignore[attr-defined]
+    assert d.writer.write_now()
+    assert d.persistence.status()["ok"] is True
+    assert "written again" in caplog.text
+
+
+def test_set_aside_fails_on_read_only_dir(tmp_path: Path,
+                                          caplog: pytest.LogCaptureFixture) -> None:
+    (tmp_path / "state.json").write_bytes(b"\xff")
+    with read_only(tmp_path):
+        assert st.set_aside(tmp_path / "state.json") is None
+    assert "cannot move" in caplog.text
+
+
+def test_save_acks_only_after_the_write(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    move(d, 0, 33)
+    r = d.dispatcher.handle(SaveWayPoint(0))
+    assert r == Response.ok(bytes([0]))
+    assert saved(tmp_path)["motors"][0]["waypoints"] == [33]  # on disk when the ACK leaves
+    assert d.dispatcher.handle(SaveHome(0)).ack
+    assert saved(tmp_path)["motors"][0]["home"] == 33
+
+
+def test_writer_thread_and_status(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    d.persistence.start()
+    move(d, 0, 10)  # the idle event requests a write from the thread
+    d.persistence.close()
+    s = d.persistence.status()
+    assert s["writes"] >= 2 and s["errors"] == 0 and s["journal"]["marks"] == 1
+    assert s["journal"]["mean_mark_us"] > 0
+    assert saved(tmp_path)["motors"][0]["position"] == 10
+
+
+def test_open_with_unwritable_journal(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    d = build(tmp_path)
+    d.persistence.close()
+    (tmp_path / st.JOURNAL_NAME).unlink()
+    (tmp_path / st.JOURNAL_NAME).symlink_to(tmp_path / "missing" / "j")
+    d = build(tmp_path)
+    assert "cannot start the motion journal" in caplog.text
+    assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
+
+
+def test_identities_must_match_motors(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    with pytest.raises(ValueError):
+        st.Persistence(tmp_path, [], d.engine)
+
+
+def test_state_directory_option(tmp_path: Path) -> None:
+    elsewhere = tmp_path / "var-lib"
+    config = f'[state]\ndirectory = "{elsewhere}"\n' + CONFIG
+    d = build(tmp_path / "run", config)
+    move(d, 0, 9)
+    d.persistence.close()
+    assert json.loads((elsewhere / "state.json").read_text())["motors"][0]["position"] == 9
+    assert not (tmp_path / "run" / "state.json").exists()
+    with pytest.raises(ConfigError, match="absolute path"):
+        parse_config('[state]\ndirectory = "relative"\n' + CONFIG, "t.toml")

@@ -1,0 +1,115 @@
+"""motorctld as a real process with TMC drivers on (fake) SPI: start-up checks and E4 faults.
+
+The daemon imports ``spidev`` as it would on a Raspberry Pi; tests/fakespi/spidev.py stands
+in for py-spidev there, with register-level chip models (tests/tmc_model.py) behind it.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from motorctl.client.client import DeviceError
+from motorctl.protocol.codec import ErrorCode
+from tests.daemon_proc import DaemonProcess
+
+FAKESPI = Path(__file__).resolve().parent / "fakespi"
+
+CONFIG = """\
+[[motors]]
+name = "x"
+[motors.tmc]
+driver = "tmc2130"
+spi = "/dev/spidev0.0"
+poll_ms = 5.0
+
+[[motors]]
+name = "y"
+[motors.tmc]
+driver = "tmc5160"
+spi = "/dev/spidev0.1"
+run_current = 2.0
+hold_current = 1.0
+"""
+
+
+@pytest.fixture
+def fake_spi(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    control = tmp_path / "control.json"
+    path = os.pathsep.join(p for p in (str(FAKESPI), os.environ.get("PYTHONPATH")) if p)
+    monkeypatch.setenv("PYTHONPATH", path)
+    chips = {"0.0": "tmc2130", "0.1": "tmc5160"}
+    monkeypatch.setenv("MOTORCTL_FAKE_SPI", json.dumps({"chips": chips,
+                                                        "control": str(control)}))
+    return control
+
+
+def set_chips(control: Path, state: dict[str, object]) -> None:
+    tmp = control.with_suffix(".tmp")
+    tmp.write_text(json.dumps(state))
+    os.replace(tmp, control)
+
+
+@pytest.fixture
+def daemon(tmp_path: Path, fake_spi: Path) -> Iterator[DaemonProcess]:
+    d = DaemonProcess(tmp_path, CONFIG).start()
+    try:
+        yield d
+    finally:
+        d.kill()
+
+
+def test_a_driver_fault_answers_e4_until_it_clears(daemon: DaemonProcess, fake_spi: Path) -> None:
+    with daemon.client() as c:
+        c.move_to(0, 50, speed=250)
+        c.wait_moved(0, timeout_ms=10_000)
+        set_chips(fake_spi, {"0.0": {"faults": [25]}})  # over-temperature on motor x
+        deadline = time.monotonic() + 10.0
+        while True:  # a move either is refused (E4) or is stopped by the fault (E4)
+            try:
+                c.move_to(0, 0, speed=250)
+                c.wait_moved(0, timeout_ms=10_000)
+            except DeviceError as exc:
+                assert exc.code is ErrorCode.MOTOR_ERROR
+                break
+            assert time.monotonic() < deadline, "no E4 within 10 s of the fault"
+        with pytest.raises(DeviceError) as e:
+            c.stop(0, hard=True)  # the driver still reports it: the fault stays
+        assert e.value.code is ErrorCode.MOTOR_ERROR
+        c.move_to(1, 100, speed=250)  # motor y is unaffected
+        set_chips(fake_spi, {"0.0": {"faults": []}})
+        deadline = time.monotonic() + 10.0
+        while True:
+            try:
+                c.stop(0, hard=True)
+                break
+            except DeviceError:
+                assert time.monotonic() < deadline, "the fault did not clear within 10 s"
+                time.sleep(0.05)
+        c.move_to(0, 10, speed=250)
+        c.wait_moved(0, timeout_ms=10_000)
+    assert daemon.terminate() == 0
+
+
+def test_a_wrong_chip_stops_the_daemon_with_a_clear_message(
+    tmp_path: Path, fake_spi: Path
+) -> None:
+    wrong = CONFIG.replace('driver = "tmc2130"', 'driver = "tmc5160"', 1)
+    with pytest.raises(RuntimeError) as e:
+        DaemonProcess(tmp_path, wrong).start()
+    msg = str(e.value)
+    assert "/dev/spidev0.0" in msg and "found a TMC2130" in msg
+    assert "Traceback" not in msg
+
+
+def test_a_missing_spi_device_stops_the_daemon_naming_it(tmp_path: Path, fake_spi: Path) -> None:
+    missing = CONFIG.replace("/dev/spidev0.1", "/dev/spidev1.0")
+    with pytest.raises(RuntimeError) as e:
+        DaemonProcess(tmp_path, missing).start()
+    msg = str(e.value)
+    assert "/dev/spidev1.0 does not exist" in msg and "Traceback" not in msg
