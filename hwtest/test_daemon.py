@@ -9,6 +9,7 @@ every level the daemon set, in order, with CLOCK_MONOTONIC timestamps.
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 import time
@@ -30,8 +31,11 @@ API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 
 
 def example_config() -> str:
-    """The documented example, with the API forced and without real-time priority."""
-    text = EXAMPLE.read_text()
+    """The documented example, with the API forced, without real-time priority and without
+    its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
+    hwtest/spi_wire.py and tests/test_tmc*.py)."""
+    text = re.sub(r"  \[motors\.tmc\][^\n]*\n(  \w+ = [^\n]*\n)*", "", EXAMPLE.read_text())
+    assert not re.search(r"^\s*\[motors\.tmc\]|^\s*driver = ", text, re.M)
     text = text.replace("priority = 50 ", "priority = 0  ")
     text = text.replace('api = "auto"', f'api = "{API}"')
     assert f'api = "{API}"' in text and "priority = 0 " in text
@@ -305,3 +309,18 @@ def test_shutdown_leaves_outputs_at_their_safe_values(tmp_path: Path) -> None:
     assert last == {0: 0, 1: 1, 2: 0}
     in1, in2 = (gsim.changes(gsim.sets(ev, gpio(x)))[-1].value for x in DC[:2])
     assert (in1, in2) == (1, 1), "the DC motor was not braked at shutdown"
+
+
+def test_probe_of_the_full_example_adds_the_spi_drivers_through_the_hook(tmp_path: Path) -> None:
+    """With its [motors.tmc] tables the example's probe also asks the SPI layer (registry
+    PROBES): the guest has no /dev/spidev0.x, which is a named problem, the GPIO part stays."""
+    cfg = tmp_path / "pi.toml"
+    cfg.write_text(EXAMPLE.read_text().replace('api = "auto"', f'api = "{API}"'))
+    end_stops_clear()
+    out = run_probe(cfg)
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "configured lines (before opening)" in out.stdout
+    assert "all 20 lines requested as 'motorctl' and released; nothing moved" in out.stdout
+    problems = [ln for ln in out.stdout.splitlines() if ln.startswith("PROBLEM:")]
+    assert problems and all("spidev" in p for p in problems), out.stdout
+    assert "Traceback" not in out.stdout + out.stderr
