@@ -21,8 +21,8 @@ Parts (each reports its figures and every invariant violation; exit status 1 if 
   or SaveHome ACK, mid-move, at rest), restart on the same state directory, then check that
   no motor reports a wrong position as valid and that home and every acknowledged waypoint
   are there (and hold the right values).
-- faults: the state directory turns read-only (a tmpfs remounted; needs root, else
-  skipped and said so): SaveHome/SaveWayPoint must answer E4 and change nothing, the
+- faults: the state directory turns read-only (a read-only bind mount onto itself; needs
+  root, else skipped and said so): SaveHome/SaveWayPoint must answer E4 and change nothing, the
   daemon keeps serving, and after a kill -9 every acknowledged save is there. (Line and
   driver faults are injected in-process: tests/test_hal_faults.py.)
 - soak: mixed traffic as fast as the host can send while 3 motors move, for --soak-s
@@ -300,6 +300,7 @@ class Port:
     phase = 0
     stall = 0.0
     _last_start = 0.0
+    _full = False
 
     def clear_stall(self, phase: int | None = None) -> None:
         self.stall = 0.0
@@ -315,13 +316,18 @@ class Port:
                 raise TimeoutError("the daemon stopped taking the host's bytes")
             if select.select([], [self.fd], [], min(left, 0.1))[1]:
                 start = time.monotonic()
+                chunk = view[:65536]
                 try:
-                    n = os.write(self.fd, view[:65536])
+                    n = os.write(self.fd, chunk)
                 except BlockingIOError:
+                    self._full = True
                     continue
                 done = time.monotonic()
-                if self.phase:
+                # After a write the kernel only partly took, the host waits for room: the
+                # daemon has bytes to read, the line is not silent for it, no stall.
+                if self.phase and not self._full:
                     self.stall = max(self.stall, done - self._last_start)
+                self._full = n < len(chunk)
                 self._last_start = start
                 self.phase = (self.phase + n) % 10
                 view = view[n:]
@@ -358,6 +364,7 @@ class Report:
         self.violations: list[str] = []
         self.figures: dict[str, Any] = {}
         self.host_stalls = 0  # segments skipped because the host itself made a gap
+        self.skipped_frames = 0  # the frames in them (sent, answered, not checked)
         self.resync = False  # set after a skipped segment: re-read the daemon's discards
 
     def violation(self, what: str) -> None:
@@ -373,6 +380,7 @@ def exchange(port: Port, frames: Sequence[bytes], report: Report,
     port.write(b"".join(frames))
     if port.stall > GAP_S:
         recover_from_host_stall(port, report, what)
+        report.skipped_frames += len(frames)
         return []
     data = port.take(5 * len(frames))
     if len(data) != 5 * len(frames):
@@ -559,6 +567,7 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                     time.sleep(rng.uniform(0, 0.2 * GAP_S))
                 if port.stall > GAP_S:
                     recover_from_host_stall(port, report, "byte by byte")
+                    report.skipped_frames += len(frames)
                     frames = []
                 data = port.take(5 * len(frames))
                 each = [data[i : i + 5] for i in range(0, len(data), 5)]
@@ -871,12 +880,16 @@ def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
         up = True
         while time.monotonic() - t0 < seconds and len(report.violations) == violations_before:
             now = time.monotonic()
-            if now >= flip:
+            if now >= flip:  # reverse every second, and always back towards 0 when far out
                 flip = now + 1.0
                 up = not up
-                moves = [cmd(MOVE, mot, int(up) ^ (mot % 2), 20, 0, 0) for mot in range(3)]
+                moves = []
+                for mot in range(3):
+                    pos = pos_of(ask(port, cmd(GET_POS, mot), report, "GetAbsPos"))
+                    way = (int(up) ^ (mot % 2)) if abs(pos) < 2000 else int(pos < 0)
+                    moves.append(cmd(MOVE, mot, way, 20, 0, 0))
                 exchange(port, moves, report, [ok()] * 3, "Move")
-                frames_total += 3
+                frames_total += 6
             frames = []
             answers = []
             for _ in range(rng.randrange(100, 2000)):
@@ -944,18 +957,17 @@ def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
 def part_faults(workdir: Path, report: Report) -> None:
     """SaveHome/SaveWayPoint while the state directory is read-only must answer E4 (the
     state cannot be written) and change nothing; the daemon keeps serving; once writable
-    again, saves work, and a kill -9 loses none of the acknowledged ones."""
-    mnt = workdir / "state"
-    mnt.mkdir()
-    mounted = subprocess.run(["mount", "-t", "tmpfs", "-o", "size=1m", "tmpfs", str(mnt)],
-                             capture_output=True, text=True)
-    if mounted.returncode != 0:
-        report.figures["faults"] = {"state_dir_read_only": "skipped: cannot mount a tmpfs "
-                                    f"({mounted.stderr.strip()}); run as root"}
-        return
+    again, saves work, and a kill -9 loses none of the acknowledged ones.
+
+    The directory turns read-only under the running daemon by a read-only bind mount of it
+    onto itself (files the daemon already holds open stay as they are, as on a filesystem
+    that the kernel remounted read-only after an error); needs root."""
+    state = workdir / "state"
+    state.mkdir()
     answers: dict[str, str] = {}
-    d = Daemon(workdir, mnt).start()
+    d = Daemon(workdir, state).start()
     port = Port(d.pty)
+    read_only = False
     try:
         exchange(port, [cmd(MOVE_TO, 0, 1, 500, 0, 0, 0)], report, [ok()], "MoveTo")
         wait_idle(port, 0, report)
@@ -963,7 +975,11 @@ def part_faults(workdir: Path, report: Report) -> None:
         exchange(port, [cmd(MOVE_TO, 0, 1, 700, 0, 0, 0)], report, [ok()], "MoveTo")
         wait_idle(port, 0, report)
         time.sleep(0.2)  # the motor's rest has been written
-        remount(mnt, "ro")
+        why = make_read_only(state)
+        if why:
+            report.figures["faults"] = {"state_dir_read_only": f"skipped: {why}"}
+            return
+        read_only = True
         for name, frame in (("SaveHome", cmd(SAVE_HOME, 0)), ("SaveWayPoint", cmd(SAVE_WP, 0))):
             r = ask(port, frame, report, name)
             answers[name + " read-only"] = r.hex()
@@ -973,7 +989,8 @@ def part_faults(workdir: Path, report: Report) -> None:
         r = ask(port, cmd(IS_READY, 0), report, "IsReady")
         if r != ok(b"\x01\0\0"):
             report.violation(f"faults: IsReady after the failed saves answered {r.hex()}")
-        remount(mnt, "rw")
+        subprocess.run(["umount", str(state)], check=True, capture_output=True)
+        read_only = False
         r = ask(port, cmd(SAVE_WP, 0), report, "SaveWayPoint")
         answers["SaveWayPoint writable again"] = r.hex()
         expected_wps = 2 if r == ok(b"\x01\0\0") else 1
@@ -981,7 +998,7 @@ def part_faults(workdir: Path, report: Report) -> None:
             report.violation(f"faults: SaveWayPoint once writable again answered {r.hex()}")
         d.kill()
         port.close()
-        d = Daemon(workdir, mnt).start()
+        d = Daemon(workdir, state).start()
         port = Port(d.pty)
         for n in range(expected_wps):
             if ask(port, cmd(MOVE_TO_WP, 0, n, 0, 0, 0), report, "MoveToWayPoint") == err(E6):
@@ -998,13 +1015,22 @@ def part_faults(workdir: Path, report: Report) -> None:
     finally:
         port.close()
         d.kill()
-        subprocess.run(["umount", "-l", str(mnt)], capture_output=True)
+        if read_only:
+            subprocess.run(["umount", str(state)], capture_output=True)
     report.figures["faults"] = {"state_dir_read_only": answers}
 
 
-def remount(mnt: Path, mode: str) -> None:
-    subprocess.run(["mount", "-o", f"remount,{mode}", str(mnt)], check=True,
-                   capture_output=True)
+def make_read_only(path: Path) -> str | None:
+    """Bind-mount ``path`` read-only onto itself; None, or why it could not be done."""
+    steps = (["mount", "--bind", str(path), str(path)],
+             ["mount", "-o", "remount,bind,ro", str(path)])
+    for i, step in enumerate(steps):
+        done = subprocess.run(step, capture_output=True, text=True)
+        if done.returncode != 0:
+            if i:
+                subprocess.run(["umount", str(path)], capture_output=True)
+            return f"{' '.join(step)}: {done.stderr.strip()} (needs root)"
+    return None
 
 
 PARTS: dict[str, Callable[[Path, argparse.Namespace, Report], None]] = {
@@ -1049,6 +1075,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if log_text:
                 report.figures.setdefault("daemon_log_tail", {})[name] = log_text[-3000:]
     report.figures["host_stalls_skipped"] = report.host_stalls
+    report.figures["frames_in_skipped_segments"] = report.skipped_frames
     result = {"figures": report.figures, "violations": report.violations}
     print(json.dumps(result, indent=1))
     if args.json:

@@ -137,6 +137,7 @@ class Dispatcher:
             journalled = cmd.motor
         try:
             with self.engine.lock:
+                self.engine.process_events(self.engine.clock.now())
                 resp = handler(cmd)
         except Reject as r:
             resp = Response.error(r.code)
@@ -169,6 +170,7 @@ class Dispatcher:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
         try:
             with self.engine.lock:
+                self.engine.process_events(now)
                 m = self._motor(cmd.motor)
                 self._not_faulted(m)
                 if m.idle:
@@ -182,6 +184,7 @@ class Dispatcher:
     def wait_poll(self, wait: Wait, now: float) -> Response | None:
         """The held WaitMoved's answer once it has one: ACK, E4 on a fault, E3 at timeout."""
         with self.engine.lock:
+            self.engine.process_events(now)
             m = wait.motor
             if m.fault is not None:
                 return Response.error(E.MOTOR_ERROR)

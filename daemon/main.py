@@ -20,7 +20,7 @@ from types import FrameType
 from typing import Any
 
 from motorctl import __version__
-from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
 from motorctl.daemon.link import Link, flush_pty_input
@@ -40,16 +40,21 @@ from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motorctl.hal.tmc_config import driver_spec
+from motorctl.hal.tmc import TmcDriver
+from motorctl.hal.tmc_config import TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
-from motorctl.motion.stepthread import GcPolicy, StepThread, set_realtime
+from motorctl.motion.rt import GcPolicy, RealtimeOptions
+from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
 from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")
 
 SHUTDOWN_LIMIT_S = 10.0
+#: the planner's step-time error bound (segments' reproduction of exact step times)
+STEP_ERROR_S = 5e-6
 
 
 class StartupError(Exception):
@@ -58,15 +63,17 @@ class StartupError(Exception):
 
 def hardware_spec(config: Config) -> HardwareSpec:
     """What the backend builds; every backend's config sections travel along (`sections`)."""
+    st = config.step_thread
     axes = tuple(
         AxisSpec(
             invert_dir=m.invert_dir,
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
-            debounce_s=m.endstop.debounce_ms / 1000.0,
+            endstop_debounce_s=m.endstop.debounce_ms / 1000.0,
             name=m.name,
             driver=driver_spec(m),
+            dir_setup_s=st.dir_setup_us / 1e6,
             sections=m.sections,
         )
         for m in config.motors
@@ -99,10 +106,20 @@ def motor_params(config: Config) -> list[MotorParams]:
             debounce_s=m.endstop.debounce_ms / 1000.0,
             dir_setup_s=st.dir_setup_us / 1e6,
             pulse_s=st.step_pulse_us / 1e6,
+            max_speed=m.max_speed,
+            start_speed=m.start_speed,
             host_position=wrap24,
         )
         for m in config.motors
     ]
+
+
+def motor_geometry(config: Config, m: MotorConfig) -> dict[str, object]:
+    """What gives a motor's saved positions their meaning: a change restores nothing."""
+    tmc = m.section(TmcAxisConfig)
+    return {"steps_per_rev": m.steps_per_rev, "invert_dir": m.invert_dir,
+            "backend": config.hal.backend,
+            "microsteps": tmc.microsteps if isinstance(tmc, TmcAxisConfig) else None}
 
 
 def motor_identities(config: Config) -> list[MotorIdentity]:
@@ -110,9 +127,7 @@ def motor_identities(config: Config) -> list[MotorIdentity]:
     return [
         MotorIdentity(
             name=m.name,
-            fingerprint=geometry_fingerprint({"steps_per_rev": m.steps_per_rev,
-                                              "invert_dir": m.invert_dir,
-                                              "backend": config.hal.backend}),
+            fingerprint=geometry_fingerprint(motor_geometry(config, m)),
             max_waypoints=m.max_waypoints,
             steps_per_rev=m.steps_per_rev,
         )
@@ -156,16 +171,15 @@ class Daemon:
     def build(cls, config: Config, state_dir: Path, clock: Clock | None = None) -> Daemon:
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
+        spec = hardware_spec(config)
+        params = motor_params(config)
         try:
-            hw = open_hardware(config.hal.backend, hardware_spec(config), clock)
+            hw = open_hardware(config.hal.backend, spec, clock)
+            executor = build_executor(config, hw, spec, params)
         except HalError as exc:
             raise StartupError(str(exc)) from exc
         engine = MotionEngine(
-            hw,
-            motor_params(config),
-            endstop_active_low=[m.endstop.active_low for m in config.motors],
-            driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
-            late_threshold_s=config.step_thread.late_threshold_us / 1e6,
+            hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0
         )
         files_dir = state_files_dir(config, state_dir)
         make_state_dir(files_dir)
@@ -193,20 +207,27 @@ class Daemon:
 
     # -- status --------------------------------------------------------------------
     def status(self) -> dict[str, Any]:
-        with self.engine.lock:
-            motors = [
-                {"index": m.index, "name": m.params.name, "state": m.state.value,
-                 "position": m.position, "queued": len(m.queue), "fault": m.fault,
-                 "position_lost": m.position_lost, "waypoints": len(m.waypoints)}
-                for m in self.engine.motors
-            ]
-            steps = self.engine.stats.summary()
-            steps["histogram_us"] = self.engine.stats.histogram()
+        """A snapshot for the status socket, taken WITHOUT the motion lock: each field is
+        read whole (the executor's counters and histogram are its own snapshots), so a
+        status read never delays planning, let alone a step."""
+        motors = [
+            {"index": m.index, "name": m.params.name, "state": m.state.value,
+             "position": m.position, "queued": len(m.queue), "fault": m.fault,
+             "position_lost": m.position_lost, "waypoints": len(m.waypoints)}
+            for m in list(self.engine.motors)
+        ]
+        health = self.engine.executor.health()
+        steps = dict(health.latency)
+        steps.update(health.counters)
         out: dict[str, Any] = {"motors": motors, "steps": steps,
+                               "executor": {"alive": health.alive, "reason": health.reason},
                                "clamped": dict(self.dispatcher.clamped),
                                "state": self.persistence.status()}
         if self.link is not None:
             out["link"] = self.link.status()
+        drivers = [s.driver.stats() for s in self.hw.steppers if isinstance(s.driver, TmcDriver)]
+        if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
+            out["drivers"] = drivers
         return out
 
 
@@ -393,6 +414,19 @@ def probe(config_path: str | None) -> int:
     return 1 if report.problems else 0
 
 
+def build_executor(
+    config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams]
+) -> Executor:
+    """The step executor the config asks for (only it runs real-time and locks memory)."""
+    st = config.step_thread
+    return ThreadStepExecutor(
+        hw, config.hal.backend, spec, axis_limits(params, st.max_lateness_us / 1e6, STEP_ERROR_S),
+        max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
+        late_threshold_s=st.late_threshold_us / 1e6,
+        rt=RealtimeOptions(st.priority, st.lock_memory, st.cpu),
+    )
+
+
 def serve(args: argparse.Namespace) -> int:
     config = load_config(args.config)
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
@@ -405,12 +439,6 @@ def serve(args: argparse.Namespace) -> int:
 def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: Owned) -> int:
     st = config.step_thread
     sys.setswitchinterval(st.switch_interval_us / 1e6)
-    if st.priority > 1:
-        # Every thread of the daemon inherits SCHED_FIFO one below the step thread, so no
-        # ordinary process can preempt a thread while it holds the GIL the step thread needs.
-        why = set_realtime(st.priority - 1)
-        if why is not None:
-            log.warning("SCHED_FIFO not permitted for the daemon's threads (%s)", why)
     if st.cpu >= 0:
         others = os.sched_getaffinity(0) - {st.cpu}
         if others:  # every thread but the step thread keeps off its CPU
@@ -439,8 +467,6 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
                 c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name))
     daemon.link = link
-    stepper = StepThread(daemon.engine, daemon.clock, spin_s=st.spin_us / 1e6,
-                         priority=st.priority, lock_memory=st.lock_memory, cpu=st.cpu)
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
     events = MotorEventLog()
     line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
@@ -453,13 +479,14 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     daemon.writer.on_change = line.poke
     stop.attach(link.stop)
     daemon.persistence.start()
-    stepper.start()
+    daemon.engine.executor.start()
+    daemon.engine.start()
     status.start()
     daemon.gc_policy.ready()
     interval = watchdog_interval()
     watchdog = None
     if interval:
-        watchdog = Watchdog(interval, lambda: stepper_alive(stepper))
+        watchdog = Watchdog(interval, lambda: motion_alive(daemon.engine))
         watchdog.start()
     print(f"motorctld ready: serving {where}; config {config.source}; "
           f"{len(config.motors)} motors; {config.hal.backend} hardware; "
@@ -474,7 +501,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     finally:
         sd_notify("STOPPING=1")
         line.stop("stopping: motors ramping down, state being written")
-        shutdown(daemon, stepper)
+        shutdown(daemon)
         if watchdog is not None:
             watchdog.stop()
         status.close()
@@ -488,18 +515,18 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     return 0
 
 
-def stepper_alive(stepper: StepThread) -> bool:
-    return stepper.alive
+def motion_alive(engine: MotionEngine) -> bool:
+    return engine.threads_alive and engine.executor.health().alive
 
 
-def shutdown(daemon: Daemon, stepper: StepThread) -> None:
+def shutdown(daemon: Daemon) -> None:
     """Stop along the ramps (bounded), brake the DC motor, set safe outputs, write state."""
     engine = daemon.engine
     engine.shutdown()
     deadline = time.monotonic() + SHUTDOWN_LIMIT_S
     while time.monotonic() < deadline:
         with engine.lock:
-            if not any(m.active for m in engine.motors):
+            if not any(m.active or m.stopping for m in engine.motors):
                 break
         time.sleep(0.005)
     with engine.lock:
@@ -509,7 +536,8 @@ def shutdown(daemon: Daemon, stepper: StepThread) -> None:
                 log.warning("motor %d did not stop within %.0f s: hard stop", m.index,
                             SHUTDOWN_LIMIT_S)
                 m.stop(hard=True, now=now)
-    stepper.stop()
+    engine.stop_threads()
+    engine.executor.close()
     for p in daemon.config.pins:
         pin = daemon.hw.pins.get(p.number)
         if pin is not None and pin.is_output:

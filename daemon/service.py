@@ -136,24 +136,46 @@ class FieldsFormatter(logging.Formatter):
         return f"{text} [{' '.join(fields)}]" if fields else text
 
 
+class StderrHandler(logging.StreamHandler):  # type: ignore[type-arg]
+    """Writes to ``stream`` if given, else to whatever ``sys.stderr`` is when it writes (as
+    logging.lastResort does), so it never holds on to a stream someone has replaced."""
+
+    def __init__(self, stream: TextIO | None = None) -> None:
+        super().__init__(stream)  # which sets self.stream = stream or sys.stderr ...
+        self._fixed = stream  # ... so say again which: None means "the current sys.stderr"
+
+    @property
+    def stream(self) -> TextIO:
+        return self._fixed or sys.stderr
+
+    @stream.setter
+    def stream(self, value: TextIO | None) -> None:
+        self._fixed = value
+
+
 def setup_logging(level: str, stderr: TextIO | None = None) -> str:
-    """Configure the root logger; returns "journal" or "stderr" (where logs go)."""
+    """Configure the root logger; returns "journal" or "stderr" (where logs go).
+
+    Replaces the handler an earlier call installed, and leaves other handlers alone.
+    """
     root = logging.getLogger()
     for handler in list(root.handlers):
-        root.removeHandler(handler)
-        with contextlib.suppress(Exception):
-            handler.close()
+        if getattr(handler, "motorctl", False):
+            root.removeHandler(handler)
     root.setLevel(level.upper())
     journal = _import("systemd.journal") if journal_stream_is_stderr(stderr) else None
+    new: logging.Handler
     if journal is not None:
-        jh = JournalHandler(journal.send)
-        jh.setFormatter(logging.Formatter("%(message)s"))
-        root.addHandler(jh)
-        return "journal"
-    sh = logging.StreamHandler(stderr or sys.stderr)
-    sh.setFormatter(FieldsFormatter("motorctld %(levelname)s %(name)s: %(message)s"))
-    root.addHandler(sh)
-    return "stderr"
+        new = JournalHandler(journal.send)
+        new.setFormatter(logging.Formatter("%(message)s"))
+        where = "journal"
+    else:
+        new = StderrHandler(stderr)
+        new.setFormatter(FieldsFormatter("motorctld %(levelname)s %(name)s: %(message)s"))
+        where = "stderr"
+    setattr(new, "motorctl", True)  # noqa: B010 (marks the handler this function owns)
+    root.addHandler(new)
+    return where
 
 
 def watchdog_interval() -> float | None:

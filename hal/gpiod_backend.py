@@ -2,27 +2,29 @@
 pins on Linux GPIO character devices, through libgpiod's Python binding (v1 or v2, see
 :mod:`motorctl.hal.gpiochip`). Consumer name ``motorctl`` (``[gpiod] consumer``).
 
-Opening checks everything before it requests anything: every line is found on a chip, no
-line has two uses, none is held by another consumer; then the lines are requested
-(a motor's lines in one request per chip, shared with the other motors on that chip so
-that :meth:`StepGroup.pulse_many` sets several STEP lines in one call; the bridge's lines in
-one request; each end stop and each pin in its own).
+Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge)
+and :func:`build_step_io` the step executor's (STEP/DIR/ENABLE of all motors in one request
+per chip, so several STEP lines rise in one ``set_values`` call; end stops as edge-event
+requests). Each first finds every configured line and checks it is free: a line used twice,
+a missing chip or line, a line held by another consumer (named) or a permission problem is
+an error before anything is requested.
 
-Threads: the step thread owns the step ports and end stops (it is the only caller once the
-daemon runs); the link thread owns the pins; the engine (under its lock) owns the bridge,
-whose reversal dead time is finished by the bridge's own small timer thread. All calls block
-only on GPIO ioctls, sysfs writes (PWM) or the step pulse's busy-wait.
+Threads: the step executor's thread owns the StepIO (outputs, edge inputs); the link thread
+owns the pins; the engine (under its lock) owns the bridge, whose reversal dead time is
+finished by the bridge's own small timer thread. Calls block only on GPIO ioctls, sysfs
+writes (PWM) or a step pulse's busy-wait. Run-time failures on the step path raise HalIOError.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import os
 import threading
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from motorctl.hal.gpiochip import Edge, GpioApi, LineRequest, LineSettings, load_api
+from motorctl.hal.gpiochip import GpioApi, LineRequest, LineSettings, load_api
 from motorctl.hal.gpiod_config import (
     GpiodAxisConfig,
     GpiodConfig,
@@ -35,18 +37,20 @@ from motorctl.hal.interfaces import (
     Clock,
     DcBridge,
     DriverStatus,
+    Edge,
+    EdgeInputs,
     HalError,
+    HalIOError,
     Hardware,
-    InputLine,
     Pin,
+    StepIO,
+    StepOutputs,
     StepperDriver,
     StepperHardware,
-    StepPort,
 )
 from motorctl.hal.spec import HardwareSpec
 from motorctl.hal.wiring import (
     DcWiring,
-    EndstopWiring,
     GpioWiring,
     ProbeReport,
     PwmWiring,
@@ -93,83 +97,83 @@ class GpiodPin(Pin):
         return self.req.get_values([self.offset])[0]
 
 
-class GpiodEndstop(InputLine):
-    """An end stop as kernel edge events; ``read`` is the level after the last event.
+class GpiodStepOutputs(StepOutputs):
+    """STEP/DIR of every motor: one request per chip holding all motors' STEP, DIR (and
+    ENABLE) lines on it, so several STEP lines go out in one ``set_values`` call."""
 
-    ``edges`` keeps the events (with their kernel CLOCK_MONOTONIC timestamps) that
-    ``read``/``poll`` consumed, newest last, for the executor and the tests.
+    def __init__(self, clock: Clock, spec: HardwareSpec, wiring: GpioWiring,
+                 reqs: list[LineRequest], steps: list[tuple[int, int]],
+                 dirs: list[tuple[int, int]]) -> None:
+        super().__init__(
+            clock,
+            [a.invert_dir for a in spec.axes],
+            [a.dir_setup_s for a in spec.axes],
+            [max(m.dir_hold_us / 1e6, a.dir_hold_s) for m, a in zip(wiring.motors, spec.axes,
+                                                                     strict=True)],
+        )
+        self.reqs = reqs
+        self.steps = steps  # motor -> (request index, STEP offset)
+        self.dirs = dirs  # motor -> (request index, DIR offset)
+
+    def _write_dir(self, motor: int, level: bool) -> None:
+        r, off = self.dirs[motor]
+        try:
+            self.reqs[r].set_values({off: level})
+        except OSError as exc:
+            raise HalIOError(f"motor {motor}: DIR write failed: {exc}") from exc
+
+    def _write_steps(self, motors: Sequence[int], level: bool) -> None:
+        steps = self.steps
+        try:
+            if len(self.reqs) == 1:
+                self.reqs[0].set_values({steps[m][1]: level for m in motors})
+                return
+            by_req: dict[int, dict[int, bool]] = {}
+            for m in motors:
+                r, off = steps[m]
+                by_req.setdefault(r, {})[off] = level
+            for r, values in by_req.items():
+                self.reqs[r].set_values(values)
+        except OSError as exc:
+            raise HalIOError(f"motors {list(motors)}: STEP write failed: {exc}") from exc
+
+
+class GpiodEdgeInputs(EdgeInputs):
+    """End stops as kernel edge events (CLOCK_MONOTONIC timestamps); never polled per step.
+
+    On v2 the end stops of one chip share one request (and the kernel debounces); v1 has one
+    request per line. ``fileno`` is the request's descriptor when there is one request.
     """
 
-    def __init__(self, req: LineRequest, offset: int) -> None:
-        self.req = req
-        self.offset = offset
-        self.level = req.get_values([offset])[0]
-        self.edges: list[Edge] = []
+    def __init__(self, names: list[str], reqs: list[LineRequest],
+                 index: dict[tuple[int, int], int], active_low: list[bool]) -> None:
+        super().__init__(names)
+        self.reqs = reqs
+        self.index = index  # (request, offset) -> line
+        self.active_low = active_low
+        self.levels = [False] * len(names)
+        for (r, off), line in index.items():
+            self.levels[line] = reqs[r].get_values([off])[0] != active_low[line]
 
-    def poll(self, timeout_s: float = 0.0) -> list[Edge]:
-        """Events that arrived (waiting up to ``timeout_s``); updates the level."""
-        evs = self.req.wait_events(timeout_s)
-        if evs:
-            self.level = evs[-1].rising
-            self.edges = (self.edges + evs)[-64:]
-        return evs
+    def read_edges(self) -> list[Edge]:
+        out: list[Edge] = []
+        try:
+            for r, req in enumerate(self.reqs):
+                for e in req.wait_events(0.0):
+                    line = self.index[(r, e.offset)]
+                    active = e.rising != self.active_low[line]
+                    self.levels[line] = active
+                    out.append(Edge(line, active, e.timestamp_ns / 1e9))
+        except OSError as exc:
+            raise HalIOError(f"end stops: reading edge events failed: {exc}") from exc
+        out.sort(key=lambda e: e.t)
+        return out
 
-    def read(self) -> bool:
-        self.poll(0.0)
-        return self.level
+    def level(self, line: int) -> bool:
+        return self.levels[line]
 
-    def fileno(self) -> int:
-        return self.req.fileno()
-
-
-class StepGroup:
-    """The STEP/DIR/ENABLE lines of every motor on one chip, in one request."""
-
-    def __init__(self, req: LineRequest, clock: Clock) -> None:
-        self.req = req
-        self.clock = clock
-
-    def pulse_many(self, ports: list[GpiodStepPort], width_s: float) -> float:
-        """One step on each port, all rising in one set_values call; returns the rise time."""
-        for p in ports:
-            if p.direction is None:
-                raise RuntimeError("step pulse before a direction was set")
-        self.req.set_values({p.step: True for p in ports})
-        rise = self.clock.now()
-        self.clock.spin_until(rise + width_s)
-        self.req.set_values({p.step: False for p in ports})
-        fall = self.clock.now()
-        for p in ports:
-            p.last_fall = fall
-        return rise
-
-
-class GpiodStepPort(StepPort):
-    """STEP and DIR of one driver. DIR waits ``dir_hold_s`` after the last STEP fall."""
-
-    def __init__(self, clock: Clock, invert: bool, group: StepGroup, step: int, dir_: int,
-                 dir_hold_s: float) -> None:
-        super().__init__(clock, invert)
-        self.group = group
-        self.step = step
-        self.dir = dir_
-        self.dir_hold_s = dir_hold_s
-        self.last_fall = float("-inf")
-
-    def _write_dir(self, level: bool) -> None:
-        ready = self.last_fall + self.dir_hold_s
-        if self.clock.now() < ready:
-            self.clock.spin_until(ready)
-        self.group.req.set_values({self.dir: level})
-
-    def _pulse(self, width_s: float) -> float:
-        req, clock = self.group.req, self.clock
-        req.set_values({self.step: True})
-        rise = clock.now()
-        clock.spin_until(rise + width_s)
-        req.set_values({self.step: False})
-        self.last_fall = clock.now()
-        return rise
+    def fileno(self) -> int | None:
+        return self.reqs[0].fileno() if len(self.reqs) == 1 else None
 
 
 class NoDriver(StepperDriver):
@@ -301,21 +305,31 @@ class GpiodBridge(DcBridge):
 
 @dataclass
 class GpiodHardware(Hardware):
-    """Hardware on GPIO lines; ``api`` is the libgpiod binding in use."""
+    """The daemon's part on GPIO lines (pins, the bridge); ``api`` is the binding in use."""
 
     api: GpioApi | None = None
     lines: list[ResolvedLine] = field(default_factory=list)
-    groups: dict[str, StepGroup] = field(default_factory=dict)
-    endstops: list[GpiodEndstop] = field(default_factory=list)
 
 
-def resolve(api: GpioApi, wiring: GpioWiring) -> dict[str, ResolvedLine]:
-    """Find and check every configured line before anything is requested."""
+def _is_motor_line(use: str) -> bool:
+    return use.startswith("motors[")
+
+
+def resolve(api: GpioApi, wiring: GpioWiring, which: Callable[[str], bool] = lambda u: True
+            ) -> dict[str, ResolvedLine]:
+    """Find every configured line (all of them, so any mistake shows before anything opens)
+    and check that those ``which`` selects are free."""
     dup = wiring.duplicates()
     if dup:
-        raise HalError("; ".join(dup))
+        raise HalError(dup[0])
     lines = api.resolve(wiring.lines())
-    api.check_free(lines)
+    seen: dict[tuple[str, int], str] = {}
+    for line in lines:
+        key = (line.chip_path, line.offset)
+        if key in seen:
+            api.check_free([dataclasses.replace(line, use=seen[key]), line])
+        seen[key] = line.use
+    api.check_free([ln for ln in lines if which(ln.use)])
     return {line.use: line for line in lines}
 
 
@@ -323,67 +337,27 @@ def _setter(req: LineRequest, offset: int, level: bool) -> Callable[[], None]:
     return lambda: req.set_values({offset: level})
 
 
-def _input(api: GpioApi, consumer: str, line: ResolvedLine, es: EndstopWiring,
-           debounce_s: float) -> GpiodEndstop:
-    settings = LineSettings(bias=es.bias, edges=True, debounce_us=round(debounce_s * 1e6))
-    return GpiodEndstop(api.request(consumer, [(line, settings)]), line.offset)
-
-
 def build(spec: HardwareSpec, clock: Clock, *, for_probe: bool = False) -> Hardware:
-    """The backend's entry point for :mod:`motorctl.hal.registry`."""
+    """The daemon's hardware: pins and the DC bridge (STEP/DIR/ENABLE and end stops are the
+    step executor's: :func:`build_step_io`). Every configured line is found and checked first."""
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
-    found = resolve(api, wiring)
+    found = resolve(api, wiring, lambda use: not _is_motor_line(use))
     consumer = wiring.consumer
-    hw = GpiodHardware(clock, [], {}, None, api=api, lines=list(found.values()))
+    hw = GpiodHardware(clock, [StepperHardware(NoDriver()) for _ in spec.axes], {}, None,
+                       api=api, lines=list(found.values()))
     try:
-        _open(hw, api, spec, wiring, found, consumer, clock, enable=not for_probe)
+        _open_daemon_part(hw, api, spec, wiring, found, consumer, clock)
     except BaseException:
         hw.close()
         raise
-    log.info("gpiod %s (%s): %d lines requested as %r", api.name, api.version, len(found),
-             consumer)
+    log.info("gpiod %s (%s): %d lines found; pins and bridge requested as %r", api.name,
+             api.version, len(found), consumer)
     return hw
 
 
-def _open(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
-          found: dict[str, ResolvedLine], consumer: str, clock: Clock, enable: bool) -> None:
-    # steppers: one request per chip for all motors' STEP/DIR/ENABLE lines
-    per_chip: dict[str, list[tuple[ResolvedLine, LineSettings]]] = {}
-    for i, m in enumerate(wiring.motors):
-        uses = [(f"motors[{i}].step", False), (f"motors[{i}].dir", False)]
-        if m.enable is not None:
-            uses.append((f"motors[{i}].enable", enable != m.enable_active_low))
-        for use, level in uses:
-            line = found[use]
-            per_chip.setdefault(line.chip_path, []).append((line, LineSettings(output=True,
-                                                                               value=level)))
-    for path, lines in per_chip.items():
-        req = api.request(consumer, lines)
-        hw.closers.append(req.release)
-        hw.groups[path] = StepGroup(req, clock)
-    for i, (m, axis) in enumerate(zip(wiring.motors, spec.axes, strict=True)):
-        step, dir_ = found[f"motors[{i}].step"], found[f"motors[{i}].dir"]
-        if step.chip_path != dir_.chip_path:
-            raise HalError(f"motors[{i}]: STEP ({step.ref}) and DIR ({dir_.ref}) must be on one "
-                           "chip, so they are requested together")
-        group = hw.groups[step.chip_path]
-        port = GpiodStepPort(clock, axis.invert_dir, group, step.offset, dir_.offset,
-                             m.dir_hold_us / 1e6)
-        ends: dict[str, GpiodEndstop | None] = {}
-        for which, es in (("endstop_min", m.endstop_min), ("endstop_max", m.endstop_max)):
-            ends[which] = None
-            if es is not None:
-                e = _input(api, consumer, found[f"motors[{i}].{which}"], es, axis.debounce_s)
-                hw.closers.append(e.req.release)
-                hw.endstops.append(e)
-                ends[which] = e
-        if m.enable is not None:
-            en = found[f"motors[{i}].enable"]
-            hw.closers.append(_setter(group.req, en.offset, m.enable_active_low))
-        hw.steppers.append(StepperHardware(port, NoDriver(), ends["endstop_min"],
-                                           ends["endstop_max"]))
-    # the H-bridge
+def _open_daemon_part(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
+                      found: dict[str, ResolvedLine], consumer: str, clock: Clock) -> None:
     if wiring.dc is not None:
         w = wiring.dc
         dc = [found["dc.in1"], found["dc.in2"]] + ([found["dc.en"]] if w.en else [])
@@ -396,7 +370,6 @@ def _open(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wiring: GpioWirin
                                       dc[2].offset if w.en else None), pwm, clock)
         hw.closers.append(bridge.close)
         hw.dc = bridge
-    # user pins
     wired = {p.number: p for p in wiring.pins}
     for p in spec.pins:
         line = found[f"pins.{p.number}"]
@@ -405,6 +378,92 @@ def _open(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wiring: GpioWirin
                                                          bias=bias))])
         hw.closers.append(req.release)
         hw.pins[p.number] = GpiodPin(p.number, req, line.offset, p.output, p.initial, bias)
+
+
+def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None,
+                  *, enable: bool = True) -> StepIO:
+    """The step executor's lines: every motor's STEP/DIR/ENABLE (one request per chip, all
+    motors on it together) and the end stops as edge-event requests. ENABLE goes on here and
+    off at close. Opened in the executor's thread or process (a request cannot be inherited)."""
+    wiring = wiring_of(spec)
+    api = load_api(wiring.api)
+    found = resolve(api, wiring, _is_motor_line)
+    consumer = wiring.consumer
+    closers: list[Callable[[], None]] = []
+    try:
+        return _open_step_io(api, spec, wiring, found, consumer, clock, enable, closers)
+    except BaseException:
+        for close in reversed(closers):
+            close()
+        raise
+
+
+def _open_step_io(api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
+                  found: dict[str, ResolvedLine], consumer: str, clock: Clock, enable: bool,
+                  closers: list[Callable[[], None]]) -> StepIO:
+    per_chip: dict[str, list[tuple[ResolvedLine, LineSettings]]] = {}
+    for i, m in enumerate(wiring.motors):
+        step, dir_ = found[f"motors[{i}].step"], found[f"motors[{i}].dir"]
+        if step.chip_path != dir_.chip_path:
+            raise HalError(f"motors[{i}]: STEP ({step.ref}) and DIR ({dir_.ref}) must be on one "
+                           "chip, so they are requested together")
+        uses = [(step, False), (dir_, False)]
+        if m.enable is not None:
+            uses.append((found[f"motors[{i}].enable"], enable != m.enable_active_low))
+        for line, level in uses:
+            per_chip.setdefault(line.chip_path, []).append(
+                (line, LineSettings(output=True, value=level)))
+    paths = list(per_chip)
+    reqs: list[LineRequest] = []
+    for path in paths:
+        req = api.request(consumer, per_chip[path])
+        closers.append(req.release)
+        reqs.append(req)
+    for i, m in enumerate(wiring.motors):
+        if m.enable is not None:
+            en = found[f"motors[{i}].enable"]
+            closers.append(_setter(reqs[paths.index(en.chip_path)], en.offset,
+                                   m.enable_active_low))
+
+    def at(use: str) -> tuple[int, int]:
+        line = found[use]
+        return paths.index(line.chip_path), line.offset
+
+    n = len(wiring.motors)
+    outputs = GpiodStepOutputs(clock, spec, wiring, reqs,
+                               [at(f"motors[{i}].step") for i in range(n)],
+                               [at(f"motors[{i}].dir") for i in range(n)])
+    # end stops
+    names: list[str] = []
+    lows: list[bool] = []
+    ends: list[tuple[int | None, int | None]] = []
+    inputs_by_chip: dict[str, list[tuple[int, ResolvedLine, LineSettings]]] = {}
+    for i, (m, axis) in enumerate(zip(wiring.motors, spec.axes, strict=True)):
+        pair: list[int | None] = []
+        for which, es in (("endstop_min", m.endstop_min), ("endstop_max", m.endstop_max)):
+            if es is None:
+                pair.append(None)
+                continue
+            line_no = len(names)
+            names.append(f"motors[{i}].{which}")
+            lows.append(axis.endstop_active_low)
+            debounce = axis.endstop_debounce_s
+            settings = LineSettings(bias=es.bias, edges=True, debounce_us=round(debounce * 1e6))
+            line = found[f"motors[{i}].{which}"]
+            key = line.chip_path if api.name == "v2" else f"{line.chip_path}:{line.offset}"
+            inputs_by_chip.setdefault(key, []).append((line_no, line, settings))
+            pair.append(line_no)
+        ends.append((pair[0], pair[1]))
+    in_reqs: list[LineRequest] = []
+    index: dict[tuple[int, int], int] = {}
+    for group in inputs_by_chip.values():
+        req = api.request(consumer, [(line, settings) for _, line, settings in group])
+        closers.append(req.release)
+        for line_no, line, _ in group:
+            index[(len(in_reqs), line.offset)] = line_no
+        in_reqs.append(req)
+    inputs = GpiodEdgeInputs(names, in_reqs, index, lows)
+    return StepIO(clock, outputs, inputs, tuple(ends), closers=closers)
 
 
 # --------------------------------------------------------------------------------------------
@@ -448,20 +507,26 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         report.problems.append(str(exc))
         return
     try:
-        assert isinstance(hw, GpiodHardware)
+        io = build_step_io(spec, clock, hw, enable=False)
+    except HalError as exc:
+        hw.close()
+        report.problems.append(str(exc))
+        return
+    try:
         ends = []
-        for i, (st, axis) in enumerate(zip(hw.steppers, spec.axes, strict=True)):
-            for which, e in (("min", st.endstop_min), ("max", st.endstop_max)):
-                if e is not None:
-                    level = e.read()
-                    active = level != axis.endstop_active_low
+        for i, pair in enumerate(io.endstops):
+            for which, line in zip(("min", "max"), pair, strict=True):
+                if line is not None:
+                    active = io.inputs.level(line)
+                    level = active != spec.axes[i].endstop_active_low
                     ends.append(f"motors[{i}] {which}: level {int(level)} "
                                 f"({'TRIGGERED' if active else 'clear'})")
         report.add("end stops", ends or ["none wired"])
         pins = [f"pin {n}: {'output' if p.is_output else 'input'} level {int(p.read())}"
                 for n, p in sorted(hw.pins.items())]
         report.add("pins", pins or ["none"])
-        report.add("opened", [f"all {len(hw.lines)} lines requested as {wiring.consumer!r} "
+        report.add("opened", [f"all {len(lines)} lines requested as {wiring.consumer!r} "
                               "and released; nothing moved"])
     finally:
+        io.close()
         hw.close()

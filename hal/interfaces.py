@@ -10,12 +10,24 @@ from __future__ import annotations
 import enum
 import time
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 
 class HalError(RuntimeError):
-    """A hardware backend could not be loaded or a device could not be opened."""
+    """A hardware backend could not be loaded or a device could not be opened.
+
+    The message names the device/line and the fix; the daemon prints it and exits.
+    """
+
+
+class HalIOError(HalError):
+    """A device failed while running (a gpiod/SPI call raised ``OSError``, ...).
+
+    Backends raise this (and only this) from run-time calls. The step executor latches it as a
+    fault of the motors concerned (E4, position lost) and keeps running; it never kills a
+    thread or process.
+    """
 
 
 class Clock(ABC):
@@ -114,48 +126,152 @@ class Pin(ABC):
     def _read(self) -> bool: ...
 
 
-class InputLine(ABC):
-    """An input read as a logic level (end stops)."""
+@dataclass(frozen=True)
+class Edge:
+    """One edge on an input line, as the kernel timestamped it.
 
-    @abstractmethod
-    def read(self) -> bool: ...
-
-
-class StepPort(ABC):
-    """The STEP and DIR lines of one stepper driver.
-
-    ``set_direction`` takes the logical direction (True = counting up); ``invert``
-    swaps the wiring. ``pulse`` emits one step pulse and returns the time of the
-    rising edge.
+    ``line`` indexes :attr:`EdgeInputs.names`; ``active`` is the logical level after the edge
+    (polarity already applied: True = the switch is pressed); ``t`` is on the executor's
+    clock (CLOCK_MONOTONIC seconds on real hardware, the virtual clock in tests).
     """
 
-    def __init__(self, clock: Clock, invert: bool = False) -> None:
+    line: int
+    active: bool
+    t: float
+
+
+class StepOutputs(ABC):
+    """The STEP and DIR lines of every motor one step executor drives, in one request.
+
+    Owned by exactly one thread (the executor's); nothing here is thread-safe. Motors are
+    indexed 0..n-1 as in the spec the outputs were built from.
+
+    - :meth:`pulse` raises the STEP lines of several motors whose edges fall on the same tick
+      in ONE backend call (gpiod v2 ``set_values``), holds them ``width_s``, lowers them in
+      one call, and returns the time of the rising edge.
+    - :meth:`set_direction` honours the DIR hold time after the last STEP fall before it
+      changes DIR, and records when a step may follow (:attr:`ready_at`: the set-up time).
+      The executor never raises a STEP before ``ready_at[motor]``.
+    - Error contract: a backend hook that fails at run time raises :class:`HalIOError` (never
+      a bare ``OSError``); the executor turns it into a latched fault, never a dead thread.
+
+    Backends implement three hooks: ``_write_dir``, ``_write_steps`` and ``_close``.
+    """
+
+    def __init__(
+        self,
+        clock: Clock,
+        invert_dir: Sequence[bool],
+        dir_setup_s: Sequence[float],
+        dir_hold_s: Sequence[float],
+    ) -> None:
+        n = len(invert_dir)
+        if not len(dir_setup_s) == len(dir_hold_s) == n:
+            raise ValueError("one invert/setup/hold value per motor")
         self.clock = clock
-        self.invert = invert
-        self.direction: bool | None = None
-        self.direction_set_at = float("-inf")
+        self.invert_dir = list(invert_dir)
+        self.dir_setup_s = list(dir_setup_s)
+        self.dir_hold_s = list(dir_hold_s)
+        self.direction: list[bool | None] = [None] * n
+        self.ready_at = [float("-inf")] * n
+        self.last_fall = [float("-inf")] * n
 
-    def set_direction(self, up: bool) -> None:
-        if self.direction is up:
+    @property
+    def motors(self) -> int:
+        return len(self.invert_dir)
+
+    def set_direction(self, motor: int, up: bool) -> None:
+        """Set DIR to the logical direction ``up`` (True = counting up); no-op if already so."""
+        if self.direction[motor] is up:
             return
-        self.direction = up
-        try:
-            self._write_dir(up != self.invert)
-        except BaseException:
-            self.direction = None  # the line's level is unknown: write it again next time
-            raise
-        self.direction_set_at = self.clock.now()
+        clock = self.clock
+        hold = self.last_fall[motor] + self.dir_hold_s[motor]
+        if clock.now() < hold:
+            clock.spin_until(hold)
+        self.direction[motor] = None  # unknown until the write succeeded
+        self._write_dir(motor, up != self.invert_dir[motor])
+        self.direction[motor] = up
+        self.ready_at[motor] = clock.now() + self.dir_setup_s[motor]
 
-    def pulse(self, width_s: float) -> float:
-        if self.direction is None:
-            raise RuntimeError("step pulse before a direction was set")
-        return self._pulse(width_s)
+    def pulse(self, motors: Sequence[int], width_s: float) -> float:
+        """One STEP pulse on every motor in ``motors`` at once; returns the rising edge's time."""
+        for m in motors:
+            if self.direction[m] is None:
+                raise RuntimeError(f"step pulse on motor {m} before a direction was set")
+        clock = self.clock
+        rise = clock.now()
+        self._write_steps(motors, True)
+        if not clock.is_virtual:
+            clock.spin_until(rise + width_s)
+        self._write_steps(motors, False)
+        fall = clock.now()
+        for m in motors:
+            self.last_fall[m] = fall
+        return rise
+
+    def close(self) -> None:
+        """Release the lines (STEP low); idempotent."""
+        self._close()
 
     @abstractmethod
-    def _write_dir(self, level: bool) -> None: ...
+    def _write_dir(self, motor: int, level: bool) -> None:
+        """Drive motor's DIR line to the physical ``level``."""
 
     @abstractmethod
-    def _pulse(self, width_s: float) -> float: ...
+    def _write_steps(self, motors: Sequence[int], level: bool) -> None:
+        """Drive the STEP lines of ``motors`` to ``level`` in one call."""
+
+    def _close(self) -> None:
+        return None
+
+
+class EdgeInputs(ABC):
+    """Input lines (end stops, ...) read as kernel-timestamped edges, never polled per step.
+
+    Owned by one thread (the executor's). :meth:`read_edges` never blocks: it returns the
+    edges pending since the last call, oldest first (empty when none). :meth:`level` is the
+    current logical level of a line. ``fileno`` is a descriptor that becomes readable when
+    edges are pending (None when the backend has none; then the caller just calls
+    :meth:`read_edges`). Run-time failures raise :class:`HalIOError`.
+    """
+
+    def __init__(self, names: Sequence[str]) -> None:
+        self.names = tuple(names)
+
+    @abstractmethod
+    def read_edges(self) -> list[Edge]: ...
+
+    @abstractmethod
+    def level(self, line: int) -> bool: ...
+
+    def fileno(self) -> int | None:
+        return None
+
+    def close(self) -> None:
+        return None
+
+
+@dataclass
+class StepIO:
+    """What a step executor owns: STEP/DIR outputs, end-stop inputs, the clock they share.
+
+    ``endstops[motor]`` is ``(min_line, max_line)``: indexes into ``inputs`` (None: not wired).
+    Built by :func:`motorctl.hal.registry.open_step_io` from a picklable spec, in the process
+    that uses it (a child process cannot inherit a gpiod request).
+    """
+
+    clock: Clock
+    outputs: StepOutputs
+    inputs: EdgeInputs
+    endstops: tuple[tuple[int | None, int | None], ...]
+    closers: list[Callable[[], None]] = field(default_factory=list)
+
+    def close(self) -> None:
+        for close in reversed(self.closers):
+            close()
+        self.closers.clear()
+        self.outputs.close()
+        self.inputs.close()
 
 
 @dataclass(frozen=True)
@@ -167,7 +283,11 @@ class DriverStatus:
 
 
 class StepperDriver(ABC):
-    """A stepper driver chip's status (over SPI on real hardware)."""
+    """A stepper driver chip's status (over SPI on real hardware).
+
+    :meth:`status` may block (two SPI transfers): it is called only from the driver monitor
+    thread, never on the step path. Failures raise :class:`HalIOError`.
+    """
 
     @abstractmethod
     def status(self) -> DriverStatus: ...
@@ -197,23 +317,30 @@ class DcBridge(ABC):
 
 @dataclass
 class StepperHardware:
-    """Everything one stepper motor is wired to."""
+    """What of one stepper motor the daemon's process owns: its driver chip.
 
-    port: StepPort
+    STEP/DIR and end stops belong to the step executor (:class:`StepIO`).
+    """
+
     driver: StepperDriver
-    endstop_min: InputLine | None = None
-    endstop_max: InputLine | None = None
 
 
 @dataclass
 class Hardware:
-    """The whole machine as the motion layer and the daemon see it."""
+    """The machine as the daemon's process sees it: drivers, pins, DC bridge.
+
+    The step/dir/end-stop lines are not here: the step executor opens them itself
+    (:func:`motorctl.hal.registry.open_step_io`).
+    """
 
     clock: Clock
     steppers: list[StepperHardware]
     pins: dict[int, Pin]
     dc: DcBridge | None
     closers: list[Callable[[], None]] = field(default_factory=list)
+    #: what an executor in another process must add to the spec's options to open its
+    #: step IO consistently with this hardware (the mock: its shared mechanics)
+    step_io_options: dict[str, object] = field(default_factory=dict)
 
     def close(self) -> None:
         for close in reversed(self.closers):

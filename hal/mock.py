@@ -8,9 +8,12 @@ inject end-stop levels, driver faults and stalls.
 from __future__ import annotations
 
 import enum
+import json
 import threading
 from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
+from multiprocessing import shared_memory
 from typing import Any
 
 from motorctl.hal.interfaces import (
@@ -18,12 +21,15 @@ from motorctl.hal.interfaces import (
     Clock,
     DcBridge,
     DriverStatus,
+    Edge,
+    EdgeInputs,
+    HalIOError,
     Hardware,
-    InputLine,
     Pin,
+    StepIO,
+    StepOutputs,
     StepperDriver,
     StepperHardware,
-    StepPort,
 )
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 
@@ -31,7 +37,7 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 class EventKind(enum.StrEnum):
     """What a timeline event records."""
 
-    STEP = "step"  # a step pulse's rising edge; value = the DIR level
+    STEP = "step"  # a step pulse's rising edge; value = the logical direction (True = up)
     DIR = "dir"  # the DIR line changed; value = the new level
     PIN = "pin"  # an output pin's level was written; value = the level
     CONFIG = "config"  # a pin changed direction; value = True for output
@@ -60,27 +66,72 @@ class Timeline:
         self.counts[kind] = self.counts.get(kind, 0) + 1
 
     def of(self, kind: EventKind, index: int | None = None) -> list[Event]:
-        return [e for e in self.events if e.kind == kind and (index is None or e.index == index)]
+        # tuple() copies in one C call, so another thread appending meanwhile is harmless
+        return [e for e in tuple(self.events)
+                if e.kind == kind and (index is None or e.index == index)]
 
     def step_times(self, motor: int) -> list[float]:
         return [e.t for e in self.of(EventKind.STEP, motor)]
 
 
-class MockAxis:
-    """The mechanics behind one motor: a position counted from the step pulses it got."""
+_POSITION, _HEADING, _FORCED_MIN, _FORCED_MAX, _FORCED_STALL, _GEN = range(6)
+_FIELDS = 6
+_UNSET, _OFF, _ON = 0, 1, 2
 
-    def __init__(self, spec: AxisSpec) -> None:
+
+class MockAxis:
+    """The mechanics behind one motor: a position counted from the step pulses it got.
+
+    The state lives in six int64 slots of ``cells``: a private buffer, or a slice of a
+    shared-memory block when the step executor runs in a process of its own (the machine
+    is one physical thing that both processes touch). Writes are single 8-byte stores.
+    """
+
+    def __init__(self, spec: AxisSpec, cells: memoryview) -> None:
         self.spec = spec
-        self.position = 0
-        self.heading: bool | None = None  # the logical DIR last set (True = up)
-        self.fault: str | None = None
-        self.forced_stall = False
-        self.forced_endstop: dict[str, bool | None] = {"min": None, "max": None}
+        self._c = cells
+        self.fault: str | None = None  # the driver chip's fault: the daemon's process only
+
+    @property
+    def position(self) -> int:
+        return int(self._c[_POSITION])
+
+    @position.setter
+    def position(self, value: int) -> None:
+        self._c[_POSITION] = value
+
+    @property
+    def heading(self) -> bool | None:
+        """The logical DIR last set (True = up), None before the first."""
+        h = self._c[_HEADING]
+        return None if h == 0 else h == 1
+
+    @heading.setter
+    def heading(self, up: bool | None) -> None:
+        self._c[_HEADING] = 0 if up is None else (1 if up else 2)
+
+    @property
+    def forced_stall(self) -> bool:
+        return bool(self._c[_FORCED_STALL])
+
+    @forced_stall.setter
+    def forced_stall(self, value: bool) -> None:
+        self._c[_FORCED_STALL] = int(value)
+
+    @property
+    def generation(self) -> int:
+        """Bumped whenever a test forces an end stop: inputs re-read their levels then."""
+        return int(self._c[_GEN])
+
+    def force(self, which: str, active: bool | None) -> None:
+        slot = _FORCED_MIN if which == "min" else _FORCED_MAX
+        self._c[slot] = _UNSET if active is None else (_ON if active else _OFF)
+        self._c[_GEN] = self._c[_GEN] + 1
 
     def endstop_active(self, which: str) -> bool:
-        forced = self.forced_endstop[which]
-        if forced is not None:
-            return forced
+        forced = self._c[_FORCED_MIN if which == "min" else _FORCED_MAX]
+        if forced != _UNSET:
+            return bool(forced == _ON)
         if which == "min":
             return self.position <= self.spec.endstop_min
         return self.position >= self.spec.endstop_max
@@ -98,29 +149,85 @@ class MockAxis:
         )
 
 
-class MockStepPort(StepPort):
-    def __init__(self, clock: Clock, world: MockWorld, index: int, invert: bool) -> None:
-        super().__init__(clock, invert)
+class MockStepOutputs(StepOutputs):
+    """STEP/DIR of every axis: each STEP rise is a "step" event and moves the axis."""
+
+    def __init__(self, world: MockWorld, inputs: MockEdgeInputs) -> None:
+        axes = [a.spec for a in world.axes]
+        super().__init__(
+            world.clock,
+            [a.invert_dir for a in axes],
+            [a.dir_setup_s for a in axes],
+            [a.dir_hold_s for a in axes],
+        )
         self._world = world
-        self._index = index
+        self._inputs = inputs
 
-    def _write_dir(self, level: bool) -> None:
-        self._world.raise_injected("dir", self._index)
-        self._world.axes[self._index].heading = self.direction
-        self._world.timeline.record(self.clock.now(), EventKind.DIR, self._index, level)
+    def _write_dir(self, motor: int, level: bool) -> None:
+        self._world.raise_injected("dir", motor)
+        self._world.axes[motor].heading = level != self.invert_dir[motor]
+        self._world.timeline.record(self.clock.now(), EventKind.DIR, motor, level)
 
-    def _pulse(self, width_s: float) -> float:
-        clock = self.clock
-        self._world.raise_injected("step", self._index)
-        rise = clock.now()
-        self._world.timeline.record(rise, EventKind.STEP, self._index, self.direction)
-        axis = self._world.axes[self._index]
-        axis.position += 1 if self.direction else -1
-        if clock.is_virtual:
-            # A virtual clock does not move for a pulse: the falling edge is implied.
-            return rise
-        clock.spin_until(rise + width_s)
-        return rise
+    def _write_steps(self, motors: Sequence[int], level: bool) -> None:
+        for m in motors:
+            self._world.raise_injected("step", m)
+        if not level:
+            return
+        world = self._world
+        t = self.clock.now()
+        for m in motors:
+            up = self.direction[m]
+            world.timeline.record(t, EventKind.STEP, m, up)
+            axis = world.axes[m]
+            axis.position = axis.position + (1 if up else -1)
+            self._inputs.moved(m, t)
+
+
+class MockEdgeInputs(EdgeInputs):
+    """Both end stops of every axis (line 2*i: min, 2*i + 1: max), as logical levels.
+
+    A step that moves an axis onto or off a simulated end stop queues an edge at the
+    step's time; a forced level (``MockWorld.force_endstop``) or a position set by hand is
+    seen at the next read, with that read's time.
+    """
+
+    def __init__(self, world: MockWorld) -> None:
+        super().__init__([f"axis{i}.{w}" for i in range(len(world.axes)) for w in ("min", "max")])
+        self._world = world
+        self._levels = [self._sense(line) for line in range(len(self.names))]
+        self._seen = [(a.generation, a.position) for a in world.axes]
+        self._pending: deque[Edge] = deque()
+
+    def _sense(self, line: int) -> bool:
+        return self._world.axes[line // 2].endstop_active("max" if line % 2 else "min")
+
+    def _update(self, line: int, t: float) -> None:
+        now = self._sense(line)
+        if now != self._levels[line]:
+            self._levels[line] = now
+            self._pending.append(Edge(line, now, t))
+
+    def moved(self, axis: int, t: float) -> None:
+        a = self._world.axes[axis]
+        self._seen[axis] = (a.generation, a.position)
+        self._update(2 * axis, t)
+        self._update(2 * axis + 1, t)
+
+    def _refresh(self) -> None:
+        """Levels a test changed behind the step path's back (forced, or moved by hand)."""
+        for i, axis in enumerate(self._world.axes):
+            if (axis.generation, axis.position) != self._seen[i]:
+                self.moved(i, self._world.clock.now())
+
+    def read_edges(self) -> list[Edge]:
+        self._refresh()
+        out = list(self._pending)
+        self._pending.clear()
+        return out
+
+    def level(self, line: int) -> bool:
+        self._refresh()
+        return self._levels[line]
 
 
 class MockDriver(StepperDriver):
@@ -131,16 +238,6 @@ class MockDriver(StepperDriver):
         return DriverStatus(fault=self._axis.fault, stall=self._axis.stalled)
 
 
-class MockEndstop(InputLine):
-    def __init__(self, axis: MockAxis, which: str) -> None:
-        self._axis = axis
-        self._which = which
-
-    def read(self) -> bool:
-        active = self._axis.endstop_active(self._which)
-        return active != self._axis.spec.endstop_active_low
-
-
 class MockPin(Pin):
     def __init__(self, world: MockWorld, number: int, output: bool, level: bool) -> None:
         super().__init__(number, output, level)
@@ -148,15 +245,13 @@ class MockPin(Pin):
         self.external = False  # the level an unwired input senses
 
     def _configure(self, output: bool, level: bool) -> None:
-        now = self._world.clock.now()
-        self._world.timeline.record(now, EventKind.CONFIG, self.number, output)
+        self._world.timeline.record(self._world.clock.now(), EventKind.CONFIG, self.number, output)
         if output:
-            self._world.timeline.record(now, EventKind.PIN, self.number, level)
+            self._world.timeline.record(self._world.clock.now(), EventKind.PIN, self.number, level)
 
     def _write(self, level: bool) -> None:
         self._world.raise_injected("pin", self.number)
-        now = self._world.clock.now()
-        self._world.timeline.record(now, EventKind.PIN, self.number, level)
+        self._world.timeline.record(self._world.clock.now(), EventKind.PIN, self.number, level)
 
     def _read(self) -> bool:
         peer = self._world.wired_to(self.number)
@@ -174,14 +269,53 @@ class MockBridge(DcBridge):
         self._world.timeline.record(self._world.clock.now(), EventKind.DC, 0, state.value)
 
 
-class MockWorld:
-    """The simulated machine. Build it with :func:`build`; poke it from tests."""
+def _buffer(shm: shared_memory.SharedMemory) -> memoryview:
+    buf = shm.buf
+    if buf is None:
+        raise ValueError(f"shared memory {shm.name} is closed")
+    return buf
 
-    def __init__(self, spec: HardwareSpec, clock: Clock, timeline_len: int | None) -> None:
+
+class MockWorld:
+    """The simulated machine. Build it with :func:`build`; poke it from tests.
+
+    Owned by the daemon's process; its axes' mechanics may be shared (``mechanics``: the name
+    of a shared-memory block) with the step executor's process, which then has a world of its
+    own over the same mechanics and keeps its own timeline (written to ``timeline_file``, JSON
+    lines, when its step IO closes).
+    """
+
+    def __init__(
+        self,
+        spec: HardwareSpec,
+        clock: Clock,
+        timeline_len: int | None,
+        *,
+        share: bool = False,
+        mechanics: str | None = None,
+    ) -> None:
+        self.spec = spec
         self.clock = clock
         self.lock = threading.Lock()
         self.timeline = Timeline(timeline_len)
-        self.axes = [MockAxis(a) for a in spec.axes]
+        size = max(1, len(spec.axes)) * _FIELDS * 8
+        self._shm: shared_memory.SharedMemory | None = None
+        self._owner = False
+        if mechanics is not None:
+            shm = self._shm = shared_memory.SharedMemory(name=mechanics)
+            buf = _buffer(shm)
+        elif share:
+            shm = self._shm = shared_memory.SharedMemory(create=True, size=size)
+            self._owner = True
+            buf = _buffer(shm)
+            buf[:size] = bytes(size)
+        else:
+            buf = memoryview(bytearray(size))
+        self._cells = buf.cast("q")
+        self.axes = [
+            MockAxis(a, self._cells[i * _FIELDS : (i + 1) * _FIELDS])
+            for i, a in enumerate(spec.axes)
+        ]
         self.pins: dict[int, MockPin] = {
             p.number: MockPin(self, p.number, p.output, p.initial) for p in spec.pins
         }
@@ -191,6 +325,27 @@ class MockWorld:
             self._wires[a] = b
             self._wires[b] = a
         self.bridge = MockBridge(self) if spec.dc else None
+
+    @property
+    def mechanics(self) -> str | None:
+        """The shared-memory block's name when the mechanics are shared."""
+        return None if self._shm is None else self._shm.name
+
+    def close(self) -> None:
+        if self._shm is None:
+            return
+        self.axes = [MockAxis(a.spec, memoryview(bytearray(_FIELDS * 8)).cast("q"))
+                     for a in self.axes]
+        self._cells.release()
+        self._shm.close()
+        if self._owner:
+            self._shm.unlink()
+        self._shm = None
+
+    def dump_timeline(self, path: str) -> None:
+        with open(path, "w", encoding="utf-8") as f:
+            for e in tuple(self.timeline.events):
+                f.write(json.dumps([e.t, e.kind, e.index, e.value]) + "\n")
 
     def wired_to(self, number: int) -> MockPin | None:
         other = self._wires.get(number)
@@ -204,7 +359,8 @@ class MockWorld:
     def inject_line_error(self, kind: str, index: int, error: OSError | None) -> None:
         """Make every write to a line raise ``error`` (None heals it): ``kind`` is "step" or
         "dir" (``index`` a motor) or "pin" (``index`` a pin number), as a line whose chip went
-        away makes gpiod raise."""
+        away makes gpiod raise. Step and DIR lines raise it as the HalIOError of the contract
+        (in this process's world: the executor's own process has a world of its own)."""
         if error is None:
             self.line_errors.pop((kind, index), None)
         else:
@@ -212,15 +368,18 @@ class MockWorld:
 
     def raise_injected(self, kind: str, index: int) -> None:
         error = self.line_errors.get((kind, index))
-        if error is not None:
+        if error is None:
+            return
+        if kind == "pin":
             raise error
+        raise HalIOError(f"motor {index} {kind.upper()} line: {error}") from error
 
     def inject_stall(self, motor: int, stalled: bool) -> None:
         self.axes[motor].forced_stall = stalled
 
     def force_endstop(self, motor: int, which: str, active: bool | None) -> None:
         """Force an end stop active/inactive; None returns it to the simulation."""
-        self.axes[motor].forced_endstop[which] = active
+        self.axes[motor].force(which, active)
 
     # -- persistence of the simulated mechanics ---------------------------
     def snapshot(self) -> dict[str, Any]:
@@ -233,16 +392,18 @@ class MockWorld:
                 axis.position = pos
 
     def hardware(self) -> Hardware:
-        steppers = [
-            StepperHardware(
-                port=MockStepPort(self.clock, self, i, axis.spec.invert_dir),
-                driver=MockDriver(axis),
-                endstop_min=MockEndstop(axis, "min"),
-                endstop_max=MockEndstop(axis, "max"),
-            )
-            for i, axis in enumerate(self.axes)
-        ]
-        return MockHardware(self.clock, steppers, dict(self.pins), self.bridge, world=self)
+        steppers = [StepperHardware(driver=MockDriver(axis)) for axis in self.axes]
+        hw = MockHardware(self.clock, steppers, dict(self.pins), self.bridge, world=self)
+        if self.mechanics is not None:
+            hw.step_io_options["mechanics"] = self.mechanics
+        hw.closers.append(self.close)
+        return hw
+
+    def step_io(self) -> StepIO:
+        inputs = MockEdgeInputs(self)
+        outputs = MockStepOutputs(self, inputs)
+        ends = tuple((2 * i, 2 * i + 1) for i in range(len(self.axes)))
+        return StepIO(self.clock, outputs, inputs, ends)
 
 
 @dataclass
@@ -252,12 +413,47 @@ class MockHardware(Hardware):
     world: MockWorld | None = None
 
 
-def build(spec: HardwareSpec, clock: Clock) -> Hardware:
-    """The mock backend's entry point for :mod:`hal.registry`."""
+def _timeline_len(spec: HardwareSpec) -> int | None:
     timeline_len = spec.options.get("timeline_len", 100_000)
     if timeline_len is not None and not isinstance(timeline_len, int):
         raise ValueError("timeline_len must be an int or None")
-    return MockWorld(spec, clock, timeline_len).hardware()
+    return timeline_len
+
+
+def build(spec: HardwareSpec, clock: Clock) -> Hardware:
+    """The mock backend's entry point for :mod:`hal.registry`.
+
+    ``options["executor_process"]``: the step executor runs in another process, so the
+    axes' mechanics go to shared memory (named in ``Hardware.step_io_options``).
+    """
+    share = bool(spec.options.get("executor_process", False))
+    return MockWorld(spec, clock, _timeline_len(spec), share=share).hardware()
+
+
+def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None) -> StepIO:
+    """STEP/DIR and end stops: on the parent's world in-process, else on shared mechanics."""
+    if parent is not None:
+        return world_of(parent).step_io()
+    mechanics = spec.options.get("mechanics")
+    if mechanics is not None and not isinstance(mechanics, str):
+        raise ValueError("mechanics must name a shared-memory block")
+    world = MockWorld(spec, clock, _timeline_len(spec), mechanics=mechanics)
+    io = world.step_io()
+    path = spec.options.get("timeline_file")
+    if isinstance(path, str):
+        io.closers.append(lambda: world.dump_timeline(path))
+    io.closers.append(world.close)
+    return io
+
+
+def read_timeline(path: str) -> Timeline:
+    """A timeline written by a step executor's own process (``timeline_file``)."""
+    timeline = Timeline(None)
+    with open(path, encoding="utf-8") as f:
+        for line in f:
+            t, kind, index, value = json.loads(line)
+            timeline.record(t, EventKind(kind), index, value)
+    return timeline
 
 
 def world_of(hw: Hardware) -> MockWorld:

@@ -1,7 +1,17 @@
 """Backends by name, as python-can's interface registry: a config string picks one.
 
-A backend that fails to import is an error that says why and how to fix it;
-there is no silent fallback to another backend.
+A backend module provides two entry points:
+
+- ``build(spec, clock) -> Hardware``: what the daemon's process owns (drivers, pins, DC).
+- ``build_step_io(spec, clock, parent) -> StepIO``: the STEP/DIR outputs and end-stop inputs
+  of every axis, opened by the step executor in the process and thread that uses them.
+  ``parent`` is the daemon's :class:`Hardware` when the executor runs in the same process
+  (a backend may share state with it, as the mock shares its timeline), None in the
+  executor's own process, which rebuilds everything from the picklable ``spec``.
+
+The hardware library is imported only inside the backend module, when it is chosen. A
+backend that fails to import is an error that says why and how to fix it; there is no
+silent fallback to another backend.
 
 Each backend names two modules: the one that builds it (imported only when the backend is
 chosen: it may import its hardware library) and the one that declares its config sections
@@ -33,14 +43,16 @@ from __future__ import annotations
 import importlib
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import ModuleType
 from typing import Any, cast
 
-from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.interfaces import Clock, HalError, Hardware, StepIO
 from motorctl.hal.spec import HardwareSpec
 from motorctl.hal.wiring import ProbeReport
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
 Prober = Callable[[HardwareSpec, Clock, ProbeReport], None]
+StepIOBuilder = Callable[[HardwareSpec, Clock, Hardware | None], StepIO]
 
 
 @dataclass(frozen=True)
@@ -93,7 +105,7 @@ def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
     return found
 
 
-def _module(backend: str) -> tuple[Any, Backend]:
+def _module(backend: str) -> ModuleType:
     try:
         entry = BACKENDS[backend]
     except KeyError:
@@ -101,17 +113,16 @@ def _module(backend: str) -> tuple[Any, Backend]:
             f"unknown hardware backend {backend!r}; available: {', '.join(sorted(BACKENDS))}"
         ) from None
     try:
-        module = importlib.import_module(entry.module)
+        return importlib.import_module(entry.module)
     except ImportError as exc:
         raise HalError(
             f"hardware backend {backend!r} failed to load: {exc}; needs {entry.fix}"
         ) from exc
-    return module, entry
 
 
 def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
-    module, entry = _module(backend)
-    build = cast(Builder, getattr(module, entry.function))
+    """The daemon's part of the machine (drivers, pins, DC bridge), with any SPI drivers."""
+    build = cast(Builder, getattr(_module(backend), BACKENDS[backend].function))
     hw = build(spec, clock)
     drivers = [a.driver for a in spec.axes]
     if any(drivers):
@@ -131,7 +142,7 @@ def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeRepor
     in the report, not raised, so one missing device does not hide the rest."""
     report = ProbeReport()
     try:
-        module, _ = _module(backend)
+        module = _module(backend)
         own = cast(Prober | None, getattr(module, "probe", None))
         if own is None:
             report.add(f"backend {backend}", ["nothing to probe: no hardware is opened"])
@@ -148,3 +159,11 @@ def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeRepor
         except (HalError, ImportError) as exc:
             report.problems.append(f"{name}: {exc}")
     return report
+
+
+def open_step_io(
+    backend: str, spec: HardwareSpec, clock: Clock, parent: Hardware | None = None
+) -> StepIO:
+    """The step executor's lines, opened by (and in) the executor that drives them."""
+    build = cast(StepIOBuilder, _module(backend).build_step_io)
+    return build(spec, clock, parent)

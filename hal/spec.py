@@ -1,5 +1,7 @@
-"""What a backend is asked to build: plain data, no config-file parsing.
+"""What a backend is asked to build: plain, picklable data, no config-file parsing.
 
+A :class:`HardwareSpec` crosses a process boundary unchanged: the step executor's own
+process builds its step/dir/end-stop lines from it (``registry.open_step_io``).
 ``sections`` carry the backend's own config sections as loaded (the dataclasses its config
 module declares, see hal/registry.py): a backend reads them with ``spec.section(Cls)``,
 ``spec.axes[i].section(Cls)`` and ``spec.pins[i].section(Cls)``.
@@ -19,16 +21,33 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class AxisSpec(Sectioned):
-    """One stepper axis. ``endstop_min``/``endstop_max`` place the mock's simulated end stops."""
+    """One stepper axis.
+
+    ``wiring`` names the lines by role as the backend understands them, e.g.
+    ``(("step", "gpiochip0:17"), ("dir", "GPIO27"), ("min", "gpiochip0:5"))``; roles:
+    step, dir, enable, min, max. ``endstop_active_low`` is the end stops' polarity (backends
+    report logical levels). ``dir_setup_s``/``dir_hold_s``: DIR must be stable this long
+    before a STEP rise / after a STEP fall. ``endstop_min``/``endstop_max`` place the mock's
+    simulated end stops (the mock only).
+    """
 
     invert_dir: bool = False
     endstop_active_low: bool = False
     endstop_min: int = -10_000
     endstop_max: int = 10_000
-    debounce_s: float = 0.0
     name: str = ""
     driver: TmcSpec | None = None  # a TMC2130/TMC5160 on SPI; None: no driver to talk to
+    wiring: tuple[tuple[str, str], ...] = ()
+    dir_setup_s: float = 5e-6
+    dir_hold_s: float = 0.0
+    endstop_debounce_s: float = 0.0
     sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [motors.<backend>]
+
+    def line(self, role: str) -> str | None:
+        for r, name in self.wiring:
+            if r == role:
+                return name
+        return None
 
 
 @dataclass(frozen=True)

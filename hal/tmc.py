@@ -549,11 +549,13 @@ class TmcDriver(StepperDriver):
         self.regs = register_values(settings)  # ValueError for an impossible configuration
         self._status = DriverStatus()
         self._transient: str | None = None  # reported until read once and healthy again
+        self._transient_out = False  # the transient is in the published status
         self._disabled: str | None = None  # a short: the output stage is off until restart
         self.drv: DrvStatus | None = None
         self.tstep = (1 << 20) - 1
         self.gstat = 0
         self.polls = 0
+        self.resets = 0  # chip resets seen while running (the ramp executor watches it)
         self.spi_errors = 0
         self.fault_counts: dict[str, int] = {}
         self.warning_counts: dict[str, int] = {}
@@ -597,6 +599,10 @@ class TmcDriver(StepperDriver):
             link.write(addr, value)
         self.verify()
 
+    def reinit(self) -> None:
+        """After a reset of the chip: its whole set-up again."""
+        self.configure()
+
     def verify(self) -> None:
         readable = [a for a in self.regs if a in self.chip.readable]
         got = self.link.read_many(readable)
@@ -629,10 +635,10 @@ class TmcDriver(StepperDriver):
         """The monitor's latest verdict, without I/O. A transient fault is then forgotten
         once the chip is healthy again (so StopMove can clear it)."""
         with self._lock:
-            status = self._status
-            if self._transient is not None and status.fault is not None:
-                self._transient = None  # the reader saw it
-            return status
+            if self._transient_out:  # the reader sees it now: forget it from the next poll
+                self._transient = None
+                self._transient_out = False
+            return self._status
 
     # -- the monitor thread ------------------------------------------------------------
     def poll(self) -> DriverStatus:
@@ -660,8 +666,9 @@ class TmcDriver(StepperDriver):
 
     def _handle_gstat(self, gstat: int) -> None:
         if F.RESET.get(gstat):
+            self.resets += 1
             try:
-                self.configure()
+                self.reinit()
                 self._set_transient(
                     "driver was reset and lost its configuration (reconfigured); check the "
                     "motor supply VM and the logic supply VIO"
@@ -674,6 +681,7 @@ class TmcDriver(StepperDriver):
     def _set_transient(self, text: str) -> None:
         with self._lock:
             self._transient = text
+            self._transient_out = False
         self._count(self.fault_counts, [text.split(";")[0].split(" (")[0]])
 
     def _count(self, table: dict[str, int], names: Iterable[str]) -> None:
@@ -706,6 +714,7 @@ class TmcDriver(StepperDriver):
         with self._lock:
             if self._transient is not None:
                 faults.append(self._transient)
+                self._transient_out = True
             status = DriverStatus(fault="; ".join(faults) or None, stall=stall)
             self._status = status
         return status
@@ -844,6 +853,11 @@ class Tmc5160(TmcDriver):
                 "it takes STEP/DIR and its ramp generator is off; tie SD_MODE to GND or "
                 "configure the motor with mode = \"step_dir\""
             )
+        self.ramp_init()
+
+    def reinit(self) -> None:
+        """A reset cleared the ramp registers too (and XACTUAL: the position is lost)."""
+        self.configure()
         self.ramp_init()
 
     def ramp_init(self) -> None:

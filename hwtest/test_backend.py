@@ -13,10 +13,9 @@ from hwtest import gsim
 from hwtest.gpiod_harness import GpiodHarness
 from hwtest.layout import MOTORS, axis_section, where
 from motorctl.hal.gpiochip import load_api
-from motorctl.hal.gpiod_backend import GpiodHardware, GpiodStepPort
 from motorctl.hal.gpiod_config import GpiodAxisConfig
 from motorctl.hal.interfaces import HalError, MonotonicClock
-from motorctl.hal.registry import open_hardware
+from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.spec import HardwareSpec
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
@@ -60,17 +59,15 @@ def test_bad_lines_are_named_and_nothing_is_requested(lines: dict[str, str],
 
 
 def test_several_step_lines_in_one_call() -> None:
-    hw = open_hardware("gpiod", GpiodHarness().spec(3, [], False), MonotonicClock())
+    h = GpiodHarness()
+    h.open(motors=3)
     try:
-        assert isinstance(hw, GpiodHardware)
-        ports = [st.port for st in hw.steppers]
-        assert all(isinstance(p, GpiodStepPort) for p in ports)
-        for p in ports:
-            p.set_direction(True)
-        (group,) = hw.groups.values()  # all three motors' lines: one request on gpiochip0
+        out = h.step_io().outputs
+        for m in range(3):
+            out.set_direction(m, True)
         gsim.trace_start()
         for _ in range(20):
-            group.pulse_many([p for p in ports if isinstance(p, GpiodStepPort)], 5e-6)
+            out.pulse([0, 1, 2], 5e-6)
         gsim.trace_stop()
         ev = gsim.trace_read()
         steps = {gsim.chip_base() + where(m[0])[1] for m in MOTORS}
@@ -81,7 +78,7 @@ def test_several_step_lines_in_one_call() -> None:
         for i in range(0, len(on_steps), 6):
             assert [e.value for e in on_steps[i:i + 6]] == [1, 1, 1, 0, 0, 0]
     finally:
-        hw.close()
+        h.close()
 
 
 def test_dir_is_held_after_the_last_step_fall() -> None:
@@ -89,13 +86,15 @@ def test_dir_is_held_after_the_last_step_fall() -> None:
     a0 = dataclasses.replace(axis_section(0), dir_hold_us=2000.0)
     spec = dataclasses.replace(spec, axes=(dataclasses.replace(
         spec.axes[0], sections={GpiodAxisConfig: a0}),))
-    hw = open_hardware("gpiod", spec, MonotonicClock())
+    clock = MonotonicClock()
+    hw = open_hardware("gpiod", spec, clock)
+    io = open_step_io("gpiod", spec, clock, parent=hw)
     try:
-        port = hw.steppers[0].port
-        port.set_direction(True)
+        out = io.outputs
+        out.set_direction(0, True)
         gsim.trace_start()
-        port.pulse(5e-6)
-        port.set_direction(False)
+        out.pulse([0], 5e-6)
+        out.set_direction(0, False)
         gsim.trace_stop()
         ev = gsim.trace_read()
         base = gsim.chip_base()
@@ -105,4 +104,5 @@ def test_dir_is_held_after_the_last_step_fall() -> None:
                 if e.value == 0]
         assert flip and flip[0].ts - fall.ts >= 0.002 * 0.99
     finally:
+        io.close()
         hw.close()

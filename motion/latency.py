@@ -1,45 +1,78 @@
-"""Lateness of step edges: a fixed-bin histogram, cheap enough for the step thread."""
+"""Lateness of step edges: a fixed-bin histogram, cheap enough for the step path.
+
+The counters live in one flat sequence of ints (a list, or an int64 view of shared memory
+when the step core runs in a process of its own): [count, late, max_ns, bins...]. The step
+core is the only writer; readers (status, benchmarks) read it without a lock and may see a
+histogram a few steps behind its counters, never a torn value.
+"""
 
 from __future__ import annotations
 
 import math
+from collections.abc import MutableSequence
 from typing import Any
 
-_BINS = 20_000  # 1 us bins up to 20 ms; later edges go to the overflow bin
+BINS = 20_000  # 1 us bins up to 20 ms; later edges go to the overflow bin
+CELLS = 3 + BINS + 1
+_COUNT, _LATE, _MAX = 0, 1, 2
 
 
 class LatencyStats:
-    def __init__(self, threshold_s: float = 100e-6) -> None:
+    def __init__(
+        self, threshold_s: float = 100e-6, cells: MutableSequence[int] | None = None
+    ) -> None:
         self.threshold_s = threshold_s
-        self.reset()
+        self._threshold_ns = int(threshold_s * 1e9)
+        self._c: MutableSequence[int] = cells if cells is not None else [0] * CELLS
+        if len(self._c) < CELLS:
+            raise ValueError(f"latency cells need {CELLS} slots")
 
     def reset(self) -> None:
-        self.bins = [0] * (_BINS + 1)
-        self.count = 0
-        self.late = 0
-        self.max_s = 0.0
+        for i in range(CELLS):
+            self._c[i] = 0
+
+    @property
+    def count(self) -> int:
+        return int(self._c[_COUNT])
+
+    @property
+    def late(self) -> int:
+        return int(self._c[_LATE])
+
+    @property
+    def max_s(self) -> float:
+        return self._c[_MAX] / 1e9
+
+    @property
+    def bins(self) -> list[int]:
+        return list(self._c[3:CELLS])
 
     def record(self, lateness_s: float) -> None:
-        self.count += 1
-        if lateness_s > self.max_s:
-            self.max_s = lateness_s
-        if lateness_s > self.threshold_s:
-            self.late += 1
-        # The epsilon keeps whole microseconds whole (15e-6 * 1e6 is 14.999999999999998).
-        us = int(lateness_s * 1e6 + 1e-6)
-        self.bins[us if 0 <= us < _BINS else (0 if us < 0 else _BINS)] += 1
+        self.record_ns(round(lateness_s * 1e9))
+
+    def record_ns(self, ns: int) -> None:
+        c = self._c
+        c[_COUNT] += 1
+        if ns > c[_MAX]:
+            c[_MAX] = ns
+        if ns > self._threshold_ns:
+            c[_LATE] += 1
+        us = ns // 1000 if ns >= 0 else 0
+        c[3 + (us if us < BINS else BINS)] += 1
 
     def percentile_us(self, q: float) -> float:
         """The q-th percentile (0..100) in microseconds, at 1 us resolution."""
-        if self.count == 0:
+        bins = self.bins
+        count = sum(bins)
+        if count == 0:
             return 0.0
-        exact = q / 100.0 * self.count
+        exact = q / 100.0 * count
         rank = max(1, math.ceil(exact - 1e-12 * exact))  # 99.9% of 1000 is 999, not 1000
         seen = 0
-        for us, n in enumerate(self.bins):
+        for us, n in enumerate(bins):
             seen += n
             if seen >= rank:
-                return float(us) if us < _BINS else self.max_s * 1e6
+                return float(us) if us < BINS else self.max_s * 1e6
         return self.max_s * 1e6
 
     def histogram(self) -> dict[int, int]:

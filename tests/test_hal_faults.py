@@ -1,4 +1,4 @@
-"""Faults injected at the HAL of a live daemon (step thread, link on a real PTY, in-process):
+"""Faults injected at the HAL of a live daemon (thread executor, link on a real PTY, in-process):
 each must end in a latched fault or a clear error code, never a dead thread or a wrong ACK."""
 
 from __future__ import annotations
@@ -16,7 +16,6 @@ from motorctl.daemon.link import Link, flush_pty_input
 from motorctl.daemon.main import Daemon, open_pty
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.mock import MockWorld, world_of
-from motorctl.motion.stepthread import StepThread
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,
@@ -31,7 +30,7 @@ from motorctl.protocol.codec import (
     WaitMoved,
     encode_command,
 )
-from tests.daemon_proc import until
+from tests.daemon_proc import for_tests, until
 from tests.test_link import Host
 
 E = ErrorCode
@@ -51,15 +50,16 @@ mode = "output"
 class Live:
     def __init__(self, tmp: Path) -> None:
         clock = MonotonicClock()
-        self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state", clock)
+        config = parse_config(for_tests(CONFIG), "t.toml")  # best-effort step timing
+        self.daemon = Daemon.build(config, tmp / "state", clock)
         self.world: MockWorld = world_of(self.daemon.hw)
-        self.steps = StepThread(self.daemon.engine, clock, priority=0, lock_memory=False)
         self.fd, name = open_pty(tmp / "pty")
         self.link = Link(self.fd, self.daemon.dispatcher, OPTS, 0.010, 16,
                          on_hangup=lambda: flush_pty_input(name))
         self.daemon.link = self.link
         self.link_thread = threading.Thread(target=self.link.serve, daemon=True)
-        self.steps.start()
+        self.daemon.engine.executor.start()
+        self.daemon.engine.start()
         self.link_thread.start()
         self.host = Host(name)
 
@@ -71,13 +71,16 @@ class Live:
         return self.ask(cmd)[0].error_code
 
     def alive(self) -> bool:
-        return self.steps.alive and self.link_thread.is_alive()
+        engine = self.daemon.engine
+        alive = engine.threads_alive and engine.executor.health().alive
+        return alive and self.link_thread.is_alive()
 
     def close(self) -> None:
         self.host.close()
         self.link.stop()
         self.link_thread.join(20)
-        self.steps.stop()
+        self.daemon.engine.stop_threads()
+        self.daemon.engine.executor.close()
         self.link.close()
         import os
 
@@ -109,19 +112,22 @@ def test_step_line_that_raises_latches_a_fault(live: Live) -> None:
     assert live.code(IsReady(1)) is None  # the other motor is unaffected
     live.world.inject_line_error("step", 0, None)
     assert live.code(StopMove(0, True)) is None  # the driver reports nothing: cleared
-    assert live.code(MoveTo(0, True, 10, 0, 0, 0)) is None
-    assert live.code(WaitMoved(0, 20_000)) is None
-    assert live.ask(GetAbsPos(0))[0].as_position == 10
+    # it failed at 4096 step/s, above the start speed: the position is lost, homing is due
+    assert live.daemon.status()["motors"][0]["position_lost"]
+    assert live.code(MoveTo(0, True, 10, 0, 0, 0)) is E.MOTOR_ERROR
     assert live.daemon.engine.hardware_errors >= 1
 
 
 def test_dir_line_that_raises_on_a_new_move(live: Live) -> None:
     live.world.inject_line_error("dir", 1, OSError(errno.EIO, "gpio chip gone"))
-    # The motion starts at once, in the command: the failure is its answer, and latched.
-    assert live.code(MoveTo(1, True, 100, 0, 0, 0)) is E.MOTOR_ERROR
+    # The executor writes DIR ahead of the first step: the failure is latched there and
+    # the next answer about the motor says so.
+    assert live.code(MoveTo(1, True, 100, 0, 0, 0)) in (None, E.MOTOR_ERROR)
     assert live.code(WaitMoved(1, 20_000)) is E.MOTOR_ERROR
     assert live.code(StopMove(1, False)) is None  # the driver reports nothing: cleared
-    assert live.code(MoveTo(1, True, 100, 0, 0, 0)) is E.MOTOR_ERROR  # the line still fails
+    assert not live.daemon.status()["motors"][1]["position_lost"]  # it never stepped
+    assert live.code(MoveTo(1, True, 100, 0, 0, 0)) in (None, E.MOTOR_ERROR)  # still fails
+    assert live.code(WaitMoved(1, 20_000)) is E.MOTOR_ERROR
     live.world.inject_line_error("dir", 1, None)
     assert live.code(StopMove(1, False)) is None
     assert live.code(MoveTo(1, True, 100, 0, 0, 0)) is None

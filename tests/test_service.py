@@ -163,6 +163,19 @@ def test_watchdog_pings_only_while_healthy(fake_systemd: FakeSystemd,
 
 
 # -- logging ------------------------------------------------------------------------------------
+@pytest.fixture(autouse=True)
+def keep_root_logger() -> Iterator[None]:
+    """setup_logging() configures the root logger: put it back for the tests that follow."""
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    yield
+    for h in list(root.handlers):
+        root.removeHandler(h)
+    for h in handlers:
+        root.addHandler(h)
+    root.setLevel(level)
+
+
 def test_logging_to_stderr_with_fields(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv("JOURNAL_STREAM", raising=False)
     with open(tmp_path / "err", "w+") as err:
@@ -170,7 +183,6 @@ def test_logging_to_stderr_with_fields(tmp_path: Path, monkeypatch: pytest.Monke
         logging.getLogger("motorctl.test").warning("hello", extra={"MOTOR": 1})
         err.seek(0)
         assert err.read() == "motorctld WARNING motorctl.test: hello [MOTOR=1]\n"
-    service.setup_logging("info", sys.stderr)
 
 
 def test_logging_to_the_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
@@ -187,7 +199,6 @@ def test_logging_to_the_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
         assert service.setup_logging("info", err) == "journal"
         logging.getLogger("motorctl.test").error(
             "motor %d: E4", 2, extra={"MOTOR": 2, "COMMAND": "MoveTo", "ERROR_CODE": "E4"})
-    service.setup_logging("info", sys.stderr)
     (message, fields), = sent
     assert message == "motor 2: E4"
     assert fields["PRIORITY"] == "3" and fields["SYSLOG_IDENTIFIER"] == "motorctld"
@@ -374,3 +385,17 @@ def test_motor_events_logged_off_the_step_thread(caplog: pytest.LogCaptureFixtur
     assert cleared.getMessage() == "motor 1 (y): fault cleared"
     events.flush()
     assert len(caplog.records) == 2
+
+
+def test_stderr_handler_follows_sys_stderr(monkeypatch: pytest.MonkeyPatch) -> None:
+    import io
+
+    monkeypatch.delenv("JOURNAL_STREAM", raising=False)
+    assert service.setup_logging("info") == "stderr"
+    assert service.setup_logging("info") == "stderr"  # replaces its own handler, not doubled
+    ours = [h for h in logging.getLogger().handlers if getattr(h, "motorctl", False)]
+    assert len(ours) == 1
+    later = io.StringIO()
+    monkeypatch.setattr(sys, "stderr", later)  # e.g. a test runner swapping streams
+    logging.getLogger("motorctl.test").info("still here")
+    assert later.getvalue() == "motorctld INFO motorctl.test: still here\n"

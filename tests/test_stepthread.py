@@ -1,4 +1,4 @@
-"""The step thread on the real monotonic clock, driving the mock world.
+"""The ``thread`` step executor and the engine's threads on the real monotonic clock.
 
 Every wait is on an event set by an engine listener (or a bounded wait for a condition) with a
 generous timeout; the assertions are about positions and step counts, never about timing.
@@ -18,7 +18,8 @@ from motorctl.hal.mock import EventKind, MockWorld, build, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
-from motorctl.motion.stepthread import GcPolicy, StepThread
+from motorctl.motion.rt import GcPolicy
+from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     MotionCmd,
@@ -37,7 +38,7 @@ FAST = Ramp(4000.0, 40000.0, 40000.0)
 class Live:
     engine: MotionEngine
     world: MockWorld
-    thread: StepThread
+    thread: ThreadStepExecutor
     events: dict[str, threading.Event]
 
     @property
@@ -56,7 +57,9 @@ class Live:
         return ok
 
     def wait(self, name: str) -> None:
-        assert self.events[name].wait(TIMEOUT), f"no {name!r} within {TIMEOUT} s"
+        assert self.events[name].wait(TIMEOUT), (
+            f"no {name!r} within {TIMEOUT} s (fault: {self.m.fault})"
+        )
         self.events[name].clear()
 
     def wait_steps(self, n: int) -> None:
@@ -86,7 +89,8 @@ def live(request: pytest.FixtureRequest) -> Iterator[Live]:
         options={"timeline_len": None},
     )
     hw = build(spec, clock)
-    engine = MotionEngine(hw, [params], driver_poll_s=0.005)
+    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits([params], 0.5, 5e-6))
+    engine = MotionEngine(hw, [params], executor, driver_poll_s=0.005)
     names = ("start", "idle", "fault", "homed", "cleared")
     events = {name: threading.Event() for name in names}
 
@@ -94,31 +98,35 @@ def live(request: pytest.FixtureRequest) -> Iterator[Live]:
         events[event].set()
 
     engine.listeners.append(listener)
-    thread = StepThread(engine, clock, priority=0, lock_memory=False)
-    thread.start()
+    executor.start()
+    engine.start()
     try:
-        yield Live(engine, world_of(hw), thread, events)
+        yield Live(engine, world_of(hw), executor, events)
     finally:
-        thread.stop()
-        assert not thread.alive
+        engine.stop_threads()
+        executor.close()
+        assert not executor.health().alive
+        assert executor.health().reason is None  # closed, not died
 
 
 def test_refuses_a_virtual_clock() -> None:
     clock = VirtualClock()
-    hw = build(HardwareSpec(axes=(AxisSpec(),)), clock)
-    engine = MotionEngine(hw, [MotorParams()])
+    spec = HardwareSpec(axes=(AxisSpec(),))
+    hw = build(spec, clock)
+    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 1e-3, 0.0))
     with pytest.raises(ValueError, match="real clock"):
-        StepThread(engine, clock)
+        MotionEngine(hw, [MotorParams()], ex).start()
 
 
 def test_a_short_move_completes(live: Live) -> None:
-    assert live.thread.warnings == [] and not live.thread.realtime
+    assert live.thread.warnings == []
     live.submit(MoveToCmd(400, FAST))
     live.wait("idle")
     assert live.settled() == (400, 400, 400)
     assert {e.value for e in live.world.timeline.of(EventKind.STEP, 0)} == {True}
     assert live.m.state is MotorState.IDLE and live.m.idle
-    assert live.engine.stats.count == 400
+    assert live.thread.stats.count == 400
+    assert live.thread.health().counters["steps"] == 400
 
 
 def test_queued_moves_run_in_order(live: Live) -> None:

@@ -50,6 +50,7 @@ from motorctl.hal.tmc import (
 from motorctl.hal.tmc_backend import attach_drivers, probe
 from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
+from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -588,9 +589,12 @@ def engine_with_tmc(
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
-    hw = build(HardwareSpec((AxisSpec(),)), bench.clock)
+    spec = HardwareSpec((AxisSpec(),))
+    hw = build(spec, bench.clock)
     hw.steppers[0].driver = drv  # the mock's STEP/DIR, a TMC2130 for the status
-    engine = MotionEngine(hw, [MotorParams(homing=homing)], driver_poll_s=0.005)
+    params = [MotorParams(homing=homing)]
+    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 1e-3, 0.0))
+    engine = MotionEngine(hw, params, executor, driver_poll_s=0.005)
 
     def monitor_tick() -> None:  # what the monitor thread does, in virtual time
         moving = engine.motors[0].active
@@ -799,3 +803,25 @@ def test_ramp_mode_is_refused_until_the_engine_can_use_it(bench: Bench) -> None:
     spec = TmcSpec("/dev/spidev0.0", S5160, ramp=True)
     with pytest.raises(TmcError, match=r"m0: mode = \"ramp\".*use mode = \"step_dir\""):
         attach_drivers(hw, [spec], bench.clock, ["m0"], factory=bench.kernel.factory())
+
+
+def test_a_transient_fault_set_between_two_publications_is_not_lost(bench: Bench) -> None:
+    bench.chip("tmc2130")
+    drv = bench.driver(S2130)
+    drv.start()
+    drv.poll()
+    drv._set_transient("SPI: simulated")  # the monitor latched it, not yet published...
+    assert drv.status().fault is None  # ...a reader in between sees the old status
+    assert drv._publish(None).fault == "SPI: simulated"  # still reported
+    assert drv.status().fault == "SPI: simulated"
+    assert drv.poll().fault is None
+
+
+def test_a_tmc5160_reset_in_ramp_mode_restores_the_ramp_set_up(bench: Bench) -> None:
+    drv, model = ramp_driver(bench)
+    model.power_cycle()
+    status = drv.poll()
+    assert status.fault is not None and "reset" in status.fault
+    assert drv.resets == 1
+    assert model.regs[tm.A_VSTOP] >= 10 and model.regs[tm.A_SW_MODE] == drv.sw_mode == 0b100
+    assert model.regs[tm.A_RAMPMODE] == 0 and model.regs[tm.A_CHOPCONF] & 0xF == 3

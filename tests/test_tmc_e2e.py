@@ -93,6 +93,11 @@ def test_a_driver_fault_answers_e4_until_it_clears(daemon: DaemonProcess, fake_s
                 time.sleep(0.05)
         c.move_to(0, 10, speed=250)
         c.wait_moved(0, timeout_ms=10_000)
+    drivers = daemon.status()["drivers"]
+    assert [(d["chip"], d["device"]) for d in drivers] == [
+        ("TMC2130", "/dev/spidev0.0"), ("TMC5160", "/dev/spidev0.1")]
+    assert drivers[0]["polls"] > 0 and drivers[0]["fault_counts"]["over-temperature (ot)"] == 1
+    assert drivers[0]["spi_status_counts"]["reset_flag"] == 1  # the power-up reset, cleared
     assert daemon.terminate() == 0
 
 

@@ -202,6 +202,13 @@ class StepThreadConfig:
         1023,
         "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
     )
+    max_lateness_us: float = number(
+        2000.0,
+        10,
+        1e7,
+        "A step that would be later than this is not made: that motor stops and latches "
+        "E4 'step timing lost' (position lost if it ran faster than its start speed).",
+    )
 
 
 @section(
@@ -341,6 +348,13 @@ class MotorConfig(Sectioned):
     )
     max_accel: float = number(
         200000.0, 0, 1e7, "step/s^2; larger ACC / DEC are clamped.", lo_open=True
+    )
+    start_speed: float = number(
+        100.0,
+        0,
+        200000,
+        "step/s the motor can start or stop at without a ramp: stopped by a 'step timing "
+        "lost' fault from above it, its position counts as lost (home it again).",
     )
     default_speed: float = number(
         2000.0, 0, "max_speed", "step/s used when SPEED = 0, and by GoHome.", lo_open=True

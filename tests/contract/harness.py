@@ -11,9 +11,9 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 
-from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock
+from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, StepIO
 from motorctl.hal.mock import EventKind, MockWorld, world_of
-from motorctl.hal.registry import open_hardware
+from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 
 
@@ -27,6 +27,7 @@ class Harness(ABC):
 
     def __init__(self) -> None:
         self.hw: Hardware | None = None
+        self.io: StepIO | None = None
 
     def spec(self, motors: int, pins: Sequence[PinSpec], dc: bool,
              endstop_active_low: bool = False, invert_dir: bool = False) -> HardwareSpec:
@@ -37,14 +38,24 @@ class Harness(ABC):
     def open(self, motors: int = 1, pins: Sequence[PinSpec] = (), dc: bool = False,
              endstop_active_low: bool = False, invert_dir: bool = False) -> Hardware:
         spec = self.spec(motors, pins, dc, endstop_active_low, invert_dir)
-        self.hw = open_hardware(self.backend, spec, MonotonicClock())
+        clock = MonotonicClock()
+        self.hw = open_hardware(self.backend, spec, clock)
+        self.io = open_step_io(self.backend, spec, clock, parent=self.hw)
         self.opened(spec)
         return self.hw
 
     def opened(self, spec: HardwareSpec) -> None:  # noqa: B027 (an optional hook)
         """Hook: the hardware is open."""
 
+    def step_io(self) -> StepIO:
+        """The step executor's part: STEP/DIR outputs and end-stop edge inputs."""
+        assert self.io is not None
+        return self.io
+
     def close(self) -> None:
+        if self.io is not None:
+            self.io.close()
+            self.io = None
         if self.hw is not None:
             self.hw.close()
             self.hw = None

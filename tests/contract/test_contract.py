@@ -58,47 +58,56 @@ def test_configure_switches_direction_both_ways(harness: Harness) -> None:
 
 
 def test_step_pulses_are_counted_outside_and_dir_follows(harness: Harness) -> None:
-    hw = harness.open(motors=2)
-    port0, port1 = hw.steppers[0].port, hw.steppers[1].port
-    port0.set_direction(True)
-    port1.set_direction(False)
+    harness.open(motors=2)
+    out = harness.step_io().outputs
+    out.set_direction(0, True)
+    out.set_direction(1, False)
     assert harness.dir_level(0) is True
     assert harness.dir_level(1) is False
     harness.count_steps()
     for _ in range(25):
-        port0.pulse(2e-6)
+        out.pulse([0], 2e-6)
     for _ in range(7):
-        port1.pulse(2e-6)
-    assert harness.steps(0) == 25
-    assert harness.steps(1) == 7
-    port0.set_direction(False)
+        out.pulse([1], 2e-6)
+    for _ in range(3):
+        out.pulse([0, 1], 2e-6)  # both motors' STEP lines in one call
+    assert harness.steps(0) == 28
+    assert harness.steps(1) == 10
+    out.set_direction(0, False)
     assert harness.dir_level(0) is False
 
 
 def test_inverted_dir_swaps_the_level(harness: Harness) -> None:
-    hw = harness.open(motors=1, invert_dir=True)
-    hw.steppers[0].port.set_direction(True)
+    harness.open(motors=1, invert_dir=True)
+    harness.step_io().outputs.set_direction(0, True)
     assert harness.dir_level(0) is False
 
 
 def test_pulse_before_direction_is_refused(harness: Harness) -> None:
-    hw = harness.open(motors=1)
+    harness.open(motors=1)
     with pytest.raises(RuntimeError, match="direction"):
-        hw.steppers[0].port.pulse(2e-6)
+        harness.step_io().outputs.pulse([0], 2e-6)
 
 
 @pytest.mark.parametrize("active_low", [False, True])
-def test_endstops_read_the_electrical_level(harness: Harness, active_low: bool) -> None:
-    hw = harness.open(motors=1, endstop_active_low=active_low)
-    st = hw.steppers[0]
-    assert st.endstop_min is not None and st.endstop_max is not None
-    for which, line in (("min", st.endstop_min), ("max", st.endstop_max)):
-        for level in (True, False, True):
+def test_endstops_are_edges_with_the_logical_level(harness: Harness, active_low: bool) -> None:
+    harness.open(motors=1, endstop_active_low=active_low)
+    io = harness.step_io()
+    lo, hi = io.endstops[0]
+    assert lo is not None and hi is not None
+    for which, line in (("min", lo), ("max", hi)):
+        for i, level in enumerate((False, True, False, True)):  # the first only sets a start
             harness.drive_endstop(0, which, level)
+            active = level != active_low
             deadline = time.monotonic() + 2.0
-            while line.read() is not level:  # edge events arrive through the kernel
-                assert time.monotonic() < deadline, f"{which} end stop never read {level}"
+            seen = []
+            while io.inputs.level(line) is not active:  # edge events come through the kernel
+                seen += io.inputs.read_edges()
+                assert time.monotonic() < deadline, f"{which} end stop never read {active}"
                 time.sleep(0.001)
+            seen += io.inputs.read_edges()
+            if harness.external and i > 0:  # a change: the kernel reported it as an edge
+                assert any(e.line == line and e.active is active for e in seen), seen
 
 
 def test_bridge_states_show_on_its_inputs(harness: Harness) -> None:

@@ -52,13 +52,14 @@ cp "$deb" "$root/tmp/motorctl.deb"
 in_root apt-get update -q >/dev/null
 in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
   /tmp/motorctl.deb > "$build/deb-install.log" 2>&1 || { tail -30 "$build/deb-install.log"; fail "install"; }
-grep -iE "^(E|W):|warning|error" "$build/deb-install.log" && fail "apt or a maintainer script complained"
+complaints='^(E|W): |^dpkg: (warning|error)|[Ww]arning: |[Ee]rror: |Traceback'
+grep -E "$complaints" "$build/deb-install.log" && fail "apt or a maintainer script complained"
 in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl | grep -qx installed || fail "not installed"
 [ -z "$(in_root dpkg --audit)" ] || fail "dpkg --audit: $(in_root dpkg --audit)"
 echo "installed: $(in_root dpkg-query -W -f='${Package} ${Version}' motorctl)"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --reinstall \
   /tmp/motorctl.deb > "$build/deb-reinstall.log" 2>&1 || { tail -30 "$build/deb-reinstall.log"; fail "reinstall"; }
-grep -iE "^(E|W):|warning|error" "$build/deb-reinstall.log" && fail "reinstall complained"
+grep -E "$complaints" "$build/deb-reinstall.log" && fail "reinstall complained"
 echo "reinstalled (the upgrade path of the maintainer scripts): clean"
 
 step "user, groups, conffiles, udev rules"
@@ -134,6 +135,7 @@ mount --bind /dev/pts "$root/dev/pts"
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
   || { tail -20 "$build/deb-purge.log"; fail "purge"; }
+grep -E "$complaints" "$build/deb-purge.log" && fail "purge complained"
 in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl 2>/dev/null | grep -qx installed \
   && fail "still installed after purge"
 [ ! -e "$root/etc/motorctl/motorctl.toml" ] || fail "conffile left after purge"

@@ -1,0 +1,204 @@
+"""The executor seam: what carries out the motion the motor state machines plan.
+
+An :class:`Executor` turns each motor's planned :class:`~motorctl.motion.profile.Trajectory`
+into motion and reports what really happened. Implementations:
+
+- ``motion.stepexec``: timed STEP/DIR edges. The planner in the daemon's process cuts each
+  trajectory into Klipper-style step segments a few milliseconds ahead and feeds them to a
+  real-time step core that runs in a thread (``thread``) or a process of its own
+  (``process``), and that owns the STEP/DIR and end-stop lines.
+- a driver chip that runs its own ramp (TMC5160 motion-controller mode, ``hal`` backend
+  ``spidev``): ``follow`` maps to XTARGET/VMAX/AMAX/DMAX or velocity mode, ``position`` is
+  XACTUAL.
+
+Threads: the methods are called by the motion engine with its lock held (the command and
+planner side), except :meth:`Executor.position`, :meth:`Executor.health` and
+:meth:`Executor.endstop_active`, which read snapshots and may be called from any thread
+without a lock. No method blocks on the step path or waits for it.
+"""
+
+from __future__ import annotations
+
+import enum
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from motorctl.motion.profile import Trajectory
+from motorctl.motion.types import Ramp
+
+#: Integer time of the step path: nanoseconds of the executor's clock.
+TICKS_PER_S = 1_000_000_000
+
+
+def to_ticks(t: float) -> int:
+    return round(t * TICKS_PER_S)
+
+
+def from_ticks(ticks: int) -> float:
+    return ticks / TICKS_PER_S
+
+
+class ExecEventKind(enum.Enum):
+    DONE = "done"  # a finite plan's last step was executed: ``position`` is final
+    STOPPED = "stopped"  # a stop() took effect: ``position`` is final
+    ENDSTOP = "endstop"  # the executor stopped the axis itself at an end stop
+    TIMING_LOST = "timing_lost"  # a step would have been later than max_lateness: stopped
+    FAULT = "fault"  # the axis's hardware failed (HalIOError): stopped
+    DIED = "died"  # the executor itself is gone (motor -1: every motor)
+
+
+@dataclass(frozen=True)
+class ExecEvent:
+    """Something the executor did on its own or finished.
+
+    ``gen`` is the generation of the plan the event belongs to; ``position`` the executed
+    step counter when it happened; ``t`` its time (for ENDSTOP the kernel's timestamp of the
+    edge); ``direction`` the end stop's side (+1 max, -1 min) or the motion's direction;
+    ``speed`` the step rate (step/s) the motor had then; ``detail`` a human reason.
+    """
+
+    kind: ExecEventKind
+    motor: int
+    gen: int
+    position: int
+    t: float
+    direction: int = 0
+    speed: float = 0.0
+    detail: str = ""
+
+
+@dataclass(frozen=True)
+class AxisLimits:
+    """The fail-safe bounds of one motor, fixed when the executor is built.
+
+    ``min_interval_s``: no two steps are ever emitted closer than this (the profile's bound:
+    1 / the motor's maximum speed, less the planner's step error). ``max_lateness_s``: a step
+    that would come later than this after its planned time is not emitted; the motor stops
+    and an event TIMING_LOST is reported. ``pulse_s``: STEP high time. ``debounce_s``: an end
+    stop counts once active this long (by the kernel's edge timestamps).
+    """
+
+    min_interval_s: float
+    max_lateness_s: float
+    pulse_s: float = 2e-6
+    debounce_s: float = 0.0
+
+
+@dataclass(frozen=True)
+class Committed:
+    """Where a new plan for a motor must start: time, position (steps) and velocity.
+
+    ``counter`` is the integer step counter there (``position`` is within 1 of it).
+    """
+
+    t: float
+    position: float
+    velocity: float
+    counter: int
+
+
+@dataclass
+class ExecutorHealth:
+    """A snapshot: ``progress`` grows while the executor makes progress (also when idle)."""
+
+    alive: bool
+    progress: int
+    reason: str | None = None
+    counters: dict[str, int] = field(default_factory=dict)
+    latency: dict[str, Any] = field(default_factory=dict)
+
+
+class Executor(ABC):
+    """The contract between the motor state machines and whatever moves the motors.
+
+    Motors are indexed 0..n-1; positions are the executed step counter (an unbounded int,
+    the state machines' ``abs_steps``); times are the executor's clock in seconds.
+
+    Generations: every :meth:`follow` and :meth:`stop` carries ``gen``, increasing per motor.
+    An event carries the generation of the plan it belongs to; the caller ignores DONE and
+    STOPPED of generations it has replaced. When the executor stops an axis on its own (end
+    stop, timing lost, fault) it drops everything for that axis, queued or arriving later,
+    until the caller answers with :meth:`stop`: nothing planned before the caller saw the
+    event moves the motor again.
+
+    - :meth:`follow` starts executing ``traj`` (which begins at :meth:`committed`), replacing
+      whatever was planned after that point. ``ramp`` is the ramp it was planned with, for
+      executors that re-plan themselves (a chip's own ramp). ``endstops`` False: do not
+      watch the end stops (stall homing drives into the stop). Never blocks. Returns False
+      when the plan makes no step (nothing to do: no DONE follows).
+    - :meth:`stop` is a hard stop: after at most one step period nothing of older
+      generations moves the motor. Returns the final position when already known, else None
+      and a STOPPED event of ``gen`` follows with it. It is also the answer to an event by
+      which the executor stopped an axis itself: until that answer, the executor drops every
+      plan for the axis (one made before the caller saw the event would start from a wrong
+      position).
+    - :meth:`committed`: an executor that takes work ahead of time (step segments, a few ms)
+      commits that far; a soft stop or a re-plan starts there.
+    - End stops: the executor watches the end stop ahead of each step and stops the axis
+      itself when it has been active for ``debounce_s``; it reports ENDSTOP with the position
+      and time of the trigger. Whether that ends a homing run or is a fault is the caller's
+      business.
+    - Fail safe: steps are never closer than ``min_interval_s``; a step that would be later
+      than ``max_lateness_s`` stops the motor (TIMING_LOST, with the speed it had).
+    - :meth:`service` does the caller-side work (refilling segments) and returns when it is
+      next due; the engine's planner thread calls it (never the step path).
+    - ``on_event`` is called, from any thread, when events are pending; it must be cheap.
+    - If the executor itself dies, :meth:`events` reports DIED (motor -1) once and
+      :meth:`health` says why; every motor is then to be treated as faulted, position lost.
+    """
+
+    def __init__(self, motors: int) -> None:
+        self.motors = motors
+        self.on_event: Callable[[], None] = lambda: None
+
+    # -- lifecycle ---------------------------------------------------------------
+    def start(self) -> None:  # noqa: B027  (optional hook: an executor may need nothing)
+        """Start running (threads, processes, devices); returns once it is ready."""
+
+    def close(self) -> None:  # noqa: B027
+        """Stop every motor at once and release everything; idempotent."""
+
+    # -- commands (engine lock held) ----------------------------------------------
+    @abstractmethod
+    def follow(
+        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+    ) -> bool:
+        """Start ``traj``; False when it makes no step at all (then nothing is reported)."""
+
+    @abstractmethod
+    def stop(self, motor: int, gen: int) -> int | None: ...
+
+    @abstractmethod
+    def committed(self, motor: int, now: float) -> Committed: ...
+
+    @abstractmethod
+    def service(self, now: float) -> float: ...
+
+    @abstractmethod
+    def events(self) -> list[ExecEvent]: ...
+
+    @abstractmethod
+    def planned(self, motor: int) -> bool:
+        """True while anything of the motor's current plan remains to be executed."""
+
+    # -- snapshots (any thread, no lock) ------------------------------------------
+    @abstractmethod
+    def position(self, motor: int) -> int: ...
+
+    @abstractmethod
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        """The end stop's current level (direction +1: max, -1: min); False if not wired."""
+
+    @abstractmethod
+    def health(self) -> ExecutorHealth: ...
+
+    # -- a virtual clock (tests): executors that run on their own refuse ----------------
+    def next_deadline(self) -> float | None:
+        """The next time the executor needs the caller's thread (virtual clock only)."""
+        raise TypeError(f"{type(self).__name__} does not run on a virtual clock")
+
+    def advance(self, now: float) -> None:
+        """Do everything due at ``now`` (virtual clock only)."""
+        raise TypeError(f"{type(self).__name__} does not run on a virtual clock")

@@ -1,0 +1,390 @@
+"""Step executors: the planner into step segments, and a step core in a thread.
+
+:class:`StepExecutor` is the planner half (the daemon's process, engine lock held): it
+walks each motor's trajectory a little ahead of time (``ahead_s``), cuts the steps into
+segments (:func:`motion.segments.compress`) and hands them to a step core through a
+:class:`~motorctl.motion.stepcore.CoreInbox`. Subclasses say where the core runs:
+
+- :class:`ThreadStepExecutor` (kind ``thread``): a thread of this process, or, on a virtual
+  clock, no thread at all (the engine drives it through ``next_deadline``/``advance``).
+- ``motion.procexec.ProcessStepExecutor`` (kind ``process``): a process of its own.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections import deque
+from collections.abc import Sequence
+
+from motorctl.hal.interfaces import Clock, Hardware
+from motorctl.hal.registry import open_step_io
+from motorctl.hal.spec import HardwareSpec
+from motorctl.motion.executor import (
+    AxisLimits,
+    Committed,
+    ExecEvent,
+    ExecEventKind,
+    Executor,
+    ExecutorHealth,
+    from_ticks,
+    to_ticks,
+)
+from motorctl.motion.latency import CELLS, LatencyStats
+from motorctl.motion.profile import Steps, Trajectory
+from motorctl.motion.rt import RealtimeOptions, enter_realtime
+from motorctl.motion.segments import StepSegment, compress
+from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+from motorctl.motion.types import MotorParams, Ramp
+
+log = logging.getLogger("motorctl.executor")
+
+K = ExecEventKind
+_SELF_STOPS = (K.ENDSTOP, K.TIMING_LOST, K.FAULT)
+
+
+def axis_limits(
+    params: Sequence[MotorParams], max_lateness_s: float, max_error_s: float
+) -> list[AxisLimits]:
+    """Each motor's fail-safe bounds: spacing from its maximum speed less the step error."""
+    return [
+        AxisLimits(
+            min_interval_s=max(1.0 / p.max_speed - max_error_s, 0.0) * (1 - 1e-9),
+            max_lateness_s=max_lateness_s,
+            pulse_s=p.pulse_s,
+            debounce_s=p.debounce_s,
+        )
+        for p in params
+    ]
+
+
+class _Plan:
+    """One motor's plan as the planner walks it."""
+
+    def __init__(self) -> None:
+        self.gen = -1
+        self.traj: Trajectory | None = None
+        self.steps: Steps | None = None
+        self.until = float("-inf")  # steps up to this time have been handed over
+        self.counter = 0  # the step counter after the last step handed over
+        self.last_t = float("-inf")  # time of the last step handed over
+        self.busy = False  # handed-over steps of this plan may remain to be executed
+        self.watch = True  # the core watches the end stop ahead
+
+
+class StepExecutor(Executor):
+    """Plans into segments; the core it feeds is the subclass's business.
+
+    ``ahead_s``: how far ahead steps are handed over. 0: exactly one step ahead, and a
+    re-plan flushes that step (only where the core can be synchronised at once, i.e. on a
+    virtual clock: tests then see re-plans take effect at once). ``lead_s``: how far ahead
+    of "now" a motor at rest starts (covers the core's wake-up). ``max_error_s``: the segments' step
+    time error bound.
+    """
+
+    def __init__(
+        self,
+        clock: Clock,
+        limits: Sequence[AxisLimits],
+        *,
+        ahead_s: float = 0.02,
+        lead_s: float = 0.002,
+        max_error_s: float = 5e-6,
+    ) -> None:
+        super().__init__(len(limits))
+        self.clock = clock
+        self.limits = list(limits)
+        self.ahead_s = ahead_s
+        self.lead_s = lead_s
+        self.max_error = to_ticks(max_error_s)
+        self.plans = [_Plan() for _ in limits]
+        self.inbox = CoreInbox(len(limits))
+
+    # -- the transport (subclasses) --------------------------------------------------
+    def _push(self, motor: int, segments: list[StepSegment]) -> None:
+        q = self.inbox.queues[motor]
+        q.extend(segments)
+        self._kick()
+
+    def _push_stop(self, motor: int, gen: int) -> None:
+        self.inbox.stops.append((motor, gen))
+        self._kick()
+
+    def _kick(self) -> None:
+        """Wake the core: new work."""
+
+    def _sync(self) -> bool:
+        """Let the core apply pending stops now if it can (virtual clock); True if done."""
+        return False
+
+    def _raw_events(self) -> list[ExecEvent]:
+        raise NotImplementedError
+
+    # -- the seam ------------------------------------------------------------------------
+    def committed(self, motor: int, now: float) -> Committed:
+        p = self.plans[motor]
+        if self.ahead_s == 0:  # a re-plan flushes the one step handed over: start from now
+            c = self.position(motor)
+            if p.traj is None:
+                return Committed(now, float(c), 0.0, c)
+            s = min(max(p.traj.position(now), c - 0.999), c + 0.999)
+            return Committed(now, s, p.traj.velocity(now), c)
+        if p.traj is None or p.steps is None:
+            t = max(now + self.lead_s, p.last_t) if p.busy else now + self.lead_s
+            return Committed(t, float(p.counter), 0.0, p.counter)
+        t = max(now, p.until)
+        s = p.traj.position(t)
+        lo, hi = p.counter - 0.999, p.counter + 0.999
+        return Committed(t, min(max(s, lo), hi), p.traj.velocity(t), p.counter)
+
+    def follow(
+        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+    ) -> bool:
+        p = self.plans[motor]
+        if self.ahead_s == 0 and p.busy:
+            self._push_stop(motor, p.gen)  # flush the step handed over but not yet made
+            self._sync()
+            p.counter = self.position(motor)
+        p.gen = gen
+        p.traj = traj
+        p.steps = Steps(traj, p.counter)
+        p.until = max(p.until, traj.start_time)
+        if p.steps.peek() is None:
+            p.traj = p.steps = None
+            p.busy = False
+            return False
+        p.busy = True
+        p.watch = endstops
+        self._feed(motor, self.clock.now())
+        return True
+
+    def stop(self, motor: int, gen: int) -> int | None:
+        p = self.plans[motor]
+        p.gen = gen
+        p.traj = p.steps = None
+        p.busy = False
+        self._push_stop(motor, gen)
+        if self._sync():
+            pos = self.position(motor)
+            p.counter = pos
+            p.until = p.last_t = self.clock.now()
+            return pos
+        return None
+
+    def planned(self, motor: int) -> bool:
+        return self.plans[motor].busy
+
+    def _feed(self, motor: int, now: float) -> None:
+        """Hand over the motor's steps up to ``now + ahead_s`` (at least the next one)."""
+        p = self.plans[motor]
+        steps = p.steps
+        if steps is None:
+            return
+        horizon = now + self.ahead_s
+        ts: list[int] = []
+        out: list[StepSegment] = []
+        direction = 0
+        while True:
+            nxt = steps.peek()
+            if nxt is None or (ts and nxt[0] > horizon):
+                break
+            t, d = nxt
+            if d != direction and ts:
+                out.extend(compress(ts, direction, p.gen, self.max_error, watch=p.watch))
+                ts = []
+            direction = d
+            tick = to_ticks(t)
+            ts.append(tick)
+            steps.next()
+            p.last_t = from_ticks(tick)
+        done = steps.peek() is None
+        if ts:
+            out.extend(compress(ts, direction, p.gen, self.max_error, last=done, watch=p.watch))
+        p.counter = steps.counter
+        p.until = max(p.until, p.last_t if done else max(horizon, p.last_t))
+        if done:
+            p.traj = p.steps = None
+        if out:
+            self._push(motor, out)
+
+    def service(self, now: float) -> float:
+        """Refill every motor whose handed-over steps run out within half the horizon."""
+        nxt = float("inf")
+        half = self.ahead_s / 2
+        for m, p in enumerate(self.plans):
+            if p.steps is None:
+                continue
+            if self.ahead_s == 0:  # one step ahead: the next once the last one is made
+                if p.last_t <= now:
+                    self._feed(m, now)
+                if p.steps is not None:
+                    nxt = min(nxt, p.last_t)
+                continue
+            if p.until - now <= half:
+                self._feed(m, now)
+            if p.steps is not None:
+                nxt = min(nxt, p.until - half)
+        return nxt
+
+    def events(self) -> list[ExecEvent]:
+        out = self._raw_events()
+        for ev in out:
+            if ev.motor < 0:
+                continue
+            p = self.plans[ev.motor]
+            if ev.kind in _SELF_STOPS or (ev.kind is K.STOPPED and ev.gen == p.gen):
+                p.traj = p.steps = None
+                p.busy = False
+                p.counter = ev.position
+                p.until = p.last_t = max(ev.t, self.clock.now())
+            elif ev.kind is K.DONE and ev.gen == p.gen:
+                p.busy = False
+                p.counter = ev.position
+        return out
+
+
+class ThreadStepExecutor(StepExecutor):
+    """The step core in a thread of this process (kind ``thread``), or driven by the
+    engine on a virtual clock.
+
+    Owner of the core: its thread (or the engine's caller on a virtual clock). Shared with
+    the planner: only the inbox deques and the ``positions``/``levels``/``counters`` lists,
+    which the GIL keeps whole.
+    """
+
+    def __init__(
+        self,
+        hw: Hardware,
+        backend: str,
+        spec: HardwareSpec,
+        limits: Sequence[AxisLimits],
+        *,
+        ahead_s: float | None = None,
+        lead_s: float | None = None,
+        max_error_s: float = 5e-6,
+        spin_s: float = 200e-6,
+        late_threshold_s: float = 100e-6,
+        rt: RealtimeOptions | None = None,
+    ) -> None:
+        virtual = hw.clock.is_virtual
+        super().__init__(
+            hw.clock,
+            limits,
+            ahead_s=(0.0 if virtual else 0.02) if ahead_s is None else ahead_s,
+            lead_s=(0.0 if virtual else 0.002) if lead_s is None else lead_s,
+            max_error_s=max_error_s,
+        )
+        self.io = open_step_io(backend, spec, hw.clock, parent=hw)
+        self.rt = rt or RealtimeOptions(priority=0, lock_memory=False)
+        n = len(limits)
+        self.positions = [0] * n
+        self.levels = [0] * len(self.io.inputs.names)
+        self.counters = [0] * len(COUNTER_NAMES)
+        self.stats = LatencyStats(late_threshold_s, [0] * CELLS)
+        self._events: deque[ExecEvent] = deque()
+        self.core = StepCore(
+            self.io, limits, self.inbox, self._emit,
+            positions=self.positions, levels=self.levels, counters=self.counters,
+            stats=self.stats, spin_s=spin_s,
+        )
+        self._wake = threading.Event()
+        self._running = False
+        self._thread: threading.Thread | None = None
+        self.died: str | None = None
+        self.warnings: list[str] = []
+
+    @property
+    def virtual(self) -> bool:
+        return self.clock.is_virtual
+
+    def _emit(self, ev: ExecEvent) -> None:
+        self._events.append(ev)
+        self.on_event()
+
+    def _raw_events(self) -> list[ExecEvent]:
+        out = []
+        events = self._events
+        while events:
+            out.append(events.popleft())
+        return out
+
+    def _kick(self) -> None:
+        if not self.virtual:
+            self._wake.set()
+
+    def _sync(self) -> bool:
+        if self.virtual:
+            self.core.refill()
+            return True
+        return False
+
+    # -- lifecycle -----------------------------------------------------------------------
+    def start(self) -> None:
+        if self.virtual or self._thread is not None:
+            return
+        self._running = True
+        started = threading.Event()
+        self._thread = threading.Thread(
+            target=self._run, args=(started,), name="motorctl-steps", daemon=True
+        )
+        self._thread.start()
+        started.wait()
+
+    def _run(self, started: threading.Event) -> None:
+        self.warnings = enter_realtime(self.rt, "the step thread")
+        started.set()
+        wake = self._wake
+
+        def wait(timeout: float) -> None:
+            if wake.wait(timeout):
+                wake.clear()
+
+        try:
+            self.core.run(lambda: self._running, wait)
+        except BaseException as exc:  # the contract: a fault, never a silent dead thread
+            self.died = f"step thread died: {type(exc).__name__}: {exc}"
+            log.exception("%s", self.died)
+            self._emit(ExecEvent(K.DIED, -1, -1, 0, self.clock.now(), detail=self.died))
+
+    def close(self) -> None:
+        self._running = False
+        self._wake.set()
+        if self._thread is not None:
+            self._thread.join()
+            self._thread = None
+        self.core.halt_all()
+        self.io.close()
+
+    # -- snapshots -----------------------------------------------------------------------
+    def position(self, motor: int) -> int:
+        return self.positions[motor]
+
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        if self.virtual:
+            self.core.refill()
+        line = self.io.endstops[motor][1 if direction > 0 else 0]
+        return line is not None and bool(self.levels[line])
+
+    def health(self) -> ExecutorHealth:
+        alive = self.virtual or (self._thread is not None and self._thread.is_alive())
+        return ExecutorHealth(
+            alive=alive and self.died is None,
+            progress=self.counters[0],
+            reason=self.died,
+            counters=dict(zip(COUNTER_NAMES, self.counters, strict=True)),
+            latency=self.stats.summary(),
+        )
+
+    # -- the virtual clock ---------------------------------------------------------------
+    def next_deadline(self) -> float | None:
+        if not self.virtual:
+            return super().next_deadline()
+        self.core.refill()
+        d = self.core.deadline()
+        return None if d is None else from_ticks(d)
+
+    def advance(self, now: float) -> None:
+        if not self.virtual:
+            super().advance(now)
+            return
+        self.core.advance(to_ticks(now))
