@@ -41,10 +41,11 @@ from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.hal.tmc import TmcDriver
-from motorctl.hal.tmc_config import TmcAxisConfig, driver_spec
+from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
+from motorctl.motion.ramp_executor import with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
@@ -417,14 +418,20 @@ def probe(config_path: str | None) -> int:
 def build_executor(
     config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams]
 ) -> Executor:
-    """The step executor the config asks for (only it runs real-time and locks memory)."""
+    """The step executor the config asks for (only it runs real-time and locks memory); the
+    motors whose TMC5160 runs its own ramp (``[motors.tmc] mode = "ramp"``) go to a
+    RampExecutor instead."""
     st = config.step_thread
-    return ThreadStepExecutor(
+    steps = ThreadStepExecutor(
         hw, config.hal.backend, spec, axis_limits(params, st.max_lateness_us / 1e6, STEP_ERROR_S),
         max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
         late_threshold_s=st.late_threshold_us / 1e6,
         rt=RealtimeOptions(st.priority, st.lock_memory, st.cpu),
     )
+    spi = config.section(SpidevConfig)
+    drivers = [s.driver for s in hw.steppers]
+    return with_ramp_motors(steps, drivers, hw.clock, spi.ramp_poll_ms / 1000,
+                            spi.ramp_idle_poll_ms / 1000)
 
 
 def serve(args: argparse.Namespace) -> int:
