@@ -569,7 +569,7 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                 if port.stall > GAP_S:
                     recover_from_host_stall(port, report, "byte by byte")
                     report.skipped_frames += len(frames)
-                    frames = []
+                    frames, answers = [], []
                 data = port.take(5 * len(frames))
                 each = [data[i : i + 5] for i in range(0, len(data), 5)]
                 if len(each) != len(answers) or any(
