@@ -434,6 +434,9 @@ class Baseline:
             ask(p, cmd(STOP, m, 1), r, "StopMove")  # ends motion, clears faults
         for m in range(3):
             ask(p, cmd(STOP, m, 1), r, "StopMove")  # a second time: the fault is clear now
+        # The step executor confirms a stop a moment later: wait for motor 0 to be at rest.
+        if (w := wait_idle(p, 0, r, 5.0)) != ok():
+            r.violation(f"motor 0 not at rest 5 s after a hard StopMove: {w.hex()}")
         self.pos0 = pos_of(ask(p, cmd(GET_POS, 0), r, "GetAbsPos(0)"))
         self.pins = {n: ask(p, cmd(GET_PIN, n), r, "GetPin") for n in range(8)}
 
