@@ -106,8 +106,14 @@ class Link:
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._running = False
+        self.turns = 0
 
     # -- thread-safe pokes ---------------------------------------------------------
+    def poke(self) -> None:
+        """Make the loop turn once (the watchdog's liveness probe; any thread)."""
+        with contextlib.suppress(BlockingIOError):
+            os.write(self._wake_w, b"\0")
+
     def wake(self) -> None:
         """Make the loop re-check a held WaitMoved (called on motor events)."""
         if self.session.waiting:
@@ -127,6 +133,7 @@ class Link:
         poller.register(self._wake_r, POLLIN)
         while self._running:
             self.turn(poller)
+            self.turns += 1  # the watchdog's evidence that the loop is not hung
         self._drain()
 
     def turn(self, poller: select.poll) -> None:

@@ -10,10 +10,11 @@ import os
 import signal
 import sys
 import termios
+import threading
 import time
 import tty
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
 from types import FrameType
@@ -26,6 +27,7 @@ from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_hold
 from motorctl.daemon.link import Link, flush_pty_input
 from motorctl.daemon.service import (
     MotorEventLog,
+    ProgressWatch,
     StatusLine,
     Watchdog,
     notify_backend,
@@ -41,10 +43,12 @@ from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.hal.tmc import TmcDriver
-from motorctl.hal.tmc_config import TmcAxisConfig, driver_spec
+from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
+from motorctl.motion.procexec import ProcessStepExecutor
+from motorctl.motion.ramp_executor import with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
@@ -53,6 +57,9 @@ from motorctl.protocol.codec import wrap24
 log = logging.getLogger("motorctl")
 
 SHUTDOWN_LIMIT_S = 10.0
+#: exit code when the step executor died; answers go on this long before that
+EXIT_EXECUTOR_DIED = 3
+EXECUTOR_DEATH_GRACE_S = 2.0
 #: the planner's step-time error bound (segments' reproduction of exact step times)
 STEP_ERROR_S = 5e-6
 
@@ -171,6 +178,8 @@ class Daemon:
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
         spec = hardware_spec(config)
+        if config.step_thread.executor == "process" and not clock.is_virtual:
+            spec = replace(spec, options={**spec.options, "executor_process": True})
         params = motor_params(config)
         try:
             hw = open_hardware(config.hal.backend, spec, clock)
@@ -219,7 +228,9 @@ class Daemon:
         steps = dict(health.latency)
         steps.update(health.counters)
         out: dict[str, Any] = {"motors": motors, "steps": steps,
-                               "executor": {"alive": health.alive, "reason": health.reason},
+                               "executor": {"alive": health.alive, "reason": health.reason,
+                                            "kind": self.config.step_thread.executor,
+                                            "pid": getattr(self.engine.executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
                                "state": self.persistence.status()}
         if self.link is not None:
@@ -397,14 +408,31 @@ def main(argv: Sequence[str] | None = None) -> int:
 def build_executor(
     config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams]
 ) -> Executor:
-    """The step executor the config asks for (only it runs real-time and locks memory)."""
+    """The step executor the config asks for (only it runs real-time and locks memory); the
+    motors whose TMC5160 runs its own ramp (``[motors.tmc] mode = "ramp"``) go to a
+    RampExecutor instead."""
     st = config.step_thread
-    return ThreadStepExecutor(
-        hw, config.hal.backend, spec, axis_limits(params, st.max_lateness_us / 1e6, STEP_ERROR_S),
-        max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
-        late_threshold_s=st.late_threshold_us / 1e6,
-        rt=RealtimeOptions(st.priority, st.lock_memory, st.cpu),
-    )
+    limits = axis_limits(params, st.max_lateness_us / 1e6, STEP_ERROR_S)
+    rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
+    steps: Executor
+    if hw.clock.is_virtual:  # tests drive a virtual clock themselves: the thread kind's job
+        steps = ThreadStepExecutor(hw, config.hal.backend, spec, limits, max_error_s=0.0)
+    elif st.executor == "process":
+        steps = ProcessStepExecutor(
+            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
+            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
+            late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
+        )
+    else:
+        steps = ThreadStepExecutor(
+            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
+            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
+            late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
+        )
+    spi = config.section(SpidevConfig)
+    drivers = [s.driver for s in hw.steppers]
+    return with_ramp_motors(steps, drivers, hw.clock, spi.ramp_poll_ms / 1000,
+                            spi.ramp_idle_poll_ms / 1000)
 
 
 def serve(args: argparse.Namespace) -> int:
@@ -436,13 +464,18 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         raise StartupError(str(exc)) from exc
     daemon = Daemon.build(config, args.state_dir)
     uart: Any = None
-    if args.pty is not None:
-        fd, name = open_pty(args.pty)
-        owned.symlink(args.pty, name)
-        where = f"{args.pty} -> {name}"
-    else:
-        uart, fd = open_uart(args.port, args.baud)
-        where = f"{args.port} at {args.baud} baud"
+    try:
+        if args.pty is not None:
+            fd, name = open_pty(args.pty)
+            owned.symlink(args.pty, name)
+            where = f"{args.pty} -> {name}"
+        else:
+            uart, fd = open_uart(args.port, args.baud)
+            where = f"{args.port} at {args.baud} baud"
+    except BaseException:
+        daemon.engine.executor.close()  # the process executor's shared memory
+        daemon.hw.close()  # e.g. the mock's shared memory
+        raise
     c = config.link
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
                 c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name))
@@ -466,7 +499,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     interval = watchdog_interval()
     watchdog = None
     if interval:
-        watchdog = Watchdog(interval, lambda: motion_alive(daemon.engine))
+        watch = progress_watch(daemon, link)
+        watchdog = Watchdog(interval, watch.healthy)
         watchdog.start()
     print(f"motorctld ready: serving {where}; config {config.source}; "
           f"{len(config.motors)} motors; {config.hal.backend} hardware; "
@@ -475,6 +509,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         log.info("systemd notifications through %s", notify_backend()[0])
     sd_notify("READY=1")
     line.start()
+    threading.Thread(target=stop_when_executor_dies, args=(daemon.engine, link.stop),
+                     name="motorctl-exec-death", daemon=True).start()
     try:
         if not stop.requested:
             link.serve()
@@ -491,12 +527,49 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         else:
             os.close(fd)
         daemon.hw.close()
+    died = daemon.engine.executor_died
+    if died is not None:
+        log.error("stopped because the step executor died (%s): exit %d for the service "
+                  "manager to restart motorctld; every motor must be homed again", died,
+                  EXIT_EXECUTOR_DIED)
+        return EXIT_EXECUTOR_DIED
     log.info("stopped")
     return 0
 
 
-def motion_alive(engine: MotionEngine) -> bool:
-    return engine.threads_alive and engine.executor.health().alive
+def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> None:
+    """After the executor died (every motor already faulted, E4), keep answering for
+    ``EXECUTOR_DEATH_GRACE_S`` so the host and ``--status`` see why, then stop the daemon
+    (exit EXIT_EXECUTOR_DIED: systemd's Restart= brings it back with positions lost)."""
+    pause = threading.Event()
+    while engine.executor_died is None:
+        pause.wait(0.1)
+    log.error("the step executor died: %s; stopping in %.0f s", engine.executor_died,
+              EXECUTOR_DEATH_GRACE_S)
+    pause.wait(EXECUTOR_DEATH_GRACE_S)
+    stop()
+
+
+def progress_watch(daemon: Daemon, link: Link) -> ProgressWatch:
+    """WATCHDOG=1 only while the link loop, the planner, the step executor and the state
+    writer each made progress since the watchdog's previous look."""
+    engine, writer = daemon.engine, daemon.writer
+
+    def executor() -> int | None:
+        h = engine.executor.health()
+        return h.progress if h.alive else None
+
+    def planner() -> int | None:
+        return engine.planner_progress if engine.threads_alive else None
+
+    def state_writer() -> int | None:
+        return writer.writes if writer.pending else ProgressWatch.IDLE
+
+    return ProgressWatch(
+        {"link loop": lambda: link.turns, "planner": planner, "step executor": executor,
+         "state writer": state_writer},
+        pokes=(link.poke,),
+    )
 
 
 def shutdown(daemon: Daemon) -> None:

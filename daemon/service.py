@@ -208,6 +208,50 @@ class Watchdog:
                 sd_notify("WATCHDOG=1")
 
 
+class ProgressWatch:
+    """The watchdog's meaning of "healthy" (issue 7): every part made progress lately.
+
+    ``parts`` maps a name to a probe returning a progress counter, or None when the part
+    cannot progress at all (dead). A part is healthy when its counter moved since the
+    previous look (``pokes`` make idle parts move: the link loop is woken after each look, so
+    a loop blocked waiting for bytes still turns) or when the probe says it has nothing to
+    do (``IDLE``). The watchdog thread calls :meth:`healthy` every interval; the first hung
+    part is logged once per episode. Owner: the watchdog thread.
+    """
+
+    IDLE = -1
+
+    def __init__(
+        self,
+        parts: dict[str, Callable[[], int | None]],
+        pokes: tuple[Callable[[], None], ...] = (),
+    ) -> None:
+        self.parts = parts
+        self.pokes = pokes
+        self._last: dict[str, int | None] = {}
+        self.hung: str | None = None
+
+    def healthy(self) -> bool:
+        hung = None
+        for name, probe in self.parts.items():
+            now = probe()
+            before = self._last.get(name)
+            self._last[name] = now
+            if now is None:
+                hung = hung or f"{name}: dead"
+            elif now != self.IDLE and before is not None and now == before:
+                hung = hung or f"{name}: no progress"
+        if hung != self.hung:
+            if hung is not None:
+                log.error("watchdog not fed: %s", hung)
+            else:
+                log.info("watchdog fed again: every part makes progress")
+            self.hung = hung
+        for poke in self.pokes:
+            poke()
+        return hung is None
+
+
 class StatusLine:
     """systemd's STATUS=: a one-line summary from ``summary()``, sent whenever it changes.
 

@@ -426,6 +426,11 @@ class StateWriter:
     def start(self) -> None:
         self._thread.start()
 
+    @property
+    def pending(self) -> bool:
+        """A write was asked for and has not started yet (the watchdog's look)."""
+        return self._requested
+
     def request(self) -> None:
         with self._cond:
             self._requested = True

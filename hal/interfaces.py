@@ -148,7 +148,8 @@ class StepOutputs(ABC):
 
     - :meth:`pulse` raises the STEP lines of several motors whose edges fall on the same tick
       in ONE backend call (gpiod v2 ``set_values``), holds them ``width_s``, lowers them in
-      one call, and returns the time of the rising edge.
+      one call, and returns the time right after the rising edge was written (an upper
+      bound of the edge's time).
     - :meth:`set_direction` honours the DIR hold time after the last STEP fall before it
       changes DIR, and records when a step may follow (:attr:`ready_at`: the set-up time).
       The executor never raises a STEP before ``ready_at[motor]``.
@@ -199,8 +200,10 @@ class StepOutputs(ABC):
             if self.direction[m] is None:
                 raise RuntimeError(f"step pulse on motor {m} before a direction was set")
         clock = self.clock
-        rise = clock.now()
         self._write_steps(motors, True)
+        # the edge happened by now: spacing the next one from this upper bound keeps real
+        # edges at least the profile's interval apart even if we were preempted in between
+        rise = clock.now()
         if not clock.is_virtual:
             clock.spin_until(rise + width_s)
         self._write_steps(motors, False)

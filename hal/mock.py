@@ -92,6 +92,12 @@ class MockAxis:
         self._c = cells
         self.fault: str | None = None  # the driver chip's fault: the daemon's process only
 
+    def detach(self) -> None:
+        """Keep the state in a private buffer from now on (the shared block is closing)."""
+        old = self._c
+        self._c = memoryview(bytearray(old.tobytes())).cast("q")
+        old.release()
+
     @property
     def position(self) -> int:
         return int(self._c[_POSITION])
@@ -334,8 +340,8 @@ class MockWorld:
     def close(self) -> None:
         if self._shm is None:
             return
-        self.axes = [MockAxis(a.spec, memoryview(bytearray(_FIELDS * 8)).cast("q"))
-                     for a in self.axes]
+        for a in self.axes:  # the same axes (drivers hold them) move to private copies
+            a.detach()
         self._cells.release()
         self._shm.close()
         if self._owner:

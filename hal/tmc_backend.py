@@ -53,13 +53,6 @@ def attach_drivers(
         return []
     if len(specs) > len(hw.steppers):
         raise TmcError(f"{len(specs)} drivers configured for {len(hw.steppers)} motors")
-    for i, spec in enumerate(specs):
-        if spec is not None and spec.ramp:
-            raise TmcError(
-                f"{names[i]}: mode = \"ramp\" (the TMC5160's own ramp generator) needs the "
-                "executor seam, which this build's motion engine does not have yet; use "
-                "mode = \"step_dir\""
-            )
     factory = factory or spidev_factory()
     buses = SpiBuses()
     started: list[tuple[int, TmcDriver, TmcSpec]] = []

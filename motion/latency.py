@@ -9,8 +9,18 @@ histogram a few steps behind its counters, never a torn value.
 from __future__ import annotations
 
 import math
-from collections.abc import MutableSequence
-from typing import Any
+from typing import Any, Protocol
+
+
+class Cells(Protocol):
+    """Int cells: a list, or an int64 ``memoryview`` of shared memory."""
+
+    def __getitem__(self, i: int, /) -> int: ...
+
+    def __setitem__(self, i: int, v: int, /) -> None: ...
+
+    def __len__(self) -> int: ...
+
 
 BINS = 20_000  # 1 us bins up to 20 ms; later edges go to the overflow bin
 CELLS = 3 + BINS + 1
@@ -19,11 +29,11 @@ _COUNT, _LATE, _MAX = 0, 1, 2
 
 class LatencyStats:
     def __init__(
-        self, threshold_s: float = 100e-6, cells: MutableSequence[int] | None = None
+        self, threshold_s: float = 100e-6, cells: Cells | None = None
     ) -> None:
         self.threshold_s = threshold_s
         self._threshold_ns = int(threshold_s * 1e9)
-        self._c: MutableSequence[int] = cells if cells is not None else [0] * CELLS
+        self._c: Cells = cells if cells is not None else [0] * CELLS
         if len(self._c) < CELLS:
             raise ValueError(f"latency cells need {CELLS} slots")
 
@@ -45,7 +55,8 @@ class LatencyStats:
 
     @property
     def bins(self) -> list[int]:
-        return list(self._c[3:CELLS])
+        c = self._c
+        return [int(c[i]) for i in range(3, CELLS)]
 
     def record(self, lateness_s: float) -> None:
         self.record_ns(round(lateness_s * 1e9))

@@ -144,8 +144,14 @@ class Motor:
                          MotorState.STOPPING, now)
         return True
 
-    def latch_fault(self, reason: str, now: float, *, lost: bool = False) -> None:
-        """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4."""
+    def latch_fault(
+        self, reason: str, now: float, *, lost: bool = False, stopped: bool = False
+    ) -> None:
+        """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4.
+
+        ``stopped``: the executor already stopped the axis itself and was answered, so the
+        position is final now (a StopMove right after makes the motor ready at once).
+        """
         self.queue.clear()
         self.fault = reason
         self.state = MotorState.FAULT
@@ -153,7 +159,12 @@ class Motor:
         self._home_cmd = None
         if lost:
             self.position_lost = True
-        self._hard_stop(now, lambda t: None)
+        if stopped:
+            self.traj = None
+            self._awaiting = None
+            self._then = None
+        else:
+            self._hard_stop(now, lambda t: None)
         self._notify(self, "fault")
 
     # -- what the executor reports (engine lock held) --------------------------
@@ -191,13 +202,13 @@ class Motor:
             ):
                 self._homing_triggered(max(ev.t, now))
             else:
-                self.latch_fault("end stop hit", now)
+                self.latch_fault("end stop hit", now, stopped=True)
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost)
+            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost, stopped=True)
         else:  # a line failed: a step may or may not have reached the driver
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(ev.detail or "step executor fault", now, lost=lost)
+            self.latch_fault(ev.detail or "step executor fault", now, lost=lost, stopped=True)
 
     def on_driver_status(self, status: DriverStatus, now: float) -> None:
         """A driver poll's result (read outside the engine lock, by the monitor)."""
@@ -343,13 +354,16 @@ class Motor:
         self._become_idle(now)
 
     def _trajectory_done(self, now: float) -> None:
+        """The executor made every step of the trajectory: the axis is at rest."""
         if self.state is MotorState.HOMING:
             cmd = self._home_cmd
             assert cmd is not None
             h = self.params.homing
             if self._phase is HomingPhase.BACKOFF:
                 if self._still_on_switch(cmd.direction):
-                    self.latch_fault("homing failed: end stop still active after pull-off", now)
+                    self.latch_fault(
+                        "homing failed: end stop still active after pull-off", now, stopped=True
+                    )
                     return
                 self._phase = HomingPhase.APPROACH
                 c = self.executor.committed(self.index, now)
@@ -362,7 +376,7 @@ class Motor:
                 self._follow(traj, MotorState.HOMING, now)
                 return
             travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
-            self.latch_fault(f"homing failed: no end stop within {travel} steps", now)
+            self.latch_fault(f"homing failed: no end stop within {travel} steps", now, stopped=True)
             return
         self._become_idle(now)
 

@@ -16,7 +16,7 @@ call, account, then look at the end stop ahead of each motor that stepped.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, MutableSequence, Sequence
+from collections.abc import Callable, Sequence
 
 from motorctl.hal.interfaces import HalError, StepIO
 from motorctl.motion.executor import (
@@ -27,7 +27,7 @@ from motorctl.motion.executor import (
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.latency import LatencyStats
+from motorctl.motion.latency import Cells, LatencyStats
 from motorctl.motion.segments import StepSegment
 
 # counters cells
@@ -59,9 +59,9 @@ class StepCore:
         inbox: CoreInbox,
         emit: Callable[[ExecEvent], None],
         *,
-        positions: MutableSequence[int],
-        levels: MutableSequence[int],
-        counters: MutableSequence[int],
+        positions: Cells,
+        levels: Cells,
+        counters: Cells,
         stats: LatencyStats,
         spin_s: float = 200e-6,
     ) -> None:

@@ -37,6 +37,11 @@ E = ErrorCode
 OPTS = CodecOptions()
 
 CONFIG = """
+[step_thread]
+executor = "thread"
+priority = 0
+lock_memory = false
+max_lateness_us = 10000000.0
 [[motors]]
 name = "a"
 [[motors]]

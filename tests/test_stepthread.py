@@ -89,7 +89,7 @@ def live(request: pytest.FixtureRequest) -> Iterator[Live]:
         options={"timeline_len": None},
     )
     hw = build(spec, clock)
-    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits([params], 0.5, 5e-6))
+    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits([params], 10.0, 5e-6))
     engine = MotionEngine(hw, [params], executor, driver_poll_s=0.005)
     names = ("start", "idle", "fault", "homed", "cleared")
     events = {name: threading.Event() for name in names}

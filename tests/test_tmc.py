@@ -47,7 +47,7 @@ from motorctl.hal.tmc import (
     mres_of,
     register_values,
 )
-from motorctl.hal.tmc_backend import attach_drivers, probe
+from motorctl.hal.tmc_backend import probe
 from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
@@ -795,14 +795,6 @@ def test_config_refuses_one_spi_device_for_two_motors() -> None:
     text = TMC_MOTOR + '[[motors]]\nname = "y"\n[motors.tmc]\nspi = "/dev/spidev0.0"\n'
     assert "motors[1].tmc.spi" in config_error(text)
     assert "also the device of motors[0]" in config_error(text)
-
-
-def test_ramp_mode_is_refused_until_the_engine_can_use_it(bench: Bench) -> None:
-    bench.chip("tmc5160")
-    hw = build(HardwareSpec((AxisSpec(),)), bench.clock)
-    spec = TmcSpec("/dev/spidev0.0", S5160, ramp=True)
-    with pytest.raises(TmcError, match=r"m0: mode = \"ramp\".*use mode = \"step_dir\""):
-        attach_drivers(hw, [spec], bench.clock, ["m0"], factory=bench.kernel.factory())
 
 
 def test_a_transient_fault_set_between_two_publications_is_not_lost(bench: Bench) -> None:

@@ -35,6 +35,17 @@ driver = "tmc5160"
 spi = "/dev/spidev0.1"
 run_current = 2.0
 hold_current = 1.0
+
+[[motors]]
+name = "z"
+  [motors.homing]
+  max_travel = 20000
+  [motors.tmc]
+  driver = "tmc5160"
+  spi = "/dev/spidev0.2"
+  mode = "ramp"
+  run_current = 2.0
+  hold_current = 1.0
 """
 
 
@@ -43,7 +54,7 @@ def fake_spi(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     control = tmp_path / "control.json"
     path = os.pathsep.join(p for p in (str(FAKESPI), os.environ.get("PYTHONPATH")) if p)
     monkeypatch.setenv("PYTHONPATH", path)
-    chips = {"0.0": "tmc2130", "0.1": "tmc5160"}
+    chips = {"0.0": "tmc2130", "0.1": "tmc5160:step_dir", "0.2": "tmc5160"}
     monkeypatch.setenv("MOTORCTL_FAKE_SPI", json.dumps({"chips": chips,
                                                         "control": str(control)}))
     return control
@@ -95,7 +106,8 @@ def test_a_driver_fault_answers_e4_until_it_clears(daemon: DaemonProcess, fake_s
         c.wait_moved(0, timeout_ms=10_000)
     drivers = daemon.status()["drivers"]
     assert [(d["chip"], d["device"]) for d in drivers] == [
-        ("TMC2130", "/dev/spidev0.0"), ("TMC5160", "/dev/spidev0.1")]
+        ("TMC2130", "/dev/spidev0.0"), ("TMC5160", "/dev/spidev0.1"),
+        ("TMC5160", "/dev/spidev0.2")]
     assert drivers[0]["polls"] > 0 and drivers[0]["fault_counts"]["over-temperature (ot)"] == 1
     assert drivers[0]["spi_status_counts"]["reset_flag"] == 1  # the power-up reset, cleared
     assert daemon.terminate() == 0
@@ -118,3 +130,26 @@ def test_a_missing_spi_device_stops_the_daemon_naming_it(tmp_path: Path, fake_sp
         DaemonProcess(tmp_path, missing).start()
     msg = str(e.value)
     assert "/dev/spidev1.0 does not exist" in msg and "Traceback" not in msg
+
+
+def test_a_tmc5160_ramp_motor_moves_homes_and_reports_its_position(
+    daemon: DaemonProcess, fake_spi: Path
+) -> None:
+    with daemon.client() as c:
+        c.move_to(2, 2000, speed=250)  # 1000 steps/s: XTARGET, VMAX, AMAX/DMAX on the chip
+        seen = []
+        deadline = time.monotonic() + 10.0
+        while not c.is_ready(2):
+            seen.append(c.position(2))
+            assert time.monotonic() < deadline, "the ramp move did not end within 10 s"
+            time.sleep(0.05)
+        assert c.position(2) == 2000
+        assert any(0 < p < 2000 for p in seen)  # GetAbsPos follows XACTUAL while moving
+        set_chips(fake_spi, {"0.2": {"ref_l_at": 1500}})  # REFL: 500 steps below here
+        c.init_move(2, False, speed=1)  # home down onto the chip's left reference switch
+        c.wait_moved(2, timeout_ms=20_000)
+        assert abs(c.position(2)) <= 2  # zero at the switch's edge (XLATCH)
+        c.move_to(2, 300, speed=250)
+        c.wait_moved(2, timeout_ms=10_000)
+        assert c.position(2) == 300
+    assert daemon.terminate() == 0

@@ -202,6 +202,20 @@ class StepThreadConfig:
         1023,
         "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
     )
+    executor: str = choice(
+        "process",
+        ("process", "thread"),
+        "Where steps are timed: 'process' = a process of its own (own interpreter and GIL, "
+        "SCHED_FIFO, mlockall; the default), 'thread' = a thread of the daemon (single-core "
+        "boards, tests).",
+    )
+    ahead_ms: float = number(
+        50.0,
+        2,
+        1000,
+        "Steps are planned and handed to the executor this far ahead; a soft stop or a new "
+        "speed takes effect after what is already handed over.",
+    )
     max_lateness_us: float = number(
         2000.0,
         10,

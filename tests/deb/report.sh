@@ -13,6 +13,15 @@ echo "status-socket: $(su -s /bin/sh -c 'motorctld --status --state-dir /run/mot
 systemctl stop motorctld
 echo "after-stop: $(systemctl show -P ActiveState motorctld) $(systemctl show -P Result motorctld)"
 echo "left-in-run: $(ls -A /run/motorctl | tr '\n' ' ')"
+# The config switch to keep state across reboots: /var/lib/motorctl (StateDirectory=).
+sed -i 's|^directory = ""|directory = "/var/lib/motorctl"|' /etc/motorctl/motorctl.toml
+systemctl start motorctld
+i=0
+while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 60 ]; do
+  sleep 0.5; i=$((i + 1))
+done
+echo "var-lib: $(systemctl show -P SubState motorctld) $(ls -A /var/lib/motorctl | tr '\n' ' ')"
+systemctl stop motorctld
 journalctl -u motorctld --no-pager -o verbose | grep -c '^ *SIGNAL=SIGTERM$' | sed 's/^/journal-fields: /'
 journalctl -u motorctld --no-pager | sed 's/^/  | /'
 systemctl poweroff

@@ -1,0 +1,502 @@
+"""The ``process`` step executor: the step core in a process of its own.
+
+The child (started with multiprocessing's ``spawn``: a fresh interpreter with its own GIL)
+enters SCHED_FIFO, mlockall and its CPU (``RealtimeOptions``), opens its OWN step/dir and
+end-stop lines from the picklable spec (``hal.registry.open_step_io``), and runs
+:class:`~motorctl.motion.stepcore.StepCore`. Nothing of the daemon runs in it.
+
+The two processes share one block of shared memory:
+
+- header cells: run flag, heartbeat (the core's loop counter), counters, positions, end-stop
+  levels, the latency histogram (the child writes; the daemon reads snapshots, no lock);
+- per motor a single-producer single-consumer ring of step segments (daemon -> child);
+- one ring of stops (daemon -> child) and one of events (child -> daemon).
+
+Each ring has a head (written only by its producer) and a tail (only by its consumer); a
+record carries its sequence number, written last, and the consumer takes a record only when
+that number is the one it expects, so a half-written record is never read. A byte on a pipe
+wakes the other side (the child sleeps on it while nothing is due; the daemon's event thread
+on its own pipe and on the child's process sentinel).
+
+If the child dies, the event thread notices at once (the sentinel) and reports DIED: every
+motor faults (E4, position lost) and health says why; the service then exits non-zero.
+
+Owners: in the daemon, the planner side (engine lock) writes the segment and stop rings and
+drains the event ring; the event thread only waits and wakes the planner.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import multiprocessing
+import os
+import select
+import struct
+import threading
+from collections.abc import Sequence
+from dataclasses import replace
+from multiprocessing import shared_memory
+from multiprocessing.connection import wait as mp_wait
+from typing import Any
+
+from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
+from motorctl.hal.registry import open_step_io
+from motorctl.hal.spec import HardwareSpec
+from motorctl.motion.executor import (
+    AxisLimits,
+    ExecEvent,
+    ExecEventKind,
+    ExecutorHealth,
+    from_ticks,
+    to_ticks,
+)
+from motorctl.motion.latency import CELLS, LatencyStats
+from motorctl.motion.rt import RealtimeOptions, enter_realtime
+from motorctl.motion.segments import StepSegment
+from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+from motorctl.motion.stepexec import StepExecutor
+
+log = logging.getLogger("motorctl.executor")
+
+SEG_RING = 4096
+STOP_RING = 256
+EVENT_RING = 1024
+_SEG = struct.Struct("<qqqqqqqq")  # seq, first, interval, count, add, direction, gen, flags
+_STOP = struct.Struct("<qqq")  # seq, motor, gen
+# seq, kind, motor, gen, position, t_ns, direction, speed, text
+_EVENT = struct.Struct("<qqqqqqqd120s")
+_KINDS = list(ExecEventKind)
+_LAST, _WATCH = 1, 2
+
+# header cells (int64)
+_RUN, _READY, _PID = 0, 1, 2
+_HEADER = 8
+
+
+class Layout:
+    """Offsets of everything in the shared block (both processes compute the same)."""
+
+    def __init__(self, motors: int, lines: int) -> None:
+        self.motors, self.lines = motors, lines
+        off = 0
+        self.header = off
+        off += _HEADER * 8
+        self.counters = off
+        off += len(COUNTER_NAMES) * 8
+        self.positions = off
+        off += motors * 8
+        self.levels = off
+        off += max(lines, 1) * 8
+        self.endmap = off  # per motor: (min line, max line), -1 when not wired
+        off += motors * 2 * 8
+        self.latency = off
+        off += CELLS * 8
+        # rings: head, tail cells then records
+        self.seg_rings = []
+        for _ in range(motors):
+            self.seg_rings.append(off)
+            off += 16 + SEG_RING * _SEG.size
+        self.stop_ring = off
+        off += 16 + STOP_RING * _STOP.size
+        self.event_ring = off
+        off += 16 + EVENT_RING * _EVENT.size
+        self.size = off
+
+
+class Ring:
+    """A single-producer single-consumer ring of fixed-size records in shared memory."""
+
+    def __init__(self, buf: memoryview, offset: int, rec: struct.Struct, capacity: int) -> None:
+        self.buf = buf
+        self.cells = buf[offset : offset + 16].cast("q")  # [head, tail]
+        self.base = offset + 16
+        self.rec = rec
+        self.cap = capacity
+
+    def free(self) -> int:
+        return self.cap - (self.cells[0] - self.cells[1])
+
+    def put(self, *fields: Any) -> bool:
+        head = self.cells[0]
+        if head - self.cells[1] >= self.cap:
+            return False
+        at = self.base + (head % self.cap) * self.rec.size
+        # the payload first, then its sequence number, then the head
+        self.rec.pack_into(self.buf, at, -1, *fields)
+        struct.pack_into("<q", self.buf, at, head + 1)
+        self.cells[0] = head + 1
+        return True
+
+    def get(self) -> tuple[Any, ...] | None:
+        tail = self.cells[1]
+        if tail >= self.cells[0]:
+            return None
+        at = self.base + (tail % self.cap) * self.rec.size
+        rec = self.rec.unpack_from(self.buf, at)
+        if rec[0] != tail + 1:
+            return None  # not completely written yet
+        self.cells[1] = tail + 1
+        return rec[1:]
+
+    def pending(self) -> bool:
+        return bool(self.cells[1] < self.cells[0])
+
+    def release(self) -> None:
+        self.cells.release()
+
+
+class Shared:
+    """The shared block seen through typed views (either process)."""
+
+    def __init__(self, shm: shared_memory.SharedMemory, layout: Layout) -> None:
+        buf = shm.buf
+        if buf is None:
+            raise ValueError("shared memory closed")
+        self.shm = shm
+        self.layout = lay = layout
+        self.header = buf[lay.header : lay.header + _HEADER * 8].cast("q")
+        self.counters = buf[lay.counters : lay.counters + len(COUNTER_NAMES) * 8].cast("q")
+        self.positions = buf[lay.positions : lay.positions + lay.motors * 8].cast("q")
+        self.levels = buf[lay.levels : lay.levels + max(lay.lines, 1) * 8].cast("q")
+        self.endmap = buf[lay.endmap : lay.endmap + lay.motors * 2 * 8].cast("q")
+        self.latency = buf[lay.latency : lay.latency + CELLS * 8].cast("q")
+        self.segs = [Ring(buf, off, _SEG, SEG_RING) for off in lay.seg_rings]
+        self.stops = Ring(buf, lay.stop_ring, _STOP, STOP_RING)
+        self.events = Ring(buf, lay.event_ring, _EVENT, EVENT_RING)
+
+    def release(self) -> None:
+        views = (self.header, self.counters, self.positions, self.levels, self.endmap,
+                 self.latency)
+        for view in views:
+            view.release()
+        for ring in (*self.segs, self.stops, self.events):
+            ring.release()
+
+
+# --------------------------------------------------------------------------- the child
+
+
+class _ShmInbox(CoreInbox):
+    """The core's inbox filled from the rings (the child)."""
+
+    def __init__(self, shared: Shared) -> None:
+        super().__init__(shared.layout.motors)
+        self.shared = shared
+
+    def pull(self) -> None:
+        sh = self.shared
+        stops = sh.stops
+        while stops.pending():
+            rec = stops.get()
+            if rec is None:
+                break
+            self.stops.append((rec[0], rec[1]))
+        for m, ring in enumerate(sh.segs):
+            if not ring.pending():
+                continue
+            q = self.queues[m]
+            while len(q) < 64:
+                rec = ring.get()
+                if rec is None:
+                    break
+                first, interval, count, add, direction, gen, flags = rec
+                q.append(StepSegment(first, interval, count, add, direction, gen,
+                                     bool(flags & _LAST), bool(flags & _WATCH)))
+
+
+def _die_with_parent() -> None:
+    """prctl(PR_SET_PDEATHSIG, SIGKILL): the kernel kills us when the daemon dies."""
+    import ctypes
+    import ctypes.util
+    import signal
+
+    name = ctypes.util.find_library("c")
+    if name is not None:
+        ctypes.CDLL(name, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)
+
+
+def _child_main(
+    shm_name: str,
+    motors: int,
+    lines: int,
+    backend: str,
+    spec: HardwareSpec,
+    limits: Sequence[AxisLimits],
+    rt: RealtimeOptions,
+    spin_s: float,
+    late_threshold_s: float,
+    wake: Any,
+    events: Any,
+) -> None:
+    """The executor process: real-time set-up, own lines, then the step loop."""
+    import gc
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon decides when we stop
+    parent = os.getppid()
+    _die_with_parent()
+    logging.basicConfig(level=logging.INFO, format="motorctld executor %(levelname)s: %(message)s")
+    enter_realtime(rt, "the step executor process")
+    shm = shared_memory.SharedMemory(name=shm_name)
+    shared = Shared(shm, Layout(motors, lines))
+    io = open_step_io(backend, spec, MonotonicClock(), None)
+    if len(io.inputs.names) > lines:
+        raise HalError(f"the step IO has {len(io.inputs.names)} inputs, room for {lines}")
+    for m, (lo, hi) in enumerate(io.endstops):
+        shared.endmap[2 * m] = -1 if lo is None else lo
+        shared.endmap[2 * m + 1] = -1 if hi is None else hi
+    inbox = _ShmInbox(shared)
+    wake_fd, event_fd = wake.fileno(), events.fileno()
+    os.set_blocking(event_fd, False)
+
+    def emit(ev: ExecEvent) -> None:
+        text = ev.detail.encode()[:120]
+        shared.events.put(_KINDS.index(ev.kind), ev.motor, ev.gen, ev.position,
+                          to_ticks(ev.t), ev.direction, ev.speed, text)
+        with contextlib.suppress(BlockingIOError):
+            os.write(event_fd, b"e")
+
+    core = StepCore(io, limits, inbox, emit, positions=shared.positions,
+                    levels=shared.levels, counters=shared.counters,
+                    stats=LatencyStats(late_threshold_s, shared.latency), spin_s=spin_s)
+    header = shared.header
+    header[_PID] = os.getpid()
+    header[_READY] = 1
+
+    def wait(timeout: float) -> None:
+        if os.getppid() != parent:  # the daemon is gone (PDEATHSIG is the first guard)
+            header[_RUN] = 0
+            return
+        r, _, _ = select.select([wake_fd], [], [], timeout)
+        if r:
+            with contextlib.suppress(BlockingIOError):
+                os.read(wake_fd, 4096)
+
+    os.set_blocking(wake_fd, False)
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        core.run(lambda: bool(header[_RUN]), wait)
+    finally:
+        core.halt_all()
+        io.close()
+        shared.release()
+        shm.close()
+
+
+# --------------------------------------------------------------------------- the daemon
+
+
+class ProcessStepExecutor(StepExecutor):
+    """The planner in the daemon, the step core in its own real-time process."""
+
+    def __init__(
+        self,
+        hw: Hardware,
+        backend: str,
+        spec: HardwareSpec,
+        limits: Sequence[AxisLimits],
+        *,
+        ahead_s: float = 0.05,
+        lead_s: float = 0.003,
+        max_error_s: float = 5e-6,
+        spin_s: float = 200e-6,
+        late_threshold_s: float = 100e-6,
+        rt: RealtimeOptions | None = None,
+        start_timeout_s: float = 30.0,
+    ) -> None:
+        if hw.clock.is_virtual:
+            raise ValueError("the process executor runs on the real clock; tests on a virtual "
+                             "clock use the thread executor")
+        super().__init__(hw.clock, limits, ahead_s=ahead_s, lead_s=lead_s,
+                         max_error_s=max_error_s)
+        self.backend = backend
+        self.spec = replace(spec, options={**spec.options, **hw.step_io_options})
+        self.rt = rt or RealtimeOptions(priority=0, lock_memory=False)
+        self.spin_s = spin_s
+        self.late_threshold_s = late_threshold_s
+        self.start_timeout_s = start_timeout_s
+        motors = len(limits)
+        self.lines = 2 * len(spec.axes)
+        self.layout = Layout(motors, self.lines)
+        self.shm = shared_memory.SharedMemory(create=True, size=self.layout.size)
+        buf = self.shm.buf
+        assert buf is not None
+        buf[: self.layout.size] = bytes(self.layout.size)
+        self.shared = Shared(self.shm, self.layout)
+        self.stats = LatencyStats(late_threshold_s, self.shared.latency)
+        ctx = multiprocessing.get_context("spawn")
+        self._ctx = ctx
+        # raw bytes on the pipes' descriptors: only wake-ups, never messages
+        self._wake_conn_r, self._wake_conn_w = ctx.Pipe(duplex=False)
+        self._event_conn_r, self._event_conn_w = ctx.Pipe(duplex=False)
+        self._wake_w = self._wake_conn_w.fileno()
+        self._event_r = self._event_conn_r.fileno()
+        os.set_blocking(self._wake_w, False)
+        os.set_blocking(self._event_r, False)
+        self.proc: Any = None
+        self.died: str | None = None
+        self._died_reported = False
+        self._closing = False
+        self._watcher: threading.Thread | None = None
+        self._closed: tuple[list[int], dict[str, int]] | None = None
+        self.pending: list[list[StepSegment]] = [[] for _ in range(motors)]
+
+    # -- lifecycle -----------------------------------------------------------------------
+    def start(self) -> None:
+        self.shared.header[_RUN] = 1
+        self.proc = self._ctx.Process(
+            target=_child_main,
+            args=(self.shm.name, self.layout.motors, self.lines, self.backend, self.spec,
+                  list(self.limits), self.rt, self.spin_s, self.late_threshold_s,
+                  self._wake_conn_r, self._event_conn_w),
+            name="motorctl-executor",
+            daemon=True,
+        )
+        self.proc.start()
+        ready = threading.Event()
+        deadline = self.start_timeout_s
+        while not self.shared.header[_READY]:
+            if not self.proc.is_alive():
+                raise HalError(f"the step executor process exited at start (code "
+                               f"{self.proc.exitcode}); see the log above")
+            ready.wait(0.01)
+            deadline -= 0.01
+            if deadline <= 0:
+                self.proc.kill()
+                raise HalError("the step executor process did not start within "
+                               f"{self.start_timeout_s:.0f} s")
+        self._watcher = threading.Thread(target=self._watch, name="motorctl-exec-watch",
+                                         daemon=True)
+        self._watcher.start()
+
+    def _watch(self) -> None:
+        """Wake the planner on events; notice at once when the child dies."""
+        proc = self.proc
+        while True:
+            ready = mp_wait([proc.sentinel, self._event_r])
+            if self._event_r in ready:
+                with contextlib.suppress(BlockingIOError, OSError):
+                    os.read(self._event_r, 4096)
+                self.on_event()
+            if proc.sentinel in ready:
+                proc.join()
+                if not self._closing:
+                    self.died = (f"step executor process {proc.pid} died "
+                                 f"(exit code {proc.exitcode})")
+                    log.error("%s: every motor faults, positions lost", self.died)
+                self.on_event()
+                return
+
+    def close(self) -> None:
+        if self._closed is not None:
+            return
+        self._closing = True
+        self.shared.header[_RUN] = 0
+        self._kick()
+        if self.proc is not None:
+            self.proc.join(10)
+            if self.proc.is_alive():
+                self.proc.kill()
+                self.proc.join(5)
+        if self._watcher is not None:
+            self._watcher.join(5)
+            self._watcher = None
+        # what is read after close comes from plain copies, not the block
+        self._closed = (
+            [int(x) for x in self.shared.positions],
+            dict(zip(COUNTER_NAMES, self.shared.counters, strict=True)),
+        )
+        cells = [int(self.shared.latency[i]) for i in range(CELLS)]
+        self.stats = LatencyStats(self.late_threshold_s, cells)
+        self.shared.release()
+        self.shm.close()
+        with contextlib.suppress(FileNotFoundError):
+            self.shm.unlink()
+        for conn in (self._wake_conn_r, self._wake_conn_w, self._event_conn_r,
+                     self._event_conn_w):
+            conn.close()
+
+    @property
+    def pid(self) -> int | None:
+        """The executor process's PID (status, benchmarks)."""
+        return None if self.proc is None else int(self.proc.pid)
+
+    def kill_for_test(self, sig: int) -> None:
+        """Send ``sig`` to the executor process (tests and benchmarks: stalls, death)."""
+        os.kill(self.proc.pid, sig)
+
+    # -- the transport ---------------------------------------------------------------------
+    def _push(self, motor: int, segments: list[StepSegment]) -> None:
+        ring = self.shared.segs[motor]
+        pending = self.pending[motor]
+        pending.extend(segments)
+        sent = 0
+        for seg in pending:
+            flags = (_LAST if seg.last else 0) | (_WATCH if seg.watch else 0)
+            if not ring.put(seg.first, seg.interval, seg.count, seg.add, seg.direction,
+                            seg.gen, flags):
+                break
+            sent += 1
+        del pending[:sent]
+        self._kick()
+
+    def _push_stop(self, motor: int, gen: int) -> None:
+        self.pending[motor] = [s for s in self.pending[motor] if s.gen > gen]
+        if not self.shared.stops.put(motor, gen):
+            raise HalError("the step executor's stop ring is full")
+        self._kick()
+
+    def _kick(self) -> None:
+        with contextlib.suppress(BlockingIOError, OSError):
+            os.write(self._wake_w, b"k")
+
+    def _raw_events(self) -> list[ExecEvent]:
+        out: list[ExecEvent] = []
+        ring = self.shared.events
+        while True:
+            rec = ring.get()
+            if rec is None:
+                break
+            kind, motor, gen, position, t_ns, direction, speed, text = rec
+            out.append(ExecEvent(_KINDS[kind], motor, gen, position, from_ticks(t_ns),
+                                 direction, speed, text.rstrip(b"\0").decode(errors="replace")))
+        if self.died is not None and not self._died_reported:
+            self._died_reported = True
+            out.append(ExecEvent(ExecEventKind.DIED, -1, -1, 0, self.clock.now(),
+                                 detail=self.died))
+        return out
+
+    def service(self, now: float) -> float:
+        for m, pending in enumerate(self.pending):
+            if pending:
+                self._push(m, [])
+        return super().service(now)
+
+    # -- snapshots -------------------------------------------------------------------------
+    def position(self, motor: int) -> int:
+        if self._closed is not None:
+            return self._closed[0][motor]
+        return int(self.shared.positions[motor])
+
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        if self._closed is not None:
+            return False
+        line = self.shared.endmap[2 * motor + (1 if direction > 0 else 0)]
+        return line >= 0 and bool(self.shared.levels[line])
+
+    def health(self) -> ExecutorHealth:
+        if self._closed is not None:
+            return ExecutorHealth(False, self._closed[1]["progress"], self.died,
+                                  dict(self._closed[1]), self.stats.summary())
+        alive = self.proc is not None and self.proc.is_alive() and self.died is None
+        counters = dict(zip(COUNTER_NAMES, self.shared.counters, strict=True))
+        return ExecutorHealth(
+            alive=alive,
+            progress=counters["progress"],
+            reason=self.died,
+            counters=counters,
+            latency=self.stats.summary(),
+        )

@@ -1,0 +1,398 @@
+"""Executors for TMC5160s that run their own ramps, and for a machine that mixes executors.
+
+:class:`RampExecutor` carries out the motors' plans with each TMC5160's ramp generator
+(motion-controller mode): a finite plan (MoveTo, a soft stop, a homing back-off, a run up to
+a soft limit) becomes positioning mode with XTARGET = the plan's end, VMAX = the plan's peak
+speed, AMAX/A1 = ACC, DMAX/D1 = DEC; an endless run becomes velocity mode (RAMPMODE 1/2, VMAX,
+AMAX). A hard stop is velocity mode with VMAX = 0 at the chip's largest deceleration.
+Positions are XACTUAL (the executed step counter). End stops are the chip's REFL/REFR inputs:
+the one ahead stops the motor in the chip and latches XLATCH, reported as ENDSTOP at the
+latched position; stall homing (a plan without end stops) enables sg_stop, and the chip's
+stop by stallGuard is reported as the driver's stall flag. Units: see hal.tmc.RampUnits.
+
+:class:`SplitExecutor` gives each motor to one of several executors (STEP/DIR motors to the
+step executor, TMC5160 ramp motors to a RampExecutor) behind the one seam the engine uses.
+
+Threads: as every :class:`~motorctl.motion.executor.Executor`: commands and :meth:`service`
+come with the engine's lock held (the planner thread); SPI transfers happen there (a few
+datagrams, tens of microseconds each) and never on a step path. :meth:`position`,
+:meth:`endstop_active` and :meth:`health` read snapshots that :meth:`service` refreshes.
+SPI failures become FAULT events (the axis stops, its position is lost): never an exception
+out of the seam, never a dead thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Sequence
+from contextlib import suppress
+from dataclasses import dataclass
+
+from motorctl.hal.interfaces import Clock, HalError
+from motorctl.hal.tmc import F, RampState, Reg, Tmc5160, signed32
+from motorctl.motion.executor import (
+    Committed,
+    ExecEvent,
+    ExecEventKind,
+    Executor,
+    ExecutorHealth,
+)
+from motorctl.motion.profile import Trajectory
+from motorctl.motion.types import Ramp
+
+log = logging.getLogger("motorctl.ramp")
+
+K = ExecEventKind
+
+
+@dataclass
+class _Axis:
+    gen: int = 0
+    plan: str = ""  # "move", "run", "stop" or "" (nothing planned)
+    target: int = 0
+    watch: int = 0  # the stop switch armed: +1 REFR, -1 REFL, 0 none
+    stop_gen: int = 0
+    blocked: bool = False  # stopped on its own: plans dropped until the caller's stop()
+    position: int = 0
+    velocity: float = 0.0  # steps/s
+    ramp_stat: int = 0
+    next_poll: float = 0.0
+    resets: int = 0  # chip resets already reported
+
+
+def peak_speed(traj: Trajectory) -> float:
+    """The largest speed a (finite) trajectory reaches."""
+    best = 0.0
+    for seg in traj.segments:
+        best = max(best, abs(seg.v0), abs(seg.end_velocity))
+    return best
+
+
+class RampExecutor(Executor):
+    """Motors whose TMC5160 moves them (SD_MODE low): one chip per motor."""
+
+    def __init__(
+        self,
+        chips: Sequence[Tmc5160],
+        clock: Clock,
+        poll_s: float = 0.005,
+        idle_poll_s: float = 0.05,
+    ) -> None:
+        super().__init__(len(chips))
+        self.chips = list(chips)
+        self.clock = clock
+        self.poll_s = poll_s
+        self.idle_poll_s = idle_poll_s
+        self._axes = [_Axis() for _ in chips]
+        self._events: list[ExecEvent] = []
+        self._lock = threading.Lock()
+        self._progress = 0
+        self.counters = {"polls": 0, "spi_errors": 0, "endstops": 0, "sg_stops": 0}
+        for i, chip in enumerate(self.chips):  # the counters are XACTUAL from the start:
+            with suppress(HalError):  # the daemon restores positions before start()
+                self._refresh(i, chip.state())
+
+    # -- lifecycle -----------------------------------------------------------------
+    def start(self) -> None:
+        now = self.clock.now()
+        for i, chip in enumerate(self.chips):
+            try:
+                self._refresh(i, chip.state())
+            except HalError as exc:
+                self._fault(i, now, exc)
+
+    def close(self) -> None:
+        for i, chip in enumerate(self.chips):
+            try:
+                chip.stop(None)
+            except HalError as exc:
+                log.error("motor %d: could not stop the ramp at close: %s", i, exc)
+
+    # -- events ------------------------------------------------------------------------
+    def _emit(self, ev: ExecEvent) -> None:
+        with self._lock:
+            self._events.append(ev)
+        self.on_event()
+
+    def events(self) -> list[ExecEvent]:
+        with self._lock:
+            out, self._events = self._events, []
+        return out
+
+    def _fault(self, motor: int, now: float, exc: BaseException) -> None:
+        ax = self._axes[motor]
+        self.counters["spi_errors"] += 1
+        ax.plan, ax.blocked = "", True
+        with suppress(HalError):
+            self.chips[motor].stop(None)
+        # as for a failed STEP line: the position counts as lost if it was moving fast
+        self._emit(ExecEvent(K.FAULT, motor, ax.gen, ax.position, now,
+                             speed=abs(ax.velocity), detail=str(exc)))
+
+    # -- commands ------------------------------------------------------------------------
+    def follow(
+        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+    ) -> bool:
+        ax, chip = self._axes[motor], self.chips[motor]
+        if ax.blocked:
+            return True  # made before the caller saw our event: dropped, as the seam says
+        now = self.clock.now()
+        ax.gen = gen
+        try:
+            if math.isinf(traj.end_time):
+                v = traj.segments[-1].v0
+                direction = 1 if v > 0 else -1
+                chip.watch(direction if endstops else 0, stall=not endstops)
+                chip.run(direction, abs(v), ramp.acc)
+                ax.plan, ax.watch = "run", direction if endstops else 0
+            else:
+                target = round(traj.end_position)
+                if target == ax.position and ax.velocity == 0:
+                    ax.plan = ""
+                    return False
+                direction = 1 if target > ax.position else -1
+                chip.watch(direction if endstops else 0, stall=not endstops)
+                speed = max(peak_speed(traj), abs(ax.velocity), 1.0)
+                chip.move_to(target, speed, ramp.acc, ramp.dec)
+                ax.plan, ax.target, ax.watch = "move", target, direction if endstops else 0
+        except HalError as exc:
+            self._fault(motor, now, exc)
+            return True
+        ax.next_poll = now
+        return True
+
+    def stop(self, motor: int, gen: int) -> int | None:
+        ax = self._axes[motor]
+        ax.blocked = False
+        ax.stop_gen = ax.gen = gen
+        try:
+            self.chips[motor].stop(None)
+        except HalError as exc:
+            # answering with another event would make the caller stop again, and again:
+            # the last known position is final; the driver monitor reports the SPI failure
+            self.counters["spi_errors"] += 1
+            log.error("motor %d: the hard stop did not reach the chip: %s", motor, exc)
+            ax.plan = ""
+            return ax.position
+        ax.plan = "stop"
+        ax.next_poll = self.clock.now()
+        return None
+
+    def committed(self, motor: int, now: float) -> Committed:
+        ax = self._axes[motor]
+        with suppress(HalError):  # the snapshot will do; the next poll reports the failure
+            self._refresh(motor, self.chips[motor].state())
+        return Committed(now, float(ax.position), ax.velocity, ax.position)
+
+    def planned(self, motor: int) -> bool:
+        return self._axes[motor].plan != ""
+
+    # -- the planner's side ----------------------------------------------------------------
+    def _refresh(self, motor: int, st: RampState) -> None:
+        ax = self._axes[motor]
+        ax.position = st.xactual
+        ax.velocity = self.chips[motor].units.steps_s(abs(st.vactual)) * (
+            1 if st.vactual >= 0 else -1
+        )
+        ax.ramp_stat = st.ramp_stat
+
+    def service(self, now: float) -> float:
+        self._progress += 1
+        nxt = now + self.idle_poll_s
+        for i, (ax, chip) in enumerate(zip(self._axes, self.chips, strict=True)):
+            if now >= ax.next_poll:
+                ax.next_poll = now + (self.poll_s if ax.plan else self.idle_poll_s)
+                self._poll(i, ax, chip, now)
+            nxt = min(nxt, ax.next_poll)
+        return nxt
+
+    def _poll(self, i: int, ax: _Axis, chip: Tmc5160, now: float) -> None:
+        self.counters["polls"] += 1
+        try:
+            st = chip.state()
+        except HalError as exc:
+            if ax.plan:
+                self._fault(i, now, exc)
+            return
+        self._refresh(i, st)
+        if chip.resets != ax.resets:  # XACTUAL restarted at 0: the position is lost
+            ax.resets = chip.resets
+            ax.plan, ax.blocked = "", True
+            self._emit(ExecEvent(K.FAULT, i, ax.gen, ax.position, now, speed=math.inf,
+                                 detail=f"{chip.name}: the driver was reset; position lost"))
+            return
+        if st.flag(F.EVENT_STOP_SG) and not chip.sg_stopped:
+            chip.sg_stopped = True  # the driver's stall flag: the engine's monitor acts on it
+            self.counters["sg_stops"] += 1
+        if ax.plan == "stop":
+            if st.vactual == 0:
+                ax.plan = ""
+                self._emit(ExecEvent(K.STOPPED, i, ax.stop_gen, ax.position, now))
+            return
+        if ax.plan == "" or ax.blocked:
+            return
+        hit = (ax.watch > 0 and st.flag(F.EVENT_STOP_R)) or (
+            ax.watch < 0 and st.flag(F.EVENT_STOP_L)
+        )
+        if hit:
+            latched = st.flag(F.STATUS_LATCH_R if ax.watch > 0 else F.STATUS_LATCH_L)
+            where = ax.position
+            if latched:
+                try:
+                    where = signed32(chip.link.read(Reg.XLATCH))
+                except HalError as exc:
+                    self._fault(i, now, exc)
+                    return
+            self.counters["endstops"] += 1
+            ax.plan, ax.blocked = "", True
+            self._emit(ExecEvent(K.ENDSTOP, i, ax.gen, where, now, direction=ax.watch,
+                                 speed=abs(ax.velocity), detail="reference switch"))
+            return
+        if ax.plan == "move" and st.vactual == 0 and ax.position == ax.target:
+            ax.plan = ""
+            self._emit(ExecEvent(K.DONE, i, ax.gen, ax.position, now))
+
+    # -- snapshots ----------------------------------------------------------------------------
+    def position(self, motor: int) -> int:
+        return self._axes[motor].position
+
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        rs = self._axes[motor].ramp_stat
+        return bool((F.STATUS_STOP_R if direction > 0 else F.STATUS_STOP_L).get(rs))
+
+    def health(self) -> ExecutorHealth:
+        return ExecutorHealth(alive=True, progress=self._progress, counters=dict(self.counters))
+
+    # -- a virtual clock: the polls are due in service() -----------------------------------------
+    def next_deadline(self) -> float | None:
+        return min(ax.next_poll for ax in self._axes) if self._axes else None
+
+    def advance(self, now: float) -> None:
+        return None
+
+
+class SplitExecutor(Executor):
+    """Each motor to one of several executors, behind the one seam the engine uses.
+
+    ``routes[m] = (executor, local)``: motor ``m`` is the executor's motor ``local``. An
+    executor may drive motors that are not routed to it (a step executor built for every
+    axis, whose TMC5160 ramp axes go to a RampExecutor): they are never given work. An
+    executor that dies faults only the motors routed to it (position lost).
+    """
+
+    def __init__(self, routes: Sequence[tuple[Executor, int]]) -> None:
+        super().__init__(len(routes))
+        self.routes = list(routes)
+        self.parts: list[Executor] = []
+        seen: set[tuple[int, int]] = set()
+        for m, (ex, local) in enumerate(self.routes):
+            if not 0 <= local < ex.motors:
+                raise ValueError(f"motor {m}: {type(ex).__name__} has no motor {local}")
+            if (id(ex), local) in seen:
+                raise ValueError(f"motor {m}: {type(ex).__name__}'s motor {local} is taken")
+            seen.add((id(ex), local))
+            if all(p is not ex for p in self.parts):
+                self.parts.append(ex)
+        self._back = {(id(ex), local): m for m, (ex, local) in enumerate(self.routes)}
+        for ex in self.parts:
+            ex.on_event = self._forward
+
+    def _forward(self) -> None:
+        self.on_event()
+
+    def start(self) -> None:
+        for ex in self.parts:
+            ex.start()
+
+    def close(self) -> None:
+        for ex in self.parts:
+            ex.close()
+
+    def follow(
+        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+    ) -> bool:
+        ex, local = self.routes[motor]
+        return ex.follow(local, traj, ramp, gen, endstops)
+
+    def stop(self, motor: int, gen: int) -> int | None:
+        ex, local = self.routes[motor]
+        return ex.stop(local, gen)
+
+    def committed(self, motor: int, now: float) -> Committed:
+        ex, local = self.routes[motor]
+        return ex.committed(local, now)
+
+    def planned(self, motor: int) -> bool:
+        ex, local = self.routes[motor]
+        return ex.planned(local)
+
+    def service(self, now: float) -> float:
+        return min(ex.service(now) for ex in self.parts)
+
+    def events(self) -> list[ExecEvent]:
+        out: list[ExecEvent] = []
+        for ex in self.parts:
+            for ev in ex.events():
+                if ev.kind is K.DIED:  # only the motors routed to it are lost
+                    mine = [m for m, (e, _) in enumerate(self.routes) if e is ex]
+                    out += [ExecEvent(K.FAULT, m, ev.gen, ev.position, ev.t,
+                                      detail=f"executor died: {ev.detail}") for m in mine]
+                    continue
+                m = self._back.get((id(ex), ev.motor))
+                if m is not None:  # events of unrouted motors concern nobody
+                    out.append(ExecEvent(ev.kind, m, ev.gen, ev.position, ev.t, ev.direction,
+                                         ev.speed, ev.detail))
+        return out
+
+    def position(self, motor: int) -> int:
+        ex, local = self.routes[motor]
+        return ex.position(local)
+
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        ex, local = self.routes[motor]
+        return ex.endstop_active(local, direction)
+
+    def health(self) -> ExecutorHealth:
+        parts = [ex.health() for ex in self.parts]
+        counters: dict[str, int] = {}
+        for h in parts:
+            for k, v in h.counters.items():
+                counters[k] = counters.get(k, 0) + v
+        return ExecutorHealth(
+            alive=all(h.alive for h in parts),
+            progress=sum(h.progress for h in parts),
+            reason=next((h.reason for h in parts if h.reason), None),
+            counters=counters,
+            latency=next((h.latency for h in parts if h.latency), {}),
+        )
+
+    def next_deadline(self) -> float | None:
+        found = [d for ex in self.parts if (d := ex.next_deadline()) is not None]
+        return min(found) if found else None
+
+    def advance(self, now: float) -> None:
+        for ex in self.parts:
+            ex.advance(now)
+
+
+def with_ramp_motors(
+    executor: Executor,
+    drivers: Sequence[object],
+    clock: Clock,
+    poll_s: float = 0.005,
+    idle_poll_s: float = 0.05,
+) -> Executor:
+    """``executor`` for every motor, except those whose driver is a TMC5160 in ramp mode
+    (:class:`Tmc5160`), which go to one :class:`RampExecutor`; unchanged when there are none.
+    """
+    ramp = [i for i, d in enumerate(drivers) if isinstance(d, Tmc5160)]
+    if not ramp:
+        return executor
+    chips = [d for d in drivers if isinstance(d, Tmc5160)]
+    ramp_ex = RampExecutor(chips, clock, poll_s, idle_poll_s)
+    routes: list[tuple[Executor, int]] = []
+    for m in range(len(drivers)):
+        routes.append((ramp_ex, ramp.index(m)) if m in ramp else (executor, m))
+    return SplitExecutor(routes)

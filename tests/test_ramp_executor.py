@@ -1,0 +1,335 @@
+"""The TMC5160 ramp executor and the split executor, on register-level chip models and a
+virtual clock: the seam alone, then the motion engine driving motors through it."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pytest
+
+from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.mock import build
+from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice
+from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executor import ExecEvent, ExecEventKind, Executor
+from motorctl.motion.profile import plan_move_to, plan_run
+from motorctl.motion.ramp_executor import (
+    RampExecutor,
+    SplitExecutor,
+    peak_speed,
+    with_ramp_motors,
+)
+from motorctl.motion.types import (
+    HomeCmd,
+    HomingParams,
+    HomingSource,
+    MotorParams,
+    MotorState,
+    MoveToCmd,
+    Ramp,
+    RunCmd,
+)
+from tests.tmc_model import FakeKernel, TmcModel
+
+K = ExecEventKind
+RAMP = Ramp(4000.0, 40_000.0, 40_000.0)
+SETTINGS = TmcSettings(chip="tmc5160", run_current=2.0, hold_current=1.0, microsteps=16,
+                       stall_min_speed=500.0)
+
+
+class Rig:
+    """n TMC5160 models on /dev/spidev0.x, started as ramp chips, and a RampExecutor."""
+
+    def __init__(self, n: int = 1) -> None:
+        self.clock = VirtualClock()
+        self.kernel = FakeKernel()
+        buses = SpiBuses()
+        self.models: list[TmcModel] = []
+        self.chips: list[Tmc5160] = []
+        for i in range(n):
+            model = TmcModel("tmc5160", clock=self.clock)
+            self.kernel.chips[(0, i)] = model
+            dev = SpiDevice(SpiAddress(0, i), buses, self.kernel.factory(), 1_000_000)
+            chip = Tmc5160(f"m{i}", dev, SETTINGS, RefSwitches())
+            chip.start()
+            self.models.append(model)
+            self.chips.append(chip)
+        self.ex = RampExecutor(self.chips, self.clock, poll_s=0.002, idle_poll_s=0.02)
+        self.ex.start()
+        self.seen: list[ExecEvent] = []
+
+    def run(self, until: Callable[[], bool], limit_s: float) -> float:
+        """Service the executor on the virtual clock until ``until()``; the time it took."""
+        t0 = self.clock.now()
+        while True:
+            self.seen += self.ex.events()
+            if until():
+                return self.clock.now() - t0
+            assert self.clock.now() - t0 < limit_s, f"not done within {limit_s} s"
+            nxt = self.ex.service(self.clock.now())
+            self.clock.advance_to(max(nxt, self.clock.now() + 1e-4))
+
+    def kinds(self) -> list[ExecEventKind]:
+        return [e.kind for e in self.seen]
+
+
+def test_a_move_runs_on_the_chip_and_reports_done() -> None:
+    rig = Rig()
+    traj = plan_move_to(rig.clock.now(), 0.0, 0.0, 6000.0, RAMP.speed, RAMP.acc, RAMP.dec)
+    assert rig.ex.follow(0, traj, RAMP, gen=1)
+    assert rig.ex.planned(0)
+    took = rig.run(lambda: K.DONE in rig.kinds(), 5.0)
+    done = rig.seen[-1]
+    assert (done.motor, done.gen, done.position) == (0, 1, 6000)
+    assert rig.ex.position(0) == 6000 and not rig.ex.planned(0)
+    assert took == pytest.approx(traj.end_time - traj.start_time, abs=0.02)
+    # a plan to where it already is makes no step
+    again = plan_move_to(rig.clock.now(), 6000.0, 0.0, 6000.0, 4000.0, 4e4, 4e4)
+    assert rig.ex.follow(0, again, RAMP, gen=2) is False
+
+
+def test_the_peak_speed_of_a_plan_becomes_vmax() -> None:
+    rig = Rig()
+    slow = plan_run(rig.clock.now(), 0.0, 0.0, 250.0, 4e4, 4e4, 2000.0)  # to a limit at 2000
+    assert peak_speed(slow) == pytest.approx(250.0)
+    rig.ex.follow(0, slow, RAMP, gen=1)
+    assert rig.chips[0].units.steps_s(rig.models[0].regs[0x27]) == pytest.approx(250, abs=1)
+    rig.run(lambda: K.DONE in rig.kinds(), 15.0)
+    assert rig.ex.position(0) == 2000
+
+
+def test_a_run_and_a_hard_stop_report_stopped_with_the_final_position() -> None:
+    rig = Rig()
+    run = plan_run(rig.clock.now(), 0.0, 0.0, -3000.0, 30_000.0, 30_000.0, None)
+    rig.ex.follow(0, run, RAMP, gen=1)
+    assert rig.models[0].regs[0x20] == 2  # RAMPMODE: velocity, negative
+    rig.run(lambda: rig.ex.position(0) < -2000, 5.0)
+    assert rig.ex.stop(0, gen=2) is None
+    rig.run(lambda: K.STOPPED in rig.kinds(), 1.0)
+    stopped = rig.seen[-1]
+    assert stopped.gen == 2 and stopped.position == rig.chips[0].position()
+    assert not rig.ex.planned(0)
+
+
+def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped() -> None:
+    rig = Rig()
+    rig.models[0].ref_l_at = -1500.0
+    run = plan_run(rig.clock.now(), 0.0, 0.0, -4000.0, 40_000.0, 40_000.0, None)
+    rig.ex.follow(0, run, RAMP, gen=1)
+    rig.run(lambda: K.ENDSTOP in rig.kinds(), 5.0)
+    ev = rig.seen[-1]
+    assert (ev.direction, ev.position) == (-1, -1500)  # XLATCH: the switch's edge
+    assert rig.ex.endstop_active(0, -1) and not rig.ex.endstop_active(0, 1)
+    # until the caller answers with stop(), plans for the axis are dropped
+    away = plan_move_to(rig.clock.now(), -1500.0, 0.0, 0.0, 4000.0, 4e4, 4e4)
+    assert rig.ex.follow(0, away, RAMP, gen=2) is True
+    assert rig.models[0].regs[0x20] != 0  # not positioning: nothing was sent
+    rig.ex.stop(0, gen=3)
+    rig.run(lambda: K.STOPPED in rig.kinds(), 1.0)
+    rig.ex.follow(0, away, RAMP, gen=4)  # leaving the switch upward is allowed
+    rig.run(lambda: rig.seen[-1].kind is K.DONE, 5.0)
+    assert rig.ex.position(0) == 0
+
+
+def test_a_plan_without_end_stops_arms_stallguard_and_a_stop_reads_as_a_stall() -> None:
+    rig = Rig()
+    rig.models[0].wall_at = 2500.0
+    run = plan_run(rig.clock.now(), 0.0, 0.0, 4000.0, 40_000.0, 40_000.0, None)
+    rig.ex.follow(0, run, RAMP, gen=1, endstops=False)
+    assert rig.models[0].regs[0x34] & (1 << 10)  # SW_MODE.sg_stop
+    rig.run(lambda: rig.chips[0].sg_stopped, 5.0)
+    assert rig.models[0].physical == pytest.approx(2500, abs=10)
+    assert rig.chips[0].status().stall is True  # what the engine's driver monitor sees
+    rig.ex.stop(0, gen=2)
+    rig.ex.follow(0, plan_move_to(rig.clock.now(), 2500.0, 0.0, 0.0, 4e3, 4e4, 4e4), RAMP, 3)
+    assert rig.chips[0].status().stall is False  # the next plan re-arms
+
+
+def test_spi_errors_become_fault_events_never_exceptions() -> None:
+    rig = Rig()
+    traj = plan_move_to(rig.clock.now(), 0.0, 0.0, 6000.0, RAMP.speed, RAMP.acc, RAMP.dec)
+    rig.ex.follow(0, traj, RAMP, gen=1)
+    rig.kernel.fail_xfers = 1000
+    rig.run(lambda: K.FAULT in rig.kinds(), 1.0)
+    fault = rig.seen[-1]
+    assert "/dev/spidev0.0" in fault.detail and "Input/output error" in fault.detail
+    assert rig.ex.follow(0, traj, RAMP, gen=2) is True  # dropped until stop(): no raise
+    assert rig.ex.stop(0, gen=3) == rig.ex.position(0)  # final at once: no further event
+    assert rig.ex.events() == []
+    assert rig.ex.health().alive and rig.ex.counters["spi_errors"] >= 2
+
+
+class Recorder(Executor):
+    """A stand-in executor that records what it is asked to do."""
+
+    def __init__(self, motors: int) -> None:
+        super().__init__(motors)
+        self.calls: list[tuple[str, int]] = []
+        self.pending: list[ExecEvent] = []
+
+    def follow(self, motor, traj, ramp, gen, endstops=True):  # type: ignore[no-untyped-def]
+        self.calls.append(("follow", motor))
+        return True
+
+    def stop(self, motor: int, gen: int) -> int | None:
+        self.calls.append(("stop", motor))
+        return 0
+
+    def committed(self, motor, now):  # type: ignore[no-untyped-def]
+        raise AssertionError
+
+    def service(self, now: float) -> float:
+        return now + 1.0
+
+    def events(self) -> list[ExecEvent]:
+        out, self.pending = self.pending, []
+        return out
+
+    def planned(self, motor: int) -> bool:
+        return False
+
+    def position(self, motor: int) -> int:
+        return 100 + motor
+
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        return False
+
+    def health(self):  # type: ignore[no-untyped-def]
+        from motorctl.motion.executor import ExecutorHealth
+
+        return ExecutorHealth(True, 1)
+
+
+def test_split_executor_routes_motors_and_maps_events_back() -> None:
+    steps, ramp = Recorder(3), Recorder(1)
+    split = SplitExecutor([(steps, 0), (ramp, 0), (steps, 2)])
+    assert split.motors == 3
+    traj = plan_move_to(0.0, 0.0, 0.0, 10.0, 100.0, 1e3, 1e3)
+    split.follow(1, traj, RAMP, 1)
+    split.follow(2, traj, RAMP, 1)
+    assert ramp.calls == [("follow", 0)] and steps.calls == [("follow", 2)]
+    assert split.position(2) == 102
+    steps.pending = [
+        ExecEvent(K.DONE, 2, 1, 10, 0.0),
+        ExecEvent(K.DONE, 1, 1, 10, 0.0),  # motor 1 of the step executor is not routed
+        ExecEvent(K.DIED, -1, 0, 0, 0.0, detail="gone"),
+    ]
+    evs = split.events()
+    assert [(e.kind, e.motor) for e in evs] == [(K.DONE, 2), (K.FAULT, 0), (K.FAULT, 2)]
+    assert "executor died: gone" in evs[-1].detail
+    with pytest.raises(ValueError, match="taken"):
+        SplitExecutor([(steps, 0), (steps, 0)])
+
+
+# ------------------------------------------------------------------ through the engine
+
+
+def engine_rig(homing: HomingParams | None = None) -> tuple[Rig, MotionEngine]:
+    rig = Rig()
+    hw = build(HardwareSpec((AxisSpec(),)), rig.clock)
+    hw.steppers[0].driver = rig.chips[0]
+    params = MotorParams(homing=homing or HomingParams())
+    engine = MotionEngine(hw, [params], rig.ex, driver_poll_s=0.005)
+    return rig, engine
+
+
+def poll_drivers(rig: Rig, engine: MotionEngine, seconds: float) -> None:
+    """Run the engine with the driver monitor's polls (virtual time)."""
+    end = rig.clock.now() + seconds
+    while rig.clock.now() < end:
+        rig.chips[0].poll()
+        engine.run_until(rig.clock.now() + 0.005)
+
+
+def test_engine_moveto_and_getabspos_through_the_chip() -> None:
+    rig, engine = engine_rig()
+    m = engine.motors[0]
+    with engine.lock:
+        m.submit(MoveToCmd(5000, RAMP), rig.clock.now())
+    engine.run_until_idle(10.0)
+    assert m.position == 5000 and rig.models[0].physical == pytest.approx(5000, abs=0.5)
+    with engine.lock:
+        m.submit(RunCmd(-1, RAMP), rig.clock.now())
+    engine.run_until(rig.clock.now() + 0.5)
+    with engine.lock:
+        assert m.stop(hard=False, now=rig.clock.now())
+    engine.run_until_idle(10.0)
+    assert m.state is MotorState.IDLE
+    assert m.position == rig.chips[0].position()
+
+
+def test_engine_homing_on_the_chips_reference_switch() -> None:
+    rig, engine = engine_rig(HomingParams(max_travel=20_000))
+    rig.models[0].ref_l_at = -3000.0
+    m = engine.motors[0]
+    with engine.lock:
+        m.submit(HomeCmd(-1, RAMP), rig.clock.now())
+    engine.run_until_idle(10.0)
+    assert m.fault is None and m.state is MotorState.IDLE
+    assert m.position == pytest.approx(0, abs=2)  # at the switch
+    with engine.lock:
+        m.submit(MoveToCmd(1000, RAMP), rig.clock.now())
+    engine.run_until_idle(10.0)
+    assert rig.models[0].physical == pytest.approx(-3000 + 1000, abs=3)
+
+
+def test_engine_stall_homing_with_the_chips_stallguard_stop() -> None:
+    homing = HomingParams(source=HomingSource.STALL, max_travel=20_000)
+    rig, engine = engine_rig(homing)
+    rig.models[0].wall_at = 2200.0
+    m = engine.motors[0]
+    with engine.lock:
+        m.submit(HomeCmd(1, RAMP), rig.clock.now())
+    deadline = rig.clock.now() + 10.0
+    while m.state is not MotorState.IDLE:
+        assert rig.clock.now() < deadline, "stall homing did not finish"
+        poll_drivers(rig, engine, 0.01)
+    assert m.fault is None
+    assert rig.models[0].physical == pytest.approx(2200, abs=10)
+    assert m.position == 0
+
+
+def test_engine_faults_on_spi_failure_without_raising() -> None:
+    rig, engine = engine_rig()
+    m = engine.motors[0]
+    with engine.lock:
+        m.submit(MoveToCmd(50_000, RAMP), rig.clock.now())
+    engine.run_until(rig.clock.now() + 0.2)
+    rig.kernel.fail_xfers = 10_000
+    engine.run_until(rig.clock.now() + 0.2)
+    assert m.state is MotorState.FAULT and m.position_lost
+    assert m.fault is not None and "/dev/spidev0.0" in m.fault
+
+
+def test_with_ramp_motors_splits_only_when_a_ramp_chip_is_configured() -> None:
+    rig = Rig()
+    steps = Recorder(2)
+    assert with_ramp_motors(steps, [object(), object()], rig.clock) is steps
+    split = with_ramp_motors(steps, [object(), rig.chips[0]], rig.clock)
+    assert isinstance(split, SplitExecutor)
+    assert split.routes[0] == (steps, 0)
+    ramp_ex, local = split.routes[1]
+    assert isinstance(ramp_ex, RampExecutor) and local == 0 and ramp_ex.chips == rig.chips
+
+
+def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
+    rig, engine = engine_rig()
+    m = engine.motors[0]
+    with engine.lock:
+        m.submit(MoveToCmd(8000, RAMP), rig.clock.now())
+    engine.run_until(rig.clock.now() + 0.3)
+    rig.models[0].power_cycle()
+    for _ in range(20):
+        rig.chips[0].poll()  # the driver monitor notices, reconfigures the chip
+        engine.run_until(rig.clock.now() + 0.01)
+    assert m.state is MotorState.FAULT and m.position_lost
+    assert m.fault is not None and "reset" in m.fault
+
+
+def test_positions_are_xactual_from_construction_for_a_restore_before_start() -> None:
+    rig = Rig()
+    rig.chips[0].set_position(12_345)  # where an earlier daemon left the chip
+    ex = RampExecutor(rig.chips, rig.clock)
+    assert ex.position(0) == 12_345  # before start(): the daemon restores offsets now
