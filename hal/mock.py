@@ -60,14 +60,22 @@ class Timeline:
     def __init__(self, maxlen: int | None = 100_000) -> None:
         self.events: deque[Event] = deque(maxlen=maxlen)
         self.counts: dict[EventKind, int] = {}
+        # The executor records while tests and status read: copying a deque is not atomic
+        # (a collection during the copy can switch threads: "deque mutated during
+        # iteration"), so both sides take this lock for a few hundred nanoseconds.
+        self._lock = threading.Lock()
 
     def record(self, t: float, kind: EventKind, index: int, value: Any) -> None:
-        self.events.append(Event(t, kind, index, value))
-        self.counts[kind] = self.counts.get(kind, 0) + 1
+        with self._lock:
+            self.events.append(Event(t, kind, index, value))
+            self.counts[kind] = self.counts.get(kind, 0) + 1
+
+    def snapshot(self) -> tuple[Event, ...]:
+        with self._lock:
+            return tuple(self.events)
 
     def of(self, kind: EventKind, index: int | None = None) -> list[Event]:
-        # tuple() copies in one C call, so another thread appending meanwhile is harmless
-        return [e for e in tuple(self.events)
+        return [e for e in self.snapshot()
                 if e.kind == kind and (index is None or e.index == index)]
 
     def step_times(self, motor: int) -> list[float]:
@@ -350,7 +358,7 @@ class MockWorld:
 
     def dump_timeline(self, path: str) -> None:
         with open(path, "w", encoding="utf-8") as f:
-            for e in tuple(self.timeline.events):
+            for e in self.timeline.snapshot():
                 f.write(json.dumps([e.t, e.kind, e.index, e.value]) + "\n")
 
     def wired_to(self, number: int) -> MockPin | None:

@@ -130,7 +130,7 @@ class MockHarness(Harness):
         self.mark = len(self._w().timeline.events)
 
     def steps(self, motor: int) -> int:
-        events = list(self._w().timeline.events)[self.mark:]
+        events = list(self._w().timeline.snapshot())[self.mark:]
         return sum(1 for e in events if e.kind == EventKind.STEP and e.index == motor)
 
     def bridge(self) -> BridgeState:
