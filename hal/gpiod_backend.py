@@ -342,7 +342,9 @@ def build(spec: HardwareSpec, clock: Clock, *, for_probe: bool = False) -> Hardw
     step executor's: :func:`build_step_io`). Every configured line is found and checked first."""
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
-    found = resolve(api, wiring, lambda use: not _is_motor_line(use))
+    # every line, the step executor's too: it may open them in another process, where an
+    # error could only say that the process failed
+    found = resolve(api, wiring)
     consumer = wiring.consumer
     hw = GpiodHardware(clock, [StepperHardware(NoDriver()) for _ in spec.axes], {}, None,
                        api=api, lines=list(found.values()))
