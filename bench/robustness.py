@@ -69,6 +69,7 @@ run_speed_factor = 100.0
 [step_thread]
 priority = 0
 lock_memory = false
+max_lateness_us = 5000000.0  # as the test daemons: a loaded machine is not a lost step
 [dc]
 [mock]
 wires = [[0, 4], [1, 5], [2, 6], [3, 7]]
@@ -433,6 +434,9 @@ class Baseline:
             ask(p, cmd(STOP, m, 1), r, "StopMove")  # ends motion, clears faults
         for m in range(3):
             ask(p, cmd(STOP, m, 1), r, "StopMove")  # a second time: the fault is clear now
+        # The step executor confirms a stop a moment later: wait for motor 0 to be at rest.
+        if (w := wait_idle(p, 0, r, 5.0)) != ok():
+            r.violation(f"motor 0 not at rest 5 s after a hard StopMove: {w.hex()}")
         self.pos0 = pos_of(ask(p, cmd(GET_POS, 0), r, "GetAbsPos(0)"))
         self.pins = {n: ask(p, cmd(GET_PIN, n), r, "GetPin") for n in range(8)}
 
@@ -568,7 +572,7 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                 if port.stall > GAP_S:
                     recover_from_host_stall(port, report, "byte by byte")
                     report.skipped_frames += len(frames)
-                    frames = []
+                    frames, answers = [], []
                 data = port.take(5 * len(frames))
                 each = [data[i : i + 5] for i in range(0, len(data), 5)]
                 if len(each) != len(answers) or any(
