@@ -57,6 +57,10 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("-n", type=int, default=5000, help="round trips per peer and round")
     ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("--motion", type=int, default=0, metavar="STEPS_PER_S",
+                    help="run 3 motors at this many step/s each during the daemon's rounds "
+                    "(issue 7: 25000); the echo peer's rounds are the reference")
+    ap.add_argument("--executor", default="process", choices=("process", "thread"))
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
     frame = encode_command(IsReady(0), CodecOptions())
@@ -67,8 +71,18 @@ def main() -> int:
                                  str(echo_link)], stdout=subprocess.PIPE)
         assert echo.stdout is not None
         echo.stdout.readline()
-        daemon = DaemonProcess(work).start()
+        config = None
+        if args.motion:
+            from bench.steps import config_text
+
+            config = config_text(50, 0, args.executor)  # run_speed_factor 1000: SPEED kHz
+        daemon = DaemonProcess(work, config).start()
         try:
+            if args.motion:
+                with daemon.client() as c:
+                    for m in range(3):
+                        c.move(m, True, speed=args.motion // 1000)
+                time.sleep(0.5)
             echo_t: list[float] = []
             daemon_t: list[float] = []
             for _ in range(args.rounds):  # interleaved rounds: drift hits both alike
@@ -85,6 +99,10 @@ def main() -> int:
         "processing": status["link"]["processing"],
     }
     result["p99_ratio"] = round(result["daemon"]["p99_us"] / result["echo_peer"]["p99_us"], 2)
+    result["motion_steps_per_s_per_motor"] = args.motion
+    result["executor"] = args.executor
+    result["daemon_p99_us"] = result["daemon"]["p99_us"]
+    result["echo_p99_us"] = result["echo_peer"]["p99_us"]
     result["p50_ratio"] = round(result["daemon"]["p50_us"] / result["echo_peer"]["p50_us"], 2)
     e, d, p = result["echo_peer"], result["daemon"], result["processing"]
     print(f"IsReady round trip over a PTY, {len(daemon_t)} each:")

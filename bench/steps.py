@@ -1,17 +1,24 @@
-"""Step-edge lateness of motorctld's step thread against cyclictest, in one run.
+"""Step-edge lateness of motorctld's step executor against cyclictest, in one run.
 
-Lateness is measured inside the daemon: the mock GPIO timestamps each step write and the
-step thread records (edge time - planned time) in a 1 us histogram, read over the status
-socket at the start and end of a steady-state window. Scenarios, all on the same CPU:
+Lateness is measured inside the executor: the mock GPIO is written and the step core
+records (edge time - planned time) in a 1 us histogram, read over the status socket at the
+start and end of a steady-state window. Scenarios, all with the executor on the same CPU:
 
   cyclictest   cyclictest -m -p PRIO -i PERIOD -a CPU (rt-tests), the reference
   idle         3 motors running, no traffic on the PTY
   flood        the same while a client floods the daemon with commands over its PTY
+  status       the same while a client reads the status socket 1,000 times a second
   sweep        aggregate step rates over 3 motors: the highest whose p99 stays within
                1.5x cyclictest's p99
+  stall        one motor at 5,000 step/s, the executor stopped for 50 ms (SIGSTOP/SIGCONT
+               of the executor process; of the whole daemon for the thread kind): the fault
+               must be latched and no two steps closer than the profile's bound
+  cost         CPU time per step of the step core (in this process, mock lines)
 
-Targets: idle p99 <= 1.2x cyclictest p99; flood p99 <= 1.5x idle p99; >= 50,000 steps/s.
-Needs root (SCHED_FIFO) and rt-tests (apt-get install rt-tests).
+Targets: idle p99 <= 1.2x cyclictest p99; flood and status p99 <= 1.5x idle p99;
+>= 100,000 steps/s within 1.5x cyclictest p99. Needs root (SCHED_FIFO) and rt-tests
+(apt-get install rt-tests). With --unlimited-rt it sets kernel.sched_rt_runtime_us=-1 for
+the run and restores it.
 """
 
 from __future__ import annotations
@@ -20,6 +27,7 @@ import argparse
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import tempfile
@@ -40,6 +48,8 @@ run_speed_factor = 1000.0      # SPEED byte n = n*1000 step/s, so the sweep can 
 [step_thread]
 priority = {prio}
 cpu = {cpu}
+executor = "{kind}"
+max_lateness_us = {lateness}
 [[motors]]
 name = "a"
 max_speed = 100000.0
@@ -52,9 +62,10 @@ default_decel = 500000.0
 """
 
 
-def config_text(prio: int, cpu: int) -> str:
+def config_text(prio: int, cpu: int, kind: str = "process", lateness: float = 1e7) -> str:
     one = CONFIG.split("[[motors]]")[1]
-    head = CONFIG.split("[[motors]]")[0].format(prio=prio, cpu=cpu)
+    head = CONFIG.split("[[motors]]")[0].format(prio=prio, cpu=cpu, kind=kind,
+                                                lateness=lateness)
     return head + "".join("[[motors]]" + one.replace('"a"', f'"{n}"') for n in "abc")
 
 
@@ -112,9 +123,26 @@ def flood(port: str, seconds: float, cpu: int) -> subprocess.Popen[bytes]:
     return subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE)
 
 
+def status_reader(state_dir: Path, seconds: float, per_s: int) -> subprocess.Popen[bytes]:
+    code = (
+        "import time\n"
+        "from pathlib import Path\n"
+        "from motorctl.daemon.status import read_status\n"
+        f"p=Path({str(state_dir / 'status.sock')!r}); end=time.monotonic()+{seconds}; n=0\n"
+        f"period=1/{per_s}; nxt=time.monotonic()\n"
+        "while time.monotonic()<end:\n"
+        "    read_status(p); n+=1; nxt+=period\n"
+        "    d=nxt-time.monotonic()\n"
+        "    if d>0: time.sleep(d)\n"
+        "print(n)\n"
+    )
+    return subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE)
+
+
 def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: int,
-               flood_cpu: int | None) -> dict[str, Any]:
-    d = DaemonProcess(work, config_text(prio, cpu))  # the daemon pins its step thread
+               flood_cpu: int | None, kind: str = "process",
+               status_per_s: int = 0) -> dict[str, Any]:
+    d = DaemonProcess(work, config_text(prio, cpu, kind))  # the daemon pins its executor
     d.start()
     try:
         with d.client() as c:
@@ -123,6 +151,8 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
             time.sleep(0.5)  # ramps done: the window starts in steady state
             before = hist_of(d.status())
             flooder = flood(str(d.pty), seconds, flood_cpu) if flood_cpu is not None else None
+            if status_per_s:
+                flooder = status_reader(d.state_dir, seconds, status_per_s)
             t0 = time.monotonic()
             if flooder is not None:
                 out, _ = flooder.communicate(timeout=seconds + 30)
@@ -144,68 +174,167 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
     result["late_steps_total"] = status["steps"]["late"]
     if flood_cpu is not None:
         result["flood_commands_per_s"] = round(commands / elapsed)
+    if status_per_s:
+        result["status_reads_per_s"] = round(commands / elapsed)
+    result["timing_lost"] = status["steps"].get("timing_lost", 0)
     return result
+
+
+def stall(work: Path, prio: int, cpu: int, kind: str) -> dict[str, Any]:
+    """50 ms without the executor while a motor runs at 5,000 step/s (max lateness 2 ms)."""
+    d = DaemonProcess(work, config_text(prio, cpu, kind, lateness=2000.0))
+    d.start()
+    try:
+        with d.client() as c:
+            c.move(0, True, speed=5)  # 5 x 1000 step/s
+            time.sleep(0.5)
+            st = d.status()
+            pid = st["executor"]["pid"] if kind == "process" else d.proc.pid  # type: ignore[union-attr]
+            os.kill(pid, signal.SIGSTOP)
+            time.sleep(0.05)
+            os.kill(pid, signal.SIGCONT)
+            time.sleep(0.5)
+            st = d.status()
+    finally:
+        d.close()
+        shutil.rmtree(work / "state", ignore_errors=True)
+    fault = st["motors"][0]["fault"] or ""
+    return {
+        "fault": fault,
+        "fault_latched": fault.startswith("step timing lost"),
+        "position_lost": st["motors"][0]["position_lost"],
+        "min_gap_us": st["steps"]["min_gap_ns"] / 1000,
+        "profile_bound_us": round((1 / 100_000.0 - 5e-6) * 1e6, 1),
+    }
+
+
+def core_cost_us(steps: int = 30_000) -> float:
+    """CPU time per step of the step core on mock lines (3 motors), in this process."""
+    from motorctl.hal.interfaces import VirtualClock
+    from motorctl.hal.mock import build, build_step_io
+    from motorctl.hal.spec import AxisSpec, HardwareSpec
+    from motorctl.motion.executor import AxisLimits
+    from motorctl.motion.latency import LatencyStats
+    from motorctl.motion.segments import StepSegment
+    from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+
+    clock = VirtualClock()
+    far = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
+    spec = HardwareSpec(axes=(far,) * 3, options={"timeline_len": 1000})
+    hw = build(spec, clock)
+    inbox = CoreInbox(3)
+    core = StepCore(build_step_io(spec, clock, hw), [AxisLimits(1e-6, 1.0)] * 3, inbox,
+                    lambda e: None, positions=[0] * 3, levels=[0] * 6,
+                    counters=[0] * len(COUNTER_NAMES), stats=LatencyStats())
+    start = round(clock.now() * 1e9) + 1000
+    for m in range(3):
+        inbox.queues[m].append(StepSegment(start, 10_000 + 7 * m, steps // 3, 0, 1, 0))
+    core.refill()
+    t = time.process_time()
+    while (d := core.deadline()) is not None:
+        clock.advance_to(d / 1e9)
+        core.step(d)
+    return round((time.process_time() - t) / steps * 1e6, 2)
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--seconds", type=float, default=5.0, help="length of each window")
     ap.add_argument("--prio", type=int, default=50)
-    ap.add_argument("--cpu", type=int, default=0)
+    ap.add_argument("--cpu", type=int, default=0, help="the executor's CPU")
     ap.add_argument("--period-us", type=int, default=100, help="cyclictest interval")
-    ap.add_argument("--rate", type=int, default=10000, help="step/s per motor, idle and flood")
-    ap.add_argument("--sweep", default="5000,10000,15000,20000,25000",
+    ap.add_argument("--rate", type=int, default=10000, help="step/s per motor, idle/flood/status")
+    ap.add_argument("--sweep", default="10000,20000,30000,35000,40000",
                     help="step/s per motor to try (x3 aggregate)")
-    ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
+    ap.add_argument("--executor", default="process", choices=("process", "thread"))
+    ap.add_argument("--unlimited-rt", action="store_true",
+                    help="set kernel.sched_rt_runtime_us=-1 for the run (restored after)")
+    ap.add_argument("--json", metavar="FILE", help="write the figures as JSON (flat keys)")
     args = ap.parse_args()
     if os.geteuid() != 0:
         print("note: not root: SCHED_FIFO will be refused, figures are best effort")
+    old_rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
+    if args.unlimited_rt and RT_RUNTIME.exists():
+        RT_RUNTIME.write_text("-1\n")
+    try:
+        figures = measure(args)
+    finally:
+        if args.unlimited_rt and RT_RUNTIME.exists():
+            RT_RUNTIME.write_text(old_rt + "\n")
+    figures["sched_rt_runtime_us_before"] = old_rt
+    if args.json:
+        Path(args.json).write_text(json.dumps(figures, indent=1))
+    return 0
+
+
+def measure(args: argparse.Namespace) -> dict[str, Any]:
     rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
-    figures: dict[str, Any] = {"sched_rt_runtime_us": rt, "cpu": args.cpu,
-                               "priority": args.prio}
+    kind = args.executor
+    fig: dict[str, Any] = {"executor": kind, "sched_rt_runtime_us": rt, "cpu": args.cpu,
+                           "priority": args.prio, "seconds": args.seconds,
+                           "load_average_1m": os.getloadavg()[0]}
     flood_cpu = (args.cpu + 1) % (os.cpu_count() or 1)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        figures["cyclictest"] = ct = cyclictest(args.prio, args.period_us, args.seconds, args.cpu)
-        figures["idle"] = idle = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu,
-                                            None)
-        figures["flood"] = fl = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu,
-                                           flood_cpu)
+        ct = cyclictest(args.prio, args.period_us, args.seconds, args.cpu)
+        idle = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, None, kind)
+        fl = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, flood_cpu, kind)
+        stq = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, None, kind,
+                         status_per_s=1000)
         sweep = []
         best = 0
         for per_motor in (int(x) for x in args.sweep.split(",")):
-            r = run_daemon(work, args.prio, per_motor, args.seconds, args.cpu, None)
+            r = run_daemon(work, args.prio, per_motor, args.seconds, args.cpu, None, kind)
             r["per_motor"] = per_motor
             r["within_1_5x_cyclictest"] = r.get("p99_us", 1e9) <= 1.5 * max(ct["p99_us"], 1.0)
             sweep.append(r)
             if r["within_1_5x_cyclictest"]:
                 best = max(best, r["rate_steps_per_s"])
-        figures["sweep"] = sweep
-        figures["best_rate_within_1_5x"] = best
-    figures["idle_vs_cyclictest_p99"] = round(idle["p99_us"] / max(ct["p99_us"], 1.0), 2)
-    figures["flood_vs_idle_p99"] = round(fl["p99_us"] / max(idle["p99_us"], 1.0), 2)
+        stl = stall(work, args.prio, args.cpu, kind)
+    cost = core_cost_us()
+    for name, r in (("cyclictest", ct), ("idle", idle), ("flood", fl), ("status", stq)):
+        for k in ("p50_us", "p99_us", "p999_us", "max_us", "rate_steps_per_s"):
+            if k in r:
+                fig[f"{name}_{k}"] = r[k]
+    fig["flood_commands_per_s"] = fl.get("flood_commands_per_s", 0)
+    fig["status_reads_per_s"] = stq.get("status_reads_per_s", 0)
+    for r in sweep:
+        fig[f"sweep_{3 * r['per_motor']}_p99_us"] = r.get("p99_us", 0)
+        fig[f"sweep_{3 * r['per_motor']}_rate_steps_per_s"] = r["rate_steps_per_s"]
+    fig["best_rate_within_1_5x"] = best
+    fig["idle_vs_cyclictest_p99"] = round(idle["p99_us"] / max(ct["p99_us"], 1.0), 2)
+    fig["flood_vs_idle_p99"] = round(fl["p99_us"] / max(idle["p99_us"], 1.0), 2)
+    fig["status_vs_idle_p99"] = round(stq["p99_us"] / max(idle["p99_us"], 1.0), 2)
+    fig["stall_fault_latched"] = stl["fault_latched"]
+    fig["stall_position_lost"] = stl["position_lost"]
+    fig["stall_min_gap_us"] = stl["min_gap_us"]
+    fig["stall_profile_bound_us"] = stl["profile_bound_us"]
+    fig["executor_step_cost_us"] = cost
+    fig["timing_lost_in_windows"] = sum(r.get("timing_lost", 0) for r in (idle, fl, stq))
 
     def row(name: str, r: dict[str, Any]) -> str:
-        return (f"  {name:<22} p50 {r.get('p50_us', 0):7.0f}  p99 {r.get('p99_us', 0):7.0f}  "
+        return (f"  {name:<24} p50 {r.get('p50_us', 0):7.0f}  p99 {r.get('p99_us', 0):7.0f}  "
                 f"p99.9 {r.get('p999_us', 0):7.0f}  max {r.get('max_us', 0):7.0f} us"
                 + (f"  ({r['rate_steps_per_s']} steps/s)" if "rate_steps_per_s" in r else ""))
 
-    print(f"step-edge lateness, CPU {args.cpu}, SCHED_FIFO {args.prio}, "
-          f"sched_rt_runtime_us {rt}:")
+    print(f"step-edge lateness, {kind} executor on CPU {args.cpu}, SCHED_FIFO {args.prio}, "
+          f"sched_rt_runtime_us {rt}, load average {fig['load_average_1m']:.1f}:")
     print(row(f"cyclictest -i {args.period_us}", ct))
-    print(row(f"motorctld idle 3x{args.rate}", idle))
-    print(row("motorctld under flood", fl)
-          + f"  [{fl.get('flood_commands_per_s', 0)} commands/s]")
+    print(row(f"idle 3x{args.rate}", idle))
+    print(row("under a command flood", fl) + f"  [{fig['flood_commands_per_s']} commands/s]")
+    print(row("under status reads", stq) + f"  [{fig['status_reads_per_s']} reads/s]")
     for r in sweep:
         print(row(f"sweep 3x{r['per_motor']}", r)
               + ("" if r["within_1_5x_cyclictest"] else "  > 1.5x cyclictest"))
-    print(f"idle p99 / cyclictest p99 = {figures['idle_vs_cyclictest_p99']} (target <= 1.2)")
-    print(f"flood p99 / idle p99 = {figures['flood_vs_idle_p99']} (target <= 1.5)")
+    print(f"idle p99 / cyclictest p99 = {fig['idle_vs_cyclictest_p99']} (target <= 1.2)")
+    print(f"flood p99 / idle p99 = {fig['flood_vs_idle_p99']} (target <= 1.5)")
+    print(f"status p99 / idle p99 = {fig['status_vs_idle_p99']} (target <= 1.5)")
     print(f"highest aggregate rate with p99 <= 1.5x cyclictest: {best} steps/s "
-          "(target >= 50000)")
-    if args.json:
-        Path(args.json).write_text(json.dumps(figures, indent=1))
-    return 0
+          "(target >= 100000)")
+    print(f"50 ms stall at 5000 step/s: fault latched {stl['fault_latched']} ({stl['fault']!r}),"
+          f" smallest gap {stl['min_gap_us']:.1f} us (bound {stl['profile_bound_us']} us)")
+    print(f"step core CPU per step: {cost} us")
+    return fig
 
 
 if __name__ == "__main__":

@@ -8,6 +8,8 @@ histogram a few steps behind its counters, never a torn value.
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from typing import Any, Protocol
 
@@ -56,6 +58,8 @@ class LatencyStats:
     @property
     def bins(self) -> list[int]:
         c = self._c
+        if isinstance(c, memoryview):
+            return c[3:CELLS].tolist()  # one C-level copy of shared memory
         return [int(c[i]) for i in range(3, CELLS)]
 
     def record(self, lateness_s: float) -> None:
@@ -71,31 +75,32 @@ class LatencyStats:
         us = ns // 1000 if ns >= 0 else 0
         c[3 + (us if us < BINS else BINS)] += 1
 
-    def percentile_us(self, q: float) -> float:
+    def percentile_us(self, q: float, bins: list[int] | None = None) -> float:
         """The q-th percentile (0..100) in microseconds, at 1 us resolution."""
-        bins = self.bins
-        count = sum(bins)
+        cum = list(itertools.accumulate(self.bins if bins is None else bins))
+        return self._percentile(q, cum)
+
+    def _percentile(self, q: float, cum: list[int]) -> float:
+        count = cum[-1] if cum else 0
         if count == 0:
             return 0.0
         exact = q / 100.0 * count
         rank = max(1, math.ceil(exact - 1e-12 * exact))  # 99.9% of 1000 is 999, not 1000
-        seen = 0
-        for us, n in enumerate(bins):
-            seen += n
-            if seen >= rank:
-                return float(us) if us < BINS else self.max_s * 1e6
-        return self.max_s * 1e6
+        us = bisect.bisect_left(cum, rank)
+        return float(us) if us < BINS else self.max_s * 1e6
 
     def histogram(self) -> dict[int, int]:
         """Non-empty bins: lateness in whole microseconds -> count (the last bin: beyond)."""
-        return {us: n for us, n in enumerate(self.bins) if n}
+        bins = self.bins
+        return {us: bins[us] for us in itertools.compress(range(len(bins)), bins)}
 
     def summary(self) -> dict[str, Any]:
+        cum = list(itertools.accumulate(self.bins))  # one snapshot for all three
         return {
             "steps": self.count,
-            "p50_us": self.percentile_us(50),
-            "p99_us": self.percentile_us(99),
-            "p999_us": self.percentile_us(99.9),
+            "p50_us": self._percentile(50, cum),
+            "p99_us": self._percentile(99, cum),
+            "p999_us": self._percentile(99.9, cum),
             "max_us": round(self.max_s * 1e6, 1),
             "late": self.late,
             "late_threshold_us": self.threshold_s * 1e6,

@@ -430,6 +430,8 @@ class ProcessStepExecutor(StepExecutor):
 
     # -- the transport ---------------------------------------------------------------------
     def _push(self, motor: int, segments: list[StepSegment]) -> None:
+        if self._closed is not None:
+            return  # closed: nothing moves any more
         ring = self.shared.segs[motor]
         pending = self.pending[motor]
         pending.extend(segments)
@@ -444,17 +446,21 @@ class ProcessStepExecutor(StepExecutor):
         self._kick()
 
     def _push_stop(self, motor: int, gen: int) -> None:
+        if self._closed is not None:
+            return
         self.pending[motor] = [s for s in self.pending[motor] if s.gen > gen]
         if not self.shared.stops.put(motor, gen):
             raise HalError("the step executor's stop ring is full")
         self._kick()
 
     def _kick(self) -> None:
-        with contextlib.suppress(BlockingIOError, OSError):
+        with contextlib.suppress(BlockingIOError, OSError, ValueError):
             os.write(self._wake_w, b"k")
 
     def _raw_events(self) -> list[ExecEvent]:
         out: list[ExecEvent] = []
+        if self._closed is not None:
+            return out
         ring = self.shared.events
         while True:
             rec = ring.get()

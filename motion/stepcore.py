@@ -31,8 +31,11 @@ from motorctl.motion.latency import Cells, LatencyStats
 from motorctl.motion.segments import StepSegment
 
 # counters cells
-PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED = range(6)
-COUNTER_NAMES = ("progress", "steps", "timing_lost", "io_errors", "endstops", "dropped")
+PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP = range(7)
+COUNTER_NAMES = ("progress", "steps", "timing_lost", "io_errors", "endstops", "dropped",
+                 "min_gap_ns")
+#: the smallest time between two steps of a motor (MIN_GAP) counts steps less than this apart
+_GAP_WINDOW = TICKS_PER_S // 10
 
 K = ExecEventKind
 #: stopped_gen after the core stopped a motor itself: every segment is dropped until the
@@ -216,6 +219,9 @@ class StepCore:
             planned = self.next_t[m]
             assert planned is not None
             stats.record_ns(rise - planned)
+            gap = rise - self.last_edge[m]
+            if gap < _GAP_WINDOW and (gap < counters[MIN_GAP] or not counters[MIN_GAP]):
+                counters[MIN_GAP] = gap
             pos[m] += self.dir[m]
             counters[STEPS] += 1
             self.prev_t[m] = planned

@@ -454,3 +454,67 @@ def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
             c.wait_moved(1, 5000)
     finally:
         d2.close()
+
+
+# -- both step executors, and the executor's death ----------------------------------------
+def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
+    from motorctl.daemon.config import default_config_text
+    from tests.daemon_proc import for_tests
+
+    text = for_tests(default_config_text(), force=True)
+    d = DaemonProcess(tmp_path, text.replace('executor = "process"', 'executor = "thread"'))
+    d.start()
+    try:
+        assert d.status()["executor"]["kind"] == "thread"
+        with d.client() as c:
+            c.move_to(0, 300)
+            c.move_to(1, -200)
+            c.wait_moved(0, 10_000)
+            c.wait_moved(1, 10_000)
+            assert (c.position(0), c.position(1)) == (300, -200)
+            c.init_move(2, False, speed=2)  # homing: the end stop at -10000 stops it
+            c.wait_moved(2, 20_000)
+            assert c.position(2) == 0
+        steps = d.status()["steps"]
+        assert steps["steps"] == 500 + 10_000 and steps["timing_lost"] == 0
+    finally:
+        assert d.terminate() == 0
+
+
+def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
+    daemon: DaemonProcess,
+) -> None:
+    import os
+    import signal
+    import time
+
+    status = daemon.status()
+    assert status["executor"]["kind"] == "process" and status["executor"]["alive"]
+    with daemon.client() as c:
+        c.move(0, True, speed=1)
+        until_moving = time.monotonic() + 10
+        while c.position(0) < 100:
+            assert time.monotonic() < until_moving
+        os.kill(status["executor"]["pid"], signal.SIGKILL)
+        deadline = time.monotonic() + 5
+        while True:  # answers go on for a grace period: E4 on every motor
+            try:
+                c.is_ready(0)
+            except DeviceError as exc:
+                assert code_of_error(exc) is E.MOTOR_ERROR
+                break
+            assert time.monotonic() < deadline, "no E4 after the executor died"
+        for m in range(3):
+            with pytest.raises(DeviceError) as info:
+                c.is_ready(m)
+            assert code_of(info) is E.MOTOR_ERROR
+        st = daemon.status()
+        assert not st["executor"]["alive"] and "died" in st["executor"]["reason"]
+        assert all(m["position_lost"] and "died" in m["fault"] for m in st["motors"])
+    assert daemon.proc is not None
+    assert daemon.proc.wait(20) == 3  # exits non-zero for the service manager to restart
+    assert "step executor" in daemon.stderr() and "died" in daemon.stderr()
+
+
+def code_of_error(exc: DeviceError) -> ErrorCode:
+    return ErrorCode(exc.code)

@@ -282,7 +282,8 @@ def test_the_process_executor_moves_and_reports_positions(
     world = world_of(engine.hw)
     assert [a.position for a in world.axes] == [400, -250]  # the shared mechanics
     assert ex.health().alive and ex.health().counters["steps"] == 650
-    ex.close()
+    engine.stop_threads()
+    ex.close()  # writes the child's timeline
     tl = read_timeline(str(timeline))
     assert len(tl.of(EventKind.STEP, 0)) == 400 and len(tl.of(EventKind.STEP, 1)) == 250
 
@@ -320,6 +321,7 @@ def test_a_stopped_executor_does_not_burst_afterwards(
     until("the fault", lambda: engine.motors[0].state is MotorState.FAULT)
     assert engine.motors[0].fault is not None
     assert engine.motors[0].fault.startswith("step timing lost")
+    engine.stop_threads()
     ex.close()
     times = read_timeline(str(timeline)).step_times(0)
     gaps = [b - a for a, b in itertools.pairwise(times)]
