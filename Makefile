@@ -1,6 +1,8 @@
 # Two commands do all set-up on a fresh Debian machine:
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
-#   make test   the test suite (what .ci/run calls)
+#   make test   the test suite (what .ci/run calls first)
+#   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
+#               builds its VM into ~/.cache/motorctl-gpio-sim on first use, as root)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
@@ -12,7 +14,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test lint bench coverage robustness clean venv deb deb-deps test-deb
+.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb
 
 venv: $(VENV)/.installed
 
@@ -32,6 +34,9 @@ test: venv
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
+
+test-hw:
+	hwtest/run all
 
 # Unit coverage of the daemon's modules (the link, its session, state, service, status).
 coverage: venv

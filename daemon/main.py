@@ -40,7 +40,7 @@ from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
-from motorctl.hal.registry import open_hardware
+from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.hal.tmc import TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
@@ -77,6 +77,7 @@ def hardware_spec(config: Config) -> HardwareSpec:
             endstop_active_low=m.endstop.active_low,
             endstop_min=m.section(MockAxisConfig).endstop_min,
             endstop_max=m.section(MockAxisConfig).endstop_max,
+            endstop_debounce_s=m.endstop.debounce_ms / 1000.0,
             name=m.name,
             driver=driver_spec(m),
             dir_setup_s=st.dir_setup_us / 1e6,
@@ -356,6 +357,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--print-default-config", action="store_true",
                    help="print the embedded default config, every key written out and "
                    "commented, and exit")
+    p.add_argument("--probe", action="store_true",
+                   help="open every line and device the --config names, without moving "
+                   "anything; print chips, lines and their current consumers, end-stop levels "
+                   "and driver status; exit 1 if something is missing or busy")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
                    help="the runtime directory: lock, status socket and, unless [state] "
                    "directory says otherwise, the state file (default /run/motorctl)")
@@ -383,6 +388,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"{args.check_config}: OK ({len(cfg.motors)} motors, {len(cfg.pins)} pins, "
               f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})")
         return 0
+    if args.probe:
+        return probe(args.config)
     if args.status:
         try:
             import json
@@ -403,6 +410,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+
+
+def probe(config_path: str | None) -> int:
+    """``--probe``: what the configured hardware looks like, moving nothing."""
+    try:
+        config = load_config(config_path)
+    except ConfigError as exc:
+        print(f"error: {exc}", file=sys.stderr)
+        return 1
+    report = probe_hardware(config.hal.backend, hardware_spec(config), MonotonicClock())
+    print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
+    sys.stdout.write(report.text())
+    return 1 if report.problems else 0
 
 
 def build_executor(

@@ -30,6 +30,11 @@ Adding a backend's config section:
      passes every backend's sections along in the HardwareSpec; daemon/main.hardware_spec);
   4. regenerate docs/config.md: ``python -m motorctl.daemon.config.docs --write``.
 
+A backend module may also define ``probe(spec, clock, report)``: it opens what the config
+names without moving anything and adds what it found to a `ProbeReport` (``motorctld
+--probe``). Other layers (an SPI driver layer, for example) add their part through
+`PROBES`, each run when its ``applies(spec)`` says the config uses it.
+
 The registry is a constant; lookups are pure and thread-safe.
 """
 
@@ -43,8 +48,10 @@ from typing import Any, cast
 
 from motorctl.hal.interfaces import Clock, HalError, Hardware, StepIO
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.wiring import ProbeReport
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
+Prober = Callable[[HardwareSpec, Clock, ProbeReport], None]
 StepIOBuilder = Callable[[HardwareSpec, Clock, Hardware | None], StepIO]
 
 
@@ -62,6 +69,22 @@ BACKENDS: dict[str, Backend] = {
     "mock": Backend(
         "motorctl.hal.mock", "build", "nothing: it is part of motorctl", "motorctl.hal.mock_config"
     ),
+    "gpiod": Backend(
+        "motorctl.hal.gpiod_backend",
+        "build",
+        "libgpiod's Python binding: pip install 'motorctl[hardware]' (gpiod>=2) or "
+        "apt install python3-libgpiod",
+        "motorctl.hal.gpiod_config",
+    ),
+}
+
+def _has_drivers(spec: HardwareSpec) -> bool:
+    return any(a.driver is not None for a in spec.axes)
+
+
+#: extra probe hooks: name -> (module, function, applies(spec)); run after the backend's own
+PROBES: dict[str, tuple[str, str, Callable[[HardwareSpec], bool]]] = {
+    "spidev": ("motorctl.hal.tmc_backend", "probe", _has_drivers),
 }
 
 
@@ -112,6 +135,30 @@ def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
             hw.close()
             raise
     return hw
+
+
+def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeReport:
+    """Everything the backend (and each applicable extra probe) finds; problems are listed
+    in the report, not raised, so one missing device does not hide the rest."""
+    report = ProbeReport()
+    try:
+        module = _module(backend)
+        own = cast(Prober | None, getattr(module, "probe", None))
+        if own is None:
+            report.add(f"backend {backend}", ["nothing to probe: no hardware is opened"])
+        else:
+            own(spec, clock, report)
+    except HalError as exc:
+        report.problems.append(str(exc))
+    for name, (module_name, func_name, applies) in sorted(PROBES.items()):
+        if not applies(spec):
+            continue
+        try:
+            extra = cast(Prober, getattr(importlib.import_module(module_name), func_name))
+            extra(spec, clock, report)
+        except (HalError, ImportError) as exc:
+            report.problems.append(f"{name}: {exc}")
+    return report
 
 
 def open_step_io(

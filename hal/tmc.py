@@ -784,6 +784,12 @@ class RampUnits:
         v = round(abs(steps_s2) * (1 << 41) / (self.clock_hz * self.clock_hz))
         return max(1, min(self.AMAX_MAX, v))
 
+    def decel(self, steps_s2: float) -> int:
+        """As :meth:`accel`, rounded up: the chip brakes at least as hard as planned, so a
+        stop planned by the engine never overshoots its target for rounding."""
+        v = math.ceil(abs(steps_s2) * (1 << 41) / (self.clock_hz * self.clock_hz) - 1e-9)
+        return max(1, min(self.AMAX_MAX, v))
+
     def steps_s(self, vreg: int) -> float:
         return vreg * self.clock_hz / (1 << 24)
 
@@ -908,7 +914,7 @@ class Tmc5160(TmcDriver):
         return status
 
     def _ramps(self, acc: float, dec: float) -> None:
-        a, d = self.units.accel(acc), self.units.accel(dec)
+        a, d = self.units.accel(acc), self.units.decel(dec)
         self.link.write(Reg.AMAX, a)
         self.link.write(Reg.A1, a)
         self.link.write(Reg.DMAX, d)
@@ -933,7 +939,7 @@ class Tmc5160(TmcDriver):
     def stop(self, dec: float | None) -> None:
         """Stop along ``dec`` (steps/s^2), or as hard as the chip can (``None``)."""
         with self.device.session():
-            a = self.units.AMAX_MAX if dec is None else self.units.accel(dec)
+            a = self.units.AMAX_MAX if dec is None else self.units.decel(dec)
             state = self.state()
             self.link.write(Reg.AMAX, a)
             self.link.write(Reg.DMAX, a)

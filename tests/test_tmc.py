@@ -470,6 +470,8 @@ def test_ramp_units_follow_the_datasheet() -> None:
     assert u.steps_s(u.velocity(2000.0)) == pytest.approx(2000.0, abs=0.8)
     assert u.accel(8000.0) == round(8000 * 2**41 / 12e6**2)
     assert u.steps_s2(u.accel(8000.0)) == pytest.approx(8000.0, rel=0.01)
+    assert u.decel(8000.0) == math.ceil(8000 * 2**41 / 12e6**2)  # brakes at least as planned
+    assert u.steps_s2(u.decel(8000.0)) >= 8000.0
     assert u.velocity(1e9) == (1 << 23) - 512  # clamped to the register's range
     assert u.accel(1e12) == 65535 and u.accel(0.0) == 1
 

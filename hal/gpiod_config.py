@@ -1,0 +1,239 @@
+"""The gpiod backend's config sections: [gpiod] (binding, consumer, the H-bridge's lines),
+[motors.gpiod] (a motor's STEP/DIR/ENABLE and end-stop lines) and [pins.gpiod] (a pin's line).
+
+Declared here and registered in `motorctl.hal.registry.BACKENDS`; imports no hardware library,
+so a config can be checked on any machine. `wiring_from` turns the loaded sections into the
+backend's `GpioWiring`; the rule below checks, before anything opens, that every motor and
+pin is wired and that no line is written twice.
+
+Pure declarations and functions: no state, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, TypeVar, cast
+
+from motorctl.hal.wiring import (
+    BIASES,
+    BRIDGE_STOPS,
+    DcWiring,
+    EndstopWiring,
+    GpioWiring,
+    LineRef,
+    MotorWiring,
+    PinWiring,
+    PwmWiring,
+)
+from motorctl.schema import (
+    REQUIRED,
+    Extension,
+    Parser,
+    Rule,
+    Violation,
+    boolean,
+    choice,
+    integer,
+    number,
+    section,
+    table,
+    table_of,
+    text,
+)
+
+S = TypeVar("S")
+
+LINE_TEXT = 'a GPIO line: "chip:offset" (gpiochip0:17, /dev/gpiochip0:17) or a line name (GPIO17)'
+
+
+def _line(value: str) -> str | None:
+    try:
+        LineRef.parse(value)
+    except ValueError:
+        return "not a GPIO line"
+    return None
+
+
+def _line_or_empty(value: str) -> str | None:
+    return None if value == "" else _line(value)
+
+
+def _line_key(default: Any, doc: str) -> Any:
+    if default == "":
+        return text("", doc, check=_line_or_empty, check_text=f'"" (not wired) or {LINE_TEXT}')
+    return text(default, doc, check=_line, check_text=LINE_TEXT)
+
+
+@section("A kernel PWM channel on the bridge's EN input (sysfs), instead of an EN line.")
+@dataclass(frozen=True)
+class GpiodPwmConfig:
+    """[gpiod.dc.pwm]"""
+
+    chip: int = integer(REQUIRED, 0, 255, "N of /sys/class/pwm/pwmchipN.")
+    channel: int = integer(REQUIRED, 0, 255, "M of pwmchipN/pwmM.")
+    period_ns: int = integer(50_000, 1_000, 1_000_000_000, "PWM period in ns (50000 = 20 kHz).")
+    duty: float = number(1.0, 0.0, 1.0, "Duty cycle while the motor runs (the speed).")
+    sysfs: str = text("/sys/class/pwm", "Where the kernel's PWM class is.")
+
+
+@section(
+    "The DC motor's H-bridge lines.",
+    notes="""\
+FORWARD drives IN1 high and IN2 low, REVERSE the opposite; BRAKE drives both high (EN high),
+COAST both low and EN low where EN is wired. A DcMove that reverses a running motor first
+holds `reverse_via` for `dead_time_ms`.""",
+)
+@dataclass(frozen=True)
+class GpiodDcConfig:
+    """[gpiod.dc]"""
+
+    in1: str = _line_key(REQUIRED, "The bridge's IN1 line.")
+    in2: str = _line_key(REQUIRED, "The bridge's IN2 line.")
+    en: str = _line_key("", "The bridge's EN line; empty: not wired (EN tied high).")
+    dead_time_ms: float = number(0.0, 0, 10_000, "A reversal passes through reverse_via this "
+                                 "long.")
+    reverse_via: str = choice("coast", BRIDGE_STOPS, "The state a reversal passes through.")
+    pwm: GpiodPwmConfig | None = table(GpiodPwmConfig, absent=None, absent_text="no PWM")
+
+
+@section(
+    "The gpiod backend: real GPIO lines through libgpiod (docs/hardware.md).",
+    notes="""\
+A line is written as the kernel names it: `gpiochip0:17` (chip and offset; the chip may
+also be `/dev/gpiochip0` or its label) or a line name such as `GPIO17` that `gpioinfo`
+shows, looked up across all chips. Every line is checked before any is requested: a line
+written twice, a missing chip or line, a line held by another program (named) and a
+permission problem (with the group to join) are errors.""",
+)
+@dataclass(frozen=True)
+class GpiodConfig:
+    """[gpiod]"""
+
+    api: str = choice("auto", ("auto", "v1", "v2"), "libgpiod Python API: v1 (Debian bookworm "
+                      "python3-libgpiod 1.6), v2 (gpiod >= 2), or auto: whichever imports.")
+    consumer: str = text("motorctl", "The consumer name the kernel shows for our lines.",
+                         pattern=r"[!-~]{1,31}", pattern_text="1..31 characters, no spaces")
+    dc: GpiodDcConfig | None = table(GpiodDcConfig, absent=None, absent_text="no bridge wired")
+
+
+@section("The lines of one motor for the gpiod backend.")
+@dataclass(frozen=True)
+class GpiodAxisConfig:
+    """[motors.gpiod]"""
+
+    step: str = _line_key(REQUIRED, "The driver's STEP line.")
+    dir: str = _line_key(REQUIRED, "The driver's DIR line.")
+    enable: str = _line_key("", "The driver's ENABLE line (on while the daemon runs); empty: "
+                            "not wired.")
+    enable_active_low: bool = boolean(True, "ENABLE is active low (TMC drivers: EN low = on).")
+    dir_hold_us: float = number(0.0, 0, 10_000, "DIR stays this long after a STEP falls.")
+    endstop_min: str = _line_key("", "End stop below (InitMove with DIR false); empty: none. "
+                                 "Polarity: [motors.endstop] active_low.")
+    endstop_min_bias: str = choice("as-is", BIASES, "Pull on the endstop_min line.")
+    endstop_max: str = _line_key("", "End stop above; empty: none.")
+    endstop_max_bias: str = choice("as-is", BIASES, "Pull on the endstop_max line.")
+
+
+@section("The line of one pin for the gpiod backend.")
+@dataclass(frozen=True)
+class GpiodPinConfig:
+    """[pins.gpiod]"""
+
+    line: str = _line_key(REQUIRED, "The pin's line.")
+    bias: str = choice("as-is", BIASES, "Pull on the line.")
+
+
+def make(cls: type[S], **keys: Any) -> S:
+    """A section built from these keys as the config loader builds it (defaults filled in,
+    values checked): for code and tests that wire lines without a file."""
+    return cast(S, Parser(f"[{cls.__name__}]").build(table_of(cls), keys))
+
+
+class WiringMissing(ValueError):
+    """A motor, pin or the bridge has no gpiod section: (key path, problem)."""
+
+    def __init__(self, path: str, problem: str) -> None:
+        super().__init__(f"{path}: {problem}")
+        self.path = path
+        self.problem = problem
+
+
+def wiring_from(top: GpiodConfig | None, axes: Sequence[GpiodAxisConfig | None],
+                pins: Sequence[tuple[int, GpiodPinConfig | None]], dc: bool) -> GpioWiring:
+    """The backend's wiring from the loaded sections."""
+    top = top or make(GpiodConfig)
+    motors = []
+    for i, a in enumerate(axes):
+        if a is None:
+            raise WiringMissing(f"motors[{i}].gpiod", "missing: the gpiod backend needs the "
+                                "motor's step and dir lines")
+
+        def end(line: str, bias: str) -> EndstopWiring | None:
+            return EndstopWiring(LineRef.parse(line), bias) if line else None
+
+        motors.append(MotorWiring(
+            step=LineRef.parse(a.step), dir=LineRef.parse(a.dir),
+            enable=LineRef.parse(a.enable) if a.enable else None,
+            enable_active_low=a.enable_active_low,
+            endstop_min=end(a.endstop_min, a.endstop_min_bias),
+            endstop_max=end(a.endstop_max, a.endstop_max_bias),
+            dir_hold_us=a.dir_hold_us,
+        ))
+    wired = []
+    for i, (number_, p) in enumerate(pins):
+        if p is None:
+            raise WiringMissing(f"pins[{i}].gpiod", "missing: the gpiod backend needs the "
+                                "pin's line")
+        wired.append(PinWiring(number_, LineRef.parse(p.line), p.bias))
+    bridge = None
+    if dc:
+        d = top.dc
+        if d is None:
+            raise WiringMissing("gpiod.dc", "missing: [dc] configures a DC motor; wire its "
+                                "bridge in [gpiod.dc]")
+        pwm = None if d.pwm is None else PwmWiring(d.pwm.chip, d.pwm.channel, d.pwm.period_ns,
+                                                   d.pwm.duty, d.pwm.sysfs)
+        bridge = DcWiring(LineRef.parse(d.in1), LineRef.parse(d.in2),
+                          LineRef.parse(d.en) if d.en else None, d.dead_time_ms, d.reverse_via,
+                          pwm)
+    return GpioWiring(api=top.api, consumer=top.consumer, motors=tuple(motors), dc=bridge,
+                      pins=tuple(wired))
+
+
+def _wired(v: Mapping[str, Any]) -> Violation | None:
+    """With backend gpiod: every motor and pin wired, the bridge too, no line twice."""
+    if v["hal"].backend != "gpiod":
+        return None
+    try:
+        wiring = wiring_from(
+            v.get("gpiod"),
+            [m.sections.get(GpiodAxisConfig) for m in v["motors"]],
+            [(p.number, p.sections.get(GpiodPinConfig)) for p in v["pins"]],
+            v["dc"] is not None,
+        )
+    except WiringMissing as exc:
+        return (exc.path, REQUIRED, exc.problem)
+    dup = wiring.duplicates()
+    if dup:
+        return ("gpiod", REQUIRED, dup[0])
+    return None
+
+
+CONFIG_SECTIONS = (
+    Extension(
+        "",
+        "gpiod",
+        GpiodConfig,
+        owner="the gpiod backend",
+        absent=None,
+        absent_text="defaults (api auto, consumer motorctl, no bridge)",
+        rules=(Rule(("gpiod",), "with backend \"gpiod\": every motor, pin and the DC bridge "
+                    "wired, each line used once", _wired),),
+    ),
+    Extension("motors", "gpiod", GpiodAxisConfig, owner="the gpiod backend", absent=None,
+              absent_text="not wired"),
+    Extension("pins", "gpiod", GpiodPinConfig, owner="the gpiod backend", absent=None,
+              absent_text="not wired"),
+)
+"""The sections the gpiod backend adds to the config file."""

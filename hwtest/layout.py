@@ -1,0 +1,50 @@
+"""Which gpio-sim lines the tier wires to what (the VM has hwtest.gsim.BANKS/NAMES).
+
+The motors, end stops, bridge and pins of docs/examples/raspberry-pi.toml use the Raspberry
+Pi's line names (GPIO17 ...), which gpio-sim's bank 0 carries too; the contract tests add
+ENABLE lines as chip:offset and max end stops by name on the second chip, to cover every
+way of naming a line.
+"""
+
+from __future__ import annotations
+
+from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
+from motorctl.hal.wiring import LineRef
+
+#: step, dir, enable, min, max
+MOTORS = [
+    ("GPIO17", "GPIO27", "gpiochip0:28", "GPIO26", "B1_4"),
+    ("GPIO22", "GPIO23", "gpiochip0:29", "GPIO16", "B1_5"),
+    ("GPIO5", "GPIO6", "gpiochip0:30", "GPIO20", "B1_6"),
+]
+DC = ("GPIO13", "GPIO19", "GPIO21")  # IN1, IN2, EN
+PINS = ["GPIO4", "GPIO25", "GPIO18", "GPIO12", "GPIO2", "GPIO3", "GPIO0", "GPIO1"]
+
+
+def where(text: str) -> tuple[str, int]:
+    """The sim chip and offset of a line as this layout writes it."""
+    ref = LineRef.parse(text)
+    if ref.name is not None:
+        if ref.name.startswith("GPIO"):
+            return "gpiochip0", int(ref.name[4:])
+        if ref.name.startswith("B1_"):
+            return "gpiochip1", int(ref.name[3:])
+        raise LookupError(text)
+    assert ref.chip is not None and ref.offset is not None
+    return ref.chip, ref.offset
+
+
+def top_section(api: str = "auto", dead_time_ms: float = 0.0) -> GpiodConfig:
+    in1, in2, en = DC
+    return make(GpiodConfig, api=api,
+                dc={"in1": in1, "in2": in2, "en": en, "dead_time_ms": dead_time_ms})
+
+
+def axis_section(motor: int, dir_hold_us: float = 0.0) -> GpiodAxisConfig:
+    s, d, e, lo, hi = MOTORS[motor]
+    return make(GpiodAxisConfig, step=s, dir=d, enable=e, dir_hold_us=dir_hold_us,
+                endstop_min=lo, endstop_max=hi)
+
+
+def pin_section(number: int) -> GpiodPinConfig:
+    return make(GpiodPinConfig, line=PINS[number])
