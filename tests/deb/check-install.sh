@@ -34,7 +34,7 @@ if [ ! -f "$cache" ]; then
 fi
 
 cleanup() {
-  for m in dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
+  for m in dev/shm dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
   rm -rf "$root"
 }
 trap cleanup EXIT
@@ -44,6 +44,7 @@ tar -C "$root" -xf "$cache"
 mount -t proc proc "$root/proc"
 mount --bind /dev "$root/dev"
 mount --bind /dev/pts "$root/dev/pts"
+mount -t tmpfs -o mode=1777 shm "$root/dev/shm"  # POSIX shared memory (the step executor's)
 cp /etc/resolv.conf "$root/etc/resolv.conf" 2>/dev/null || true
 in_root() { chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 "$@"; }
 
@@ -105,7 +106,7 @@ in_root python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
   || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
 
 step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
-for m in dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
+for m in dev/shm dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
 cp "$here/tests/deb/report.service" "$root/etc/systemd/system/"
 cp "$here/tests/deb/report.sh" "$root/root/"
 ln -sf /etc/systemd/system/report.service "$root/etc/systemd/system/multi-user.target.wants/"
@@ -132,6 +133,7 @@ grep -q 'systemd notifications through systemd-python' "$report" || fail "not sy
 mount -t proc proc "$root/proc"
 mount --bind /dev "$root/dev"
 mount --bind /dev/pts "$root/dev/pts"
+mount -t tmpfs -o mode=1777 shm "$root/dev/shm"  # POSIX shared memory (the step executor's)
 
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
