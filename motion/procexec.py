@@ -233,7 +233,11 @@ def _child_main(
     import gc
     import signal
 
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the daemon decides when we stop
+    # The daemon decides when we stop: a service manager's SIGTERM goes to the whole control
+    # group, and an executor dying of it would fault every motor (positions lost) before the
+    # daemon's orderly shutdown ramps them down and writes the state.
+    for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(sig, signal.SIG_IGN)
     parent = os.getppid()
     _die_with_parent()
     logging.basicConfig(level=logging.INFO, format="motorctld executor %(levelname)s: %(message)s")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+import signal
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
@@ -424,6 +426,28 @@ def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
         with d2.client() as c:
             pos = c.position(0)
             assert pos > 100
+            c.move_to(0, 0)  # position still known: accepted
+            c.wait_moved(0, 10_000)
+            assert c.position(0) == 0
+    finally:
+        d2.close()
+
+
+def test_sigterm_to_the_whole_service_stops_motors_along_ramps(tmp_path: Path) -> None:
+    """systemd's stop sends SIGTERM to every process of the unit: the step executor process
+    must leave the stop to the daemon, or every stop would lose every position."""
+    d = running_daemon(tmp_path)
+    assert d.proc is not None
+    children = Path(f"/proc/{d.proc.pid}/task/{d.proc.pid}/children").read_text().split()
+    assert children, "the default (process) executor runs in a child process"
+    for pid in [d.proc.pid, *map(int, children)]:
+        os.kill(pid, signal.SIGTERM)
+    assert d.proc.wait(20) == 0
+    assert "died" not in d.stderr()
+    d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
+    try:
+        with d2.client() as c:
+            assert c.position(0) > 100
             c.move_to(0, 0)  # position still known: accepted
             c.wait_moved(0, 10_000)
             assert c.position(0) == 0
