@@ -46,6 +46,7 @@ from motorctl.hal.tmc import TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
+from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
 from motorctl.motion.ramp_executor import with_ramp_motors
@@ -228,6 +229,9 @@ class Daemon:
         health = self.engine.executor.health()
         steps = dict(health.latency)
         steps.update(health.counters)
+        stats = getattr(self.engine.executor, "stats", None)
+        if isinstance(stats, LatencyStats):
+            steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "executor": {"alive": health.alive, "reason": health.reason,
                                             "kind": self.config.step_thread.executor,

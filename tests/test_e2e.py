@@ -542,3 +542,13 @@ def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
 
 def code_of_error(exc: DeviceError) -> ErrorCode:
     return ErrorCode(exc.code)
+
+
+def test_status_has_the_step_lateness_histogram(daemon: DaemonProcess) -> None:
+    """bench/steps.py reads the executor's 1 us lateness histogram from the status."""
+    with daemon.client() as c:
+        c.move_to(0, 300)
+        c.wait_moved(0, 10_000)
+    steps = daemon.status()["steps"]
+    histogram = {int(us): n for us, n in steps["histogram_us"].items()}
+    assert sum(histogram.values()) == steps["steps"] >= 300
