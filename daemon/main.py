@@ -441,14 +441,9 @@ def build_executor(
     steps: Executor
     if hw.clock.is_virtual:  # tests drive a virtual clock themselves: the thread kind's job
         steps = ThreadStepExecutor(hw, config.hal.backend, spec, limits, max_error_s=0.0)
-    elif st.executor == "process":
-        steps = ProcessStepExecutor(
-            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
-            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
-            late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
-        )
     else:
-        steps = ThreadStepExecutor(
+        kind = ProcessStepExecutor if st.executor == "process" else ThreadStepExecutor
+        steps = kind(
             hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
             max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
             late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
