@@ -40,6 +40,10 @@ class Clock(ABC):
     def spin_until(self, deadline: float) -> float:
         """Return at ``deadline`` (busy-wait on a real clock); returns the time then."""
 
+    def now_ns(self) -> int:
+        """The time in integer nanoseconds (the step path's ticks)."""
+        return round(self.now() * 1_000_000_000)
+
     @property
     def is_virtual(self) -> bool:
         return False
@@ -48,8 +52,13 @@ class Clock(ABC):
 class MonotonicClock(Clock):
     """The system's monotonic clock (CLOCK_MONOTONIC via time.perf_counter)."""
 
-    def __init__(self, source: Callable[[], float] = time.perf_counter) -> None:
+    def __init__(self, source: Callable[[], float] = time.perf_counter,
+                 source_ns: Callable[[], int] | None = None) -> None:
         self._source = source
+        if source_ns is None and source is time.perf_counter:
+            source_ns = time.perf_counter_ns
+        if source_ns is not None:
+            self.now_ns = source_ns  # type: ignore[method-assign]  # the C function itself
 
     def now(self) -> float:
         return self._source()
@@ -149,7 +158,8 @@ class StepOutputs(ABC):
     - :meth:`pulse` raises the STEP lines of several motors whose edges fall on the same tick
       in ONE backend call (gpiod v2 ``set_values``), holds them ``width_s``, lowers them in
       one call, and returns the time right after the rising edge was written (an upper
-      bound of the edge's time).
+      bound of the edge's time). :meth:`rise` and :meth:`fall` are its two halves, for a
+      caller that works while the lines are high.
     - :meth:`set_direction` honours the DIR hold time after the last STEP fall before it
       changes DIR, and records when a step may follow (:attr:`ready_at`: the set-up time).
       The executor never raises a STEP before ``ready_at[motor]``.
@@ -196,21 +206,37 @@ class StepOutputs(ABC):
 
     def pulse(self, motors: Sequence[int], width_s: float) -> float:
         """One STEP pulse on every motor in ``motors`` at once; returns the rising edge's time."""
+        rise = self.rise(motors)
+        self.fall(motors, rise + round(width_s * 1_000_000_000))
+        return rise / 1_000_000_000
+
+    def rise(self, motors: Sequence[int]) -> int:
+        """Raise the STEP lines of ``motors`` in one call; returns the time (ns) right after.
+
+        The step executor does its accounting while the lines are high, then calls
+        :meth:`fall` with the end of the pulse width.
+        """
+        direction = self.direction
         for m in motors:
-            if self.direction[m] is None:
+            if direction[m] is None:
                 raise RuntimeError(f"step pulse on motor {m} before a direction was set")
-        clock = self.clock
         self._write_steps(motors, True)
         # the edge happened by now: spacing the next one from this upper bound keeps real
         # edges at least the profile's interval apart even if we were preempted in between
-        rise = clock.now()
+        return self.clock.now_ns()
+
+    def fall(self, motors: Sequence[int], not_before_ns: int) -> None:
+        """Lower the STEP lines of ``motors`` in one call, not before ``not_before_ns``."""
+        clock = self.clock
         if not clock.is_virtual:
-            clock.spin_until(rise + width_s)
+            now_ns = clock.now_ns
+            while now_ns() < not_before_ns:
+                pass
         self._write_steps(motors, False)
         fall = clock.now()
+        last_fall = self.last_fall
         for m in motors:
-            self.last_fall[m] = fall
-        return rise
+            last_fall[m] = fall
 
     def close(self) -> None:
         """Release the lines (STEP low); idempotent."""

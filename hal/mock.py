@@ -14,7 +14,7 @@ from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 from multiprocessing import shared_memory
-from typing import Any
+from typing import Any, NamedTuple
 
 from motorctl.hal.interfaces import (
     BridgeState,
@@ -44,9 +44,11 @@ class EventKind(enum.StrEnum):
     DC = "dc"  # the DC bridge changed state; value = the BridgeState's value
 
 
-@dataclass(frozen=True)
-class Event:
-    """One recorded change: what (``kind``), when (``t``), ``index`` the motor or pin."""
+class Event(NamedTuple):
+    """One recorded change: what (``kind``), when (``t``), ``index`` the motor or pin.
+
+    A named tuple: the step path records one per STEP edge, and a tuple is made fast.
+    """
 
     t: float
     kind: EventKind
@@ -69,6 +71,15 @@ class Timeline:
         with self._lock:
             self.events.append(Event(t, kind, index, value))
             self.counts[kind] = self.counts.get(kind, 0) + 1
+
+    def record_steps(self, t: float, motors: Sequence[int], ups: Sequence[bool | None]) -> None:
+        """One STEP event per motor in ``motors`` at ``t`` (the step path: one lock)."""
+        step = EventKind.STEP
+        with self._lock:
+            append = self.events.append
+            for m in motors:
+                append(Event(t, step, m, ups[m]))
+            self.counts[step] = self.counts.get(step, 0) + len(motors)
 
     def snapshot(self) -> tuple[Event, ...]:
         with self._lock:
@@ -100,6 +111,11 @@ class MockAxis:
         self._c = cells
         self.fault: str | None = None  # the driver chip's fault: the daemon's process only
 
+    @property
+    def cells(self) -> memoryview:
+        """The six int64 slots (the step path reads them directly)."""
+        return self._c
+
     def detach(self) -> None:
         """Keep the state in a private buffer from now on (the shared block is closing)."""
         old = self._c
@@ -113,6 +129,11 @@ class MockAxis:
     @position.setter
     def position(self, value: int) -> None:
         self._c[_POSITION] = value
+
+    def step(self, delta: int) -> None:
+        """A STEP pulse moved the axis by ``delta`` (the step path: one 8-byte store)."""
+        c = self._c
+        c[_POSITION] += delta
 
     @property
     def heading(self) -> bool | None:
@@ -183,18 +204,19 @@ class MockStepOutputs(StepOutputs):
         self._world.timeline.record(self.clock.now(), EventKind.DIR, motor, level)
 
     def _write_steps(self, motors: Sequence[int], level: bool) -> None:
-        for m in motors:
-            self._world.raise_injected("step", m)
+        world = self._world
+        if world.line_errors:
+            for m in motors:
+                world.raise_injected("step", m)
         if not level:
             return
-        world = self._world
         t = self.clock.now()
+        direction = self.direction
+        world.timeline.record_steps(t, motors, direction)
+        axes, moved = world.axes, self._inputs.moved
         for m in motors:
-            up = self.direction[m]
-            world.timeline.record(t, EventKind.STEP, m, up)
-            axis = world.axes[m]
-            axis.position = axis.position + (1 if up else -1)
-            self._inputs.moved(m, t)
+            axes[m].step(1 if direction[m] else -1)
+            moved(m, t)
 
 
 class MockEdgeInputs(EdgeInputs):
@@ -209,7 +231,9 @@ class MockEdgeInputs(EdgeInputs):
         super().__init__([f"axis{i}.{w}" for i in range(len(world.axes)) for w in ("min", "max")])
         self._world = world
         self._levels = [self._sense(line) for line in range(len(self.names))]
-        self._seen = [(a.generation, a.position) for a in world.axes]
+        self._axes = world.axes
+        self._seen_gen = [a.generation for a in world.axes]
+        self._seen_pos = [a.position for a in world.axes]
         self._pending: deque[Edge] = deque()
 
     def _sense(self, line: int) -> bool:
@@ -222,15 +246,18 @@ class MockEdgeInputs(EdgeInputs):
             self._pending.append(Edge(line, now, t))
 
     def moved(self, axis: int, t: float) -> None:
-        a = self._world.axes[axis]
-        self._seen[axis] = (a.generation, a.position)
+        c = self._axes[axis].cells
+        self._seen_gen[axis] = c[_GEN]
+        self._seen_pos[axis] = c[_POSITION]
         self._update(2 * axis, t)
         self._update(2 * axis + 1, t)
 
     def _refresh(self) -> None:
         """Levels a test changed behind the step path's back (forced, or moved by hand)."""
-        for i, axis in enumerate(self._world.axes):
-            if (axis.generation, axis.position) != self._seen[i]:
+        seen_gen, seen_pos = self._seen_gen, self._seen_pos
+        for i, axis in enumerate(self._axes):
+            c = axis.cells
+            if c[_GEN] != seen_gen[i] or c[_POSITION] != seen_pos[i]:
                 self.moved(i, self._world.clock.now())
 
     def read_edges(self) -> list[Edge]:

@@ -63,7 +63,7 @@ SEG_RING = 4096
 STOP_RING = 256
 EVENT_RING = 1024
 _SEG = struct.Struct("<qqqqqqqq")  # seq, first, interval, count, add, direction, gen, flags
-_STOP = struct.Struct("<qqq")  # seq, motor, gen
+_STOP = struct.Struct("<qqqq")  # seq, motor, gen, cut (-1: a hard stop)
 # seq, kind, motor, gen, position, t_ns, direction, speed, text
 _EVENT = struct.Struct("<qqqqqqqd120s")
 _KINDS = list(ExecEventKind)
@@ -191,7 +191,7 @@ class _ShmInbox(CoreInbox):
             rec = stops.get()
             if rec is None:
                 break
-            self.stops.append((rec[0], rec[1]))
+            self.stops.append((rec[0], rec[1], rec[2]))
         for m, ring in enumerate(sh.segs):
             if not ring.pending():
                 continue
@@ -449,11 +449,12 @@ class ProcessStepExecutor(StepExecutor):
         del pending[:sent]
         self._kick()
 
-    def _push_stop(self, motor: int, gen: int) -> None:
+    def _push_stop(self, motor: int, gen: int, cut: int = -1) -> None:
         if self._closed is not None:
             return
-        self.pending[motor] = [s for s in self.pending[motor] if s.gen > gen]
-        if not self.shared.stops.put(motor, gen):
+        self.pending[motor] = [s for s in self.pending[motor]
+                               if s.gen > gen or (cut >= 0 and s.first < cut)]
+        if not self.shared.stops.put(motor, gen, cut):
             raise HalError("the step executor's stop ring is full")
         self._kick()
 

@@ -10,7 +10,14 @@ only for the last ``spin_s`` before an edge.
 Per step: pick the motors due now, drop any whose step would be later than
 ``max_lateness`` (stop, TIMING_LOST), never step sooner than ``min_interval`` after the
 previous step nor before DIR has settled, raise the STEP lines of every due motor in one
-call, account, then look at the end stop ahead of each motor that stepped.
+call, account while they are high, lower them, then look at the end stop ahead of each
+motor that stepped. Each motor's next due time is kept up to date as its state changes, so
+finding the next edge is one ``min`` over the motors. Times are integer ns (ticks).
+
+Stops from the planner: ``(motor, gen, -1)`` drops every segment of ``gen`` and older and
+reports STOPPED (a hard stop); ``(motor, gen, cut)`` drops only those of ``gen`` and older
+that start at or after tick ``cut``, silently: a re-plan takes over there. A segment of
+``count`` 0 is a marker: the plan before it is complete (DONE when it is ``last``).
 """
 
 from __future__ import annotations
@@ -41,6 +48,8 @@ K = ExecEventKind
 #: stopped_gen after the core stopped a motor itself: every segment is dropped until the
 #: planner answers the event with a stop of a new generation
 BLOCKED = 1 << 62
+#: no step pending
+NEVER = 1 << 62
 
 
 class CoreInbox:
@@ -48,7 +57,7 @@ class CoreInbox:
 
     def __init__(self, motors: int) -> None:
         self.queues: list[deque[StepSegment]] = [deque() for _ in range(motors)]
-        self.stops: deque[tuple[int, int]] = deque()
+        self.stops: deque[tuple[int, int, int]] = deque()  # (motor, gen, cut or -1)
 
     def pull(self) -> None:
         """Move pending work from the transport into the deques (in-process: nothing)."""
@@ -80,12 +89,14 @@ class StepCore:
         self.counters = counters
         self.stats = stats
         self.spin = to_ticks(spin_s)
+        self.motors = range(n)
         self.min_iv = [to_ticks(lim.min_interval_s) for lim in limits]
         self.max_late = [to_ticks(lim.max_lateness_s) for lim in limits]
-        self.width = [lim.pulse_s for lim in limits]
+        self.width = [to_ticks(lim.pulse_s) for lim in limits]
         self.debounce = [to_ticks(lim.debounce_s) for lim in limits]
         # the segment being executed, per motor
-        self.next_t: list[int | None] = [None] * n
+        self.next_t = [NEVER] * n  # planned time of the next step
+        self.due_t = [NEVER] * n  # when it may be made: planned, spacing, DIR settled
         self.iv = [0] * n
         self.add = [0] * n
         self.left = [0] * n
@@ -93,9 +104,13 @@ class StepCore:
         self.gen = [-1] * n
         self.last = [False] * n
         self.watch = [True] * n
+        self.seg_first = [0] * n
+        self.seg_count = [0] * n
         self.prev_t = [0] * n  # planned time of the last step emitted
         self.last_edge = [-(1 << 62)] * n  # actual time of the last step emitted
         self.stopped_gen = [-1] * n  # segments of this generation and older are dropped
+        self.cut_gen = [-1] * n  # ... and of this one and older from cut_tick on
+        self.cut_tick = [NEVER] * n
         self.ready = [-(1 << 62)] * n  # DIR settled (ticks)
         inputs = io.inputs
         self.since = [0] * len(inputs.names)
@@ -109,20 +124,46 @@ class StepCore:
         """A stop(gen) drops ``gen`` and older and lifts a block (the planner's answer)."""
         stops = self.inbox.stops
         while stops:
-            m, gen = stops.popleft()
+            m, gen, cut = stops.popleft()
+            if cut >= 0:
+                self._cut(m, gen, cut)
+                continue
             self.stopped_gen[m] = gen
             self._drop(m)
             self.emit(ExecEvent(K.STOPPED, m, gen, self.pos[m], self._now_s()))
+
+    def _cut(self, m: int, gen: int, cut: int) -> None:
+        """A re-plan: segments of ``gen`` and older from tick ``cut`` on are not made."""
+        if self.stopped_gen[m] == BLOCKED:
+            return  # stopped on our own account: everything is dropped until the answer
+        self.cut_gen[m], self.cut_tick[m] = gen, cut
+        if self.next_t[m] != NEVER and self.gen[m] <= gen and self.seg_first[m] >= cut:
+            if self.left[m] < self.seg_count[m]:  # it began already: the re-plan came late
+                late = self.clock.now_ns() - cut
+                self._lost(m, self.clock.now_ns(), f"re-plan came {late / 1000:.0f} us late")
+                return
+            self._unload(m)
+        q = self.inbox.queues[m]
+        if q:
+            keep = [s for s in q if not (s.gen <= gen and s.first >= cut)]
+            self.counters[DROPPED] += len(q) - len(keep)
+            q.clear()
+            q.extend(keep)
+        if self.next_t[m] == NEVER:
+            self._load(m)
 
     def _halt(self, m: int) -> None:
         """Stop on the core's own account: drop everything until the planner answers."""
         self.stopped_gen[m] = BLOCKED
         self._drop(m)
 
+    def _unload(self, m: int) -> None:
+        self.next_t[m] = self.due_t[m] = NEVER
+        self.left[m] = 0
+
     def _drop(self, m: int) -> None:
-        if self.next_t[m] is not None and self.gen[m] <= self.stopped_gen[m]:
-            self.next_t[m] = None
-            self.left[m] = 0
+        if self.next_t[m] != NEVER and self.gen[m] <= self.stopped_gen[m]:
+            self._unload(m)
         q = self.inbox.queues[m]
         while q and q[0].gen <= self.stopped_gen[m]:
             q.popleft()
@@ -135,18 +176,31 @@ class StepCore:
             if self.stopped_gen[m] == BLOCKED and self.inbox.stops:
                 self._apply_stops()  # the answer may have come with these segments
             seg = q.popleft()
-            if seg.gen <= self.stopped_gen[m]:
+            gen = seg.gen
+            if gen <= self.stopped_gen[m] or (gen <= self.cut_gen[m]
+                                               and seg.first >= self.cut_tick[m]):
                 self.counters[DROPPED] += 1
                 continue
-            self.next_t[m] = seg.first
+            if seg.count <= 0:  # a marker: the plan before it is complete
+                if seg.last:
+                    self.emit(ExecEvent(K.DONE, m, gen, self.pos[m], self._now_s()))
+                continue
+            self.next_t[m] = first = seg.first
             self.iv[m] = seg.interval
             self.add[m] = seg.add
-            self.left[m] = seg.count
-            self.gen[m] = seg.gen
+            self.left[m] = self.seg_count[m] = seg.count
+            self.seg_first[m] = first
+            self.gen[m] = gen
             self.last[m] = seg.last
             self.watch[m] = seg.watch
             if seg.direction != self.dir[m]:
                 self._set_dir(m, seg.direction)
+                if self.next_t[m] == NEVER:
+                    return False  # the DIR write failed: faulted
+            earliest = self.last_edge[m] + self.min_iv[m]
+            d = first if first >= earliest else earliest
+            ready = self.ready[m]
+            self.due_t[m] = d if d >= ready else ready
             return True
         return False
 
@@ -160,15 +214,22 @@ class StepCore:
         self.dir[m] = d
         self.ready[m] = to_ticks(outputs.ready_at[m])
 
-    def refill(self) -> None:
-        self.inbox.pull()
-        if self.inbox.stops:
+    def _take(self) -> None:
+        """New work: pull the transport, apply stops, load idle motors."""
+        inbox = self.inbox
+        inbox.pull()
+        if inbox.stops:
             self._apply_stops()
-        self._edges()
         next_t = self.next_t
-        for m in range(len(next_t)):
-            if next_t[m] is None and self.inbox.queues[m]:
-                self._load(m)
+        if NEVER in next_t:
+            queues = inbox.queues
+            for m in self.motors:
+                if next_t[m] == NEVER and queues[m]:
+                    self._load(m)
+
+    def refill(self) -> None:
+        self._take()
+        self._edges()
 
     # -- time ------------------------------------------------------------------------
     def _now_s(self) -> float:
@@ -176,122 +237,127 @@ class StepCore:
 
     def due(self, m: int) -> int | None:
         """When motor m's next step may be emitted (planned, spacing and DIR settled)."""
-        t = self.next_t[m]
-        if t is None:
-            return None
-        earliest = self.last_edge[m] + self.min_iv[m]
-        if earliest > t:
-            t = earliest
-        return t if t >= self.ready[m] else self.ready[m]
+        d = self.due_t[m]
+        return None if d == NEVER else d
 
     def deadline(self) -> int | None:
-        best: int | None = None
-        for m in range(len(self.next_t)):
-            d = self.due(m)
-            if d is not None and (best is None or d < best):
-                best = d
-        return best
+        d = min(self.due_t)
+        return None if d == NEVER else d
 
     # -- one edge ----------------------------------------------------------------------
     def step(self, now: int) -> None:
         """Emit every step due at ``now`` (ticks)."""
-        due: list[int] = []
-        for m in range(len(self.next_t)):
-            d = self.due(m)
-            if d is None or d > now:
-                continue
-            planned = self.next_t[m]
-            assert planned is not None
-            if now - planned > self.max_late[m]:
-                self._timing_lost(m, now, planned)
-                continue
-            due.append(m)
+        due_t, next_t, max_late = self.due_t, self.next_t, self.max_late
+        due = [m for m in self.motors if due_t[m] <= now]
+        for m in due:
+            if now - next_t[m] > max_late[m]:
+                self._timing_lost(m, now, next_t[m])
+                due = [x for x in due if x != m]
         if not due:
             return
-        width = max(self.width[m] for m in due)
+        outputs = self.io.outputs
         try:
-            rise = to_ticks(self.io.outputs.pulse(due, width))
+            rise = outputs.rise(due)
         except HalError as exc:
             self._io_fault(due, exc)
             return
-        stats, pos, counters = self.stats, self.pos, self.counters
+        # the accounting happens while the lines are high (the pulse width)
+        record, pos, counters, dirs = self.stats.record_ns, self.pos, self.counters, self.dir
+        left, iv, add, min_iv = self.left, self.iv, self.add, self.min_iv
+        last_edge, prev_t = self.last_edge, self.prev_t
+        width = 0
+        done: list[int] = []
         for m in due:
-            planned = self.next_t[m]
-            assert planned is not None
-            stats.record_ns(rise - planned)
-            gap = rise - self.last_edge[m]
-            if gap < _GAP_WINDOW and (gap < counters[MIN_GAP] or not counters[MIN_GAP]):
-                counters[MIN_GAP] = gap
-            pos[m] += self.dir[m]
-            counters[STEPS] += 1
-            self.prev_t[m] = planned
-            self.last_edge[m] = rise
-            left = self.left[m] - 1
-            self.left[m] = left
-            if left > 0:
-                self.next_t[m] = planned + self.iv[m]
-                self.iv[m] += self.add[m]
+            planned = next_t[m]
+            record(rise - planned)
+            gap = rise - last_edge[m]
+            if gap < _GAP_WINDOW:
+                g = counters[MIN_GAP]
+                if gap < g or not g:
+                    counters[MIN_GAP] = gap
+            pos[m] += dirs[m]
+            prev_t[m] = planned
+            last_edge[m] = rise
+            if self.width[m] > width:
+                width = self.width[m]
+            n = left[m] - 1
+            left[m] = n
+            if n > 0:
+                nt = planned + iv[m]
+                next_t[m] = nt
+                iv[m] += add[m]
+                earliest = rise + min_iv[m]
+                due_t[m] = nt if nt >= earliest else earliest
             else:
-                was_last = self.last[m]
-                self.next_t[m] = None
-                if not self._load(m) and was_last:
-                    self.emit(ExecEvent(K.DONE, m, self.gen[m], pos[m], from_ticks(rise)))
+                next_t[m] = due_t[m] = NEVER
+                done.append(m)
+        counters[STEPS] += len(due)
+        try:
+            outputs.fall(due, rise + width)
+        except HalError as exc:
+            self._io_fault(due, exc)
+            return
+        for m in done:
+            if self.last[m]:  # before the next segment (a marker reports its own DONE)
+                self.emit(ExecEvent(K.DONE, m, self.gen[m], pos[m], from_ticks(rise)))
+            self._load(m)
         self._edges()
-        now = to_ticks(self.clock.now())
+        levels, ends, watch = self.levels, self.ends, self.watch
         for m in due:
-            self._check_endstop(m, now)
+            if watch[m]:
+                line = ends[m][1 if dirs[m] > 0 else 0]
+                if line is not None and levels[line]:
+                    self._check_endstop(m, line)
 
     def _edges(self) -> None:
         try:
             edges = self.io.inputs.read_edges()
         except HalError as exc:
-            self._io_fault(tuple(range(len(self.next_t))), exc)
+            self._io_fault(tuple(self.motors), exc)
             return
         for e in edges:
             self.levels[e.line] = int(e.active)
             if e.active:
                 self.since[e.line] = to_ticks(e.t)
 
-    def _check_endstop(self, m: int, now: int) -> None:
-        if not self.watch[m]:
-            return
-        d = self.dir[m]
-        line = self.ends[m][1 if d > 0 else 0]
-        if line is None or not self.levels[line]:
-            return
+    def _check_endstop(self, m: int, line: int) -> None:
+        """Motor m stepped toward ``line``, which is active: stop once it is debounced."""
         since = self.since[line]
-        if now - since < self.debounce[m]:
+        if self.clock.now_ns() - since < self.debounce[m]:
             return
         gen = self.gen[m]
         self._halt(m)
         self.counters[ENDSTOPS] += 1
-        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)), d))
+        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)),
+                            self.dir[m]))
 
     def _speed(self, m: int, planned: int) -> float:
         gap = planned - self.prev_t[m]
         return TICKS_PER_S / gap if 0 < gap < TICKS_PER_S else 0.0
 
     def _timing_lost(self, m: int, now: int, planned: int) -> None:
+        self._lost(m, now, f"step {(now - planned) / 1000:.0f} us late", planned)
+
+    def _lost(self, m: int, now: int, detail: str, planned: int | None = None) -> None:
         gen = self.gen[m]
-        speed = self._speed(m, planned)
+        speed = self._speed(m, self.next_t[m] if planned is None else planned)
         self._halt(m)
         self.counters[TIMING_LOST] += 1
-        late_us = (now - planned) / 1000
         self.emit(ExecEvent(K.TIMING_LOST, m, gen, self.pos[m], from_ticks(now), self.dir[m],
-                            speed, f"step {late_us:.0f} us late"))
+                            speed, detail))
 
     def _io_fault(self, motors: Sequence[int], exc: Exception) -> None:
         self.counters[IO_ERRORS] += 1
         for m in motors:
             gen = self.gen[m]
             t = self.next_t[m]
-            speed = 0.0 if t is None else self._speed(m, t)
+            speed = 0.0 if t == NEVER else self._speed(m, t)
             self._halt(m)
             self.emit(ExecEvent(K.FAULT, m, gen, self.pos[m], self._now_s(), self.dir[m],
                                 speed, f"hardware error: {exc}"))
 
     def halt_all(self) -> None:
-        for m in range(len(self.next_t)):
+        for m in self.motors:
             self._halt(m)
 
     # -- drivers ---------------------------------------------------------------------
@@ -303,26 +369,31 @@ class StepCore:
 
     def run(self, running: Callable[[], bool], wait: Callable[[float], None],
             idle_s: float = 0.05) -> None:
-        """Real clock: the loop, until ``running()`` is False."""
-        clock = self.clock
+        """Real clock: the loop, until ``running()`` is False.
+
+        End-stop edges are read after each step (and before each wait), not per turn.
+        """
+        now_ns = self.clock.now_ns
         counters = self.counters
         stops = self.inbox.stops
+        due_t = self.due_t
         spin = self.spin
+        take, step = self._take, self.step
         while running():
             counters[PROGRESS] += 1
-            self.refill()
-            d = self.deadline()
-            if d is None:
+            take()
+            d = min(due_t)
+            if d == NEVER:
+                self._edges()
                 wait(idle_s)
                 continue
-            now = to_ticks(clock.now())
+            now = now_ns()
             if d - now > spin:
+                self._edges()
                 wait(min((d - spin - now) / TICKS_PER_S, idle_s))
                 continue
-            target = d / TICKS_PER_S
-            t = clock.now()
-            while t < target and not stops:
-                t = clock.now()
+            while now < d and not stops:
+                now = now_ns()
             if stops:
                 continue
-            self.step(to_ticks(t))
+            step(now)

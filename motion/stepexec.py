@@ -2,7 +2,7 @@
 
 :class:`StepExecutor` is the planner half (the daemon's process, engine lock held): it
 walks each motor's trajectory a little ahead of time (``ahead_s``), cuts the steps into
-segments (:func:`motion.segments.compress`) and hands them to a step core through a
+segments in closed form (:class:`motion.segments.SegmentCutter`) and hands them to a step core through a
 :class:`~motorctl.motion.stepcore.CoreInbox`. Subclasses say where the core runs:
 
 - :class:`ThreadStepExecutor` (kind ``thread``): a thread of this process, or, on a virtual
@@ -31,9 +31,9 @@ from motorctl.motion.executor import (
     to_ticks,
 )
 from motorctl.motion.latency import CELLS, LatencyStats
-from motorctl.motion.profile import Steps, Trajectory
+from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
-from motorctl.motion.segments import StepSegment, compress
+from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
 from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
 from motorctl.motion.types import MotorParams, Ramp
 
@@ -63,13 +63,21 @@ class _Plan:
 
     def __init__(self) -> None:
         self.gen = -1
-        self.traj: Trajectory | None = None
-        self.steps: Steps | None = None
+        self.traj: Trajectory | None = None  # while steps remain to be handed over
+        self.cutter: SegmentCutter | None = None
+        self.handed: Trajectory | None = None  # the plan whose steps were handed over
+        self.bounds: deque[Boundary] = deque()  # where handed-over segments start
+        self.cut: Boundary | None = None  # where committed() cut the plan (for follow)
         self.until = float("-inf")  # steps up to this time have been handed over
         self.counter = 0  # the step counter after the last step handed over
         self.last_t = float("-inf")  # time of the last step handed over
         self.busy = False  # handed-over steps of this plan may remain to be executed
         self.watch = True  # the core watches the end stop ahead
+
+    def forget(self) -> None:
+        """Nothing of the current plan is left to cut (stopped, done, replaced)."""
+        self.traj = self.cutter = self.handed = self.cut = None
+        self.bounds.clear()
 
 
 class StepExecutor(Executor):
@@ -78,8 +86,10 @@ class StepExecutor(Executor):
     ``ahead_s``: how far ahead steps are handed over. 0: exactly one step ahead, and a
     re-plan flushes that step (only where the core can be synchronised at once, i.e. on a
     virtual clock: tests then see re-plans take effect at once). ``lead_s``: how far ahead
-    of "now" a motor at rest starts (covers the core's wake-up). ``max_error_s``: the segments' step
-    time error bound.
+    of "now" a motor at rest starts, and how soon after "now" a re-plan may cut the running
+    plan (covers the core's wake-up). ``max_error_s``: the segments' step time error bound.
+    ``span_s``: no segment is longer, so that a re-plan (a soft stop, a new speed) takes
+    over within ``lead_s + span_s`` of the command instead of after everything handed over.
     """
 
     def __init__(
@@ -90,6 +100,7 @@ class StepExecutor(Executor):
         ahead_s: float = 0.02,
         lead_s: float = 0.002,
         max_error_s: float = 5e-6,
+        span_s: float = 0.002,
     ) -> None:
         super().__init__(len(limits))
         self.clock = clock
@@ -97,6 +108,7 @@ class StepExecutor(Executor):
         self.ahead_s = ahead_s
         self.lead_s = lead_s
         self.max_error = to_ticks(max_error_s)
+        self.span = to_ticks(span_s)
         self.plans = [_Plan() for _ in limits]
         self.inbox = CoreInbox(len(limits))
 
@@ -106,8 +118,10 @@ class StepExecutor(Executor):
         q.extend(segments)
         self._kick()
 
-    def _push_stop(self, motor: int, gen: int) -> None:
-        self.inbox.stops.append((motor, gen))
+    def _push_stop(self, motor: int, gen: int, cut: int = -1) -> None:
+        """Drop the motor's segments of ``gen`` and older; with ``cut`` >= 0 only those
+        that start at or after tick ``cut`` (a re-plan takes over there, silently)."""
+        self.inbox.stops.append((motor, gen, cut))
         self._kick()
 
     def _kick(self) -> None:
@@ -129,7 +143,19 @@ class StepExecutor(Executor):
                 return Committed(now, float(c), 0.0, c)
             s = min(max(p.traj.position(now), c - 0.999), c + 0.999)
             return Committed(now, s, p.traj.velocity(now), c)
-        if p.traj is None or p.steps is None:
+        p.cut = None
+        if p.handed is not None and p.busy:
+            # cut the running plan at the first segment that starts after the lead: the
+            # steps before it are made as planned, the new plan takes over from there
+            bounds = p.bounds
+            soonest = to_ticks(now + self.lead_s)
+            while bounds and bounds[0].tick < soonest:
+                bounds.popleft()
+            if bounds:
+                b = p.cut = bounds[0]
+                s = min(max(p.handed.position(b.t), b.counter - 0.999), b.counter + 0.999)
+                return Committed(b.t, s, p.handed.velocity(b.t), b.counter)
+        if p.traj is None or p.cutter is None:
             t = max(now + self.lead_s, p.last_t) if p.busy else now + self.lead_s
             return Committed(t, float(p.counter), 0.0, p.counter)
         t = max(now, p.until)
@@ -141,16 +167,27 @@ class StepExecutor(Executor):
         self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
     ) -> bool:
         p = self.plans[motor]
-        if self.ahead_s == 0 and p.busy:
+        busy = p.busy  # steps of the plan being replaced may remain to be made
+        if self.ahead_s == 0 and busy:
             self._push_stop(motor, p.gen)  # flush the step handed over but not yet made
             self._sync()
             p.counter = self.position(motor)
+            busy = False
+        cut = p.cut
+        if cut is not None and busy:  # committed() cut the running plan there
+            self._push_stop(motor, p.gen, cut.tick)
+            p.counter, p.last_t, p.until = cut.counter, cut.prev_t, cut.t
+        p.forget()
         p.gen = gen
         p.traj = traj
-        p.steps = Steps(traj, p.counter)
+        p.handed = traj
+        p.cutter = SegmentCutter(traj.segments, p.counter, self.max_error, self.span)
         p.until = max(p.until, traj.start_time)
-        if p.steps.peek() is None:
-            p.traj = p.steps = None
+        if p.cutter.done:
+            p.forget()
+            if busy:  # no step of its own, but the old plan's are still to come: DONE after
+                self._push(motor, [StepSegment(to_ticks(p.until), 0, 0, 0, 0, gen, True)])
+                return True
             p.busy = False
             return False
         p.busy = True
@@ -161,7 +198,7 @@ class StepExecutor(Executor):
     def stop(self, motor: int, gen: int) -> int | None:
         p = self.plans[motor]
         p.gen = gen
-        p.traj = p.steps = None
+        p.forget()
         p.busy = False
         self._push_stop(motor, gen)
         if self._sync():
@@ -177,33 +214,17 @@ class StepExecutor(Executor):
     def _feed(self, motor: int, now: float) -> None:
         """Hand over the motor's steps up to ``now + ahead_s`` (at least the next one)."""
         p = self.plans[motor]
-        steps = p.steps
-        if steps is None:
+        cutter = p.cutter
+        if cutter is None:
             return
         horizon = now + self.ahead_s
-        ts: list[int] = []
-        out: list[StepSegment] = []
-        direction = 0
-        while True:
-            nxt = steps.peek()
-            if nxt is None or (ts and nxt[0] > horizon):
-                break
-            t, d = nxt
-            if d != direction and ts:
-                out.extend(compress(ts, direction, p.gen, self.max_error, watch=p.watch))
-                ts = []
-            direction = d
-            tick = to_ticks(t)
-            ts.append(tick)
-            steps.next()
-            p.last_t = from_ticks(tick)
-        done = steps.peek() is None
-        if ts:
-            out.extend(compress(ts, direction, p.gen, self.max_error, last=done, watch=p.watch))
-        p.counter = steps.counter
+        out = cutter.cut(horizon, p.gen, p.watch, p.bounds if self.ahead_s else None)
+        p.counter = cutter.counter
+        p.last_t = from_ticks(to_ticks(cutter.last_t))  # on the step path's ticks
+        done = out[-1].last if out else cutter.done
         p.until = max(p.until, p.last_t if done else max(horizon, p.last_t))
         if done:
-            p.traj = p.steps = None
+            p.traj = p.cutter = None
         if out:
             self._push(motor, out)
 
@@ -212,17 +233,17 @@ class StepExecutor(Executor):
         nxt = float("inf")
         half = self.ahead_s / 2
         for m, p in enumerate(self.plans):
-            if p.steps is None:
+            if p.cutter is None:
                 continue
             if self.ahead_s == 0:  # one step ahead: the next once the last one is made
                 if p.last_t <= now:
                     self._feed(m, now)
-                if p.steps is not None:
+                if p.cutter is not None:
                     nxt = min(nxt, p.last_t)
                 continue
-            if p.until - now <= half:
+            if p.until - half <= now + 1e-9:  # the deadline below, on a clock of ticks
                 self._feed(m, now)
-            if p.steps is not None:
+            if p.cutter is not None:
                 nxt = min(nxt, p.until - half)
         return nxt
 
@@ -233,11 +254,12 @@ class StepExecutor(Executor):
                 continue
             p = self.plans[ev.motor]
             if ev.kind in _SELF_STOPS or (ev.kind is K.STOPPED and ev.gen == p.gen):
-                p.traj = p.steps = None
+                p.forget()
                 p.busy = False
                 p.counter = ev.position
                 p.until = p.last_t = max(ev.t, self.clock.now())
             elif ev.kind is K.DONE and ev.gen == p.gen:
+                p.forget()
                 p.busy = False
                 p.counter = ev.position
         return out
