@@ -33,9 +33,13 @@ out of order, so nothing here relies on hardware store or load order:
 - Every other shared value (head, tail, run flag, heartbeat, counters, positions, levels,
   end-stop map, histogram cells) is one aligned 8-byte cell read and written through a
   native ``'q'`` memoryview, which CPython packs with one fixed-size 8-byte ``memcpy``
-  (``PACK_SINGLE`` in Objects/memoryobject.c): a single-copy atomic store on ARM64 and
-  x86-64, so a reader sees the old or the new value, never a torn one. Counters and the
-  histogram are snapshots, not records; nothing depends on their order.
+  (``PACK_SINGLE`` in Objects/memoryobject.c; aarch64 gcc compiles it to one ``str`` of
+  an x register): a single-copy atomic store on ARM64 and x86-64, so a reader sees the
+  old or the new value, never a torn one. Counters and the histogram are snapshots, not
+  records; nothing depends on their order.
+- The one thing read in an order is the start-up: the child writes the end-stop map, then
+  READY, then a byte on the event pipe, and the daemon reads READY (and later the map) only
+  after reading that byte; the pipe orders them as it orders the rings' wake-ups.
 
 A torn slot is taken only if its CRC-32 matches by chance: never for a difference within
 32 consecutive bits (a previous lap's sequence number), 1 in 2**32 for any other mix, and
@@ -58,6 +62,7 @@ import os
 import select
 import struct
 import threading
+import time
 import zlib
 from collections.abc import Sequence
 from dataclasses import replace
@@ -335,7 +340,6 @@ def _child_main(
                     stats=LatencyStats(late_threshold_s, shared.latency), spin_s=spin_s)
     header = shared.header
     header[_PID] = os.getpid()
-    header[_READY] = 1
 
     def wait(timeout: float) -> None:
         if os.getppid() != parent:  # the daemon is gone (PDEATHSIG is the first guard)
@@ -350,6 +354,13 @@ def _child_main(
     gc.collect()
     gc.freeze()
     gc.disable()
+    # ready when the loop starts (not before the collection above: the daemon plans the
+    # first steps a few ms ahead as soon as start() returns). The daemon reads READY (and so
+    # the end-stop map above) only after this byte: the pipe orders our stores before its
+    # loads on a weakly ordered CPU too
+    header[_READY] = 1
+    with contextlib.suppress(BlockingIOError):
+        os.write(event_fd, b"r")
     try:
         core.run(lambda: bool(header[_RUN]), wait)
     finally:
@@ -429,18 +440,24 @@ class ProcessStepExecutor(StepExecutor):
             daemon=True,
         )
         self.proc.start()
-        ready = threading.Event()
-        deadline = self.start_timeout_s
-        while not self.shared.header[_READY]:
+        # READY is read only after the child's byte on the event pipe (see _child_main): the
+        # end-stop map it wrote before is then visible here on ARM64 too
+        deadline = time.monotonic() + self.start_timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.proc.kill()
+                self.proc.join(5)
+                raise HalError("the step executor process did not start within "
+                               f"{self.start_timeout_s:.0f} s")
+            if self._event_r in mp_wait([self.proc.sentinel, self._event_r], left):
+                with contextlib.suppress(BlockingIOError, OSError):
+                    os.read(self._event_r, 4096)
+                if self.shared.header[_READY]:
+                    break
             if not self.proc.is_alive():
                 raise HalError(f"the step executor process exited at start (code "
                                f"{self.proc.exitcode}); see the log above")
-            ready.wait(0.01)
-            deadline -= 0.01
-            if deadline <= 0:
-                self.proc.kill()
-                raise HalError("the step executor process did not start within "
-                               f"{self.start_timeout_s:.0f} s")
         self._watcher = threading.Thread(target=self._watch, name="motorctl-exec-watch",
                                          daemon=True)
         self._watcher.start()

@@ -24,6 +24,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
+from motorctl.hal.mock import build
+from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.motion.executor import AxisLimits
 from motorctl.motion.procexec import (
     _CHECK,
     _EVENT,
@@ -31,6 +35,7 @@ from motorctl.motion.procexec import (
     _SEG,
     _STOP,
     Layout,
+    ProcessStepExecutor,
     Ring,
     Shared,
     ring_size,
@@ -402,3 +407,49 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
         shm.close()
         shm.unlink()
 
+
+
+# ---------------------------------------------------------------- the start handshake
+
+
+def _executor(
+    backend: str, start_timeout_s: float = 30.0
+) -> tuple[Hardware, ProcessStepExecutor]:
+    spec = HardwareSpec(axes=(AxisSpec(),))
+    hw = build(spec, MonotonicClock())
+    return hw, ProcessStepExecutor(hw, backend, spec, [AxisLimits(1e-4, 1e-3)],
+                                   start_timeout_s=start_timeout_s)
+
+
+def test_start_reads_ready_after_the_childs_byte_and_sees_its_end_stop_map() -> None:
+    hw, ex = _executor("mock")
+    try:
+        ex.start()
+        # the child wrote the map before READY and its byte; -1/-1 or lines of its own
+        lo, hi = ex.shared.endmap[0], ex.shared.endmap[1]
+        assert ex.health().alive and ex.shared.header[1] == 1
+        assert (lo, hi) != (0, 0), "start returned before the child's end-stop map"
+    finally:
+        ex.close()
+        hw.close()
+
+
+def test_start_names_a_child_that_exits_before_it_is_ready() -> None:
+    hw, ex = _executor("no-such-backend")
+    try:
+        with pytest.raises(HalError, match="exited at start"):
+            ex.start()
+    finally:
+        ex.close()
+        hw.close()
+
+
+def test_start_gives_up_after_its_timeout() -> None:
+    hw, ex = _executor("mock", start_timeout_s=0.001)
+    try:
+        with pytest.raises(HalError, match="did not start within"):
+            ex.start()
+        assert not ex.proc.is_alive()
+    finally:
+        ex.close()
+        hw.close()
