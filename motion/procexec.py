@@ -43,8 +43,8 @@ out of order, so nothing here relies on hardware store or load order:
 
 A torn slot is taken only if its CRC-32 matches by chance: never for a difference within
 32 consecutive bits (a previous lap's sequence number), 1 in 2**32 for any other mix, and
-a mix is only visible for the moment a store takes to propagate. The check costs about
-0.2 us per record on each side (``bench/rings.py``).
+a mix is only visible for the moment a store takes to propagate. The check adds about
+0.3 us per record on each side (``bench/rings.py``); records are segments, not steps.
 
 If the child dies, the event thread notices at once (the sentinel) and reports DIED: every
 motor faults (E4, position lost) and health says why; the service then exits non-zero.
