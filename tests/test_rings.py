@@ -71,7 +71,7 @@ def _show(ring: Ring, index: int, content: bytes) -> None:
 
 
 def _seg(i: int) -> tuple[int, ...]:
-    """A segment record's fields, different in every word for every i."""
+    """A segment record's fields, distinct for every i (direction and flags repeat)."""
     return (10**9 + 7919 * i, 250_000 + i, 4000 + i, -3 - i, 1 if i % 2 else -1, 7 + i, i % 4)
 
 
