@@ -451,8 +451,9 @@ class ProcessStepExecutor(StepExecutor):
                 raise HalError("the step executor process did not start within "
                                f"{self.start_timeout_s:.0f} s")
             if self._event_r in mp_wait([self.proc.sentinel, self._event_r], left):
+                # the child's first byte on this pipe; event bytes after it are the watcher's
                 with contextlib.suppress(BlockingIOError, OSError):
-                    os.read(self._event_r, 4096)
+                    os.read(self._event_r, 1)
                 if self.shared.header[_READY]:
                     break
             if not self.proc.is_alive():
