@@ -46,7 +46,6 @@ from motorctl.hal.tmc import TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
-from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
 from motorctl.motion.ramp_executor import with_ramp_motors
@@ -226,16 +225,17 @@ class Daemon:
              "position_lost": m.position_lost, "waypoints": len(m.waypoints)}
             for m in list(self.engine.motors)
         ]
-        health = self.engine.executor.health()
+        executor = self.engine.executor
+        health = executor.health()
         steps = dict(health.latency)
         steps.update(health.counters)
-        stats = getattr(self.engine.executor, "stats", None)
-        if isinstance(stats, LatencyStats):
+        stats = executor.step_lateness()
+        if stats is not None:  # the step executor's, with or without ramp motors
             steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "executor": {"alive": health.alive, "reason": health.reason,
                                             "kind": self.config.step_thread.executor,
-                                            "pid": getattr(self.engine.executor, "pid", None)},
+                                            "pid": getattr(executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
                                "state": self.persistence.status()}
         if self.link is not None:
