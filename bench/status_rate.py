@@ -1,10 +1,11 @@
 """How fast `motorctld --status` can be read while 3 motors step: reads/s and per-read latency.
 
-A real daemon (no real-time priority) runs 3 motors at --rate step/s each; this process
-reads its status socket with ``read_status`` paced at --per-s reads a second (as
-bench/steps.py's ``status`` scenario does: a read, then sleep until the next slot if
-there is time left) for --seconds, and reports the rate reached and the per-read latency
-(connect to JSON parsed) p50/p99/max. ``--per-s 0`` reads back to back: the ceiling.
+A real daemon (bench/steps.py's, without real-time priority or a pinned CPU) runs 3 motors
+at --rate step/s each; this process reads its status socket with ``read_status`` paced at
+--per-s reads a second (as bench/steps.py's ``status`` scenario does: a read, then sleep
+until the next slot if there is time left) for --seconds, and reports the rate reached and
+the per-read latency (connect to JSON parsed) p50/p99/max. ``--per-s 0`` reads back to
+back: the ceiling.
 
 Not a step-timing benchmark: bench/steps.py measures what the reads do to the steps (on a
 quiet machine, with real-time priority).
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import shutil
 import sys
 import tempfile
@@ -24,36 +26,21 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench.steps import config_text  # noqa: E402  (the daemon of its status scenario)
 from motorctl.daemon.status import read_status  # noqa: E402
 from tests.daemon_proc import DaemonProcess  # noqa: E402
-
-CONFIG = """
-[units]
-run_speed_factor = 1000.0
-[step_thread]
-executor = "{kind}"
-[[motors]]
-name = "{name}"
-max_speed = 100000.0
-max_accel = 1000000.0
-default_accel = 500000.0
-default_decel = 500000.0
-  [motors.mock]
-  endstop_min = -8388000
-  endstop_max = 8388000
-"""
-
-
-def config_text(kind: str) -> str:
-    head, motor = CONFIG.split("[[motors]]")
-    return head.format(kind=kind) + "".join(
-        ("[[motors]]" + motor).replace("{name}", n) for n in "abc")
 
 
 def quantile(sorted_values: list[float], q: float) -> float:
     if not sorted_values:
         return 0.0
     return sorted_values[min(len(sorted_values) - 1, int(q * len(sorted_values)))]
+
+
+def cpu_s(pid: int) -> float:
+    """User + system CPU time of process ``pid`` (its threads; not its children)."""
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def read_paced(sock: Path, seconds: float, per_s: int) -> tuple[int, float, list[float], int]:
@@ -81,16 +68,19 @@ def read_paced(sock: Path, seconds: float, per_s: int) -> tuple[int, float, list
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
-        d = DaemonProcess(work, config_text(args.executor))
+        d = DaemonProcess(work, config_text(prio=0, cpu=-1, kind=args.executor))
         d.start()
         try:
             with d.client() as c:
                 for m in range(3):
                     c.move(m, True, speed=args.rate // 1000)
                 time.sleep(0.5)  # past the ramps
+                assert d.proc is not None
                 before = d.status()["steps"]
+                cpu0 = cpu_s(d.proc.pid)
                 n, elapsed, lat, size = read_paced(d.state_dir / "status.sock", args.seconds,
                                                    args.per_s)
+                cpu = cpu_s(d.proc.pid) - cpu0
                 after = d.status()
                 for m in range(3):
                     c.stop(m, hard=True)
@@ -108,6 +98,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "read_p99_ms": round(quantile(lat, 0.99) * 1e3, 3),
         "read_max_ms": round(lat[-1] * 1e3, 3) if lat else 0.0,
         "status_bytes": size,
+        "daemon_cpu_percent": round(100 * cpu / elapsed, 1),
         "steps_in_window": after["steps"]["steps"] - before["steps"],
         "motor_states_at_end": ",".join(moving),
     }
@@ -129,6 +120,8 @@ def main() -> int:
     print(f"  {fig['reads_per_s']} reads/s (target {args.per_s or 'back to back'}), "
           f"per read p50 {fig['read_p50_ms']} ms, p99 {fig['read_p99_ms']} ms, "
           f"max {fig['read_max_ms']} ms; {fig['status_bytes']} bytes a document")
+    print(f"  the daemon's process used {fig['daemon_cpu_percent']} % of a CPU meanwhile "
+          "(its threads; the process executor's own process not counted)")
     if args.json:
         Path(args.json).write_text(json.dumps(fig, indent=1))
     return 0
