@@ -597,3 +597,6 @@ class ProcessStepExecutor(StepExecutor):
             counters=counters,
             latency=self.stats.summary(),
         )
+
+    def step_lateness(self) -> LatencyStats:
+        return self.stats  # after close: a plain copy of the last cells
