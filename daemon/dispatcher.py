@@ -192,7 +192,7 @@ class Dispatcher:
         if outcome is Settled.TIMED_OUT:
             log.warning("motor %d: the step executor did not confirm the hard stop within "
                         "%.0f ms (stalled?): StopMove answered anyway, IsReady answers 0 until "
-                        "it does; later hard stops are not waited for until it reports again",
+                        "it does; later hard stops are not waited for while it is unconfirmed",
                         m.index, self.engine.stop_confirm_s * 1000,
                         extra={"MOTOR": m.index, "COMMAND": "StopMove"})
         return OK

@@ -3,11 +3,13 @@ behaviour), with the real step executors, whose stops are confirmed asynchronous
 
 A host written for the microcontroller sends StopMove(hard) and, in the same write, IsReady
 and GetAbsPos: it must read 1 (ready) and the final position, which does not change after.
-A stalled executor (SIGSTOP) gets the answer after ``stop_confirm_ms``; a dead one E4.
+Some of the stopped runs are homing runs (InitMove). A stalled executor (SIGSTOP) gets the
+answer after ``stop_confirm_ms``; a dead one E4.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import time
@@ -105,7 +107,11 @@ def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProce
             assert ok(again, "GetAbsPos").as_position == final, (
                 f"round {r}: motor {m} moved after its hard stop was answered")
             assert ok(ready2, "IsReady").as_bool is True
-            c.move(m, final <= 0, speed=SPEED)  # back towards 0 and beyond
+            # back towards 0 and beyond; every 4th run homes (InitMove: the end stop is far)
+            if r % 4 == 3:
+                c.init_move(m, final <= 0, speed=SPEED)
+            else:
+                c.move(m, final <= 0, speed=SPEED)
         for m in range(3):
             c.stop(m, hard=True)
     status = fast.status()
@@ -118,54 +124,49 @@ def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProce
 
 
 
-def stalled_daemon(tmp_path: Path) -> DaemonProcess:
+@contextlib.contextmanager
+def process_daemon_moving(tmp_path: Path) -> Iterator[tuple[DaemonProcess, Client, int]]:
+    """A daemon with the process executor (``stop_confirm_ms`` 300) and motor 0 running;
+    yields it, a client and the executor's PID."""
     text = f'{MOTORS}\n[step_thread]\nexecutor = "process"\nstop_confirm_ms = 300.0\n'
-    return DaemonProcess(tmp_path, text).start()
+    d = DaemonProcess(tmp_path, text).start()
+    try:
+        pid = d.status()["executor"]["pid"]
+        with d.client() as c:
+            c.move(0, True, speed=SPEED)
+            until("motor 0 moving", moved(c, 0, 0, 50))
+            yield d, c, pid
+    finally:
+        d.close()
 
 
 def test_stalled_executor_answer_comes_after_the_deadline(tmp_path: Path) -> None:
-    d = stalled_daemon(tmp_path)
-    try:
-        pid = d.status()["executor"]["pid"]
-        with d.client() as c:
-            c.move(0, True, speed=SPEED)
-            until("motor 0 moving", moved(c, 0, 0, 50))
-            os.kill(pid, signal.SIGSTOP)
-            try:
-                t0 = time.monotonic()
-                stop, ready = send(c, [StopMove(0, True), IsReady(0)])
-                took = time.monotonic() - t0
-                ok(stop, "StopMove to a stalled executor")
-                assert ok(ready, "IsReady").as_bool is False  # not confirmed: the truth
-                assert took >= 0.3, took
-                # a second one is not waited for: the first is still unconfirmed
-                t1 = time.monotonic()
-                ok(send(c, [StopMove(0, True)])[0], "StopMove")
-                second = time.monotonic() - t1
-            finally:
-                os.kill(pid, signal.SIGCONT)
-            until("the late confirmation", lambda: c.is_ready(0))
-            final = c.position(0)
-            assert c.position(0) == final
+    with process_daemon_moving(tmp_path) as (d, c, pid):
+        os.kill(pid, signal.SIGSTOP)
+        try:
+            t0 = time.monotonic()
+            stop, ready = send(c, [StopMove(0, True), IsReady(0)])
+            took = time.monotonic() - t0
+            ok(stop, "StopMove to a stalled executor")
+            assert ok(ready, "IsReady").as_bool is False  # not confirmed: the truth
+            # a second one is not waited for: the first is still unconfirmed
+            t1 = time.monotonic()
+            ok(send(c, [StopMove(0, True)])[0], "StopMove")
+            second = time.monotonic() - t1
+        finally:
+            os.kill(pid, signal.SIGCONT)
+        until("the late confirmation", lambda: c.is_ready(0))
+        assert took >= 0.3, took
+        assert second < 0.3, second
         stops = d.status()["hard_stops"]
         assert stops["timed_out"] == 1 and stops["skipped"] == 1, stops
-        assert second < 0.3, second
         assert "did not confirm the hard stop within 300 ms" in d.stderr()
-    finally:
-        d.close()
 
 
 def test_dead_executor_stop_move_answers_e4(tmp_path: Path) -> None:
-    d = stalled_daemon(tmp_path)
-    try:
-        pid = d.status()["executor"]["pid"]
-        with d.client() as c:
-            c.move(0, True, speed=SPEED)
-            until("motor 0 moving", moved(c, 0, 0, 50))
-            os.kill(pid, signal.SIGKILL)
-            until("the death noticed", lambda: not d.status()["executor"]["alive"])
-            # answers go on for a grace period: a StopMove cannot clear the fault (E4)
-            answers = send(c, [StopMove(0, True), StopMove(1, False), IsReady(0)])
-            assert all(a.error_code is ErrorCode.MOTOR_ERROR for a in answers), answers
-    finally:
-        d.close()
+    with process_daemon_moving(tmp_path) as (d, c, pid):
+        os.kill(pid, signal.SIGKILL)
+        until("the death noticed", lambda: not d.status()["executor"]["alive"])
+        # answers go on for a grace period: a StopMove cannot clear the fault (E4)
+        answers = send(c, [StopMove(0, True), StopMove(1, False), IsReady(0)])
+        assert all(a.error_code is ErrorCode.MOTOR_ERROR for a in answers), answers

@@ -25,6 +25,7 @@ from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link
 from motorctl.daemon.main import Daemon, build_executor, hardware_spec, motor_params, open_pty
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
+from motorctl.hal.mock import world_of
 from motorctl.hal.registry import open_hardware
 from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine
 from motorctl.motion.executor import (
@@ -37,12 +38,13 @@ from motorctl.motion.executor import (
     to_ticks,
 )
 from motorctl.motion.profile import Trajectory
-from motorctl.motion.types import Ramp
+from motorctl.motion.types import MotorState, Ramp
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,
     ErrorCode,
     GetAbsPos,
+    InitMove,
     IsReady,
     Move,
     Response,
@@ -280,6 +282,39 @@ def test_executor_dying_while_the_answer_waits_gives_e4() -> None:
         assert rig.send(IsReady(m)).error_code is E.MOTOR_ERROR
         assert rig.send(StopMove(m, True)).error_code is E.MOTOR_ERROR
         assert rig.send(StopMove(m, False)).error_code is E.MOTOR_ERROR
+
+
+def test_hard_stop_of_a_homing_motor_waits_too() -> None:
+    rig = rig_on(VirtualClock(), delay_s=0.004)
+    assert rig.send(InitMove(0, False, 1, 0, 0)).ack  # towards the end stop far below
+    rig.run(0.1)
+    assert rig.engine.motors[0].state is MotorState.HOMING
+    t0 = rig.clock.now()
+    assert rig.send(StopMove(0, True)).ack
+    assert rig.clock.now() - t0 == pytest.approx(0.004, abs=1e-6)
+    assert rig.ready()  # idle, not homed: the position stays where it stopped
+    stopped_at = rig.position()
+    rig.run(0.1)
+    assert rig.position() == stopped_at
+
+
+def test_stop_move_clearing_a_fault_whose_stop_is_unconfirmed_waits_for_it() -> None:
+    """A driver fault stops the motor hard; a StopMove that clears the fault before that
+    stop was confirmed answers once it is, so IsReady right after answers 1."""
+    rig = rig_on(VirtualClock(), delay_s=0.04)
+    moving(rig)
+    world = world_of(rig.hw)
+    world.inject_fault(0, "over-temperature")
+    rig.run(0.03)  # a driver poll (every 10 ms) latches it; its stop is confirmed 40 ms later
+    m = rig.engine.motors[0]
+    assert m.fault is not None and m.stopping
+    assert rig.send(StopMove(0, False)).error_code is E.MOTOR_ERROR  # still hot: no wait
+    world.inject_fault(0, None)
+    t0 = rig.clock.now()
+    assert rig.send(StopMove(0, False)).ack  # cleared; answered at the confirmation
+    assert 0 < rig.clock.now() - t0 < STOP_CONFIRM_S
+    assert rig.engine.stop_waits["confirmed"] == 1
+    assert rig.ready()
 
 
 def test_soft_stop_and_idle_stop_do_not_wait() -> None:
