@@ -179,9 +179,10 @@ class Dispatcher:
 
     def _settled(self, m: Motor) -> Response:
         """A StopMove that stopped ``m`` hard: its answer once the executor confirmed it
-        (the position is final and IsReady answers 1 at once); E4 if the executor died
-        meanwhile; after ``engine.stop_confirm_s`` without a confirmation (a stalled executor),
-        ACK all the same: the stop is on its way and IsReady answers 0 until it took effect.
+        (the position is final and IsReady answers 1 at once). E4 if the executor died
+        meanwhile or the motor latched a fault while stopping. After
+        ``engine.stop_confirm_s`` without a confirmation (a stalled executor), ACK all the
+        same: the stop is on its way and IsReady answers 0 until it took effect.
         """
         outcome = self.engine.settle_stop(m)
         if outcome is Settled.DIED:
@@ -189,6 +190,8 @@ class Dispatcher:
                       "stop: E4", m.index,
                       extra={"MOTOR": m.index, "COMMAND": "StopMove", "ERROR_CODE": "E4"})
             return Response.error(E.MOTOR_ERROR)
+        if m.fault is not None:  # latched while the stop took effect (a driver fault): it
+            return Response.error(E.MOTOR_ERROR)  # remains, as for a StopMove on a faulted motor
         if outcome is Settled.TIMED_OUT:
             log.warning("motor %d: the step executor did not confirm the hard stop within "
                         "%.0f ms (stalled?): StopMove answered anyway, IsReady answers 0 until "

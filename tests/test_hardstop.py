@@ -317,6 +317,15 @@ def test_stop_move_clearing_a_fault_whose_stop_is_unconfirmed_waits_for_it() -> 
     assert rig.ready()
 
 
+def test_a_fault_latched_while_the_stop_is_confirmed_answers_e4() -> None:
+    rig = rig_on(VirtualClock(), delay_s=0.03)
+    moving(rig)
+    world_of(rig.hw).inject_fault(0, "over-temperature")  # the next poll (10 ms) latches it
+    assert rig.send(StopMove(0, True)).error_code is E.MOTOR_ERROR
+    assert rig.engine.motors[0].fault == "driver fault: over-temperature"
+    assert rig.send(IsReady(0)).error_code is E.MOTOR_ERROR
+
+
 def test_soft_stop_and_idle_stop_do_not_wait() -> None:
     rig = rig_on(VirtualClock(), delay_s=None)
     t0 = rig.clock.now()
