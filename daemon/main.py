@@ -188,7 +188,8 @@ class Daemon:
         except HalError as exc:
             raise StartupError(str(exc)) from exc
         engine = MotionEngine(
-            hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0
+            hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
+            stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
         )
         files_dir = state_files_dir(config, state_dir)
         make_state_dir(files_dir)
@@ -240,6 +241,7 @@ class Daemon:
                                             "kind": self.config.step_thread.executor,
                                             "pid": getattr(executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
+                               "hard_stops": self.engine.stop_wait_status(),
                                "state": self.persistence.status()}
         if self.link is not None:
             out["link"] = self.link.status()
