@@ -659,7 +659,7 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
             "gap_discards_made": discards, "final_answer_ms": round(answer_s * 1000, 2),
             "mover_faults_cleared": movers.faults,
             "daemon_counters": counters, "processing": status["link"]["processing"],
-            "steps": {k: v for k, v in status["steps"].items() if k != "histogram_us"},
+            "steps": status["steps"],
         }
         print(f"  frames: {frames_total} in {elapsed:.1f} s = "
               f"{frames_total / elapsed:.0f} frames/s", flush=True)

@@ -149,7 +149,7 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
             for m in range(3):
                 c.move(m, True, speed=rate_per_motor // 1000)
             time.sleep(0.5)  # ramps done: the window starts in steady state
-            before = hist_of(d.status())
+            before = hist_of(d.status(histogram=True))
             flooder = flood(str(d.pty), seconds, flood_cpu) if flood_cpu is not None else None
             if status_per_s:
                 flooder = status_reader(d.state_dir, seconds, status_per_s)
@@ -161,7 +161,7 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
                 time.sleep(seconds)
                 commands = 0
             elapsed = time.monotonic() - t0
-            status = d.status()
+            status = d.status(histogram=True)
             after = hist_of(status)
             for m in range(3):
                 c.stop(m, hard=True)

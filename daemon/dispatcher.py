@@ -4,6 +4,12 @@ Protocol units are converted here (and only here) to steps, step/s and step/s^2,
 with the factors from config; out-of-range values are clamped to the motor's
 maximum and counted. Error precedence is PROTOCOL.md section 5:
 E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5.
+
+Threads: the link thread calls :meth:`Dispatcher.handle`, :meth:`Dispatcher.wait_begin` and
+:meth:`Dispatcher.wait_poll`. They block on the engine lock (short work), on the state file
+(SaveHome/SaveWayPoint, outside the lock) and, after a StopMove that stopped a motor hard,
+on the executor's confirmation (outside the lock, at most ``engine.stop_confirm_s``): the answer
+leaves once the motor has stopped, as the microcontroller's did.
 """
 
 from __future__ import annotations
@@ -16,7 +22,7 @@ from typing import Any, Protocol
 
 from motorctl.daemon.config import Config, MotorConfig
 from motorctl.hal.interfaces import BridgeState, HalError, Pin
-from motorctl.motion.engine import MotionEngine
+from motorctl.motion.engine import MotionEngine, Settled
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
 from motorctl.protocol.codec import (
@@ -103,6 +109,7 @@ class Dispatcher:
         self.pins = pins
         self.persist: Persist = persist or NoPersistence()
         self._undo: Callable[[], None] | None = None
+        self._settle: Motor | None = None  # a hard stop whose answer waits for the executor
         self.clamped: Counter[str] = Counter()
         self.hardware_errors = 0
         self.table: dict[type[Any], Callable[[Any], Response]] = {
@@ -131,6 +138,7 @@ class Dispatcher:
         # Motion: "moving" is durable before the motor can start (PROTOCOL.md section 4),
         # written outside the engine lock so the step thread never waits for a disk.
         journalled: int | None = None
+        self._settle = None
         if isinstance(cmd, MOTION_COMMANDS) and 0 <= cmd.motor < len(self.engine.motors):
             if not self.persist.before_motion(cmd.motor):
                 return Response.error(E.MOTOR_ERROR)
@@ -153,6 +161,9 @@ class Dispatcher:
         finally:
             if journalled is not None:
                 self.persist.after_motion(journalled)
+        settle, self._settle = self._settle, None
+        if settle is not None and resp.ack:
+            resp = self._settled(settle)  # outside the lock: the planner goes on meanwhile
         undo, self._undo = self._undo, None
         if undo is not None and not self.persist.save():
             # SaveHome/SaveWayPoint: no ACK for a change that is not on disk.
@@ -165,6 +176,29 @@ class Dispatcher:
                                "ERROR_CODE": "E4"})
             return Response.error(E.MOTOR_ERROR)
         return resp
+
+    def _settled(self, m: Motor) -> Response:
+        """A StopMove that stopped ``m`` hard: its answer once the executor confirmed it
+        (the position is final and IsReady answers 1 at once). E4 if the executor died
+        meanwhile or the motor latched a fault while stopping. After
+        ``engine.stop_confirm_s`` without a confirmation (a stalled executor), ACK all the
+        same: the stop is on its way and IsReady answers 0 until it took effect.
+        """
+        outcome = self.engine.settle_stop(m)
+        if outcome is Settled.DIED:
+            log.error("motor %d: StopMove: the step executor died before confirming the "
+                      "stop: E4", m.index,
+                      extra={"MOTOR": m.index, "COMMAND": "StopMove", "ERROR_CODE": "E4"})
+            return Response.error(E.MOTOR_ERROR)
+        if m.fault is not None:  # latched while the stop took effect (a driver fault): it
+            return Response.error(E.MOTOR_ERROR)  # remains, as for a StopMove on a faulted motor
+        if outcome is Settled.TIMED_OUT:
+            log.warning("motor %d: the step executor did not confirm the hard stop within "
+                        "%.0f ms (stalled?): StopMove answered anyway, IsReady answers 0 until "
+                        "it does; later hard stops are not waited for while it is unconfirmed",
+                        m.index, self.engine.stop_confirm_s * 1000,
+                        extra={"MOTOR": m.index, "COMMAND": "StopMove"})
+        return OK
 
     def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
@@ -290,9 +324,13 @@ class Dispatcher:
 
     def stop_move(self, c: StopMove) -> Response:
         m = self._motor(c.motor)
+        if self.engine.executor_died is not None:
+            raise Reject(E.MOTOR_ERROR)  # nothing moves any more: the fault stays latched
         if not m.stop(c.hard, self.engine.clock.now()):
             raise Reject(E.MOTOR_ERROR)
         self.engine.wake.set()
+        if m.stopping:  # stopped hard (also a soft stop that had no ramp to follow)
+            self._settle = m
         return OK
 
     def get_abs_pos(self, c: GetAbsPos) -> Response:

@@ -1,7 +1,10 @@
 """The link: the poll/read/write loop around a pure :class:`~motorctl.daemon.session.LinkSession`.
 
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
-on the serial/PTY file descriptor and a wake-up pipe, and in the dispatcher's engine lock.
+on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
+after a hard StopMove in the wait for the executor's confirmation (bounded by
+``step_thread.stop_confirm_ms``, and not repeated while an earlier one timed out, so a burst
+of frames cannot keep a turn from ending and :meth:`stop` is noticed promptly).
 :meth:`Link.wake` and :meth:`Link.stop` are the only calls other threads (the step thread,
 signal handlers) make: they write a byte to the pipe. :meth:`Link.status` may be called from
 the status thread: it only copies counters whose keys all exist from the start.

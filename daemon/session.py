@@ -6,7 +6,8 @@ order their frames arrived, exactly one per complete frame. Commands are execute
 narrow port (the dispatcher's ``handle``/``wait_begin``/``wait_poll``). The select loop in
 :mod:`motorctl.daemon.link` is a thin shell around it.
 
-Owned by the link thread; nothing here blocks except the port's calls (the engine lock).
+Owned by the link thread; nothing here blocks except the port's calls (the engine lock, and
+a hard StopMove's bounded wait for the executor's confirmation).
 
 The rules (PROTOCOL.md §2, §4):
 - Framing by watched silence (:class:`motorctl.protocol.framing.Framer`).

@@ -8,13 +8,22 @@ Threads on a real clock (:meth:`start`): the planner thread (events from the exe
 refilling step segments, DC run ends; normal priority) and the driver monitor (reads
 every driver's status outside the lock, then latches faults under it). Tests on a virtual
 clock call :meth:`run_until` instead: executor steps, planner, DC and polls in time order.
+
+:meth:`settle_stop` is called by the link thread WITHOUT the lock: it waits, bounded by
+``stop_confirm_s``, for the executor to confirm a hard stop, taking the lock only to process
+events, so the planner and the driver monitor go on meanwhile. What wakes it is
+``_reports``, a condition notified on every executor report (``Executor.on_event``: the
+executor's event thread, or the step thread of the ``thread`` kind, for a moment).
 """
 
 from __future__ import annotations
 
+import enum
 import logging
 import threading
+from collections import Counter, deque
 from collections.abc import Callable, Sequence
+from functools import partial
 
 from motorctl.hal.interfaces import (
     BridgeState,
@@ -38,6 +47,23 @@ def _on_tick(t: float) -> float:
 Listener = Callable[[Motor, str], None]
 #: the planner thread wakes at least this often (its progress is part of health)
 PLANNER_TICK_S = 0.005
+#: How long a hard StopMove's answer waits for the executor to confirm that the motor has
+#: stopped (its position final), by default (config: step_thread.stop_confirm_ms). The step
+#: core applies a stop within one loop iteration, so this is normally well under a
+#: millisecond; the bound only matters for an executor that is stalled (not scheduled,
+#: SIGSTOPped) or dead. See docs/protocol.md, "StopMove".
+STOP_CONFIRM_S = 0.05
+#: the status's percentiles of those waits are over the latest this many
+STOP_WAITS_KEPT = 1024
+
+
+class Settled(enum.Enum):
+    """How :meth:`MotionEngine.settle_stop` ended."""
+
+    CONFIRMED = "confirmed"  # the executor confirmed: the motor's position is final
+    TIMED_OUT = "timed_out"  # no confirmation within the deadline (a stalled executor)
+    SKIPPED = "skipped"  # not waited for: a stop whose wait timed out is still unconfirmed
+    DIED = "died"  # the executor is dead: the motor is faulted, its position lost
 
 
 class MotionEngine:
@@ -48,6 +74,7 @@ class MotionEngine:
         executor: Executor,
         *,
         driver_poll_s: float = 0.01,
+        stop_confirm_s: float = STOP_CONFIRM_S,
     ) -> None:
         if len(params) != len(hw.steppers):
             raise ValueError(f"{len(params)} motors configured, hardware has {len(hw.steppers)}")
@@ -65,17 +92,35 @@ class MotionEngine:
         ]
         self.dc = DcMotor(hw.dc) if hw.dc is not None else None
         self.driver_poll_s = driver_poll_s
+        self.stop_confirm_s = stop_confirm_s
         self._next_poll = self.clock.now() + driver_poll_s
         self._next_plan = float("inf")
         self.executor_died: str | None = None
         self.planner_progress = 0
         self.monitor_progress = 0
         self.driver_errors = 0
-        executor.on_event = self.wake.set
+        # executor reports (on_event calls) so far: what wakes a waiting settle_stop
+        self._reports = threading.Condition(threading.Lock())
+        self._report_count = 0
+        # (motor, its stops_settled) when a wait timed out: skip waits until that changes
+        self._stalled: list[tuple[Motor, int]] = []
+        #: how the hard stops' confirmation waits ended; how long the latest ones took
+        self.stop_waits: Counter[str] = Counter(dict.fromkeys((s.value for s in Settled), 0))
+        self.stop_wait_times: deque[float] = deque(maxlen=STOP_WAITS_KEPT)
+        self.stop_wait_max_s = 0.0
+        executor.on_event = self._on_executor_event
         self._running = False
         self._threads: list[threading.Thread] = []
 
     # -- notifications -------------------------------------------------------
+    def _on_executor_event(self) -> None:
+        """Events are pending (any thread; cheap: never the engine lock, only the moment
+        ``_reports`` takes)."""
+        self.wake.set()
+        with self._reports:
+            self._report_count += 1
+            self._reports.notify_all()
+
     def _notify(self, motor: Motor, event: str) -> None:
         for listener in self.listeners:
             listener(motor, event)
@@ -93,6 +138,101 @@ class MotionEngine:
             raise LookupError("no DC motor")
         self.dc.run(forward, duration_s, end, self.clock.now())
         self.wake.set()
+
+    # -- a hard stop's confirmation (the link thread, WITHOUT the lock) -------------------
+    def settle_stop(self, motor: Motor, timeout_s: float | None = None) -> Settled:
+        """Wait until ``motor``'s hard stop has taken effect in the executor, at most
+        ``timeout_s`` (default ``stop_confirm_s``); the confirming event is processed here,
+        so the motor is idle (or whatever followed the stop) on return.
+
+        Never waits while the executor is dead, nor while a stop whose wait timed out is
+        still unconfirmed (the executor is evidently stalled: a burst of StopMoves to it
+        waits once, not once each).
+
+        On a virtual clock the wait lets virtual time pass: everything due runs in time
+        order (as :meth:`run_until`) until the stop is confirmed or the deadline is reached.
+        """
+        if timeout_s is None:
+            timeout_s = self.stop_confirm_s
+        start = self.clock.now()
+        with self.lock:
+            result = self._settle_check(motor, start)
+            if result is None:
+                self._stalled = [(m, n) for m, n in self._stalled if m.stops_settled == n]
+                if self._stalled:
+                    result = Settled.SKIPPED
+        if result is None:
+            if self.clock.is_virtual:
+                result = self._settle_virtual(motor, start + timeout_s)
+            else:
+                result = self._settle(motor, start + timeout_s)
+        waited = self.clock.now() - start
+        with self.lock:
+            if result is Settled.TIMED_OUT:
+                self._stalled.append((motor, motor.stops_settled))
+            self.stop_waits[result.value] += 1
+            self.stop_wait_times.append(waited)
+            self.stop_wait_max_s = max(self.stop_wait_max_s, waited)
+        return result
+
+    def stop_wait_status(self) -> dict[str, object]:
+        """A snapshot (any thread): how hard stops' confirmation waits ended, how long."""
+        out: dict[str, object] = dict(self.stop_waits)
+        times = sorted(self.stop_wait_times)  # one C-level copy: no torn read, no lock
+
+        def pct(q: float) -> float:
+            return round(times[min(len(times) - 1, int(q * len(times)))] * 1e6, 1)
+
+        out.update(wait_p50_us=pct(0.5) if times else 0.0, wait_p99_us=pct(0.99) if times else 0.0,
+                   wait_max_us=round(self.stop_wait_max_s * 1e6, 1))
+        return out
+
+    def _settle_check(self, motor: Motor, now: float) -> Settled | None:
+        """Lock held: process what the executor reported; the outcome if there is one."""
+        self.process_events(now)
+        if not motor.stopping:
+            return Settled.CONFIRMED
+        if self.executor_died is not None:
+            return Settled.DIED
+        return None
+
+    def _settle(self, motor: Motor, deadline: float) -> Settled:
+        """A real clock: sleep until the executor reports something, then look again."""
+        clock, reports = self.clock, self._reports
+        while True:
+            with reports:
+                seen = self._report_count
+            with self.lock:
+                done = self._settle_check(motor, clock.now())
+            if done is not None:
+                return done
+            left = deadline - clock.now()
+            if left <= 0:
+                return Settled.TIMED_OUT
+            with reports:
+                reports.wait_for(partial(self._reported_since, seen), left)
+
+    def _reported_since(self, seen: int) -> bool:
+        return self._report_count != seen
+
+    def _settle_virtual(self, motor: Motor, deadline: float) -> Settled:
+        """A virtual clock: run what is due, in time order, up to the deadline."""
+        clock = self.clock
+        assert isinstance(clock, VirtualClock)
+        with self.lock:
+            while True:
+                d = self.next_deadline()
+                if d > deadline:
+                    clock.advance_to(deadline)
+                    self.service(clock.now())
+                else:
+                    clock.advance_to(_on_tick(d))
+                    self._tick(clock.now())
+                done = self._settle_check(motor, clock.now())
+                if done is not None:
+                    return done
+                if clock.now() >= deadline:
+                    return Settled.TIMED_OUT
 
     # -- the planner's side (lock held) ------------------------------------------
     def process_events(self, now: float) -> None:

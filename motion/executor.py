@@ -12,9 +12,9 @@ into motion and reports what really happened. Implementations:
   XACTUAL.
 
 Threads: the methods are called by the motion engine with its lock held (the command and
-planner side), except :meth:`Executor.position`, :meth:`Executor.health` and
-:meth:`Executor.endstop_active`, which read snapshots and may be called from any thread
-without a lock. No method blocks on the step path or waits for it.
+planner side), except :meth:`Executor.position`, :meth:`Executor.health`,
+:meth:`Executor.step_lateness` and :meth:`Executor.endstop_active`, which read snapshots and
+may be called from any thread without a lock. No method blocks on the step path or waits for it.
 """
 
 from __future__ import annotations
@@ -25,6 +25,7 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
+from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import Ramp
 
@@ -193,6 +194,11 @@ class Executor(ABC):
 
     @abstractmethod
     def health(self) -> ExecutorHealth: ...
+
+    def step_lateness(self) -> LatencyStats | None:
+        """The lateness histogram of the STEP edges this executor makes (read without a lock);
+        None for an executor that makes none (a chip running its own ramp)."""
+        return None
 
     # -- a virtual clock (tests): executors that run on their own refuse ----------------
     def next_deadline(self) -> float | None:

@@ -1,9 +1,10 @@
 """Lateness of step edges: a fixed-bin histogram, cheap enough for the step path.
 
 The counters live in one flat sequence of ints (a list, or an int64 view of shared memory
-when the step core runs in a process of its own): [count, late, max_ns, bins...]. The step
-core is the only writer; readers (status, benchmarks) read it without a lock and may see a
-histogram a few steps behind its counters, never a torn value.
+when the step core runs in a process of its own): [count, late, max_ns, bins..., blocks...]
+(a block cell counts the edges of BLOCK consecutive bins). The step core is the only writer;
+readers (status, benchmarks) read it without a lock and may see a histogram a few steps
+behind or ahead of its counters, never a torn value.
 """
 
 from __future__ import annotations
@@ -25,8 +26,15 @@ class Cells(Protocol):
 
 
 BINS = 20_000  # 1 us bins up to 20 ms; later edges go to the overflow bin
-CELLS = 3 + BINS + 1
+#: Bins are also counted by blocks of BLOCK: a reader visits only the blocks that hold
+#: something, so a snapshot costs the number of busy bins, not BINS.
+BLOCK_SHIFT = 6
+BLOCK = 1 << BLOCK_SHIFT
+BLOCKS = (BINS + 1 + BLOCK - 1) // BLOCK
 _COUNT, _LATE, _MAX = 0, 1, 2
+_BINS = 3
+_BLOCKS = _BINS + BINS + 1
+CELLS = _BLOCKS + BLOCKS
 
 
 class LatencyStats:
@@ -55,12 +63,19 @@ class LatencyStats:
     def max_s(self) -> float:
         return self._c[_MAX] / 1e9
 
-    @property
-    def bins(self) -> list[int]:
+    def _span(self, start: int, stop: int) -> list[int]:
+        """Cells ``start:stop`` as a list, in one C-level copy (a list or shared memory)."""
         c = self._c
         if isinstance(c, memoryview):
-            return c[3:CELLS].tolist()  # one C-level copy of shared memory
-        return [int(c[i]) for i in range(3, CELLS)]
+            return c[start:stop].tolist()
+        if isinstance(c, list):
+            return c[start:stop]
+        return [int(c[i]) for i in range(start, stop)]
+
+    @property
+    def bins(self) -> list[int]:
+        """Every bin (the last: beyond BINS us); a full copy, for tests and tools."""
+        return self._span(_BINS, _BINS + BINS + 1)
 
     def record(self, lateness_s: float) -> None:
         self.record_ns(round(lateness_s * 1e9))
@@ -73,29 +88,56 @@ class LatencyStats:
         if ns > self._threshold_ns:
             c[_LATE] += 1
         us = ns // 1000 if ns >= 0 else 0
-        c[3 + (us if us < BINS else BINS)] += 1
+        if us > BINS:
+            us = BINS
+        c[_BINS + us] += 1
+        c[_BLOCKS + (us >> BLOCK_SHIFT)] += 1
 
-    def percentile_us(self, q: float, bins: list[int] | None = None) -> float:
+    def histogram(self) -> dict[int, int]:
+        """Non-empty bins, in order: lateness in whole microseconds -> count (the last bin,
+        BINS: beyond). Visits only the blocks that hold something: its cost is the number
+        of busy blocks, not BINS, so a status read stays cheap."""
+        out: dict[int, int] = {}
+        blocks = self._span(_BLOCKS, _BLOCKS + BLOCKS)
+        for b in itertools.compress(range(BLOCKS), blocks):
+            first = b << BLOCK_SHIFT
+            seg = self._span(_BINS + first, _BINS + min(first + BLOCK, BINS + 1))
+            out.update(zip(itertools.compress(range(first, first + len(seg)), seg),
+                           filter(None, seg), strict=True))
+        return out
+
+    def percentile_us(self, q: float) -> float:
         """The q-th percentile (0..100) in microseconds, at 1 us resolution."""
-        cum = list(itertools.accumulate(self.bins if bins is None else bins))
-        return self._percentile(q, cum)
+        blocks = self._span(_BLOCKS, _BLOCKS + BLOCKS)
+        return self._percentile(q, list(itertools.accumulate(blocks)))
 
     def _percentile(self, q: float, cum: list[int]) -> float:
+        """Nearest rank, from the blocks' running totals ``cum``: finds the block, then the
+        bin in it (its own bins only: the cost is bounded, however spread the histogram).
+        A bin read a step ahead of or behind its block's count moves the answer by at most
+        that step, never outside the block."""
         count = cum[-1] if cum else 0
         if count == 0:
             return 0.0
         exact = q / 100.0 * count
         rank = max(1, math.ceil(exact - 1e-12 * exact))  # 99.9% of 1000 is 999, not 1000
-        us = bisect.bisect_left(cum, rank)
+        b = bisect.bisect_left(cum, rank)
+        seen = cum[b - 1] if b else 0
+        first = b << BLOCK_SHIFT
+        seg = self._span(_BINS + first, _BINS + min(first + BLOCK, BINS + 1))
+        us = first
+        for j, n in enumerate(seg):
+            if n:
+                us = first + j
+                seen += n
+                if seen >= rank:
+                    break
         return float(us) if us < BINS else self.max_s * 1e6
 
-    def histogram(self) -> dict[int, int]:
-        """Non-empty bins: lateness in whole microseconds -> count (the last bin: beyond)."""
-        bins = self.bins
-        return {us: bins[us] for us in itertools.compress(range(len(bins)), bins)}
-
     def summary(self) -> dict[str, Any]:
-        cum = list(itertools.accumulate(self.bins))  # one snapshot for all three
+        """Count, p50/p99/p99.9, max and late steps: a bounded cost (the blocks and three of
+        them), whatever the spread, so the status and the watchdog can ask often."""
+        cum = list(itertools.accumulate(self._span(_BLOCKS, _BLOCKS + BLOCKS)))
         return {
             "steps": self.count,
             "p50_us": self._percentile(50, cum),

@@ -56,6 +56,7 @@ class Motor:
         self.traj: Trajectory | None = None
         self.gen = 0
         self._awaiting: int | None = None  # a hard stop's generation, until it took effect
+        self.stops_settled = 0  # how often a stop that was awaited took effect (or was moot)
         self._then: Callable[[float], None] | None = None
         self._ramp = Ramp(1.0, 1.0, 1.0)
         self._phase: HomingPhase | None = None  # while homing
@@ -161,7 +162,7 @@ class Motor:
             self.position_lost = True
         if stopped:
             self.traj = None
-            self._awaiting = None
+            self._settled()
             self._then = None
         else:
             self._hard_stop(now, lambda t: None)
@@ -172,7 +173,7 @@ class Motor:
         k = ev.kind
         if k is K.STOPPED:
             if ev.gen == self._awaiting:
-                self._awaiting = None
+                self._settled()
                 then, self._then = self._then, None
                 if then is not None:
                     then(max(ev.t, now))
@@ -237,8 +238,14 @@ class Motor:
             self._awaiting = self.gen
             self._then = then
         else:
-            self._awaiting = None
+            self._settled()
             then(now)
+
+    def _settled(self) -> None:
+        """No hard stop is awaited any more (the executor confirmed, or stopped on its own)."""
+        if self._awaiting is not None:
+            self._awaiting = None
+            self.stops_settled += 1
 
     def _follow(self, traj: Trajectory, state: MotorState, now: float) -> None:
         was_active = self.active

@@ -12,11 +12,39 @@ The two processes share one block of shared memory:
 - per motor a single-producer single-consumer ring of step segments (daemon -> child);
 - one ring of stops (daemon -> child) and one of events (child -> daemon).
 
-Each ring has a head (written only by its producer) and a tail (only by its consumer); a
-record carries its sequence number, written last, and the consumer takes a record only when
-that number is the one it expects, so a half-written record is never read. A byte on a pipe
-wakes the other side (the child sleeps on it while nothing is due; the daemon's event thread
-on its own pipe and on the child's process sentinel).
+A byte on a pipe wakes the other side (the child sleeps on it while nothing is due; the
+daemon's event thread on its own pipe and on the child's process sentinel).
+
+Memory ordering (x86-64 and ARM64 alike; Python has no memory barrier): ARM64 (a Raspberry
+Pi 4/5) may make one process's stores visible to the other in any order and satisfy loads
+out of order, so nothing here relies on hardware store or load order:
+
+- Each ring (:class:`Ring`) has a head (written only by its producer) and a tail (only by
+  its consumer). A record carries its sequence number and a CRC-32 over the sequence
+  number and every field. The consumer copies a slot once and takes it only when the
+  sequence number is the one it expects AND the CRC matches; a slot not completely
+  visible yet (head or sequence number new, payload old or half new) stays where it is and
+  is taken by a later pull -- at the latest after the producer's wake-up byte, which the
+  kernel's pipe lock orders after the record's stores. Never dropped, never waited for.
+- The consumer stores its tail only after that check, which depends on every byte it
+  loaded; ARM64 never makes a store visible ahead of a branch it depends on, so the
+  producer cannot reuse a slot still being read. The producer's stores of a slot likewise
+  follow its check of the tail.
+- Every other shared value (head, tail, run flag, heartbeat, counters, positions, levels,
+  end-stop map, histogram cells) is one aligned 8-byte cell read and written through a
+  native ``'q'`` memoryview, which CPython packs with one fixed-size 8-byte ``memcpy``
+  (``PACK_SINGLE`` in Objects/memoryobject.c; aarch64 gcc compiles it to one ``str`` of
+  an x register): a single-copy atomic store on ARM64 and x86-64, so a reader sees the
+  old or the new value, never a torn one. Counters and the histogram are snapshots, not
+  records; nothing depends on their order.
+- The one thing read in an order is the start-up: the child writes the end-stop map, then
+  READY, then a byte on the event pipe, and the daemon reads READY (and later the map) only
+  after reading that byte; the pipe orders them as it orders the rings' wake-ups.
+
+A torn slot is taken only if its CRC-32 matches by chance: never for a difference within
+32 consecutive bits (a previous lap's sequence number), 1 in 2**32 for any other mix, and
+a mix is only visible for the moment a store takes to propagate. The check adds about
+0.3 us per record on each side (``bench/rings.py``); records are segments, not steps.
 
 If the child dies, the event thread notices at once (the sentinel) and reports DIED: every
 motor faults (E4, position lost) and health says why; the service then exits non-zero.
@@ -34,6 +62,8 @@ import os
 import select
 import struct
 import threading
+import time
+import zlib
 from collections.abc import Sequence
 from dataclasses import replace
 from multiprocessing import shared_memory
@@ -96,23 +126,62 @@ class Layout:
         self.seg_rings = []
         for _ in range(motors):
             self.seg_rings.append(off)
-            off += 16 + SEG_RING * _SEG.size
+            off += ring_size(_SEG, SEG_RING)
         self.stop_ring = off
-        off += 16 + STOP_RING * _STOP.size
+        off += ring_size(_STOP, STOP_RING)
         self.event_ring = off
-        off += 16 + EVENT_RING * _EVENT.size
+        off += ring_size(_EVENT, EVENT_RING)
         self.size = off
 
 
+# Each slot is the record (its first field the sequence number) followed by the CRC-32 of the
+# record's bytes and 4 zero bytes (slots stay 8-byte aligned). The CRC-32 of a whole slot
+# whose check matches its record is this constant, whatever the record: the consumer checks a
+# slot with one call over one copy of it.
+_CHECK = struct.Struct("<I4x")
+_RESIDUE = zlib.crc32(_CHECK.pack(zlib.crc32(b"")))
+
+
+def ring_size(rec: struct.Struct, capacity: int) -> int:
+    """Bytes a :class:`Ring` of ``capacity`` records of ``rec`` takes in the block."""
+    return 16 + capacity * (rec.size + _CHECK.size)
+
+
 class Ring:
-    """A single-producer single-consumer ring of fixed-size records in shared memory."""
+    """A single-producer single-consumer ring of fixed-size records in shared memory.
+
+    ``rec`` is the record's struct, its first field an int64 sequence number (the
+    caller's fields follow); the slot adds a CRC-32 over the whole record. Correct
+    without any hardware ordering of the record's stores or loads (ARM64 gives none):
+
+    - the consumer copies the slot ONCE and accepts it only when the copy's CRC matches
+      AND its sequence number is the one it expects; anything else (not yet visible,
+      stale from the previous lap, torn) is "not written yet": ``get`` returns None,
+      the tail stays, and the next ``get`` (the next pull, at the latest after the
+      producer's wake-up byte, whose pipe lock orders the stores before it) retries;
+    - the consumer stores the tail only after that check, which depends on every byte
+      it loaded (a control dependency: ARM64 never makes a store visible before the
+      branch it depends on is resolved), so the producer cannot see the slot free while
+      it is still being read; the producer's stores of a slot likewise follow its
+      check of the tail;
+    - head and tail are single aligned 8-byte cells written through a native 'q'
+      memoryview (one 8-byte store, single-copy atomic on ARM64 and x86-64).
+
+    Owners: one producer and one consumer, each in its own process or thread; no
+    method blocks, ``get`` and ``put`` never raise on a full, empty or incomplete ring.
+    """
 
     def __init__(self, buf: memoryview, offset: int, rec: struct.Struct, capacity: int) -> None:
+        if offset % 8 or rec.size % 8:
+            raise ValueError(f"ring at {offset} with {rec.size}-byte records: not 8-byte "
+                             "aligned (head/tail and slots must be)")
         self.buf = buf
         self.cells = buf[offset : offset + 16].cast("q")  # [head, tail]
         self.base = offset + 16
         self.rec = rec
+        self.slot = rec.size + _CHECK.size
         self.cap = capacity
+        self.incomplete = 0  # gets that found the next record announced but not complete
 
     def free(self) -> int:
         return self.cap - (self.cells[0] - self.cells[1])
@@ -121,10 +190,10 @@ class Ring:
         head = self.cells[0]
         if head - self.cells[1] >= self.cap:
             return False
-        at = self.base + (head % self.cap) * self.rec.size
-        # the payload first, then its sequence number, then the head
-        self.rec.pack_into(self.buf, at, -1, *fields)
-        struct.pack_into("<q", self.buf, at, head + 1)
+        # the stores below follow the branch on the tail just loaded
+        at = self.base + (head % self.cap) * self.slot
+        body = self.rec.pack(head + 1, *fields)
+        self.buf[at : at + self.slot] = body + _CHECK.pack(zlib.crc32(body))
         self.cells[0] = head + 1
         return True
 
@@ -132,11 +201,16 @@ class Ring:
         tail = self.cells[1]
         if tail >= self.cells[0]:
             return None
-        at = self.base + (tail % self.cap) * self.rec.size
-        rec = self.rec.unpack_from(self.buf, at)
+        at = self.base + (tail % self.cap) * self.slot
+        raw = self.buf[at : at + self.slot].tobytes()  # one copy: what is checked is used
+        if zlib.crc32(raw) != _RESIDUE:
+            self.incomplete += 1
+            return None
+        rec = self.rec.unpack_from(raw)
         if rec[0] != tail + 1:
-            return None  # not completely written yet
-        self.cells[1] = tail + 1
+            self.incomplete += 1
+            return None
+        self.cells[1] = tail + 1  # only after the check on every loaded byte
         return rec[1:]
 
     def pending(self) -> bool:
@@ -266,7 +340,6 @@ def _child_main(
                     stats=LatencyStats(late_threshold_s, shared.latency), spin_s=spin_s)
     header = shared.header
     header[_PID] = os.getpid()
-    header[_READY] = 1
 
     def wait(timeout: float) -> None:
         if os.getppid() != parent:  # the daemon is gone (PDEATHSIG is the first guard)
@@ -281,6 +354,13 @@ def _child_main(
     gc.collect()
     gc.freeze()
     gc.disable()
+    # ready when the loop starts (not before the collection above: the daemon plans the
+    # first steps a few ms ahead as soon as start() returns). The daemon reads READY (and so
+    # the end-stop map above) only after this byte: the pipe orders our stores before its
+    # loads on a weakly ordered CPU too
+    header[_READY] = 1
+    with contextlib.suppress(BlockingIOError):
+        os.write(event_fd, b"r")
     try:
         core.run(lambda: bool(header[_RUN]), wait)
     finally:
@@ -360,18 +440,25 @@ class ProcessStepExecutor(StepExecutor):
             daemon=True,
         )
         self.proc.start()
-        ready = threading.Event()
-        deadline = self.start_timeout_s
-        while not self.shared.header[_READY]:
+        # READY is read only after the child's byte on the event pipe (see _child_main): the
+        # end-stop map it wrote before is then visible here on ARM64 too
+        deadline = time.monotonic() + self.start_timeout_s
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                self.proc.kill()
+                self.proc.join(5)
+                raise HalError("the step executor process did not start within "
+                               f"{self.start_timeout_s:.0f} s")
+            if self._event_r in mp_wait([self.proc.sentinel, self._event_r], left):
+                # the child's first byte on this pipe; event bytes after it are the watcher's
+                with contextlib.suppress(BlockingIOError, OSError):
+                    os.read(self._event_r, 1)
+                if self.shared.header[_READY]:
+                    break
             if not self.proc.is_alive():
                 raise HalError(f"the step executor process exited at start (code "
                                f"{self.proc.exitcode}); see the log above")
-            ready.wait(0.01)
-            deadline -= 0.01
-            if deadline <= 0:
-                self.proc.kill()
-                raise HalError("the step executor process did not start within "
-                               f"{self.start_timeout_s:.0f} s")
         self._watcher = threading.Thread(target=self._watch, name="motorctl-exec-watch",
                                          daemon=True)
         self._watcher.start()
@@ -511,3 +598,6 @@ class ProcessStepExecutor(StepExecutor):
             counters=counters,
             latency=self.stats.summary(),
         )
+
+    def step_lateness(self) -> LatencyStats:
+        return self.stats  # after close: a plain copy of the last cells

@@ -39,6 +39,7 @@ from motorctl.motion.executor import (
     Executor,
     ExecutorHealth,
 )
+from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import Ramp
 
@@ -367,6 +368,16 @@ class SplitExecutor(Executor):
             counters=counters,
             latency=next((h.latency for h in parts if h.latency), {}),
         )
+
+    @property
+    def pid(self) -> int | None:
+        """The process of the part that runs in one (a ``process`` step executor), if any."""
+        return next((p for ex in self.parts if isinstance(p := getattr(ex, "pid", None), int)),
+                    None)
+
+    def step_lateness(self) -> LatencyStats | None:
+        """The step executor's (the ramp executor makes no STEP edges)."""
+        return next((s for ex in self.parts if (s := ex.step_lateness()) is not None), None)
 
     def next_deadline(self) -> float | None:
         found = [d for ex in self.parts if (d := ex.next_deadline()) is not None]

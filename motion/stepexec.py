@@ -397,6 +397,9 @@ class ThreadStepExecutor(StepExecutor):
             latency=self.stats.summary(),
         )
 
+    def step_lateness(self) -> LatencyStats:
+        return self.stats
+
     # -- the virtual clock ---------------------------------------------------------------
     def next_deadline(self) -> float | None:
         if not self.virtual:

@@ -107,8 +107,9 @@ class DaemonProcess:
     def client(self, timeout: float = 5.0, **kw: Any) -> Client:
         return Client(str(self.pty), timeout=timeout, **kw)
 
-    def status(self) -> dict[str, Any]:
-        return read_status(self.state_dir / "status.sock")
+    def status(self, histogram: bool = False) -> dict[str, Any]:
+        """The daemon's status; ``histogram``: with ``steps.histogram_us``."""
+        return read_status(self.state_dir / "status.sock", histogram=histogram)
 
     def terminate(self, timeout: float = 20.0) -> int:
         assert self.proc is not None

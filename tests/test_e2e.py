@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import os
 import signal
+import subprocess
+import sys
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
@@ -549,6 +552,14 @@ def test_status_has_the_step_lateness_histogram(daemon: DaemonProcess) -> None:
     with daemon.client() as c:
         c.move_to(0, 300)
         c.wait_moved(0, 10_000)
-    steps = daemon.status()["steps"]
+    assert "histogram_us" not in daemon.status()["steps"]  # only when asked: it can be big
+    steps = daemon.status(histogram=True)["steps"]
     histogram = {int(us): n for us, n in steps["histogram_us"].items()}
     assert sum(histogram.values()) == steps["steps"] >= 300
+    cli = [sys.executable, "-m", "motorctl.daemon.main", "--state-dir", str(daemon.state_dir),
+           "--status"]
+    run = subprocess.run([*cli, "--histogram"], capture_output=True, text=True, timeout=30)
+    assert run.returncode == 0, run.stderr
+    assert json.loads(run.stdout)["steps"]["histogram_us"] == steps["histogram_us"]
+    run = subprocess.run([*cli[:-1], "--histogram"], capture_output=True, text=True, timeout=30)
+    assert run.returncode == 2 and "--histogram goes with --status" in run.stderr

@@ -976,6 +976,30 @@ def test_latency_overflow_early_and_reset() -> None:
     assert stats.count == 0 and stats.late == 0 and stats.percentile_us(99) == 0.0
 
 
+@settings(max_examples=60, deadline=None)
+@given(st.lists(st.one_of(st.integers(-50, 3_000), st.integers(0, 25_000)), min_size=1,
+                max_size=400), st.booleans())
+def test_latency_blocks_agree_with_a_full_scan(lateness_us: list[int], shared: bool) -> None:
+    """The status reads the histogram and percentiles through the block counts (a cost of
+    the busy blocks, not 20,001 bins): the same answers as a scan of every bin."""
+    import array
+
+    from motorctl.motion.latency import BINS, CELLS
+
+    cells = memoryview(array.array("q", bytes(8 * CELLS))) if shared else None
+    stats = LatencyStats(cells=cells)
+    for us in lateness_us:
+        stats.record_ns(us * 1000 + 500)
+    bins = stats.bins
+    assert stats.histogram() == {us: n for us, n in enumerate(bins) if n}
+    cum = list(itertools.accumulate(bins))
+    for q in (0, 1, 50, 99, 99.9, 100):
+        rank = max(1, math.ceil(q / 100 * len(lateness_us) - 1e-12 * q / 100 * len(lateness_us)))
+        us = next(i for i, c in enumerate(cum) if c >= rank)
+        want = float(us) if us < BINS else stats.max_s * 1e6
+        assert stats.percentile_us(q) == want, q
+
+
 # ---------------------------------------------------------------- engine plumbing
 
 

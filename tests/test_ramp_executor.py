@@ -223,6 +223,23 @@ def test_split_executor_routes_motors_and_maps_events_back() -> None:
         SplitExecutor([(steps, 0), (steps, 0)])
 
 
+def test_split_executor_shows_the_step_executors_lateness_and_process() -> None:
+    from motorctl.motion.latency import LatencyStats
+
+    class Steps(Recorder):
+        pid = 4242
+        stats = LatencyStats()
+
+        def step_lateness(self) -> LatencyStats:
+            return self.stats
+
+    ramp, steps = Recorder(1), Steps(1)
+    assert SplitExecutor([(ramp, 0)]).step_lateness() is None
+    assert SplitExecutor([(ramp, 0)]).pid is None
+    split = SplitExecutor([(ramp, 0), (steps, 0)])
+    assert split.step_lateness() is steps.stats and split.pid == 4242
+
+
 # ------------------------------------------------------------------ through the engine
 
 

@@ -153,3 +153,26 @@ def test_a_tmc5160_ramp_motor_moves_homes_and_reports_its_position(
         c.wait_moved(2, timeout_ms=10_000)
         assert c.position(2) == 300
     assert daemon.terminate() == 0
+
+
+def test_with_a_ramp_motor_the_status_still_has_the_step_edges_histogram(
+    daemon: DaemonProcess,
+) -> None:
+    """Motor z runs on its TMC5160's own ramp, so the daemon splits the motors between the
+    step executor and the ramp executor: the lateness histogram is the step executor's
+    (the ramp motor makes no STEP edges), and its process is still named."""
+    with daemon.client() as c:
+        c.move_to(0, 120, speed=250)  # STEP/DIR (TMC2130)
+        c.move_to(2, 500, speed=250)  # the chip's ramp
+        c.wait_moved(0, timeout_ms=10_000)
+        c.wait_moved(2, timeout_ms=10_000)
+        assert (c.position(0), c.position(2)) == (120, 500)
+    status = daemon.status(histogram=True)
+    steps = status["steps"]
+    assert "histogram_us" not in daemon.status()["steps"]  # only when asked
+    histogram = {int(us): n for us, n in steps["histogram_us"].items()}
+    assert sum(histogram.values()) == steps["steps"] == 120  # motor 0's edges, not z's
+    assert steps["p50_us"] <= steps["p99_us"] <= steps["p999_us"]
+    assert status["executor"]["kind"] == "process" and status["executor"]["alive"]
+    assert isinstance(status["executor"]["pid"], int)
+    assert daemon.terminate() == 0

@@ -19,6 +19,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
+from motorctl.motion.engine import STOP_CONFIRM_S
 from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import POS_MAX, POS_MIN
 from motorctl.protocol.crc import (
@@ -222,6 +223,14 @@ class StepThreadConfig:
         1e7,
         "A step that would be later than this is not made: that motor stops and latches "
         "E4 'step timing lost' (position lost if it ran faster than its start speed).",
+    )
+    stop_confirm_ms: float = number(
+        STOP_CONFIRM_S * 1000.0,
+        1,
+        10000,
+        "A hard StopMove is answered once the executor confirms the motor stopped (normally "
+        "well under 1 ms), so IsReady right after it answers 1; at most this long, then it "
+        "is answered all the same (a stalled executor; docs/protocol.md, StopMove).",
     )
 
 

@@ -1,0 +1,92 @@
+"""The status socket of a live daemon (in-process, thread executor, link on a real PTY): the
+document is complete, a read takes no motion lock, the whole histogram comes only when asked.
+(How fast reads are is a figure, not a test: bench/status_rate.py.)"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+from motorctl.daemon.status import StatusServer, read_status
+from motorctl.motion.latency import BINS
+from motorctl.protocol.codec import Move, StopMove, WaitMoved
+from tests.daemon_proc import until
+from tests.test_hal_faults import Live, moving
+
+READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
+
+MOTOR_KEYS = {"index", "name", "state", "position", "queued", "fault", "position_lost",
+              "waypoints"}
+#: what bench/steps.py, bench/latency.py, docs/timing.md and the tests read from ``steps``
+STEP_KEYS = {"steps", "p50_us", "p99_us", "p999_us", "max_us", "late", "late_threshold_us",
+             "timing_lost", "min_gap_ns", "dropped", "io_errors", "endstops", "progress"}
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[tuple[Live, Path]]:
+    live = Live(tmp_path)
+    path = tmp_path / "status.sock"
+    server = StatusServer(path, live.daemon.status)
+    server.start()
+    try:
+        yield live, path
+    finally:
+        server.close()
+        assert live.alive(), "a daemon thread died"
+        live.close()
+
+
+def nearest_rank(histogram: dict[int, int], q: float) -> float:
+    keys = sorted(histogram)
+    cum = list(itertools.accumulate(histogram[k] for k in keys))
+    exact = q / 100 * cum[-1]
+    rank = max(1, math.ceil(exact - 1e-12 * exact))
+    return float(next(k for k, c in zip(keys, cum, strict=True) if c >= rank))
+
+
+def test_status_is_complete_and_the_histogram_comes_when_asked(
+    served: tuple[Live, Path],
+) -> None:
+    live, path = served
+    moving(live, 0)
+    doc = read_status(path, timeout=READ_DEADLINE_S)
+    assert {"motors", "steps", "executor", "clamped", "state", "link"} <= set(doc)
+    assert [m["index"] for m in doc["motors"]] == [0, 1]
+    assert all(set(m) >= MOTOR_KEYS for m in doc["motors"])
+    assert doc["motors"][0]["state"] != "idle" and doc["motors"][0]["fault"] is None
+    assert set(doc["steps"]) >= STEP_KEYS and doc["steps"]["steps"] > 0
+    assert "histogram_us" not in doc["steps"]  # bounded cost unless asked
+    assert doc["executor"] == {"alive": True, "reason": None, "kind": "thread", "pid": None}
+    assert {"counters", "processing"} <= set(doc["link"])
+    assert doc["state"]["ok"] is True
+    assert live.code(StopMove(0, True)) is None
+    assert live.code(WaitMoved(0, 20_000)) is None
+    full = read_status(path, timeout=READ_DEADLINE_S, histogram=True)
+    steps = full["steps"]
+    histogram = {int(us): n for us, n in steps["histogram_us"].items()}
+    assert sum(histogram.values()) == steps["steps"] > 0  # at rest: one snapshot
+    for name, q in (("p50_us", 50), ("p99_us", 99), ("p999_us", 99.9)):
+        expected = nearest_rank(histogram, q)  # the summary agrees (beyond: the maximum)
+        assert steps[name] == expected if expected < BINS else steps[name] >= BINS, name
+    plain = read_status(path, timeout=READ_DEADLINE_S)["steps"]
+    moving_on = ("histogram_us", "progress")  # progress: the core's turns, also at rest
+    assert {k: v for k, v in plain.items() if k not in moving_on} == {
+        k: v for k, v in steps.items() if k not in moving_on}
+
+
+def test_a_status_read_takes_no_motion_lock(served: tuple[Live, Path]) -> None:
+    """While something holds the engine lock (planning, a command), status still answers:
+    a read that waited for the lock would time out here."""
+    live, path = served
+    assert live.code(Move(1, True, 1, 0, 0)) is None
+    until("motor 1 stepping",
+          lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"] > 0)
+    with live.daemon.engine.lock:
+        doc = read_status(path, timeout=READ_DEADLINE_S)
+        full = read_status(path, timeout=READ_DEADLINE_S, histogram=True)
+    assert doc["motors"][1]["state"] != "idle" and doc["executor"]["alive"]
+    assert sum(full["steps"]["histogram_us"].values()) > 0
