@@ -52,7 +52,7 @@ class Event(NamedTuple):
 
     t: float
     kind: EventKind
-    index: int
+    index: int  # type: ignore[assignment]  # shadows tuple.index: the field's name
     value: Any
 
 

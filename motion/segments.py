@@ -13,7 +13,7 @@ Pure functions; no I/O, no clock. Used by the planner (the daemon's process).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import MutableSequence, Sequence
 from typing import Any, NamedTuple
 
 
@@ -119,7 +119,7 @@ class SegmentCutter:
         return self._next_step_distance() is None
 
     def cut(self, horizon: float, gen: int, watch: bool,
-            bounds: list[Boundary] | None = None) -> list[StepSegment]:
+            bounds: MutableSequence[Boundary] | None = None) -> list[StepSegment]:
         """Segments of every step up to ``horizon`` (seconds; at least the next step)."""
         out: list[StepSegment] = []
         while True:
@@ -143,7 +143,7 @@ class SegmentCutter:
     def _run(self, seg: Any, sigma: int, d: float, horizon: float,
              first_one: bool) -> tuple[int, int, int, int, float, float]:
         """The next run of steps in ``seg``: (count, first, interval, add, t first, t last)."""
-        t0, length = seg.t0, _length(seg, sigma)
+        _t0, length = seg.t0, _length(seg, sigma)
         w0 = max(sigma * seg.v0, 0.0)
         alpha = sigma * seg.a
         snap = _stops(seg, sigma)

@@ -2,8 +2,8 @@
 
 :class:`StepExecutor` is the planner half (the daemon's process, engine lock held): it
 walks each motor's trajectory a little ahead of time (``ahead_s``), cuts the steps into
-segments in closed form (:class:`motion.segments.SegmentCutter`) and hands them to a step core through a
-:class:`~motorctl.motion.stepcore.CoreInbox`. Subclasses say where the core runs:
+segments in closed form (:class:`motion.segments.SegmentCutter`) and hands them to a step
+core through a :class:`~motorctl.motion.stepcore.CoreInbox`. Subclasses say where the core runs:
 
 - :class:`ThreadStepExecutor` (kind ``thread``): a thread of this process, or, on a virtual
   clock, no thread at all (the engine drives it through ``next_deadline``/``advance``).

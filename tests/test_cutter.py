@@ -8,6 +8,7 @@ handed over; the core drops the cut part silently, or faults when the cut came t
 
 from __future__ import annotations
 
+import itertools
 import math
 import random
 
@@ -19,7 +20,7 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.mock import build
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import ExecEventKind, to_ticks
+from motorctl.motion.executor import ExecEvent, ExecEventKind, to_ticks
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
 from motorctl.motion.segments import SegmentCutter, StepSegment
 from motorctl.motion.stepcore import COUNTER_NAMES
@@ -157,7 +158,7 @@ def test_a_soft_stop_takes_over_within_lead_and_span_not_after_the_horizon(
         assert m.stop(hard=False, now=t_cmd)
     engine.run_until_idle()
     times = step_times(engine)
-    gaps = [(b - a, b) for a, b in zip(times, times[1:], strict=False) if b > t_cmd]
+    gaps = [(b - a, b) for a, b in itertools.pairwise(times) if b > t_cmd]
     # the deceleration (50,000 step/s^2: the gaps grow) starts within lead + span
     slowing = next(t for g, t in gaps if g > 1 / 5000 + 2e-6)
     assert slowing - t_cmd <= 0.002 + 0.002 + 1 / 5000
@@ -181,7 +182,7 @@ def test_a_new_speed_while_running_takes_over_soon_and_keeps_the_step_count_exac
         m.submit(RunCmd(1, Ramp(8000.0, 1e6, 1e6)), clock.now())
     engine.run_until(clock.now() + 0.2)
     times = step_times(engine)
-    faster = next(b for a, b in zip(times, times[1:], strict=False)
+    faster = next(b for a, b in itertools.pairwise(times)
                   if b > t_cmd and b - a < 1 / 2000 - 1e-5)
     assert faster - t_cmd <= 0.002 + 0.002 + 1 / 2000
     assert ex.position(0) == len(times)  # no step lost or made twice at the cut
@@ -199,7 +200,7 @@ def test_an_empty_re_plan_behind_handed_over_steps_reports_done_after_them() -> 
         end = ex.plans[0].until
         still = Trajectory((Segment(end, 0.0, 100.0, 0.0, 0.0),))
         assert ex.follow(0, still, Ramp(5000.0, 1e6, 1e6), 2)  # True: DONE will follow
-    events = []
+    events: list[ExecEvent] = []
     deadline = clock.now() + 1.0
     while clock.now() < deadline and not any(e.kind is K.DONE for e in events):
         engine.executor.advance(clock.now())

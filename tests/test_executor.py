@@ -12,8 +12,6 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from motorctl.daemon.service import ProgressWatch
 from motorctl.hal.interfaces import MonotonicClock, VirtualClock
@@ -23,7 +21,6 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import AxisLimits, ExecEvent, ExecEventKind, to_ticks
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.procexec import ProcessStepExecutor
-from motorctl.motion.profile import Steps, plan_move_to, plan_run
 from motorctl.motion.segments import StepSegment
 from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits

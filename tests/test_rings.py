@@ -221,19 +221,19 @@ def test_a_slot_overwritten_by_the_next_lap_while_being_read_is_not_taken() -> N
     control dependency prevents), the copy mixes record k and record k + capacity: it is
     taken only if it is record k, whole."""
     ring = _ring(_STOP, 2)
-    assert ring.put(1, 11) and ring.put(2, 22)  # records 0 and 1: full
+    assert ring.put(1, 11, -1) and ring.put(2, 22, 7)  # records 0 and 1: full
     at = _at(ring, 0)
     current = bytes(ring.buf[at : at + ring.slot])
-    next_lap = _slot_of(ring, 2, (3, 33))
+    next_lap = _slot_of(ring, 2, (3, 33, 5))
     words = ring.slot // 8
     for mask in range(1, 1 << words):
         seen = _mix(current, next_lap, [bool(mask >> k & 1) for k in range(words)], 8)
         ring.buf[at : at + ring.slot] = seen
         assert ring.get() is None, f"mask {mask:#x}"
         assert ring.cells[1] == 0
-        assert not ring.put(9, 99)  # still full: the producer does not touch the slot
+        assert not ring.put(9, 99, -1)  # still full: the producer does not touch the slot
     ring.buf[at : at + ring.slot] = current
-    assert ring.get() == (1, 11) and ring.get() == (2, 22) and ring.get() is None
+    assert ring.get() == (1, 11, -1) and ring.get() == (2, 22, 7) and ring.get() is None
 
 
 def test_a_rejected_record_keeps_its_slot_from_the_producer() -> None:
