@@ -300,6 +300,7 @@ def _child_main(
     rt: RealtimeOptions,
     spin_s: float,
     late_threshold_s: float,
+    coalesce_s: float,
     wake: Any,
     events: Any,
 ) -> None:
@@ -337,7 +338,8 @@ def _child_main(
 
     core = StepCore(io, limits, inbox, emit, positions=shared.positions,
                     levels=shared.levels, counters=shared.counters,
-                    stats=LatencyStats(late_threshold_s, shared.latency), spin_s=spin_s)
+                    stats=LatencyStats(late_threshold_s, shared.latency), spin_s=spin_s,
+                    coalesce_s=coalesce_s)
     header = shared.header
     header[_PID] = os.getpid()
 
@@ -400,6 +402,7 @@ class ProcessStepExecutor(StepExecutor):
         self.spec = replace(spec, options={**spec.options, **hw.step_io_options})
         self.rt = rt or RealtimeOptions(priority=0, lock_memory=False)
         self.spin_s = spin_s
+        self.coalesce_s = max_error_s  # a step may share an earlier pulse within the error
         self.late_threshold_s = late_threshold_s
         self.start_timeout_s = start_timeout_s
         motors = len(limits)
@@ -435,6 +438,7 @@ class ProcessStepExecutor(StepExecutor):
             target=_child_main,
             args=(self.shm.name, self.layout.motors, self.lines, self.backend, self.spec,
                   list(self.limits), self.rt, self.spin_s, self.late_threshold_s,
+                  self.coalesce_s,
                   self._wake_conn_r, self._event_conn_w),
             name="motorctl-executor",
             daemon=True,

@@ -279,8 +279,9 @@ class SplitExecutor(Executor):
 
     ``routes[m] = (executor, local)``: motor ``m`` is the executor's motor ``local``. An
     executor may drive motors that are not routed to it (a step executor built for every
-    axis, whose TMC5160 ramp axes go to a RampExecutor): they are never given work. An
-    executor that dies faults only the motors routed to it (position lost).
+    axis, whose TMC5160 ramp axes go to a RampExecutor): they are never given work. A part
+    that dies is the executor dying (DIED, motor -1): every motor faults, position lost,
+    and the daemon exits for its service manager to restart it, as with one executor.
     """
 
     def __init__(self, routes: Sequence[tuple[Executor, int]]) -> None:
@@ -336,10 +337,8 @@ class SplitExecutor(Executor):
         out: list[ExecEvent] = []
         for ex in self.parts:
             for ev in ex.events():
-                if ev.kind is K.DIED:  # only the motors routed to it are lost
-                    mine = [m for m, (e, _) in enumerate(self.routes) if e is ex]
-                    out += [ExecEvent(K.FAULT, m, ev.gen, ev.position, ev.t,
-                                      detail=f"executor died: {ev.detail}") for m in mine]
+                if ev.kind is K.DIED:  # the executor's death, as without ramp motors:
+                    out.append(ev)  # every motor faults, position lost; the daemon exits 3
                     continue
                 m = self._back.get((id(ex), ev.motor))
                 if m is not None:  # events of unrouted motors concern nobody

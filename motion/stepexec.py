@@ -308,6 +308,7 @@ class ThreadStepExecutor(StepExecutor):
             self.io, limits, self.inbox, self._emit,
             positions=self.positions, levels=self.levels, counters=self.counters,
             stats=self.stats, spin_s=spin_s,
+            coalesce_s=0.0 if virtual else max_error_s,  # virtual: the exact planned ticks
         )
         self._wake = threading.Event()
         self._running = False

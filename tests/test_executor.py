@@ -339,3 +339,44 @@ def test_timeline_file_round_trip(tmp_path: Path) -> None:
     lines = [json.loads(line) for line in path.read_text().splitlines()]
     assert [k for _, k, _, _ in lines] == ["dir", "step"]
     assert read_timeline(str(path)).step_times(0) == [clock.now()]
+
+
+def test_a_step_planned_within_the_coalesce_window_shares_the_pulse_but_never_the_spacing(
+) -> None:
+    c = Core(motors=2, max_speed=1000.0)  # min interval 1 ms
+    c.core.coalesce = to_ticks(5e-6)
+    calls: list[list[int]] = []
+    out = c.core.io.outputs
+    real = out._write_steps
+
+    def spy(motors: Sequence[int], level: bool) -> None:
+        if level:
+            calls.append(list(motors))
+        real(motors, level)
+
+    out._write_steps = spy  # type: ignore[method-assign]
+    t0 = c.clock.now()
+    start = to_ticks(t0 + 0.001)
+    c.inbox.queues[0].append(StepSegment(start, 2_000_000, 3, 0, 1, 1))
+    c.inbox.queues[1].append(StepSegment(start + 3000, 2_000_000, 3, 0, 1, 1))  # 3 us later
+    c.run_until(t0 + 0.01)
+    assert calls == [[0, 1]] * 3  # motor 1 came 3 us early, in motor 0's pulse
+    assert c.times(1) == c.times(0)
+    # 8 us later is outside the window: its own pulse
+    calls.clear()
+    t1 = c.clock.now()
+    start = to_ticks(t1 + 0.001)
+    c.inbox.queues[0].append(StepSegment(start, 2_000_000, 2, 0, 1, 2))
+    c.inbox.queues[1].append(StepSegment(start + 8000, 2_000_000, 2, 0, 1, 2))
+    c.run_until(t1 + 0.01)
+    assert calls == [[0], [1]] * 2
+    # a step held back by the spacing bound is not pulled forward by another's pulse
+    calls.clear()
+    t2 = c.clock.now()
+    start = to_ticks(t2 + 0.001)
+    c.inbox.queues[0].append(StepSegment(start, 500_000, 2, 0, 1, 3))  # 0.5 ms: too fast
+    c.inbox.queues[1].append(StepSegment(start + 500_000 + 2000, 0, 1, 0, 1, 3))
+    c.run_until(t2 + 0.01)
+    assert calls == [[0], [1], [0]]  # motor 0's second step waits for its 1 ms spacing
+    gaps = [b - a for a, b in itertools.pairwise(c.times(0))]
+    assert min(gaps) >= 1e-3 - 1e-9
