@@ -40,6 +40,8 @@ from motorctl.motion.types import MotorParams, Ramp
 log = logging.getLogger("motorctl.executor")
 
 K = ExecEventKind
+#: the planner tops up the handed-over steps once this much of the horizon has been used
+REFILL_S = 0.005
 _SELF_STOPS = (K.ENDSTOP, K.TIMING_LOST, K.FAULT)
 
 
@@ -229,9 +231,11 @@ class StepExecutor(Executor):
             self._push(motor, out)
 
     def service(self, now: float) -> float:
-        """Refill every motor whose handed-over steps run out within half the horizon."""
+        """Top up every motor's handed-over steps to the horizon once ``refill_s`` of it has
+        been used: many small refills rather than a few big ones, so the planner holds the
+        daemon's GIL (against the link thread) for a short while each time."""
         nxt = float("inf")
-        half = self.ahead_s / 2
+        half = self.ahead_s - min(self.ahead_s / 2, REFILL_S)  # the name: what must remain
         for m, p in enumerate(self.plans):
             if p.cutter is None:
                 continue
