@@ -215,7 +215,8 @@ class StepThreadConfig:
         2,
         1000,
         "Steps are planned and handed to the executor this far ahead; a soft stop or a new "
-        "speed takes effect after what is already handed over.",
+        "speed still takes over within a few ms (the handed-over plan is cut at the first "
+        "segment boundary after the executor's lead time; docs/timing.md).",
     )
     max_lateness_us: float = number(
         2000.0,
