@@ -68,6 +68,20 @@ class Core:
     def times(self, motor: int = 0) -> list[float]:
         return self.world.timeline.step_times(motor)
 
+    def pulse_calls(self) -> list[list[int]]:
+        """From now on, the motors of each STEP rise, one list per backend call."""
+        calls: list[list[int]] = []
+        out = self.core.io.outputs
+        real = out._write_steps
+
+        def spy(motors: Sequence[int], level: bool) -> None:
+            if level:
+                calls.append(list(motors))
+            real(motors, level)
+
+        out._write_steps = spy  # type: ignore[method-assign]
+        return calls
+
 
 def test_the_core_makes_the_planned_steps_exactly() -> None:
     c = Core()
@@ -137,16 +151,7 @@ def test_a_hard_stop_takes_effect_before_the_next_step() -> None:
 
 def test_two_motors_due_on_the_same_tick_share_one_pulse_call() -> None:
     c = Core(motors=2)
-    calls: list[list[int]] = []
-    out = c.core.io.outputs
-    real = out._write_steps
-
-    def spy(motors: Sequence[int], level: bool) -> None:
-        if level:
-            calls.append(list(motors))
-        real(motors, level)
-
-    out._write_steps = spy  # type: ignore[method-assign]
+    calls = c.pulse_calls()
     t0 = c.clock.now()
     c.cruise(0, 1000.0, 5, t0 + 0.001)
     c.cruise(1, 1000.0, 5, t0 + 0.001)
@@ -345,16 +350,7 @@ def test_a_step_planned_within_the_coalesce_window_shares_the_pulse_but_never_th
 ) -> None:
     c = Core(motors=2, max_speed=1000.0)  # min interval 1 ms
     c.core.coalesce = to_ticks(5e-6)
-    calls: list[list[int]] = []
-    out = c.core.io.outputs
-    real = out._write_steps
-
-    def spy(motors: Sequence[int], level: bool) -> None:
-        if level:
-            calls.append(list(motors))
-        real(motors, level)
-
-    out._write_steps = spy  # type: ignore[method-assign]
+    calls = c.pulse_calls()
     t0 = c.clock.now()
     start = to_ticks(t0 + 0.001)
     c.inbox.queues[0].append(StepSegment(start, 2_000_000, 3, 0, 1, 1))
