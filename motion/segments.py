@@ -180,9 +180,11 @@ class SegmentCutter:
                 a2, b2 = k2, k2 * (k2 - 1) / 2
                 add = round((a1 * (last - first) - a2 * mid) / (a1 * b2 - a2 * b1))
                 interval = round((last - first - add * b2) / a2)
-            if interval > 0 and interval + add * (k2 - 1) > 0 and self._checks(
+            # at constant speed the error is rounding only, within the bound by the length
+            # chosen (``_length_within_error``): no check needed
+            if interval > 0 and interval + add * (k2 - 1) > 0 and (alpha == 0 or self._checks(
                 seg, sigma, w0, alpha, d, length, first, interval, add, k2
-            ):
+            )):
                 return n, first, interval, add, t_d, t_end
             n = max(n // 2, 1)
 
