@@ -114,8 +114,10 @@ class StepCore:
         self.prev_t = [0] * n  # planned time of the last step emitted
         self.last_edge = [-(1 << 62)] * n  # actual time of the last step emitted
         self.stopped_gen = [-1] * n  # segments of this generation and older are dropped
-        self.cut_gen = [-1] * n  # ... and of this one and older from cut_tick on
-        self.cut_tick = [NEVER] * n
+        # re-plans: (gen, tick) per cut, segments of gen or older from tick on are dropped;
+        # every cut still pending counts (a segment of an older plan may still be on its way
+        # when the next re-plan cuts the newer one later)
+        self.cuts: list[list[tuple[int, int]]] = [[] for _ in range(n)]
         self.ready = [-(1 << 62)] * n  # DIR settled (ticks)
         inputs = io.inputs
         self.since = [0] * len(inputs.names)
@@ -134,6 +136,7 @@ class StepCore:
                 self._cut(m, gen, cut)
                 continue
             self.stopped_gen[m] = gen
+            self.cuts[m].clear()  # every cut so far was of an older plan: all dropped now
             self._drop(m)
             self.emit(ExecEvent(K.STOPPED, m, gen, self.pos[m], self._now_s()))
 
@@ -141,21 +144,20 @@ class StepCore:
         """A re-plan: segments of ``gen`` and older from tick ``cut`` on are not made."""
         if self.stopped_gen[m] == BLOCKED:
             return  # stopped on our own account: everything is dropped until the answer
-        self.cut_gen[m], self.cut_tick[m] = gen, cut
+        self.cuts[m].append((gen, cut))
         if self.next_t[m] != NEVER and self.gen[m] <= gen and self.seg_first[m] >= cut:
             if self.left[m] < self.seg_count[m]:  # it began already: the re-plan came late
-                late = self.clock.now_ns() - cut
-                self._lost(m, self.clock.now_ns(), f"re-plan came {late / 1000:.0f} us late")
+                now = self.clock.now_ns()
+                self._lost(m, now, f"re-plan came {(now - cut) / 1000:.0f} us late")
                 return
             self._unload(m)
-        q = self.inbox.queues[m]
-        if q:
-            keep = [s for s in q if not (s.gen <= gen and s.first >= cut)]
-            self.counters[DROPPED] += len(q) - len(keep)
-            q.clear()
-            q.extend(keep)
         if self.next_t[m] == NEVER:
-            self._load(m)
+            self._load(m)  # drops what the cut removed (as it will for what comes later)
+
+    def _cut_off(self, m: int, seg: StepSegment) -> bool:
+        """A re-plan dropped this segment."""
+        gen, first = seg.gen, seg.first
+        return any(gen <= g and first >= t for g, t in self.cuts[m])
 
     def _halt(self, m: int) -> None:
         """Stop on the core's own account: drop everything until the planner answers."""
@@ -182,10 +184,12 @@ class StepCore:
                 self._apply_stops()  # the answer may have come with these segments
             seg = q.popleft()
             gen = seg.gen
-            if gen <= self.stopped_gen[m] or (gen <= self.cut_gen[m]
-                                               and seg.first >= self.cut_tick[m]):
+            cuts = self.cuts[m]
+            if gen <= self.stopped_gen[m] or (cuts and self._cut_off(m, seg)):
                 self.counters[DROPPED] += 1
                 continue
+            if cuts and cuts[0][0] < gen:  # no segment of those plans comes any more
+                cuts[:] = [c for c in cuts if c[0] >= gen]
             if seg.count <= 0:  # a marker: the plan before it is complete
                 if seg.last:
                     self.emit(ExecEvent(K.DONE, m, gen, self.pos[m], self._now_s()))
@@ -240,11 +244,6 @@ class StepCore:
     def _now_s(self) -> float:
         return self.clock.now()
 
-    def due(self, m: int) -> int | None:
-        """When motor m's next step may be emitted (planned, spacing and DIR settled)."""
-        d = self.due_t[m]
-        return None if d == NEVER else d
-
     def deadline(self) -> int | None:
         d = min(self.due_t)
         return None if d == NEVER else d
@@ -256,12 +255,14 @@ class StepCore:
         # due now, or planned within ``coalesce`` of now with nothing else holding it back
         # (spacing, DIR set-up): it shares this pulse rather than queue behind it
         soon = now + self.coalesce
-        due = [m for m in self.motors
-               if due_t[m] <= now or (due_t[m] <= soon and due_t[m] == next_t[m])]
-        for m in due:
-            if now - next_t[m] > max_late[m]:
-                self._timing_lost(m, now, next_t[m])
-                due = [x for x in due if x != m]
+        due: list[int] = []
+        for m in self.motors:
+            d = due_t[m]
+            if d <= now or (d <= soon and d == next_t[m]):
+                if now - next_t[m] > max_late[m]:
+                    self._timing_lost(m, now, next_t[m])
+                else:
+                    due.append(m)
         if not due:
             return
         outputs = self.io.outputs
