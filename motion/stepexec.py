@@ -235,7 +235,7 @@ class StepExecutor(Executor):
         been used: many small refills rather than a few big ones, so the planner holds the
         daemon's GIL (against the link thread) for a short while each time."""
         nxt = float("inf")
-        half = self.ahead_s - min(self.ahead_s / 2, REFILL_S)  # the name: what must remain
+        keep = self.ahead_s - min(self.ahead_s / 2, REFILL_S)  # handed over, still to come
         for m, p in enumerate(self.plans):
             if p.cutter is None:
                 continue
@@ -245,10 +245,10 @@ class StepExecutor(Executor):
                 if p.cutter is not None:
                     nxt = min(nxt, p.last_t)
                 continue
-            if p.until - half <= now + 1e-9:  # the deadline below, on a clock of ticks
+            if p.until - keep <= now + 1e-9:  # the deadline below, on a clock of ticks
                 self._feed(m, now)
             if p.cutter is not None:
-                nxt = min(nxt, p.until - half)
+                nxt = min(nxt, p.until - keep)
         return nxt
 
     def events(self) -> list[ExecEvent]:
