@@ -245,9 +245,18 @@ class StatusServer:
 def read_status(path: Path, timeout: float = 5.0, histogram: bool = False) -> dict[str, Any]:
     """The daemon's status; ``histogram``: with ``steps.histogram_us`` (costlier: ask only
     when needed)."""
+    deadline = time.monotonic() + timeout
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(timeout)
-        sock.connect(str(path))
+        while True:
+            try:
+                sock.connect(str(path))
+                break
+            except BlockingIOError:  # the server's backlog is full: a slot frees soon
+                if time.monotonic() >= deadline:
+                    raise TimeoutError(f"{path}: every status slot stayed busy for "
+                                       f"{timeout:.0f} s") from None
+                time.sleep(0.005)
         sock.sendall(b"histogram\n" if histogram else b"\n")
         chunks = []
         while chunk := sock.recv(65536):

@@ -6,8 +6,11 @@ from __future__ import annotations
 
 import itertools
 import math
+import socket
+import threading
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -90,3 +93,53 @@ def test_a_status_read_takes_no_motion_lock(served: tuple[Live, Path]) -> None:
         full = read_status(path, timeout=READ_DEADLINE_S, histogram=True)
     assert doc["motors"][1]["state"] != "idle" and doc["executor"]["alive"]
     assert sum(full["steps"]["histogram_us"].values()) > 0
+
+
+def _full_backlog(path: Path) -> tuple[socket.socket, socket.socket]:
+    """A listening socket that accepts nothing yet, its one backlog place taken."""
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(str(path))
+    srv.listen(0)
+    filler = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    filler.setblocking(False)
+    filler.connect(str(path))
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.setblocking(False)
+    with pytest.raises(BlockingIOError), probe:  # the backlog is full indeed
+        probe.connect(str(path))
+    return srv, filler
+
+
+def test_read_status_waits_for_room_in_a_full_backlog(tmp_path: Path) -> None:
+    """A full backlog makes a connect with a timeout fail at once (EAGAIN on AF_UNIX):
+    the reader waits for room instead, within its timeout."""
+    path = tmp_path / "status.sock"
+    srv, filler = _full_backlog(path)
+    got: dict[str, Any] = {}
+
+    def reader() -> None:
+        try:
+            got["doc"] = read_status(path, timeout=READ_DEADLINE_S)
+        except Exception as exc:  # reported by the assertion below
+            got["error"] = exc
+
+    t = threading.Thread(target=reader)
+    with srv, filler:
+        t.start()
+        srv.settimeout(READ_DEADLINE_S)
+        first, _ = srv.accept()  # the filler's place: room for the reader
+        first.close()
+        conn, _ = srv.accept()
+        with conn:
+            conn.settimeout(READ_DEADLINE_S)
+            assert conn.recv(64) == b"\n"
+            conn.sendall(b'{"ok": true}')
+        t.join(READ_DEADLINE_S)
+    assert got == {"doc": {"ok": True}}
+
+
+def test_read_status_gives_up_on_a_backlog_that_stays_full(tmp_path: Path) -> None:
+    path = tmp_path / "status.sock"
+    srv, filler = _full_backlog(path)
+    with srv, filler, pytest.raises(TimeoutError, match="status slot stayed busy"):
+        read_status(path, timeout=0.2)
