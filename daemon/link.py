@@ -6,8 +6,11 @@ after a hard StopMove in the wait for the executor's confirmation (bounded by
 ``step_thread.stop_confirm_ms``, and not repeated while an earlier one timed out, so a burst
 of frames cannot keep a turn from ending and :meth:`stop` is noticed promptly).
 :meth:`Link.wake` and :meth:`Link.stop` are the only calls other threads (the step thread,
-signal handlers) make: they write a byte to the pipe. :meth:`Link.status` may be called from
-the status thread: it only copies counters whose keys all exist from the start.
+signal handlers) make: they write a byte to the pipe. The same pipe is the process's signal
+wake-up descriptor (:attr:`Link.signal_fd`, ``signal.set_wakeup_fd``): a signal whose Python
+handler has not run yet when the loop goes to sleep still wakes it (see :meth:`serve`).
+:meth:`Link.status` may be called from the status thread: it only copies counters whose keys
+all exist from the start.
 
 What the shell does, and why:
 - **Gaps are watched, not inferred.** Before each ``poll()`` it notes the time; when the poll
@@ -108,7 +111,7 @@ class Link:
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
-        self._running = False
+        self._stopped = False
         self.turns = 0
 
     # -- thread-safe pokes ---------------------------------------------------------
@@ -124,17 +127,31 @@ class Link:
                 os.write(self._wake_w, b"\0")
 
     def stop(self) -> None:
-        """End :meth:`serve` at its next turn (from any thread or a signal handler)."""
-        self._running = False
+        """End :meth:`serve` at its next turn, or at once if it has not started (from any
+        thread or a signal handler; a stop before :meth:`serve` is not forgotten)."""
+        self._stopped = True
         with contextlib.suppress(BlockingIOError):
             os.write(self._wake_w, b"\1")
 
+    @property
+    def signal_fd(self) -> int:
+        """The wake-up pipe's write end, for ``signal.set_wakeup_fd``: the C-level signal
+        handler writes a byte there, so a signal wakes :meth:`serve`'s ``poll()`` even when
+        its Python handler (which calls :meth:`stop`) cannot run before the loop sleeps."""
+        return self._wake_w
+
     # -- the loop --------------------------------------------------------------------
     def serve(self) -> None:
-        self._running = True
+        """Serve until :meth:`stop`.
+
+        A signal's Python handler runs in the main thread only between bytecodes: when the
+        signal arrives just before this loop's ``poll()`` (or is taken by another thread),
+        the handler runs only once ``poll()`` returns, and an idle link with the host's port
+        open has no timeout. With :attr:`signal_fd` as the signal wake-up descriptor the
+        signal's own byte ends that ``poll()``, and the handler runs right after it."""
         poller = select.poll()
         poller.register(self._wake_r, POLLIN)
-        while self._running:
+        while not self._stopped:
             self.turn(poller)
             self.turns += 1  # the watchdog's evidence that the loop is not hung
         self._drain()

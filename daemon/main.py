@@ -271,26 +271,56 @@ def make_state_dir(state_dir: Path) -> None:
 class StopSignals:
     """SIGTERM, SIGINT and SIGHUP all stop the daemon cleanly (docs/service.md says why).
 
-    Installed first thing, so a signal during start-up is not lost: it is remembered and
-    the daemon stops as soon as it could serve.
+    Installed first thing (main thread), so a signal during start-up is not lost: it is
+    remembered and the daemon stops as soon as it could serve.
+
+    Python runs a signal's handler in the main thread between bytecodes only: a signal that
+    arrives just before the link loop's ``poll()`` (or is taken by another thread) would
+    wait for the next byte from the host, for ever on an idle, open port. :meth:`attach`
+    therefore also makes the link's wake-up pipe the signal wake-up descriptor
+    (``signal.set_wakeup_fd``): the signal itself ends that ``poll()``. :meth:`detach`
+    undoes it before the pipe is closed; later signals are only logged.
     """
+
+    SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
 
     def __init__(self) -> None:
         self.requested: str | None = None
         self._stop: Callable[[], None] | None = None
-        for sig in (signal.SIGTERM, signal.SIGINT, signal.SIGHUP):
-            signal.signal(sig, self._on_signal)
+        self._wakeup = False
+        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
 
-    def attach(self, stop: Callable[[], None]) -> None:
+    def attach(self, stop: Callable[[], None], wakeup_fd: int | None = None) -> None:
+        """Call ``stop`` on a signal (at once if one came already); ``wakeup_fd``: a
+        non-blocking descriptor the signal itself writes a byte to (main thread only)."""
         self._stop = stop
+        if wakeup_fd is not None:
+            signal.set_wakeup_fd(wakeup_fd, warn_on_full_buffer=False)
+            self._wakeup = True
         if self.requested is not None:
             stop()
 
+    def detach(self) -> None:
+        """Before the wake-up descriptor is closed: signals from now on are only logged."""
+        self._stop = None
+        if self._wakeup:
+            signal.set_wakeup_fd(-1)
+            self._wakeup = False
+
+    def restore(self) -> None:
+        """Detach and give the signals back the handlers they had (tests in one process)."""
+        self.detach()
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
     def _on_signal(self, signum: int, frame: FrameType | None) -> None:
         name = signal.Signals(signum).name
+        again = self.requested is not None
         self.requested = name
         how = " (the terminal closed, or someone asked): stopping as for SIGTERM" \
             if signum == signal.SIGHUP else ": stopping"
+        if again:
+            how = ": already stopping"
         log.info("%s%s", name, how, extra={"SIGNAL": name})
         if self._stop is not None:
             self._stop()
@@ -521,7 +551,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
 
     daemon.engine.listeners.append(on_motor_event)
     daemon.writer.on_change = line.poke
-    stop.attach(link.stop)
+    stop.attach(link.stop, link.signal_fd)
     daemon.persistence.start()
     daemon.engine.executor.start()
     daemon.engine.start()
@@ -543,9 +573,9 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     threading.Thread(target=stop_when_executor_dies, args=(daemon.engine, link.stop),
                      name="motorctl-exec-death", daemon=True).start()
     try:
-        if not stop.requested:
-            link.serve()
+        link.serve()  # returns at once when a signal came during start-up
     finally:
+        stop.detach()  # before link.close() closes the wake-up pipe
         sd_notify("STOPPING=1")
         line.stop("stopping: motors ramping down, state being written")
         shutdown(daemon)

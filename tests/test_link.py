@@ -9,6 +9,7 @@ from __future__ import annotations
 import errno
 import os
 import select
+import signal
 import socket
 import threading
 import time
@@ -21,7 +22,7 @@ import pytest
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Dispatcher, Wait
 from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.main import Daemon, open_pty
+from motorctl.daemon.main import Daemon, StopSignals, open_pty
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
     CodecOptions,
@@ -112,7 +113,7 @@ class Served:
     """A Link serving a PTY on a thread, with a daemon on a virtual clock behind it."""
 
     def __init__(self, tmp: Path, port: Any = None, fd: int | None = None,
-                 gap_s: float = 0.010, **kw: Any) -> None:
+                 gap_s: float = 0.010, start: bool = True, **kw: Any) -> None:
         self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state", VirtualClock())
         self.path = tmp / "pty"
         if fd is None:
@@ -122,7 +123,8 @@ class Served:
         self.link = Link(fd, port or self.daemon.dispatcher, OPTS, gap_s, 16, **kw)
         self.daemon.link = self.link
         self.thread = threading.Thread(target=self.link.serve, name="link", daemon=True)
-        self.thread.start()
+        if start:
+            self.thread.start()
 
     def host(self) -> Host:
         return Host(self.name)
@@ -165,6 +167,69 @@ def test_serves_and_stops(served: Served) -> None:
     assert [r.as_bool for r in host.responses(1)] == [True]
     assert served.stop() < 2.0
     host.close()
+
+
+def test_a_stop_before_serve_is_not_forgotten(tmp_path: Path) -> None:
+    """A SIGTERM during start-up calls stop() before serve(): serve() must return at once
+    (it used to start by setting "running" again, and served on for ever)."""
+    s = Served(tmp_path, start=False)
+    try:
+        s.link.stop()
+        s.thread.start()
+        s.thread.join(DEADLINE_S)
+        assert not s.thread.is_alive(), "serve() after stop() did not return"
+    finally:
+        s.close()
+
+
+def _asleep(tid: int) -> bool:
+    with open(f"/proc/self/task/{tid}/stat") as f:
+        return f.read().rsplit(")", 1)[1].split()[0] == "S"
+
+
+def test_a_signal_that_another_thread_takes_still_wakes_an_idle_link(tmp_path: Path) -> None:
+    """The daemon's stop signals, wired as main() wires them, with the link loop asleep in
+    poll() (no timeout: the host's port is open and idle) and the signal's C handler run on
+    another thread, as when the signal arrives just before poll() or the kernel hands it to
+    another thread: the Python handler cannot run until poll() returns, so only the signal
+    wake-up descriptor ends it. Without it, serve() ran on until the host's next byte."""
+    if threading.current_thread() is not threading.main_thread():
+        pytest.skip("signal handlers run in the main thread only")
+    s = Served(tmp_path, start=False)
+    host = s.host()
+    stop = StopSignals()
+    sent: list[float] = []
+    finished = threading.Event()
+    try:
+        stop.attach(s.link.stop, s.link.signal_fd)
+        main_tid = threading.get_native_id()
+
+        def signal_from_here() -> None:
+            host.write(frame(IsReady(0)))
+            host.responses(1)
+            end, last = time.monotonic() + DEADLINE_S, -1
+            while not (s.link.turns == last and _asleep(main_tid)):  # in poll(), idle
+                if time.monotonic() > end:
+                    s.link.stop()  # no signal sent: the assertion below says why
+                    return
+                last = s.link.turns
+                time.sleep(0.02)
+            sent.append(time.monotonic())
+            signal.pthread_kill(threading.get_ident(), signal.SIGTERM)  # handled HERE
+            if not finished.wait(DEADLINE_S):
+                host.write(frame(IsReady(0)))  # the old code's only way out of poll()
+
+        threading.Thread(target=signal_from_here, name="signaller", daemon=True).start()
+        s.link.serve()  # here, in the main thread, as in motorctld
+        assert sent, f"the link loop never went to sleep in {DEADLINE_S} s"
+        took = time.monotonic() - sent[0]
+        assert stop.requested == "SIGTERM"
+        assert took < DEADLINE_S / 2, f"the link noticed the SIGTERM only after {took:.1f} s"
+    finally:
+        finished.set()
+        stop.restore()
+        host.close()
+        s.close()
 
 
 def test_burst_of_20000_frames_read_concurrently(served: Served) -> None:

@@ -4,6 +4,7 @@ and systemd's notifications on a fake NOTIFY_SOCKET."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import socket
@@ -130,6 +131,40 @@ def test_read_only_state_dir_while_running(daemon: DaemonProcess) -> None:
             assert daemon.terminate() == 0  # shutdown with an unwritable directory
     no_traceback(daemon)
     assert "cannot write state file" in daemon.stderr()
+    assert not daemon.pty.is_symlink()
+
+
+def _not_main_thread(pid: int) -> int:
+    tids = sorted(int(t) for t in os.listdir(f"/proc/{pid}/task") if int(t) != pid)
+    assert tids, "motorctld runs more threads than its main one"
+    return tids[0]
+
+
+@pytest.mark.parametrize("state_dir", ["writable", "read-only"])
+def test_sigterm_taken_by_another_thread_stops_an_idle_daemon_with_the_port_open(
+        daemon: DaemonProcess, state_dir: str) -> None:
+    """kill(2) of a thread's ID hands the signal to that thread: its C handler runs there
+    and the main thread's poll() is not interrupted (as for a signal that arrives just
+    before that poll()). The host keeps the port open and idle, so that poll() has no
+    timeout: only the signal wake-up descriptor can end it. Without one the daemon ran on
+    until the host's next byte (the once-flaky test_read_only_state_dir_while_running)."""
+    assert daemon.proc is not None
+    unwritable = read_only(daemon.state_dir) if state_dir == "read-only" \
+        else contextlib.nullcontext()
+    with daemon.client() as c:
+        c.move_to(0, 50)
+        c.wait_moved(0, 5000)
+        with unwritable:
+            assert c.position(0) == 50  # the link loop then sleeps in poll(), no timeout
+            os.kill(_not_main_thread(daemon.proc.pid), signal.SIGTERM)
+            try:
+                code = daemon.proc.wait(DEADLINE_S)
+            except subprocess.TimeoutExpired:
+                raise AssertionError(f"motorctld still runs {DEADLINE_S} s after a SIGTERM: "
+                                     f"{daemon.stderr()}") from None
+    assert code == 0
+    assert "SIGTERM: stopping" in daemon.stderr()
+    no_traceback(daemon)
     assert not daemon.pty.is_symlink()
 
 
