@@ -60,6 +60,9 @@ SHUTDOWN_LIMIT_S = 10.0
 #: exit code when the step executor died; answers go on this long before that
 EXIT_EXECUTOR_DIED = 3
 EXECUTOR_DEATH_GRACE_S = 2.0
+#: exit code when the final state could not be written at shutdown (e.g. a read-only or full
+#: state directory): the state file keeps what was last written
+EXIT_STATE_NOT_SAVED = 4
 #: the planner's step-time error bound (segments' reproduction of exact step times)
 STEP_ERROR_S = 5e-6
 
@@ -381,8 +384,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
         epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
                "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
-               "state written, exit 0). Under systemd it logs to the journal and reports "
-               "READY/STATUS/STOPPING. See docs/service.md.",
+               "state written, exit 0; exit 4 when the state could not be written). Under "
+               "systemd it logs to the journal and reports READY/STATUS/STOPPING. See "
+               "docs/service.md.",
     )
     p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
@@ -578,7 +582,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         stop.detach()  # before link.close() closes the wake-up pipe
         sd_notify("STOPPING=1")
         line.stop("stopping: motors ramping down, state being written")
-        shutdown(daemon)
+        saved = shutdown(daemon)
         if watchdog is not None:
             watchdog.stop()
         status.close()
@@ -594,6 +598,13 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
                   "manager to restart motorctld; every motor must be homed again", died,
                   EXIT_EXECUTOR_DIED)
         return EXIT_EXECUTOR_DIED
+    if not saved:
+        writer = daemon.writer
+        log.error("stopped WITHOUT saving the final state (%s): %s keeps what was last "
+                  "written (%d writes, %d failed); exit %d", writer.last_error, writer.path,
+                  writer.writes, writer.errors, EXIT_STATE_NOT_SAVED,
+                  extra={"STATE_PATH": str(writer.path)})
+        return EXIT_STATE_NOT_SAVED
     log.info("stopped")
     return 0
 
@@ -633,8 +644,9 @@ def progress_watch(daemon: Daemon, link: Link) -> ProgressWatch:
     )
 
 
-def shutdown(daemon: Daemon) -> None:
-    """Stop along the ramps (bounded), brake the DC motor, set safe outputs, write state."""
+def shutdown(daemon: Daemon) -> bool:
+    """Stop along the ramps (bounded), brake the DC motor, set safe outputs, write state;
+    True when the final state is durable."""
     engine = daemon.engine
     engine.shutdown()
     deadline = time.monotonic() + SHUTDOWN_LIMIT_S
@@ -656,8 +668,9 @@ def shutdown(daemon: Daemon) -> None:
         pin = daemon.hw.pins.get(p.number)
         if pin is not None and pin.is_output:
             pin.write(p.safe)
-    daemon.persistence.close()
+    saved = daemon.persistence.close()
     gc.enable()
+    return saved
 
 
 if __name__ == "__main__":

@@ -17,6 +17,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import DeviceError
+from motorctl.daemon.main import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
 from tests.daemon_proc import DaemonProcess
 from tests.fsutil import read_only
@@ -128,9 +129,11 @@ def test_read_only_state_dir_while_running(daemon: DaemonProcess) -> None:
                 c.save_home(0)
             state = daemon.status()["state"]
             assert state["ok"] is False and "Read-only" in state["last_error"]
-            assert daemon.terminate() == 0  # shutdown with an unwritable directory
+            # shutdown with an unwritable directory: says so, and exits non-zero
+            assert daemon.terminate() == EXIT_STATE_NOT_SAVED
     no_traceback(daemon)
     assert "cannot write state file" in daemon.stderr()
+    assert "stopped WITHOUT saving the final state (cannot write state file" in daemon.stderr()
     assert not daemon.pty.is_symlink()
 
 
@@ -162,7 +165,7 @@ def test_sigterm_taken_by_another_thread_stops_an_idle_daemon_with_the_port_open
             except subprocess.TimeoutExpired:
                 raise AssertionError(f"motorctld still runs {DEADLINE_S} s after a SIGTERM: "
                                      f"{daemon.stderr()}") from None
-    assert code == 0
+    assert code == (0 if state_dir == "writable" else EXIT_STATE_NOT_SAVED)
     assert "SIGTERM: stopping" in daemon.stderr()
     no_traceback(daemon)
     assert not daemon.pty.is_symlink()
