@@ -19,19 +19,22 @@ Memory ordering (x86-64 and ARM64 alike; Python has no memory barrier): ARM64 (a
 Pi 4/5) may make one process's stores visible to the other in any order and satisfy loads
 out of order, so nothing here relies on hardware store or load order:
 
-- Each ring (:class:`Ring`) has a head (written only by its producer) and a tail (only by
-  its consumer). A record carries its sequence number and a CRC-32 over the sequence
-  number and every field. The consumer copies a slot once and takes it only when the
-  sequence number is the one it expects AND the CRC matches; a slot not completely
+- Each ring (:class:`Ring`) has a head (written only by its producer), a tail and a retry
+  count (only by its consumer). A record carries its sequence number and a CRC-32 over the
+  sequence number and every field. The consumer copies a slot once and takes it only when
+  the sequence number is the one it expects AND the CRC matches; a slot not completely
   visible yet (head or sequence number new, payload old or half new) stays where it is and
   is taken by a later pull -- at the latest after the producer's wake-up byte, which the
-  kernel's pipe lock orders after the record's stores. Never dropped, never waited for.
+  kernel's pipe lock orders after the record's stores. Never dropped, never waited for;
+  counted (the ring's retry cell, in ``--status`` as ``ring_retries_segments`` for the
+  child's reads of segments and stops, ``ring_retries_reports`` for the daemon's reads of
+  the child's reports).
 - The consumer stores its tail only after that check, which depends on every byte it
   loaded; ARM64 never makes a store visible ahead of a branch it depends on, so the
   producer cannot reuse a slot still being read. The producer's stores of a slot likewise
   follow its check of the tail.
-- Every other shared value (head, tail, run flag, heartbeat, counters, positions, levels,
-  end-stop map, histogram cells) is one aligned 8-byte cell read and written through a
+- Every other shared value (head, tail, retries, run flag, heartbeat, counters, positions,
+  levels, end-stop map, histogram cells) is one aligned 8-byte cell read and written through a
   native ``'q'`` memoryview, which CPython packs with one fixed-size 8-byte ``memcpy``
   (``PACK_SINGLE`` in Objects/memoryobject.c; aarch64 gcc compiles it to one ``str`` of
   an x register): a single-copy atomic store on ARM64 and x86-64, so a reader sees the
@@ -134,6 +137,9 @@ class Layout:
         self.size = off
 
 
+#: a ring's cells before its slots: head (the producer's), tail and retries (the consumer's)
+RING_HEADER = 3 * 8
+
 # Each slot is the record (its first field the sequence number) followed by the CRC-32 of the
 # record's bytes and 4 zero bytes (slots stay 8-byte aligned). The CRC-32 of a whole slot
 # whose check matches its record is this constant, whatever the record: the consumer checks a
@@ -144,7 +150,7 @@ _RESIDUE = zlib.crc32(_CHECK.pack(zlib.crc32(b"")))
 
 def ring_size(rec: struct.Struct, capacity: int) -> int:
     """Bytes a :class:`Ring` of ``capacity`` records of ``rec`` takes in the block."""
-    return 16 + capacity * (rec.size + _CHECK.size)
+    return RING_HEADER + capacity * (rec.size + _CHECK.size)
 
 
 class Ring:
@@ -167,6 +173,11 @@ class Ring:
     - head and tail are single aligned 8-byte cells written through a native 'q'
       memoryview (one 8-byte store, single-copy atomic on ARM64 and x86-64).
 
+    :attr:`retries` counts the consumer's gets that found the next record announced (the
+    head past it) but not complete or not yet its own (torn, stale): each is read again
+    later. It is a third cell, written only by the consumer, so the other process can
+    read it (the daemon reports the child's counts in its status).
+
     Owners: one producer and one consumer, each in its own process or thread; no
     method blocks, ``get`` and ``put`` never raise on a full, empty or incomplete ring.
     """
@@ -176,12 +187,16 @@ class Ring:
             raise ValueError(f"ring at {offset} with {rec.size}-byte records: not 8-byte "
                              "aligned (head/tail and slots must be)")
         self.buf = buf
-        self.cells = buf[offset : offset + 16].cast("q")  # [head, tail]
-        self.base = offset + 16
+        self.cells = buf[offset : offset + RING_HEADER].cast("q")  # [head, tail, retries]
+        self.base = offset + RING_HEADER
         self.rec = rec
         self.slot = rec.size + _CHECK.size
         self.cap = capacity
-        self.incomplete = 0  # gets that found the next record announced but not complete
+
+    @property
+    def retries(self) -> int:
+        """Gets that found the next record announced but torn or stale (read again later)."""
+        return int(self.cells[2])
 
     def free(self) -> int:
         return self.cap - (self.cells[0] - self.cells[1])
@@ -204,11 +219,11 @@ class Ring:
         at = self.base + (tail % self.cap) * self.slot
         raw = self.buf[at : at + self.slot].tobytes()  # one copy: what is checked is used
         if zlib.crc32(raw) != _RESIDUE:
-            self.incomplete += 1
+            self.cells[2] += 1
             return None
         rec = self.rec.unpack_from(raw)
         if rec[0] != tail + 1:
-            self.incomplete += 1
+            self.cells[2] += 1
             return None
         self.cells[1] = tail + 1  # only after the check on every loaded byte
         return rec[1:]
@@ -238,6 +253,12 @@ class Shared:
         self.segs = [Ring(buf, off, _SEG, SEG_RING) for off in lay.seg_rings]
         self.stops = Ring(buf, lay.stop_ring, _STOP, STOP_RING)
         self.events = Ring(buf, lay.event_ring, _EVENT, EVENT_RING)
+
+    def ring_retries(self) -> dict[str, int]:
+        """The consumers' retry counts: the child's reads of segments and stops (daemon ->
+        child), the daemon's reads of the child's reports (child -> daemon)."""
+        return {"ring_retries_segments": sum(r.retries for r in (*self.segs, self.stops)),
+                "ring_retries_reports": self.events.retries}
 
     def release(self) -> None:
         views = (self.header, self.counters, self.positions, self.levels, self.endmap,
@@ -500,10 +521,7 @@ class ProcessStepExecutor(StepExecutor):
             self._watcher.join(5)
             self._watcher = None
         # what is read after close comes from plain copies, not the block
-        self._closed = (
-            [int(x) for x in self.shared.positions],
-            dict(zip(COUNTER_NAMES, self.shared.counters, strict=True)),
-        )
+        self._closed = ([int(x) for x in self.shared.positions], self._counters())
         cells = [int(self.shared.latency[i]) for i in range(CELLS)]
         self.stats = LatencyStats(self.late_threshold_s, cells)
         self.shared.release()
@@ -594,7 +612,7 @@ class ProcessStepExecutor(StepExecutor):
             return ExecutorHealth(False, self._closed[1]["progress"], self.died,
                                   dict(self._closed[1]), self.stats.summary())
         alive = self.proc is not None and self.proc.is_alive() and self.died is None
-        counters = dict(zip(COUNTER_NAMES, self.shared.counters, strict=True))
+        counters = self._counters()
         return ExecutorHealth(
             alive=alive,
             progress=counters["progress"],
@@ -602,6 +620,12 @@ class ProcessStepExecutor(StepExecutor):
             counters=counters,
             latency=self.stats.summary(),
         )
+
+    def _counters(self) -> dict[str, int]:
+        """The step core's counters and the rings' retry counts, from the shared block."""
+        counters = dict(zip(COUNTER_NAMES, self.shared.counters, strict=True))
+        counters.update(self.shared.ring_retries())
+        return counters
 
     def step_lateness(self) -> LatencyStats:
         return self.stats  # after close: a plain copy of the last cells

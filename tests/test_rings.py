@@ -27,10 +27,11 @@ from hypothesis import strategies as st
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import build
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.executor import AxisLimits
+from motorctl.motion.executor import AxisLimits, ExecEvent, ExecEventKind
 from motorctl.motion.procexec import (
     _CHECK,
     _EVENT,
+    _KINDS,
     _RESIDUE,
     _SEG,
     _STOP,
@@ -40,6 +41,7 @@ from motorctl.motion.procexec import (
     Shared,
     ring_size,
 )
+from tests.daemon_proc import until
 
 DEADLINE_S = 60.0
 TEXT = 120  # the event record's text field
@@ -159,7 +161,7 @@ def test_new_head_and_sequence_over_an_old_payload_is_not_taken_until_complete()
     assert ring.get() is None
     _show(ring, 4, old[:check_at] + new[check_at:])  # the check new, the payload old
     assert ring.get() is None
-    assert ring.cells[1] == 4 and ring.incomplete == 4  # nothing taken, nothing dropped
+    assert ring.cells[1] == 4 and ring.retries == 4  # nothing taken, nothing dropped
     _show(ring, 4, new)
     assert ring.get() == _seg(41)
     assert ring.cells[1] == 5 and not ring.pending()
@@ -288,7 +290,7 @@ def test_a_full_ring_refuses_and_takes_again_after_a_get() -> None:
             assert rec == _seg(received)
             received += 1
         assert ring.free() == 8 - (sent - received)
-    assert sent > 5000 and ring.incomplete == 0
+    assert sent > 5000 and ring.retries == 0
 
 
 def test_the_event_record_carries_its_text() -> None:
@@ -453,3 +455,95 @@ def test_start_gives_up_after_its_timeout() -> None:
     finally:
         ex.close()
         hw.close()
+
+
+# ---------------------------------------------------------------- retries, counted and reported
+
+
+def test_a_consumer_counts_each_read_of_a_torn_or_stale_record_as_a_retry() -> None:
+    ring = _ring(_SEG, 4)
+    _drain_lap(ring, _seg)  # slot 0 holds record 0 of the previous lap
+    assert ring.retries == 0
+    at = _at(ring, 4)
+    old = bytes(ring.buf[at : at + ring.slot])
+    new = _slot_of(ring, 4, _seg(41))
+    _show(ring, 4, old)  # announced, the slot still the previous lap's: stale
+    assert ring.get() is None and ring.retries == 1
+    _show(ring, 4, new[:8] + old[8:])  # its sequence number new, the rest old: torn
+    assert ring.get() is None and ring.get() is None and ring.retries == 3
+    _show(ring, 4, new)
+    assert ring.get() == _seg(41) and ring.retries == 3  # taken whole, once: no retry
+    assert ring.get() is None and ring.retries == 3  # an empty ring is not a retry
+    assert ring.cells[2] == 3  # a cell of the shared block: the other process reads it
+
+
+def test_the_shared_block_sums_retries_by_direction() -> None:
+    layout = Layout(2, 4)
+    shm = shared_memory.SharedMemory(create=True, size=layout.size)
+    try:
+        assert shm.buf is not None
+        shm.buf[: layout.size] = bytes(layout.size)
+        shared = Shared(shm, layout)
+        try:
+            for ring, torn in ((shared.segs[1], 2), (shared.stops, 1), (shared.events, 4)):
+                _show(ring, 0, bytes(ring.slot))  # announced, nothing written yet
+                for _ in range(torn):
+                    assert ring.get() is None
+            assert shared.ring_retries() == {"ring_retries_segments": 3,
+                                             "ring_retries_reports": 4}
+        finally:
+            shared.release()
+    finally:
+        shm.close()
+        shm.unlink()
+
+
+def test_retries_of_both_directions_are_in_the_process_executors_health() -> None:
+    """A torn record each way between the daemon and a real executor process: the child
+    retries a stop, the daemon a report; health() (the status's ``steps``) counts both,
+    and each record is taken once it is whole."""
+    hw, ex = _executor("mock")
+    try:
+        ex.start()
+        counters = ex.health().counters
+        assert (counters["ring_retries_segments"], counters["ring_retries_reports"]) == (0, 0)
+        # daemon -> child: a hard stop of motor 0 announced, only its sequence number there
+        stops = ex.shared.stops
+        index = stops.cells[0]
+        at = _at(stops, index)
+        old = bytes(stops.buf[at : at + stops.slot])
+        whole = _slot_of(stops, index, (0, 5, -1))
+        _show(stops, index, whole[:8] + old[8:])
+        ex._kick()
+        until("the executor's retry",
+              lambda: ex.health().counters["ring_retries_segments"] >= 1)
+        assert stops.cells[1] == index  # not taken torn
+        stops.buf[at : at + stops.slot] = whole
+        ex._kick()
+        seen: list[ExecEvent] = []
+        end = time.monotonic() + DEADLINE_S
+        while not seen:  # the stop taken whole: its STOPPED report
+            assert time.monotonic() < end, f"no report of the stop in {DEADLINE_S:.0f} s"
+            seen = ex.events()
+            time.sleep(0.001)
+        assert [(e.kind, e.motor, e.gen) for e in seen] == [(ExecEventKind.STOPPED, 0, 5)]
+        assert ex.health().counters["ring_retries_reports"] == 0
+        # child -> daemon: a report whose record is new and its check still the old one
+        events = ex.shared.events
+        index = events.cells[0]
+        at = _at(events, index)
+        old = bytes(events.buf[at : at + events.slot])
+        fields = (_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0.0, b"torn")
+        whole = _slot_of(events, index, fields)
+        _show(events, index, whole[: _EVENT.size] + old[_EVENT.size :])
+        assert ex.events() == [] and ex.events() == []
+        assert ex.health().counters["ring_retries_reports"] == 2
+        events.buf[at : at + events.slot] = whole
+        assert [(e.kind, e.motor, e.gen) for e in ex.events()] == [
+            (ExecEventKind.STOPPED, 0, 9)]
+        assert ex.health().counters["ring_retries_reports"] == 2
+    finally:
+        ex.close()
+        hw.close()
+    after = ex.health().counters  # plain copies once closed
+    assert after["ring_retries_segments"] >= 1 and after["ring_retries_reports"] == 2
