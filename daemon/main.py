@@ -290,7 +290,7 @@ class StopSignals:
     def __init__(self) -> None:
         self.requested: str | None = None
         self._stop: Callable[[], None] | None = None
-        self._wakeup = False
+        self._wakeup: int | None = None  # the descriptor it replaced, while attached
         self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
 
     def attach(self, stop: Callable[[], None], wakeup_fd: int | None = None) -> None:
@@ -298,17 +298,18 @@ class StopSignals:
         non-blocking descriptor the signal itself writes a byte to (main thread only)."""
         self._stop = stop
         if wakeup_fd is not None:
-            signal.set_wakeup_fd(wakeup_fd, warn_on_full_buffer=False)
-            self._wakeup = True
+            old = signal.set_wakeup_fd(wakeup_fd, warn_on_full_buffer=False)
+            if self._wakeup is None:
+                self._wakeup = old
         if self.requested is not None:
             stop()
 
     def detach(self) -> None:
         """Before the wake-up descriptor is closed: signals from now on are only logged."""
         self._stop = None
-        if self._wakeup:
-            signal.set_wakeup_fd(-1)
-            self._wakeup = False
+        if self._wakeup is not None:
+            signal.set_wakeup_fd(self._wakeup)
+            self._wakeup = None
 
     def restore(self) -> None:
         """Detach and give the signals back the handlers they had (tests in one process)."""

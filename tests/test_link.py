@@ -195,6 +195,8 @@ def test_a_signal_that_another_thread_takes_still_wakes_an_idle_link(tmp_path: P
     wake-up descriptor ends it. Without it, serve() ran on until the host's next byte."""
     if threading.current_thread() is not threading.main_thread():
         pytest.skip("signal handlers run in the main thread only")
+    before = signal.set_wakeup_fd(-1)  # whatever this process had: given back at the end
+    signal.set_wakeup_fd(before)
     s = Served(tmp_path, start=False)
     host = s.host()
     stop = StopSignals()
@@ -230,6 +232,7 @@ def test_a_signal_that_another_thread_takes_still_wakes_an_idle_link(tmp_path: P
         stop.restore()
         host.close()
         s.close()
+    assert signal.set_wakeup_fd(before) == before  # detached: no byte for a closed pipe
 
 
 def test_burst_of_20000_frames_read_concurrently(served: Served) -> None:
