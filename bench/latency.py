@@ -66,6 +66,9 @@ def main() -> int:
                     help="run 3 motors at this many step/s each during the daemon's rounds "
                     "(issue 7: 25000); the echo peer's rounds are the reference")
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
+    ap.add_argument("--switch-interval-us", type=float, metavar="US",
+                    help="[step_thread] switch_interval_us for the daemon with --motion "
+                    "(default: its own)")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
     frame = encode_command(IsReady(0), CodecOptions())
@@ -80,7 +83,10 @@ def main() -> int:
         if args.motion:
             from bench.steps import config_text
 
-            config = config_text(50, 0, args.executor)  # run_speed_factor 1000: SPEED kHz
+            extra = ("" if args.switch_interval_us is None else
+                     f"switch_interval_us = {args.switch_interval_us}")
+            # run_speed_factor 1000: SPEED kHz
+            config = config_text(50, 0, args.executor, step_thread=extra)
         daemon = DaemonProcess(work, config).start()
         try:
             if args.motion:
@@ -106,6 +112,7 @@ def main() -> int:
     result["p99_ratio"] = round(result["daemon"]["p99_us"] / result["echo_peer"]["p99_us"], 2)
     result["motion_steps_per_s_per_motor"] = args.motion
     result["executor"] = args.executor
+    result["switch_interval_us"] = args.switch_interval_us
     result["daemon_p99_us"] = result["daemon"]["p99_us"]
     result["echo_p99_us"] = result["echo_peer"]["p99_us"]
     result["p50_ratio"] = round(result["daemon"]["p50_us"] / result["echo_peer"]["p50_us"], 2)

@@ -50,6 +50,7 @@ priority = {prio}
 cpu = {cpu}
 executor = "{kind}"
 max_lateness_us = {lateness}
+{extra}
 [[motors]]
 name = "a"
 max_speed = 100000.0
@@ -62,10 +63,12 @@ default_decel = 500000.0
 """
 
 
-def config_text(prio: int, cpu: int, kind: str = "process", lateness: float = 1e7) -> str:
+def config_text(prio: int, cpu: int, kind: str = "process", lateness: float = 1e7,
+                step_thread: str = "") -> str:
+    """Three motors; ``step_thread``: more ``[step_thread]`` lines (``key = value``)."""
     one = CONFIG.split("[[motors]]")[1]
     head = CONFIG.split("[[motors]]")[0].format(prio=prio, cpu=cpu, kind=kind,
-                                                lateness=lateness)
+                                                lateness=lateness, extra=step_thread)
     return head + "".join("[[motors]]" + one.replace('"a"', f'"{n}"') for n in "abc")
 
 
