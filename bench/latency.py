@@ -2,7 +2,12 @@
 
 Prints p50/p99 of both and their ratio, and the daemon's own processing time per command
 (last byte read to reply written, measured inside the daemon). Targets: round-trip p99
-<= 2x the echo peer's; processing p99 <= 108 us.
+<= 2x the echo peer's (idle), <= 1.5x while 3 motors step (``--motion 25000``, issue 7: the
+link must not feel the motion); processing p99 <= 108 us.
+
+The two peers take turns in short rounds (``--rounds`` of ``-n``), so the machine's drifts
+(another tenant, a busy spell) hit both alike; with motion, both run beside the stepping
+daemon (its step process spinning on one CPU, its planner on the other).
 """
 
 from __future__ import annotations
@@ -55,12 +60,15 @@ def summary(times: list[float]) -> dict[str, float]:
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
-    ap.add_argument("-n", type=int, default=5000, help="round trips per peer and round")
-    ap.add_argument("--rounds", type=int, default=2)
+    ap.add_argument("-n", type=int, default=1000, help="round trips per peer and round")
+    ap.add_argument("--rounds", type=int, default=20)
     ap.add_argument("--motion", type=int, default=0, metavar="STEPS_PER_S",
                     help="run 3 motors at this many step/s each during the daemon's rounds "
                     "(issue 7: 25000); the echo peer's rounds are the reference")
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
+    ap.add_argument("--switch-interval-us", type=float, metavar="US",
+                    help="[step_thread] switch_interval_us for the daemon with --motion "
+                    "(default: its own)")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
     frame = encode_command(IsReady(0), CodecOptions())
@@ -75,7 +83,10 @@ def main() -> int:
         if args.motion:
             from bench.steps import config_text
 
-            config = config_text(50, 0, args.executor)  # run_speed_factor 1000: SPEED kHz
+            extra = ("" if args.switch_interval_us is None else
+                     f"switch_interval_us = {args.switch_interval_us}")
+            # run_speed_factor 1000: SPEED kHz
+            config = config_text(50, 0, args.executor, step_thread=extra)
         daemon = DaemonProcess(work, config).start()
         try:
             if args.motion:
@@ -101,6 +112,7 @@ def main() -> int:
     result["p99_ratio"] = round(result["daemon"]["p99_us"] / result["echo_peer"]["p99_us"], 2)
     result["motion_steps_per_s_per_motor"] = args.motion
     result["executor"] = args.executor
+    result["switch_interval_us"] = args.switch_interval_us
     result["daemon_p99_us"] = result["daemon"]["p99_us"]
     result["echo_p99_us"] = result["echo_peer"]["p99_us"]
     result["p50_ratio"] = round(result["daemon"]["p50_us"] / result["echo_peer"]["p50_us"], 2)
@@ -109,7 +121,10 @@ def main() -> int:
     for name, r in (("echo peer", e), ("motorctld", d)):
         print(f"  {name:<10} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
               f"max {r['max_us']:.0f}")
-    print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  (target p99 <= 2.0)")
+    target = 1.5 if args.motion else 2.0
+    result["target_p99_ratio"] = target
+    print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  "
+          f"(target p99 <= {target})")
     print(f"daemon processing (last byte read -> reply written), {p['steps']} commands:")
     print(f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
           f"max {p['max_us']} us  (target p99 <= 108 us)")

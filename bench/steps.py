@@ -50,6 +50,7 @@ priority = {prio}
 cpu = {cpu}
 executor = "{kind}"
 max_lateness_us = {lateness}
+{extra}
 [[motors]]
 name = "a"
 max_speed = 100000.0
@@ -62,10 +63,12 @@ default_decel = 500000.0
 """
 
 
-def config_text(prio: int, cpu: int, kind: str = "process", lateness: float = 1e7) -> str:
+def config_text(prio: int, cpu: int, kind: str = "process", lateness: float = 1e7,
+                step_thread: str = "") -> str:
+    """Three motors; ``step_thread``: more ``[step_thread]`` lines (``key = value``)."""
     one = CONFIG.split("[[motors]]")[1]
     head = CONFIG.split("[[motors]]")[0].format(prio=prio, cpu=cpu, kind=kind,
-                                                lateness=lateness)
+                                                lateness=lateness, extra=step_thread)
     return head + "".join("[[motors]]" + one.replace('"a"', f'"{n}"') for n in "abc")
 
 
@@ -139,6 +142,18 @@ def status_reader(state_dir: Path, seconds: float, per_s: int) -> subprocess.Pop
     return subprocess.Popen([sys.executable, "-c", code], cwd=ROOT, stdout=subprocess.PIPE)
 
 
+def memory_kb(pid: int | None) -> dict[str, int]:
+    """VmRSS and VmLck (mlockall) of a process, in kB."""
+    out = {"rss_kb": 0, "locked_kb": 0}
+    if pid is None:
+        return out
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        key, _, value = line.partition(":")
+        if key in ("VmRSS", "VmLck"):
+            out["rss_kb" if key == "VmRSS" else "locked_kb"] = int(value.split()[0])
+    return out
+
+
 def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: int,
                flood_cpu: int | None, kind: str = "process",
                status_per_s: int = 0) -> dict[str, Any]:
@@ -163,6 +178,10 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
             elapsed = time.monotonic() - t0
             status = d.status(histogram=True)
             after = hist_of(status)
+            assert d.proc is not None
+            memory = {f"daemon_{k}": v for k, v in memory_kb(d.proc.pid).items()}
+            memory.update({f"executor_{k}": v
+                           for k, v in memory_kb(status["executor"]["pid"]).items()})
             for m in range(3):
                 c.stop(m, hard=True)
     finally:
@@ -177,6 +196,7 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
     if status_per_s:
         result["status_reads_per_s"] = round(commands / elapsed)
     result["timing_lost"] = status["steps"].get("timing_lost", 0)
+    result.update(memory)
     return result
 
 
@@ -310,6 +330,8 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     fig["stall_min_gap_us"] = stl["min_gap_us"]
     fig["stall_profile_bound_us"] = stl["profile_bound_us"]
     fig["executor_step_cost_us"] = cost
+    for k in ("daemon_rss_kb", "daemon_locked_kb", "executor_rss_kb", "executor_locked_kb"):
+        fig[k] = idle.get(k, 0)  # while 3 motors step
     fig["timing_lost_in_windows"] = sum(r.get("timing_lost", 0) for r in (idle, fl, stq))
 
     def row(name: str, r: dict[str, Any]) -> str:
@@ -334,6 +356,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     print(f"50 ms stall at 5000 step/s: fault latched {stl['fault_latched']} ({stl['fault']!r}),"
           f" smallest gap {stl['min_gap_us']:.1f} us (bound {stl['profile_bound_us']} us)")
     print(f"step core CPU per step: {cost} us")
+    print(f"memory while 3 motors step: daemon RSS {fig['daemon_rss_kb'] / 1024:.1f} MB "
+          f"(locked {fig['daemon_locked_kb'] / 1024:.1f}), step executor RSS "
+          f"{fig['executor_rss_kb'] / 1024:.1f} MB (locked {fig['executor_locked_kb'] / 1024:.1f})")
     return fig
 
 

@@ -108,6 +108,7 @@ class Link:
         self.peer_gone = False
         self._out = bytearray()
         self._reading = True
+        self._mask = -1  # the PTY's events registered with serve()'s poller
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
@@ -151,6 +152,7 @@ class Link:
         signal's own byte ends that ``poll()``, and the handler runs right after it."""
         poller = select.poll()
         poller.register(self._wake_r, POLLIN)
+        self._mask = -1
         while not self._stopped:
             self.turn(poller)
             self.turns += 1  # the watchdog's evidence that the loop is not hung
@@ -170,7 +172,10 @@ class Link:
             self._reading = reading
             if not reading:
                 self.counters["backpressure"] += 1
-        poller.register(fd, (POLLIN if reading else 0) | (POLLOUT if self._out else 0))
+        mask = (POLLIN if reading else 0) | (POLLOUT if self._out else 0)
+        if mask != self._mask:  # a new mask makes poll() rebuild its descriptor array
+            self._mask = mask
+            poller.register(fd, mask)
         t_enter = self.clock()
         ready = dict(poller.poll(self._timeout_ms(t_enter, reading)))
         if self._wake_r in ready:

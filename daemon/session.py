@@ -117,6 +117,8 @@ class LinkSession:
 
     def take_output(self) -> bytes:
         """The response bytes ready to send, in order; the session forgets them."""
+        if not self._out:
+            return b""
         data = bytes(self._out)
         self._out.clear()
         return data

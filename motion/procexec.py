@@ -444,6 +444,8 @@ class ProcessStepExecutor(StepExecutor):
         self._event_r = self._event_conn_r.fileno()
         os.set_blocking(self._wake_w, False)
         os.set_blocking(self._event_r, False)
+        self._batching = False  # in service(): one wake-up byte for all its pushes
+        self._kick_owed = False
         self.proc: Any = None
         self.died: str | None = None
         self._died_reported = False
@@ -568,6 +570,10 @@ class ProcessStepExecutor(StepExecutor):
         self._kick()
 
     def _kick(self) -> None:
+        if self._batching:
+            self._kick_owed = True
+            return
+        self._kick_owed = False
         with contextlib.suppress(BlockingIOError, OSError, ValueError):
             os.write(self._wake_w, b"k")
 
@@ -590,10 +596,17 @@ class ProcessStepExecutor(StepExecutor):
         return out
 
     def service(self, now: float) -> float:
-        for m, pending in enumerate(self.pending):
-            if pending:
-                self._push(m, [])
-        return super().service(now)
+        """Top-ups of every motor, then one wake-up byte (a syscall) for all of them."""
+        self._batching = True
+        try:
+            for m, pending in enumerate(self.pending):
+                if pending:
+                    self._push(m, [])
+            return super().service(now)
+        finally:
+            self._batching = False
+            if self._kick_owed:
+                self._kick()
 
     # -- snapshots -------------------------------------------------------------------------
     def position(self, motor: int) -> int:

@@ -127,6 +127,12 @@ class SegmentCutter:
             if nxt is None:
                 break
             seg, sigma, d = nxt
+            if seg.a == 0 and d > 0:  # a cruise: its runs in one tight loop
+                more = self._cruise(seg, sigma, d, horizon, gen, watch, out, bounds)
+                if more is False:
+                    return out  # a step beyond the horizon is left: not the last segment
+                if more:
+                    continue
             n, first, interval, add, t_first, t_last = self._run(seg, sigma, d, horizon,
                                                                  not out)
             if n == 0:
@@ -139,6 +145,54 @@ class SegmentCutter:
         if out and self.done:
             out[-1] = out[-1]._replace(last=True)
         return out
+
+    def _cruise(self, seg: Any, sigma: int, d: float, horizon: float, gen: int, watch: bool,
+                out: list[StepSegment], bounds: MutableSequence[Boundary] | None) -> bool | None:
+        """The runs of a constant-speed piece up to ``horizon``, appended to ``out``: the
+        arithmetic of :meth:`_run` for ``alpha == 0``, without its calls, so a long cruise
+        costs about a microsecond per segment. True: the piece is used up (cut on in the
+        next); False: the horizon is reached; None: not handled here (a run whose interval
+        rounds to 0, at over a step per ns), :meth:`_run` takes it from where this stopped.
+        """
+        t0, s0, v0, dur = seg.t0, seg.s0, seg.v0, seg.duration
+        w0 = max(sigma * v0, 0.0)
+        length = _length(seg, sigma)
+        finite = math.isfinite(length)
+        tau_h = min(max(horizon - t0, 0.0), dur)
+        x_h = sigma * ((s0 + tau_h * (v0 + 0.5 * seg.a * tau_h)) - s0)  # Segment.position
+        span_s = self.span / 1e9
+        cap = 2 * max(self.err - 2, 1) + 1  # _length_within_error at constant speed
+        floor = math.floor
+        counter, last_t = self.counter, self.last_t
+        try:
+            while True:
+                if finite and d > length:
+                    return True
+                t_d = t0 + d / w0
+                if t_d > horizon and out:
+                    return False
+                first = round(t_d * 1_000_000_000)
+                avail = floor(length - d) + 1 if finite else 1 << 40
+                avail = min(avail, max(floor(x_h - d) + 1, 1))
+                tau_s = min(max(t_d + span_s - t0, 0.0), dur)
+                x_s = sigma * ((s0 + tau_s * (v0 + 0.5 * seg.a * tau_s)) - s0)
+                n = min(max(min(avail, floor(x_s - d) + 1), 1), cap)
+                if n == 1:
+                    interval, t_end = 0, t_d
+                else:
+                    k2 = n - 1
+                    t_end = t0 + (d + k2) / w0
+                    interval = round((round(t_end * 1_000_000_000) - first) / k2)
+                    if interval <= 0:
+                        return None
+                if bounds is not None:
+                    bounds.append(Boundary(first, t_d, counter, last_t))
+                out.append(StepSegment(first, interval, n, 0, sigma, gen, False, watch))
+                counter += sigma * n
+                last_t = t_end
+                d = sigma * (counter + sigma - s0)  # as _next_step_distance has it
+        finally:
+            self.counter, self.last_t = counter, last_t
 
     def _run(self, seg: Any, sigma: int, d: float, horizon: float,
              first_one: bool) -> tuple[int, int, int, int, float, float]:

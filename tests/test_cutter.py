@@ -22,7 +22,7 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import ExecEvent, ExecEventKind, to_ticks
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
-from motorctl.motion.segments import SegmentCutter, StepSegment
+from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
 from motorctl.motion.stepcore import COUNTER_NAMES
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
@@ -76,6 +76,47 @@ def test_the_cutter_makes_exactly_the_steps_of_the_profile_within_the_error(
     """Reversals, triangles, a start between integers and a start at speed included."""
     traj = plan_move_to(1000.25, s0, v0_frac * speed, float(distance), speed, acc, dec)
     check_against_steps(traj, 0)
+
+
+class GenericCutter(SegmentCutter):
+    """The cutter without its cruise loop: every run through ``_run``."""
+
+    def _cruise(self, *args: object) -> bool | None:
+        return None
+
+
+@settings(max_examples=80, deadline=None)
+@given(
+    distance=st.integers(-40_000, 40_000),
+    speed=st.floats(50, 200_000),
+    acc=st.floats(500, 2e6),
+    s0=st.floats(-0.9, 0.9),
+    v0_frac=st.floats(-1.0, 1.0),
+    run=st.booleans(),
+    step_s=st.sampled_from([0.0, 0.001, 0.005, 0.05]),
+    span=st.sampled_from([SPAN, 50_000, 10**9]),
+)
+def test_the_cruise_loop_makes_the_very_segments_of_the_generic_path(
+    distance: int, speed: float, acc: float, s0: float, v0_frac: float, run: bool,
+    step_s: float, span: int,
+) -> None:
+    """Bit for bit, boundaries included: the loop is only a cheaper way to the same runs."""
+    traj = (plan_run(2000.5, s0, v0_frac * speed, math.copysign(speed, distance or 1), acc,
+                     acc) if run else
+            plan_move_to(2000.5, s0, v0_frac * speed, float(distance), speed, acc, acc))
+    fast, slow = SegmentCutter(traj.segments, 0, ERR, span), GenericCutter(traj.segments, 0,
+                                                                          ERR, span)
+    h = traj.start_time
+    for _ in range(400 if run else 10**6):
+        if fast.done:
+            break
+        h += step_s
+        fb: list[Boundary] = []
+        sb: list[Boundary] = []
+        assert fast.cut(h, 3, True, fb) == slow.cut(h, 3, True, sb)
+        assert fb == sb
+        assert (fast.counter, fast.last_t) == (slow.counter, slow.last_t)
+    assert slow.done == fast.done
 
 
 def test_random_moves_runs_and_horizons_agree_with_the_profile() -> None:
