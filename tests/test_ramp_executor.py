@@ -7,11 +7,14 @@ from collections.abc import Callable
 
 import pytest
 
+from motorctl.daemon.config import parse_config
+from motorctl.daemon.main import build_executor, hardware_spec, motor_params
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import build
+from motorctl.hal.mock import EventKind, build, world_of
+from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice
-from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings
+from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings, TmcSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import ExecEvent, ExecEventKind, Executor
 from motorctl.motion.profile import plan_move_to, plan_run
@@ -21,6 +24,7 @@ from motorctl.motion.ramp_executor import (
     peak_speed,
     with_ramp_motors,
 )
+from motorctl.motion.stepexec import ThreadStepExecutor
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -352,3 +356,75 @@ def test_positions_are_xactual_from_construction_for_a_restore_before_start() ->
     rig.chips[0].set_position(12_345)  # where an earlier daemon left the chip
     ex = RampExecutor(rig.chips, rig.clock)
     assert ex.position(0) == 12_345  # before start(): the daemon restores offsets now
+
+
+# ------------------------------------- the step executor never gets a motor the chip moves itself
+
+MIXED = """
+[[motors]]
+name = "x"
+
+[[motors]]
+name = "z"
+  [motors.tmc]
+  driver = "tmc5160"
+  spi = "/dev/spidev0.0"
+  mode = "ramp"
+"""
+
+
+def test_the_mock_step_io_leaves_out_a_ramp_axis() -> None:
+    ramp = TmcSpec("/dev/spidev0.0", SETTINGS, ramp=True)
+    spec = HardwareSpec((AxisSpec(driver=ramp), AxisSpec()))
+    assert spec.stepped() == (1,)
+    clock = VirtualClock()
+    hw = build(spec, clock)
+    io = open_step_io("mock", spec, clock, parent=hw)
+    assert io.outputs.motors == 1 and io.endstops == ((2, 3),)  # axis 1's end stops
+    io.outputs.set_direction(0, True)
+    clock.advance_to(clock.now() + 1e-3)
+    io.outputs.pulse([0], 2e-6)
+    world = world_of(hw)
+    assert [a.position for a in world.axes] == [0, 1]
+    assert [e.index for e in world.timeline.of(EventKind.STEP)] == [1]
+    io.close()
+    hw.close()
+
+
+def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
+    rig = Rig()
+    config = parse_config(MIXED, "mixed.toml")
+    spec = hardware_spec(config)
+    hw = build(spec, rig.clock)
+    hw.steppers[1].driver = rig.chips[0]  # what attach_drivers does with the real chip
+    params = motor_params(config)
+    ex = build_executor(config, hw, spec, params)
+    assert isinstance(ex, SplitExecutor)
+    steps, local = ex.routes[0]
+    assert isinstance(steps, ThreadStepExecutor) and local == 0
+    assert steps.io.outputs.motors == 1 and len(steps.positions) == 1  # no slot for z
+    ramp_ex, local = ex.routes[1]
+    assert isinstance(ramp_ex, RampExecutor) and local == 0
+    engine = MotionEngine(hw, params, ex, driver_poll_s=0.005)
+    x, z = engine.motors
+    with engine.lock:
+        x.submit(MoveToCmd(300, RAMP), rig.clock.now())
+        z.submit(MoveToCmd(-2000, RAMP), rig.clock.now())
+    engine.run_until_idle(10.0)
+    assert (x.position, z.position) == (300, -2000)
+    world = world_of(hw)
+    assert [a.position for a in world.axes] == [300, 0]  # z was never stepped
+    assert {e.index for e in world.timeline.of(EventKind.STEP)} == {0}
+    assert rig.models[0].physical == pytest.approx(-2000, abs=0.5)
+    ex.close()
+    hw.close()
+
+
+def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
+    rig = Rig(2)
+    assert with_ramp_motors(None, rig.chips, rig.clock) is not None
+    assert isinstance(with_ramp_motors(None, rig.chips, rig.clock), RampExecutor)
+    with pytest.raises(ValueError, match=r"motors \[1\] need a step executor"):
+        with_ramp_motors(None, [rig.chips[0], object()], rig.clock)
+    split = with_ramp_motors(Recorder(1), [rig.chips[0], object()], rig.clock)
+    assert isinstance(split, SplitExecutor) and split.routes[1][1] == 0  # its own numbering
