@@ -4,6 +4,7 @@ virtual clock: the seam alone, then the motion engine driving motors through it.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import pytest
 
@@ -35,7 +36,7 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
-from tests.tmc_model import FakeKernel, TmcModel
+from tests.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
 
 K = ExecEventKind
 RAMP = Ramp(4000.0, 40_000.0, 40_000.0)
@@ -428,3 +429,37 @@ def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
         with_ramp_motors(None, [rig.chips[0], object()], rig.clock)
     split = with_ramp_motors(Recorder(1), [rig.chips[0], object()], rig.clock)
     assert isinstance(split, SplitExecutor) and split.routes[1][1] == 0  # its own numbering
+
+
+# ------------------------------------------ units: a protocol step is one XACTUAL microstep
+
+@pytest.mark.parametrize(("microsteps", "mres"), [(16, 4), (256, 0)])
+def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(
+    microsteps: int, mres: int
+) -> None:
+    """TMC5160A datasheet Rev. 1.14: XACTUAL/XTARGET and VMAX count microsteps of the
+    sequencer input (12.1, p. 81), each 2^MRES sine-table entries (CHOPCONF.MRES, 6.5.2,
+    p. 51), 256 entries a full step. So XTARGET is the protocol position unscaled, VMAX does
+    not depend on the resolution, and two full steps are 2 * microsteps protocol steps."""
+    clock = VirtualClock()
+    kernel = FakeKernel()
+    model = TmcModel("tmc5160", clock=clock)
+    kernel.chips[(0, 0)] = model
+    dev = SpiDevice(SpiAddress(0, 0), SpiBuses(), kernel.factory(), 1_000_000)
+    chip = Tmc5160("m", dev, replace(SETTINGS, microsteps=microsteps), RefSwitches())
+    chip.start()
+    assert model.reg(A_CHOPCONF) >> 24 & 0xF == mres
+    hw = build(HardwareSpec((AxisSpec(),)), clock)
+    hw.steppers[0].driver = chip
+    engine = MotionEngine(hw, [MotorParams()], RampExecutor([chip], clock), driver_poll_s=0.005)
+    m = engine.motors[0]
+    target = 2 * microsteps  # two full steps
+    with engine.lock:
+        m.submit(MoveToCmd(target, Ramp(1000.0, 100_000.0, 100_000.0)), clock.now())
+    engine.run_until(clock.now() + 0.005)
+    assert model.reg(A_XTARGET) == target
+    assert model.reg(A_VMAX) == round(1000.0 * 2**24 / 12e6)  # 1398 at either resolution
+    engine.run_until_idle(10.0)
+    assert m.position == target == chip.position() == round(model.x)  # XACTUAL over SPI
+    assert model.mscnt() == 512  # 2 full steps of 256 table entries: the motor moved 2 steps
+    hw.close()
