@@ -13,13 +13,12 @@ import json
 import os
 import subprocess
 import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess
+from tests.daemon_proc import DaemonProcess, positions_until_ready
 
 TESTS = Path(__file__).resolve().parent
 REPO = TESTS.parent
@@ -72,12 +71,7 @@ def daemon(tmp_path: Path, env: dict[str, str]) -> Iterator[DaemonProcess]:
 def test_a_ramp_motor_without_step_dir_lines_moves_end_to_end(daemon: DaemonProcess) -> None:
     with daemon.client() as c:
         c.move_to(0, 3000, speed=250)  # XTARGET on the chip; its ramp makes the steps
-        seen = []
-        deadline = time.monotonic() + 10.0
-        while not c.is_ready(0):
-            seen.append(c.position(0))
-            assert time.monotonic() < deadline, "the ramp move did not end within 10 s"
-            time.sleep(0.05)
+        seen = positions_until_ready(c, 0)
         assert c.position(0) == 3000
         assert any(0 < p < 3000 for p in seen)  # GetAbsPos follows XACTUAL while moving
         c.move_to(0, -400, speed=250)
