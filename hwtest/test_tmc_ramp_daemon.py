@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
@@ -49,34 +49,41 @@ def ramp_config() -> str:
     return text.replace(Z_STEP_DIR, Z_RAMP)
 
 
-@pytest.fixture(scope="module")
-def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
+def test_a_ramp_motor_without_step_dir_leaves_those_lines_alone(
+    tmp_path: Path,
+) -> None:
     for m in MOTORS:
         chip, off = where(m[3])
         gsim.sim_pull(off, True, chip)
-    tmp = tmp_path_factory.mktemp("ramp")
     shim = str(REPO / "tests" / "fakespi")
     env = {"PYTHONPATH": os.pathsep.join(p for p in (shim, os.environ.get("PYTHONPATH")) if p),
            "MOTORCTL_FAKE_SPI": json.dumps({"chips": CHIPS})}
-    d = DaemonProcess(tmp, ramp_config(), env=env).start()
+    base = gsim.chip_base("gpiochip0")
+    gsim.trace_start()  # every level the daemon sets, from its start to its exit
+    d = DaemonProcess(tmp_path, ramp_config(), env=env).start()
     try:
-        yield d
+        api = load_api(API)
+        for offset in (5, 6, 20):  # z's STEP, DIR, end stop in the example: not named now
+            info = api.line_info("/dev/gpiochip0", offset)
+            assert not info.used, f"GPIO{offset} is held by {info.consumer!r}"
+        enable = api.line_info("/dev/gpiochip0", 30)
+        assert enable.used and enable.consumer == "motorctl" and enable.output
+        assert gsim.sim_value(30) is False  # ENABLE on (active low) while the daemon runs
+        with d.client(timeout=10.0) as c:
+            c.move_to(2, 500, speed=250)  # the chip's own ramp
+            c.move_to(0, 100, speed=250)  # STEP/DIR on gpio-sim
+            c.wait_moved(2, timeout_ms=20_000)
+            c.wait_moved(0, timeout_ms=20_000)
+            assert (c.position(0), c.position(2)) == (100, 500)
+        assert d.terminate() == 0
     finally:
         d.close()
-
-
-def test_a_ramp_motor_without_step_dir_leaves_those_lines_alone(daemon: DaemonProcess) -> None:
-    api = load_api(API)
-    for offset in (5, 6, 20):  # z's STEP, DIR, end stop in the example: not named now
-        info = api.line_info("/dev/gpiochip0", offset)
-        assert not info.used, f"GPIO{offset} is held by {info.consumer!r}"
-    enable = api.line_info("/dev/gpiochip0", 30)
-    assert enable.used and enable.consumer == "motorctl" and enable.output
-    assert gsim.sim_value(30) is False  # ENABLE on (active low) while the daemon runs
-    with daemon.client(timeout=10.0) as c:
-        c.move_to(2, 500, speed=250)  # the chip's own ramp
-        c.move_to(0, 100, speed=250)  # STEP/DIR on gpio-sim
-        c.wait_moved(2, timeout_ms=20_000)
-        c.wait_moved(0, timeout_ms=20_000)
-        assert (c.position(0), c.position(2)) == (100, 500)
-    assert daemon.terminate() == 0
+        gsim.trace_stop()
+    events = gsim.trace_read()
+    assert gsim.trace_lost() == 0, "the trace lost events: size the buffer"
+    for offset in (5, 6, 20):  # never driven nor turned around
+        assert not [e for e in events if e.gpio == base + offset], f"GPIO{offset} was touched"
+    levels = [e.value for e in gsim.changes(gsim.sets(events, base + 30))]
+    assert levels[0] == 0 and levels[-1] == 1  # ENABLE on at start, off at exit
+    x_steps = [e for e in gsim.sets(events, base + 17) if e.value == 1]  # x's STEP: GPIO17
+    assert len(x_steps) == 100
