@@ -48,7 +48,7 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
-from motorctl.motion.ramp_executor import with_ramp_motors
+from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
@@ -238,7 +238,8 @@ class Daemon:
             steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "executor": {"alive": health.alive, "reason": health.reason,
-                                            "kind": self.config.step_thread.executor,
+                                            "kind": step_executor_kind(self.config,
+                                                                       executor),
                                             "pid": getattr(executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
                                "hard_stops": self.engine.stop_wait_status(),
@@ -439,6 +440,12 @@ def probe(config_path: str | None) -> int:
     print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
     sys.stdout.write(report.text())
     return 1 if report.problems else 0
+
+
+def step_executor_kind(config: Config, executor: Executor) -> str:
+    """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
+    TMC5160's own ramp (no step executor at all)."""
+    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
 
 
 def build_executor(

@@ -78,7 +78,8 @@ def test_a_ramp_motor_without_step_dir_lines_moves_end_to_end(daemon: DaemonProc
         c.wait_moved(0, timeout_ms=10_000)
         assert c.position(0) == -400
     status = daemon.status()
-    assert status["executor"]["alive"] and status["executor"]["pid"] is None  # no step process
+    executor = status["executor"]
+    assert executor["alive"] and (executor["kind"], executor["pid"]) == ("none", None)
     assert status["motors"][0]["position"] == -400
     assert daemon.terminate() == 0
     assert "fakegpiod" not in daemon.stderr()  # no line was ever asked for
