@@ -2,17 +2,20 @@
 pins on Linux GPIO character devices, through libgpiod's Python binding (v1 or v2, see
 :mod:`motorctl.hal.gpiochip`). Consumer name ``motorctl`` (``[gpiod] consumer``).
 
-Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge)
-and :func:`build_step_io` the step executor's (STEP/DIR/ENABLE of all motors in one request
-per chip, so several STEP lines rise in one ``set_values`` call; end stops as edge-event
-requests). Each first finds every configured line and checks it is free: a line used twice,
-a missing chip or line, a line held by another consumer (named) or a permission problem is
-an error before anything is requested.
+Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge,
+and whatever lines are named for a motor whose TMC5160 runs its own ramp: held, never
+stepped) and :func:`build_step_io` the step executor's (STEP/DIR/ENABLE of the stepped
+motors, ``spec.stepped()``, in one request per chip, so several STEP lines rise in one
+``set_values`` call; end stops as edge-event requests). Each first finds every configured
+line and checks it is free: a line used twice, a missing chip or line, a line held by
+another consumer (named) or a permission problem is an error before anything is requested.
+A line the config does not name is never looked up, requested or driven.
 
 Threads: the step executor's thread owns the StepIO (outputs, edge inputs); the link thread
-owns the pins; the engine (under its lock) owns the bridge, whose reversal dead time is
-finished by the bridge's own small timer thread. Calls block only on GPIO ioctls, sysfs
-writes (PWM) or a step pulse's busy-wait. Run-time failures on the step path raise HalIOError.
+owns the pins; a ramp motor's held lines are set only at open and close (main thread); the
+engine (under its lock) owns the bridge, whose reversal dead time is finished by the
+bridge's own small timer thread. Calls block only on GPIO ioctls, sysfs writes (PWM) or a
+step pulse's busy-wait. Run-time failures on the step path raise HalIOError.
 """
 
 from __future__ import annotations
