@@ -128,8 +128,9 @@ class GpiodConfig:
 `step` and `dir` are required, except for a motor whose TMC5160 runs its own ramp
 (`[motors.tmc] mode = "ramp"`): the chip makes its own steps, so leave them out (the whole
 [motors.gpiod] too when nothing else is wired) where the chip's STEP/DIR pins are tied off or
-serve as its DIAG outputs; lines named there are only held low while the daemon runs. Such a
-motor's end stops are the chip's REFL/REFR inputs, so it takes no endstop_min/endstop_max.""",
+serve as its DIAG outputs; if named, they are only held low (and `enable` on) while the
+daemon runs, never stepped. Such a motor's end stops are the chip's REFL/REFR inputs, so it
+takes no endstop_min/endstop_max.""",
 )
 @dataclass(frozen=True)
 class GpiodAxisConfig:
