@@ -42,13 +42,13 @@ from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motorctl.hal.tmc import TmcDriver
+from motorctl.hal.tmc import Tmc5160, TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
-from motorctl.motion.ramp_executor import with_ramp_motors
+from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
@@ -241,7 +241,8 @@ class Daemon:
             steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {"motors": motors, "steps": steps,
                                "executor": {"alive": health.alive, "reason": health.reason,
-                                            "kind": self.config.step_thread.executor,
+                                            "kind": step_executor_kind(self.config,
+                                                                       executor),
                                             "pid": getattr(executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
                                "hard_stops": self.engine.stop_wait_status(),
@@ -476,17 +477,32 @@ def probe(config_path: str | None) -> int:
     return 1 if report.problems else 0
 
 
+def step_executor_kind(config: Config, executor: Executor) -> str:
+    """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
+    TMC5160's own ramp (no step executor at all)."""
+    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
+
+
 def build_executor(
     config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams]
 ) -> Executor:
-    """The step executor the config asks for (only it runs real-time and locks memory); the
-    motors whose TMC5160 runs its own ramp (``[motors.tmc] mode = "ramp"``) go to a
-    RampExecutor instead."""
+    """The step executor the config asks for (only it runs real-time and locks memory), for
+    the motors ``spec.stepped()`` names; the motors whose TMC5160 runs its own ramp
+    (``[motors.tmc] mode = "ramp"``) go to a RampExecutor instead and are not the step
+    executor's at all (no STEP/DIR, no slot). Without stepped motors there is no step
+    executor (nothing to run in real time)."""
     st = config.step_thread
-    limits = axis_limits(params, st.max_lateness_us / 1e6, STEP_ERROR_S)
+    stepped = spec.stepped()
+    drivers = [s.driver for s in hw.steppers]
+    ramp = [i for i, d in enumerate(drivers) if isinstance(d, Tmc5160)]
+    if set(ramp) | set(stepped) != set(range(len(drivers))) or set(ramp) & set(stepped):
+        raise StartupError(f"ramp motors {ramp} and stepped motors {list(stepped)} disagree")
+    limits = axis_limits([params[i] for i in stepped], st.max_lateness_us / 1e6, STEP_ERROR_S)
     rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
-    steps: Executor
-    if hw.clock.is_virtual:  # tests drive a virtual clock themselves: the thread kind's job
+    steps: Executor | None = None
+    if not stepped:
+        pass
+    elif hw.clock.is_virtual:  # tests drive a virtual clock themselves: the thread kind's job
         steps = ThreadStepExecutor(hw, config.hal.backend, spec, limits, max_error_s=0.0)
     else:
         kind = ProcessStepExecutor if st.executor == "process" else ThreadStepExecutor
@@ -496,7 +512,6 @@ def build_executor(
             late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
         )
     spi = config.section(SpidevConfig)
-    drivers = [s.driver for s in hw.steppers]
     return with_ramp_motors(steps, drivers, hw.clock, spi.ramp_poll_ms / 1000,
                             spi.ramp_idle_poll_ms / 1000)
 

@@ -2,17 +2,20 @@
 pins on Linux GPIO character devices, through libgpiod's Python binding (v1 or v2, see
 :mod:`motorctl.hal.gpiochip`). Consumer name ``motorctl`` (``[gpiod] consumer``).
 
-Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge)
-and :func:`build_step_io` the step executor's (STEP/DIR/ENABLE of all motors in one request
-per chip, so several STEP lines rise in one ``set_values`` call; end stops as edge-event
-requests). Each first finds every configured line and checks it is free: a line used twice,
-a missing chip or line, a line held by another consumer (named) or a permission problem is
-an error before anything is requested.
+Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge,
+and whatever lines are named for a motor whose TMC5160 runs its own ramp: held, never
+stepped) and :func:`build_step_io` the step executor's (STEP/DIR/ENABLE of the stepped
+motors, ``spec.stepped()``, in one request per chip, so several STEP lines rise in one
+``set_values`` call; end stops as edge-event requests). Each first finds every configured
+line and checks it is free: a line used twice, a missing chip or line, a line held by
+another consumer (named) or a permission problem is an error before anything is requested.
+A line the config does not name is never looked up, requested or driven.
 
 Threads: the step executor's thread owns the StepIO (outputs, edge inputs); the link thread
-owns the pins; the engine (under its lock) owns the bridge, whose reversal dead time is
-finished by the bridge's own small timer thread. Calls block only on GPIO ioctls, sysfs
-writes (PWM) or a step pulse's busy-wait. Run-time failures on the step path raise HalIOError.
+owns the pins; a ramp motor's held lines are set only at open and close (main thread); the
+engine (under its lock) owns the bridge, whose reversal dead time is finished by the
+bridge's own small timer thread. Calls block only on GPIO ioctls, sysfs writes (PWM) or a
+step pulse's busy-wait. Run-time failures on the step path raise HalIOError.
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from dataclasses import dataclass, field
 
 from motorctl.hal.gpiochip import GpioApi, LineRequest, LineSettings, load_api
 from motorctl.hal.gpiod_config import (
+    AxisRole,
     GpiodAxisConfig,
     GpiodConfig,
     GpiodPinConfig,
@@ -48,10 +52,11 @@ from motorctl.hal.interfaces import (
     StepperDriver,
     StepperHardware,
 )
-from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.wiring import (
     DcWiring,
     GpioWiring,
+    MotorWiring,
     ProbeReport,
     PwmWiring,
     ResolvedLine,
@@ -68,6 +73,7 @@ def wiring_of(spec: HardwareSpec) -> GpioWiring:
             [a.sections.get(GpiodAxisConfig) for a in spec.axes],
             [(p.number, p.sections.get(GpiodPinConfig)) for p in spec.pins],
             spec.dc,
+            [AxisRole(a.name, a.own_ramp) for a in spec.axes],
         )
     except WiringMissing as exc:
         raise HalError(str(exc)) from None
@@ -98,18 +104,18 @@ class GpiodPin(Pin):
 
 
 class GpiodStepOutputs(StepOutputs):
-    """STEP/DIR of every motor: one request per chip holding all motors' STEP, DIR (and
-    ENABLE) lines on it, so several STEP lines go out in one ``set_values`` call."""
+    """STEP/DIR of every stepped motor (``spec.stepped()``): one request per chip holding all
+    their STEP, DIR (and ENABLE) lines on it, so several STEP lines go out in one
+    ``set_values`` call."""
 
-    def __init__(self, clock: Clock, spec: HardwareSpec, wiring: GpioWiring,
+    def __init__(self, clock: Clock, motors: Sequence[tuple[MotorWiring, AxisSpec]],
                  reqs: list[LineRequest], steps: list[tuple[int, int]],
                  dirs: list[tuple[int, int]]) -> None:
         super().__init__(
             clock,
-            [a.invert_dir for a in spec.axes],
-            [a.dir_setup_s for a in spec.axes],
-            [max(m.dir_hold_us / 1e6, a.dir_hold_s) for m, a in zip(wiring.motors, spec.axes,
-                                                                     strict=True)],
+            [a.invert_dir for _, a in motors],
+            [a.dir_setup_s for _, a in motors],
+            [max(m.dir_hold_us / 1e6, a.dir_hold_s) for m, a in motors],
         )
         self.reqs = reqs
         self.steps = steps  # motor -> (request index, STEP offset)
@@ -311,8 +317,11 @@ class GpiodHardware(Hardware):
     lines: list[ResolvedLine] = field(default_factory=list)
 
 
-def _is_motor_line(use: str) -> bool:
-    return use.startswith("motors[")
+def _step_executor_lines(spec: HardwareSpec) -> Callable[[str], bool]:
+    """Selects the lines of the motors a step executor drives (not those of a TMC5160 that
+    runs its own ramp: the daemon's part holds any lines named for those)."""
+    prefixes = tuple(f"motors[{i}]." for i in spec.stepped())
+    return lambda use: use.startswith(prefixes)
 
 
 def resolve(api: GpioApi, wiring: GpioWiring, which: Callable[[str], bool] = lambda u: True
@@ -338,8 +347,10 @@ def _setter(req: LineRequest, offset: int, level: bool) -> Callable[[], None]:
 
 
 def build(spec: HardwareSpec, clock: Clock, *, for_probe: bool = False) -> Hardware:
-    """The daemon's hardware: pins and the DC bridge (STEP/DIR/ENABLE and end stops are the
-    step executor's: :func:`build_step_io`). Every configured line is found and checked first."""
+    """The daemon's hardware: pins, the DC bridge and the lines named for motors whose TMC5160
+    runs its own ramp (STEP/DIR held low, ENABLE on, off at close; off also ``for_probe``).
+    The stepped motors' STEP/DIR/ENABLE and end stops are the step executor's
+    (:func:`build_step_io`). Every configured line is found and checked first."""
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
     # every line, the step executor's too: it may open them in another process, where an
@@ -350,6 +361,7 @@ def build(spec: HardwareSpec, clock: Clock, *, for_probe: bool = False) -> Hardw
                        api=api, lines=list(found.values()))
     try:
         _open_daemon_part(hw, api, spec, wiring, found, consumer, clock)
+        _hold_ramp_motor_lines(hw, api, wiring, found, consumer, enable=not for_probe)
     except BaseException:
         hw.close()
         raise
@@ -382,14 +394,43 @@ def _open_daemon_part(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wirin
         hw.pins[p.number] = GpiodPin(p.number, req, line.offset, p.output, p.initial, bias)
 
 
+def _hold_ramp_motor_lines(hw: GpiodHardware, api: GpioApi, wiring: GpioWiring,
+                           found: dict[str, ResolvedLine], consumer: str, enable: bool) -> None:
+    """The lines named for motors whose TMC5160 runs its own ramp: never stepped, so STEP/DIR
+    (if named at all) are held low and ENABLE on while the daemon runs, off at close."""
+    per_chip: dict[str, list[tuple[ResolvedLine, LineSettings]]] = {}
+    enables: list[tuple[ResolvedLine, bool]] = []
+    for i, m in enumerate(wiring.motors):
+        if not m.own_ramp:
+            continue
+        for which, ref in (("step", m.step), ("dir", m.dir)):
+            if ref is not None:
+                line = found[f"motors[{i}].{which}"]
+                per_chip.setdefault(line.chip_path, []).append(
+                    (line, LineSettings(output=True, value=False)))
+        if m.enable is not None:
+            line = found[f"motors[{i}].enable"]
+            per_chip.setdefault(line.chip_path, []).append(
+                (line, LineSettings(output=True, value=enable != m.enable_active_low)))
+            enables.append((line, m.enable_active_low))
+    reqs = {}
+    for path, lines in per_chip.items():
+        req = api.request(consumer, lines)
+        hw.closers.append(req.release)
+        reqs[path] = req
+    for line, off_level in enables:
+        hw.closers.append(_setter(reqs[line.chip_path], line.offset, off_level))
+
+
 def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None,
                   *, enable: bool = True) -> StepIO:
-    """The step executor's lines: every motor's STEP/DIR/ENABLE (one request per chip, all
-    motors on it together) and the end stops as edge-event requests. ENABLE goes on here and
-    off at close. Opened in the executor's thread or process (a request cannot be inherited)."""
+    """The step executor's lines: the STEP/DIR/ENABLE of every motor in ``spec.stepped()``
+    (one request per chip, all motors on it together) and their end stops as edge-event
+    requests. ENABLE goes on here and off at close. Opened in the executor's thread or process
+    (a request cannot be inherited). A motor whose TMC5160 runs its own ramp is not here."""
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
-    found = resolve(api, wiring, _is_motor_line)
+    found = resolve(api, wiring, _step_executor_lines(spec))
     consumer = wiring.consumer
     closers: list[Callable[[], None]] = []
     try:
@@ -403,8 +444,10 @@ def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None,
 def _open_step_io(api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
                   found: dict[str, ResolvedLine], consumer: str, clock: Clock, enable: bool,
                   closers: list[Callable[[], None]]) -> StepIO:
+    stepped = spec.stepped()
     per_chip: dict[str, list[tuple[ResolvedLine, LineSettings]]] = {}
-    for i, m in enumerate(wiring.motors):
+    for i in stepped:
+        m = wiring.motors[i]
         step, dir_ = found[f"motors[{i}].step"], found[f"motors[{i}].dir"]
         if step.chip_path != dir_.chip_path:
             raise HalError(f"motors[{i}]: STEP ({step.ref}) and DIR ({dir_.ref}) must be on one "
@@ -421,7 +464,8 @@ def _open_step_io(api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
         req = api.request(consumer, per_chip[path])
         closers.append(req.release)
         reqs.append(req)
-    for i, m in enumerate(wiring.motors):
+    for i in stepped:
+        m = wiring.motors[i]
         if m.enable is not None:
             en = found[f"motors[{i}].enable"]
             closers.append(_setter(reqs[paths.index(en.chip_path)], en.offset,
@@ -431,16 +475,16 @@ def _open_step_io(api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
         line = found[use]
         return paths.index(line.chip_path), line.offset
 
-    n = len(wiring.motors)
-    outputs = GpiodStepOutputs(clock, spec, wiring, reqs,
-                               [at(f"motors[{i}].step") for i in range(n)],
-                               [at(f"motors[{i}].dir") for i in range(n)])
+    outputs = GpiodStepOutputs(clock, [(wiring.motors[i], spec.axes[i]) for i in stepped], reqs,
+                               [at(f"motors[{i}].step") for i in stepped],
+                               [at(f"motors[{i}].dir") for i in stepped])
     # end stops
     names: list[str] = []
     lows: list[bool] = []
     ends: list[tuple[int | None, int | None]] = []
     inputs_by_chip: dict[str, list[tuple[int, ResolvedLine, LineSettings]]] = {}
-    for i, (m, axis) in enumerate(zip(wiring.motors, spec.axes, strict=True)):
+    for i in stepped:
+        m, axis = wiring.motors[i], spec.axes[i]
         pair: list[int | None] = []
         for which, es in (("endstop_min", m.endstop_min), ("endstop_max", m.endstop_max)):
             if es is None:
@@ -501,7 +545,7 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         mode = "output" if info.output else "input"
         rows.append(f"{ln.use:<22} {ln.ref!s:<16} -> {os.path.basename(ln.chip_path)}:"
                     f"{ln.offset}{name} ({mode}, {held})")
-    report.add("configured lines (before opening)", rows)
+    report.add("configured lines (before opening)", rows or ["none"])
     try:
         api.check_free(lines)
         hw = build(spec, clock, for_probe=True)
@@ -516,7 +560,7 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         return
     try:
         ends = []
-        for i, pair in enumerate(io.endstops):
+        for i, pair in zip(spec.stepped(), io.endstops, strict=True):
             for which, line in zip(("min", "max"), pair, strict=True):
                 if line is not None:
                     active = io.inputs.level(line)

@@ -1,6 +1,10 @@
 """The gpiod backend's config sections: [gpiod] (binding, consumer, the H-bridge's lines),
 [motors.gpiod] (a motor's STEP/DIR/ENABLE and end-stop lines) and [pins.gpiod] (a pin's line).
 
+A motor whose TMC5160 runs its own ramp (``[motors.tmc] mode = "ramp"``) needs no STEP/DIR
+lines (the chip makes its own steps; its end stops are the chip's REFL/REFR inputs): its
+[motors.gpiod] is optional, and so are step and dir in it; every other motor must name both.
+
 Declared here and registered in `motorctl.hal.registry.BACKENDS`; imports no hardware library,
 so a config can be checked on any machine. `wiring_from` turns the loaded sections into the
 backend's `GpioWiring`; the rule below checks, before anything opens, that every motor and
@@ -15,6 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
+from motorctl.hal.tmc_config import TmcAxisConfig
 from motorctl.hal.wiring import (
     BIASES,
     BRIDGE_STOPS,
@@ -117,13 +122,23 @@ class GpiodConfig:
     dc: GpiodDcConfig | None = table(GpiodDcConfig, absent=None, absent_text="no bridge wired")
 
 
-@section("The lines of one motor for the gpiod backend.")
+@section(
+    "The lines of one motor for the gpiod backend.",
+    notes="""\
+`step` and `dir` are required, except for a motor whose TMC5160 runs its own ramp
+(`[motors.tmc] mode = "ramp"`): the chip makes its own steps, so leave them out (the whole
+[motors.gpiod] too when nothing else is wired) where the chip's STEP/DIR pins are tied off or
+serve as its DIAG outputs; if named, they are only held low (and `enable` on) while the
+daemon runs, never stepped. Such a motor's end stops are the chip's REFL/REFR inputs, so it
+takes no endstop_min/endstop_max.""",
+)
 @dataclass(frozen=True)
 class GpiodAxisConfig:
     """[motors.gpiod]"""
 
-    step: str = _line_key(REQUIRED, "The driver's STEP line.")
-    dir: str = _line_key(REQUIRED, "The driver's DIR line.")
+    step: str = _line_key("", "The driver's STEP line; empty: not wired (only for a TMC5160 "
+                          "running its own ramp).")
+    dir: str = _line_key("", "The driver's DIR line; empty: not wired (as step).")
     enable: str = _line_key("", "The driver's ENABLE line (on while the daemon runs); empty: "
                             "not wired.")
     enable_active_low: bool = boolean(True, "ENABLE is active low (TMC drivers: EN low = on).")
@@ -151,35 +166,80 @@ def make(cls: type[S], **keys: Any) -> S:
 
 
 class WiringMissing(ValueError):
-    """A motor, pin or the bridge has no gpiod section: (key path, problem)."""
+    """A motor, pin or the bridge is not wired as it must be: (key path, problem, value)."""
 
-    def __init__(self, path: str, problem: str) -> None:
+    def __init__(self, path: str, problem: str, value: Any = REQUIRED) -> None:
         super().__init__(f"{path}: {problem}")
         self.path = path
         self.problem = problem
+        self.value = value
+
+
+@dataclass(frozen=True)
+class AxisRole:
+    """What the wiring rules need to know of a motor besides its lines."""
+
+    name: str = ""  # the motor's name, for messages
+    own_ramp: bool = False  # a TMC5160 runs its own ramp: no STEP/DIR, no GPIO end stops
+
+
+def role_of(motor: Any) -> AxisRole:
+    """The role of a loaded [[motors]] entry (a MotorConfig)."""
+    tmc = motor.sections.get(TmcAxisConfig)
+    return AxisRole(motor.name, tmc is not None and tmc.mode == "ramp")
+
+
+def _motor(i: int, role: AxisRole) -> str:
+    return f"motor {i} ({role.name!r})" if role.name else f"motor {i}"
+
+
+_RAMP_NOTE = ('only a TMC5160 that runs its own ramp ([motors.tmc] driver = "tmc5160", '
+              'mode = "ramp") goes without')
+
+
+def _axis_wiring(i: int, a: GpiodAxisConfig | None, role: AxisRole) -> MotorWiring:
+    if a is None:
+        if role.own_ramp:
+            return MotorWiring(own_ramp=True)
+        raise WiringMissing(f"motors[{i}].gpiod", f"missing: {_motor(i, role)} is moved by "
+                            f"STEP/DIR pulses; name its step and dir lines ({_RAMP_NOTE})")
+    for key in ("step", "dir"):
+        if not role.own_ramp and not getattr(a, key):
+            raise WiringMissing(f"motors[{i}].gpiod.{key}", f"missing: {_motor(i, role)} is "
+                                f"moved by STEP/DIR pulses and needs its {key.upper()} line "
+                                f"({_RAMP_NOTE})")
+    if role.own_ramp:
+        for key in ("endstop_min", "endstop_max"):
+            if getattr(a, key):
+                raise WiringMissing(f"motors[{i}].gpiod.{key}", f"{_motor(i, role)}'s TMC5160 "
+                                    "runs its own ramp and stops at its REFL/REFR inputs, "
+                                    "which no GPIO line can stand for: remove it",
+                                    getattr(a, key))
+
+    def end(line: str, bias: str) -> EndstopWiring | None:
+        return EndstopWiring(LineRef.parse(line), bias) if line else None
+
+    def line(text_: str) -> LineRef | None:
+        return LineRef.parse(text_) if text_ else None
+
+    return MotorWiring(
+        step=line(a.step), dir=line(a.dir), enable=line(a.enable),
+        enable_active_low=a.enable_active_low,
+        endstop_min=end(a.endstop_min, a.endstop_min_bias),
+        endstop_max=end(a.endstop_max, a.endstop_max_bias),
+        dir_hold_us=a.dir_hold_us, own_ramp=role.own_ramp,
+    )
 
 
 def wiring_from(top: GpiodConfig | None, axes: Sequence[GpiodAxisConfig | None],
-                pins: Sequence[tuple[int, GpiodPinConfig | None]], dc: bool) -> GpioWiring:
-    """The backend's wiring from the loaded sections."""
+                pins: Sequence[tuple[int, GpiodPinConfig | None]], dc: bool,
+                roles: Sequence[AxisRole] | None = None) -> GpioWiring:
+    """The backend's wiring from the loaded sections; ``roles`` (default: every motor moved
+    by STEP/DIR) say which motors' TMC5160 runs its own ramp."""
     top = top or make(GpiodConfig)
-    motors = []
-    for i, a in enumerate(axes):
-        if a is None:
-            raise WiringMissing(f"motors[{i}].gpiod", "missing: the gpiod backend needs the "
-                                "motor's step and dir lines")
-
-        def end(line: str, bias: str) -> EndstopWiring | None:
-            return EndstopWiring(LineRef.parse(line), bias) if line else None
-
-        motors.append(MotorWiring(
-            step=LineRef.parse(a.step), dir=LineRef.parse(a.dir),
-            enable=LineRef.parse(a.enable) if a.enable else None,
-            enable_active_low=a.enable_active_low,
-            endstop_min=end(a.endstop_min, a.endstop_min_bias),
-            endstop_max=end(a.endstop_max, a.endstop_max_bias),
-            dir_hold_us=a.dir_hold_us,
-        ))
+    roles = list(roles) if roles is not None else [AxisRole() for _ in axes]
+    motors = [_axis_wiring(i, a, role) for i, (a, role) in enumerate(zip(axes, roles,
+                                                                           strict=True))]
     wired = []
     for i, (number_, p) in enumerate(pins):
         if p is None:
@@ -211,9 +271,10 @@ def _wired(v: Mapping[str, Any]) -> Violation | None:
             [m.sections.get(GpiodAxisConfig) for m in v["motors"]],
             [(p.number, p.sections.get(GpiodPinConfig)) for p in v["pins"]],
             v["dc"] is not None,
+            [role_of(m) for m in v["motors"]],
         )
     except WiringMissing as exc:
-        return (exc.path, REQUIRED, exc.problem)
+        return (exc.path, exc.value, exc.problem)
     dup = wiring.duplicates()
     if dup:
         return ("gpiod", REQUIRED, dup[0])
@@ -228,8 +289,9 @@ CONFIG_SECTIONS = (
         owner="the gpiod backend",
         absent=None,
         absent_text="defaults (api auto, consumer motorctl, no bridge)",
-        rules=(Rule(("gpiod",), "with backend \"gpiod\": every motor, pin and the DC bridge "
-                    "wired, each line used once", _wired),),
+        rules=(Rule(("gpiod",), "with backend \"gpiod\": every motor (STEP/DIR; a TMC5160 "
+                    "running its own ramp: none needed), pin and the DC bridge wired, each line "
+                    "used once", _wired),),
     ),
     Extension("motors", "gpiod", GpiodAxisConfig, owner="the gpiod backend", absent=None,
               absent_text="not wired"),

@@ -285,6 +285,8 @@ class StepIO:
     """What a step executor owns: STEP/DIR outputs, end-stop inputs, the clock they share.
 
     ``endstops[motor]`` is ``(min_line, max_line)``: indexes into ``inputs`` (None: not wired).
+    Its motors are the spec's ``stepped()`` axes, in order (a TMC5160 that runs its own ramp
+    is not a step executor's motor).
     Built by :func:`motorctl.hal.registry.open_step_io` from a picklable spec, in the process
     that uses it (a child process cannot inherit a gpiod request).
     """

@@ -185,10 +185,16 @@ class MockAxis:
 
 
 class MockStepOutputs(StepOutputs):
-    """STEP/DIR of every axis: each STEP rise is a "step" event and moves the axis."""
+    """STEP/DIR of the stepped axes: each STEP rise is a "step" event and moves the axis.
 
-    def __init__(self, world: MockWorld, inputs: MockEdgeInputs) -> None:
-        axes = [a.spec for a in world.axes]
+    Motor ``m`` is world axis ``axes[m]`` (``spec.stepped()``); the timeline and the world
+    use the world's axis numbers."""
+
+    def __init__(self, world: MockWorld, inputs: MockEdgeInputs,
+                 stepped: Sequence[int] | None = None) -> None:
+        self._axis_of = list(range(len(world.axes)) if stepped is None else stepped)
+        self._identity = self._axis_of == list(range(len(world.axes)))
+        axes = [world.axes[g].spec for g in self._axis_of]
         super().__init__(
             world.clock,
             [a.invert_dir for a in axes],
@@ -199,11 +205,19 @@ class MockStepOutputs(StepOutputs):
         self._inputs = inputs
 
     def _write_dir(self, motor: int, level: bool) -> None:
-        self._world.raise_injected("dir", motor)
-        self._world.axes[motor].heading = level != self.invert_dir[motor]
-        self._world.timeline.record(self.clock.now(), EventKind.DIR, motor, level)
+        axis = self._axis_of[motor]
+        self._world.raise_injected("dir", axis)
+        self._world.axes[axis].heading = level != self.invert_dir[motor]
+        self._world.timeline.record(self.clock.now(), EventKind.DIR, axis, level)
 
     def _write_steps(self, motors: Sequence[int], level: bool) -> None:
+        direction: Sequence[bool | None] = self.direction
+        if not self._identity:  # some axes are not stepped (a TMC5160 runs its own ramp)
+            axis_of = self._axis_of
+            ups: list[bool | None] = [None] * len(self._world.axes)
+            for m in motors:
+                ups[axis_of[m]] = direction[m]
+            motors, direction = [axis_of[m] for m in motors], ups  # world axis numbers
         world = self._world
         if world.line_errors:
             for m in motors:
@@ -211,7 +225,6 @@ class MockStepOutputs(StepOutputs):
         if not level:
             return
         t = self.clock.now()
-        direction = self.direction
         world.timeline.record_steps(t, motors, direction)
         axes, moved = world.axes, self._inputs.moved
         for m in motors:
@@ -441,9 +454,12 @@ class MockWorld:
         return hw
 
     def step_io(self) -> StepIO:
+        """The step executor's part: the axes ``spec.stepped()`` names (the end-stop inputs
+        cover every axis; line 2*i is axis i's min)."""
+        stepped = self.spec.stepped()
         inputs = MockEdgeInputs(self)
-        outputs = MockStepOutputs(self, inputs)
-        ends = tuple((2 * i, 2 * i + 1) for i in range(len(self.axes)))
+        outputs = MockStepOutputs(self, inputs, stepped)
+        ends = tuple((2 * i, 2 * i + 1) for i in stepped)
         return StepIO(self.clock, outputs, inputs, ends)
 
 

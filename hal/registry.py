@@ -4,7 +4,9 @@ A backend module provides two entry points:
 
 - ``build(spec, clock) -> Hardware``: what the daemon's process owns (drivers, pins, DC).
 - ``build_step_io(spec, clock, parent) -> StepIO``: the STEP/DIR outputs and end-stop inputs
-  of every axis, opened by the step executor in the process and thread that uses them.
+  of the axes ``spec.stepped()`` names (every axis but those whose TMC5160 runs its own ramp;
+  the StepIO's motor j is axis ``stepped()[j]``), opened by the step executor in the process
+  and thread that uses them.
   ``parent`` is the daemon's :class:`Hardware` when the executor runs in the same process
   (a backend may share state with it, as the mock shares its timeline), None in the
   executor's own process, which rebuilds everything from the picklable ``spec``.

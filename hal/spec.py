@@ -43,6 +43,11 @@ class AxisSpec(Sectioned):
     endstop_debounce_s: float = 0.0
     sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [motors.<backend>]
 
+    @property
+    def own_ramp(self) -> bool:
+        """Its TMC5160 runs its own ramp: no STEP/DIR, not the step executor's."""
+        return self.driver is not None and self.driver.ramp
+
     def line(self, role: str) -> str | None:
         for r, name in self.wiring:
             if r == role:
@@ -66,3 +71,8 @@ class HardwareSpec(Sectioned):
     wires: tuple[tuple[int, int], ...] = ()
     options: dict[str, object] = field(default_factory=dict)
     sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [<backend>]
+
+    def stepped(self) -> tuple[int, ...]:
+        """The axes a step executor drives (all but those whose TMC5160 runs its own ramp),
+        in order: a StepIO's motor ``j`` is axis ``stepped()[j]``."""
+        return tuple(i for i, a in enumerate(self.axes) if not a.own_ramp)

@@ -64,15 +64,20 @@ class EndstopWiring:
 
 @dataclass(frozen=True)
 class MotorWiring:
-    """The STEP/DIR (and optional ENABLE) lines of one stepper driver, and its end stops."""
+    """The STEP/DIR (and optional ENABLE) lines of one stepper driver, and its end stops.
 
-    step: LineRef
-    dir: LineRef
+    ``own_ramp``: the driver (a TMC5160) runs its own ramp: STEP/DIR are optional (held low
+    by the daemon when named, never stepped) and there are no GPIO end stops.
+    """
+
+    step: LineRef | None = None
+    dir: LineRef | None = None
     enable: LineRef | None = None
     enable_active_low: bool = True
     endstop_min: EndstopWiring | None = None
     endstop_max: EndstopWiring | None = None
     dir_hold_us: float = 0.0
+    own_ramp: bool = False
 
 
 @dataclass(frozen=True)
@@ -125,9 +130,9 @@ class GpioWiring:
         """Every line with what it is for, e.g. ``("motors[0].step", ref)``."""
         out: list[tuple[str, LineRef]] = []
         for i, m in enumerate(self.motors):
-            out += [(f"motors[{i}].step", m.step), (f"motors[{i}].dir", m.dir)]
-            if m.enable is not None:
-                out.append((f"motors[{i}].enable", m.enable))
+            for which, ref in (("step", m.step), ("dir", m.dir), ("enable", m.enable)):
+                if ref is not None:
+                    out.append((f"motors[{i}].{which}", ref))
             for which, es in (("endstop_min", m.endstop_min), ("endstop_max", m.endstop_max)):
                 if es is not None:
                     out.append((f"motors[{i}].{which}", es.line))

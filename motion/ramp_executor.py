@@ -388,21 +388,29 @@ class SplitExecutor(Executor):
 
 
 def with_ramp_motors(
-    executor: Executor,
+    executor: Executor | None,
     drivers: Sequence[object],
     clock: Clock,
     poll_s: float = 0.005,
     idle_poll_s: float = 0.05,
 ) -> Executor:
-    """``executor`` for every motor, except those whose driver is a TMC5160 in ramp mode
-    (:class:`Tmc5160`), which go to one :class:`RampExecutor`; unchanged when there are none.
-    """
+    """The machine's executor: ``executor`` (the step executor) for the motors whose driver
+    is not a TMC5160 in ramp mode (:class:`Tmc5160`), numbered among themselves in order as
+    ``HardwareSpec.stepped()`` numbers them; the ramp motors go to one :class:`RampExecutor`.
+    ``executor`` unchanged when there are no ramp motors; None when every motor is one."""
     ramp = [i for i, d in enumerate(drivers) if isinstance(d, Tmc5160)]
+    stepped = [i for i, d in enumerate(drivers) if not isinstance(d, Tmc5160)]
+    if stepped and executor is None:
+        raise ValueError(f"motors {stepped} need a step executor")
     if not ramp:
+        assert executor is not None
         return executor
     chips = [d for d in drivers if isinstance(d, Tmc5160)]
     ramp_ex = RampExecutor(chips, clock, poll_s, idle_poll_s)
+    if not stepped:
+        return ramp_ex
+    assert executor is not None
     routes: list[tuple[Executor, int]] = []
     for m in range(len(drivers)):
-        routes.append((ramp_ex, ramp.index(m)) if m in ramp else (executor, m))
+        routes.append((ramp_ex, ramp.index(m)) if m in ramp else (executor, stepped.index(m)))
     return SplitExecutor(routes)

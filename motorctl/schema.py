@@ -553,7 +553,8 @@ class Parser:
             if violation is not None:
                 at, value, problem = violation
                 at = _join(path, at)
-                if re.sub(r"\[\d+\]$", "", at) in self.defaulted:
+                # a default value the rule refuses: say so (not for a key that is missing)
+                if value is not REQUIRED and re.sub(r"\[\d+\]$", "", at) in self.defaulted:
                     problem += DEFAULT_NOTE
                 raise self.error(at, value, problem, rule.text)
         return values

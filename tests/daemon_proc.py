@@ -27,10 +27,31 @@ def until(what: str, cond: Callable[[], bool], timeout: float = WAIT_S) -> None:
             raise AssertionError(f"timed out after {timeout} s waiting for {what}")
         time.sleep(0.001)
 
+def positions_until_ready(c: Client, motor: int, timeout: float = 10.0) -> list[int]:
+    """GetAbsPos of ``motor`` every 50 ms while it moves (until IsReady); fail after
+    ``timeout`` seconds. The positions seen on the way, to check the motion was followed."""
+    seen = []
+    end = time.monotonic() + timeout
+    while not c.is_ready(motor):
+        seen.append(c.position(motor))
+        if time.monotonic() > end:
+            raise AssertionError(f"motor {motor} still moving after {timeout} s")
+        time.sleep(0.05)
+    return seen
+
+
 #: Test daemons run without real-time priority on a shared machine: their step timing is
 #: best effort (a 0.53 s stall was seen on a loaded 2-core machine), so a step is only
 #: "timing lost" after this long (tests about the fail-safe rule set their own).
 TEST_STEP_THREAD = {"priority": "0", "lock_memory": "false", "max_lateness_us": "10000000.0"}
+
+#: The config of an in-process test daemon (``Daemon.build``): the thread step executor, the
+#: best-effort timing above, two motors "a" and "b"; tests append their own tables.
+IN_PROCESS_CONFIG = (
+    '[step_thread]\nexecutor = "thread"\n'
+    + "".join(f"{k} = {v}\n" for k, v in TEST_STEP_THREAD.items())
+    + '[[motors]]\nname = "a"\n[[motors]]\nname = "b"\n'
+)
 
 
 def for_tests(text: str, force: bool = False) -> str:

@@ -138,3 +138,70 @@ def test_without_libgpiod_the_backend_says_what_to_install() -> None:
     assert out.returncode == 1
     assert "PROBLEM: the gpiod backend needs libgpiod's Python binding" in out.stdout
     assert "Traceback" not in out.stdout + out.stderr
+
+
+# ------------------------------------------------ a TMC5160 that runs its own ramp: no STEP/DIR
+
+RAMP_TMC = """
+  [motors.tmc]
+  driver = "tmc5160"
+  spi = "/dev/spidev0.{cs}"
+  mode = "{mode}"
+"""
+
+
+def with_motor(gpiod: str, mode: str = "ramp", name: str = "r") -> str:
+    """BASE with a second motor driven by a TMC5160 over /dev/spidev0.1 in ``mode``."""
+    return (BASE + f'[[motors]]\nname = "{name}"\n' + gpiod
+            + RAMP_TMC.format(cs=1, mode=mode))
+
+
+def test_a_ramp_motor_needs_no_gpiod_section_and_gets_no_line() -> None:
+    config = parse_config(with_motor(""), SOURCE)
+    spec = hardware_spec(config)
+    assert spec.stepped() == (0,)  # the ramp motor is not the step executor's
+    w = wiring_of(spec)
+    assert w.motors[1].own_ramp and w.motors[1].step is None and w.motors[1].dir is None
+    assert [use for use, _ in w.lines()] == ["motors[0].step", "motors[0].dir", "pins.3"]
+
+
+def test_a_ramp_motor_may_wire_only_its_enable_line() -> None:
+    w = wiring_of(hardware_spec(parse_config(
+        with_motor('  [motors.gpiod]\n  enable = "gpiochip0:9"\n'), SOURCE)))
+    assert [use for use, _ in w.lines()] == ["motors[0].step", "motors[0].dir",
+                                             "motors[1].enable", "pins.3"]
+
+
+def test_step_dir_named_for_a_ramp_motor_are_still_checked_for_clashes() -> None:
+    text = with_motor('  [motors.gpiod]\n  step = "gpiochip0:17"\n  dir = "gpiochip0:18"\n')
+    assert "line gpiochip0:17 is used twice: by motors[0].step and by motors[1].step" in \
+        error_of(text)
+
+
+@pytest.mark.parametrize(
+    ("gpiod", "mode", "expected"),
+    [
+        ("", "step_dir", "motors[1].gpiod: missing: motor 1 ('r') is moved by STEP/DIR pulses; "
+         "name its step and dir lines"),
+        ('  [motors.gpiod]\n  dir = "gpiochip0:6"\n', "step_dir",
+         "motors[1].gpiod.step: missing: motor 1 ('r') is moved by STEP/DIR pulses and needs "
+         "its STEP line"),
+        ('  [motors.gpiod]\n  step = "gpiochip0:5"\n', "step_dir",
+         "motors[1].gpiod.dir: missing: motor 1 ('r') is moved by STEP/DIR pulses and needs "
+         "its DIR line"),
+        ('  [motors.gpiod]\n  endstop_max = "gpiochip0:7"\n', "ramp",
+         "motors[1].gpiod.endstop_max = \"gpiochip0:7\": motor 1 ('r')'s TMC5160 runs its own "
+         "ramp and stops at its REFL/REFR inputs"),
+    ],
+)
+def test_only_a_ramp_motor_goes_without_step_dir(gpiod: str, mode: str, expected: str) -> None:
+    msg = error_of(with_motor(gpiod, mode))
+    assert expected in msg
+    assert "only a TMC5160 that runs its own ramp" in msg or mode == "ramp"
+    assert "the default value" not in msg  # missing, not defaulted
+
+
+def test_a_motor_without_a_driver_chip_still_needs_step_and_dir() -> None:
+    text = BASE + '[[motors]]\n[motors.gpiod]\nenable = "gpiochip0:9"\n'
+    expected = "motors[1].gpiod.step: missing: motor 1 ('motor1') is moved by STEP/DIR"
+    assert expected in error_of(text)

@@ -30,22 +30,13 @@ from motorctl.protocol.codec import (
     WaitMoved,
     encode_command,
 )
-from tests.daemon_proc import for_tests, until
+from tests.daemon_proc import IN_PROCESS_CONFIG, until
 from tests.test_link import Host
 
 E = ErrorCode
 OPTS = CodecOptions()
 
-CONFIG = """
-[step_thread]
-executor = "thread"
-priority = 0
-lock_memory = false
-max_lateness_us = 10000000.0
-[[motors]]
-name = "a"
-[[motors]]
-name = "b"
+CONFIG = IN_PROCESS_CONFIG + """
 [[pins]]
 number = 0
 mode = "output"
@@ -55,7 +46,7 @@ mode = "output"
 class Live:
     def __init__(self, tmp: Path) -> None:
         clock = MonotonicClock()
-        config = parse_config(for_tests(CONFIG), "t.toml")  # best-effort step timing
+        config = parse_config(CONFIG, "t.toml")  # best-effort step timing
         self.daemon = Daemon.build(config, tmp / "state", clock)
         self.world: MockWorld = world_of(self.daemon.hw)
         self.fd, name = open_pty(tmp / "pty")

@@ -52,23 +52,14 @@ from motorctl.protocol.codec import (
     decode_response,
     encode_command,
 )
+from tests.daemon_proc import IN_PROCESS_CONFIG
 
 E = ErrorCode
 K = ExecEventKind
 OPTS = CodecOptions()
 DEADLINE_S = 20.0  # for conditions that take milliseconds, on a loaded 2-core machine
 
-CONFIG = """
-[step_thread]
-executor = "thread"
-priority = 0
-lock_memory = false
-max_lateness_us = 10000000.0
-[[motors]]
-name = "a"
-[[motors]]
-name = "b"
-"""
+CONFIG = IN_PROCESS_CONFIG
 
 
 class SlowToConfirm(Executor):

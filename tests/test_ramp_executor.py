@@ -4,14 +4,18 @@ virtual clock: the seam alone, then the motion engine driving motors through it.
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import pytest
 
+from motorctl.daemon.config import parse_config
+from motorctl.daemon.main import build_executor, hardware_spec, motor_params
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import build
+from motorctl.hal.mock import EventKind, build, world_of
+from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice
-from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings
+from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings, TmcSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import ExecEvent, ExecEventKind, Executor
 from motorctl.motion.profile import plan_move_to, plan_run
@@ -21,6 +25,7 @@ from motorctl.motion.ramp_executor import (
     peak_speed,
     with_ramp_motors,
 )
+from motorctl.motion.stepexec import ThreadStepExecutor
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -31,7 +36,7 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
-from tests.tmc_model import FakeKernel, TmcModel
+from tests.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
 
 K = ExecEventKind
 RAMP = Ramp(4000.0, 40_000.0, 40_000.0)
@@ -352,3 +357,109 @@ def test_positions_are_xactual_from_construction_for_a_restore_before_start() ->
     rig.chips[0].set_position(12_345)  # where an earlier daemon left the chip
     ex = RampExecutor(rig.chips, rig.clock)
     assert ex.position(0) == 12_345  # before start(): the daemon restores offsets now
+
+
+# ------------------------------------- the step executor never gets a motor the chip moves itself
+
+MIXED = """
+[[motors]]
+name = "x"
+
+[[motors]]
+name = "z"
+  [motors.tmc]
+  driver = "tmc5160"
+  spi = "/dev/spidev0.0"
+  mode = "ramp"
+"""
+
+
+def test_the_mock_step_io_leaves_out_a_ramp_axis() -> None:
+    ramp = TmcSpec("/dev/spidev0.0", SETTINGS, ramp=True)
+    spec = HardwareSpec((AxisSpec(driver=ramp), AxisSpec()))
+    assert spec.stepped() == (1,)
+    clock = VirtualClock()
+    hw = build(spec, clock)
+    io = open_step_io("mock", spec, clock, parent=hw)
+    assert io.outputs.motors == 1 and io.endstops == ((2, 3),)  # axis 1's end stops
+    io.outputs.set_direction(0, True)
+    clock.advance_to(clock.now() + 1e-3)
+    io.outputs.pulse([0], 2e-6)
+    world = world_of(hw)
+    assert [a.position for a in world.axes] == [0, 1]
+    assert [e.index for e in world.timeline.of(EventKind.STEP)] == [1]
+    io.close()
+    hw.close()
+
+
+def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
+    rig = Rig()
+    config = parse_config(MIXED, "mixed.toml")
+    spec = hardware_spec(config)
+    hw = build(spec, rig.clock)
+    hw.steppers[1].driver = rig.chips[0]  # what attach_drivers does with the real chip
+    params = motor_params(config)
+    ex = build_executor(config, hw, spec, params)
+    assert isinstance(ex, SplitExecutor)
+    steps, local = ex.routes[0]
+    assert isinstance(steps, ThreadStepExecutor) and local == 0
+    assert steps.io.outputs.motors == 1 and len(steps.positions) == 1  # no slot for z
+    ramp_ex, local = ex.routes[1]
+    assert isinstance(ramp_ex, RampExecutor) and local == 0
+    engine = MotionEngine(hw, params, ex, driver_poll_s=0.005)
+    x, z = engine.motors
+    with engine.lock:
+        x.submit(MoveToCmd(300, RAMP), rig.clock.now())
+        z.submit(MoveToCmd(-2000, RAMP), rig.clock.now())
+    engine.run_until_idle(10.0)
+    assert (x.position, z.position) == (300, -2000)
+    world = world_of(hw)
+    assert [a.position for a in world.axes] == [300, 0]  # z was never stepped
+    assert {e.index for e in world.timeline.of(EventKind.STEP)} == {0}
+    assert rig.models[0].physical == pytest.approx(-2000, abs=0.5)
+    ex.close()
+    hw.close()
+
+
+def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
+    rig = Rig(2)
+    assert with_ramp_motors(None, rig.chips, rig.clock) is not None
+    assert isinstance(with_ramp_motors(None, rig.chips, rig.clock), RampExecutor)
+    with pytest.raises(ValueError, match=r"motors \[1\] need a step executor"):
+        with_ramp_motors(None, [rig.chips[0], object()], rig.clock)
+    split = with_ramp_motors(Recorder(1), [rig.chips[0], object()], rig.clock)
+    assert isinstance(split, SplitExecutor) and split.routes[1][1] == 0  # its own numbering
+
+
+# ------------------------------------------ units: a protocol step is one XACTUAL microstep
+
+@pytest.mark.parametrize(("microsteps", "mres"), [(16, 4), (256, 0)])
+def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(
+    microsteps: int, mres: int
+) -> None:
+    """TMC5160A datasheet Rev. 1.14: XACTUAL/XTARGET and VMAX count microsteps of the
+    sequencer input (12.1, p. 81), each 2^MRES sine-table entries (CHOPCONF.MRES, 6.5.2,
+    p. 51), 256 entries a full step. So XTARGET is the protocol position unscaled, VMAX does
+    not depend on the resolution, and two full steps are 2 * microsteps protocol steps."""
+    clock = VirtualClock()
+    kernel = FakeKernel()
+    model = TmcModel("tmc5160", clock=clock)
+    kernel.chips[(0, 0)] = model
+    dev = SpiDevice(SpiAddress(0, 0), SpiBuses(), kernel.factory(), 1_000_000)
+    chip = Tmc5160("m", dev, replace(SETTINGS, microsteps=microsteps), RefSwitches())
+    chip.start()
+    assert model.reg(A_CHOPCONF) >> 24 & 0xF == mres
+    hw = build(HardwareSpec((AxisSpec(),)), clock)
+    hw.steppers[0].driver = chip
+    engine = MotionEngine(hw, [MotorParams()], RampExecutor([chip], clock), driver_poll_s=0.005)
+    m = engine.motors[0]
+    target = 2 * microsteps  # two full steps
+    with engine.lock:
+        m.submit(MoveToCmd(target, Ramp(1000.0, 100_000.0, 100_000.0)), clock.now())
+    engine.run_until(clock.now() + 0.005)
+    assert model.reg(A_XTARGET) == target
+    assert model.reg(A_VMAX) == round(1000.0 * 2**24 / 12e6)  # 1398 at either resolution
+    engine.run_until_idle(10.0)
+    assert m.position == target == chip.position() == round(model.x)  # XACTUAL over SPI
+    assert model.mscnt() == 512  # 2 full steps of 256 table entries: the motor moved 2 steps
+    hw.close()

@@ -16,7 +16,7 @@ import pytest
 
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
-from tests.daemon_proc import DaemonProcess
+from tests.daemon_proc import DaemonProcess, positions_until_ready
 
 FAKESPI = Path(__file__).resolve().parent / "fakespi"
 
@@ -137,12 +137,7 @@ def test_a_tmc5160_ramp_motor_moves_homes_and_reports_its_position(
 ) -> None:
     with daemon.client() as c:
         c.move_to(2, 2000, speed=250)  # 1000 steps/s: XTARGET, VMAX, AMAX/DMAX on the chip
-        seen = []
-        deadline = time.monotonic() + 10.0
-        while not c.is_ready(2):
-            seen.append(c.position(2))
-            assert time.monotonic() < deadline, "the ramp move did not end within 10 s"
-            time.sleep(0.05)
+        seen = positions_until_ready(c, 2)
         assert c.position(2) == 2000
         assert any(0 < p < 2000 for p in seen)  # GetAbsPos follows XACTUAL while moving
         set_chips(fake_spi, {"0.2": {"ref_l_at": 1500}})  # REFL: 500 steps below here

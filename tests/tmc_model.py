@@ -15,6 +15,10 @@ positions are written out here again on purpose, so that a mistake in motorctl.h
   VMAX, decelerate with DMAX to stop at XTARGET), 1/2 (velocity +/- with AMAX), 3 (hold);
   v[steps/s] = VMAX * fCLK / 2^24, a[steps/s^2] = AMAX * fCLK^2 / 2^41; reference switches
   with polarity, stop enables, latching XACTUAL into XLATCH, sg_stop.
+- Units of the ramp generator (TMC5160A datasheet Rev. 1.14, 12.1 "Real World Unit
+  Conversion", p. 81, and CHOPCONF.MRES, 6.5.2, p. 51): XACTUAL/XTARGET count the
+  sequencer's input steps, each 2^MRES entries of the 1024-entry sine table (256 per full
+  step): MSCNT (0x6A) = physical position * 2^MRES mod 1024 (MRES set before moving).
 
 FakeSpiDev implements what py-spidev does: ``open(bus, device)`` opens /dev/spidevB.D
 (OSError with ENOENT/EACCES like the kernel), ``mode`` and ``max_speed_hz`` setters raise
@@ -39,6 +43,7 @@ A_AMAX, A_VMAX, A_DMAX, A_D1, A_VSTOP, A_TZEROWAIT, A_XTARGET = (
     0x26, 0x27, 0x28, 0x2A, 0x2B, 0x2C, 0x2D)
 A_SW_MODE, A_RAMP_STAT, A_XLATCH = 0x34, 0x35, 0x36
 A_CHOPCONF, A_COOLCONF, A_DRV_STATUS = 0x6C, 0x6D, 0x6F
+A_MSCNT = 0x6A
 
 READABLE_2130 = {A_GCONF, A_GSTAT, A_IOIN, A_TSTEP, 0x6A, 0x6B, A_CHOPCONF, A_DRV_STATUS}
 READABLE_5160 = READABLE_2130 | {
@@ -143,6 +148,8 @@ class TmcModel:
             return self.tstep()
         if addr == A_XACTUAL:
             return round(self.x) & 0xFFFFFFFF
+        if addr == A_MSCNT and self.kind == "tmc5160" and self.sd_mode == 0:
+            return self.mscnt()
         if addr == A_VACTUAL:
             return self._vreg() & 0xFFFFFF
         if addr == A_RAMP_STAT:
@@ -200,6 +207,11 @@ class TmcModel:
         return d
 
     # -- TMC5160 ramp generator
+    def mscnt(self) -> int:
+        """Where the motor is in the sine table: each ramp step moves it 2^MRES entries."""
+        mres = self.reg(A_CHOPCONF) >> 24 & 0xF
+        return (round(self.physical) << mres) & 0x3FF
+
     def _vreg(self) -> int:
         return round(self.v * 2**24 / self.clock_hz)
 
