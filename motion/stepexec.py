@@ -235,20 +235,25 @@ class StepExecutor(Executor):
         been used: many small refills rather than a few big ones, so the planner holds the
         daemon's GIL (against the link thread) for a short while each time."""
         nxt = float("inf")
-        keep = self.ahead_s - min(self.ahead_s / 2, REFILL_S)  # handed over, still to come
-        for m, p in enumerate(self.plans):
-            if p.cutter is None:
-                continue
-            if self.ahead_s == 0:  # one step ahead: the next once the last one is made
-                if p.last_t <= now:
+        if self.ahead_s == 0:  # one step ahead: the next once the last one is made
+            for m, p in enumerate(self.plans):
+                if p.cutter is not None and p.last_t <= now:
                     self._feed(m, now)
                 if p.cutter is not None:
                     nxt = min(nxt, p.last_t)
-                continue
-            if p.until - keep <= now + 1e-9:  # the deadline below, on a clock of ticks
-                self._feed(m, now)
+            return nxt
+        used = min(self.ahead_s / 2, REFILL_S)
+        keep = self.ahead_s - used  # handed over, still to come
+        # once one motor is due, every motor that would be due before the next top-up is
+        # topped up with it: one pass for all (cold caches once, one hold of the GIL against
+        # the link thread), not one pass per motor a little apart
+        if any(p.cutter is not None and p.until - keep <= now + 1e-9 for p in self.plans):
+            for m, p in enumerate(self.plans):
+                if p.cutter is not None and p.until - keep <= now + used:
+                    self._feed(m, now)
+        for p in self.plans:
             if p.cutter is not None:
-                nxt = min(nxt, p.until - keep)
+                nxt = min(nxt, p.until - keep)  # (the deadline above, on a clock of ticks)
         return nxt
 
     def events(self) -> list[ExecEvent]:

@@ -302,3 +302,41 @@ def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_pla
     assert c.times() == [(base + ms) / 1e9, (base + 2 * ms) / 1e9, (base + 3 * ms) / 1e9]
     assert c.positions[0] == 1 + 1 - 1  # plan 1's 2.5 ms step was never made
     assert [e.kind for e in c.events] == [K.DONE] and c.events[0].gen == 3
+
+
+def test_motors_started_apart_are_topped_up_in_one_pass_not_one_pass_each() -> None:
+    """Three motors started 1 ms apart: after their first top-ups every later one takes
+    all three in the same planner pass (one hold of the GIL against the link thread, every
+    5 ms), and each motor still has at least ``ahead_s - REFILL_S`` handed over."""
+    clock = VirtualClock()
+    spec = HardwareSpec(axes=(FAR, FAR, FAR), options={"timeline_len": None})
+    hw = build(spec, clock)
+    params = [MotorParams(max_speed=10_000.0)] * 3
+    fed: list[tuple[float, int]] = []
+
+    class Spy(ThreadStepExecutor):
+        def _feed(self, motor: int, now: float) -> None:
+            fed.append((now, motor))
+            super()._feed(motor, now)
+
+    ex = Spy(hw, "mock", spec, axis_limits(params, 2e-3, 5e-6), ahead_s=0.05, lead_s=0.002)
+    engine = MotionEngine(hw, params, ex)
+    for m in engine.motors:
+        with engine.lock:
+            m.submit(RunCmd(1, Ramp(5000.0, 1e6, 1e6)), clock.now())
+        engine.run_until(clock.now() + 0.001)
+    start = clock.now()
+    while clock.now() < start + 0.3:
+        engine.run_until(clock.now() + 0.001)
+        for p in ex.plans:  # never less than the horizon minus one top-up ahead
+            assert p.until - clock.now() >= 0.05 - 0.005 - 1e-6
+    passes: dict[float, set[int]] = {}
+    for t, motor in fed:
+        if t > start + 0.06:
+            passes.setdefault(t, set()).add(motor)
+    assert len(passes) >= 45  # one every 5 ms
+    assert all(motors == {0, 1, 2} for motors in passes.values()), passes
+    for m in engine.motors:
+        with engine.lock:
+            m.stop(hard=True, now=clock.now())
+    engine.run_until_idle()
