@@ -274,11 +274,14 @@ class MotionEngine:
                 self.driver_errors += 1
                 statuses.append(None)
                 log.error("motor %d: driver status read failed: %s", m.index, exc)
+        acted = False
         with self.lock:
             for m, st in zip(self.motors, statuses, strict=True):
-                if st is not None:
+                if st is not None and (st.fault is not None or st.stall):
                     m.on_driver_status(st, now)
-            self.service(now)
+                    acted = True
+            if acted:  # a fault or stall acted on: its events now; else the planner's pass
+                self.service(now)
 
     # -- a virtual clock ------------------------------------------------------------
     def next_deadline(self) -> float:
