@@ -41,7 +41,10 @@ log = logging.getLogger("motorctl.executor")
 
 K = ExecEventKind
 #: the planner tops up the handed-over steps once this much of the horizon has been used
-REFILL_S = 0.005
+#: (at most half of it): every motor in one pass (one cold start of the interpreter's
+#: caches, one hold of the GIL against the link thread) 50 times a second; every 5 ms made
+#: the IsReady round trip's p99 worse (docs/timing.md)
+REFILL_S = 0.020
 _SELF_STOPS = (K.ENDSTOP, K.TIMING_LOST, K.FAULT)
 
 

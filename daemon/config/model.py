@@ -214,8 +214,9 @@ class StepThreadConfig:
         50.0,
         2,
         1000,
-        "Steps are planned and handed to the executor this far ahead; a soft stop or a new "
-        "speed still takes over within a few ms (the handed-over plan is cut at the first "
+        "Steps are planned and handed to the executor this far ahead, topped up every 20 ms "
+        "(every half of it when shorter); a soft stop or a new speed still takes over within "
+        "a few ms (the handed-over plan is cut at the first "
         "segment boundary after the executor's lead time; docs/timing.md).",
     )
     max_lateness_us: float = number(
