@@ -49,6 +49,7 @@ run_speed_factor = 1000.0      # SPEED byte n = n*1000 step/s, so the sweep can 
 priority = {prio}
 cpu = {cpu}
 executor = "{kind}"
+lock_memory = true             # as a user runs it (test daemons would not lock)
 max_lateness_us = {lateness}
 {extra}
 [[motors]]
