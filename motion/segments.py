@@ -155,14 +155,14 @@ class SegmentCutter:
         rounds to 0, at over a step per ns), :meth:`_run` takes it from where this stopped.
         """
         t0, s0, v0, dur = seg.t0, seg.s0, seg.v0, seg.duration
-        w0 = max(sigma * v0, 0.0)
+        w0 = max(sigma * v0, 0.0)  # > 0: d > 0 is reached at constant speed
         length = _length(seg, sigma)
         finite = math.isfinite(length)
         tau_h = min(max(horizon - t0, 0.0), dur)
         x_h = sigma * ((s0 + tau_h * (v0 + 0.5 * seg.a * tau_h)) - s0)  # Segment.position
         span_s = self.span / 1e9
         cap = 2 * max(self.err - 2, 1) + 1  # _length_within_error at constant speed
-        floor = math.floor
+        floor, new = math.floor, tuple.__new__  # (NamedTuples without their Python __new__)
         counter, last_t = self.counter, self.last_t
         try:
             while True:
@@ -172,11 +172,25 @@ class SegmentCutter:
                 if t_d > horizon and out:
                     return False
                 first = round(t_d * 1_000_000_000)
-                avail = floor(length - d) + 1 if finite else 1 << 40
-                avail = min(avail, max(floor(x_h - d) + 1, 1))
-                tau_s = min(max(t_d + span_s - t0, 0.0), dur)
-                x_s = sigma * ((s0 + tau_s * (v0 + 0.5 * seg.a * tau_s)) - s0)
-                n = min(max(min(avail, floor(x_s - d) + 1), 1), cap)
+                # the run: to the piece's end, the horizon and the span, within the error;
+                # Segment.position at a == 0 is s0 + tau * v0 (v0 + 0.5*0*tau == v0 exactly)
+                n = floor(x_h - d) + 1
+                if n < 1:
+                    n = 1
+                if finite:
+                    end = floor(length - d) + 1
+                    if end < n:
+                        n = end
+                tau_s = t_d + span_s - t0  # > 0
+                if tau_s > dur:
+                    tau_s = dur
+                by_span = floor(sigma * ((s0 + tau_s * v0) - s0) - d) + 1
+                if by_span < n:
+                    n = by_span
+                if n < 1:
+                    n = 1
+                if n > cap:
+                    n = cap
                 if n == 1:
                     interval, t_end = 0, t_d
                 else:
@@ -186,8 +200,8 @@ class SegmentCutter:
                     if interval <= 0:
                         return None
                 if bounds is not None:
-                    bounds.append(Boundary(first, t_d, counter, last_t))
-                out.append(StepSegment(first, interval, n, 0, sigma, gen, False, watch))
+                    bounds.append(new(Boundary, (first, t_d, counter, last_t)))
+                out.append(new(StepSegment, (first, interval, n, 0, sigma, gen, False, watch)))
                 counter += sigma * n
                 last_t = t_end
                 d = sigma * (counter + sigma - s0)  # as _next_step_distance has it
