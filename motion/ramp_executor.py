@@ -274,6 +274,10 @@ class RampExecutor(Executor):
         return None
 
 
+#: counters that hold the smallest value seen, not a count (0 while none was seen)
+_SMALLEST = frozenset({"min_gap_ns"})
+
+
 class SplitExecutor(Executor):
     """Each motor to one of several executors, behind the one seam the engine uses.
 
@@ -359,7 +363,11 @@ class SplitExecutor(Executor):
         counters: dict[str, int] = {}
         for h in parts:
             for k, v in h.counters.items():
-                counters[k] = counters.get(k, 0) + v
+                if k in _SMALLEST:  # the smallest that any part saw (0: none seen)
+                    seen = counters.get(k, 0)
+                    counters[k] = v if v and (not seen or v < seen) else seen
+                else:
+                    counters[k] = counters.get(k, 0) + v
         return ExecutorHealth(
             alive=all(h.alive for h in parts),
             progress=sum(h.progress for h in parts),

@@ -247,6 +247,26 @@ def test_split_executor_shows_the_step_executors_lateness_and_process() -> None:
     assert split.step_lateness() is steps.stats and split.pid == 4242
 
 
+def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
+    from motorctl.motion.executor import ExecutorHealth
+
+    class Counting(Recorder):
+        def __init__(self, counters: dict[str, int]) -> None:
+            super().__init__(1)
+            self.counters = counters
+
+        def health(self) -> ExecutorHealth:
+            return ExecutorHealth(True, 1, counters=dict(self.counters))
+
+    a = Counting({"steps": 10, "endstops": 1, "min_gap_ns": 90_000})
+    b = Counting({"steps": 5, "endstops": 2, "min_gap_ns": 40_000})
+    none = Counting({"steps": 0, "min_gap_ns": 0})  # no gap seen yet
+    c = SplitExecutor([(a, 0), (none, 0), (b, 0)]).health().counters
+    assert c == {"steps": 15, "endstops": 3, "min_gap_ns": 40_000}
+    assert SplitExecutor([(none, 0), (a, 0)]).health().counters["min_gap_ns"] == 90_000
+    assert SplitExecutor([(none, 0)]).health().counters["min_gap_ns"] == 0
+
+
 # ------------------------------------------------------------------ through the engine
 
 
