@@ -187,20 +187,33 @@ class Daemon:
         params = motor_params(config)
         try:
             hw = open_hardware(config.hal.backend, spec, clock)
-            executor = build_executor(config, hw, spec, params)
         except HalError as exc:
             raise StartupError(str(exc)) from exc
-        engine = MotionEngine(
-            hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
-            stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
-        )
-        files_dir = state_files_dir(config, state_dir)
-        make_state_dir(files_dir)
-        persistence = Persistence(files_dir, motor_identities(config), engine, mock_extra(hw))
-        dispatcher = Dispatcher(config, engine, hw.pins, persist=persistence)
-        daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
-        persistence.restore()
-        persistence.open()
+        executor: Executor | None = None
+        try:  # what is open is closed again when a later part fails (lines, the executor)
+            try:
+                executor = build_executor(config, hw, spec, params)
+            except HalError as exc:
+                raise StartupError(str(exc)) from exc
+            engine = MotionEngine(
+                hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
+                stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
+            )
+            files_dir = state_files_dir(config, state_dir)
+            make_state_dir(files_dir)
+            persistence = Persistence(files_dir, motor_identities(config), engine,
+                                      mock_extra(hw))
+            dispatcher = Dispatcher(config, engine, hw.pins, persist=persistence)
+            daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
+            persistence.restore()
+            persistence.open()
+        except BaseException:
+            if executor is not None:
+                with contextlib.suppress(Exception):
+                    executor.close()
+            with contextlib.suppress(Exception):
+                hw.close()
+            raise
         engine.listeners.append(daemon._on_motor_event)
         return daemon
 

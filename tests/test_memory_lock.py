@@ -1,8 +1,11 @@
-"""Only the step executor locks its memory (issue 7): mlockall in the daemon would lock every
-thread's stack and the whole interpreter, which a 512 MB board feels.
+"""Memory the daemon holds.
 
-A real daemon with ``lock_memory = true`` (its default) and the ``process`` executor, no
-real-time priority: the executor process has locked pages (``VmLck``), the daemon none.
+Only the step executor locks its memory (issue 7): mlockall in the daemon would lock every
+thread's stack and the whole interpreter, which a 512 MB board feels. A real daemon with
+``lock_memory = true`` (its default) and the ``process`` executor, no real-time priority:
+the executor process has locked pages (``VmLck``), the daemon none.
+
+A start that fails after the executor was made leaves no shared memory block behind.
 """
 
 from __future__ import annotations
@@ -58,3 +61,32 @@ def test_only_the_step_executor_locks_its_memory(tmp_path: Path) -> None:
         assert locked_kb(pid) > 0
     finally:
         daemon.close()
+
+
+def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Daemon.build closes what it opened when a later part fails: here the [state]
+    directory is a file, found after the step executor was made (its shared memory block
+    would stay in /dev/shm until the next reboot)."""
+    from motorctl.daemon import main
+    from motorctl.daemon.config import parse_config
+
+    made: list[object] = []
+    real = main.build_executor
+
+    def spy(*args: object) -> object:
+        made.append(real(*args))  # type: ignore[arg-type]
+        return made[-1]
+
+    monkeypatch.setattr(main, "build_executor", spy)
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("x")
+    config = parse_config(
+        CONFIG.replace("lock_memory = true", "lock_memory = false")
+        + f'[state]\ndirectory = "{blocker}"\n', "t.toml")
+    with pytest.raises(main.StartupError, match="not-a-dir"):
+        main.Daemon.build(config, tmp_path / "state", None)
+    (executor,) = made
+    name = executor.shm.name  # type: ignore[attr-defined]
+    assert not Path("/dev/shm", name.lstrip("/")).exists()
