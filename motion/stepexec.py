@@ -234,9 +234,10 @@ class StepExecutor(Executor):
             self._push(motor, out)
 
     def service(self, now: float) -> float:
-        """Top up every motor's handed-over steps to the horizon once ``refill_s`` of it has
-        been used: many small refills rather than a few big ones, so the planner holds the
-        daemon's GIL (against the link thread) for a short while each time."""
+        """Top up every motor's handed-over steps to the horizon once ``REFILL_S`` of it has
+        been used, all motors in the same pass: each pass holds the daemon's GIL against the
+        link thread and starts on a cold interpreter, so few passes are better than many
+        (docs/timing.md)."""
         nxt = float("inf")
         if self.ahead_s == 0:  # one step ahead: the next once the last one is made
             for m, p in enumerate(self.plans):
