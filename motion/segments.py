@@ -161,7 +161,7 @@ class SegmentCutter:
         tau_h = min(max(horizon - t0, 0.0), dur)
         x_h = sigma * ((s0 + tau_h * (v0 + 0.5 * seg.a * tau_h)) - s0)  # Segment.position
         span_s = self.span / 1e9
-        cap = 2 * max(self.err - 2, 1) + 1  # _length_within_error at constant speed
+        cap = self._length_within_error(w0, 0.0, d, 1 << 62)  # the longest at this speed
         floor, new = math.floor, tuple.__new__  # (NamedTuples without their Python __new__)
         counter, last_t = self.counter, self.last_t
         try:
