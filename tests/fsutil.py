@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import os
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -17,6 +18,11 @@ def read_only(path: Path) -> Iterator[None]:
 
     As root, permissions do not stop writes: a read-only bind mount over the directory does
     (skips when mounting is not permitted). Otherwise mode 0555 does.
+
+    The kernel refuses to make a mount read-only while a file is open for writing through
+    it ("mount point is busy"): a running daemon may be in the middle of writing its state
+    file. That write ends within milliseconds, so the remount is retried until it succeeds
+    or ``REMOUNT_DEADLINE_S`` has passed.
     """
     if os.geteuid() != 0:
         mode = path.stat().st_mode
@@ -30,7 +36,23 @@ def read_only(path: Path) -> Iterator[None]:
     if bind.returncode != 0:
         pytest.skip(f"cannot bind-mount {path} read-only: {bind.stderr.decode().strip()}")
     try:
-        subprocess.run(["mount", "-o", "remount,ro,bind", str(path)], check=True)
+        _remount_read_only(path)
         yield
     finally:
         subprocess.run(["umount", "-l", str(path)], check=True)
+
+
+REMOUNT_DEADLINE_S = 10.0
+_RETRY_S = 0.005
+
+
+def _remount_read_only(path: Path) -> None:
+    deadline = time.monotonic() + REMOUNT_DEADLINE_S
+    while True:
+        ro = subprocess.run(["mount", "-o", "remount,ro,bind", str(path)], capture_output=True)
+        if ro.returncode == 0:
+            return
+        err = ro.stderr.decode().strip()
+        if "busy" not in err or time.monotonic() >= deadline:
+            raise AssertionError(f"cannot remount {path} read-only: {err}")
+        time.sleep(_RETRY_S)  # a writer still has a file open there; it closes it soon
