@@ -458,13 +458,15 @@ class Response:
 
     @classmethod
     def error(cls, code: ErrorCode) -> Response:
-        """Error response: R0 = 0x00, R1 = code."""
-        return cls(False, bytes([code, 0, 0]))
+        """Error response: R0 = 0x00, R1 = code (one shared instance per code)."""
+        known = _ERRORS.get(code)
+        return known if known is not None else cls(False, bytes([code, 0, 0]))
 
     @classmethod
     def boolean(cls, value: bool) -> Response:
-        """ACK with R1 = 0x01 / 0x00."""
-        return cls.ok(bytes([0x01 if value else 0x00]))
+        """ACK with R1 = 0x01 / 0x00 (one of two shared instances: answered at every IsReady
+        and GetPin, so not built anew each time)."""
+        return _TRUE if value else _FALSE
 
     @classmethod
     def position(cls, pos: int) -> Response:
@@ -490,6 +492,12 @@ class Response:
     def as_position(self) -> int:
         """R1..R3 read as a signed 24-bit position."""
         return pos24_from_bytes(self.payload)
+
+
+# Responses are immutable: the frequent ones exist once.
+_TRUE = Response(True, b"\x01\x00\x00")
+_FALSE = Response(True, b"\x00\x00\x00")
+_ERRORS = {code: Response(False, bytes([code, 0, 0])) for code in ErrorCode}
 
 
 def _response_crc(r0: int, payload: bytes, opts: CodecOptions) -> int:

@@ -33,6 +33,8 @@ class Framer:
         if not data:
             return []
         self._idle = 0.0
+        if not self._buf and len(data) == FRAME_LEN:  # the usual read: one whole frame
+            return [bytes(data)]
         self._buf += data
         count = len(self._buf) // FRAME_LEN
         frames = [bytes(self._buf[i * FRAME_LEN : (i + 1) * FRAME_LEN]) for i in range(count)]
