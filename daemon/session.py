@@ -52,6 +52,7 @@ COUNTERS = (
     *(f"sent_{code.short}" for code in ErrorCode),
 )
 _SENT = {code.value: f"sent_{code.short}" for code in ErrorCode}
+CACHE_LIMIT = 256  # frames and responses remembered; forgotten all at once when full
 
 
 class CommandPort(Protocol):
@@ -87,6 +88,11 @@ class LinkSession:
         self._held: deque[Command | bytes] = deque()
         self._held_places = 0  # commands in _held (they take a place in the buffer)
         self._out = bytearray()
+        # A host polls with the same few frames and gets the same few answers: both
+        # translations are remembered (commands and responses are immutable; a frame
+        # that fails its checks is not remembered and is checked again each time).
+        self._decoded: dict[bytes, Command] = {}
+        self._encoded: dict[tuple[bool, bytes], bytes] = {}
 
     # -- what the shell asks ------------------------------------------------------------
     @property
@@ -105,7 +111,7 @@ class LinkSession:
     def wants_input(self) -> bool:
         """False while too many responses are owed: the shell stops reading (back pressure on
         the host) rather than let memory grow without bound."""
-        return self.owed < self.backlog_limit
+        return len(self._held) + len(self._out) // RESPONSE_LEN < self.backlog_limit  # owed
 
     def deadline(self) -> float | None:
         """When :meth:`poll` must run at the latest (a held WaitMoved's timeout)."""
@@ -155,13 +161,20 @@ class LinkSession:
 
     # -- frames -----------------------------------------------------------------------------
     def _on_frame(self, frame: bytes, now: float) -> None:
-        self.counters["frames"] += 1
-        try:
-            cmd: Command | None = decode_command(frame, self.options)
-            self.counters["frames_good"] += 1
-        except FrameError as exc:
-            self.counters[f"{exc.reason}_errors"] += 1
-            cmd = None
+        counters = self.counters
+        counters["frames"] += 1
+        cmd: Command | None = self._decoded.get(frame)
+        if cmd is None:
+            try:
+                cmd = decode_command(frame, self.options)
+            except FrameError as exc:
+                counters[f"{exc.reason}_errors"] += 1
+            else:
+                if len(self._decoded) >= CACHE_LIMIT:
+                    self._decoded.clear()
+                self._decoded[frame] = cmd
+        if cmd is not None:
+            counters["frames_good"] += 1
         if self.wait is not None:
             self._hold(cmd, now)
         elif cmd is None:
@@ -225,13 +238,22 @@ class LinkSession:
 
     # -- responses --------------------------------------------------------------------------
     def _encode(self, resp: Response) -> bytes:
-        return encode_response(resp, self.options)
+        key = (resp.ack, resp.payload)  # hashed in C, unlike the dataclass
+        data = self._encoded.get(key)
+        if data is None:
+            data = encode_response(resp, self.options)
+            if len(self._encoded) >= CACHE_LIMIT:
+                self._encoded.clear()
+            self._encoded[key] = data
+        return data
 
     def _emit(self, resp: Response) -> None:
-        self._emit_encoded(self._encode(resp))
+        data = self._encoded.get((resp.ack, resp.payload))  # _encode's usual path, no call
+        self._emit_encoded(data if data is not None else self._encode(resp))
 
     def _emit_encoded(self, data: bytes) -> None:
         self._out += data
-        self.counters["responses"] += 1
+        counters = self.counters
+        counters["responses"] += 1
         if data[0] == 0x00:
-            self.counters[_SENT[data[1]]] += 1
+            counters[_SENT[data[1]]] += 1

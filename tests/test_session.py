@@ -26,6 +26,7 @@ from motorctl.protocol.codec import (
     Command,
     ErrorCode,
     GetAbsPos,
+    GetPin,
     IsReady,
     Move,
     MoveTo,
@@ -173,6 +174,54 @@ def test_unknown_code_and_bad_padding(w: World) -> None:
     assert codes(w.responses()) == [E.INVALID_COMMAND] * 2
     assert w.session.counters["unknown_errors"] == 1
     assert w.session.counters["padding_errors"] == 1
+
+
+# -- remembered frames and answers ----------------------------------------------------------
+def test_a_repeated_frame_is_answered_from_the_state_of_the_moment(w: World) -> None:
+    # The session remembers what a frame decodes to and how an answer encodes, never the
+    # answer itself: the same IsReady/GetAbsPos bytes answer differently as the motor moves.
+    ready, where = frame(IsReady(0)), frame(GetAbsPos(0))
+    w.session.receive(ready + where, w.now)
+    w.send(MoveTo(0, True, 300, 0, 0, 0))
+    w.session.receive(ready, w.now)
+    before = w.responses()
+    assert [r.as_bool for r in before[:1]] == [True] and before[1].as_position == 0
+    assert before[2].ack and before[3].ack and before[3].as_bool is False
+    assert ready in w.session._decoded  # the second IsReady took the remembered path
+    w.run(5.0)
+    w.session.receive(ready + where, w.now)
+    after = w.responses()
+    assert after[0].as_bool is True and after[1].as_position == 300
+
+
+def test_remembered_frames_and_answers_stay_bounded(w: World) -> None:
+    from motorctl.daemon.session import CACHE_LIMIT
+
+    queries: list[IsReady | GetAbsPos | GetPin] = [IsReady(m) for m in range(256)]
+    queries += [GetAbsPos(m) for m in range(256)] + [GetPin(p) for p in range(256)]
+    for _ in range(2):
+        w.send(*queries)
+        rs = w.responses()
+        assert len(rs) == len(queries)
+        for cmd, r in zip(queries, rs, strict=True):
+            known = cmd.pin == 0 if isinstance(cmd, GetPin) else cmd.motor < 2
+            assert r.ack is known and (known or r.error_code is E.INVALID_ADDRESS), (cmd, r)
+    assert 0 < len(w.session._decoded) <= CACHE_LIMIT
+    positions = range(-3 * CACHE_LIMIT, 0, 3)  # as many distinct answers
+    for target in positions:
+        w.engine.motors[1].set_position(target)  # as homing or a restored state does
+        w.send(GetAbsPos(1))
+        assert w.responses()[0].as_position == target
+    assert 0 < len(w.session._encoded) <= CACHE_LIMIT
+
+
+def test_a_bad_frame_is_checked_and_counted_each_time_it_comes(w: World) -> None:
+    bad = corrupt(frame(IsReady(0)), 3)
+    for n in range(1, 4):
+        w.session.receive(bad, w.now)
+        assert codes(w.responses()) == [E.INVALID_COMMAND]
+        assert w.session.counters["checksum_errors"] == n
+    assert bad not in w.session._decoded
 
 
 # -- WaitMoved ------------------------------------------------------------------------------
