@@ -139,13 +139,14 @@ class Dispatcher:
         # written outside the engine lock so the step thread never waits for a disk.
         journalled: int | None = None
         self._settle = None
-        if isinstance(cmd, MOTION_COMMANDS) and 0 <= cmd.motor < len(self.engine.motors):
+        engine = self.engine
+        if isinstance(cmd, MOTION_COMMANDS) and 0 <= cmd.motor < len(engine.motors):
             if not self.persist.before_motion(cmd.motor):
                 return Response.error(E.MOTOR_ERROR)
             journalled = cmd.motor
         try:
-            with self.engine.lock:
-                self.engine.process_events(self.engine.clock.now())
+            with engine.lock:
+                engine.process_events(engine.clock.now())
                 resp = handler(cmd)
         except Reject as r:
             resp = Response.error(r.code)

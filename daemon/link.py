@@ -54,6 +54,8 @@ log = logging.getLogger("motorctl.link")
 POLLIN, POLLOUT = select.POLLIN, select.POLLOUT
 POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
+WRITE_MAX = 65536  # bytes handed to one write()
+
 SHELL_COUNTERS = (
     "reads", "read_eagain", "write_eagain", "link_errors", "peer_closed", "peer_reopened",
     "hangup_partial_bytes", "responses_dropped", "backpressure",
@@ -161,7 +163,7 @@ class Link:
     def turn(self, poller: select.poll) -> None:
         """One turn of the loop: answer what is due, write, wait, read or watch the silence."""
         session, fd = self.session, self.fd
-        if session.waiting:
+        if session.wait is not None:
             session.poll(self.clock())
         self._flush()
         if self.peer_gone:
@@ -177,11 +179,13 @@ class Link:
             self._mask = mask
             poller.register(fd, mask)
         t_enter = self.clock()
-        ready = dict(poller.poll(self._timeout_ms(t_enter, reading)))
-        if self._wake_r in ready:
-            with contextlib.suppress(BlockingIOError):
-                os.read(self._wake_r, 4096)
-        events = ready.get(fd, 0)
+        events = 0
+        for ready, what in poller.poll(self._timeout_ms(t_enter, reading)):
+            if ready == fd:
+                events = what
+            else:  # the wake-up pipe
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._wake_r, 4096)
         if events & POLLIN:
             self._read(None)
         elif events & POLLGONE:
@@ -190,16 +194,16 @@ class Link:
             self._read(t_enter)
 
     def _timeout_ms(self, now: float, reading: bool) -> float | None:
-        limits = []
-        deadline = self.session.deadline()
-        if deadline is not None:
-            limits.append(deadline - now)
-        gap = self.session.gap_left() if reading else None
-        if gap is not None:
-            limits.append(gap)
-        if not limits:
-            return None
-        return max(0.0, min(limits)) * 1000.0
+        wait = self.session.wait
+        deadline = None if wait is None else wait.deadline
+        gap = self.session.framer.gap_left() if reading else None
+        if gap is None:
+            if deadline is None:
+                return None
+            left = deadline - now
+        else:
+            left = gap if deadline is None else min(gap, deadline - now)
+        return max(0.0, left) * 1000.0
 
     def _read(self, watched_since: float | None) -> None:
         """Read what is there. With ``watched_since`` the poll saw no input: a read that finds
@@ -221,7 +225,7 @@ class Link:
         self.counters["reads"] += 1
         self.session.receive(data, now)
         if self._flush():
-            self.processing.record(self.clock() - now)
+            self.processing.record_ns(round((self.clock() - now) * 1e9))
 
     def _flush(self) -> bool:
         """Write what the descriptor takes without blocking; True if anything new was queued."""
@@ -231,9 +235,10 @@ class Link:
                 self.counters["responses_dropped"] += len(data) // RESPONSE_LEN
                 return False
             self._out += data
-        while self._out:
-            try:
-                n = os.write(self.fd, self._out[:65536])
+        out = self._out
+        while out:
+            try:  # a bytearray is written as it is, without a copy, when it is not too long
+                n = os.write(self.fd, out if len(out) <= WRITE_MAX else out[:WRITE_MAX])
             except BlockingIOError:
                 self.counters["write_eagain"] += 1
                 break
@@ -242,7 +247,7 @@ class Link:
             except OSError as exc:
                 self._hangup("closed" if exc.errno == errno.EIO else f"write failed: {exc}")
                 break
-            del self._out[:n]
+            del out[:n]
         return bool(data)
 
     def _hangup(self, why: str) -> None:
