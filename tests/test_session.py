@@ -12,7 +12,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from motorctl.daemon.config import parse_config
@@ -224,6 +224,50 @@ def test_a_bad_frame_is_checked_and_counted_each_time_it_comes(w: World) -> None
     assert bad not in w.session._decoded
 
 
+_POOL: list[Command] = [
+    IsReady(0), IsReady(1), IsReady(5), GetAbsPos(0), GetAbsPos(1), GetAbsPos(7), GetPin(0),
+    GetPin(3), SetPin(0, True), SetPin(0, False), MoveTo(0, True, 40, 0, 0, 0),
+    MoveTo(0, True, -25, 0, 0, 0), MoveTo(1, True, 10, 0, 0, 0), StopMove(0, False),
+    StopMove(1, True), WaitMoved(0, 0), WaitMoved(0, 30), WaitMoved(1, 200),
+]
+
+
+@settings(max_examples=60, deadline=None)
+# held behind a WaitMoved (the motor is on its way), then behind a stray partial frame
+@example([(0, -1, 0.0), (10, -1, 0.0), (16, -1, 0.0), (0, -1, 0.0), (3, -1, 0.05),
+          (-1, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0), (0, 5, 0.02), (3, -1, 0.0)])
+@given(st.lists(st.tuples(st.integers(-1, len(_POOL) - 1), st.integers(-240, 79),  # 1/4 bad
+                          st.sampled_from([0.0, 0.001, 0.02])), min_size=1, max_size=80))
+def test_whole_frames_read_alone_answer_and_count_as_split_ones(
+        steps: list[tuple[int, int, float]]) -> None:
+    # A whole frame read alone, one the session has seen, takes a shorter path (no frame
+    # partial, nothing held). The same frames read in two halves never do. Both worlds
+    # must give the same answers and counts at every step, WaitMoved holding included.
+    with tempfile.TemporaryDirectory() as ta, tempfile.TemporaryDirectory() as tb:
+        whole, split = World(Path(ta)), World(Path(tb))
+        for index, bad_bit, dt in steps:
+            if index < 0:  # a stray partial frame: what follows is misaligned in both
+                whole.session.receive(b"\x01\x02\x03", whole.now)
+                split.session.receive(b"\x01\x02\x03", split.now)
+                continue
+            data = frame(_POOL[index])
+            if bad_bit >= 0:  # one bit flipped
+                data = corrupt(data, bad_bit)
+            whole.session.receive(data, whole.now)
+            split.session.receive(data[:4], split.now)
+            split.session.receive(data[4:], split.now)
+            assert whole.session.take_output() == split.session.take_output()
+            whole.run(dt)
+            split.run(dt)
+            for w in (whole, split):
+                w.session.idle(dt)  # 20 ms of watched silence drops a partial frame
+            assert whole.session.take_output() == split.session.take_output()
+            assert whole.session.counters == split.session.counters
+            assert whole.session.held == split.session.held
+        assert [m.position for m in whole.engine.motors] == \
+            [m.position for m in split.engine.motors]
+
+
 # -- WaitMoved ------------------------------------------------------------------------------
 def test_wait_idle_motor_answers_at_once(w: World) -> None:
     w.send(WaitMoved(0, 100))
@@ -381,3 +425,12 @@ def test_a_command_that_raises_is_e4_and_the_session_goes_on() -> None:
     assert [decode_response(data[i : i + 5], OPTS).error_code for i in (0, 5)] == [
         E.MOTOR_ERROR, None]
     assert session.counters["internal_errors"] == 1
+
+
+def test_a_command_that_raises_in_a_read_of_its_own_is_e4_each_time() -> None:
+    # The second IsReady is a whole remembered frame read alone: the one-frame path.
+    session = LinkSession(Broken(), OPTS, GAP)
+    for n in (1, 2, 3):
+        session.receive(frame(IsReady(0)), float(n))
+        assert decode_response(session.take_output(), OPTS).error_code is E.MOTOR_ERROR
+        assert session.counters["internal_errors"] == n
