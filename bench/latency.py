@@ -1,6 +1,7 @@
 """IsReady round trips through motorctld's PTY against a bare echo peer on a PTY, same run.
 
-Prints p50/p99 of both and their ratio, and the daemon's own processing time per command
+Prints p50/p99 of both and their ratio, the CPU time each spends per round trip (the
+daemon: its link thread), and the daemon's own processing time per command
 (last byte read to reply written, measured inside the daemon). Targets: round-trip p99
 <= 2x the echo peer's (idle), <= 1.5x while 3 motors step (``--motion 25000``, issue 7: the
 link must not feel the motion); processing p99 <= 108 us.
@@ -14,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import statistics
 import subprocess
 import sys
@@ -37,10 +39,13 @@ def pct(values: list[float], q: float) -> float:
     return ordered[min(len(ordered) - 1, int(q / 100 * len(ordered)))]
 
 
+WARM_UP = 50  # round trips before each round's measured ones
+
+
 def round_trips(port: str, n: int, frame: bytes) -> list[float]:
     times = []
     with serial.Serial(port, 115200, timeout=2) as s:
-        for _ in range(50):  # warm up
+        for _ in range(WARM_UP):
             s.write(frame)
             s.read(5)
         for _ in range(n):
@@ -51,6 +56,13 @@ def round_trips(port: str, n: int, frame: bytes) -> list[float]:
             if len(got) != 5:
                 raise RuntimeError(f"short reply from {port}: {got!r}")
     return times
+
+
+def cpu_s(pid: int) -> float:
+    """CPU time (user + system) of ``pid``'s main thread so far: the daemon's link thread,
+    the echo peer's only one."""
+    fields = Path(f"/proc/{pid}/task/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def summary(times: list[float]) -> dict[str, float]:
@@ -96,9 +108,15 @@ def main() -> int:
                 time.sleep(0.5)
             echo_t: list[float] = []
             daemon_t: list[float] = []
+            assert daemon.proc is not None
+            cpu = {"echo": 0.0, "daemon": 0.0}
             for _ in range(args.rounds):  # interleaved rounds: drift hits both alike
-                echo_t += round_trips(str(echo_link), args.n, frame)
-                daemon_t += round_trips(str(daemon.pty), args.n, frame)
+                for name, pid, port, into in (("echo", echo.pid, echo_link, echo_t),
+                                              ("daemon", daemon.proc.pid, daemon.pty,
+                                               daemon_t)):
+                    before = cpu_s(pid)
+                    into += round_trips(str(port), args.n, frame)
+                    cpu[name] += cpu_s(pid) - before
             status = read_status(daemon.state_dir / "status.sock")
         finally:
             daemon.close()
@@ -110,6 +128,11 @@ def main() -> int:
         "processing": status["link"]["processing"],
     }
     result["p99_ratio"] = round(result["daemon"]["p99_us"] / result["echo_peer"]["p99_us"], 2)
+    # With motion, both peers share one CPU with the client: a round trip costs the CPU
+    # work of both ends, wherever in its loop a peer spends it (clock ticks: +-10 ms).
+    made = args.rounds * (args.n + WARM_UP)  # per peer, the warm-ups included
+    result["echo_cpu_per_round_trip_us"] = round(cpu["echo"] / made * 1e6, 1)
+    result["daemon_cpu_per_round_trip_us"] = round(cpu["daemon"] / made * 1e6, 1)
     result["motion_steps_per_s_per_motor"] = args.motion
     result["executor"] = args.executor
     result["switch_interval_us"] = args.switch_interval_us
@@ -125,6 +148,8 @@ def main() -> int:
     result["target_p99_ratio"] = target
     print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  "
           f"(target p99 <= {target})")
+    print(f"  CPU per round trip: echo peer {result['echo_cpu_per_round_trip_us']} us, "
+          f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us")
     print(f"daemon processing (last byte read -> reply written), {p['steps']} commands:")
     print(f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
           f"max {p['max_us']} us  (target p99 <= 108 us)")
