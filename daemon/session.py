@@ -141,8 +141,9 @@ class LinkSession:
             if cmd is not None and not isinstance(cmd, WaitMoved):
                 # The usual read of a host that waits for each answer: one whole frame it
                 # sent before, nothing partial, nothing held. What _on_frame, _execute and
-                # _emit do for it, without their calls (a third of a round trip's work in
-                # this process; tests hold both paths to the same answers and counts).
+                # _emit do for it, without the framer and their calls: every microsecond
+                # this process spends per command shows in the host's round trip
+                # (docs/timing.md). Tests hold both paths to the same answers and counts.
                 counters["frames"] += 1
                 counters["frames_good"] += 1
                 try:
