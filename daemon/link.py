@@ -163,7 +163,7 @@ class Link:
     def turn(self, poller: select.poll) -> None:
         """One turn of the loop: answer what is due, write, wait, read or watch the silence."""
         session, fd = self.session, self.fd
-        if session.wait is not None:
+        if session.waiting:
             session.poll(self.clock())
         self._flush()
         if self.peer_gone:
@@ -194,9 +194,8 @@ class Link:
             self._read(t_enter)
 
     def _timeout_ms(self, now: float, reading: bool) -> float | None:
-        wait = self.session.wait
-        deadline = None if wait is None else wait.deadline
-        gap = self.session.framer.gap_left() if reading else None
+        deadline = self.session.deadline()
+        gap = self.session.gap_left() if reading else None
         if gap is None:
             if deadline is None:
                 return None

@@ -111,7 +111,7 @@ class LinkSession:
     def wants_input(self) -> bool:
         """False while too many responses are owed: the shell stops reading (back pressure on
         the host) rather than let memory grow without bound."""
-        return len(self._held) + len(self._out) // RESPONSE_LEN < self.backlog_limit  # owed
+        return self.owed < self.backlog_limit
 
     def deadline(self) -> float | None:
         """When :meth:`poll` must run at the latest (a held WaitMoved's timeout)."""
@@ -140,9 +140,9 @@ class LinkSession:
             cmd = self._decoded.get(data)
             if cmd is not None and not isinstance(cmd, WaitMoved):
                 # The usual read of a host that waits for each answer: one whole frame it
-                # sent before, nothing partial, nothing held. What _on_frame, _execute and
-                # _emit do for it, without the framer and their calls: every microsecond
-                # this process spends per command shows in the host's round trip
+                # sent before, nothing partial, nothing held. What _on_frame and _execute
+                # do for it, without the framer and their calls: every microsecond this
+                # process spends per command shows in the host's round trip
                 # (docs/timing.md). Tests hold both paths to the same answers and counts.
                 counters["frames"] += 1
                 counters["frames_good"] += 1
@@ -150,13 +150,7 @@ class LinkSession:
                     resp = self.port.handle(cmd)
                 except Exception:
                     resp = self._failed(cmd)
-                out = self._encoded.get((resp.ack, resp.payload))
-                if out is None:
-                    out = self._encode(resp)
-                self._out += out
-                counters["responses"] += 1
-                if out[0] == 0x00:
-                    counters[_SENT[out[1]]] += 1
+                self._emit_encoded(self._encode(resp))
                 return
         for frame in self.framer.feed(data):
             self._on_frame(frame, now)
@@ -275,8 +269,7 @@ class LinkSession:
         return data
 
     def _emit(self, resp: Response) -> None:
-        data = self._encoded.get((resp.ack, resp.payload))  # _encode's usual path, no call
-        self._emit_encoded(data if data is not None else self._encode(resp))
+        self._emit_encoded(self._encode(resp))
 
     def _emit_encoded(self, data: bytes) -> None:
         self._out += data
