@@ -117,6 +117,10 @@ class Table:
     prose: str = ""  # docs/config.md text shown above the key table
     notes: str = ""  # docs/config.md text shown below it
     extensible: bool = False  # has a `sections` field that Extensions fill
+    retired: tuple[tuple[str, str], ...] = ()  # (key, why): accepted, ignored, a notice
+
+    def retired_why(self, name: str) -> str | None:
+        return next((why for key, why in self.retired if key == name), None)
 
     def extended(self, extensions: Sequence[Extension], path: str = "") -> Table:
         """This table with the extensions placed at `path` ("" or "motors", "pins.x"...)."""
@@ -314,9 +318,10 @@ def extension_sections() -> Any:
     return dataclasses.field(default_factory=dict, metadata={_SECTIONS: True})
 
 
-def given(default: Any) -> Any:
-    """A field that is not a key: the loader passes its value (`Parser.build(..., name=v)`)."""
-    return dataclasses.field(default=default, metadata={_GIVEN: True})
+def given(default: Any, *, compare: bool = True) -> Any:
+    """A field that is not a key: the loader passes its value (`Parser.build(..., name=v)`).
+    ``compare`` False: two configs that differ only here are equal (notices about the file)."""
+    return dataclasses.field(default=default, compare=compare, metadata={_GIVEN: True})
 
 
 _ANNOTATION: Final = {"int": "int", "float": "float", "bool": "bool", "str": "str",
@@ -324,13 +329,18 @@ _ANNOTATION: Final = {"int": "int", "float": "float", "bool": "bool", "str": "st
 
 
 def section(
-    doc: str, *, rules: Sequence[Rule] = (), prose: str = "", notes: str = ""
+    doc: str, *, rules: Sequence[Rule] = (), prose: str = "", notes: str = "",
+    retired: Mapping[str, str] | None = None,
 ) -> Callable[[type[T]], type[T]]:
     """Make a frozen dataclass a config table (apply it above `@dataclass(frozen=True)`).
 
     Every field must be declared with a helper of this module, except `sections`
     (`extension_sections()`). The field's annotation is checked against the key's kind.
+    ``retired``: keys of earlier releases that mean nothing now, with why: a file that writes
+    one still loads (any value), and the parser records a notice that names it
+    (`Parser.notices`), so that old files keep working and their owners learn what changed.
     """
+    gone = tuple((retired or {}).items())
 
     def apply(cls: type[T]) -> type[T]:
         if not dataclasses.is_dataclass(cls):
@@ -367,8 +377,11 @@ def section(
                 pass
             else:
                 raise TypeError(f"{cls.__name__}.{f.name} is not declared with motorctl.schema")
+        taken = {k.name for k in keys} | {c.name for c in children}
+        if clash := taken & {name for name, _ in gone}:
+            raise TypeError(f"{cls.__name__}: retired keys still declared: {sorted(clash)}")
         spec = Table(cls, doc, tuple(keys), tuple(children), tuple(rules), prose, notes,
-                     extensible)
+                     extensible, gone)
         setattr(cls, _TABLE_ATTR, spec)
         return cls
 
@@ -512,6 +525,7 @@ class Parser:
     def __init__(self, source: str) -> None:
         self.source = source
         self.defaulted: set[str] = set()  # key paths that took their default value
+        self.notices: list[str] = []  # retired keys the file wrote, each with why
 
     def error(self, path: str, value: Any, problem: str, accepted: str) -> ConfigError:
         shown = f"{path} = {toml_value(value)}" if value is not REQUIRED else path
@@ -535,12 +549,16 @@ class Parser:
             raise self.error(path, raw, f"wrong type ({toml_type(raw)})", f"a table {where}")
         allowed = sorted(spec.names())
         for name in raw:
-            if name not in allowed:
+            if name not in allowed and spec.retired_why(name) is None:
                 listed = f"keys in {where}" if path else "top-level keys"
                 raise ConfigError(
                     f"{self.source}: unknown key '{_join(path, name)}'; "
                     f"accepted {listed}: {', '.join(allowed)}"
                 )
+            why = spec.retired_why(name)
+            if why is not None:
+                self.notices.append(f"{self.source}: '{_join(path, name)}' is retired and "
+                                    f"ignored: {why}; fix: remove it")
         values: dict[str, Any] = {}
         inner = dict(scope)
         for key in spec.keys:

@@ -188,6 +188,9 @@ def render() -> str:
         rows = describe_child(child, "", notes)
         table = ["| key | type | default | accepted values and meaning |", "|---|---|---|---|"]
         parts.append("\n".join(table + [_row(r) for r in rows]) + "\n")
+        for name, why in child.table.retired:
+            parts.append(_fill(f"Retired: `{child.name}.{name}` (any value) still loads, with "
+                               f"a warning, and means nothing: {why}.") + "\n")
         if child.table.notes:
             names = _fill(checksum_names() + ".")
             aliases = ", ".join(sorted(ALIASES))

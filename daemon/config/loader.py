@@ -10,6 +10,7 @@ Runs on the caller's thread; blocks only on reading the file.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 import re
 import textwrap
@@ -109,9 +110,10 @@ def parse_config(text: str, source: str) -> Config:
         else:  # "(at end of document)"
             line = max(1, text.count("\n") + (0 if text.endswith("\n") else 1))
         raise ConfigError(f"{source}: line {line}: TOML syntax error: {message}") from None
-    config = Parser(source).build(schema(), document, source=source)
+    parser = Parser(source)
+    config = parser.build(schema(), document, source=source)
     assert isinstance(config, Config)
-    return config
+    return dataclasses.replace(config, notices=tuple(parser.notices)) if parser.notices else config
 
 
 def load_config(path: str | os.PathLike[str] | None) -> Config:
