@@ -69,7 +69,6 @@ run_speed_factor = 100.0
 [step_thread]
 priority = 0
 lock_memory = false
-max_lateness_us = 5000000.0  # as the test daemons: a loaded machine is not a lost step
 [dc]
 [mock]
 wires = [[0, 4], [1, 5], [2, 6], [3, 7]]

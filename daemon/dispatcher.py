@@ -157,7 +157,8 @@ class Dispatcher:
             if isinstance(index, int) and 0 <= index < len(self.engine.motors):
                 with self.engine.lock:  # a motion half started: stop it, latched
                     m = self.engine.motors[index]
-                    m.latch_fault(f"hardware error: {exc}", self.engine.clock.now())
+                    m.latch_fault(f"hardware error: {exc}", self.engine.clock.now(),
+                                  cause="io_error")
             resp = Response.error(E.MOTOR_ERROR)
         finally:
             if journalled is not None:

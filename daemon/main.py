@@ -118,10 +118,20 @@ def motor_params(config: Config) -> list[MotorParams]:
             pulse_s=st.step_pulse_us / 1e6,
             max_speed=m.max_speed,
             start_speed=m.start_speed,
+            microsteps=motor_microsteps(m),
+            max_lag_full_steps=m.max_lag_full_steps,
             host_position=wrap24,
         )
         for m in config.motors
     ]
+
+
+def motor_microsteps(m: MotorConfig) -> int:
+    """Microsteps per full step: its own key, else its [motors.tmc] table's, else 16."""
+    if m.microsteps is not None:
+        return m.microsteps
+    tmc = m.section(TmcAxisConfig)
+    return tmc.microsteps if isinstance(tmc, TmcAxisConfig) else 16
 
 
 def motor_geometry(config: Config, m: MotorConfig) -> dict[str, object]:
@@ -239,13 +249,20 @@ class Daemon:
         lateness percentiles come from the histogram's blocks), except ``histogram``: the
         step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
         up to 20,001), for the benchmarks that ask for it."""
+        executor = self.engine.executor
         motors = [
             {"index": m.index, "name": m.params.name, "state": m.state.value,
              "position": m.position, "queued": len(m.queue), "fault": m.fault,
-             "position_lost": m.position_lost, "waypoints": len(m.waypoints)}
+             "position_lost": m.position_lost, "waypoints": len(m.waypoints),
+             "faults": dict(m.faults),
+             "timing": {**executor.motor_timing(m.index),
+                        "microsteps": m.params.microsteps,
+                        "max_lag_full_steps": m.params.max_lag_full_steps},
+             "soft_stops": {"count": m.soft_stops,
+                            "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
+                            "takeover_steps": list(m.takeover_steps)}}
             for m in list(self.engine.motors)
         ]
-        executor = self.engine.executor
         health = executor.health()
         steps = dict(health.latency)
         steps.update(health.counters)
@@ -446,6 +463,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         except ConfigError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1
+        for notice in cfg.notices:
+            print(f"warning: {notice}", file=sys.stderr)
         print(f"{args.check_config}: OK ({len(cfg.motors)} motors, {len(cfg.pins)} pins, "
               f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})")
         return 0
@@ -510,7 +529,9 @@ def build_executor(
     ramp = [i for i, d in enumerate(drivers) if isinstance(d, Tmc5160)]
     if set(ramp) | set(stepped) != set(range(len(drivers))) or set(ramp) & set(stepped):
         raise StartupError(f"ramp motors {ramp} and stepped motors {list(stepped)} disagree")
-    limits = axis_limits([params[i] for i in stepped], st.max_lateness_us / 1e6, STEP_ERROR_S)
+    limits = axis_limits([params[i] for i in stepped], STEP_ERROR_S,
+                         slide_after_s=st.late_threshold_us / 1e6,
+                         lag_faults=hw.motors_lose_steps)
     rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
     steps: Executor | None = None
     if not stepped:
@@ -540,6 +561,8 @@ def serve(args: argparse.Namespace) -> int:
 
 def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: Owned) -> int:
     st = config.step_thread
+    for notice in config.notices:
+        log.warning("%s", notice)
     sys.setswitchinterval(st.switch_interval_us / 1e6)
     if st.cpu >= 0:
         others = os.sched_getaffinity(0) - {st.cpu}
@@ -579,7 +602,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
 
     def on_motor_event(motor: Motor, event: str) -> None:  # step thread: no I/O
-        events.record(motor.index, motor.params.name, event, motor.fault)
+        events.record(motor.index, motor.params.name, event, motor.fault, motor.fault_cause,
+                      motor.position_lost)
         line.poke()
 
     daemon.engine.listeners.append(on_motor_event)

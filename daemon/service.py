@@ -314,6 +314,8 @@ class StatusLine:
 
 
 _EVENT_LEVELS = {"fault": logging.ERROR, "cleared": logging.INFO, "homed": logging.INFO}
+#: (motor, name, event, fault, cause, position lost)
+_Event = tuple[int, str, str, str | None, str | None, bool]
 
 
 class MotorEventLog:
@@ -321,29 +323,33 @@ class MotorEventLog:
 
     ``record()`` is called from motor listeners (step thread, engine lock held): it only
     appends to a bounded queue. ``flush()`` logs on the caller's thread (the status line's),
-    with the fields MOTOR, MOTOR_NAME, EVENT and FAULT.
+    with the fields MOTOR, MOTOR_NAME, EVENT and FAULT, and for a fault CAUSE (what it is
+    counted under in the status: timing_lost, endstop, driver ...) and POSITION_LOST.
     """
 
     def __init__(self, limit: int = 256) -> None:
-        self._pending: collections.deque[tuple[int, str, str, str | None]] = \
-            collections.deque(maxlen=limit)
+        self._pending: collections.deque[_Event] = collections.deque(maxlen=limit)
         self._lock = threading.Lock()
 
-    def record(self, index: int, name: str, event: str, fault: str | None) -> bool:
+    def record(self, index: int, name: str, event: str, fault: str | None,
+               cause: str | None = None, lost: bool = False) -> bool:
         """Queue an event worth a log line; True when it was one."""
         if event not in _EVENT_LEVELS:
             return False
         with self._lock:
-            self._pending.append((index, name, event, fault))
+            self._pending.append((index, name, event, fault, cause, lost))
         return True
 
     def flush(self) -> None:
         with self._lock:
             events, self._pending = list(self._pending), collections.deque(
                 maxlen=self._pending.maxlen)
-        for index, name, event, fault in events:
-            text = {"fault": f"fault latched: {fault}; E4 until StopMove clears it",
+        for index, name, event, fault, cause, lost in events:
+            lost_text = "position lost (home it again); " if lost else ""
+            text = {"fault": f"fault latched: {fault}; {lost_text}E4 until StopMove clears it",
                     "cleared": "fault cleared", "homed": "homed: position 0"}[event]
-            log.log(_EVENT_LEVELS[event], "motor %d (%s): %s", index, name, text,
-                    extra={"MOTOR": index, "MOTOR_NAME": name, "EVENT": event,
-                           "FAULT": fault})
+            fields: dict[str, object] = {"MOTOR": index, "MOTOR_NAME": name, "EVENT": event,
+                                         "FAULT": fault}
+            if event == "fault":
+                fields.update(CAUSE=cause, POSITION_LOST=int(lost))
+            log.log(_EVENT_LEVELS[event], "motor %d (%s): %s", index, name, text, extra=fields)

@@ -372,6 +372,9 @@ class Hardware:
     #: what an executor in another process must add to the spec's options to open its
     #: step IO consistently with this hardware (the mock: its shared mechanics)
     step_io_options: dict[str, object] = field(default_factory=dict)
+    #: whether a late step may have cost a motor steps (a real rotor); False for simulated
+    #: motors, whose lateness is counted but never a fault (docs/timing.md)
+    motors_lose_steps: bool = True
 
     def close(self) -> None:
         for close in reversed(self.closers):

@@ -31,6 +31,7 @@ from motorctl.hal.interfaces import (
     StepperDriver,
     StepperHardware,
 )
+from motorctl.hal.mock_config import MockConfig
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 
 
@@ -448,6 +449,8 @@ class MockWorld:
     def hardware(self) -> Hardware:
         steppers = [StepperHardware(driver=MockDriver(axis)) for axis in self.axes]
         hw = MockHardware(self.clock, steppers, dict(self.pins), self.bridge, world=self)
+        world = self.spec.sections.get(MockConfig)
+        hw.motors_lose_steps = isinstance(world, MockConfig) and world.lose_steps
         if self.mechanics is not None:
             hw.step_io_options["mechanics"] = self.mechanics
         hw.closers.append(self.close)

@@ -13,7 +13,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.schema import Extension, Rule, Violation, integer, pairs, section
+from motorctl.schema import Extension, Rule, Violation, boolean, integer, pairs, section
 
 # The simulated end stops sit inside the protocol's 24-bit position range (PROTOCOL.md §3).
 # hal may not import protocol, so the range is written out here and checked against
@@ -67,6 +67,13 @@ default `[[0, 4], [1, 5], [2, 6], [3, 7]]`, which needs pins 0-7.""",
 class MockConfig:
     """[mock]: wiring of the simulated world."""
 
+    lose_steps: bool = boolean(
+        False,
+        "Simulate motors that can lose steps: a late step whose lag is beyond a motor's "
+        "max_lag_full_steps stops it with E4 'step timing lost', as on real hardware (tests of "
+        "the fail-safe). false: the simulated motors have no rotor; a late step is counted "
+        "and the move slides, never a fault.",
+    )
     wires: tuple[tuple[int, int], ...] = pairs(
         [[0, 4], [1, 5], [2, 6], [3, 7]],
         "Pins joined by a wire: an input reads the output it is wired to. This default "
@@ -102,7 +109,7 @@ CONFIG_SECTIONS = (
         "mock",
         MockConfig,
         owner="the mock backend",
-        absent={"wires": []},
+        absent={"wires": [], "lose_steps": False},
         absent_text="no wires",
         rules=(
             Rule(("mock.wires",), "every wired pin is listed in [[pins]]", _wires_on_pins),

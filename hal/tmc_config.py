@@ -156,6 +156,14 @@ def _microsteps(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+def _microsteps_agree(v: Mapping[str, Any]) -> Violation | None:
+    t, own = v["tmc"], v["microsteps"]
+    if t is not None and own is not None and own != t.microsteps:
+        return ("microsteps", own, f"the motor's [motors.tmc] table sets microsteps = "
+                f"{t.microsteps}: write it once, in [motors.tmc]")
+    return None
+
+
 def _current(v: Mapping[str, Any]) -> Violation | None:
     t = v["tmc"]
     if t is None:
@@ -218,6 +226,8 @@ CONFIG_SECTIONS = (
             Rule(("tmc.mode", "tmc.driver"), "mode = \"ramp\" needs driver = \"tmc5160\"",
                  _ramp_needs_tmc5160),
             Rule(("tmc.microsteps",), "a power of two: 1, 2, 4, ..., 256", _microsteps),
+            Rule(("microsteps", "tmc.microsteps"), "the same where both are written",
+                 _microsteps_agree),
             Rule(("tmc.run_current", "tmc.sense_resistor"),
                  "a current the chip can drive through this sense resistor", _current),
             Rule(("tmc.stall_min_speed",), "> 0 for stall homing in ramp mode",

@@ -45,7 +45,7 @@ class ExecEventKind(enum.Enum):
     DONE = "done"  # a finite plan's last step was executed: ``position`` is final
     STOPPED = "stopped"  # a stop() took effect: ``position`` is final
     ENDSTOP = "endstop"  # the executor stopped the axis itself at an end stop
-    TIMING_LOST = "timing_lost"  # a step would have been later than max_lateness: stopped
+    TIMING_LOST = "timing_lost"  # a late step would have lagged beyond the tolerance: stopped
     FAULT = "fault"  # the axis's hardware failed (HalIOError): stopped
     DIED = "died"  # the executor itself is gone (motor -1: every motor)
 
@@ -75,16 +75,27 @@ class AxisLimits:
     """The fail-safe bounds of one motor, fixed when the executor is built.
 
     ``min_interval_s``: no two steps are ever emitted closer than this (the profile's bound:
-    1 / the motor's maximum speed, less the planner's step error). ``max_lateness_s``: a step
-    that would come later than this after its planned time is not emitted; the motor stops
-    and an event TIMING_LOST is reported. ``pulse_s``: STEP high time. ``debounce_s``: an end
-    stop counts once active this long (by the kernel's edge timestamps).
+    1 / the motor's maximum speed, less the planner's step error). ``pulse_s``: STEP high
+    time. ``debounce_s``: an end stop counts once active this long (by the kernel's edge
+    timestamps).
+
+    Lateness (docs/timing.md): a step later than ``slide_after_s`` after its planned time
+    makes the rest of that motor's schedule slide by its lateness (the move takes that much
+    longer; steps never bunch up to catch up). The lag it caused, lateness x step rate /
+    ``microsteps``, in full steps, is judged as a motor would feel it: with ``lag_faults``
+    and above ``start_speed`` (step/s), a lag beyond ``max_lag_full_steps`` stops the motor
+    instead (TIMING_LOST: a real rotor may have slipped). Without ``lag_faults`` (a simulated
+    motor has no rotor) every late step slides.
     """
 
     min_interval_s: float
-    max_lateness_s: float
     pulse_s: float = 2e-6
     debounce_s: float = 0.0
+    slide_after_s: float = 100e-6
+    microsteps: int = 16
+    start_speed: float = 0.0
+    max_lag_full_steps: float = 0.5
+    lag_faults: bool = True
 
 
 @dataclass(frozen=True)
@@ -98,6 +109,9 @@ class Committed:
     position: float
     velocity: float
     counter: int
+    #: how long after "now" (the command) the new plan takes over, s (steps handed to the
+    #: executor before that point are still made)
+    after: float = 0.0
 
 
 @dataclass
@@ -141,8 +155,9 @@ class Executor(ABC):
       itself when it has been active for ``debounce_s``; it reports ENDSTOP with the position
       and time of the trigger. Whether that ends a homing run or is a fault is the caller's
       business.
-    - Fail safe: steps are never closer than ``min_interval_s``; a step that would be later
-      than ``max_lateness_s`` stops the motor (TIMING_LOST, with the speed it had).
+    - Fail safe: steps are never closer than ``min_interval_s``; a late step slides the rest
+      of the motor's schedule, unless the lag it causes is one a real motor may not survive
+      (:class:`AxisLimits`): then the motor stops (TIMING_LOST, with the speed it had).
     - :meth:`service` does the caller-side work (refilling segments) and returns when it is
       next due; the engine's planner thread calls it (never the step path).
     - ``on_event`` is called, from any thread, when events are pending; it must be cheap.
@@ -194,6 +209,12 @@ class Executor(ABC):
 
     @abstractmethod
     def health(self) -> ExecutorHealth: ...
+
+    def motor_timing(self, motor: int) -> dict[str, Any]:
+        """The motor's late-step figures (``motorctld --status``; docs/timing.md): steps
+        absorbed by sliding its schedule, the worst lateness and lag, lag faults. Empty for
+        an executor that times no steps of that motor."""
+        return {}
 
     def step_lateness(self) -> LatencyStats | None:
         """The lateness histogram of the STEP edges this executor makes (read without a lock);

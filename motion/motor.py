@@ -52,6 +52,7 @@ class Motor:
         self.home = 0
         self.waypoints: list[int] = []
         self.fault: str | None = None
+        self.fault_cause: str | None = None  # what the latched fault is counted under
         self.position_lost = False
         self.traj: Trajectory | None = None
         self.gen = 0
@@ -61,6 +62,12 @@ class Motor:
         self._ramp = Ramp(1.0, 1.0, 1.0)
         self._phase: HomingPhase | None = None  # while homing
         self._home_cmd: HomeCmd | None = None
+        self.faults: dict[str, int] = {}  # faults latched, by cause
+        # soft StopMoves: how long after the command, and how many steps on, the deceleration
+        # took over (the steps already handed to the executor are still made)
+        self.soft_stops = 0
+        self.takeover_s = (0.0, 0.0)  # last, max
+        self.takeover_steps = (0, 0)  # last, max
 
     @property
     def abs_steps(self) -> int:
@@ -131,7 +138,7 @@ class Motor:
         if self.state is MotorState.FAULT:
             if self.driver.status().fault is not None:
                 return False
-            self.fault = None
+            self.fault = self.fault_cause = None
             self.state = MotorState.IDLE
             self._notify(self, "cleared")
             return True
@@ -141,20 +148,29 @@ class Motor:
             self._hard_stop(now, self._become_idle)
         else:
             c = self.executor.committed(self.index, now)
+            steps = abs(c.counter - self.abs_steps)
+            self.soft_stops += 1
+            self.takeover_s = (c.after, max(self.takeover_s[1], c.after))
+            self.takeover_steps = (steps, max(self.takeover_steps[1], steps))
             self._follow(plan_stop(c.t, c.position, c.velocity, self._ramp.dec),
                          MotorState.STOPPING, now)
         return True
 
     def latch_fault(
-        self, reason: str, now: float, *, lost: bool = False, stopped: bool = False
+        self, reason: str, now: float, *, lost: bool = False, stopped: bool = False,
+        cause: str = "other",
     ) -> None:
         """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4.
+
+        ``cause``: what the fault is counted under (``faults``, in the status).
 
         ``stopped``: the executor already stopped the axis itself and was answered, so the
         position is final now (a StopMove right after makes the motor ready at once).
         """
         self.queue.clear()
         self.fault = reason
+        self.fault_cause = cause
+        self.faults[cause] = self.faults.get(cause, 0) + 1
         self.state = MotorState.FAULT
         self._phase = None
         self._home_cmd = None
@@ -184,7 +200,8 @@ class Motor:
                 self._trajectory_done(ev.t)
             return
         if k is K.DIED:
-            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True)
+            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True,
+                             cause="executor_died")
             return
         # the executor stopped the axis itself: answer (lifts its block), then decide
         if self._awaiting is not None and ev.gen < self._awaiting:
@@ -203,26 +220,28 @@ class Motor:
             ):
                 self._homing_triggered(max(ev.t, now))
             else:
-                self.latch_fault("end stop hit", now, stopped=True)
+                self.latch_fault("end stop hit", now, stopped=True, cause="endstop")
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost, stopped=True)
+            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost, stopped=True,
+                             cause="timing_lost")
         else:  # a line failed: a step may or may not have reached the driver
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(ev.detail or "step executor fault", now, lost=lost, stopped=True)
+            self.latch_fault(ev.detail or "step executor fault", now, lost=lost, stopped=True,
+                             cause="io_error")
 
     def on_driver_status(self, status: DriverStatus, now: float) -> None:
         """A driver poll's result (read outside the engine lock, by the monitor)."""
         if self.state is MotorState.FAULT:
             return
         if status.fault is not None:
-            self.latch_fault(f"driver fault: {status.fault}", now)
+            self.latch_fault(f"driver fault: {status.fault}", now, cause="driver")
         elif status.stall and self.active and self._awaiting is None:
             if self._stall_homing:
                 if self._phase in (HomingPhase.SEEK, HomingPhase.APPROACH):
                     self._hard_stop(now, self._homing_triggered)
             else:
-                self.latch_fault("stall", now)
+                self.latch_fault("stall", now, cause="stall")
 
     # -- internals ----------------------------------------------------------
     @property
@@ -369,7 +388,8 @@ class Motor:
             if self._phase is HomingPhase.BACKOFF:
                 if self._still_on_switch(cmd.direction):
                     self.latch_fault(
-                        "homing failed: end stop still active after pull-off", now, stopped=True
+                        "homing failed: end stop still active after pull-off", now, stopped=True,
+                        cause="homing",
                     )
                     return
                 self._phase = HomingPhase.APPROACH
@@ -383,7 +403,8 @@ class Motor:
                 self._follow(traj, MotorState.HOMING, now)
                 return
             travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
-            self.latch_fault(f"homing failed: no end stop within {travel} steps", now, stopped=True)
+            self.latch_fault(f"homing failed: no end stop within {travel} steps", now,
+                             stopped=True, cause="homing")
             return
         self._become_idle(now)
 

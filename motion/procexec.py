@@ -87,7 +87,7 @@ from motorctl.motion.executor import (
 from motorctl.motion.latency import CELLS, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
 from motorctl.motion.segments import StepSegment
-from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+from motorctl.motion.stepcore import COUNTER_NAMES, MOTOR_CELLS, CoreInbox, StepCore
 from motorctl.motion.stepexec import StepExecutor
 
 log = logging.getLogger("motorctl.executor")
@@ -125,6 +125,8 @@ class Layout:
         off += motors * 2 * 8
         self.latency = off
         off += CELLS * 8
+        self.motor_cells = off  # per motor: shift, late-step figures (stepcore.MOTOR_CELLS)
+        off += motors * MOTOR_CELLS * 8
         # rings: head, tail cells then records
         self.seg_rings = []
         for _ in range(motors):
@@ -250,6 +252,8 @@ class Shared:
         self.levels = buf[lay.levels : lay.levels + max(lay.lines, 1) * 8].cast("q")
         self.endmap = buf[lay.endmap : lay.endmap + lay.motors * 2 * 8].cast("q")
         self.latency = buf[lay.latency : lay.latency + CELLS * 8].cast("q")
+        mc = lay.motor_cells
+        self.motor_cells = buf[mc : mc + lay.motors * MOTOR_CELLS * 8].cast("q")
         self.segs = [Ring(buf, off, _SEG, SEG_RING) for off in lay.seg_rings]
         self.stops = Ring(buf, lay.stop_ring, _STOP, STOP_RING)
         self.events = Ring(buf, lay.event_ring, _EVENT, EVENT_RING)
@@ -262,7 +266,7 @@ class Shared:
 
     def release(self) -> None:
         views = (self.header, self.counters, self.positions, self.levels, self.endmap,
-                 self.latency)
+                 self.latency, self.motor_cells)
         for view in views:
             view.release()
         for ring in (*self.segs, self.stops, self.events):
@@ -359,8 +363,8 @@ def _child_main(
 
     core = StepCore(io, limits, inbox, emit, positions=shared.positions,
                     levels=shared.levels, counters=shared.counters,
-                    stats=LatencyStats(late_threshold_s, shared.latency), spin_s=spin_s,
-                    coalesce_s=coalesce_s)
+                    stats=LatencyStats(late_threshold_s, shared.latency),
+                    motor_cells=shared.motor_cells, spin_s=spin_s, coalesce_s=coalesce_s)
     header = shared.header
     header[_PID] = os.getpid()
 
@@ -435,6 +439,7 @@ class ProcessStepExecutor(StepExecutor):
         buf[: self.layout.size] = bytes(self.layout.size)
         self.shared = Shared(self.shm, self.layout)
         self.stats = LatencyStats(late_threshold_s, self.shared.latency)
+        self.motor_cells = self.shared.motor_cells
         ctx = multiprocessing.get_context("spawn")
         self._ctx = ctx
         # raw bytes on the pipes' descriptors: only wake-ups, never messages
@@ -526,6 +531,7 @@ class ProcessStepExecutor(StepExecutor):
         self._closed = ([int(x) for x in self.shared.positions], self._counters())
         cells = [int(self.shared.latency[i]) for i in range(CELLS)]
         self.stats = LatencyStats(self.late_threshold_s, cells)
+        self.motor_cells = [int(x) for x in self.shared.motor_cells]
         self.shared.release()
         self.shm.close()
         with contextlib.suppress(FileNotFoundError):

@@ -29,6 +29,7 @@ import threading
 from collections.abc import Sequence
 from contextlib import suppress
 from dataclasses import dataclass
+from typing import Any
 
 from motorctl.hal.interfaces import Clock, HalError
 from motorctl.hal.tmc import F, RampState, Reg, Tmc5160, signed32
@@ -381,6 +382,10 @@ class SplitExecutor(Executor):
         """The process of the part that runs in one (a ``process`` step executor), if any."""
         return next((p for ex in self.parts if isinstance(p := getattr(ex, "pid", None), int)),
                     None)
+
+    def motor_timing(self, motor: int) -> dict[str, Any]:
+        ex, local = self.routes[motor]
+        return ex.motor_timing(local)
 
     def step_lateness(self) -> LatencyStats | None:
         """The step executor's (the ramp executor makes no STEP edges)."""

@@ -7,12 +7,16 @@ shared-memory rings of ``motion.procexec``) and it answers through ``emit`` and 
 ``positions`` and ``counters`` cells. It may block only in ``wait`` (nothing due) and spins
 only for the last ``spin_s`` before an edge.
 
-Per step: pick the motors due now, drop any whose step would be later than
-``max_lateness`` (stop, TIMING_LOST), never step sooner than ``min_interval`` after the
-previous step nor before DIR has settled, raise the STEP lines of every due motor in one
+Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
+the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
+plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
+motor may not survive (:class:`~motorctl.motion.executor.AxisLimits`): then it stops
+(TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
+DIR has settled, raise the STEP lines of every due motor in one
 call, account while they are high, lower them, then look at the end stop ahead of each
 motor that stepped. Each motor's next due time is kept up to date as its state changes, so
-finding the next edge is one ``min`` over the motors. Times are integer ns (ticks). A motor
+finding the next edge is one ``min`` over the motors. Times are integer ns (ticks); a
+segment's ticks are plan ticks, made at plan tick + the motor's shift. A motor
 whose step is planned within ``coalesce_s`` after the edge being made (and that nothing
 else holds back) shares its pulse: up to ``coalesce_s`` early, within the planner's own step
 error bound, instead of queueing a few microseconds behind it.
@@ -47,6 +51,14 @@ COUNTER_NAMES = ("progress", "steps", "timing_lost", "io_errors", "endstops", "d
 #: the smallest time between two steps of a motor (MIN_GAP) counts steps less than this apart
 _GAP_WINDOW = TICKS_PER_S // 10
 
+# per motor cells (``motor_cells``: MOTOR_CELLS per motor, motor m's at m * MOTOR_CELLS)
+SHIFT, ABSORBED, WORST_LATE, WORST_LAG, LAG_FAULTS = range(5)
+MOTOR_CELL_NAMES = ("shift_ns", "late_absorbed", "worst_late_ns", "worst_lag_ufs",
+                    "lag_faults")
+MOTOR_CELLS = len(MOTOR_CELL_NAMES)
+#: worst lag cell unit: millionths of a full step
+LAG_UNIT = 1_000_000
+
 K = ExecEventKind
 #: stopped_gen after the core stopped a motor itself: every segment is dropped until the
 #: planner answers the event with a stop of a new generation
@@ -78,6 +90,7 @@ class StepCore:
         levels: Cells,
         counters: Cells,
         stats: LatencyStats,
+        motor_cells: Cells | None = None,
         spin_s: float = 200e-6,
         coalesce_s: float = 0.0,
     ) -> None:
@@ -96,7 +109,24 @@ class StepCore:
         self.coalesce = to_ticks(coalesce_s)
         self.motors = range(n)
         self.min_iv = [to_ticks(lim.min_interval_s) for lim in limits]
-        self.max_late = [to_ticks(lim.max_lateness_s) for lim in limits]
+        self.slide_after = [to_ticks(lim.slide_after_s) for lim in limits]
+        # lag (full steps) = late / gap / microsteps: it faults when late > gap * this
+        self.lag_k = [lim.max_lag_full_steps * lim.microsteps for lim in limits]
+        self.microsteps = [lim.microsteps for lim in limits]
+        self.max_lag = [lim.max_lag_full_steps for lim in limits]
+        # above the start speed: the step's planned gap is shorter than this (ticks)
+        self.start_gap = [
+            TICKS_PER_S if lim.start_speed <= 0 else round(TICKS_PER_S / lim.start_speed)
+            for lim in limits
+        ]
+        self.start_speed = [lim.start_speed for lim in limits]
+        self.lag_faults = [lim.lag_faults for lim in limits]
+        self.mcells: Cells = motor_cells if motor_cells is not None else [0] * (
+            n * MOTOR_CELLS)
+        if len(self.mcells) < n * MOTOR_CELLS:
+            raise ValueError(f"motor cells need {n * MOTOR_CELLS} slots")
+        # the lateness of a step that slid its motor's schedule, until the step is made
+        self.slid = [0] * n
         self.width = [to_ticks(lim.pulse_s) for lim in limits]
         self.debounce = [to_ticks(lim.debounce_s) for lim in limits]
         # the segment being executed, per motor
@@ -148,7 +178,8 @@ class StepCore:
         if self.next_t[m] != NEVER and self.gen[m] <= gen and self.seg_first[m] >= cut:
             if self.left[m] < self.seg_count[m]:  # it began already: the re-plan came late
                 now = self.clock.now_ns()
-                self._lost(m, now, f"re-plan came {(now - cut) / 1000:.0f} us late")
+                late = now - cut - self.mcells[m * MOTOR_CELLS + SHIFT]
+                self._lost(m, now, f"re-plan came {late / 1000:.0f} us late")
                 return
             self._unload(m)
         if self.next_t[m] == NEVER:
@@ -194,11 +225,12 @@ class StepCore:
                 if seg.last:
                     self.emit(ExecEvent(K.DONE, m, gen, self.pos[m], self._now_s()))
                 continue
-            self.next_t[m] = first = seg.first
+            first = seg.first
+            self.next_t[m] = first = first + self.mcells[m * MOTOR_CELLS + SHIFT]
             self.iv[m] = seg.interval
             self.add[m] = seg.add
             self.left[m] = self.seg_count[m] = seg.count
-            self.seg_first[m] = first
+            self.seg_first[m] = seg.first  # plan ticks, as the planner's cuts
             self.gen[m] = gen
             self.last[m] = seg.last
             self.watch[m] = seg.watch
@@ -251,18 +283,20 @@ class StepCore:
     # -- one edge ----------------------------------------------------------------------
     def step(self, now: int) -> None:
         """Emit every step due at ``now`` (ticks)."""
-        due_t, next_t, max_late = self.due_t, self.next_t, self.max_late
+        due_t, next_t, slide_after = self.due_t, self.next_t, self.slide_after
         # due now, or planned within ``coalesce`` of now with nothing else holding it back
         # (spacing, DIR set-up): it shares this pulse rather than queue behind it
         soon = now + self.coalesce
         due: list[int] = []
+        slid = False
         for m in self.motors:
             d = due_t[m]
             if d <= now or (d <= soon and d == next_t[m]):
-                if now - next_t[m] > max_late[m]:
-                    self._timing_lost(m, now, next_t[m])
-                else:
-                    due.append(m)
+                if now - next_t[m] > slide_after[m]:
+                    if not self._late(m, now):
+                        continue  # stopped: a real motor may have lost steps
+                    slid = True
+                due.append(m)
         if not due:
             return
         outputs = self.io.outputs
@@ -279,7 +313,11 @@ class StepCore:
         done: list[int] = []
         for m in due:
             planned = next_t[m]
-            record(rise - planned)
+            if slid and self.slid[m]:  # lateness is judged against the schedule before it slid
+                record(rise - planned + self.slid[m])
+                self.slid[m] = 0
+            else:
+                record(rise - planned)
             gap = rise - last_edge[m]
             if gap < _GAP_WINDOW:
                 g = counters[MIN_GAP]
@@ -345,8 +383,35 @@ class StepCore:
         gap = planned - self.prev_t[m]
         return TICKS_PER_S / gap if 0 < gap < TICKS_PER_S else 0.0
 
-    def _timing_lost(self, m: int, now: int, planned: int) -> None:
-        self._lost(m, now, f"step {(now - planned) / 1000:.0f} us late", planned)
+    def _late(self, m: int, now: int) -> bool:
+        """Motor m's step is late: slide the rest of its schedule by the lateness, or stop it
+        where the lag that caused is one a real motor may not survive. False: stopped."""
+        planned = self.next_t[m]
+        late = now - planned
+        gap = planned - self.prev_t[m]  # the interval this step ends: the motor's step rate
+        moving = 0 < gap < TICKS_PER_S
+        cells = self.mcells
+        base = m * MOTOR_CELLS
+        lag = late / gap / self.microsteps[m] if moving else 0.0
+        if late > cells[base + WORST_LATE]:
+            cells[base + WORST_LATE] = late
+        ulag = int(lag * LAG_UNIT)
+        if ulag > cells[base + WORST_LAG]:
+            cells[base + WORST_LAG] = ulag
+        if (self.lag_faults[m] and moving and gap < self.start_gap[m]
+                and late > gap * self.lag_k[m]):
+            cells[base + LAG_FAULTS] += 1
+            rate = TICKS_PER_S / gap
+            self._lost(m, now, f"step {late / 1000:.0f} us late at {rate:.0f} step/s: lag "
+                       f"{lag:.2f} full steps > max_lag_full_steps {self.max_lag[m]:g} "
+                       f"({self.microsteps[m]} microsteps, start_speed "
+                       f"{self.start_speed[m]:g} step/s)", planned)
+            return False
+        cells[base + SHIFT] += late
+        cells[base + ABSORBED] += 1
+        self.slid[m] = late
+        self.next_t[m] = now  # (and the steps after it keep their intervals from here)
+        return True
 
     def _lost(self, m: int, now: int, detail: str, planned: int | None = None) -> None:
         gen = self.gen[m]

@@ -16,6 +16,8 @@ import logging
 import threading
 from collections import deque
 from collections.abc import Sequence
+from dataclasses import replace
+from typing import Any
 
 from motorctl.hal.interfaces import Clock, Hardware
 from motorctl.hal.registry import open_step_io
@@ -30,11 +32,22 @@ from motorctl.motion.executor import (
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.latency import CELLS, LatencyStats
+from motorctl.motion.latency import CELLS, Cells, LatencyStats
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
 from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+from motorctl.motion.stepcore import (
+    ABSORBED,
+    COUNTER_NAMES,
+    LAG_FAULTS,
+    LAG_UNIT,
+    MOTOR_CELLS,
+    SHIFT,
+    WORST_LAG,
+    WORST_LATE,
+    CoreInbox,
+    StepCore,
+)
 from motorctl.motion.types import MotorParams, Ramp
 
 log = logging.getLogger("motorctl.executor")
@@ -49,15 +62,21 @@ _SELF_STOPS = (K.ENDSTOP, K.TIMING_LOST, K.FAULT)
 
 
 def axis_limits(
-    params: Sequence[MotorParams], max_lateness_s: float, max_error_s: float
+    params: Sequence[MotorParams], max_error_s: float, *, slide_after_s: float = 100e-6,
+    lag_faults: bool = True,
 ) -> list[AxisLimits]:
-    """Each motor's fail-safe bounds: spacing from its maximum speed less the step error."""
+    """Each motor's fail-safe bounds: spacing from its maximum speed less the step error;
+    lateness judged by its lag in full steps (``lag_faults`` False: a simulated motor)."""
     return [
         AxisLimits(
             min_interval_s=max(1.0 / p.max_speed - max_error_s, 0.0) * (1 - 1e-9),
-            max_lateness_s=max_lateness_s,
             pulse_s=p.pulse_s,
             debounce_s=p.debounce_s,
+            slide_after_s=slide_after_s,
+            microsteps=p.microsteps,
+            start_speed=p.start_speed,
+            max_lag_full_steps=p.max_lag_full_steps,
+            lag_faults=lag_faults,
         )
         for p in params
     ]
@@ -116,6 +135,24 @@ class StepExecutor(Executor):
         self.span = to_ticks(span_s)
         self.plans = [_Plan() for _ in limits]
         self.inbox = CoreInbox(len(limits))
+        #: the core's per-motor cells (its shift, late-step figures); subclasses may share
+        self.motor_cells: Cells = [0] * (len(limits) * MOTOR_CELLS)
+
+    def shift(self, motor: int) -> float:
+        """How far the core has slid the motor's schedule (s): the motor's own time is the
+        clock's less this. Plans are made on the motor's own time (the core adds it back)."""
+        return from_ticks(self.motor_cells[motor * MOTOR_CELLS + SHIFT])
+
+    def motor_timing(self, motor: int) -> dict[str, Any]:
+        c = self.motor_cells
+        b = motor * MOTOR_CELLS
+        return {
+            "late_absorbed": int(c[b + ABSORBED]),
+            "slid_ms": round(c[b + SHIFT] / 1e6, 3),
+            "worst_late_us": round(c[b + WORST_LATE] / 1e3, 1),
+            "worst_lag_full_steps": round(c[b + WORST_LAG] / LAG_UNIT, 4),
+            "lag_faults": int(c[b + LAG_FAULTS]),
+        }
 
     # -- the transport (subclasses) --------------------------------------------------
     def _push(self, motor: int, segments: list[StepSegment]) -> None:
@@ -141,6 +178,12 @@ class StepExecutor(Executor):
 
     # -- the seam ------------------------------------------------------------------------
     def committed(self, motor: int, now: float) -> Committed:
+        own = now - self.shift(motor)
+        c = self._committed(motor, own)
+        return replace(c, after=c.t - own)
+
+    def _committed(self, motor: int, now: float) -> Committed:
+        """committed() on the motor's own (slid) time ``now``."""
         p = self.plans[motor]
         if self.ahead_s == 0:  # a re-plan flushes the one step handed over: start from now
             c = self.position(motor)
@@ -197,7 +240,7 @@ class StepExecutor(Executor):
             return False
         p.busy = True
         p.watch = endstops
-        self._feed(motor, self.clock.now())
+        self._feed(motor, self.clock.now() - self.shift(motor))
         return True
 
     def stop(self, motor: int, gen: int) -> int | None:
@@ -209,7 +252,7 @@ class StepExecutor(Executor):
         if self._sync():
             pos = self.position(motor)
             p.counter = pos
-            p.until = p.last_t = self.clock.now()
+            p.until = p.last_t = self.clock.now() - self.shift(motor)
             return pos
         return None
 
@@ -217,7 +260,8 @@ class StepExecutor(Executor):
         return self.plans[motor].busy
 
     def _feed(self, motor: int, now: float) -> None:
-        """Hand over the motor's steps up to ``now + ahead_s`` (at least the next one)."""
+        """Hand over the motor's steps up to ``now + ahead_s`` (at least the next one);
+        ``now`` on the motor's own time."""
         p = self.plans[motor]
         cutter = p.cutter
         if cutter is None:
@@ -239,25 +283,29 @@ class StepExecutor(Executor):
         link thread and starts on a cold interpreter, so few passes are better than many
         (docs/timing.md)."""
         nxt = float("inf")
+        # each motor's plan is on its own time: the clock's less its shift (slid schedule)
         if self.ahead_s == 0:  # one step ahead: the next once the last one is made
             for m, p in enumerate(self.plans):
-                if p.cutter is not None and p.last_t <= now:
-                    self._feed(m, now)
+                shift = self.shift(m)
+                if p.cutter is not None and p.last_t + shift <= now + 1e-9:  # (ticks)
+                    self._feed(m, now - shift)
                 if p.cutter is not None:
-                    nxt = min(nxt, p.last_t)
+                    nxt = min(nxt, p.last_t + shift)
             return nxt
         used = min(self.ahead_s / 2, REFILL_S)
         keep = self.ahead_s - used  # handed over, still to come
+        shifts = [self.shift(m) for m in range(len(self.plans))]
         # once one motor is due, every motor that would be due before the next top-up is
         # topped up with it: one pass for all (cold caches once, one hold of the GIL against
         # the link thread), not one pass per motor a little apart
-        if any(p.cutter is not None and p.until - keep <= now + 1e-9 for p in self.plans):
+        if any(p.cutter is not None and p.until + shift - keep <= now + 1e-9
+               for p, shift in zip(self.plans, shifts, strict=True)):
             for m, p in enumerate(self.plans):
-                if p.cutter is not None and p.until - keep <= now + used:
-                    self._feed(m, now)
-        for p in self.plans:
+                if p.cutter is not None and p.until + shifts[m] - keep <= now + used:
+                    self._feed(m, now - shifts[m])
+        for p, shift in zip(self.plans, shifts, strict=True):
             if p.cutter is not None:
-                nxt = min(nxt, p.until - keep)  # (the deadline above, on a clock of ticks)
+                nxt = min(nxt, p.until + shift - keep)  # (on a clock of ticks)
         return nxt
 
     def events(self) -> list[ExecEvent]:
@@ -270,7 +318,7 @@ class StepExecutor(Executor):
                 p.forget()
                 p.busy = False
                 p.counter = ev.position
-                p.until = p.last_t = max(ev.t, self.clock.now())
+                p.until = p.last_t = max(ev.t, self.clock.now()) - self.shift(ev.motor)
             elif ev.kind is K.DONE and ev.gen == p.gen:
                 p.forget()
                 p.busy = False
@@ -320,7 +368,7 @@ class ThreadStepExecutor(StepExecutor):
         self.core = StepCore(
             self.io, limits, self.inbox, self._emit,
             positions=self.positions, levels=self.levels, counters=self.counters,
-            stats=self.stats, spin_s=spin_s,
+            stats=self.stats, motor_cells=self.motor_cells, spin_s=spin_s,
             coalesce_s=0.0 if virtual else max_error_s,  # virtual: the exact planned ticks
         )
         self._wake = threading.Event()

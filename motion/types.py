@@ -88,6 +88,8 @@ class MotorParams:
     pulse_s: float = 2e-6
     max_speed: float = 25_000.0  # step/s: no plan is faster (the executor's spacing bound)
     start_speed: float = 100.0  # step/s: a motor stopped from above may have lost steps
+    microsteps: int = 16  # per full step: a late step's lag is judged in full steps
+    max_lag_full_steps: float = 0.5  # a lag beyond this, above start_speed, loses steps
     # How a linear axis shows its step count to the host: the daemon passes the protocol's
     # counter (motorctl.protocol.codec.wrap24: 24-bit two's complement). None: unbounded.
     # Motion does not know the protocol, so the wrap is passed in, not defined here.

@@ -155,12 +155,12 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert motor.section(MockAxisConfig) == MockAxisConfig(-10000, 10000)
     assert config.pins == ()
     assert config.dc is None
-    assert config.section(MockConfig) == MockConfig(wires=())
+    assert config.section(MockConfig) == MockConfig(lose_steps=False, wires=())
     assert config.link == LinkConfig(10.0, "crc8", False, True, 16)
     assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
     assert config.hal == HalConfig("mock")
     assert config.step_thread == StepThreadConfig(
-        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, 10.0, -1, "process", 50.0, 2000.0, 50.0
+        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, 10.0, -1, "process", 50.0, 50.0
     )
     assert load_config(str(path)) == config
 
@@ -173,8 +173,8 @@ def test_defaults_agree_with_describe_keys() -> None:
     for path, type_, default, _ in describe_keys():
         if type_ in ("table", "array of tables") or default in ("required", "unset"):
             continue
-        if path in ("motors[].name", "mock.wires"):
-            continue
+        if path in ("motors[].name", "mock.wires", "motors[].microsteps"):
+            continue  # (microsteps: test_microsteps_come_from_the_motor_or_its_tmc_table)
         if path.split(".")[0] == "gpiod" or ".gpiod" in path:
             continue  # not in this config; tests/test_gpiod_config.py checks those defaults
         expected = tomllib.loads(f"v = {default}")["v"]
@@ -224,7 +224,8 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         for f in dataclasses.fields(cls)
         if f.name != "sections"
     }
-    expected |= {f.name for f in dataclasses.fields(Config) if f.name not in ("sections", "source")}
+    given = ("sections", "source", "notices")  # not keys: filled by the loader
+    expected |= {f.name for f in dataclasses.fields(Config) if f.name not in given}
     expected |= {"mock", "motors[].mock"}  # the mock backend's tables, in `sections`
     expected |= {"gpiod", "motors[].gpiod", "pins[].gpiod"}  # the gpiod backend's
     expected |= {"spidev", "motors[].tmc"}  # the SPI driver layer's tables
@@ -330,7 +331,8 @@ ERRORS: list[tuple[str, str, list[str]]] = [
         MOTOR + "[[pins]]\nnumber = 1\nlevel = 1\n",
         ["'pins[0].level'", "in [[pins]]: gpiod, initial, mode, number, safe"],
     ),
-    ("unknown-mock", MOTOR + "[mock]\nwire = []\n", ["'mock.wire'", "in [mock]: wires"]),
+    ("unknown-mock", MOTOR + "[mock]\nwire = []\n",
+     ["'mock.wire'", "in [mock]: lose_steps, wires"]),
     # wrong types
     (
         "str-for-number",
@@ -670,7 +672,8 @@ def test_a_backend_registers_its_sections_without_loading_its_library(
     module = sys.modules["fake_backend_config"]
     assert config.section(module.FakeConfig).chip == "/dev/gpiochip4"
     assert [m.section(module.FakeAxisConfig).step_line for m in config.motors] == [17, 0]
-    assert config.section(MockConfig) == MockConfig(wires=())  # other backends' sections too
+    # other backends' sections too
+    assert config.section(MockConfig) == MockConfig(lose_steps=False, wires=())
     assert "fake_backend_hw" not in sys.modules
     message = error_of(MOTOR + "[motors.fake]\nstep_line = 512\n")
     assert "motors[0].fake.step_line = 512: out of range; accepted: an integer in 0..511" in message
@@ -804,3 +807,77 @@ def test_motion_defaults_are_the_configs() -> None:
     built = motor_params(parse_config(MOTOR, SOURCE))[0]
     assert dataclasses.replace(built, name="motor", host_position=None) == MotorParams()
     assert built.homing == HomingParams()
+
+
+def test_a_retired_key_still_loads_with_a_notice_naming_it(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """max_lateness_us (0.2.0's fail-safe) is accepted with any value and means nothing now:
+    the same config as without it, and a notice that says so and what replaced it."""
+    from motorctl.daemon.main import main
+
+    config = parse_config("[step_thread]\nmax_lateness_us = 2000.0\n" + MOTOR, SOURCE)
+    assert config == parse_config(MOTOR, SOURCE) and not parse_config(MOTOR, SOURCE).notices
+    (notice,) = config.notices
+    assert notice.startswith(f"{SOURCE}: 'step_thread.max_lateness_us' is retired and ignored")
+    assert "max_lag_full_steps" in notice and notice.endswith("fix: remove it")
+    old = Path(__file__).resolve().parent / "data" / "default-0.2.0.toml"
+    assert main(["--check-config", str(old)]) == 0
+    err = capsys.readouterr().err
+    assert "warning:" in err and "'step_thread.max_lateness_us' is retired" in err
+    # still an unknown key elsewhere, and not offered as an accepted key
+    message = error_of("[link]\nmax_lateness_us = 1\n" + MOTOR)
+    assert "unknown key 'link.max_lateness_us'" in message
+    message = error_of("[step_thread]\nbogus = 1\n" + MOTOR)
+    assert "max_lateness_us" not in message
+
+
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        (MOTOR, 16),
+        (MOTOR + "microsteps = 4\n", 4),
+        (MOTOR + "[motors.tmc]\nmicrosteps = 64\n", 64),
+        (MOTOR + "microsteps = 64\n[motors.tmc]\nmicrosteps = 64\n", 64),
+    ],
+)
+def test_microsteps_come_from_the_motor_or_its_tmc_table(text: str, expected: int) -> None:
+    from motorctl.daemon.main import motor_params
+
+    params = motor_params(parse_config(text, SOURCE))[0]
+    assert params.microsteps == expected and params.max_lag_full_steps == 0.5
+
+
+@pytest.mark.parametrize(
+    ("text", "parts"),
+    [
+        (MOTOR + "microsteps = 12\n", ["motors[0].microsteps = 12", "not a power of two"]),
+        (MOTOR + "microsteps = 512\n", ["motors[0].microsteps = 512", "out of range"]),
+        (MOTOR + "microsteps = 8\n[motors.tmc]\nmicrosteps = 16\n",
+         ["motors[0].microsteps = 8", "sets microsteps = 16", "write it once"]),
+        (MOTOR + "max_lag_full_steps = 0\n",
+         ["motors[0].max_lag_full_steps = 0", "a number > 0 and <= 64"]),
+        ("[mock]\nlose_steps = 1\n" + MOTOR, ["mock.lose_steps = 1", "true or false"]),
+    ],
+)
+def test_lateness_keys_are_checked(text: str, parts: list[str]) -> None:
+    message = error_of(text)
+    for part in parts:
+        assert part in message, message
+
+
+def test_only_the_mock_with_lose_steps_off_spares_its_motors_from_the_lag_rule() -> None:
+    """The executor's rule follows the hardware: the mock's simulated motors never lose steps
+    unless [mock] lose_steps = true; real backends' motors always may."""
+    from motorctl.daemon.main import hardware_spec
+    from motorctl.hal.interfaces import VirtualClock
+    from motorctl.hal.registry import open_hardware
+
+    for text, lose in (("", False), ("[mock]\nwires = []\nlose_steps = false\n", False),
+                       ("[mock]\nwires = []\nlose_steps = true\n", True)):
+        spec = hardware_spec(parse_config(text + MOTOR, SOURCE))
+        hw = open_hardware("mock", spec, VirtualClock())
+        try:
+            assert hw.motors_lose_steps is lose
+        finally:
+            hw.close()

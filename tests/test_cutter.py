@@ -172,7 +172,7 @@ def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepEx
     spec = HardwareSpec(axes=(FAR,), options={"timeline_len": None})
     hw = build(spec, clock)
     params = [MotorParams(max_speed=10_000.0)]
-    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 2e-3, 5e-6),
+    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 5e-6),
                             ahead_s=ahead_s, lead_s=0.002)
     return clock, MotionEngine(hw, params, ex), ex
 
@@ -319,7 +319,7 @@ def test_motors_started_apart_are_topped_up_in_one_pass_not_one_pass_each() -> N
             fed.append((now, motor))
             super()._feed(motor, now)
 
-    ex = Spy(hw, "mock", spec, axis_limits(params, 2e-3, 5e-6), ahead_s=0.05, lead_s=0.002)
+    ex = Spy(hw, "mock", spec, axis_limits(params, 5e-6), ahead_s=0.05, lead_s=0.002)
     engine = MotionEngine(hw, params, ex)
     for m in engine.motors:
         with engine.lock:

@@ -7,6 +7,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
@@ -566,3 +567,65 @@ def test_status_has_the_step_lateness_histogram(daemon: DaemonProcess) -> None:
         assert isinstance(printed[key], int) and printed[key] >= 0, key
     run = subprocess.run([*cli[:-1], "--histogram"], capture_output=True, text=True, timeout=30)
     assert run.returncode == 2 and "--histogram goes with --status" in run.stderr
+
+
+# -- lateness as the motor would feel it ---------------------------------------------------
+def _stall_mid_move(d: DaemonProcess, c: Client) -> None:
+    """MoveTo 1500 at 1,000 step/s on motor 0; once it is under way, the executor process is
+    stopped for 50 ms (a platform stall): 3 full steps of lag at 16 microsteps."""
+    pid = d.status()["executor"]["pid"]
+    c.move_to(0, 1500, speed=250)  # 250 x 4 step/s
+    until("motor 0 under way", lambda: c.position(0) > 300)
+    os.kill(pid, signal.SIGSTOP)
+    try:
+        threading.Event().wait(0.05)  # the stall itself
+    finally:
+        os.kill(pid, signal.SIGCONT)
+
+
+def test_the_embedded_default_slides_a_stalled_move_and_shows_it(daemon: DaemonProcess) -> None:
+    """The simulated motors have no rotor: a 50 ms stall of the executor never answers E4;
+    the move reaches its target late, and the status shows the step absorbed, how late and
+    the lag a real motor would have felt."""
+    with daemon.client() as c:
+        _stall_mid_move(daemon, c)
+        c.wait_moved(0, 20_000)  # an ACK, not E4
+        assert c.position(0) == 1500 and c.is_ready(0)
+    m = daemon.status()["motors"][0]
+    assert m["fault"] is None and not m["position_lost"] and m["faults"] == {}
+    timing = m["timing"]
+    assert timing["late_absorbed"] >= 1 and timing["lag_faults"] == 0
+    assert timing["worst_late_us"] >= 40_000 and timing["slid_ms"] >= 40
+    assert timing["worst_lag_full_steps"] >= 0.04 * 1000 / 16
+    assert (timing["microsteps"], timing["max_lag_full_steps"]) == (16, 0.5)
+
+
+def test_with_lose_steps_the_mock_faults_as_a_real_motor_would(tmp_path: Path) -> None:
+    """[mock] lose_steps = true: the same stall is beyond 0.5 full steps of lag above the
+    start speed: E4 "step timing lost", position lost (home again), one journal line with
+    the figures, counted under its cause."""
+    from motorctl.daemon.config import default_config_text
+    from tests.daemon_proc import for_tests
+
+    text = for_tests(default_config_text(), force=True)
+    assert "lose_steps = false" in text
+    d = DaemonProcess(tmp_path, text.replace("lose_steps = false", "lose_steps = true")).start()
+    try:
+        with d.client() as c:
+            _stall_mid_move(d, c)
+            with pytest.raises(DeviceError) as info:
+                c.wait_moved(0, 20_000)
+            assert code_of(info) is E.MOTOR_ERROR
+            m = d.status()["motors"][0]
+            assert m["fault"].startswith("step timing lost") and "full steps" in m["fault"]
+            assert m["position_lost"] and m["faults"] == {"timing_lost": 1}
+            assert m["timing"]["lag_faults"] == 1
+            c.stop(0)  # clears the fault; the position stays lost until homed
+            with pytest.raises(DeviceError) as info:
+                c.move_to(0, 0)
+            assert code_of(info) is E.MOTOR_ERROR
+        until("the journal line", lambda: "fault latched: step timing lost" in d.stderr())
+        line = next(x for x in d.stderr().splitlines() if "fault latched" in x)
+        assert "motor 0 (x)" in line and "lag" in line and "position lost" in line
+    finally:
+        d.close()

@@ -23,7 +23,6 @@ CONFIG = """
 executor = "process"
 priority = 0
 lock_memory = true
-max_lateness_us = 10000000.0
 [[motors]]
 name = "a"
 """

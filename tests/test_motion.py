@@ -112,7 +112,7 @@ def make(
         axes = [replace(a, endstop_active_low=low) for a, low in zip(axes, lows, strict=True)]
     spec = HardwareSpec(axes=tuple(axes), dc=dc, options={"timeline_len": None})
     hw = build(spec, clock)
-    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, MAX_LATENESS, 0.0))
+    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 0.0))
     engine = MotionEngine(hw, list(params), executor, driver_poll_s=POLL)
     rig = Rig(clock, hw, world_of(hw), engine)
     engine.listeners.append(lambda m, e: rig.events.append((clock.now(), m.index, e)))
@@ -1007,13 +1007,13 @@ def test_engine_checks_its_configuration_and_clock() -> None:
     clock = VirtualClock()
     spec = HardwareSpec(axes=(AxisSpec(),))
     hw = build(spec, clock)
-    one = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 1e-3, 0.0))
+    one = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 0.0))
     with pytest.raises(ValueError, match="2 motors configured"):
         MotionEngine(hw, [MotorParams(), MotorParams()], one)
     with pytest.raises(ValueError, match="real clock"):
         MotionEngine(hw, [MotorParams()], one).start()
     real = build(spec, MonotonicClock())
-    ex = ThreadStepExecutor(real, "mock", spec, axis_limits([MotorParams()], 1e-3, 0.0))
+    ex = ThreadStepExecutor(real, "mock", spec, axis_limits([MotorParams()], 0.0))
     engine = MotionEngine(real, [MotorParams()], ex)
     with pytest.raises(TypeError):
         engine.run_until(1.0)

@@ -419,7 +419,7 @@ def _executor(
 ) -> tuple[Hardware, ProcessStepExecutor]:
     spec = HardwareSpec(axes=(AxisSpec(),))
     hw = build(spec, MonotonicClock())
-    return hw, ProcessStepExecutor(hw, backend, spec, [AxisLimits(1e-4, 1e-3)],
+    return hw, ProcessStepExecutor(hw, backend, spec, [AxisLimits(1e-4)],
                                    start_timeout_s=start_timeout_s)
 
 

@@ -483,6 +483,15 @@ def test_motor_events_logged_off_the_step_thread(caplog: pytest.LogCaptureFixtur
     assert cleared.getMessage() == "motor 1 (y): fault cleared"
     events.flush()
     assert len(caplog.records) == 2
+    # a fault with its cause and a lost position: the figures are in the fault's text
+    detail = ("step timing lost (step 2900 us late at 5000 step/s: lag 0.91 full steps > "
+              "max_lag_full_steps 0.5 (16 microsteps, start_speed 100 step/s))")
+    assert events.record(0, "x", "fault", detail, "timing_lost", True)
+    events.flush()
+    lost = caplog.records[-1]
+    assert lost.getMessage() == (f"motor 0 (x): fault latched: {detail}; position lost (home it "
+                                 "again); E4 until StopMove clears it")
+    assert (lost.CAUSE, lost.POSITION_LOST) == ("timing_lost", 1)  # type: ignore[attr-defined]
 
 
 def test_stderr_handler_follows_sys_stderr(monkeypatch: pytest.MonkeyPatch) -> None:

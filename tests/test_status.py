@@ -23,7 +23,10 @@ from tests.test_hal_faults import Live, moving
 READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
 
 MOTOR_KEYS = {"index", "name", "state", "position", "queued", "fault", "position_lost",
-              "waypoints"}
+              "waypoints", "faults", "timing", "soft_stops"}
+#: each motor's late-step figures and rule (docs/timing.md, "Reading the figures")
+TIMING_KEYS = {"late_absorbed", "slid_ms", "worst_late_us", "worst_lag_full_steps",
+               "lag_faults", "microsteps", "max_lag_full_steps"}
 #: what bench/steps.py, bench/latency.py, docs/timing.md and the tests read from ``steps``
 STEP_KEYS = {"steps", "p50_us", "p99_us", "p999_us", "max_us", "late", "late_threshold_us",
              "timing_lost", "min_gap_ns", "dropped", "io_errors", "endstops", "progress"}
@@ -60,6 +63,9 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
     assert {"motors", "steps", "executor", "clamped", "state", "link"} <= set(doc)
     assert [m["index"] for m in doc["motors"]] == [0, 1]
     assert all(set(m) >= MOTOR_KEYS for m in doc["motors"])
+    assert all(set(m["timing"]) == TIMING_KEYS for m in doc["motors"])
+    assert doc["motors"][0]["soft_stops"] == {"count": 0, "takeover_ms": [0.0, 0.0],
+                                              "takeover_steps": [0, 0]}
     assert doc["motors"][0]["state"] != "idle" and doc["motors"][0]["fault"] is None
     assert set(doc["steps"]) >= STEP_KEYS and doc["steps"]["steps"] > 0
     assert "histogram_us" not in doc["steps"]  # bounded cost unless asked
@@ -143,3 +149,28 @@ def test_read_status_gives_up_on_a_backlog_that_stays_full(tmp_path: Path) -> No
     srv, filler = _full_backlog(path)
     with srv, filler, pytest.raises(TimeoutError, match="status slot stayed busy"):
         read_status(path, timeout=0.2)
+
+
+def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
+    served: tuple[Live, Path],
+) -> None:
+    """A soft StopMove re-plans from the executed state: the deceleration takes over at the
+    first segment boundary after the executor's lead, within lead + one segment's span of
+    the command, and the motor's status says how soon and how many steps on."""
+    live, path = served
+    moving(live, 1)
+    until("cruise", lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"]
+          > 500)
+    assert live.code(StopMove(1, False)) is None
+    assert live.code(WaitMoved(1, 20_000)) is None
+    doc = read_status(path, timeout=READ_DEADLINE_S)
+    soft = doc["motors"][1]["soft_stops"]
+    executor = live.daemon.engine.executor
+    bound_ms = (executor.lead_s + executor.span / 1e9) * 1000  # type: ignore[attr-defined]
+    assert soft["count"] == 1
+    assert 0 < soft["takeover_ms"][0] == soft["takeover_ms"][1] <= bound_ms + 1e-6
+    # in steps: those planned before the takeover, and those the executor was behind with
+    # when the command came (no real-time priority here: up to its worst lateness)
+    speed = live.daemon.config.units.run_speed_factor * 1  # Move SPEED 1, in step/s
+    behind_ms = doc["steps"]["max_us"] / 1000
+    assert 0 < soft["takeover_steps"][0] <= (bound_ms + behind_ms) / 1000 * speed + 1

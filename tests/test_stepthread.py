@@ -89,7 +89,9 @@ def live(request: pytest.FixtureRequest) -> Iterator[Live]:
         options={"timeline_len": None},
     )
     hw = build(spec, clock)
-    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits([params], 10.0, 5e-6))
+    # the mock's own rule (simulated motors: late steps slide), as the embedded default's
+    limits = axis_limits([params], 5e-6, lag_faults=hw.motors_lose_steps)
+    executor = ThreadStepExecutor(hw, "mock", spec, limits)
     engine = MotionEngine(hw, [params], executor, driver_poll_s=0.005)
     names = ("start", "idle", "fault", "homed", "cleared")
     events = {name: threading.Event() for name in names}
@@ -113,7 +115,7 @@ def test_refuses_a_virtual_clock() -> None:
     clock = VirtualClock()
     spec = HardwareSpec(axes=(AxisSpec(),))
     hw = build(spec, clock)
-    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 1e-3, 0.0))
+    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 0.0))
     with pytest.raises(ValueError, match="real clock"):
         MotionEngine(hw, [MotorParams()], ex).start()
 

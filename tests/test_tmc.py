@@ -595,7 +595,7 @@ def engine_with_tmc(
     hw = build(spec, bench.clock)
     hw.steppers[0].driver = drv  # the mock's STEP/DIR, a TMC2130 for the status
     params = [MotorParams(homing=homing)]
-    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 1e-3, 0.0))
+    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 0.0))
     engine = MotionEngine(hw, params, executor, driver_poll_s=0.005)
 
     def monitor_tick() -> None:  # what the monitor thread does, in virtual time

@@ -169,6 +169,11 @@ class HalConfig:
     prose="""\
 Timing of the thread that generates step pulses. The defaults suit the mock backend and
 most hosts; change them only if the step-timing statistics report late edges.""",
+    retired={
+        "max_lateness_us": "a late step is judged by the lag it causes, in full steps "
+        "(each motor's max_lag_full_steps and start_speed; docs/timing.md), not by a fixed "
+        "number of microseconds",
+    },
 )
 @dataclass(frozen=True)
 class StepThreadConfig:
@@ -179,7 +184,11 @@ class StepThreadConfig:
     )
     step_pulse_us: float = number(2.0, 0.1, 10000, "Minimum step pulse width.")
     late_threshold_us: float = number(
-        100.0, 1, 1e6, "A step edge later than this counts as late."
+        100.0,
+        1,
+        1e6,
+        "A step edge later than this counts as late: the rest of its motor's move slides by "
+        "its lateness (or, beyond the motor's max_lag_full_steps, the motor stops).",
     )
     spin_us: float = number(
         200.0, 0, 100000, "Sleep until this long before a deadline, busy-wait the rest."
@@ -218,13 +227,6 @@ class StepThreadConfig:
         "(every half of it when shorter); a soft stop or a new speed still takes over within "
         "a few ms (the handed-over plan is cut at the first "
         "segment boundary after the executor's lead time; docs/timing.md).",
-    )
-    max_lateness_us: float = number(
-        2000.0,
-        10,
-        1e7,
-        "A step that would be later than this is not made: that motor stops and latches "
-        "E4 'step timing lost' (position lost if it ran faster than its start speed).",
     )
     stop_confirm_ms: float = number(
         STOP_CONFIRM_S * 1000.0,
@@ -321,6 +323,13 @@ def _soft_limits_linear(v: Mapping[str, Any]) -> Violation | None:
 _SOFT_LIMITS = ("soft_limit_min", "soft_limit_max")
 
 
+def _microsteps_power_of_two(v: Mapping[str, Any]) -> Violation | None:
+    n = v["microsteps"]
+    if n is not None and n & (n - 1):
+        return ("microsteps", n, "not a power of two")
+    return None
+
+
 @section(
     "Stepper motors, numbered 0..N-1 in file order.",
     rules=(
@@ -331,6 +340,7 @@ _SOFT_LIMITS = ("soft_limit_min", "soft_limit_max")
         ),
         Rule(_SOFT_LIMITS, "soft_limit_min < soft_limit_max", _soft_limits_ordered),
         Rule(_SOFT_LIMITS, "only on a linear axis (steps_per_rev = 0)", _soft_limits_linear),
+        Rule(("microsteps",), "a power of two: 1, 2, 4, ..., 256", _microsteps_power_of_two),
     ),
     prose="""\
 One `[[motors]]` table per stepper motor, numbered 0, 1, ... N-1 in file order: that number
@@ -349,7 +359,14 @@ Notes:
   reachable).
 - `homing.max_travel` counts the steps of one homing run; without a trigger by then the
   motor faults (E4 until StopMove clears it). With `pull_off > 0` homing backs off that far
-  after the first trigger and approaches again at `second_speed`.""",
+  after the first trigger and approaches again at `second_speed`.
+- `microsteps`, `max_lag_full_steps`, `start_speed`: how a late step is judged
+  (docs/timing.md). A step the executor makes late slides the rest of that motor's move by
+  its lateness; it stops the motor with E4 "step timing lost" (position lost) only when the
+  motor runs faster than `start_speed` and the lag, lateness x step rate / `microsteps`, is
+  more than `max_lag_full_steps` full steps. A motor with a `[motors.tmc]` table takes its
+  microsteps from there (writing both with different values is an error). The mock
+  backend's motors never lose steps unless `[mock] lose_steps = true`.""",
 )
 @dataclass(frozen=True)
 class MotorConfig(Sectioned):
@@ -380,6 +397,26 @@ class MotorConfig(Sectioned):
         200000,
         "step/s the motor can start or stop at without a ramp: stopped by a 'step timing "
         "lost' fault from above it, its position counts as lost (home it again).",
+    )
+    microsteps: int | None = integer(
+        None,
+        1,
+        256,
+        "Microsteps per full step the driver is set to (a power of two): a late step's lag "
+        "is judged in full steps.",
+        optional=True,
+        default_text="the [motors.tmc] table's microsteps, else 16",
+    )
+    max_lag_full_steps: float = number(
+        0.5,
+        0,
+        64,
+        "Above start_speed, a late step whose lag (lateness x step rate / microsteps) is more "
+        "than this many full steps stops the motor: E4 'step timing lost', position lost. "
+        "Within it the move slides (takes longer by the lateness). 0.5: a motor's torque "
+        "peaks when its rotor lags the field by one full step and it slips (by 4 full steps) "
+        "beyond two; the load already takes part of that, so a pause may add half a step.",
+        lo_open=True,
     )
     default_speed: float = number(
         2000.0, 0, "max_speed", "step/s used when SPEED = 0, and by GoHome.", lo_open=True
@@ -488,3 +525,5 @@ class Config(Sectioned):
     pins: tuple[PinConfig, ...] = tables(PinConfig, 0, 256, absent=[], absent_text="no pins")
     sections: Mapping[type[Any], Any] = extension_sections()
     source: str = given("")
+    #: what the file wrote that is retired (each names the key and why): logged at start
+    notices: tuple[str, ...] = given((), compare=False)
