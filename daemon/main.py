@@ -23,8 +23,9 @@ from typing import Any
 from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
+from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.link import Link, flush_pty_input
+from motorctl.daemon.serialport import DeviceError, SerialDevice
 from motorctl.daemon.service import (
     MotorEventLog,
     ProgressWatch,
@@ -374,23 +375,14 @@ def open_pty(path: Path) -> tuple[int, str]:
     return master, name
 
 
-def open_uart(device: str, baud: int) -> tuple[Any, int]:
-    import serial
-
+def open_uart(device: str, baud: int) -> tuple[SerialDevice, int]:
+    """The UART (or any serial device) at ``device``, opened by that path so that it can be
+    opened again by it when it goes away and comes back (daemon.serialport)."""
+    uart = SerialDevice(device, baud)
     try:
-        port = serial.Serial(device, baud, timeout=0, exclusive=True)
-    except serial.SerialException as exc:
-        holder = flock_holder(Path(device)) if os.path.exists(device) else None
-        if holder is not None:
-            raise StartupError(
-                f"serial device {device} is held by another process (PID {holder}); "
-                "stop it first (another motorctld, a getty or a terminal program)") from exc
-        raise StartupError(
-            f"cannot open serial device {device}: {exc}; check the path (ls -l /dev/serial* "
-            "/dev/tty{AMA,S,USB}*), that the UART is enabled, and that the user is in the "
-            "dialout group"
-        ) from exc
-    return port, port.fileno()
+        return uart, uart.open()
+    except DeviceError as exc:
+        raise StartupError(str(exc)) from exc
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -407,7 +399,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", metavar="PATH", type=Path,
                        help="serve on a new pseudo-terminal; PATH becomes a symlink to it")
-    where.add_argument("--port", metavar="DEVICE", help="serve on a real UART, e.g. /dev/ttyAMA0")
+    where.add_argument("--port", metavar="DEVICE",
+                       help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
+                       "/dev/serial/by-id/usb-... name; a device that goes away is opened "
+                       "again by this path when it is back (state kept)")
     p.add_argument("--baud", type=int, default=115200, help="UART baud rate (default 115200)")
     p.add_argument("--config", metavar="FILE", help="TOML config (default: the embedded mock "
                    "world, see docs/config.md)")
@@ -557,7 +552,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     except InstanceError as exc:
         raise StartupError(str(exc)) from exc
     daemon = Daemon.build(config, args.state_dir)
-    uart: Any = None
+    uart: SerialDevice | None = None
     try:
         if args.pty is not None:
             fd, name = open_pty(args.pty)
@@ -572,7 +567,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         raise
     c = config.link
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
-                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name))
+                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name),
+                device=uart)
     daemon.link = link
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
     events = MotorEventLog()
