@@ -35,6 +35,9 @@ What the shell does, and why:
   :class:`~motorctl.daemon.serialport.Backoff` schedule (50 ms after the loss, doubling up
   to every second) until it is back; everything else (motors, positions, held frames) is
   kept, and what the partial frame and unsent answers were is dropped as above.
+- **The host's silence** (``watch``: ``[link] timeout_ms``, off by default): every byte
+  read tells the :class:`~motorctl.daemon.silence.SilenceWatch`; its deadline bounds the
+  waits, and when it passes the watch stops the motors in motion.
 - **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
   at most ``drain_s`` to leave.
 """
@@ -54,6 +57,7 @@ from typing import Protocol
 
 from motorctl.daemon.serialport import Backoff, DeviceError
 from motorctl.daemon.session import CommandPort, LinkSession
+from motorctl.daemon.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
 
@@ -119,6 +123,7 @@ class Link:
         drain_s: float = 0.5,
         on_hangup: Callable[[], None] | None = None,
         device: Device | None = None,
+        watch: SilenceWatch | None = None,
         backoff: Backoff | None = None,
     ) -> None:
         self.fd = fd
@@ -131,6 +136,8 @@ class Link:
         self.on_hangup = on_hangup
         self.device = device
         self.backoff = backoff or Backoff()
+        self.watch = watch or SilenceWatch(0.0)
+        self._watching = self.watch.enabled
         self._lost_at = 0.0  # when the device went away
         self._next_try = 0.0  # when to try to open it again
         self._attempts = 0  # reopen attempts since it went away
@@ -196,6 +203,10 @@ class Link:
         session, fd = self.session, self.fd
         if session.waiting:
             session.poll(self.clock())
+        if self._watching:
+            now = self.clock()
+            self.watch.hold(session.waiting, now)
+            self.watch.check(now)
         self._flush()
         if self.peer_gone:
             if self.device is not None:
@@ -228,8 +239,13 @@ class Link:
             self._read(t_enter)
 
     def _deadline(self) -> float | None:
-        """When the loop must turn at the latest: a held WaitMoved's timeout."""
-        return self.session.deadline()
+        """When the loop must turn at the latest: a held WaitMoved's timeout, the silence."""
+        deadline = self.session.deadline()
+        if self._watching:
+            silence = self.watch.deadline()
+            if silence is not None and (deadline is None or silence < deadline):
+                deadline = silence
+        return deadline
 
     def _timeout_ms(self, now: float, reading: bool) -> float | None:
         deadline = self._deadline()
@@ -260,6 +276,8 @@ class Link:
             self._hangup("closed")
             return
         self.counters["reads"] += 1
+        if self._watching:
+            self.watch.heard(now)
         self.session.receive(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
@@ -335,7 +353,10 @@ class Link:
         log.info("the port is open again")
         if data:
             self.counters["reads"] += 1
-            self.session.receive(data, self.clock())
+            now = self.clock()
+            if self._watching:
+                self.watch.heard(now)
+            self.session.receive(data, now)
 
     # -- a serial device that went away --------------------------------------------------
     def _lose_device(self, why: str) -> None:
@@ -418,6 +439,7 @@ class Link:
         session = self.session
         counts: dict[str, object] = dict(session.counters)
         counts.update(self.counters)
+        counts.update(self.watch.counters)
         peer = "open"
         if self.peer_gone:
             peer = "gone" if self.device is not None else "closed"

@@ -36,6 +36,7 @@ from motorctl.daemon.service import (
     setup_logging,
     watchdog_interval,
 )
+from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
 from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
@@ -568,7 +569,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     c = config.link
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
                 c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name),
-                device=uart)
+                device=uart, watch=silence_watch(config, daemon.dispatcher, time.monotonic()))
     daemon.link = link
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
     events = MotorEventLog()
@@ -632,6 +633,22 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         return EXIT_STATE_NOT_SAVED
     log.info("stopped")
     return 0
+
+
+def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> SilenceWatch:
+    """``[link] timeout_ms`` and ``timeout_action``: the host's silence stops the motors
+    (its silence counted from ``now``, on the link's clock)."""
+    c = config.link
+    hard = c.timeout_action == "hard"
+    reason = f"link timeout: no byte from the host for {c.timeout_ms:g} ms"
+
+    def act(now: float) -> list[str]:
+        return dispatcher.link_silent(hard=hard, reason=reason)
+
+    if c.timeout_ms > 0:
+        log.info("[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
+                 c.timeout_ms, c.timeout_action)
+    return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
 
 
 def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> None:

@@ -1,4 +1,4 @@
-"""End to end: a serial device that goes away and comes back.
+"""End to end: a serial device that goes away and comes back, and the host's silence.
 
 motorctld runs as a real process. The serial device is one side of a socat PTY pair (the
 host uses the other), torn down mid-move and made again at the same paths, as a USB adapter
@@ -17,8 +17,8 @@ from typing import Any
 
 import pytest
 
-from motorctl.client.client import Client
-from motorctl.protocol.codec import CodecOptions, ErrorCode
+from motorctl.client.client import Client, DeviceError
+from motorctl.protocol.codec import CodecOptions, ErrorCode, MoveTo, WaitMoved, encode_command
 from tests.daemon_proc import DaemonProcess, until
 
 E = ErrorCode
@@ -129,3 +129,69 @@ def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
     assert err.count("is back after") == 1, err
     assert "the host closed the port" not in err, err
     assert "Traceback" not in err
+
+
+@needs_socat
+def test_the_silence_of_a_device_that_is_gone_stops_the_motors(
+        tmp_path: Path, pair: PtyPair) -> None:
+    """[link] timeout_ms applies while the device is gone: the motor stops and latches E4,
+    which the host finds when the device is back, until its StopMove."""
+    pair.start()
+    config = CONFIG + '[link]\ntimeout_ms = 200\ntimeout_action = "hard"\n'
+    d = DaemonProcess(tmp_path, config, port=str(pair.device)).start()
+    try:
+        with Client(str(pair.host), timeout=10) as c:
+            c.move(0, True)  # nothing more: a check here could race the 200 ms
+        pair.stop()
+        until("the link timeout to stop motor 0", lambda: motor(d, 0)["state"] == "fault")
+        assert motor(d, 0)["fault"].startswith("link timeout")
+        assert motor(d, 1)["state"] == "idle" and motor(d, 1)["fault"] is None
+        pair.start()
+        until("the daemon to reopen the device", lambda: link_status(d)["peer"] == "open")
+        with Client(str(pair.host), timeout=10) as c:
+            with pytest.raises(DeviceError) as exc:
+                c.is_ready(0)
+            assert exc.value.code == E.MOTOR_ERROR
+            assert c.is_ready(1)  # a motor at rest was not touched
+            c.stop(0)  # clears it
+            assert c.is_ready(0)
+        assert link_status(d)["counters"]["link_timeouts"] == 1
+    finally:
+        d.close()
+    assert "no byte from the host for" in d.stderr()
+
+
+def test_the_hosts_silence_on_a_pty_stops_a_move_that_decelerates(tmp_path: Path) -> None:
+    """A real daemon on its PTY: the host goes quiet mid-move; the motor ramps down and
+    latches E4 (IsReady and WaitMoved included) until a StopMove, then moves again."""
+    config = CONFIG + "[link]\ntimeout_ms = 150\n"  # timeout_action: decelerate, the default
+    d = DaemonProcess(tmp_path, config).start()
+    try:
+        with d.client(timeout=10) as c:
+            c.move(0, True)  # nothing more: a check here could race the 150 ms
+            # silence: only the status socket is read (it is not the link)
+            until("motor 0 to stop and latch the fault", lambda: motor(d, 0)["state"] == "fault")
+            m = motor(d, 0)
+            assert m["fault"] == "link timeout: no byte from the host for 150 ms"
+            assert not m["position_lost"]
+            for call in (lambda: c.is_ready(0), lambda: c.wait_moved(0, 100),
+                         lambda: c.move(0, True)):
+                with pytest.raises(DeviceError) as exc:
+                    call()
+                assert exc.value.code == E.MOTOR_ERROR
+            c.stop(0)
+            assert c.is_ready(0)
+            # moves again; the WaitMoved in the same write: the host waits, it is not silent
+            target = c.position(0) + 40
+            c.send_bytes(encode_command(MoveTo(0, True, target, 0, 0, 0), OPTS)
+                         + encode_command(WaitMoved(0, 10000), OPTS))
+            assert [c.read_response().ack for _ in range(2)] == [True, True]
+            assert c.position(0) == target
+        counters = link_status(d)["counters"]
+        assert counters["link_timeouts"] == 1  # the silence after the last answer: all idle
+        assert counters["link_timeout_stops"] == 1
+    finally:
+        d.close()
+    err = d.stderr()
+    assert "no byte from the host for" in err and "motor 0 (a)" in err, err
+    assert "fault latched: link timeout" in err, err

@@ -27,8 +27,9 @@ import serial
 
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.link import Link
-from motorctl.daemon.main import Daemon
+from motorctl.daemon.main import Daemon, open_pty
 from motorctl.daemon.serialport import Backoff, DeviceError, SerialDevice
+from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.status import summary_line
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
@@ -225,6 +226,61 @@ def test_a_read_with_nothing_to_read_is_not_a_hang_up(adapter: Adapter) -> None:
         assert os.read(fd, 10) == b"xy"
     finally:
         device.close()
+
+
+def test_the_host_keeps_the_link_alive_with_any_bytes(tmp_path: Path) -> None:
+    """The shell tells the watch of every read, even of bytes that never make a good frame;
+    it checks the silence on the link's clock (injected: it moves only when told)."""
+    now = [0.0]
+    acted: list[float] = []
+
+    def act(t: float) -> list[str]:
+        acted.append(t)
+        return ["motor 0 (a)"]
+
+    daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp_path / "state", VirtualClock())
+    fd, name = open_pty(tmp_path / "pty")
+    link = Link(fd, daemon.dispatcher, OPTS, 0.010, 16, clock=lambda: now[0],
+                watch=SilenceWatch(0.5, act, 0.0))
+    thread = threading.Thread(target=link.serve, name="link", daemon=True)
+    thread.start()
+    host = os.open(name, os.O_RDWR | os.O_NOCTTY)
+
+    def counters() -> dict[str, Any]:
+        c = link.status()["counters"]
+        assert isinstance(c, dict)
+        return c
+
+    def at(t: float) -> None:
+        """Move the link's clock to ``t`` and wait until a whole turn of the loop saw it
+        (the turn under way may have read the clock before)."""
+        now[0] = t
+        for _ in range(2):
+            turns = link.turns
+            link.poke()
+            until("a turn", lambda t=turns: link.turns > t, counters)
+
+    try:
+        good = frame(GetAbsPos(0))
+        at(0.4)
+        os.write(host, good[:9] + bytes([good[9] ^ 0xFF]))  # fails its checksum
+        until("the bad frame", lambda: counters()["checksum_errors"] == 1, counters)
+        at(0.8)
+        os.write(host, good[:3])  # three bytes of a frame that never completes
+        until("the bytes", lambda: counters()["bytes_in"] == 13, counters)
+        at(1.25)
+        assert acted == []
+        at(1.35)
+        assert acted == [1.35]
+        at(5.0)
+        assert acted == [1.35]  # once per silence
+        assert counters()["link_timeouts"] == 1 and counters()["link_timeout_stops"] == 1
+    finally:
+        link.stop()
+        thread.join(DEADLINE_S)
+        link.close()
+        os.close(host)
+        os.close(fd)
 
 
 # -- what a user is told ----------------------------------------------------------------------
