@@ -99,6 +99,7 @@ def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
         tmp_path: Path, pair: PtyPair) -> None:
     pair.start()
     d = DaemonProcess(tmp_path, CONFIG, port=str(by_id(tmp_path, pair.device))).start()
+    host: Client | None = None
     try:
         with Client(str(pair.host), timeout=10) as c:
             c.move(0, True)
@@ -111,19 +112,22 @@ def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
         assert motor(d, 0)["state"] == "running"  # nothing stops: no [link] timeout_ms
         pair.start()  # plugged back in, the same names
         until("the daemon to reopen the device", lambda: link_status(d)["peer"] == "open")
-        with Client(str(pair.host), timeout=10) as c:
-            assert c.position(0) > before  # it kept moving, and counting
-            assert not c.is_ready(0)
-            c.stop(0)
-            until("motor 0 to stop", lambda: c.is_ready(0))
-            c.move_to_waypoint(1, 0)  # the waypoint survived
-            c.wait_moved(1, 10000)
+        # open until the daemon has stopped: socat ends the pair when the host closes it
+        host = c = Client(str(pair.host), timeout=10)
+        assert c.position(0) > before  # it kept moving, and counting
+        assert not c.is_ready(0)
+        c.stop(0)
+        until("motor 0 to stop", lambda: c.is_ready(0))
+        c.move_to_waypoint(1, 0)  # the waypoint survived
+        c.wait_moved(1, 10000)
         counters = link_status(d)["counters"]
         assert counters["device_lost"] == 1
         assert counters["device_reopened"] == 1
         assert counters["reopen_attempts"] >= 1
     finally:
         d.close()
+        if host is not None:
+            host.close()
     err = d.stderr()
     assert err.count("is gone") == 1, err  # logged once, however many attempts it took
     assert err.count("is back after") == 1, err
