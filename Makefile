@@ -4,6 +4,8 @@
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
 #               builds its VM into ~/.cache/motorctl-gpio-sim on first use, as root)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
+# make test also installs socat via apt when root and missing (the serial device reconnect tests
+# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
@@ -14,7 +16,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb
+.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps
 
 venv: $(VENV)/.installed
 
@@ -30,7 +32,15 @@ $(VENV)/.installed: pyproject.toml
 run: venv
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-test: venv
+# What the tests need from Debian besides the venv: socat (tests/test_link_loss.py).
+test-deps:
+	@command -v socat >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat; \
+	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
+	    "device reconnect tests are SKIPPED" >&2; fi; }
+
+test: venv test-deps
 	$(BIN)/ruff check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
@@ -39,7 +49,7 @@ test-hw:
 	hwtest/run all
 
 # Unit coverage of the daemon's modules (the link, its session, state, service, status).
-coverage: venv
+coverage: venv test-deps
 	$(BIN)/pytest -q -n $(JOBS) --cov=motorctl.daemon --cov=motorctl.protocol.framing \
 	  --cov-report=term-missing
 

@@ -202,6 +202,16 @@ class Dispatcher:
                         extra={"MOTOR": m.index, "COMMAND": "StopMove"})
         return OK
 
+    def link_silent(self, *, hard: bool, reason: str) -> list[str]:
+        """The host fell silent ([link] timeout_ms; :mod:`motorctl.daemon.silence`): every
+        motor in motion stops and latches ``reason``, the DC motor brakes; what was
+        stopped, for the log."""
+        engine = self.engine
+        with engine.lock:
+            engine.process_events(engine.clock.now())
+            return engine.fault_stop_moving(reason, hard, engine.clock.now(),
+                                            cause="link_timeout")
+
     def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
         try:

@@ -23,12 +23,21 @@ What the shell does, and why:
   them. While more than ``out_limit`` bytes or ``backlog_limit`` responses are owed, the
   shell stops reading: the host's writes then wait in the kernel (back pressure), nothing is
   lost and memory stays bounded. Reads resume as soon as the host reads again.
-- **The peer may go away.** A PTY whose other side is closed reports POLLHUP and EIO; a USB
-  UART that is unplugged does the same. The partial frame and unsent responses are dropped
-  (like bytes sent down a UART to a closed port; ``on_hangup`` also flushes what the kernel
-  still holds for the closed PTY, see :func:`flush_pty_input`), and the shell looks every
-  ``retry_s`` whether the port is open again, executing held frames meanwhile. Any other
-  read or write error is logged, counted and treated the same way: the thread never dies.
+- **The peer may go away.** A PTY whose other side is closed reports POLLHUP and EIO. The
+  partial frame and unsent responses are dropped (like bytes sent down a UART to a closed
+  port; ``on_hangup`` also flushes what the kernel still holds for the closed PTY, see
+  :func:`flush_pty_input`), and the shell looks every ``retry_s`` whether the port is open
+  again, executing held frames meanwhile. Any other read or write error is logged, counted
+  and treated the same way: the thread never dies.
+- **A serial device may go away** (``device``: ``--port``; a USB adapter unplugged, a
+  socat PTY torn down). Its descriptor is hung up for good (POLLHUP, an empty read, EIO),
+  so the shell closes it, logs the loss once and opens the device's *path* again on a
+  :class:`~motorctl.daemon.serialport.Backoff` schedule (50 ms after the loss, doubling up
+  to every second) until it is back; everything else (motors, positions, held frames) is
+  kept, and what the partial frame and unsent answers were is dropped as above.
+- **The host's silence** (``watch``: ``[link] timeout_ms``, off by default): every byte
+  read tells the :class:`~motorctl.daemon.silence.SilenceWatch`; its deadline bounds the
+  waits, and when it passes the watch stops the motors in motion.
 - **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
   at most ``drain_s`` to leave.
 """
@@ -44,8 +53,11 @@ import termios
 import time
 from collections import Counter
 from collections.abc import Callable
+from typing import Protocol
 
+from motorctl.daemon.serialport import Backoff, DeviceError
 from motorctl.daemon.session import CommandPort, LinkSession
+from motorctl.daemon.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
 
@@ -58,8 +70,22 @@ WRITE_MAX = 65536  # bytes handed to one write()
 
 SHELL_COUNTERS = (
     "reads", "read_eagain", "write_eagain", "link_errors", "peer_closed", "peer_reopened",
-    "hangup_partial_bytes", "responses_dropped", "backpressure",
+    "hangup_partial_bytes", "responses_dropped", "backpressure", "device_lost",
+    "device_reopened", "reopen_attempts",
 )
+#: errors of a reopen that only say the device is not back yet (logged at debug level);
+#: any other (no permission, busy) is logged once as a warning: the user must act
+NOT_BACK = frozenset({errno.ENOENT, errno.ENXIO, errno.ENODEV, errno.EIO})
+
+
+class Device(Protocol):
+    """A serial device that can be opened again by its path (daemon.serialport)."""
+
+    path: str
+
+    def open(self) -> int: ...  # a fresh non-blocking descriptor, or DeviceError
+
+    def close(self) -> None: ...
 
 
 def flush_pty_input(slave: str) -> None:
@@ -96,6 +122,9 @@ class Link:
         retry_s: float = 0.02,
         drain_s: float = 0.5,
         on_hangup: Callable[[], None] | None = None,
+        device: Device | None = None,
+        watch: SilenceWatch | None = None,
+        backoff: Backoff | None = None,
     ) -> None:
         self.fd = fd
         self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
@@ -105,12 +134,21 @@ class Link:
         self.retry_s = retry_s
         self.drain_s = drain_s
         self.on_hangup = on_hangup
+        self.device = device
+        self.backoff = backoff or Backoff()
+        self.watch = watch or SilenceWatch(0.0)
+        self._watching = self.watch.enabled
+        self._lost_at = 0.0  # when the device went away
+        self._next_try = 0.0  # when to try to open it again
+        self._attempts = 0  # reopen attempts since it went away
+        self._reported: set[int | None] = set()  # reopen errors logged since then
         self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
         self.processing = LatencyStats(threshold_s=108e-6)
         self.peer_gone = False
         self._out = bytearray()
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
+        self._poller = select.poll()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
@@ -152,7 +190,7 @@ class Link:
         the handler runs only once ``poll()`` returns, and an idle link with the host's port
         open has no timeout. With :attr:`signal_fd` as the signal wake-up descriptor the
         signal's own byte ends that ``poll()``, and the handler runs right after it."""
-        poller = select.poll()
+        poller = self._poller = select.poll()
         poller.register(self._wake_r, POLLIN)
         self._mask = -1
         while not self._stopped:
@@ -165,9 +203,16 @@ class Link:
         session, fd = self.session, self.fd
         if session.waiting:
             session.poll(self.clock())
+        if self._watching:
+            now = self.clock()
+            self.watch.hold(session.waiting, now)
+            self.watch.check(now)
         self._flush()
         if self.peer_gone:
-            self._look_for_peer()
+            if self.device is not None:
+                self._look_for_device()
+            else:
+                self._look_for_peer()
             return
         reading = session.wants_input() and len(self._out) < self.out_limit
         if reading != self._reading:
@@ -193,8 +238,17 @@ class Link:
         elif reading:
             self._read(t_enter)
 
-    def _timeout_ms(self, now: float, reading: bool) -> float | None:
+    def _deadline(self) -> float | None:
+        """When the loop must turn at the latest: a held WaitMoved's timeout, the silence."""
         deadline = self.session.deadline()
+        if self._watching:
+            silence = self.watch.deadline()
+            if silence is not None and (deadline is None or silence < deadline):
+                deadline = silence
+        return deadline
+
+    def _timeout_ms(self, now: float, reading: bool) -> float | None:
+        deadline = self._deadline()
         gap = self.session.gap_left() if reading else None
         if gap is None:
             if deadline is None:
@@ -222,6 +276,8 @@ class Link:
             self._hangup("closed")
             return
         self.counters["reads"] += 1
+        if self._watching:
+            self.watch.heard(now)
         self.session.receive(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
@@ -253,7 +309,11 @@ class Link:
         if self.peer_gone:
             return
         self.peer_gone = True
-        if why == "closed":
+        if self.device is not None:
+            if why != "closed":
+                self.counters["link_errors"] += 1
+            self._lose_device("it hung up" if why == "closed" else why)
+        elif why == "closed":
             self.counters["peer_closed"] += 1
             log.info("the host closed the port; serving again when it is reopened")
         else:
@@ -267,7 +327,7 @@ class Link:
 
     def _look_for_peer(self) -> None:
         """Peer gone: wait ``retry_s`` (or a wake-up), then see whether the port is open."""
-        deadline = self.session.deadline()
+        deadline = self._deadline()
         wait = self.retry_s
         if deadline is not None:
             wait = max(0.0, min(wait, deadline - self.clock()))
@@ -293,10 +353,74 @@ class Link:
         log.info("the port is open again")
         if data:
             self.counters["reads"] += 1
-            self.session.receive(data, self.clock())
+            now = self.clock()
+            if self._watching:
+                self.watch.heard(now)
+            self.session.receive(data, now)
+
+    # -- a serial device that went away --------------------------------------------------
+    def _lose_device(self, why: str) -> None:
+        """Close the dead descriptor; open the path again from ``backoff``'s first delay."""
+        assert self.device is not None
+        path = self.device.path
+        with contextlib.suppress(KeyError, ValueError):
+            self._poller.unregister(self.fd)
+        self._mask = -1
+        self.device.close()
+        self.fd = -1
+        self.counters["device_lost"] += 1
+        self._lost_at = now = self.clock()
+        self._attempts = 0
+        self._reported = set()
+        self.backoff.reset()
+        self._next_try = now + self.backoff.delay()
+        log.warning("serial device %s is gone (%s); motors, positions and held frames are "
+                    "kept; opening %s again when it is back (first try in %.0f ms, then "
+                    "doubling up to every %.0f ms)", path, why, path,
+                    self.backoff.first_s * 1000, self.backoff.max_s * 1000,
+                    extra={"DEVICE": path, "EVENT": "device_lost"})
+
+    def _look_for_device(self) -> None:
+        """Device gone: wait for the next attempt (or a deadline, a wake-up), then try."""
+        assert self.device is not None
+        now = self.clock()
+        wait = self._next_try - now
+        deadline = self._deadline()
+        if deadline is not None:
+            wait = min(wait, deadline - now)
+        if wait > 0:
+            with contextlib.suppress(InterruptedError):
+                select.select([self._wake_r], [], [], wait)
+        with contextlib.suppress(BlockingIOError):
+            os.read(self._wake_r, 4096)
+        now = self.clock()
+        if now < self._next_try or self._stopped:
+            return
+        self._attempts += 1
+        self.counters["reopen_attempts"] += 1
+        try:
+            fd = self.device.open()
+        except DeviceError as exc:
+            self._next_try = now + self.backoff.delay()
+            if exc.errno in NOT_BACK or exc.errno in self._reported:
+                log.debug("%s; trying again in %.0f ms", exc, (self._next_try - now) * 1000)
+            else:  # there, but not usable: the user must act (it is retried all the same)
+                self._reported.add(exc.errno)
+                log.warning("%s; trying again (every %.0f ms at most)", exc,
+                            self.backoff.max_s * 1000, extra={"DEVICE": self.device.path})
+            return
+        self.fd = fd
+        self._mask = -1
+        self.peer_gone = False
+        self.counters["device_reopened"] += 1
+        log.info("serial device %s is back after %.1f s (%d attempts): serving again",
+                 self.device.path, now - self._lost_at, self._attempts,
+                 extra={"DEVICE": self.device.path, "EVENT": "device_back"})
 
     def _drain(self) -> None:
         """After stop(): give unsent responses at most ``drain_s`` to leave."""
+        if self.fd < 0:  # a serial device that is gone: nothing can leave
+            return
         end = self.clock() + self.drain_s
         poller = select.poll()
         poller.register(self.fd, POLLOUT)
@@ -315,12 +439,16 @@ class Link:
         session = self.session
         counts: dict[str, object] = dict(session.counters)
         counts.update(self.counters)
+        counts.update(self.watch.counters)
+        peer = "open"
+        if self.peer_gone:
+            peer = "gone" if self.device is not None else "closed"
         return {
             "counters": counts,
             "processing": self.processing.summary(),
             "held": session.held,
             "waiting": session.waiting,
-            "peer": "closed" if self.peer_gone else "open",
+            "peer": peer,
             "unsent_bytes": len(self._out),
         }
 

@@ -23,8 +23,9 @@ from typing import Any
 from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
+from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.link import Link, flush_pty_input
+from motorctl.daemon.serialport import DeviceError, SerialDevice
 from motorctl.daemon.service import (
     MotorEventLog,
     ProgressWatch,
@@ -35,6 +36,7 @@ from motorctl.daemon.service import (
     setup_logging,
     watchdog_interval,
 )
+from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
 from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
@@ -391,23 +393,14 @@ def open_pty(path: Path) -> tuple[int, str]:
     return master, name
 
 
-def open_uart(device: str, baud: int) -> tuple[Any, int]:
-    import serial
-
+def open_uart(device: str, baud: int) -> tuple[SerialDevice, int]:
+    """The UART (or any serial device) at ``device``, opened by that path so that it can be
+    opened again by it when it goes away and comes back (daemon.serialport)."""
+    uart = SerialDevice(device, baud)
     try:
-        port = serial.Serial(device, baud, timeout=0, exclusive=True)
-    except serial.SerialException as exc:
-        holder = flock_holder(Path(device)) if os.path.exists(device) else None
-        if holder is not None:
-            raise StartupError(
-                f"serial device {device} is held by another process (PID {holder}); "
-                "stop it first (another motorctld, a getty or a terminal program)") from exc
-        raise StartupError(
-            f"cannot open serial device {device}: {exc}; check the path (ls -l /dev/serial* "
-            "/dev/tty{AMA,S,USB}*), that the UART is enabled, and that the user is in the "
-            "dialout group"
-        ) from exc
-    return port, port.fileno()
+        return uart, uart.open()
+    except DeviceError as exc:
+        raise StartupError(str(exc)) from exc
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -424,7 +417,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     where = p.add_mutually_exclusive_group()
     where.add_argument("--pty", metavar="PATH", type=Path,
                        help="serve on a new pseudo-terminal; PATH becomes a symlink to it")
-    where.add_argument("--port", metavar="DEVICE", help="serve on a real UART, e.g. /dev/ttyAMA0")
+    where.add_argument("--port", metavar="DEVICE",
+                       help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
+                       "/dev/serial/by-id/usb-... name; a device that goes away is opened "
+                       "again by this path when it is back (state kept)")
     p.add_argument("--baud", type=int, default=115200, help="UART baud rate (default 115200)")
     p.add_argument("--config", metavar="FILE", help="TOML config (default: the embedded mock "
                    "world, see docs/config.md)")
@@ -580,7 +576,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     except InstanceError as exc:
         raise StartupError(str(exc)) from exc
     daemon = Daemon.build(config, args.state_dir)
-    uart: Any = None
+    uart: SerialDevice | None = None
     try:
         if args.pty is not None:
             fd, name = open_pty(args.pty)
@@ -595,7 +591,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         raise
     c = config.link
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
-                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name))
+                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name),
+                device=uart, watch=silence_watch(config, daemon.dispatcher, time.monotonic()))
     daemon.link = link
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
     events = MotorEventLog()
@@ -660,6 +657,22 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         return EXIT_STATE_NOT_SAVED
     log.info("stopped")
     return 0
+
+
+def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> SilenceWatch:
+    """``[link] timeout_ms`` and ``timeout_action``: the host's silence stops the motors
+    (its silence counted from ``now``, on the link's clock)."""
+    c = config.link
+    hard = c.timeout_action == "hard"
+    reason = f"link timeout: no byte from the host for {c.timeout_ms:g} ms"
+
+    def act(now: float) -> list[str]:
+        return dispatcher.link_silent(hard=hard, reason=reason)
+
+    if c.timeout_ms > 0:
+        log.info("[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
+                 c.timeout_ms, c.timeout_action)
+    return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
 
 
 def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> None:

@@ -283,6 +283,8 @@ def summary_line(status: dict[str, Any]) -> str:
         errors = sum(v for k, v in counters.items()
                      if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_")))
         parts.append(f"{counters.get('responses', 0)} frames served, {errors} errors")
+        if link.get("peer") == "gone":
+            parts.append("SERIAL DEVICE GONE, reopening it")
     state = status.get("state")
     if isinstance(state, dict) and not state.get("ok", True):
         parts.append("STATE NOT SAVED: " + str(state.get("last_error")))

@@ -142,6 +142,20 @@ class MotionEngine:
         self.dc.run(forward, duration_s, end, self.clock.now())
         self.wake.set()
 
+    def fault_stop_moving(self, reason: str, hard: bool, now: float,
+                          cause: str = "other") -> list[str]:
+        """Every motor in motion stops (``hard``: at once; else along its ramp) and latches
+        ``reason`` (:meth:`Motor.fault_stop`); a running DC motor brakes (it has no fault to
+        latch). What was stopped, named for a log line. (The host's silence, [link]
+        timeout_ms.)"""
+        stopped = [f"motor {m.index} ({m.params.name})" for m in self.motors
+                   if m.fault_stop(reason, now, hard=hard, cause=cause)]
+        if self.dc is not None and self.dc.running:
+            self.dc.stop(BridgeState.BRAKE)
+            stopped.append("the DC motor (braked)")
+        self.wake.set()
+        return stopped
+
     # -- a hard stop's confirmation (the link thread, WITHOUT the lock) -------------------
     def settle_stop(self, motor: Motor, timeout_s: float | None = None) -> Settled:
         """Wait until ``motor``'s hard stop has taken effect in the executor, at most

@@ -135,6 +135,11 @@ class Motor:
         Returns False when a latched fault remains (the driver still reports one).
         """
         self.queue.clear()
+        if self.fault is not None and self.state is not MotorState.FAULT:
+            # latched by fault_stop while still ramping down: this StopMove clears it and
+            # takes the stop over (below), as it would for the motor at rest
+            self.fault = self.fault_cause = None
+            self._notify(self, "cleared")
         if self.state is MotorState.FAULT:
             if self.driver.status().fault is not None:
                 return False
@@ -183,6 +188,30 @@ class Motor:
         else:
             self._hard_stop(now, lambda t: None)
         self._notify(self, "fault")
+
+    def fault_stop(self, reason: str, now: float, *, hard: bool, cause: str = "other") -> bool:
+        """Stop a motor in motion and latch ``reason`` (E4 from now on until StopMove);
+        False, and nothing done, when it was not moving. For a cause outside the motor and
+        its executor: the host fell silent (the daemon's ``[link] timeout_ms``).
+
+        ``hard``: at once, as :meth:`latch_fault`. Otherwise along the ramp, as a soft
+        StopMove: the fault is latched at once, the motor keeps stopping and is in state
+        FAULT once at rest; a StopMove meanwhile clears the fault and takes the stop over.
+        A motor with a fault latched already is left as it is.
+        """
+        if self.fault is not None or not (self.active or self.stopping):
+            return False
+        if hard:
+            self.latch_fault(reason, now, cause=cause)
+            return True
+        self.stop(hard=False, now=now)
+        self.fault = reason
+        self.fault_cause = cause
+        self.faults[cause] = self.faults.get(cause, 0) + 1
+        if not (self.active or self.stopping):  # it stopped at once (nothing to ramp down)
+            self.state = MotorState.FAULT
+        self._notify(self, "fault")
+        return True
 
     # -- what the executor reports (engine lock held) --------------------------
     def on_event(self, ev: ExecEvent, now: float) -> None:
@@ -283,6 +312,10 @@ class Motor:
         self.traj = None
         self._phase = None
         self._home_cmd = None
+        if self.fault is not None:  # fault_stop's ramp is done: at rest, the fault stays
+            self.state = MotorState.FAULT
+            self._notify(self, "stopped")
+            return
         if self.queue:
             self._start(self.queue.popleft(), now)
             return

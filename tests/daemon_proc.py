@@ -77,8 +77,9 @@ def for_tests(text: str, force: bool = False) -> str:
 class DaemonProcess:
     def __init__(self, workdir: Path, config_text: str | None = None,
                  state_dir: Path | None = None, extra: list[str] | None = None,
-                 env: dict[str, str] | None = None) -> None:
+                 env: dict[str, str] | None = None, port: str | None = None) -> None:
         self.workdir = workdir
+        self.port = port  # serve this serial device (--port) instead of a PTY of its own
         self.pty = workdir / "motorctl.pty"
         self.state_dir = state_dir or workdir / "state"
         self.config = workdir / "motorctl.toml"
@@ -95,7 +96,8 @@ class DaemonProcess:
         self.stderr_path = workdir / "motorctld.stderr"
 
     def start(self) -> DaemonProcess:
-        cmd = [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(self.pty),
+        where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
+        cmd = [sys.executable, "-m", "motorctl.daemon.main", *where,
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
         cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115

@@ -156,7 +156,7 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert config.pins == ()
     assert config.dc is None
     assert config.section(MockConfig) == MockConfig(lose_steps=False, wires=())
-    assert config.link == LinkConfig(10.0, "crc8", False, True, 16)
+    assert config.link == LinkConfig(10.0, "crc8", False, True, 16, 0.0, "decelerate")
     assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
     assert config.hal == HalConfig("mock")
     assert config.step_thread == StepThreadConfig(

@@ -100,6 +100,22 @@ class LinkConfig:
         "Frames kept in arrival order while a WaitMoved response is held; "
         "beyond that each gets E0.",
     )
+    timeout_ms: float = number(
+        0.0,
+        0,
+        3600000,
+        "0 = off (as the original microcontroller). > 0: when the host sends no byte for "
+        "this long (while a WaitMoved's answer is held the host is waiting, not silent), "
+        "every motor in motion stops (timeout_action) and answers E4 until a StopMove "
+        "clears it; motors at rest are not touched; the DC motor brakes. An extension: "
+        "docs/protocol.md, 'When the host falls silent'.",
+    )
+    timeout_action: str = choice(
+        "decelerate",
+        ("decelerate", "hard"),
+        "How timeout_ms stops a motor: 'decelerate' along its DEC ramp, as a soft "
+        "StopMove; 'hard' at once, as a hard StopMove.",
+    )
 
     def codec_options(self) -> CodecOptions:
         """The codec settings this table selects (crc None for checksum "none")."""
