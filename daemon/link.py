@@ -31,6 +31,9 @@ What the shell does, and why:
   read or write error is logged, counted and treated the same way: the thread never dies.
 - **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
   at most ``drain_s`` to leave.
+- **A recorder may listen.** Given one (``motorctld --trace``), every byte run read from the
+  host and every run written to it is handed to it with this loop's own clock reading, on
+  this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.trace`).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ import termios
 import time
 from collections import Counter
 from collections.abc import Callable
+from typing import Protocol
 
 from motorctl.daemon.session import CommandPort, LinkSession
 from motorctl.motion.latency import LatencyStats
@@ -60,6 +64,15 @@ SHELL_COUNTERS = (
     "reads", "read_eagain", "write_eagain", "link_errors", "peer_closed", "peer_reopened",
     "hangup_partial_bytes", "responses_dropped", "backpressure",
 )
+
+
+class ByteRecorder(Protocol):
+    """Told each byte run the link reads or writes, with the link clock's reading (called on
+    the link thread: it must not block)."""
+
+    def received(self, data: bytes, t: float) -> None: ...
+
+    def sent(self, data: bytes, t: float) -> None: ...
 
 
 def flush_pty_input(slave: str) -> None:
@@ -96,6 +109,7 @@ class Link:
         retry_s: float = 0.02,
         drain_s: float = 0.5,
         on_hangup: Callable[[], None] | None = None,
+        recorder: ByteRecorder | None = None,
     ) -> None:
         self.fd = fd
         self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
@@ -105,6 +119,7 @@ class Link:
         self.retry_s = retry_s
         self.drain_s = drain_s
         self.on_hangup = on_hangup
+        self.recorder = recorder
         self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
         self.processing = LatencyStats(threshold_s=108e-6)
         self.peer_gone = False
@@ -222,6 +237,8 @@ class Link:
             self._hangup("closed")
             return
         self.counters["reads"] += 1
+        if self.recorder is not None:
+            self.recorder.received(data, now)
         self.session.receive(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
@@ -246,6 +263,8 @@ class Link:
             except OSError as exc:
                 self._hangup("closed" if exc.errno == errno.EIO else f"write failed: {exc}")
                 break
+            if self.recorder is not None:
+                self.recorder.sent(bytes(out[:n]), self.clock())
             del out[:n]
         return bool(data)
 
@@ -293,7 +312,10 @@ class Link:
         log.info("the port is open again")
         if data:
             self.counters["reads"] += 1
-            self.session.receive(data, self.clock())
+            now = self.clock()
+            if self.recorder is not None:
+                self.recorder.received(data, now)
+            self.session.receive(data, now)
 
     def _drain(self) -> None:
         """After stop(): give unsent responses at most ``drain_s`` to leave."""
