@@ -11,7 +11,7 @@ from collections.abc import Callable, Sequence
 import serial
 
 from motorctl import __version__
-from motorctl.client import tap, trace
+from motorctl.client import replay, tap, trace
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
 from motorctl.protocol.codec import FRAME_LEN, POS_MAX, POS_MIN, CodecOptions
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
@@ -200,6 +200,7 @@ def build_parser() -> argparse.ArgumentParser:
                      help="end with the bridge in high impedance (GO_HiZ TRUE, coasting)")
 
     tap.add_parser(sub)
+    replay.add_parser(sub)
     trace.add_parser(sub)
 
     p = add("send", "send an arbitrary frame given as hex and print the decoded response")
@@ -298,6 +299,8 @@ def main(argv: list[str] | None = None) -> int:
         return trace.run(args)
     if args.command == "tap":
         return tap.run(args)
+    if args.command == "replay":
+        return replay.run(args)
     if not args.port:
         parser.error("no serial port: pass -p PATH or set MOTORCTL_PORT")
     try:
