@@ -6,7 +6,11 @@ daemon: its link thread), and the daemon's own processing time per command
 <= 2x the echo peer's (idle), <= 1.5x while 3 motors step (``--motion 25000``, issue 7: the
 link must not feel the motion); processing p99 <= 108 us.
 
-The two peers take turns in short rounds (``--rounds`` of ``-n``), so the machine's drifts
+``--trace``: a second motorctld, the same but with ``--trace`` (its link's byte runs recorded
+to a pcapng file), takes its turns too; its round trips against the untraced daemon's give
+the cost of the trace (issue 18: p99 <= 1.1x).
+
+The peers take turns in short rounds (``--rounds`` of ``-n``), so the machine's drifts
 (another tenant, a busy spell) hit both alike; with motion, both run beside the stepping
 daemon (its step process spinning on one CPU, its planner on the other).
 """
@@ -81,6 +85,8 @@ def main() -> int:
     ap.add_argument("--switch-interval-us", type=float, metavar="US",
                     help="[step_thread] switch_interval_us for the daemon with --motion "
                     "(default: its own)")
+    ap.add_argument("--trace", action="store_true",
+                    help="also a daemon with --trace: the trace's cost (target p99 <= 1.1x)")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
     frame = encode_command(IsReady(0), CodecOptions())
@@ -100,26 +106,42 @@ def main() -> int:
             # run_speed_factor 1000: SPEED kHz
             config = config_text(50, 0, args.executor, step_thread=extra)
         daemon = DaemonProcess(work, config).start()
+        traced: DaemonProcess | None = None
         try:
+            if args.trace:
+                (work / "traced").mkdir()
+                traced = DaemonProcess(work / "traced", config,
+                                       extra=["--trace", str(work / "trace.pcapng")]).start()
+            for d in (daemon, traced):
+                if args.motion and d is not None:
+                    with d.client() as c:
+                        for m in range(3):
+                            c.move(m, True, speed=args.motion // 1000)
             if args.motion:
-                with daemon.client() as c:
-                    for m in range(3):
-                        c.move(m, True, speed=args.motion // 1000)
                 time.sleep(0.5)
             echo_t: list[float] = []
             daemon_t: list[float] = []
+            traced_t: list[float] = []
             assert daemon.proc is not None
-            cpu = {"echo": 0.0, "daemon": 0.0}
-            for _ in range(args.rounds):  # interleaved rounds: drift hits both alike
-                for name, pid, port, into in (("echo", echo.pid, echo_link, echo_t),
-                                              ("daemon", daemon.proc.pid, daemon.pty,
-                                               daemon_t)):
+            cpu = {"echo": 0.0, "daemon": 0.0, "traced": 0.0}
+            peers: list[tuple[str, int, Path, list[float]]] = [
+                ("echo", echo.pid, echo_link, echo_t),
+                ("daemon", daemon.proc.pid, daemon.pty, daemon_t)]
+            if traced is not None:
+                assert traced.proc is not None
+                peers.append(("traced", traced.proc.pid, traced.pty, traced_t))
+            for _ in range(args.rounds):  # interleaved rounds: drift hits all alike
+                for name, pid, port, into in peers:
                     before = cpu_s(pid)
                     into += round_trips(str(port), args.n, frame)
                     cpu[name] += cpu_s(pid) - before
             status = read_status(daemon.state_dir / "status.sock")
+            trace_status = None if traced is None else \
+                read_status(traced.state_dir / "status.sock")
         finally:
             daemon.close()
+            if traced is not None:
+                traced.close()
             echo.kill()
             echo.wait()
     result: dict[str, Any] = {
@@ -153,6 +175,21 @@ def main() -> int:
     print(f"daemon processing (last byte read -> reply written), {p['steps']} commands:")
     print(f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
           f"max {p['max_us']} us  (target p99 <= 108 us)")
+    if trace_status is not None:
+        t = result["daemon_traced"] = summary(traced_t)
+        result["trace_p50_ratio"] = round(t["p50_us"] / d["p50_us"], 2)
+        result["trace_p99_ratio"] = round(t["p99_us"] / d["p99_us"], 2)
+        result["traced_cpu_per_round_trip_us"] = round(cpu["traced"] / made * 1e6, 1)
+        result["trace"] = trace_status["trace"]
+        result["traced_processing"] = trace_status["link"]["processing"]
+        print(f"with --trace ({trace_status['trace']['runs']} byte runs recorded, "
+              f"{trace_status['trace']['dropped_runs']} dropped):")
+        print(f"  motorctld  p50 {t['p50_us']:8.1f} us  p99 {t['p99_us']:8.1f} us  "
+              f"max {t['max_us']:.0f}")
+        print(f"  ratio to untraced: p50 {result['trace_p50_ratio']}  p99 "
+              f"{result['trace_p99_ratio']}  (target p99 <= 1.1); CPU per round trip "
+              f"{result['traced_cpu_per_round_trip_us']} us")
+    result["load_avg_1min"] = os.getloadavg()[0]
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
     return 0

@@ -11,6 +11,7 @@ from collections.abc import Callable, Sequence
 import serial
 
 from motorctl import __version__
+from motorctl.client import replay, tap, trace
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
 from motorctl.protocol.codec import FRAME_LEN, POS_MAX, POS_MIN, CodecOptions
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
@@ -198,6 +199,10 @@ def build_parser() -> argparse.ArgumentParser:
     end.add_argument("--hiz", dest="hiz", action="store_true",
                      help="end with the bridge in high impedance (GO_HiZ TRUE, coasting)")
 
+    tap.add_parser(sub)
+    replay.add_parser(sub)
+    trace.add_parser(sub)
+
     p = add("send", "send an arbitrary frame given as hex and print the decoded response")
     p.add_argument("hex", nargs="+", metavar="HEX",
                    help="9 bytes (checksum appended) or 10 bytes (sent as is), "
@@ -290,6 +295,12 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``motorctl`` console script; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(_protect_negatives(sys.argv[1:] if argv is None else argv))
+    if args.command == "trace":
+        return trace.run(args)
+    if args.command == "tap":
+        return tap.run(args)
+    if args.command == "replay":
+        return replay.run(args)
     if not args.port:
         parser.error("no serial port: pass -p PATH or set MOTORCTL_PORT")
     try:

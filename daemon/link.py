@@ -40,6 +40,9 @@ What the shell does, and why:
   waits, and when it passes the watch stops the motors in motion.
 - **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
   at most ``drain_s`` to leave.
+- **A recorder may listen.** Given one (``motorctld --trace``), every byte run read from the
+  host and every run written to it is handed to it with this loop's own clock reading, on
+  this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.trace`).
 """
 
 from __future__ import annotations
@@ -88,6 +91,15 @@ class Device(Protocol):
     def close(self) -> None: ...
 
 
+class ByteRecorder(Protocol):
+    """Told each byte run the link reads or writes, with the link clock's reading (called on
+    the link thread: it must not block)."""
+
+    def received(self, data: bytes, t: float) -> None: ...
+
+    def sent(self, data: bytes, t: float) -> None: ...
+
+
 def flush_pty_input(slave: str) -> None:
     """Discard what was written to a PTY and not read before its host closed it.
 
@@ -125,6 +137,7 @@ class Link:
         device: Device | None = None,
         watch: SilenceWatch | None = None,
         backoff: Backoff | None = None,
+        recorder: ByteRecorder | None = None,
     ) -> None:
         self.fd = fd
         self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
@@ -142,6 +155,7 @@ class Link:
         self._next_try = 0.0  # when to try to open it again
         self._attempts = 0  # reopen attempts since it went away
         self._reported: set[int | None] = set()  # reopen errors logged since then
+        self.recorder = recorder
         self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
         self.processing = LatencyStats(threshold_s=108e-6)
         self.peer_gone = False
@@ -275,10 +289,7 @@ class Link:
         if not data:  # end of file: nobody is on the other side
             self._hangup("closed")
             return
-        self.counters["reads"] += 1
-        if self._watching:
-            self.watch.heard(now)
-        self.session.receive(data, now)
+        self._received(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
 
@@ -302,6 +313,8 @@ class Link:
             except OSError as exc:
                 self._hangup("closed" if exc.errno == errno.EIO else f"write failed: {exc}")
                 break
+            if self.recorder is not None:
+                self.recorder.sent(bytes(out[:n]), self.clock())
             del out[:n]
         return bool(data)
 
@@ -352,11 +365,17 @@ class Link:
         self.counters["peer_reopened"] += 1
         log.info("the port is open again")
         if data:
-            self.counters["reads"] += 1
-            now = self.clock()
-            if self._watching:
-                self.watch.heard(now)
-            self.session.receive(data, now)
+            self._received(data, self.clock())
+
+    def _received(self, data: bytes, now: float) -> None:
+        """A run of bytes read at ``now``: it keeps the link alive, the trace records it,
+        the session takes it."""
+        self.counters["reads"] += 1
+        if self._watching:
+            self.watch.heard(now)
+        if self.recorder is not None:
+            self.recorder.received(data, now)
+        self.session.receive(data, now)
 
     # -- a serial device that went away --------------------------------------------------
     def _lose_device(self, why: str) -> None:

@@ -39,6 +39,7 @@ from motorctl.daemon.service import (
 from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
 from motorctl.daemon.status import StatusServer, read_status, summary_line
+from motorctl.daemon.trace import TraceRecorder
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
@@ -54,6 +55,7 @@ from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
+from motorctl.protocol.capture import CaptureInfo
 from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")
@@ -188,6 +190,7 @@ class Daemon:
     persistence: Persistence
     gc_policy: GcPolicy = field(default_factory=GcPolicy)
     link: Link | None = None
+    trace: TraceRecorder | None = None
 
     @classmethod
     def build(cls, config: Config, state_dir: Path, clock: Clock | None = None) -> Daemon:
@@ -281,6 +284,8 @@ class Daemon:
                                "state": self.persistence.status()}
         if self.link is not None:
             out["link"] = self.link.status()
+        if self.trace is not None:
+            out["trace"] = self.trace.status()
         drivers = [s.driver.stats() for s in self.hw.steppers if isinstance(s.driver, TmcDriver)]
         if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
             out["drivers"] = drivers
@@ -432,6 +437,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
                    help="open every line and device the --config names, without moving "
                    "anything; print chips, lines and their current consumers, end-stop levels "
                    "and driver status; exit 1 if something is missing or busy")
+    p.add_argument("--trace", metavar="FILE", type=Path,
+                   help="record every byte run on the link, timestamped, to FILE (pcapng, "
+                   "rotated as [trace] says; read it with 'motorctl trace FILE'; "
+                   "docs/trace.md); overrides [trace] file")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
                    help="the runtime directory: lock, status socket and, unless [state] "
                    "directory says otherwise, the state file (default /run/motorctl)")
@@ -590,10 +599,18 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         daemon.hw.close()  # e.g. the mock's shared memory
         raise
     c = config.link
+    try:
+        recorder = open_trace(args.trace, config, where)
+    except BaseException:
+        daemon.engine.executor.close()
+        daemon.hw.close()
+        raise
     link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
                 c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name),
-                device=uart, watch=silence_watch(config, daemon.dispatcher, time.monotonic()))
+                device=uart, watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
+                recorder=recorder)
     daemon.link = link
+    daemon.trace = recorder
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
     events = MotorEventLog()
     line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
@@ -637,6 +654,8 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
             watchdog.stop()
         status.close()
         link.close()
+        if recorder is not None:
+            recorder.close()
         if uart is not None:
             uart.close()
         else:
@@ -673,6 +692,28 @@ def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> Silence
         log.info("[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
                  c.timeout_ms, c.timeout_action)
     return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
+
+
+def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder | None:
+    """The link's trace recorder, when ``--trace`` or ``[trace] file`` asks for one."""
+    t = config.trace
+    path = option.absolute() if option is not None else Path(t.file) if t.file else None
+    if path is None:
+        return None
+    c = config.link
+    info = CaptureInfo(role="daemon", checksum=c.checksum, crc_covers_ack=c.crc_covers_ack,
+                       strict_padding=c.strict_padding, frame_gap_ms=c.frame_gap_ms,
+                       port=where, application=f"motorctld {__version__}")
+    recorder = TraceRecorder(path, info, max(4096, int(t.max_file_mb * (1 << 20))), t.files,
+                             time.monotonic())
+    try:
+        recorder.open()
+    except OSError as exc:
+        raise StartupError(f"cannot write the trace file {path}: {exc.strerror or exc}; "
+                           "give --trace (or [trace] file) a writable path") from exc
+    log.info("tracing the link to %s (%d files of %.3g MiB at most)", path, t.files,
+             t.max_file_mb)
+    return recorder
 
 
 def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> None:

@@ -23,6 +23,7 @@ from motorctl.daemon.config import (
     PinConfig,
     StateConfig,
     StepThreadConfig,
+    TraceConfig,
     UnitsConfig,
     default_config_text,
     describe_keys,
@@ -203,6 +204,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         ("hal", HalConfig),
         ("step_thread", StepThreadConfig),
         ("state", StateConfig),
+        ("trace", TraceConfig),
         ("dc", DcConfig),
         ("motors[]", MotorConfig),
         ("motors[].homing", HomingConfig),
@@ -735,6 +737,14 @@ def test_checksum_names_agree_with_the_client() -> None:
     assert build_parser().parse_args(["ready", "0"]).checksum == "crc8"
 
 
+def test_trace_is_off_by_default_and_wants_an_absolute_path() -> None:
+    assert parse_config(MOTOR, SOURCE).trace == TraceConfig("", 16.0, 4)
+    config = parse_config("[trace]\nfile = '/run/x.pcapng'\nfiles = 2\n" + MOTOR, SOURCE)
+    assert config.trace.file == "/run/x.pcapng" and config.trace.files == 2
+    with pytest.raises(ConfigError, match=r'trace\.file = "x\.pcapng": not an absolute path'):
+        parse_config("[trace]\nfile = 'x.pcapng'\n" + MOTOR, SOURCE)
+
+
 def test_homing_source_is_an_enum() -> None:
     config = parse_config(MOTOR + "[motors.homing]\nsource = 'stall'\n", SOURCE)
     assert config.motors[0].homing.source is HomingSource.STALL
@@ -744,7 +754,8 @@ def test_table_of_the_whole_file() -> None:
     spec = schema()
     assert isinstance(spec, Table)
     assert [c.name for c in spec.children] == [
-        "link", "units", "hal", "step_thread", "state", "dc", "motors", "pins", "mock",
+        "link", "units", "hal", "step_thread", "state", "trace", "dc", "motors", "pins",
+        "mock",
         "gpiod", "spidev",
     ]
 

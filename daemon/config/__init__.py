@@ -37,6 +37,7 @@ from motorctl.daemon.config.model import (
     PinConfig,
     StateConfig,
     StepThreadConfig,
+    TraceConfig,
     UnitsConfig,
 )
 from motorctl.schema import ConfigError, Row, describe
@@ -54,6 +55,7 @@ __all__ = [
     "PinConfig",
     "StateConfig",
     "StepThreadConfig",
+    "TraceConfig",
     "UnitsConfig",
     "default_config_text",
     "describe_keys",

@@ -500,6 +500,11 @@ def _check_state_dir(value: str) -> str | None:
     return None if value == "" or value.startswith("/") else "not an absolute path"
 
 
+def _check_trace_file(value: str) -> str | None:
+    """Problem with a trace file name, or None: empty or an absolute path."""
+    return None if value == "" or value.startswith("/") else "not an absolute path"
+
+
 @section(
     "Where home positions, waypoints and positions at rest are kept.",
     prose="""Where the state file (home positions, waypoints, positions of motors at rest) and its
@@ -524,6 +529,36 @@ class StateConfig:
     )
 
 
+@section(
+    "A trace of every byte run on the link, for `motorctl trace` and `motorctl replay`.",
+    prose="""\
+A trace of the link: every byte run the daemon reads from the host or writes to it, with a
+timestamp and its direction, in the pcapng format the tap writes too (docs/trace.md).
+`motorctl trace FILE` prints it decoded; `motorctl replay FILE --port P` plays its host side
+against a device; Wireshark and tshark open it. Off unless `file` is set here or
+`motorctld --trace FILE` is given (the option wins).""",
+    notes="""\
+The trace is bounded: when the file would grow past `max_file_mb` it is renamed to
+`FILE.1` (an older `FILE.1` to `FILE.2`, ...) and a new `FILE` is started, keeping `files`
+files in all; the oldest goes. Records are written from memory every 0.2 s by a thread of
+their own; if the disk falls that far behind that 4 MiB wait, further byte runs are left
+out and counted (`trace.dropped_runs` in the status, `epb_dropcount` in the file). Under
+systemd the service may write only below /run/motorctl and /var/lib/motorctl.""",
+)
+@dataclass(frozen=True)
+class TraceConfig:
+    """[trace]: the link's byte runs to a pcapng file."""
+
+    file: str = text(
+        "",
+        'Trace file; "" = no trace (motorctld --trace FILE sets it too).',
+        check=_check_trace_file,
+        check_text='"" or an absolute path',
+    )
+    max_file_mb: float = number(16.0, 0.01, 1e6, "Size of one file (MiB) before it rotates.")
+    files: int = integer(4, 1, 1000, "Files kept, the current one included.")
+
+
 @section("The whole file.")
 @dataclass(frozen=True)
 class Config(Sectioned):
@@ -534,6 +569,7 @@ class Config(Sectioned):
     hal: HalConfig = table(HalConfig)
     step_thread: StepThreadConfig = table(StepThreadConfig)
     state: StateConfig = table(StateConfig)
+    trace: TraceConfig = table(TraceConfig)
     dc: DcConfig | None = table(DcConfig, absent=None, absent_text="no DC motor")
     motors: tuple[MotorConfig, ...] = tables(
         MotorConfig, 1, 64, absent=REQUIRED, absent_text="required"
