@@ -37,17 +37,19 @@ from motorctl.daemon.service import (
 )
 from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
 from motorctl.daemon.status import StatusServer, read_status, summary_line
-from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
+from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin
 from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.hal.tmc import Tmc5160, TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
+from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
+from motorctl.motion.profile import Trajectory
 from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
@@ -176,6 +178,7 @@ class Daemon:
     persistence: Persistence
     gc_policy: GcPolicy = field(default_factory=GcPolicy)
     link: Link | None = None
+    started: float = field(default_factory=time.monotonic)
 
     @classmethod
     def build(cls, config: Config, state_dir: Path, clock: Clock | None = None) -> Daemon:
@@ -239,12 +242,15 @@ class Daemon:
         lateness percentiles come from the histogram's blocks), except ``histogram``: the
         step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
         up to 20,001), for the benchmarks that ask for it."""
-        motors = [
+        motors: list[dict[str, Any]] = [
             {"index": m.index, "name": m.params.name, "state": m.state.value,
              "position": m.position, "queued": len(m.queue), "fault": m.fault,
              "position_lost": m.position_lost, "waypoints": len(m.waypoints)}
             for m in list(self.engine.motors)
         ]
+        now = self.engine.clock.now()
+        for doc, m in zip(motors, self.engine.motors, strict=True):
+            doc["speed"] = motor_speed(m.traj, now)
         executor = self.engine.executor
         health = executor.health()
         steps = dict(health.latency)
@@ -259,13 +265,46 @@ class Daemon:
                                             "pid": getattr(executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
                                "hard_stops": self.engine.stop_wait_status(),
-                               "state": self.persistence.status()}
+                               "state": self.persistence.status(),
+                               "pins": pin_status(self.hw.pins),
+                               "dc": dc_status(self.engine.dc, now)}
+        mono = time.monotonic()
+        out.update(monotonic_s=mono, uptime_s=round(mono - self.started, 3),
+                   unix_s=round(time.time(), 3))
         if self.link is not None:
             out["link"] = self.link.status()
         drivers = [s.driver.stats() for s in self.hw.steppers if isinstance(s.driver, TmcDriver)]
         if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
             out["drivers"] = drivers
         return out
+
+
+def motor_speed(traj: Trajectory | None, now: float) -> float:
+    """The planned speed at ``now`` in step/s, signed (0 without a trajectory)."""
+    return 0.0 if traj is None else round(traj.velocity(now), 1)
+
+
+def pin_status(pins: dict[int, Pin]) -> list[dict[str, Any]]:
+    """Each IO pin: number, output or not, level (an input is read now; None if that
+    failed, ``error`` says why)."""
+    out: list[dict[str, Any]] = []
+    for number, pin in sorted(pins.items()):
+        entry: dict[str, Any] = {"number": number, "output": pin.is_output}
+        try:
+            entry["level"] = pin.read()
+        except (HalError, OSError) as exc:
+            entry.update(level=None, error=str(exc))
+        out.append(entry)
+    return out
+
+
+def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
+    """The DC motor's bridge state and the time left of its run; None: no DC motor."""
+    if dc is None:
+        return None
+    deadline = dc.deadline
+    return {"state": dc.bridge.state.value, "running": deadline is not None,
+            "left_s": None if deadline is None else round(max(0.0, deadline - now), 3)}
 
 
 def state_files_dir(config: Config, state_dir: Path) -> Path:
