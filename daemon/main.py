@@ -620,6 +620,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     def on_motor_event(motor: Motor, event: str) -> None:  # step thread: no I/O
         events.record(motor.index, motor.params.name, event, motor.fault)
         line.poke()
+        status.poke()  # subscribers see a start, stop or fault at once
 
     daemon.engine.listeners.append(on_motor_event)
     daemon.writer.on_change = line.poke
