@@ -35,7 +35,7 @@ import selectors
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Generator
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -451,7 +451,7 @@ class StatusError(Exception):
 
 
 def subscribe(path: Path, period_s: float | None = None,
-              timeout: float = 5.0) -> Iterator[dict[str, Any]]:
+              timeout: float = 5.0) -> Generator[dict[str, Any], None, None]:
     """The daemon's status updates as they come (docs/status.md), until the daemon closes
     the stream (it stopped: the iterator ends). ``period_s``: how often the daemon looks
     for a change (None: its default). OSError when it cannot connect; TimeoutError when no

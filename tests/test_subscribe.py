@@ -39,7 +39,7 @@ class Source:
     def __call__(self, histogram: bool = False) -> dict[str, Any]:
         with self.lock:
             self.asked += 1
-            doc = json.loads(json.dumps(self.doc))
+            doc: dict[str, Any] = json.loads(json.dumps(self.doc))
         # what changes at every look in a real daemon, and must not count as a change
         doc.update(monotonic_s=float(self.asked), uptime_s=float(self.asked), unix_s=1.0)
         doc["steps"]["progress"] = self.asked
