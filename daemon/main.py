@@ -466,6 +466,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--histogram", action="store_true",
                    help="with --status: include the step edges' whole lateness histogram "
                    "(steps.histogram_us: microseconds late -> steps)")
+    p.add_argument("--format", choices=["json", "openmetrics"], default="json",
+                   help="with --status: json (the document, docs/status.md) or openmetrics "
+                   "(the OpenMetrics text format, names motorctl_*, for node_exporter's "
+                   "textfile collector; motorctl_up 0 and exit 1 when no daemon answers)")
+    p.add_argument("--watch", action="store_true",
+                   help="with --status: a live view that refreshes in the terminal "
+                   "(needs python3-rich; the same as 'motorctl monitor')")
+    p.add_argument("--period", metavar="MS", type=int, default=250,
+                   help="with --status --watch: how often the daemon looks for a change "
+                   "(20..60000 ms, default 250)")
     p.add_argument("--log-level", default="info",
                    choices=["debug", "info", "warning", "error"])
     return p.parse_args(argv)
@@ -490,20 +500,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if args.probe:
         return probe(args.config)
-    if args.histogram and not args.status:
-        print("error: --histogram goes with --status", file=sys.stderr)
-        return 2
     if args.status:
-        try:
-            import json
-
-            doc = read_status(args.state_dir / "status.sock", histogram=args.histogram)
-            print(json.dumps(doc, indent=1))
-        except OSError as exc:
-            print(f"error: no daemon status at {args.state_dir / 'status.sock'}: {exc}",
-                  file=sys.stderr)
-            return 1
-        return 0
+        return status_command(args)
+    for given, name in ((args.histogram, "--histogram"), (args.watch, "--watch"),
+                        (args.format != "json", "--format")):
+        if given:
+            print(f"error: {name} goes with --status", file=sys.stderr)
+            return 2
     if args.pty is None and args.port is None:
         print("error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE",
               file=sys.stderr)
@@ -514,6 +517,40 @@ def main(argv: Sequence[str] | None = None) -> int:
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
+
+
+def status_command(args: argparse.Namespace) -> int:
+    """``--status``: the running daemon's status once (JSON or OpenMetrics), or watched."""
+    path = args.state_dir / "status.sock"
+    if args.watch:
+        if args.histogram or args.format != "json":
+            print("error: --watch shows the live view; --histogram and --format go with a "
+                  "single --status", file=sys.stderr)
+            return 2
+        from motorctl.daemon import monitor
+
+        return monitor.run(path, args.period)
+    if args.histogram and args.format != "json":
+        print("error: --histogram goes with --format json", file=sys.stderr)
+        return 2
+    import json
+
+    from motorctl.daemon import metrics
+
+    try:
+        doc = read_status(path, histogram=args.histogram)
+        if set(doc) == {"error"}:
+            raise ValueError(doc["error"])
+    except (OSError, ValueError) as exc:
+        print(f"error: no daemon status at {path}: {exc}", file=sys.stderr)
+        if args.format == "openmetrics":
+            sys.stdout.write(metrics.down(str(exc)))
+        return 1
+    if args.format == "openmetrics":
+        sys.stdout.write(metrics.openmetrics(doc))
+    else:
+        print(json.dumps(doc, indent=1))
+    return 0
 
 
 def probe(config_path: str | None) -> int:
