@@ -8,8 +8,9 @@ from __future__ import annotations
 
 from typing import Any
 
-from prometheus_client.openmetrics.parser import text_string_to_metric_families as parse_om
-from prometheus_client.parser import text_string_to_metric_families as parse_prometheus
+from prometheus_client.metrics_core import Metric
+from prometheus_client.openmetrics.parser import text_string_to_metric_families as _om
+from prometheus_client.parser import text_string_to_metric_families as _prometheus
 
 from motorctl.daemon.metrics import down, openmetrics
 
@@ -45,6 +46,16 @@ DOC: dict[str, Any] = {
     "drivers": [{"chip": "TMC5160", "device": "/dev/spidev0.0", "polls": 7, "spi_errors": 1,
                  "fault_counts": {"ot": 1}, "warning_counts": {}, "drv_status": "0x0"}],
 }
+
+
+def parse_om(text: str) -> list[Metric]:
+    """prometheus_client's OpenMetrics parser (strict: raises on anything invalid)."""
+    return list(_om(text))  # type: ignore[no-untyped-call]
+
+
+def parse_prometheus(text: str) -> list[Metric]:
+    """prometheus_client's parser of the Prometheus text format (node_exporter's format)."""
+    return list(_prometheus(text))
 
 
 def samples(text: str) -> dict[tuple[str, frozenset[tuple[str, str]]], float]:
