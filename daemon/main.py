@@ -21,6 +21,7 @@ from types import FrameType
 from typing import Any
 
 from motorctl import __version__
+from motorctl.daemon import platform_check
 from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned, flock_holder
@@ -457,7 +458,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--probe", action="store_true",
                    help="open every line and device the --config names, without moving "
                    "anything; print chips, lines and their current consumers, end-stop levels "
-                   "and driver status; exit 1 if something is missing or busy")
+                   "and driver status; exit 1 if something is missing or busy. Then check "
+                   "the platform: preemption model, RT throttling, cpufreq governor, "
+                   "isolated CPUs, under-voltage, a short latency measurement, and advice")
+    p.add_argument("--latency-seconds", metavar="S", type=float, default=3.0,
+                   help="with --probe: how long to measure timer wake-ups at the executor's "
+                   "priority and CPU (default 3; 0: skip)")
     p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
                    help="the runtime directory: lock, status socket and, unless [state] "
                    "directory says otherwise, the state file (default /run/motorctl)")
@@ -499,7 +505,7 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})")
         return 0
     if args.probe:
-        return probe(args.config)
+        return probe(args.config, args.latency_seconds)
     if args.status:
         return status_command(args)
     for given, name in ((args.histogram, "--histogram"), (args.watch, "--watch"),
@@ -553,8 +559,10 @@ def status_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def probe(config_path: str | None) -> int:
-    """``--probe``: what the configured hardware looks like, moving nothing."""
+def probe(config_path: str | None, latency_s: float = 3.0,
+          roots: platform_check.Roots | None = None) -> int:
+    """``--probe``: what the configured hardware looks like, moving nothing; then the
+    platform (docs/timing.md, "Checking a platform"), which advises and never fails it."""
     try:
         config = load_config(config_path)
     except ConfigError as exc:
@@ -563,6 +571,23 @@ def probe(config_path: str | None) -> int:
     report = probe_hardware(config.hal.backend, hardware_spec(config), MonotonicClock())
     print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
     sys.stdout.write(report.text())
+    sys.stdout.flush()
+    st = config.step_thread
+    timing = platform_check.TimingConfig(cpu=st.cpu, priority=st.priority, spin_us=st.spin_us,
+                                         max_lateness_us=st.max_lateness_us,
+                                         executor=st.executor)
+    motors = [platform_check.MotorRate(m.name, m.max_speed, tmc.microsteps
+                                       if isinstance(tmc := m.section(TmcAxisConfig),
+                                                     TmcAxisConfig) else None)
+              for m in config.motors]
+    found = platform_check.read_platform(roots or platform_check.Roots())
+    if latency_s > 0:
+        print(f"measuring timer wake-ups for {latency_s:g} s ...", flush=True)
+        latency = platform_check.measure_latency(latency_s, st.priority, st.cpu)
+        skipped = None
+    else:
+        latency, skipped = None, "not measured (--latency-seconds 0)"
+    sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
     return 1 if report.problems else 0
 
 
