@@ -102,6 +102,8 @@ class LinkSession:
         # is the answer to frame n, as responses go out in the order of their frames.
         self._frames_seen: deque[tuple[int, float, bytes]] = deque(maxlen=RECENT)
         self._answers_seen: deque[tuple[int, bytes]] = deque(maxlen=RECENT)
+        # their words, remembered by the threads that read the status (never the link's)
+        self._described: dict[tuple[bytes, bytes | None], tuple[str, str | None]] = {}
 
     # -- what the shell asks ------------------------------------------------------------
     @property
@@ -142,23 +144,33 @@ class LinkSession:
         ``answer`` as hex (``answer`` None while owed), ``command`` and ``result`` in words
         (``result`` None while owed). Decoding is the caller's work (the status thread)."""
         out: list[dict[str, object]] = []
+        described = self._described  # the status readers' own cache (dict ops are atomic)
         for t, frame, answer in self.recent():
-            cmd: Command | None
-            try:
-                cmd = decode_command(frame, self.options)
-                command = describe(cmd)
-            except FrameError as exc:
-                cmd, command = None, f"bad frame ({exc.reason}): {exc}"
-            result: str | None = None
-            if answer is not None:
-                try:
-                    result = describe_answer(cmd, decode_response(answer, self.options))
-                except ResponseError as exc:  # not one of ours: say so, never raise
-                    result = f"undecodable answer: {exc}"
-            out.append({"at_s": t, "frame": frame.hex(" "), "command": command,
+            words = described.get((frame, answer))
+            if words is None:
+                words = self._describe(frame, answer)
+                if len(described) >= CACHE_LIMIT:
+                    described.clear()
+                described[(frame, answer)] = words
+            out.append({"at_s": t, "frame": frame.hex(" "), "command": words[0],
                         "answer": None if answer is None else answer.hex(" "),
-                        "result": result})
+                        "result": words[1]})
         return out
+
+    def _describe(self, frame: bytes, answer: bytes | None) -> tuple[str, str | None]:
+        cmd: Command | None
+        try:
+            cmd = decode_command(frame, self.options)
+            command = describe(cmd)
+        except FrameError as exc:
+            cmd, command = None, f"bad frame ({exc.reason}): {exc}"
+        result: str | None = None
+        if answer is not None:
+            try:
+                result = describe_answer(cmd, decode_response(answer, self.options))
+            except ResponseError as exc:  # not one of ours: say so, never raise
+                result = f"undecodable answer: {exc}"
+        return command, result
 
     def take_output(self) -> bytes:
         """The response bytes ready to send, in order; the session forgets them."""
