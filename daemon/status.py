@@ -252,8 +252,8 @@ class StatusServer:
                 self._watch(client, selectors.EVENT_READ)
                 return
             self._answer(client)  # a line, the end of input, or too long
-            if client.sub is not None:
-                return  # a subscriber: its first update is on its way
+            if client.sub is not None or client.out is None:
+                return  # a subscriber (its first update is on its way), or dropped
         self._send(client)
 
     def _answer(self, client: _Client) -> None:
@@ -368,6 +368,7 @@ class StatusServer:
             self._accept_on(True)
 
     def _drop(self, client: _Client) -> None:
+        client.out = None
         if client.sub is not None:
             client.sub = None
             self.subscribers -= 1
