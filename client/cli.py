@@ -7,6 +7,7 @@ import os
 import re
 import sys
 from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import serial
 
@@ -202,6 +203,22 @@ def build_parser() -> argparse.ArgumentParser:
     tap.add_parser(sub)
     replay.add_parser(sub)
     trace.add_parser(sub)
+    p = sub.add_parser(
+        "monitor", help="live view of a motorctld on this machine (its status socket)",
+        description="A live view of the daemon on this machine, refreshing in the terminal "
+        "(also over SSH): each motor's position, state, speed and fault, step timing, pins "
+        "and the DC motor, link counters, frames/s and the last frames, the executor's "
+        "health. Reads the status socket (docs/status.md), not the serial port; the same "
+        "as 'motorctld --status --watch'. Needs the Python package rich (Debian: "
+        "python3-rich; pip: motorctl[monitor]). Ctrl-C quits.",
+    )
+    p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
+                   help="the daemon's --state-dir, where status.sock is "
+                   "(default /run/motorctl)")
+    p.add_argument("--period", type=int, default=250, metavar="MS",
+                   help="how often the daemon looks for a change (20..60000 ms, default 250)")
+    p.add_argument("--once", action="store_true",
+                   help="print the view once and exit (scripts, logs)")
 
     p = add("send", "send an arbitrary frame given as hex and print the decoded response")
     p.add_argument("hex", nargs="+", metavar="HEX",
@@ -301,6 +318,11 @@ def main(argv: list[str] | None = None) -> int:
         return tap.run(args)
     if args.command == "replay":
         return replay.run(args)
+    if args.command == "monitor":
+        # The status socket is the daemon's own interface: its reader and view live there.
+        from motorctl.daemon import monitor
+
+        return monitor.run(args.state_dir / "status.sock", args.period, args.once)
     if not args.port:
         parser.error("no serial port: pass -p PATH or set MOTORCTL_PORT")
     try:

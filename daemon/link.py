@@ -10,7 +10,7 @@ signal handlers) make: they write a byte to the pipe. The same pipe is the proce
 wake-up descriptor (:attr:`Link.signal_fd`, ``signal.set_wakeup_fd``): a signal whose Python
 handler has not run yet when the loop goes to sleep still wakes it (see :meth:`serve`).
 :meth:`Link.status` may be called from the status thread: it only copies counters whose keys
-all exist from the start.
+all exist from the start, and the session's last frames (decoded there, on that thread).
 
 What the shell does, and why:
 - **Gaps are watched, not inferred.** Before each ``poll()`` it notes the time; when the poll
@@ -469,6 +469,7 @@ class Link:
             "waiting": session.waiting,
             "peer": peer,
             "unsent_bytes": len(self._out),
+            "recent": session.describe_recent(),
         }
 
     def close(self) -> None:

@@ -21,6 +21,7 @@ from types import FrameType
 from typing import Any
 
 from motorctl import __version__
+from motorctl.daemon import platform_check
 from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
@@ -40,17 +41,19 @@ from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
 from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.daemon.trace import TraceRecorder
-from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock
+from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin
 from motorctl.hal.mock import MockHardware
 from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.hal.tmc import Tmc5160, TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
+from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
+from motorctl.motion.profile import Trajectory
 from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
@@ -191,6 +194,7 @@ class Daemon:
     gc_policy: GcPolicy = field(default_factory=GcPolicy)
     link: Link | None = None
     trace: TraceRecorder | None = None
+    started: float = field(default_factory=time.monotonic)
 
     @classmethod
     def build(cls, config: Config, state_dir: Path, clock: Clock | None = None) -> Daemon:
@@ -255,7 +259,7 @@ class Daemon:
         step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
         up to 20,001), for the benchmarks that ask for it."""
         executor = self.engine.executor
-        motors = [
+        motors: list[dict[str, Any]] = [
             {"index": m.index, "name": m.params.name, "state": m.state.value,
              "position": m.position, "queued": len(m.queue), "fault": m.fault,
              "position_lost": m.position_lost, "waypoints": len(m.waypoints),
@@ -268,6 +272,9 @@ class Daemon:
                             "takeover_steps": list(m.takeover_steps)}}
             for m in list(self.engine.motors)
         ]
+        now = self.engine.clock.now()
+        for doc, m in zip(motors, self.engine.motors, strict=True):
+            doc["speed"] = motor_speed(m.traj, executor.motor_time(m.index, now))
         health = executor.health()
         steps = dict(health.latency)
         steps.update(health.counters)
@@ -281,7 +288,12 @@ class Daemon:
                                             "pid": getattr(executor, "pid", None)},
                                "clamped": dict(self.dispatcher.clamped),
                                "hard_stops": self.engine.stop_wait_status(),
-                               "state": self.persistence.status()}
+                               "state": self.persistence.status(),
+                               "pins": pin_status(self.hw.pins),
+                               "dc": dc_status(self.engine.dc, now)}
+        mono = time.monotonic()
+        out.update(monotonic_s=mono, uptime_s=round(mono - self.started, 3),
+                   unix_s=round(time.time(), 3))
         if self.link is not None:
             out["link"] = self.link.status()
         if self.trace is not None:
@@ -290,6 +302,34 @@ class Daemon:
         if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
             out["drivers"] = drivers
         return out
+
+
+def motor_speed(traj: Trajectory | None, now: float) -> float:
+    """The planned speed at ``now`` in step/s, signed (0 without a trajectory)."""
+    return 0.0 if traj is None else round(traj.velocity(now), 1)
+
+
+def pin_status(pins: dict[int, Pin]) -> list[dict[str, Any]]:
+    """Each IO pin: number, output or not, level (an input is read now; None if that
+    failed, ``error`` says why)."""
+    out: list[dict[str, Any]] = []
+    for number, pin in sorted(pins.items()):
+        entry: dict[str, Any] = {"number": number, "output": pin.is_output}
+        try:
+            entry["level"] = pin.read()
+        except (HalError, OSError) as exc:
+            entry.update(level=None, error=str(exc))
+        out.append(entry)
+    return out
+
+
+def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
+    """The DC motor's bridge state and the time left of its run; None: no DC motor."""
+    if dc is None:
+        return None
+    deadline = dc.deadline
+    return {"state": dc.bridge.state.value, "running": deadline is not None,
+            "left_s": None if deadline is None else round(max(0.0, deadline - now), 3)}
 
 
 def state_files_dir(config: Config, state_dir: Path) -> Path:
@@ -436,7 +476,12 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--probe", action="store_true",
                    help="open every line and device the --config names, without moving "
                    "anything; print chips, lines and their current consumers, end-stop levels "
-                   "and driver status; exit 1 if something is missing or busy")
+                   "and driver status; exit 1 if something is missing or busy. Then check "
+                   "the platform: preemption model, RT throttling, cpufreq governor, "
+                   "isolated CPUs, under-voltage, a short latency measurement, and advice")
+    p.add_argument("--latency-seconds", metavar="S", type=float, default=3.0,
+                   help="with --probe: how long to measure timer wake-ups at the executor's "
+                   "priority and CPU (default 3; 0: skip)")
     p.add_argument("--trace", metavar="FILE", type=Path,
                    help="record every byte run on the link, timestamped, to FILE (pcapng, "
                    "rotated as [trace] says; read it with 'motorctl trace FILE'; "
@@ -449,6 +494,16 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument("--histogram", action="store_true",
                    help="with --status: include the step edges' whole lateness histogram "
                    "(steps.histogram_us: microseconds late -> steps)")
+    p.add_argument("--format", choices=["json", "openmetrics"], default="json",
+                   help="with --status: json (the document, docs/status.md) or openmetrics "
+                   "(the OpenMetrics text format, names motorctl_*, for node_exporter's "
+                   "textfile collector; motorctl_up 0 and exit 1 when no daemon answers)")
+    p.add_argument("--watch", action="store_true",
+                   help="with --status: a live view that refreshes in the terminal "
+                   "(needs python3-rich; the same as 'motorctl monitor')")
+    p.add_argument("--period", metavar="MS", type=int, default=250,
+                   help="with --status --watch: how often the daemon looks for a change "
+                   "(20..60000 ms, default 250)")
     p.add_argument("--log-level", default="info",
                    choices=["debug", "info", "warning", "error"])
     return p.parse_args(argv)
@@ -474,21 +529,14 @@ def main(argv: Sequence[str] | None = None) -> int:
               f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})")
         return 0
     if args.probe:
-        return probe(args.config)
-    if args.histogram and not args.status:
-        print("error: --histogram goes with --status", file=sys.stderr)
-        return 2
+        return probe(args.config, args.latency_seconds)
     if args.status:
-        try:
-            import json
-
-            doc = read_status(args.state_dir / "status.sock", histogram=args.histogram)
-            print(json.dumps(doc, indent=1))
-        except OSError as exc:
-            print(f"error: no daemon status at {args.state_dir / 'status.sock'}: {exc}",
-                  file=sys.stderr)
-            return 1
-        return 0
+        return status_command(args)
+    for given, name in ((args.histogram, "--histogram"), (args.watch, "--watch"),
+                        (args.format != "json", "--format")):
+        if given:
+            print(f"error: {name} goes with --status", file=sys.stderr)
+            return 2
     if args.pty is None and args.port is None:
         print("error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE",
               file=sys.stderr)
@@ -501,8 +549,44 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 1
 
 
-def probe(config_path: str | None) -> int:
-    """``--probe``: what the configured hardware looks like, moving nothing."""
+def status_command(args: argparse.Namespace) -> int:
+    """``--status``: the running daemon's status once (JSON or OpenMetrics), or watched."""
+    path = args.state_dir / "status.sock"
+    if args.watch:
+        if args.histogram or args.format != "json":
+            print("error: --watch shows the live view; --histogram and --format go with a "
+                  "single --status", file=sys.stderr)
+            return 2
+        from motorctl.daemon import monitor
+
+        return monitor.run(path, args.period)
+    if args.histogram and args.format != "json":
+        print("error: --histogram goes with --format json", file=sys.stderr)
+        return 2
+    import json
+
+    from motorctl.daemon import metrics
+
+    try:
+        doc = read_status(path, histogram=args.histogram)
+        if set(doc) == {"error"}:
+            raise ValueError(doc["error"])
+    except (OSError, ValueError) as exc:
+        print(f"error: no daemon status at {path}: {exc}", file=sys.stderr)
+        if args.format == "openmetrics":
+            sys.stdout.write(metrics.down(str(exc)))
+        return 1
+    if args.format == "openmetrics":
+        sys.stdout.write(metrics.openmetrics(doc))
+    else:
+        print(json.dumps(doc, indent=1))
+    return 0
+
+
+def probe(config_path: str | None, latency_s: float = 3.0,
+          roots: platform_check.Roots | None = None) -> int:
+    """``--probe``: what the configured hardware looks like, moving nothing; then the
+    platform (docs/timing.md, "Checking a platform"), which advises and never fails it."""
     try:
         config = load_config(config_path)
     except ConfigError as exc:
@@ -511,6 +595,24 @@ def probe(config_path: str | None) -> int:
     report = probe_hardware(config.hal.backend, hardware_spec(config), MonotonicClock())
     print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
     sys.stdout.write(report.text())
+    sys.stdout.flush()
+    st = config.step_thread
+    timing = platform_check.TimingConfig(cpu=st.cpu, priority=st.priority, spin_us=st.spin_us,
+                                         executor=st.executor)
+    loses = config.hal.backend != "mock" or config.section(MockConfig).lose_steps
+    motors = [platform_check.MotorRate(
+        m.name, m.max_speed,
+        motor_microsteps(m) if m.microsteps is not None or isinstance(
+            m.section(TmcAxisConfig), TmcAxisConfig) else None,
+        m.start_speed, m.max_lag_full_steps, loses) for m in config.motors]
+    found = platform_check.read_platform(roots or platform_check.Roots())
+    if latency_s > 0:
+        print(f"measuring timer wake-ups for {latency_s:g} s ...", flush=True)
+        latency = platform_check.measure_latency(latency_s, st.priority, st.cpu)
+        skipped = None
+    else:
+        latency, skipped = None, "not measured (--latency-seconds 0)"
+    sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
     return 1 if report.problems else 0
 
 
@@ -619,6 +721,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         events.record(motor.index, motor.params.name, event, motor.fault, motor.fault_cause,
                       motor.position_lost)
         line.poke()
+        status.poke()  # subscribers see a start, stop or fault at once
 
     daemon.engine.listeners.append(on_motor_event)
     daemon.writer.on_change = line.poke

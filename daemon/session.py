@@ -35,9 +35,13 @@ from motorctl.protocol.codec import (
     ErrorCode,
     FrameError,
     Response,
+    ResponseError,
     StopMove,
     WaitMoved,
     decode_command,
+    decode_response,
+    describe,
+    describe_answer,
     encode_response,
 )
 from motorctl.protocol.framing import Framer
@@ -53,6 +57,7 @@ COUNTERS = (
 )
 _SENT = {code.value: f"sent_{code.short}" for code in ErrorCode}
 CACHE_LIMIT = 256  # frames and responses remembered; forgotten all at once when full
+RECENT = 16  # the last frames and answers kept for the status (:meth:`LinkSession.recent`)
 
 
 class CommandPort(Protocol):
@@ -93,6 +98,12 @@ class LinkSession:
         # that fails its checks is not remembered and is checked again each time).
         self._decoded: dict[bytes, Command] = {}
         self._encoded: dict[tuple[bool, bytes], bytes] = {}
+        # The last frames (number, arrival time, bytes) and answers (number, bytes): answer n
+        # is the answer to frame n, as responses go out in the order of their frames.
+        self._frames_seen: deque[tuple[int, float, bytes]] = deque(maxlen=RECENT)
+        self._answers_seen: deque[tuple[int, bytes]] = deque(maxlen=RECENT)
+        # their words, remembered by the threads that read the status (never the link's)
+        self._described: dict[tuple[bytes, bytes | None], tuple[str, str | None]] = {}
 
     # -- what the shell asks ------------------------------------------------------------
     @property
@@ -121,6 +132,46 @@ class LinkSession:
         """Silence still to be watched before the partial frame is dropped."""
         return self.framer.gap_left()
 
+    def recent(self) -> list[tuple[float, bytes, bytes | None]]:
+        """The last frames, oldest first: (arrival time, frame, its answer or None while it
+        is owed). Any thread: each deque is copied in one C call under the GIL."""
+        frames = self._frames_seen.copy()
+        answers = dict(self._answers_seen.copy())
+        return [(t, frame, answers.get(n)) for n, t, frame in frames]
+
+    def describe_recent(self) -> list[dict[str, object]]:
+        """:meth:`recent` for the status: ``at_s`` (the link's clock), ``frame`` and
+        ``answer`` as hex (``answer`` None while owed), ``command`` and ``result`` in words
+        (``result`` None while owed). Decoding is the caller's work (the status thread)."""
+        out: list[dict[str, object]] = []
+        described = self._described  # the status readers' own cache (dict ops are atomic)
+        for t, frame, answer in self.recent():
+            words = described.get((frame, answer))
+            if words is None:
+                words = self._describe(frame, answer)
+                if len(described) >= CACHE_LIMIT:
+                    described.clear()
+                described[(frame, answer)] = words
+            out.append({"at_s": t, "frame": frame.hex(" "), "command": words[0],
+                        "answer": None if answer is None else answer.hex(" "),
+                        "result": words[1]})
+        return out
+
+    def _describe(self, frame: bytes, answer: bytes | None) -> tuple[str, str | None]:
+        cmd: Command | None
+        try:
+            cmd = decode_command(frame, self.options)
+            command = describe(cmd)
+        except FrameError as exc:
+            cmd, command = None, f"bad frame ({exc.reason}): {exc}"
+        result: str | None = None
+        if answer is not None:
+            try:
+                result = describe_answer(cmd, decode_response(answer, self.options))
+            except ResponseError as exc:  # not one of ours: say so, never raise
+                result = f"undecodable answer: {exc}"
+        return command, result
+
     def take_output(self) -> bytes:
         """The response bytes ready to send, in order; the session forgets them."""
         if not self._out:
@@ -146,6 +197,7 @@ class LinkSession:
                 # (docs/timing.md). Tests hold both paths to the same answers and counts.
                 counters["frames"] += 1
                 counters["frames_good"] += 1
+                self._frames_seen.append((counters["frames"], now, data))
                 try:
                     resp = self.port.handle(cmd)
                 except Exception:
@@ -180,6 +232,7 @@ class LinkSession:
     def _on_frame(self, frame: bytes, now: float) -> None:
         counters = self.counters
         counters["frames"] += 1
+        self._frames_seen.append((counters["frames"], now, frame))
         cmd: Command | None = self._decoded.get(frame)
         if cmd is None:
             try:
@@ -275,5 +328,6 @@ class LinkSession:
         self._out += data
         counters = self.counters
         counters["responses"] += 1
+        self._answers_seen.append((counters["responses"], data))
         if data[0] == 0x00:
             counters[_SENT[data[1]]] += 1

@@ -1,15 +1,24 @@
 """A read-only status socket: connect, send a request line, receive one JSON document, done;
-and the summary line.
+or subscribe and receive one JSON document per line for as long as you stay; and the summary
+line.
 
 The request is one line of words, ``\n``-terminated: empty for the status, ``histogram`` for
 the status with the full step-lateness histogram (``steps.histogram_us``, up to 20,001 bins:
-built and encoded only when asked). A client that sends nothing gets the plain status after
-``REQUEST_WAIT_S`` (``socat - UNIX-CONNECT:status.sock`` works).
+built and encoded only when asked), ``subscribe [PERIOD_MS]`` for a stream of updates
+(docs/status.md): the status at once, then again whenever it changed, looked at every
+PERIOD_MS (default ``SUBSCRIBE_PERIOD_S``) and at once when a motor starts, stops or faults
+(:meth:`StatusServer.poke`), at least every ``HEARTBEAT_S`` even when nothing changed. A
+client that sends nothing gets the plain status after ``REQUEST_WAIT_S`` (``socat -
+UNIX-CONNECT:status.sock`` works).
 
 Threads: :class:`StatusServer` owns one thread that serves every client with non-blocking
 sockets from one selector: it blocks only in ``select()``, so a client that is slow to ask
 or to read holds up nobody (it is dropped after ``SEND_TIMEOUT_S``); at most
-``MAX_CLIENTS`` at once, the rest wait in the listen backlog. An ``accept()`` error other
+``MAX_CLIENTS`` at once, the rest wait in the listen backlog; of these at most
+``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot. A subscriber that
+has not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being
+sent, newer ones are not queued behind it (it gets the state of its next turn). An
+``accept()`` error other
 than the socket being closed is logged and retried after a pause, never the end of the
 server. ``status()`` is called on that thread and takes no lock of the motion engine: a
 read of its own snapshots, bounded in cost (docs/service.md).
@@ -20,11 +29,13 @@ from __future__ import annotations
 import contextlib
 import json
 import logging
+import math
 import os
 import selectors
 import socket
 import threading
 import time
+from collections.abc import Generator
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -35,7 +46,15 @@ REQUEST_WAIT_S = 0.5
 ACCEPT_RETRY_S = 0.2
 MAX_CLIENTS = 16
 MAX_REQUEST = 256
-REQUESTS = ("histogram",)
+REQUESTS = ("histogram", "subscribe [PERIOD_MS]")
+MAX_SUBSCRIBERS = 8
+SUBSCRIBE_PERIOD_S = 0.25
+SUBSCRIBE_MIN_GAP_S = 0.02  # motor events make updates no more often than this
+PERIOD_MS_RANGE = (20, 60_000)
+HEARTBEAT_S = 5.0
+#: fields that change at every look without anything happening: not a reason for an update
+VOLATILE = ("monotonic_s", "uptime_s", "unix_s")
+VOLATILE_STEPS = ("progress",)
 
 
 class StatusSource(Protocol):
@@ -44,8 +63,18 @@ class StatusSource(Protocol):
     def __call__(self, histogram: bool = False) -> dict[str, Any]: ...
 
 
+class _Subscription:
+    __slots__ = ("due", "key", "period", "sent_at")
+
+    def __init__(self, period: float) -> None:
+        self.period = period
+        self.due = 0.0  # when to look for a change next
+        self.key: bytes | None = None  # the last update sent, volatile fields left out
+        self.sent_at = -math.inf
+
+
 class _Client:
-    __slots__ = ("deadline", "events", "out", "request", "sock")
+    __slots__ = ("deadline", "events", "out", "request", "sock", "sub")
 
     def __init__(self, sock: socket.socket, deadline: float) -> None:
         self.sock = sock
@@ -53,6 +82,50 @@ class _Client:
         self.out: memoryview | None = None  # the answer, once the request is in
         self.deadline = deadline
         self.events = 0  # what the selector watches for it (0: not registered)
+        self.sub: _Subscription | None = None  # a subscriber's stream
+
+
+class _Request:
+    """A parsed request line: what to answer, or the error to answer with."""
+
+    __slots__ = ("error", "histogram", "period")
+
+    def __init__(self, histogram: bool = False, period: float | None = None,
+                 error: str | None = None) -> None:
+        self.histogram = histogram
+        self.period = period  # a subscription's period in seconds; None: one document
+        self.error = error
+
+
+def parse_request(request: bytes) -> _Request:
+    """The request line's meaning (docs/status.md)."""
+    if len(request) > MAX_REQUEST:
+        return _Request(error="unknown status request: a request line too long; "
+                              f"known: {', '.join(REQUESTS)}")
+    words = request.split(b"\n", 1)[0].decode("ascii", "replace").split()
+    if words[:1] == ["subscribe"]:
+        lo, hi = PERIOD_MS_RANGE
+        if len(words) == 1:
+            return _Request(period=SUBSCRIBE_PERIOD_S)
+        if len(words) == 2 and words[1].isdigit() and lo <= int(words[1]) <= hi:
+            return _Request(period=int(words[1]) / 1000.0)
+        return _Request(error=f"subscribe: PERIOD_MS must be a whole number of milliseconds "
+                              f"from {lo} to {hi}, got {' '.join(words[1:])!r}")
+    unknown = [w for w in words if w != "histogram"]
+    if unknown:
+        return _Request(error=f"unknown status request: {' '.join(unknown)}; "
+                              f"known: {', '.join(REQUESTS)}")
+    return _Request(histogram="histogram" in words)
+
+
+def stable_view(doc: dict[str, Any]) -> dict[str, Any]:
+    """``doc`` without the fields that change at every look (the clock, the executor's
+    turns): what decides whether a subscriber gets an update."""
+    view = {k: v for k, v in doc.items() if k not in VOLATILE}
+    steps = view.get("steps")
+    if isinstance(steps, dict):
+        view["steps"] = {k: v for k, v in steps.items() if k not in VOLATILE_STEPS}
+    return view
 
 
 class StatusServer:
@@ -72,6 +145,8 @@ class StatusServer:
         self._sock.listen(MAX_CLIENTS)
         self._sock.setblocking(False)
         self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_w.setblocking(False)  # poke() from the step thread never blocks
+        self.subscribers = 0
         self._closed = threading.Event()
         self._clients: dict[int, _Client] = {}
         self._sel = selectors.DefaultSelector()
@@ -81,6 +156,13 @@ class StatusServer:
 
     def start(self) -> None:
         self._thread.start()
+
+    def poke(self) -> None:
+        """Something changed that subscribers should see at once (a motor started, stopped
+        or faulted). Any thread, never blocks, costs nothing without subscribers."""
+        if self.subscribers:
+            with contextlib.suppress(OSError):
+                self._wake_w.send(b"p")
 
     # -- the server's thread -----------------------------------------------------------
     # Few system calls per read: each one lets the step thread (thread executor) take the
@@ -92,14 +174,17 @@ class StatusServer:
         try:
             while not self._closed.is_set():
                 now = time.monotonic()
-                due = [c.deadline for c in self._clients.values()]
+                due = [c.sub.due if c.sub is not None and c.out is None else c.deadline
+                       for c in self._clients.values()]
                 if not self._accepting and len(self._clients) < MAX_CLIENTS:
                     due.append(self._resume_accept)
                 timeout = max(0.0, min(due) - now) if due else None
                 for key, _ in self._sel.select(timeout):
                     if key.fileobj is self._wake_r:
-                        return
-                    if key.fileobj is self._sock:
+                        if self._closed.is_set():
+                            return
+                        self._poked()
+                    elif key.fileobj is self._sock:
                         self._accept()
                     elif isinstance(key.data, _Client):
                         self._serve(key.data)
@@ -137,9 +222,22 @@ class StatusServer:
             self._accept_on(False)  # full: the rest wait in the backlog
         self._serve(client)
 
+    def _poked(self) -> None:
+        """Subscribers look for a change now (at most every ``SUBSCRIBE_MIN_GAP_S``)."""
+        with contextlib.suppress(OSError):
+            self._wake_r.recv(4096)
+        now = time.monotonic()
+        for client in self._clients.values():
+            sub = client.sub
+            if sub is not None:
+                sub.due = min(sub.due, max(now, sub.sent_at + SUBSCRIBE_MIN_GAP_S))
+
     def _serve(self, client: _Client) -> None:
         """Take the request, answer it, as far as it goes without blocking; then let the
         selector watch for what it waits for."""
+        if client.sub is not None:
+            self._serve_subscriber(client)
+            return
         if client.out is None:
             try:
                 chunk = client.sock.recv(MAX_REQUEST)
@@ -154,11 +252,71 @@ class StatusServer:
                 self._watch(client, selectors.EVENT_READ)
                 return
             self._answer(client)  # a line, the end of input, or too long
+            if client.sub is not None or client.out is None:
+                return  # a subscriber (its first update is on its way), or dropped
         self._send(client)
 
     def _answer(self, client: _Client) -> None:
-        client.out = memoryview(self.document(client.request))
+        request = parse_request(client.request)
+        if request.period is not None and request.error is None:
+            if self.subscribers >= MAX_SUBSCRIBERS:
+                request.error = (f"too many subscribers ({MAX_SUBSCRIBERS}): "
+                                 "close one, or read the status once")
+            else:
+                self.subscribers += 1
+                client.sub = _Subscription(request.period)
+                self._update(client, time.monotonic(), None)
+                return
+        client.out = memoryview(self._encode(request))
         client.deadline = time.monotonic() + SEND_TIMEOUT_S
+
+    # -- subscribers --------------------------------------------------------------------
+    def _serve_subscriber(self, client: _Client) -> None:
+        """Readable: the subscriber closed (or says something, which is ignored);
+        writable: the rest of its update."""
+        try:
+            while True:
+                chunk = client.sock.recv(4096)
+                if not chunk:
+                    self._drop(client)
+                    return
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError:
+            self._drop(client)
+            return
+        if client.out is not None:
+            self._send(client)
+
+    def _update(self, client: _Client, now: float,
+                built: list[tuple[bytes, bytes]] | None) -> None:
+        """Look for a change for subscriber ``client`` (not sending one now): send the
+        status when it changed or the heartbeat is due. ``built``: the document of this
+        turn, shared by the subscribers due in it (empty: not built yet)."""
+        sub = client.sub
+        assert sub is not None and client.out is None
+        sub.due = now + sub.period
+        if built is None:
+            built = []
+        if not built:
+            built.append(self._stream_document())
+        key, line = built[0]
+        if key == sub.key and now - sub.sent_at < HEARTBEAT_S:
+            return
+        sub.key, sub.sent_at = key, now
+        client.out = memoryview(line)
+        client.deadline = now + SEND_TIMEOUT_S
+        self._send(client)
+
+    def _stream_document(self) -> tuple[bytes, bytes]:
+        """(what decides a change, the line to send) of the status now."""
+        try:
+            doc = self.status()
+        except Exception:
+            log.exception("cannot build the status document")
+            doc = {"error": "status unavailable, see the log"}
+        key = json.dumps(stable_view(doc), sort_keys=True).encode()
+        return key, json.dumps(doc, sort_keys=True).encode() + b"\n"
 
     def _send(self, client: _Client) -> None:
         assert client.out is not None
@@ -172,10 +330,16 @@ class StatusServer:
             return
         client.out = client.out[sent:]
         if client.out:
-            self._watch(client, selectors.EVENT_WRITE)
+            self._watch(client, selectors.EVENT_WRITE | (selectors.EVENT_READ
+                                                       if client.sub is not None else 0))
             return
         self.served += 1
-        self._drop(client)
+        if client.sub is None:
+            self._drop(client)
+            return
+        client.out = None
+        client.deadline = math.inf
+        self._watch(client, selectors.EVENT_READ)
 
     def _watch(self, client: _Client, events: int) -> None:
         if client.events == events:
@@ -187,7 +351,12 @@ class StatusServer:
         client.events = events
 
     def _expire(self, now: float) -> None:
+        built: list[tuple[bytes, bytes]] = []
         for client in list(self._clients.values()):
+            if client.sub is not None and client.out is None:
+                if client.sub.due <= now:
+                    self._update(client, now, built)
+                continue
             if client.deadline <= now:
                 if client.out is None:
                     self._answer(client)  # asked nothing: the plain status
@@ -199,6 +368,10 @@ class StatusServer:
             self._accept_on(True)
 
     def _drop(self, client: _Client) -> None:
+        client.out = None
+        if client.sub is not None:
+            client.sub = None
+            self.subscribers -= 1
         self._clients.pop(client.sock.fileno(), None)
         if client.events:
             self._sel.unregister(client.sock)
@@ -206,15 +379,18 @@ class StatusServer:
         client.sock.close()
 
     def document(self, request: bytes) -> bytes:
-        """The answer to one request line: the status as JSON, or an error document."""
-        words = request.split(b"\n", 1)[0].decode("ascii", "replace").split()
-        unknown = [w for w in words if w not in REQUESTS]
-        if unknown or len(request) > MAX_REQUEST:
-            what = " ".join(unknown) if unknown else "a request line too long"
-            return json.dumps({"error": f"unknown status request: {what}; "
-                                        f"known: {', '.join(REQUESTS)}"}).encode()
+        """The answer to one request line that is not a subscription: the status as JSON,
+        or an error document."""
+        return self._encode(parse_request(request))
+
+    def _encode(self, request: _Request) -> bytes:
+        if request.error is not None:
+            return json.dumps({"error": request.error}).encode()
+        if request.period is not None:
+            return json.dumps({"error": "a subscription is answered by the server's "
+                                        "thread"}).encode()
         try:
-            return json.dumps(self.status(histogram="histogram" in words),
+            return json.dumps(self.status(histogram=request.histogram),
                               sort_keys=True).encode()
         except Exception:
             log.exception("cannot build the status document")
@@ -242,21 +418,25 @@ class StatusServer:
             log.warning("cannot remove status socket %s: %s", self.path, exc.strerror)
 
 
+def _connect(sock: socket.socket, path: Path, timeout: float) -> None:
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            sock.connect(str(path))
+            return
+        except BlockingIOError:  # the server's backlog is full: a slot frees soon
+            if time.monotonic() >= deadline:
+                raise TimeoutError(f"{path}: every status slot stayed busy for "
+                                   f"{timeout:.0f} s") from None
+            time.sleep(0.005)
+
+
 def read_status(path: Path, timeout: float = 5.0, histogram: bool = False) -> dict[str, Any]:
     """The daemon's status; ``histogram``: with ``steps.histogram_us`` (costlier: ask only
     when needed)."""
-    deadline = time.monotonic() + timeout
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(timeout)
-        while True:
-            try:
-                sock.connect(str(path))
-                break
-            except BlockingIOError:  # the server's backlog is full: a slot frees soon
-                if time.monotonic() >= deadline:
-                    raise TimeoutError(f"{path}: every status slot stayed busy for "
-                                       f"{timeout:.0f} s") from None
-                time.sleep(0.005)
+        _connect(sock, path, timeout)
         sock.sendall(b"histogram\n" if histogram else b"\n")
         chunks = []
         while chunk := sock.recv(65536):
@@ -264,6 +444,49 @@ def read_status(path: Path, timeout: float = 5.0, histogram: bool = False) -> di
     data = json.loads(b"".join(chunks))
     if not isinstance(data, dict):
         raise ValueError(f"{path}: the status is not a JSON object")
+    return data
+
+
+class StatusError(Exception):
+    """The status socket answered with an error document (its text is the message)."""
+
+
+def subscribe(path: Path, period_s: float | None = None,
+              timeout: float = 5.0) -> Generator[dict[str, Any], None, None]:
+    """The daemon's status updates as they come (docs/status.md), until the daemon closes
+    the stream (it stopped: the iterator ends). ``period_s``: how often the daemon looks
+    for a change (None: its default). OSError when it cannot connect; TimeoutError when no
+    update came for three heartbeats; StatusError for an error document."""
+    request = b"subscribe\n" if period_s is None else \
+        f"subscribe {round(period_s * 1000)}\n".encode()
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(timeout)
+        _connect(sock, path, timeout)
+        sock.sendall(request)
+        sock.settimeout(3 * HEARTBEAT_S + timeout)
+        buffered = b""
+        while True:
+            try:
+                chunk = sock.recv(65536)
+            except TimeoutError:
+                raise TimeoutError(f"{path}: no status update for "
+                                   f"{3 * HEARTBEAT_S + timeout:.0f} s") from None
+            if not chunk:
+                if buffered.strip():  # an answer without a line end: an error document
+                    yield _update_of(buffered, path)
+                return
+            buffered += chunk
+            *lines, buffered = buffered.split(b"\n")
+            for line in lines:
+                yield _update_of(line, path)
+
+
+def _update_of(line: bytes, path: Path) -> dict[str, Any]:
+    data = json.loads(line)
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: a status update is not a JSON object")
+    if set(data) == {"error"}:
+        raise StatusError(str(data["error"]))
     return data
 
 

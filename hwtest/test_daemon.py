@@ -215,7 +215,8 @@ def test_probe_shows_lines_consumers_and_end_stops(daemon: DaemonProcess) -> Non
     # the running daemon holds every line: --probe must say by whom and fail
     cfg = daemon.config
     assert cfg is not None
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config",
+    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
+                          "--latency-seconds", "0", "--config",
                           str(cfg)], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 1, out.stdout + out.stderr
     assert "held by 'motorctl'" in out.stdout
@@ -224,7 +225,8 @@ def test_probe_shows_lines_consumers_and_end_stops(daemon: DaemonProcess) -> Non
 
 
 def run_probe(config: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config",
+    return subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
+                           "--latency-seconds", "0", "--config",
                            str(config)], capture_output=True, text=True, cwd=REPO, timeout=60)
 
 

@@ -56,7 +56,8 @@ def test_probe_lists_the_three_drivers(tmp_path: Path) -> None:
     config = tmp_path / "pi.toml"
     config.write_text(example_config())
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config)],
+        [sys.executable, "-m", "motorctl.daemon.main", "--probe",
+         "--latency-seconds", "0", "--config", str(config)],
         env={**os.environ, **shim_env(tmp_path / "control.json")}, capture_output=True,
         text=True, timeout=120, cwd=REPO,
     )

@@ -210,6 +210,11 @@ class Executor(ABC):
     @abstractmethod
     def health(self) -> ExecutorHealth: ...
 
+    def motor_time(self, motor: int, now: float) -> float:
+        """The motor's own time at clock time ``now``, on which its plans run: behind the
+        clock by what its schedule has slid (late steps; docs/timing.md), else ``now``."""
+        return now
+
     def motor_timing(self, motor: int) -> dict[str, Any]:
         """The motor's late-step figures (``motorctld --status``; docs/timing.md): steps
         absorbed by sliding its schedule, the worst lateness and lag, lag faults. Empty for

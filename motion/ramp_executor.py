@@ -383,6 +383,10 @@ class SplitExecutor(Executor):
         return next((p for ex in self.parts if isinstance(p := getattr(ex, "pid", None), int)),
                     None)
 
+    def motor_time(self, motor: int, now: float) -> float:
+        ex, local = self.routes[motor]
+        return ex.motor_time(local, now)
+
     def motor_timing(self, motor: int) -> dict[str, Any]:
         ex, local = self.routes[motor]
         return ex.motor_timing(local)

@@ -143,6 +143,9 @@ class StepExecutor(Executor):
         clock's less this. Plans are made on the motor's own time (the core adds it back)."""
         return from_ticks(self.motor_cells[motor * MOTOR_CELLS + SHIFT])
 
+    def motor_time(self, motor: int, now: float) -> float:
+        return now - self.shift(motor)
+
     def motor_timing(self, motor: int) -> dict[str, Any]:
         c = self.motor_cells
         b = motor * MOTOR_CELLS

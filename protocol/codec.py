@@ -494,6 +494,24 @@ class Response:
         return pos24_from_bytes(self.payload)
 
 
+def describe_answer(cmd: Command | None, resp: Response) -> str:
+    """Short human text of ``resp`` as the answer to ``cmd`` (None: a frame that failed its
+    checks), e.g. "E3 Motor not ready", "pos=1200", "ready", "high", "waypoint=0", "ok"."""
+    if not resp.ack:
+        code = resp.error_code
+        return f"{code.short} {code.label}" if code is not None else \
+            f"error 0x{resp.payload[0]:02X}"
+    if isinstance(cmd, GetAbsPos):
+        return f"pos={resp.as_position}"
+    if isinstance(cmd, IsReady):
+        return "ready" if resp.as_bool else "busy"
+    if isinstance(cmd, GetPin):
+        return "high" if resp.as_bool else "low"
+    if isinstance(cmd, SaveWayPoint):
+        return f"waypoint={resp.payload[0]}"
+    return "ok"
+
+
 # Responses are immutable: the frequent ones exist once.
 _TRUE = Response(True, b"\x01\x00\x00")
 _FALSE = Response(True, b"\x00\x00\x00")

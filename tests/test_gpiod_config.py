@@ -119,7 +119,8 @@ def test_the_example_config_passes_check_config() -> None:
 
 
 def test_probe_of_the_mock_says_nothing_is_opened() -> None:
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe"],
+    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
+                          "--latency-seconds", "0"],
                          capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 0, out.stderr
     assert "backend mock:\n  nothing to probe" in out.stdout
@@ -133,7 +134,8 @@ def test_without_libgpiod_the_backend_says_what_to_install() -> None:
         open_hardware("gpiod", spec, MonotonicClock())
     report = probe_hardware("gpiod", spec, MonotonicClock())
     assert report.problems and "python3-libgpiod" in report.problems[0]
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config",
+    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
+                          "--latency-seconds", "0", "--config",
                           str(EXAMPLE)], capture_output=True, text=True, cwd=REPO, timeout=60)
     assert out.returncode == 1
     assert "PROBLEM: the gpiod backend needs libgpiod's Python binding" in out.stdout

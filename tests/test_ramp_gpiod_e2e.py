@@ -90,7 +90,8 @@ def test_probe_of_a_ramp_motor_without_lines_opens_none(tmp_path: Path,
     config = tmp_path / "ramp.toml"
     config.write_text(RAMP_ONLY)
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config)],
+        [sys.executable, "-m", "motorctl.daemon.main", "--probe",
+         "--latency-seconds", "0", "--config", str(config)],
         env={**os.environ, **env}, capture_output=True, text=True, timeout=120, cwd=REPO,
     )
     assert out.returncode == 0, out.stdout + out.stderr

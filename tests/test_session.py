@@ -434,3 +434,31 @@ def test_a_command_that_raises_in_a_read_of_its_own_is_e4_each_time() -> None:
         session.receive(frame(IsReady(0)), float(n))
         assert decode_response(session.take_output(), OPTS).error_code is E.MOTOR_ERROR
         assert session.counters["internal_errors"] == n
+
+
+def test_recent_frames_pair_each_frame_with_its_answer(w: World) -> None:
+    """The status's last frames: each with its own answer in words, a held one owed (None)
+    until its WaitMoved is answered, a frame that failed its checks described as such; the
+    fast path (a frame seen before, nothing held) records like the framer's path."""
+    w.send(MoveTo(0, True, 400, 250, 0, 0))
+    w.send(GetAbsPos(0))
+    w.send(GetAbsPos(0))  # a frame seen before, read alone: the fast path
+    w.send(WaitMoved(0, 10_000), IsReady(0))  # IsReady held behind the wait
+    w.session.receive(corrupt(frame(IsReady(1)), 75), w.now)
+    recent = w.session.describe_recent()
+    assert [r["command"] for r in recent[:5]] == [
+        "MoveTo(motor=0, dir=up, pos=400, speed=250, acc=0, dec=0)",
+        "GetAbsPos(motor=0)", "GetAbsPos(motor=0)", "WaitMoved(motor=0, timeout_ms=10000)",
+        "IsReady(motor=0)"]
+    assert [r["result"] for r in recent] == ["ok", "pos=0", "pos=0", None, None, None]
+    assert str(recent[5]["command"]).startswith("bad frame (checksum)")
+    assert recent[0]["frame"] == frame(MoveTo(0, True, 400, 250, 0, 0)).hex(" ")
+    assert all(r["at_s"] == w.now for r in recent)
+    w.run(5.0)
+    results = [r["result"] for r in w.session.describe_recent()]
+    assert results[3:] == ["ok", "ready", "E1 Invalid Command"]
+    assert len(w.responses()) == 6
+    for _ in range(40):
+        w.send(IsReady(1))
+    recent = w.session.describe_recent()
+    assert len(recent) == 16 and {r["result"] for r in recent} == {"ready"}

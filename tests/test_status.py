@@ -23,7 +23,7 @@ from tests.test_hal_faults import Live, moving
 READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
 
 MOTOR_KEYS = {"index", "name", "state", "position", "queued", "fault", "position_lost",
-              "waypoints", "faults", "timing", "soft_stops"}
+              "waypoints", "faults", "timing", "soft_stops", "speed"}
 #: each motor's late-step figures and rule (docs/timing.md, "Reading the figures")
 TIMING_KEYS = {"late_absorbed", "slid_ms", "worst_late_us", "worst_lag_full_steps",
                "lag_faults", "microsteps", "max_lag_full_steps"}
@@ -67,6 +67,12 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
     assert doc["motors"][0]["soft_stops"] == {"count": 0, "takeover_ms": [0.0, 0.0],
                                               "takeover_steps": [0, 0]}
     assert doc["motors"][0]["state"] != "idle" and doc["motors"][0]["fault"] is None
+    assert doc["motors"][0]["speed"] > 0 and doc["motors"][1]["speed"] == 0
+    assert doc["pins"] == [{"number": 0, "output": True, "level": False}]
+    assert doc["dc"] is None  # none configured
+    assert doc["uptime_s"] > 0 and doc["monotonic_s"] > 0 and doc["unix_s"] > 0
+    last = doc["link"]["recent"][-1]  # moving() asked for the position until it moved
+    assert last["command"] == "GetAbsPos(motor=0)" and last["result"].startswith("pos=")
     assert set(doc["steps"]) >= STEP_KEYS and doc["steps"]["steps"] > 0
     assert "histogram_us" not in doc["steps"]  # bounded cost unless asked
     assert doc["executor"] == {"alive": True, "reason": None, "kind": "thread", "pid": None}
