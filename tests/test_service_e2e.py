@@ -5,6 +5,7 @@ and systemd's notifications on a fake NOTIFY_SOCKET."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -111,6 +112,97 @@ def test_bad_state_file_starts_with_every_motor_lost(tmp_path: Path, kind: str) 
             c.wait_moved(0, 20_000)
             c.move_to(0, 10)  # homed: position known again
         assert "nothing restored" in d.status()["state"]["restored"]
+    finally:
+        d.close()
+    no_traceback(d)
+
+
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_whatever_stands_at_the_state_file_is_set_aside_under_a_free_name(
+        tmp_path: Path, kind: str) -> None:
+    # Issue 16: a directory at state.json while a state.json.bad file already existed left
+    # the daemon unable to write any state: InitMove E4 for ever, MoveToWayPoint(0, 0) E4
+    # instead of E6, SIGTERM exit 4. (A FIFO there blocked the start for ever.)
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "state.json.bad").write_text("an older one")
+    if kind == "directory":
+        (state / "state.json").mkdir()
+        (state / "state.json" / "junk").write_text("x")
+    else:
+        os.mkfifo(state / "state.json")
+    d = DaemonProcess(tmp_path, state_dir=state).start()
+    try:
+        with d.client() as c:
+            with pytest.raises(DeviceError) as exc:
+                c.move_to_waypoint(0, 0)
+            assert exc.value.code == E.INVALID_WAYPOINT
+            c.init_move(0, False, speed=1)  # a lost motor can be homed
+            c.wait_moved(0, 20_000)
+            c.move_to(0, 10)
+            c.wait_moved(0, 5000)
+        assert f"{state / 'state.json'} is a {kind.replace('fifo', 'FIFO')}" in d.stderr()
+        assert f"kept it as {state / 'state.json.bad.1'}" in d.stderr()
+        assert d.status()["state"]["ok"] is True
+        assert d.terminate() == 0
+    finally:
+        d.close()
+    no_traceback(d)
+    assert (state / "state.json.bad").read_text() == "an older one"
+    assert os.path.lexists(state / "state.json.bad.1")
+    assert json.loads((state / "state.json").read_text())["motors"][0]["position"] == 10
+
+
+def _state_file(state: Path, motors: list[dict[str, object]]) -> bytes:
+    from motorctl.daemon.config import default_config_text, parse_config
+    from motorctl.daemon.main import motor_identities
+
+    idents = motor_identities(parse_config(default_config_text(), "default"))
+    records = [{"name": i.name, "fingerprint": i.fingerprint, "position": 0, "home": 0,
+                "waypoints": [], "moving": False, "position_lost": False} for i in idents]
+    for record, change in zip(records, motors, strict=False):
+        record.update(change)
+    records += [dict(records[0], **m) for m in motors[len(idents):]]
+    data = json.dumps({"version": 2, "motors": records}).encode()
+    state.mkdir()
+    (state / "state.json").write_bytes(data)
+    return data
+
+
+@pytest.mark.parametrize("change", ["motor q", "position", "256 waypoints"])
+def test_a_state_file_restores_motor_by_motor(tmp_path: Path, change: str) -> None:
+    # PROTOCOL.md §4: an inconsistent file restores nothing for the motors concerned, and
+    # is kept aside. A motor the config does not have (x, y, z and a "q") was silently
+    # dropped; one bad value in y's record lost x and z too.
+    y: dict[str, object] = {"position": 200, "home": 3, "waypoints": [5]}
+    if change == "position":
+        y["position"] = 1 << 23
+    elif change == "256 waypoints":
+        y["waypoints"] = list(range(256))
+    motors: list[dict[str, object]] = [{"position": 100}, y, {"position": 300}]
+    if change == "motor q":
+        motors.append({"name": "q", "position": 4})
+    state = tmp_path / "state"
+    data = _state_file(state, motors)
+    d = DaemonProcess(tmp_path, state_dir=state).start()
+    try:
+        with d.client() as c:
+            assert (c.position(0), c.position(2)) == (100, 300)
+            if change == "motor q":
+                assert c.position(1) == 200
+                c.move_to_waypoint(1, 0)
+                c.wait_moved(1, 5000)
+                assert c.position(1) == 5
+                assert "has motor 'q', which the config does not have" in d.stderr()
+            else:
+                with pytest.raises(DeviceError) as exc:
+                    c.move_to(1, 0)
+                assert exc.value.code == E.MOTOR_ERROR
+                assert "motor 1 (y): nothing restored" in d.stderr()
+            c.move_to(0, 0)  # x's position is known
+            c.wait_moved(0, 5000)
+        assert (state / "state.json.bad").read_bytes() == data
+        assert "the file was kept as" in d.status()["state"]["restored"]
     finally:
         d.close()
     no_traceback(d)
