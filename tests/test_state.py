@@ -29,7 +29,9 @@ from motorctl.daemon.state import (
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
     ErrorCode,
+    GoHome,
     InitMove,
+    Move,
     MoveTo,
     MoveToWayPoint,
     Response,
@@ -484,6 +486,23 @@ def test_journal_not_open_refuses_motion(tmp_path: Path) -> None:
     assert r.error_code is E.MOTOR_ERROR
     assert d.persistence.status()["motion_refused"] == 1
     assert d.engine.motors[0].idle
+
+
+def test_a_motion_that_cannot_be_recorded_is_e4_in_its_place(tmp_path: Path) -> None:
+    # PROTOCOL.md §5: E1 -> E2 -> E1 (parameters) -> E6 -> E4; the journal's failure is an
+    # E4 and takes E4's place (it used to come before every check of the command).
+    d = build(tmp_path, CONFIG.replace('name = "b"', 'name = "b"\nsoft_limit_min = -10\n'
+                                                     'soft_limit_max = 10'))
+    d.persistence.journal.close()
+    handle = d.dispatcher.handle
+    assert handle(MoveToWayPoint(0, 0, 0, 0, 0)).error_code is E.INVALID_WAYPOINT
+    assert handle(MoveTo(5, True, 1, 0, 0, 0)).error_code is E.INVALID_ADDRESS
+    assert handle(MoveTo(1, True, 11, 0, 0, 0)).error_code is E.INVALID_COMMAND
+    for cmd in (MoveTo(1, True, 5, 0, 0, 0), InitMove(0, False, 0, 0, 0), GoHome(1),
+                Move(0, True, 1, 0, 0)):
+        assert handle(cmd).error_code is E.MOTOR_ERROR, cmd
+    assert all(m.idle for m in d.engine.motors)
+    assert d.persistence.status()["motion_refused"] == 6  # all but the unknown motor
 
 
 # -- writes: complete or absent ------------------------------------------------------------------
