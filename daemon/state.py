@@ -27,14 +27,19 @@ Moving before the ACK: a motion command must not be acknowledged while the state
 still says its motor is at rest (a SIGKILL right then would restore a stale position).
 :class:`MotionJournal` is a write-ahead record of one byte per motor, set and fdatasynced
 before the motion starts; the writer clears it once a state file with the motor at rest
-again is durable. A motor whose byte is set when the daemon starts has lost its position.
+again is durable. A command that found its motor at rest on disk and left it there (a move
+of no distance, a refused command) clears the byte itself before it is answered
+(``withdraw``), since the state on disk is still right: only a motor that really moved may
+come back lost. A motor whose byte is set when the daemon starts has lost its position.
 
 Threads: :class:`StateWriter` writes on its own thread on request (motor events, which come
 from the step thread and must not wait for a disk) and synchronously when asked by the link
 thread (SaveHome/SaveWayPoint, answered only after the write). Its write lock serialises
-both. :class:`MotionJournal` is called by the link thread (``begin``/``end``) and the writer
-thread (``clear_if_unchanged``) and guards itself with a lock; ``begin`` blocks on one
-``fdatasync`` of a tiny file, and only when the motor was at rest on disk.
+both. :class:`MotionJournal` is called by the link thread (``begin``/``end``/``withdraw``)
+and the writer thread (``clear_if_unchanged``) and guards itself with a lock; ``begin``
+blocks on one ``fdatasync`` of a tiny file, and only when the motor was at rest on disk.
+``Persistence`` takes the engine lock briefly before and after a motion from rest (where
+was the motor, did it move).
 """
 
 from __future__ import annotations
@@ -402,6 +407,7 @@ class MotionJournal:
         self._fd: int | None = None
         self.marks = 0
         self.mark_seconds = 0.0  # total time spent in begin()'s write + fdatasync
+        self.withdrawn = 0  # flags cleared at once after a command that did not move
 
     @staticmethod
     def read(path: Path) -> list[bool] | None:
@@ -434,17 +440,20 @@ class MotionJournal:
             self._flags = [False] * self.count
         fsync_dir(self.path.parent)
 
-    def begin(self, index: int) -> None:
+    def begin(self, index: int) -> int | None:
         """Before motor ``index`` may start: make "moving" durable. OSError when it cannot.
 
-        Pair every successful call with :meth:`end` once the command was handled.
+        Pair every successful call with :meth:`end` once the command was handled. Returns a
+        token for :meth:`withdraw` when this call raised the flag (the motor was at rest on
+        disk until now), else None.
         """
         with self._lock:
             self._pending[index] += 1
             self._gen[index] += 1
             if self._flags[index]:
-                return
+                return None
             fd = self._fd
+            token = self._gen[index]
         # The disk is waited for outside the lock: a snapshot (taken under the engine lock)
         # asks for a token meanwhile and must not wait for an fdatasync. While this start is
         # pending no token is handed out, so nothing clears the byte behind our back.
@@ -463,10 +472,34 @@ class MotionJournal:
             self.mark_seconds += elapsed
             self.marks += 1
             self._flags[index] = True
+        return token
 
     def end(self, index: int) -> None:
         with self._lock:
             self._pending[index] -= 1
+
+    def withdraw(self, index: int, token: int) -> bool:
+        """The command whose :meth:`begin` returned ``token`` left the motor where the state
+        on disk has it, at rest (a move of no distance, a refused command): clear the flag
+        at once, so a kill now does not take the motor for moved. False (nothing done) when
+        another start came since, or one is in flight.
+
+        Not fsynced, as :meth:`clear_if_unchanged`: a lost clear only makes a restart more
+        careful.
+        """
+        with self._lock:
+            if self._gen[index] != token or self._pending[index] or not self._flags[index]:
+                return False
+            if self._fd is None:
+                return False
+            try:
+                os.pwrite(self._fd, b"0", index)
+            except OSError as exc:
+                log.warning("cannot clear the motion journal %s: %s", self.path, exc.strerror)
+                return False
+            self._flags[index] = False
+            self.withdrawn += 1
+            return True
 
     def token(self, index: int) -> int | None:
         """Taken with the snapshot: None while a start is in flight (never clear then)."""
@@ -590,7 +623,7 @@ class StateWriter:
                                "last_write_ms": round(self.last_write_s * 1e3, 3)}
         if self.journal is not None:
             j = self.journal
-            out["journal"] = {"file": str(j.path), "marks": j.marks,
+            out["journal"] = {"file": str(j.path), "marks": j.marks, "withdrawn": j.withdrawn,
                               "mean_mark_us": round(j.mark_seconds / j.marks * 1e6, 1)
                               if j.marks else None}
         return out
@@ -632,6 +665,9 @@ class Persistence:
         self.restored = "nothing to restore"
         self.save_errors = 0
         self.motion_refused = 0
+        # Motion commands in hand (link thread) that found their motor at rest on disk:
+        # the journal's token and the position the disk has.
+        self._from_rest: dict[int, tuple[int, int]] = {}
 
     # -- start and stop ----------------------------------------------------------------------
     def restore(self) -> None:
@@ -739,19 +775,34 @@ class Persistence:
     def before_motion(self, index: int) -> bool:
         """Make "motor ``index`` is moving" durable before a motion command; False: cannot."""
         try:
-            self.journal.begin(index)
+            token = self.journal.begin(index)
         except OSError as exc:
             self.motion_refused += 1
             log.error("motor %d: cannot record the start of a motion in %s: %s; answered E4",
                       index, self.journal.path, exc.strerror or exc,
                       extra={"MOTOR": index, "ERROR_CODE": "E4", "ERRNO": exc.errno})
             return False
+        if token is not None:  # from rest on disk: where the disk has it
+            with self.engine.lock:
+                self._from_rest[index] = (token, self.engine.motors[index].position)
         return True
 
     def after_motion(self, index: int) -> None:
         self.journal.end(index)
-        if not self.engine.motors[index].active:
-            self.writer.request()  # a refused command: let the writer clear the mark
+        from_rest = self._from_rest.pop(index, None)
+        m = self.engine.motors[index]
+        if from_rest is not None:
+            token, position = from_rest
+            with self.engine.lock:
+                unmoved = (not m.active and not m.queue and not m.stopping
+                           and m.position == position)
+            # A move of no distance, or a refused command: the disk is still right about
+            # this motor, and a kill now must not make it lost (only a motor that really
+            # moved may come back lost).
+            if unmoved and self.journal.withdraw(index, token):
+                return
+        if not m.active:
+            self.writer.request()  # let the writer clear the mark
 
     def save(self) -> bool:
         """SaveHome/SaveWayPoint: write now; True when the new state is durable."""

@@ -20,8 +20,8 @@ import pytest
 from motorctl.client.client import DeviceError
 from motorctl.daemon.main import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
-from tests.daemon_proc import DaemonProcess
-from tests.fsutil import read_only
+from tests.daemon_proc import DaemonProcess, until
+from tests.fsutil import fill, read_only, small_tmpfs
 
 E = ErrorCode
 DEADLINE_S = 20.0
@@ -278,6 +278,41 @@ def test_kill_right_after_a_motion_ack_loses_the_position(daemon: DaemonProcess,
         assert exc.value.code == E.MOTOR_ERROR
     finally:
         d2.close()
+
+
+def test_kill_right_after_a_move_of_no_distance_keeps_the_idle_motor(tmp_path: Path) -> None:
+    # Issue 16: MoveTo(2, 777) with motor 2 at 777 (ACK, WaitMoved ACK, IsReady 1), then a
+    # MoveTo on motor 0 and a kill -9: after the restart motor 2 answered E4, "motor 0 (x),
+    # 2 (z) was moving". Its journal byte stayed set until the writer's next durable state
+    # write; a full state directory (as here) holds that write off for good, so the kill
+    # comes before it every time.
+    with small_tmpfs(tmp_path / "state") as state:
+        d = DaemonProcess(tmp_path, state_dir=state).start()
+        with d.client() as c:
+            c.move_to(2, 777)
+            c.wait_moved(2, 5000)
+            until("motor 2 at rest on disk",
+                  lambda: (state / "state.moving").read_bytes() == b"000")
+            filler = fill(state)
+            c.move_to(2, 777)  # no distance
+            c.wait_moved(2, 5000)
+            assert c.is_ready(2)
+            c.move_to(0, 5000, speed=1)
+        d.kill()
+        filler.unlink()
+        d2 = DaemonProcess(tmp_path, state_dir=state).start()
+        try:
+            with d2.client() as c:
+                assert c.position(2) == 777
+                c.move_to(2, 0)  # its position is known
+                c.wait_moved(2, 5000)
+                with pytest.raises(DeviceError) as exc:
+                    c.move_to(0, 0)  # motor 0 really moved: lost
+                assert exc.value.code == E.MOTOR_ERROR
+            assert "motor 0 (x) was moving when the daemon stopped" in d2.stderr()
+        finally:
+            d2.close()
+    no_traceback(d2)
 
 
 def test_notifications_on_a_fake_notify_socket(tmp_path: Path) -> None:

@@ -28,6 +28,7 @@ from motorctl.daemon.state import (
 )
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
+    Command,
     ErrorCode,
     GoHome,
     InitMove,
@@ -424,14 +425,69 @@ def test_journal_cleared_once_at_rest_is_durable(tmp_path: Path) -> None:
     assert d2.engine.motors[1].position == 500
 
 
-def test_a_rejected_motion_leaves_no_mark_after_the_next_write(tmp_path: Path) -> None:
+def test_a_rejected_motion_leaves_no_mark(tmp_path: Path) -> None:
     d = build(tmp_path)
-    # Out of the 24-bit range on a linear axis is fine, but a queue... use a fault instead:
     d.engine.motors[0].fault = "test"
     assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
-    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"10"
-    d.writer.write_now()
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"  # at once, without a write
+    assert d.persistence.status()["journal"]["withdrawn"] == 1
+
+
+@pytest.mark.parametrize("command", ["MoveTo", "GoHome", "MoveToWayPoint", "rotary MoveTo"])
+def test_a_motion_of_no_distance_leaves_no_mark(tmp_path: Path, command: str) -> None:
+    # Issue 16: a MoveTo to where the motor stands left its journal byte set until the
+    # writer's next durable write; a kill -9 meanwhile brought the idle motor back lost.
+    d = build(tmp_path, ROTARY)
+    move(d, 1, 250)
+    assert d.dispatcher.handle(SaveHome(1)).ack
+    assert d.dispatcher.handle(SaveWayPoint(1)).ack
+    assert d.writer.write_now()
+    journal = tmp_path / st.JOURNAL_NAME
+    assert journal.read_bytes() == b"00"
+    commands: dict[str, Command] = {
+        "MoveTo": MoveTo(1, True, 250, 0, 0, 0), "GoHome": GoHome(1),
+        "MoveToWayPoint": MoveToWayPoint(1, 0, 0, 0, 0),
+        "rotary MoveTo": MoveTo(1, False, 250 + 400, 0, 0, 0)}
+    cmd = commands[command]
+    assert d.dispatcher.handle(cmd).ack
+    assert d.engine.motors[1].idle
+    assert journal.read_bytes() == b"00"  # a kill -9 now: the motor is where the disk says
+    d2 = build(tmp_path, ROTARY)  # what a restart after a kill -9 sees
+    assert lost(d2) == [False, False]
+    assert d2.engine.motors[1].position == 250
+
+
+def test_a_motion_that_moves_keeps_its_mark(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    move(d, 1, 250)
+    assert d.writer.write_now()
+    assert d.dispatcher.handle(MoveTo(1, True, 251, 0, 0, 0)).ack
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"01"
+    assert d.persistence.status()["journal"]["withdrawn"] == 0
+    d.engine.run_until_idle()
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"01"  # until the state is durable
+    assert d.writer.write_now()
     assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+
+
+def test_withdraw_only_the_start_it_was_given(tmp_path: Path) -> None:
+    j = MotionJournal(tmp_path / "j", 1)
+    j.reset()
+    token = j.begin(0)
+    assert token is not None
+    assert not j.withdraw(0, token)  # still in flight
+    j.end(0)
+    assert j.begin(0) is None  # already marked: nothing to withdraw for this one
+    j.end(0)
+    assert not j.withdraw(0, token)  # another start came since
+    assert j.flagged() == [True]
+    j.clear_if_unchanged(0, j.token(0))
+    token = j.begin(0)
+    j.end(0)
+    assert token is not None and j.withdraw(0, token)
+    assert (tmp_path / "j").read_bytes() == b"0" and j.flagged() == [False]
+    assert not j.withdraw(0, token)  # once
+    j.close()
 
 
 def test_journal_token_protects_a_start_in_flight(tmp_path: Path) -> None:
