@@ -220,9 +220,9 @@ def test_parse_state_lists_the_bad_records() -> None:
 
 # -- whatever stands in the way is set aside under a free name ----------------------------------
 def _make(path: Path, kind: str) -> None:
-    """Put a ``kind`` of thing at ``path``. A FIFO is opened for writing and closed again
-    after FIFO_RESCUE_S, should anything be stuck opening it for reading (so that a
-    daemon that reads it fails the test instead of hanging it)."""
+    """Put a ``kind`` of thing at ``path``. A FIFO's other ends are opened and closed once
+    after FIFO_RESCUE_S, should anything be stuck opening it (so that a daemon that opens
+    it fails the test instead of hanging it)."""
     if kind == "directory":
         path.mkdir()
         (path / "junk").write_text("x")
@@ -246,7 +246,11 @@ FIFO_RESCUE_S = 10.0
 
 
 def _unblock_fifo(path: Path) -> None:
-    with contextlib.suppress(OSError):  # ENXIO: nobody reads it (the daemon did not)
+    """Open the FIFO's other ends once: a reader or a writer stuck opening it goes on (and
+    then fails or reads nothing), instead of waiting for ever."""
+    with contextlib.suppress(OSError):
+        os.close(os.open(path, os.O_RDONLY | os.O_NONBLOCK))
+    with contextlib.suppress(OSError):  # ENXIO: nobody reads it
         os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
 
 
