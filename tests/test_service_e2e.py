@@ -280,20 +280,20 @@ def test_kill_right_after_a_motion_ack_loses_the_position(daemon: DaemonProcess,
 
 
 def test_kill_right_after_a_move_of_no_distance_keeps_the_idle_motor(tmp_path: Path) -> None:
-    # Issue 16: MoveTo(2, 777) with motor 2 at 777 (ACK, WaitMoved ACK, IsReady 1), then a
-    # MoveTo on motor 0 and a kill -9: after the restart motor 2 answered E4, "motor 0 (x),
-    # 2 (z) was moving". Its journal byte stayed set until the writer's next durable state
-    # write; a full state directory (as here) holds that write off for good, so the kill
-    # comes before it every time.
+    # Issue 16: MoveTo(2, 777) with motor 2 at 777 (here 77: a shorter first move), ACK,
+    # WaitMoved ACK, IsReady 1, then a MoveTo on motor 0 and a kill -9: after the restart
+    # motor 2 answered E4, "motor 0 (x), 2 (z) was moving". Its journal byte stayed set
+    # until the writer's next durable state write; a full state directory (as here) holds
+    # that write off for good, so the kill comes before it every time.
     with small_tmpfs(tmp_path / "state") as state:
         d = DaemonProcess(tmp_path, state_dir=state).start()
         with d.client() as c:
-            c.move_to(2, 777)
+            c.move_to(2, 77)
             c.wait_moved(2, 5000)
             until("motor 2 at rest on disk",
                   lambda: (state / "state.moving").read_bytes() == b"000")
             filler = fill(state)
-            c.move_to(2, 777)  # no distance
+            c.move_to(2, 77)  # no distance
             c.wait_moved(2, 5000)
             assert c.is_ready(2)
             c.move_to(0, 5000, speed=1)
@@ -302,7 +302,7 @@ def test_kill_right_after_a_move_of_no_distance_keeps_the_idle_motor(tmp_path: P
         d2 = DaemonProcess(tmp_path, state_dir=state).start()
         try:
             with d2.client() as c:
-                assert c.position(2) == 777
+                assert c.position(2) == 77
                 c.move_to(2, 0)  # its position is known
                 c.wait_moved(2, 5000)
                 with pytest.raises(DeviceError) as exc:
