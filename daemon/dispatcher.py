@@ -109,6 +109,7 @@ class Dispatcher:
         self.pins = pins
         self.persist: Persist = persist or NoPersistence()
         self._undo: Callable[[], None] | None = None
+        self._unrecorded = False  # "moving" could not be made durable: no motion may start
         self._settle: Motor | None = None  # a hard stop whose answer waits for the executor
         self.clamped: Counter[str] = Counter()
         self.hardware_errors = 0
@@ -142,7 +143,7 @@ class Dispatcher:
         engine = self.engine
         if isinstance(cmd, MOTION_COMMANDS) and 0 <= cmd.motor < len(engine.motors):
             if not self.persist.before_motion(cmd.motor):
-                return Response.error(E.MOTOR_ERROR)
+                return self._unrecorded_motion(handler, cmd)
             journalled = cmd.motor
         try:
             with engine.lock:
@@ -178,6 +179,22 @@ class Dispatcher:
                                "ERROR_CODE": "E4"})
             return Response.error(E.MOTOR_ERROR)
         return resp
+
+    def _unrecorded_motion(self, handler: Callable[[Any], Response], cmd: Command) -> Response:
+        """A motion command whose start cannot be recorded: E4 in E4's place in the order of
+        PROTOCOL.md §5 (an unknown waypoint is still E6, a target outside the soft limits
+        E1), and nothing starts: the handler runs its checks and :meth:`_submit` refuses."""
+        engine = self.engine
+        self._unrecorded = True
+        try:
+            with engine.lock:
+                engine.process_events(engine.clock.now())
+                handler(cmd)  # every motion handler ends in _submit, which raises
+        except Reject as r:
+            return Response.error(r.code)
+        finally:
+            self._unrecorded = False
+        return Response.error(E.MOTOR_ERROR)
 
     def _settled(self, m: Motor) -> Response:
         """A StopMove that stopped ``m`` hard: its answer once the executor confirmed it
@@ -268,6 +285,8 @@ class Dispatcher:
             raise Reject(E.MOTOR_NOT_READY)
 
     def _submit(self, m: Motor, cmd: MotionCmd) -> Response:
+        if self._unrecorded:
+            raise Reject(E.MOTOR_ERROR)  # before E0: E4 comes first
         if m.queue_full:
             raise Reject(E.FULL_BUFFER)
         m.submit(cmd, self.engine.clock.now())

@@ -14,11 +14,13 @@ The rules (PROTOCOL.md §2, §4):
 - A frame that fails its checks is answered E1 in its turn and never executed.
 - A WaitMoved holds the responses of later frames until it is answered. Later frames are kept
   in arrival order; up to ``held_limit`` of them take a place in the held-frame buffer, each
-  one beyond it is answered E0 in its turn and not executed. A StopMove is executed on arrival
-  (its answer decided then) and answered in its turn; it never takes a place and is never
-  refused for lack of room. A frame that fails its checks is decided E1 on arrival and takes
-  no place either. When the WaitMoved is answered the kept frames run in order; a WaitMoved
-  among them is taken up then (its TIMEOUT counts from that moment) and holds again.
+  one beyond it is answered E0 in its turn and not executed. A frame that fails its checks
+  takes a place like any other (PROTOCOL.md §4 exempts only StopMove) and is answered E1 in
+  its turn; beyond the limit it is answered E1 all the same (E1 for the frame precedes E0,
+  §5). A StopMove is executed on arrival (its answer decided then) and answered in its turn;
+  it never takes a place and is never refused for lack of room. When the WaitMoved is
+  answered the kept frames run in order; a WaitMoved among them is taken up then (its
+  TIMEOUT counts from that moment) and holds again.
 """
 
 from __future__ import annotations
@@ -88,10 +90,11 @@ class LinkSession:
         self.backlog_limit = backlog_limit
         self.counters: Counter[str] = Counter(dict.fromkeys(COUNTERS, 0))
         self.wait: Wait | None = None
-        # Frames behind the held WaitMoved: a command still to execute, or an answer decided
-        # on arrival (E1, E0, a StopMove's), already encoded.
-        self._held: deque[Command | bytes] = deque()
-        self._held_places = 0  # commands in _held (they take a place in the buffer)
+        # Frames behind the held WaitMoved: a command still to execute, None for a frame that
+        # failed its checks (answered E1 in its turn), or an answer decided on arrival that
+        # takes no place (E0 beyond the limit, a StopMove's), already encoded.
+        self._held: deque[Command | bytes | None] = deque()
+        self._held_places = 0  # commands and Nones in _held (they take a place in the buffer)
         self._out = bytearray()
         # A host polls with the same few frames and gets the same few answers: both
         # translations are remembered (commands and responses are immutable; a frame
@@ -269,16 +272,16 @@ class LinkSession:
         return Response.error(ErrorCode.MOTOR_ERROR)
 
     def _hold(self, cmd: Command | None, now: float) -> None:
-        if cmd is None:
-            self._held.append(self._encode(Response.error(ErrorCode.INVALID_COMMAND)))
-        elif isinstance(cmd, StopMove):
+        if isinstance(cmd, StopMove):
             self.counters["stops_while_held"] += 1
             self._held.append(self._encode(self._execute(cmd)))
             self.poll(now)  # the stop may have ended the wait
             return
-        elif self._held_places >= self.held_limit:
+        if self._held_places >= self.held_limit:
             self.counters["held_overflow"] += 1
-            self._held.append(self._encode(Response.error(ErrorCode.FULL_BUFFER)))
+            # No place left: E0, or E1 for a frame that failed its checks (E1 comes first).
+            code = ErrorCode.FULL_BUFFER if cmd is not None else ErrorCode.INVALID_COMMAND
+            self._held.append(self._encode(Response.error(code)))
         else:
             self._held.append(cmd)
             self._held_places += 1
@@ -305,7 +308,9 @@ class LinkSession:
                 self._emit_encoded(item)
                 continue
             self._held_places -= 1
-            if isinstance(item, WaitMoved):
+            if item is None:
+                self._emit(Response.error(ErrorCode.INVALID_COMMAND))
+            elif isinstance(item, WaitMoved):
                 self._take_up(item, now)
             else:
                 self._emit(self._execute(item))

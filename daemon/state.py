@@ -5,28 +5,41 @@ default the runtime directory /run/motorctl (a tmpfs: state survives a daemon re
 is gone after a reboot, like a microcontroller's RAM); ``[state] directory`` in the config
 moves them, e.g. to /var/lib/motorctl (docs/service.md says when that is wise).
 
-What is trusted: a state file is read strictly. Bad bytes, bad JSON, wrong types, a
-directory in its place, or a well-formed but inconsistent content (a position outside the
-24-bit range, more waypoints than any table holds) make the whole file unreadable: it is
-moved aside as ``state.json.bad`` and every motor must be homed again. A file that is fine
-but written for other motors (names, or a fingerprint of their geometry, that do not match
-the config) restores nothing for the motors concerned, and is kept aside too.
+What is trusted: a state file is read strictly, record by record. Whatever stands at
+``state.json`` that is not a readable regular file (a directory, a symbolic link, a FIFO, a
+file that cannot be read), bad bytes, bad JSON or a file without a list of motor records
+restores nothing: every motor must be homed again. A motor record that is wrong in itself
+(wrong types, a position outside the 24-bit range, more waypoints than any table holds, a
+name that two records share) or written for another motor (its name, or the fingerprint
+of its geometry, does not match the config) restores nothing for that motor only; a record
+for a motor the config does not have restores nothing either. Whenever anything was not
+restored, the file is set aside for inspection under the first free name of
+``state.json.bad``, ``state.json.bad.1``, ``state.json.bad.2``, ... (never replacing an
+older one), and the log names it.
 
 How it is written: complete or absent. A temporary file is written in full (looping on
-short writes), fsynced, renamed over the state file, and the directory is fsynced.
+short writes), fsynced, renamed over the state file, and the directory is fsynced. Whatever
+stands in the way of the temporary file or of the motion journal (a directory, a symbolic
+link, ...) is set aside the same way, so the daemon can always write while its directory is
+writable.
 
 Moving before the ACK: a motion command must not be acknowledged while the state on disk
 still says its motor is at rest (a SIGKILL right then would restore a stale position).
 :class:`MotionJournal` is a write-ahead record of one byte per motor, set and fdatasynced
 before the motion starts; the writer clears it once a state file with the motor at rest
-again is durable. A motor whose byte is set when the daemon starts has lost its position.
+again is durable. A command that found its motor at rest on disk and left it there (a move
+of no distance, a refused command) clears the byte itself before it is answered
+(``withdraw``), since the state on disk is still right: only a motor that really moved may
+come back lost. A motor whose byte is set when the daemon starts has lost its position.
 
 Threads: :class:`StateWriter` writes on its own thread on request (motor events, which come
 from the step thread and must not wait for a disk) and synchronously when asked by the link
 thread (SaveHome/SaveWayPoint, answered only after the write). Its write lock serialises
-both. :class:`MotionJournal` is called by the link thread (``begin``/``end``) and the writer
-thread (``clear_if_unchanged``) and guards itself with a lock; ``begin`` blocks on one
-``fdatasync`` of a tiny file, and only when the motor was at rest on disk.
+both. :class:`MotionJournal` is called by the link thread (``begin``/``end``/``withdraw``)
+and the writer thread (``clear_if_unchanged``) and guards itself with a lock; ``begin``
+blocks on one ``fdatasync`` of a tiny file, and only when the motor was at rest on disk.
+``Persistence`` takes the engine lock briefly before and after a motion from rest (where
+was the motor, did it move).
 """
 
 from __future__ import annotations
@@ -37,8 +50,10 @@ import hashlib
 import json
 import logging
 import os
+import stat
 import threading
 import time
+from collections import Counter
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -55,6 +70,7 @@ JOURNAL_NAME = "state.moving"
 POS_MIN = -(1 << 23)
 POS_MAX = (1 << 23) - 1
 MAX_WAYPOINTS = 255  # the protocol's table size; a motor's configured table may be smaller
+ASIDE_LIMIT = 1000  # names tried when setting a file aside: .bad, .bad.1 .. .bad.999
 
 
 class StateError(Exception):
@@ -93,10 +109,21 @@ class SavedMotor:
                 "position_lost": self.position_lost}
 
 
+@dataclass(frozen=True)
+class BadRecord:
+    """A motor record of a state file that cannot be trusted: where, whose, and why."""
+
+    index: int  # its place in the file's list of motors
+    name: str | None  # None when the record has no usable name
+    problem: str
+
+
 @dataclass
 class SavedState:
-    motors: list[SavedMotor]
+    motors: list[SavedMotor]  # the good records, in file order
     extra: dict[str, Any] = field(default_factory=dict)  # e.g. the mock world's axes
+    bad: list[BadRecord] = field(default_factory=list)  # the records that are not
+    slots: dict[str, int] = field(default_factory=dict)  # name -> place in the file (read)
 
     def to_bytes(self) -> bytes:
         data: dict[str, Any] = {"version": STATE_VERSION,
@@ -126,8 +153,32 @@ def _str(value: object, where: str) -> str:
     return value
 
 
+def parse_motor(m: object, where: str) -> SavedMotor:
+    """One motor record; StateError says what is wrong with it."""
+    if not isinstance(m, dict):
+        raise StateError(f"{where} is not an object")
+    wps = m.get("waypoints")
+    if not isinstance(wps, list):
+        raise StateError(f"{where}.waypoints is not a list")
+    if len(wps) > MAX_WAYPOINTS:
+        raise StateError(f"{where} has {len(wps)} waypoints, the table holds {MAX_WAYPOINTS}")
+    return SavedMotor(
+        name=_str(m.get("name"), f"{where}.name"),
+        fingerprint=_str(m.get("fingerprint"), f"{where}.fingerprint"),
+        position=_int(m.get("position"), f"{where}.position"),
+        home=_int(m.get("home"), f"{where}.home"),
+        waypoints=[_int(w, f"{where}.waypoints[{j}]") for j, w in enumerate(wps)],
+        moving=_bool(m.get("moving"), f"{where}.moving"),
+        position_lost=_bool(m.get("position_lost"), f"{where}.position_lost"),
+    )
+
+
 def parse_state(raw: bytes) -> SavedState:
-    """Parse and check a state file's bytes; StateError says what is wrong (without a path)."""
+    """Parse and check a state file's bytes (without a path in the messages).
+
+    StateError when the file as a whole cannot be trusted; a motor record that cannot be
+    is listed in :attr:`SavedState.bad` with its problem, and the other records stand.
+    """
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -144,70 +195,115 @@ def parse_state(raw: bytes) -> SavedState:
     motors = data.get("motors")
     if not isinstance(motors, list):
         raise StateError("'motors' is missing or not a list")
-    saved = []
+    good: list[tuple[int, SavedMotor]] = []
+    bad: list[BadRecord] = []
     for i, m in enumerate(motors):
-        where = f"motors[{i}]"
-        if not isinstance(m, dict):
-            raise StateError(f"{where} is not an object")
-        wps = m.get("waypoints")
-        if not isinstance(wps, list):
-            raise StateError(f"{where}.waypoints is not a list")
-        if len(wps) > MAX_WAYPOINTS:
-            raise StateError(f"{where} has {len(wps)} waypoints, the table holds "
-                             f"{MAX_WAYPOINTS}")
-        saved.append(SavedMotor(
-            name=_str(m.get("name"), f"{where}.name"),
-            fingerprint=_str(m.get("fingerprint"), f"{where}.fingerprint"),
-            position=_int(m.get("position"), f"{where}.position"),
-            home=_int(m.get("home"), f"{where}.home"),
-            waypoints=[_int(w, f"{where}.waypoints[{j}]") for j, w in enumerate(wps)],
-            moving=_bool(m.get("moving"), f"{where}.moving"),
-            position_lost=_bool(m.get("position_lost"), f"{where}.position_lost"),
-        ))
-    names = [m.name for m in saved]
-    if len(set(names)) != len(names):
-        raise StateError("two motors have the same name")
+        try:
+            good.append((i, parse_motor(m, f"motors[{i}]")))
+        except StateError as exc:
+            name = m.get("name") if isinstance(m, dict) else None
+            bad.append(BadRecord(i, name if isinstance(name, str) else None, str(exc)))
+    names = Counter([s.name for _, s in good] + [b.name for b in bad if b.name is not None])
+    shared = {name for name, n in names.items() if n > 1}
+    for i, saved in good:
+        if saved.name in shared:
+            bad.append(BadRecord(i, saved.name, f"{names[saved.name]} motor records are "
+                                                f"named {saved.name!r}"))
+    bad.sort(key=lambda b: b.index)
+    kept = [(i, saved) for i, saved in good if saved.name not in shared]
     extra = {k: v for k, v in data.items() if k not in ("version", "motors")}
-    return SavedState(saved, extra)
+    return SavedState([saved for _, saved in kept], extra, bad,
+                      {saved.name: i for i, saved in kept})
 
 
 def read_state(path: Path) -> SavedState | None:
     """The saved state, None when there is none; StateError when it cannot be trusted."""
     try:
-        raw = path.read_bytes()
+        raw = read_regular(path)
     except FileNotFoundError:
         return None
-    except IsADirectoryError as exc:
-        raise StateError(f"{path} is a directory, not a state file") from exc
-    except OSError as exc:
-        raise StateError(f"{path} cannot be read: {exc.strerror}") from exc
     try:
         return parse_state(raw)
     except StateError as exc:
         raise StateError(f"{path}: {exc}") from exc
 
 
-def set_aside(path: Path) -> Path | None:
-    """Move an untrusted state file to ``<name>.bad`` (replacing an older one); None if not."""
-    bad = path.with_name(path.name + ".bad")
+_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISLNK, "a symbolic link"),
+          (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
+          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+
+
+def _kind(mode: int) -> str:
+    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
+
+
+def read_regular(path: Path) -> bytes:
+    """The bytes of the regular file at ``path``: never through a symbolic link, never
+    opening a FIFO or a device. FileNotFoundError when nothing is there; StateError naming
+    what is there instead, or why it cannot be read."""
     try:
-        if bad.is_dir() and not bad.is_symlink():
-            _remove_tree(bad)
-        os.replace(path, bad)
+        mode = os.lstat(path).st_mode
+        if not stat.S_ISREG(mode):
+            raise StateError(f"{path} is {_kind(mode)}, not a regular file")
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise
     except OSError as exc:
-        log.error("cannot move %s aside to %s: %s", path, bad, exc.strerror,
-                  extra={"STATE_PATH": str(path), "ERRNO": exc.errno})
+        raise StateError(f"{path} cannot be read: {exc.strerror}") from exc
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):  # replaced since the lstat
+            raise StateError(f"{path} is {_kind(mode)}, not a regular file")
+        chunks = []
+        while chunk := os.read(fd, 1 << 16):
+            chunks.append(chunk)
+        return b"".join(chunks)
+    except OSError as exc:
+        raise StateError(f"{path} cannot be read: {exc.strerror}") from exc
+    finally:
+        os.close(fd)
+
+
+def aside_name(path: Path) -> Path | None:
+    """The first free name of ``<name>.bad``, ``<name>.bad.1``, ... (None: all taken)."""
+    for n in range(ASIDE_LIMIT):
+        bad = path.with_name(f"{path.name}.bad" + (f".{n}" if n else ""))
+        if not os.path.lexists(bad):
+            return bad
+    return None
+
+
+def set_aside(path: Path) -> Path | None:
+    """Move whatever is at ``path`` (a file, a directory, a link, ...) to a free name, never
+    replacing an older one (:func:`aside_name`); the new name, or None (logged) if it
+    cannot be moved. Called only by the daemon that holds the state directory's lock."""
+    bad = aside_name(path)
+    try:
+        if bad is None:
+            raise OSError(errno.EEXIST, f"{path.name}.bad .. {path.name}.bad."
+                                        f"{ASIDE_LIMIT - 1} are all taken; remove old ones")
+        os.rename(path, bad)
+    except OSError as exc:
+        log.error("cannot move %s aside to %s: %s", path, bad or f"{path.name}.bad.N",
+                  exc.strerror or exc, extra={"STATE_PATH": str(path), "ERRNO": exc.errno})
         return None
     return bad
 
 
-def _remove_tree(path: Path) -> None:
-    for child in path.iterdir():
-        if child.is_dir() and not child.is_symlink():
-            _remove_tree(child)
-        else:
-            child.unlink()
-    path.rmdir()
+def clear_the_way(path: Path) -> Path | None:
+    """Set aside whatever stands at ``path`` that is not a regular file (so that a file can
+    be made there); the name it was moved to, None when nothing had to move (or could)."""
+    try:
+        mode = os.lstat(path).st_mode
+    except OSError:
+        return None
+    if stat.S_ISREG(mode):
+        return None
+    bad = set_aside(path)
+    if bad is not None:
+        log.warning("%s was %s, in the way of a file: moved aside to %s", path, _kind(mode),
+                    bad, extra={"STATE_PATH": str(path)})
+    return bad
 
 
 @dataclass
@@ -221,10 +317,14 @@ class Match:
 def match_motors(state: SavedState, motors: Sequence[MotorIdentity]) -> list[Match]:
     """Pair saved motors with configured ones by name; check geometry and table size."""
     by_name = {m.name: m for m in state.motors}
+    bad_by_name = {b.name: b for b in state.bad if b.name is not None}
     out = []
     for ident in motors:
         saved = by_name.get(ident.name)
-        if saved is None:
+        bad = bad_by_name.get(ident.name)
+        if bad is not None:
+            out.append(Match(None, f"its record cannot be trusted: {bad.problem}"))
+        elif saved is None:
             out.append(Match(None, "not in the state file"))
         elif saved.fingerprint != ident.fingerprint:
             out.append(Match(None, "its geometry changed since the state was written"))
@@ -236,6 +336,18 @@ def match_motors(state: SavedState, motors: Sequence[MotorIdentity]) -> list[Mat
         else:
             out.append(Match(saved))
     return out
+
+
+def unmatched_records(state: SavedState, motors: Sequence[MotorIdentity]) -> list[str]:
+    """The records of the file that belong to no configured motor, each described: motors
+    the config does not have, and records without a usable name."""
+    names = {ident.name for ident in motors}
+    out = [(state.slots.get(saved.name, -1), f"motor {saved.name!r}, which the config does "
+                                             f"not have")
+           for saved in state.motors if saved.name not in names]
+    out += [(b.index, f"motors[{b.index}] of no configured motor ({b.problem})")
+            for b in state.bad if b.name not in names]
+    return [text for _, text in sorted(out)]
 
 
 # -- writing --------------------------------------------------------------------------------
@@ -260,7 +372,9 @@ def fsync_dir(path: Path) -> None:
 def write_atomic(path: Path, data: bytes, mode: int = 0o640) -> None:
     """Replace ``path`` with ``data``, complete or not at all; OSError when it cannot."""
     tmp = path.with_name(path.name + ".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, mode)
+    clear_the_way(tmp)  # a directory or a link there would block every write
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC,
+                 mode)
     try:
         try:
             write_all(fd, data)
@@ -293,15 +407,16 @@ class MotionJournal:
         self._fd: int | None = None
         self.marks = 0
         self.mark_seconds = 0.0  # total time spent in begin()'s write + fdatasync
+        self.withdrawn = 0  # flags cleared at once after a command that did not move
 
     @staticmethod
     def read(path: Path) -> list[bool] | None:
         """Which motors were marked moving; None when the journal exists but is unreadable."""
         try:
-            raw = path.read_bytes()
+            raw = read_regular(path)
         except FileNotFoundError:
             return []
-        except OSError:
+        except StateError:
             return None
         if raw.strip(b"01"):
             return None
@@ -309,9 +424,8 @@ class MotionJournal:
 
     def reset(self) -> None:
         """Start afresh, all at rest (after the state file says what is known). OSError."""
-        if self.path.is_dir() and not self.path.is_symlink():
-            set_aside(self.path)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+        clear_the_way(self.path)
+        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o640)
         try:
             os.ftruncate(fd, 0)
             write_all(fd, b"0" * self.count)
@@ -326,17 +440,20 @@ class MotionJournal:
             self._flags = [False] * self.count
         fsync_dir(self.path.parent)
 
-    def begin(self, index: int) -> None:
+    def begin(self, index: int) -> int | None:
         """Before motor ``index`` may start: make "moving" durable. OSError when it cannot.
 
-        Pair every successful call with :meth:`end` once the command was handled.
+        Pair every successful call with :meth:`end` once the command was handled. Returns a
+        token for :meth:`withdraw` when this call raised the flag (the motor was at rest on
+        disk until now), else None.
         """
         with self._lock:
             self._pending[index] += 1
             self._gen[index] += 1
             if self._flags[index]:
-                return
+                return None
             fd = self._fd
+            token = self._gen[index]
         # The disk is waited for outside the lock: a snapshot (taken under the engine lock)
         # asks for a token meanwhile and must not wait for an fdatasync. While this start is
         # pending no token is handed out, so nothing clears the byte behind our back.
@@ -355,10 +472,34 @@ class MotionJournal:
             self.mark_seconds += elapsed
             self.marks += 1
             self._flags[index] = True
+        return token
 
     def end(self, index: int) -> None:
         with self._lock:
             self._pending[index] -= 1
+
+    def withdraw(self, index: int, token: int) -> bool:
+        """The command whose :meth:`begin` returned ``token`` left the motor where the state
+        on disk has it, at rest (a move of no distance, a refused command): clear the flag
+        at once, so a kill now does not take the motor for moved. False (nothing done) when
+        another start came since, or one is in flight.
+
+        Not fsynced, as :meth:`clear_if_unchanged`: a lost clear only makes a restart more
+        careful.
+        """
+        with self._lock:
+            if self._gen[index] != token or self._pending[index] or not self._flags[index]:
+                return False
+            if self._fd is None:
+                return False
+            try:
+                os.pwrite(self._fd, b"0", index)
+            except OSError as exc:
+                log.warning("cannot clear the motion journal %s: %s", self.path, exc.strerror)
+                return False
+            self._flags[index] = False
+            self.withdrawn += 1
+            return True
 
     def token(self, index: int) -> int | None:
         """Taken with the snapshot: None while a start is in flight (never clear then)."""
@@ -482,7 +623,7 @@ class StateWriter:
                                "last_write_ms": round(self.last_write_s * 1e3, 3)}
         if self.journal is not None:
             j = self.journal
-            out["journal"] = {"file": str(j.path), "marks": j.marks,
+            out["journal"] = {"file": str(j.path), "marks": j.marks, "withdrawn": j.withdrawn,
                               "mean_mark_us": round(j.mark_seconds / j.marks * 1e6, 1)
                               if j.marks else None}
         return out
@@ -524,6 +665,9 @@ class Persistence:
         self.restored = "nothing to restore"
         self.save_errors = 0
         self.motion_refused = 0
+        # Motion commands in hand (link thread) that found their motor at rest on disk:
+        # the journal's token and the position the disk has.
+        self._from_rest: dict[int, tuple[int, int]] = {}
 
     # -- start and stop ----------------------------------------------------------------------
     def restore(self) -> None:
@@ -544,7 +688,6 @@ class Persistence:
             log.error("motion journal %s is unreadable: every motor counts as moved",
                       self.journal.path, extra={"STATE_PATH": str(self.journal.path)})
         matches = match_motors(state, self.identities)
-        index_of = {s.name: j for j, s in enumerate(state.motors)}
         moved = []
         with self.engine.lock:
             for m, match, ident in zip(motors, matches, self.identities, strict=True):
@@ -555,7 +698,7 @@ class Persistence:
                 m.home = saved.home
                 m.waypoints = list(saved.waypoints)
                 m.set_position(saved.position)
-                j = index_of[ident.name]
+                j = state.slots[ident.name]  # the journal has the file's order
                 journalled = marks is None or (j < len(marks) and marks[j])
                 if saved.moving or saved.position_lost or journalled:
                     m.position_lost = True
@@ -569,11 +712,18 @@ class Persistence:
         if moved:
             log.warning("motor %s was moving when the daemon stopped: position lost, home it "
                         "with InitMove", ", ".join(moved), extra={"STATE_PATH": str(self.path)})
+        orphans = unmatched_records(state, self.identities)
+        for what in orphans:
+            log.warning("%s has %s: nothing restored from that record", self.path, what,
+                        extra={"STATE_PATH": str(self.path)})
         problems = [mt for mt in matches if mt.problem is not None]
-        if problems:
+        if problems or orphans:
             bad = set_aside(self.path)
+            kept = f"kept as {bad}" if bad is not None else "could not be moved aside"
+            n = len(orphans)
+            unused = f", {n} record{'s' * (n != 1)} for no configured motor" if n else ""
             self.restored = (f"restored {len(matches) - len(problems)} of {len(matches)} "
-                             f"motors; the file was kept as {bad}")
+                             f"motors{unused}; the file was {kept}")
         else:
             if self.extra is not None:
                 self.extra[1](state.extra)
@@ -625,19 +775,34 @@ class Persistence:
     def before_motion(self, index: int) -> bool:
         """Make "motor ``index`` is moving" durable before a motion command; False: cannot."""
         try:
-            self.journal.begin(index)
+            token = self.journal.begin(index)
         except OSError as exc:
             self.motion_refused += 1
             log.error("motor %d: cannot record the start of a motion in %s: %s; answered E4",
                       index, self.journal.path, exc.strerror or exc,
                       extra={"MOTOR": index, "ERROR_CODE": "E4", "ERRNO": exc.errno})
             return False
+        if token is not None:  # from rest on disk: where the disk has it
+            with self.engine.lock:
+                self._from_rest[index] = (token, self.engine.motors[index].position)
         return True
 
     def after_motion(self, index: int) -> None:
         self.journal.end(index)
-        if not self.engine.motors[index].active:
-            self.writer.request()  # a refused command: let the writer clear the mark
+        from_rest = self._from_rest.pop(index, None)
+        m = self.engine.motors[index]
+        if from_rest is not None:
+            token, position = from_rest
+            with self.engine.lock:
+                unmoved = (not m.active and not m.queue and not m.stopping
+                           and m.position == position)
+            # A move of no distance, or a refused command: the disk is still right about
+            # this motor, and a kill now must not make it lost (only a motor that really
+            # moved may come back lost).
+            if unmoved and self.journal.withdraw(index, token):
+                return
+        if not m.active:
+            self.writer.request()  # let the writer clear the mark
 
     def save(self) -> bool:
         """SaveHome/SaveWayPoint: write now; True when the new state is durable."""

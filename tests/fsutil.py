@@ -1,8 +1,10 @@
-"""File-system helpers for tests: a directory made read-only for real (EROFS or EACCES)."""
+"""File-system helpers for tests: a directory made read-only for real (EROFS or EACCES), a
+small tmpfs that can be filled up for real (ENOSPC)."""
 
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import subprocess
 import time
@@ -56,3 +58,37 @@ def _remount_read_only(path: Path) -> None:
         if "busy" not in err or time.monotonic() >= deadline:
             raise AssertionError(f"cannot remount {path} read-only: {err}")
         time.sleep(_RETRY_S)  # a writer still has a file open there; it closes it soon
+
+
+@contextlib.contextmanager
+def small_tmpfs(path: Path, size: str = "1m") -> Iterator[Path]:
+    """A tmpfs of ``size`` mounted at ``path`` (made if missing) while inside the block; skips
+    when mounting is not permitted (not root)."""
+    path.mkdir(parents=True, exist_ok=True)
+    mount = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs",
+                            str(path)], capture_output=True)
+    if mount.returncode != 0:
+        pytest.skip(f"cannot mount a tmpfs at {path}: {mount.stderr.decode().strip()}")
+    try:
+        yield path
+    finally:
+        subprocess.run(["umount", "-l", str(path)], check=True)
+
+
+def fill(directory: Path, limit: int = 16 << 20) -> Path:
+    """Fill the (small) file system of ``directory`` until ENOSPC, writing at most ``limit``
+    bytes; the filler file (remove it to make room again)."""
+    filler = directory / "filler"
+    block = bytes(4096)
+    fd = os.open(filler, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
+    try:
+        for _ in range(limit // len(block)):
+            try:
+                os.write(fd, block)
+            except OSError as exc:
+                if exc.errno != errno.ENOSPC:
+                    raise
+                return filler
+    finally:
+        os.close(fd)
+    raise AssertionError(f"{directory} still has room after {limit} bytes: not a small tmpfs")

@@ -22,6 +22,7 @@ from motorctl.protocol.codec import (
     IsReady,
     MoveTo,
     Response,
+    SetPin,
     StopMove,
     WaitMoved,
     encode_command,
@@ -378,6 +379,26 @@ def test_held_frames_overflow_gets_e0_in_turn_but_a_stop_is_never_refused(
     assert answers[19].ack
     assert answers[20].as_bool is True
     assert client.is_ready(0) is True
+
+
+def test_a_bad_frame_takes_its_place_among_the_16_held_frames(client: Client) -> None:
+    # PROTOCOL.md §4 exempts only StopMove from the 16 places: behind WaitMoved(0, 600),
+    # 4 GetAbsPos, a frame with a bad checksum, IsReady(77) and 10 GetAbsPos, the SetPin is
+    # the 17th kept frame: E0 in its turn, and pin 2 stays low.
+    client.move(0, True, speed=1)
+    until("motor 0 moving", lambda: client.position(0) != 0)
+    bad = bytearray(encode_command(GetAbsPos(1), OPTS))
+    bad[9] ^= 0x55
+    behind: list[Command] = [IsReady(77), *[GetAbsPos(0)] * 10, SetPin(2, True)]
+    before: list[Command] = [WaitMoved(0, 600), *[GetAbsPos(0)] * 4]
+    data = b"".join(encode_command(c, OPTS) for c in before)
+    client.send_bytes(data + bytes(bad) + b"".join(encode_command(c, OPTS) for c in behind))
+    answers = [client.read_response(10.0) for _ in range(18)]
+    assert [a.error_code for a in answers] == (
+        [E.MOTOR_NOT_READY] + [None] * 4 + [E.INVALID_COMMAND, E.INVALID_ADDRESS] + [None] * 10
+        + [E.FULL_BUFFER])
+    assert client.get_pin(2) is False
+    client.stop(0, True)
 
 
 def test_wait_moved_reports_fault(client: Client) -> None:

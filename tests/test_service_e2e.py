@@ -5,6 +5,7 @@ and systemd's notifications on a fake NOTIFY_SOCKET."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import signal
 import socket
@@ -19,8 +20,8 @@ import pytest
 from motorctl.client.client import DeviceError
 from motorctl.daemon.main import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
-from tests.daemon_proc import DaemonProcess
-from tests.fsutil import read_only
+from tests.daemon_proc import DaemonProcess, until
+from tests.fsutil import fill, read_only, small_tmpfs
 
 E = ErrorCode
 DEADLINE_S = 20.0
@@ -116,6 +117,96 @@ def test_bad_state_file_starts_with_every_motor_lost(tmp_path: Path, kind: str) 
     no_traceback(d)
 
 
+@pytest.mark.parametrize("kind", ["directory", "fifo"])
+def test_whatever_stands_at_the_state_file_is_set_aside_under_a_free_name(
+        tmp_path: Path, kind: str) -> None:
+    # Issue 16: a directory at state.json while a state.json.bad file already existed left
+    # the daemon unable to write any state: InitMove E4 for ever, MoveToWayPoint(0, 0) E4
+    # instead of E6, SIGTERM exit 4. (A FIFO there blocked the start for ever.)
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "state.json.bad").write_text("an older one")
+    if kind == "directory":
+        (state / "state.json").mkdir()
+        (state / "state.json" / "junk").write_text("x")
+    else:
+        os.mkfifo(state / "state.json")
+    d = DaemonProcess(tmp_path, state_dir=state).start()
+    try:
+        with d.client() as c:
+            with pytest.raises(DeviceError) as exc:
+                c.move_to_waypoint(0, 0)
+            assert exc.value.code == E.INVALID_WAYPOINT
+            c.init_move(0, False, speed=6)  # a lost motor can be homed: accepted
+            assert not c.is_ready(0)
+            c.stop(0, True)
+        assert f"{state / 'state.json'} is a {kind.replace('fifo', 'FIFO')}" in d.stderr()
+        assert f"kept it as {state / 'state.json.bad.1'}" in d.stderr()
+        assert d.status()["state"]["ok"] is True
+        assert d.terminate() == 0
+    finally:
+        d.close()
+    no_traceback(d)
+    assert (state / "state.json.bad").read_text() == "an older one"
+    assert os.path.lexists(state / "state.json.bad.1")
+    assert json.loads((state / "state.json").read_text())["version"] == 2
+
+
+def _state_file(state: Path, motors: list[dict[str, object]]) -> bytes:
+    from motorctl.daemon.config import default_config_text, parse_config
+    from motorctl.daemon.main import motor_identities
+
+    idents = motor_identities(parse_config(default_config_text(), "default"))
+    records = [{"name": i.name, "fingerprint": i.fingerprint, "position": 0, "home": 0,
+                "waypoints": [], "moving": False, "position_lost": False} for i in idents]
+    for record, change in zip(records, motors, strict=False):
+        record.update(change)
+    records += [dict(records[0], **m) for m in motors[len(idents):]]
+    data = json.dumps({"version": 2, "motors": records}).encode()
+    state.mkdir()
+    (state / "state.json").write_bytes(data)
+    return data
+
+
+@pytest.mark.parametrize("change", ["motor q", "position", "256 waypoints"])
+def test_a_state_file_restores_motor_by_motor(tmp_path: Path, change: str) -> None:
+    # PROTOCOL.md §4: an inconsistent file restores nothing for the motors concerned, and
+    # is kept aside. A motor the config does not have (x, y, z and a "q") was silently
+    # dropped; one bad value in y's record lost x and z too.
+    y: dict[str, object] = {"position": 200, "home": 3, "waypoints": [5]}
+    if change == "position":
+        y["position"] = 1 << 23
+    elif change == "256 waypoints":
+        y["waypoints"] = list(range(256))
+    motors: list[dict[str, object]] = [{"position": 100}, y, {"position": 300}]
+    if change == "motor q":
+        motors.append({"name": "q", "position": 4})
+    state = tmp_path / "state"
+    data = _state_file(state, motors)
+    d = DaemonProcess(tmp_path, state_dir=state).start()
+    try:
+        with d.client() as c:
+            assert (c.position(0), c.position(2)) == (100, 300)
+            if change == "motor q":
+                assert c.position(1) == 200
+                c.move_to_waypoint(1, 0)
+                c.wait_moved(1, 5000)
+                assert c.position(1) == 5
+                assert "has motor 'q', which the config does not have" in d.stderr()
+            else:
+                with pytest.raises(DeviceError) as exc:
+                    c.move_to(1, 0)
+                assert exc.value.code == E.MOTOR_ERROR
+                assert "motor 1 (y): nothing restored" in d.stderr()
+            c.move_to(0, 0)  # x's position is known
+            c.wait_moved(0, 5000)
+        assert (state / "state.json.bad").read_bytes() == data
+        assert "the file was kept as" in d.status()["state"]["restored"]
+    finally:
+        d.close()
+    no_traceback(d)
+
+
 def test_read_only_state_dir_while_running(daemon: DaemonProcess) -> None:
     with daemon.client() as c:
         c.move_to(0, 50)
@@ -186,6 +277,41 @@ def test_kill_right_after_a_motion_ack_loses_the_position(daemon: DaemonProcess,
         assert exc.value.code == E.MOTOR_ERROR
     finally:
         d2.close()
+
+
+def test_kill_right_after_a_move_of_no_distance_keeps_the_idle_motor(tmp_path: Path) -> None:
+    # Issue 16: MoveTo(2, 777) with motor 2 at 777 (here 77: a shorter first move), ACK,
+    # WaitMoved ACK, IsReady 1, then a MoveTo on motor 0 and a kill -9: after the restart
+    # motor 2 answered E4, "motor 0 (x), 2 (z) was moving". Its journal byte stayed set
+    # until the writer's next durable state write; a full state directory (as here) holds
+    # that write off for good, so the kill comes before it every time.
+    with small_tmpfs(tmp_path / "state") as state:
+        d = DaemonProcess(tmp_path, state_dir=state).start()
+        with d.client() as c:
+            c.move_to(2, 77)
+            c.wait_moved(2, 5000)
+            until("motor 2 at rest on disk",
+                  lambda: (state / "state.moving").read_bytes() == b"000")
+            filler = fill(state)
+            c.move_to(2, 77)  # no distance
+            c.wait_moved(2, 5000)
+            assert c.is_ready(2)
+            c.move_to(0, 5000, speed=1)
+        d.kill()
+        filler.unlink()
+        d2 = DaemonProcess(tmp_path, state_dir=state).start()
+        try:
+            with d2.client() as c:
+                assert c.position(2) == 77
+                c.move_to(2, 0)  # its position is known
+                c.wait_moved(2, 5000)
+                with pytest.raises(DeviceError) as exc:
+                    c.move_to(0, 0)  # motor 0 really moved: lost
+                assert exc.value.code == E.MOTOR_ERROR
+            assert "motor 0 (x) was moving when the daemon stopped" in d2.stderr()
+        finally:
+            d2.close()
+    no_traceback(d2)
 
 
 def test_notifications_on_a_fake_notify_socket(tmp_path: Path) -> None:

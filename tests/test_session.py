@@ -335,6 +335,38 @@ def test_held_overflow_e0_and_stop_never_refused(w: World) -> None:
     assert c["stops_while_held"] == 1 and c["sent_E0"] == 2
 
 
+def test_a_bad_frame_takes_its_place_among_the_held_frames(w: World) -> None:
+    # PROTOCOL.md §4: later frames are kept "up to 16; beyond that each gets E0"; only a
+    # StopMove is exempt. A frame with a bad checksum is one of the 16: the SetPin behind
+    # 4 + 1 bad + 1 + 10 frames is the 17th and is refused, not executed.
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 600), *[GetAbsPos(0)] * 4)
+    w.session.receive(corrupt(frame(GetAbsPos(1)), 77), w.now)
+    w.send(IsReady(77), *[GetAbsPos(0)] * 10, SetPin(0, True))
+    assert w.session.held == 17
+    assert w.session.counters["held_overflow"] == 1
+    w.run(0.7)  # the WaitMoved times out (E3) and the kept frames run
+    rs = codes(w.responses()[1:])
+    assert rs == ([E.MOTOR_NOT_READY] + [None] * 4 + [E.INVALID_COMMAND, E.INVALID_ADDRESS]
+                  + [None] * 10 + [E.FULL_BUFFER])
+    assert world_of(w.daemon.hw).pins[0].read() is False  # the 17th frame never ran
+    w.send(StopMove(0, True))
+
+
+def test_a_bad_frame_beyond_the_held_frames_is_e1_and_frees_no_place(w: World) -> None:
+    w.send(Move(0, True, 1, 0, 0))
+    w.send(WaitMoved(0, 20_000), *[GetAbsPos(1)] * 15)
+    bad = corrupt(frame(SetPin(0, True)), 5)
+    w.session.receive(bad + bad, w.now)  # the 16th place, then none left: E1 comes before E0
+    w.send(SetPin(0, True), StopMove(0, True), IsReady(0))
+    rs = codes(w.responses()[1:])
+    assert rs == [None] * 16 + [E.INVALID_COMMAND] * 2 + [E.FULL_BUFFER, None, None]
+    assert world_of(w.daemon.hw).pins[0].read() is False
+    c = w.session.counters
+    assert c["held_overflow"] == 2 and c["sent_E1"] == 2 and c["sent_E0"] == 1
+    assert c["checksum_errors"] == 2 and w.session._held_places == 0
+
+
 def test_stop_for_unknown_motor_while_held_is_e2_in_turn(w: World) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), StopMove(7, True), IsReady(1))

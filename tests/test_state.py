@@ -3,9 +3,12 @@ writes (short writes, read-only directory), the motion journal, ACK-after-write 
 
 from __future__ import annotations
 
+import contextlib
+import errno
 import json
 import logging
 import os
+import threading
 from pathlib import Path
 from typing import Any
 
@@ -24,7 +27,18 @@ from motorctl.daemon.state import (
     write_atomic,
 )
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.protocol.codec import ErrorCode, MoveTo, Response, SaveHome, SaveWayPoint
+from motorctl.protocol.codec import (
+    Command,
+    ErrorCode,
+    GoHome,
+    InitMove,
+    Move,
+    MoveTo,
+    MoveToWayPoint,
+    Response,
+    SaveHome,
+    SaveWayPoint,
+)
 from tests.fsutil import read_only
 
 E = ErrorCode
@@ -118,6 +132,22 @@ def test_unreadable_file_is_set_aside(tmp_path: Path, kind: str,
     assert saved(tmp_path)["motors"][0]["position_lost"] is True
 
 
+def two_motors_state(tmp_path: Path) -> dict[str, Any]:
+    """A state file written by a daemon: motor a at 120 (home 7, one waypoint), b at -55."""
+    good_state(tmp_path)
+    d = build(tmp_path)
+    move(d, 1, -55)
+    d.persistence.close()
+    data = saved(tmp_path)
+    assert data["motors"][0]["waypoints"] == [120]
+    return data
+
+
+def restored_b(d: Daemon) -> None:
+    b = d.engine.motors[1]
+    assert (b.position, b.position_lost) == (-55, False)
+
+
 @pytest.mark.parametrize(("key", "value", "says"), [
     ("position", "abc", "not an integer"),
     ("position", True, "not an integer"),
@@ -129,47 +159,183 @@ def test_unreadable_file_is_set_aside(tmp_path: Path, kind: str,
     ("moving", "no", "not true or false"),
     ("name", 3, "not a string"),
 ])
-def test_wrong_types_and_inconsistent_values(tmp_path: Path, key: str, value: Any,
-                                             says: str,
+def test_one_bad_record_loses_only_its_motor(tmp_path: Path, key: str, value: Any, says: str,
                                              caplog: pytest.LogCaptureFixture) -> None:
-    bad = _mutated(tmp_path, key, value)
+    # PROTOCOL.md §4: an inconsistent file "restores nothing for the motors concerned".
+    data = two_motors_state(tmp_path)
+    data["motors"][0][key] = value
+    bad = json.dumps(data).encode()
     (tmp_path / "state.json").write_bytes(bad)
     d = build(tmp_path)
-    assert lost(d) == [True, True]
+    assert lost(d) == [True, False]
+    restored_b(d)
     assert says in caplog.text
     assert (tmp_path / "state.json.bad").read_bytes() == bad
-    assert d.engine.motors[0].waypoints == []
+    assert d.engine.motors[0].waypoints == [] and d.engine.motors[0].home == 0
+    assert "restored 1 of 2 motors" in d.persistence.restored
+    assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
+    assert saved(tmp_path)["motors"][0]["position_lost"] is True
+    assert saved(tmp_path)["motors"][1]["position"] == -55
 
 
-def test_duplicate_names(tmp_path: Path) -> None:
-    data = good_state(tmp_path)
-    data["motors"][1]["name"] = "a"
-    with pytest.raises(StateError, match="same name"):
-        parse_state(json.dumps(data).encode())
+def test_a_motor_the_config_does_not_have_keeps_the_file_aside(
+        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    data = two_motors_state(tmp_path)
+    q = dict(data["motors"][1], name="q", position=4444)
+    data["motors"].insert(1, q)
+    text = json.dumps(data).encode()
+    (tmp_path / "state.json").write_bytes(text)
+    (tmp_path / st.JOURNAL_NAME).write_bytes(b"010")  # q was moving: b is not affected
+    d = build(tmp_path)
+    assert lost(d) == [False, False]
+    assert d.engine.motors[0].position == 120
+    restored_b(d)
+    assert "has motor 'q', which the config does not have" in caplog.text
+    assert (tmp_path / "state.json.bad").read_bytes() == text  # not silently rewritten away
+    assert "1 record for no configured motor" in d.persistence.restored
+    assert [m["name"] for m in saved(tmp_path)["motors"]] == ["a", "b"]
 
 
-def test_a_motor_entry_that_is_not_an_object() -> None:
-    with pytest.raises(StateError, match=r"motors\[0\] is not an object"):
-        parse_state(b'{"version": 2, "motors": [3]}')
+def test_records_shared_by_two_motors_or_without_a_name(tmp_path: Path,
+                                                        caplog: pytest.LogCaptureFixture
+                                                        ) -> None:
+    data = two_motors_state(tmp_path)
+    data["motors"] += [dict(data["motors"][0], position=9), 3]
+    (tmp_path / "state.json").write_text(json.dumps(data))
+    d = build(tmp_path)
+    assert lost(d) == [True, False]  # which of the two records of "a" is right? neither
+    restored_b(d)
+    assert "2 motor records are named 'a'" in caplog.text
+    assert "motors[3] of no configured motor (motors[3] is not an object)" in caplog.text
+    assert (tmp_path / "state.json.bad").exists()
+
+
+def test_parse_state_lists_the_bad_records() -> None:
+    state = parse_state(b'{"version": 2, "motors": [3, {"name": "z"}]}')
+    assert state.motors == [] and state.slots == {}
+    assert [(b.index, b.name) for b in state.bad] == [(0, None), (1, "z")]
+    assert state.bad[0].problem == "motors[0] is not an object"
+    assert state.bad[1].problem == "motors[1].waypoints is not a list"
+
+
+# -- whatever stands in the way is set aside under a free name ----------------------------------
+def _make(path: Path, kind: str) -> None:
+    """Put a ``kind`` of thing at ``path``. A FIFO's other ends are opened and closed once
+    after FIFO_RESCUE_S, should anything be stuck opening it (so that a daemon that opens
+    it fails the test instead of hanging it)."""
+    if kind == "directory":
+        path.mkdir()
+        (path / "junk").write_text("x")
+    elif kind == "link to a directory":
+        (path.parent / "elsewhere").mkdir()
+        path.symlink_to(path.parent / "elsewhere")
+    elif kind == "link loop":
+        path.symlink_to(path)
+    elif kind == "dangling link":
+        path.symlink_to(path.parent / "missing" / "file")
+    elif kind == "fifo":
+        os.mkfifo(path)  # reading it would block the start for ever
+        rescue = threading.Timer(FIFO_RESCUE_S, _unblock_fifo, [path])
+        rescue.daemon = True
+        rescue.start()
+    else:
+        raise AssertionError(kind)
+
+
+FIFO_RESCUE_S = 10.0
+
+
+def _unblock_fifo(path: Path) -> None:
+    """Open the FIFO's other ends once: a reader or a writer stuck opening it goes on (and
+    then fails or reads nothing), instead of waiting for ever."""
+    with contextlib.suppress(OSError):
+        os.close(os.open(path, os.O_RDONLY | os.O_NONBLOCK))
+    with contextlib.suppress(OSError):  # ENXIO: nobody reads it
+        os.close(os.open(path, os.O_WRONLY | os.O_NONBLOCK))
+
+
+IN_THE_WAY = ["directory", "link to a directory", "link loop", "dangling link", "fifo"]
+
+
+@pytest.mark.parametrize("kind", IN_THE_WAY)
+def test_whatever_stands_at_the_state_file_is_set_aside_and_the_daemon_runs(
+        tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture) -> None:
+    (tmp_path / "state.json.bad").write_text("an older bad file")  # kept, never replaced
+    (tmp_path / "state.json.bad.1").mkdir()
+    _make(tmp_path / "state.json", kind)
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert "kept it as" in caplog.text and "state.json.bad.2" in caplog.text
+    assert (tmp_path / "state.json.bad").read_text() == "an older bad file"
+    assert (tmp_path / "state.json.bad.1").is_dir()
+    assert os.path.lexists(tmp_path / "state.json.bad.2")
+    assert saved(tmp_path)["version"] == st.STATE_VERSION  # state is written again
+    # A lost motor can be homed, so the journal works; an unknown waypoint is E6.
+    assert d.dispatcher.handle(InitMove(0, False, 0, 0, 0)).ack
+    assert d.dispatcher.handle(MoveToWayPoint(1, 0, 0, 0, 0)).error_code is E.INVALID_WAYPOINT
+    d.engine.run_until_idle()
+    assert lost(d) == [False, True]
+    assert d.persistence.close()
 
 
 def test_directory_in_place_of_the_file(tmp_path: Path,
                                         caplog: pytest.LogCaptureFixture) -> None:
     (tmp_path / "state.json").mkdir()
     (tmp_path / "state.json" / "junk").write_text("x")
-    (tmp_path / "state.json.bad").mkdir()  # an older one, also a directory: replaced
+    (tmp_path / "state.json.bad").mkdir()  # an older one, also a directory: kept
+    (tmp_path / "state.json.bad" / "old").write_text("y")
     d = build(tmp_path)
     assert lost(d) == [True, True]
     assert "is a directory" in caplog.text
-    assert (tmp_path / "state.json.bad" / "junk").exists()
+    assert (tmp_path / "state.json.bad.1" / "junk").exists()
+    assert (tmp_path / "state.json.bad" / "old").exists()
     assert saved(tmp_path)["version"] == st.STATE_VERSION
 
 
-def test_unreadable_permissions(tmp_path: Path) -> None:
+@pytest.mark.parametrize("kind", IN_THE_WAY)
+def test_whatever_stands_at_the_temporary_file_is_set_aside(tmp_path: Path, kind: str) -> None:
+    d = build(tmp_path)
+    move(d, 0, 12)
+    _make(tmp_path / "state.json.tmp", kind)
+    assert d.writer.write_now()
+    assert saved(tmp_path)["motors"][0]["position"] == 12
+    assert os.path.lexists(tmp_path / "state.json.tmp.bad")
+    assert not os.path.lexists(tmp_path / "state.json.tmp")
+    assert not (tmp_path / "missing").exists()  # a link was not written through
+
+
+@pytest.mark.parametrize("kind", IN_THE_WAY)
+def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) -> None:
+    good_state(tmp_path)
+    (tmp_path / st.JOURNAL_NAME).unlink()
+    _make(tmp_path / st.JOURNAL_NAME, kind)
+    d = build(tmp_path)
+    assert lost(d) == [True, True]  # the journal could not be read: every motor moved
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+    assert os.path.lexists(tmp_path / (st.JOURNAL_NAME + ".bad"))
+    assert d.dispatcher.handle(InitMove(0, False, 0, 0, 0)).ack
+
+
+def test_no_free_name_left(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                           caplog: pytest.LogCaptureFixture) -> None:
+    monkeypatch.setattr(st, "ASIDE_LIMIT", 3)
+    for name in ("state.json", "state.json.bad", "state.json.bad.1", "state.json.bad.2"):
+        (tmp_path / name).mkdir()
+    assert st.set_aside(tmp_path / "state.json") is None
+    assert "are all taken; remove old ones" in caplog.text
+
+
+def test_unreadable_state_file(tmp_path: Path) -> None:
     path = tmp_path / "state.json"
-    path.symlink_to(path)  # a loop: ELOOP, like any other OSError
-    with pytest.raises(StateError, match="cannot be read"):
+    path.symlink_to(path)
+    with pytest.raises(StateError, match="is a symbolic link, not a regular file"):
         read_state(path)
+    path.unlink()
+    path.write_text("{}")
+    if os.geteuid() != 0:  # root reads any file
+        path.chmod(0)
+        with pytest.raises(StateError, match="cannot be read"):
+            read_state(path)
 
 
 # -- files for another config: restore nothing for the motors that changed --------------------
@@ -263,14 +429,69 @@ def test_journal_cleared_once_at_rest_is_durable(tmp_path: Path) -> None:
     assert d2.engine.motors[1].position == 500
 
 
-def test_a_rejected_motion_leaves_no_mark_after_the_next_write(tmp_path: Path) -> None:
+def test_a_rejected_motion_leaves_no_mark(tmp_path: Path) -> None:
     d = build(tmp_path)
-    # Out of the 24-bit range on a linear axis is fine, but a queue... use a fault instead:
     d.engine.motors[0].fault = "test"
     assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
-    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"10"
-    d.writer.write_now()
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"  # at once, without a write
+    assert d.persistence.status()["journal"]["withdrawn"] == 1
+
+
+@pytest.mark.parametrize("command", ["MoveTo", "GoHome", "MoveToWayPoint", "rotary MoveTo"])
+def test_a_motion_of_no_distance_leaves_no_mark(tmp_path: Path, command: str) -> None:
+    # Issue 16: a MoveTo to where the motor stands left its journal byte set until the
+    # writer's next durable write; a kill -9 meanwhile brought the idle motor back lost.
+    d = build(tmp_path, ROTARY)
+    move(d, 1, 250)
+    assert d.dispatcher.handle(SaveHome(1)).ack
+    assert d.dispatcher.handle(SaveWayPoint(1)).ack
+    assert d.writer.write_now()
+    journal = tmp_path / st.JOURNAL_NAME
+    assert journal.read_bytes() == b"00"
+    commands: dict[str, Command] = {
+        "MoveTo": MoveTo(1, True, 250, 0, 0, 0), "GoHome": GoHome(1),
+        "MoveToWayPoint": MoveToWayPoint(1, 0, 0, 0, 0),
+        "rotary MoveTo": MoveTo(1, False, 250 + 400, 0, 0, 0)}
+    cmd = commands[command]
+    assert d.dispatcher.handle(cmd).ack
+    assert d.engine.motors[1].idle
+    assert journal.read_bytes() == b"00"  # a kill -9 now: the motor is where the disk says
+    d2 = build(tmp_path, ROTARY)  # what a restart after a kill -9 sees
+    assert lost(d2) == [False, False]
+    assert d2.engine.motors[1].position == 250
+
+
+def test_a_motion_that_moves_keeps_its_mark(tmp_path: Path) -> None:
+    d = build(tmp_path)
+    move(d, 1, 250)
+    assert d.writer.write_now()
+    assert d.dispatcher.handle(MoveTo(1, True, 251, 0, 0, 0)).ack
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"01"
+    assert d.persistence.status()["journal"]["withdrawn"] == 0
+    d.engine.run_until_idle()
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"01"  # until the state is durable
+    assert d.writer.write_now()
     assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+
+
+def test_withdraw_only_the_start_it_was_given(tmp_path: Path) -> None:
+    j = MotionJournal(tmp_path / "j", 1)
+    j.reset()
+    token = j.begin(0)
+    assert token is not None
+    assert not j.withdraw(0, token)  # still in flight
+    j.end(0)
+    assert j.begin(0) is None  # already marked: nothing to withdraw for this one
+    j.end(0)
+    assert not j.withdraw(0, token)  # another start came since
+    assert j.flagged() == [True]
+    j.clear_if_unchanged(0, j.token(0))
+    token = j.begin(0)
+    j.end(0)
+    assert token is not None and j.withdraw(0, token)
+    assert (tmp_path / "j").read_bytes() == b"0" and j.flagged() == [False]
+    assert not j.withdraw(0, token)  # once
+    j.close()
 
 
 def test_journal_token_protects_a_start_in_flight(tmp_path: Path) -> None:
@@ -325,6 +546,23 @@ def test_journal_not_open_refuses_motion(tmp_path: Path) -> None:
     assert r.error_code is E.MOTOR_ERROR
     assert d.persistence.status()["motion_refused"] == 1
     assert d.engine.motors[0].idle
+
+
+def test_a_motion_that_cannot_be_recorded_is_e4_in_its_place(tmp_path: Path) -> None:
+    # PROTOCOL.md §5: E1 -> E2 -> E1 (parameters) -> E6 -> E4; the journal's failure is an
+    # E4 and takes E4's place (it used to come before every check of the command).
+    d = build(tmp_path, CONFIG.replace('name = "b"', 'name = "b"\nsoft_limit_min = -10\n'
+                                                     'soft_limit_max = 10'))
+    d.persistence.journal.close()
+    handle = d.dispatcher.handle
+    assert handle(MoveToWayPoint(0, 0, 0, 0, 0)).error_code is E.INVALID_WAYPOINT
+    assert handle(MoveTo(5, True, 1, 0, 0, 0)).error_code is E.INVALID_ADDRESS
+    assert handle(MoveTo(1, True, 11, 0, 0, 0)).error_code is E.INVALID_COMMAND
+    for cmd in (MoveTo(1, True, 5, 0, 0, 0), InitMove(0, False, 0, 0, 0), GoHome(1),
+                Move(0, True, 1, 0, 0)):
+        assert handle(cmd).error_code is E.MOTOR_ERROR, cmd
+    assert all(m.idle for m in d.engine.motors)
+    assert d.persistence.status()["motion_refused"] == 6  # all but the unknown motor
 
 
 # -- writes: complete or absent ------------------------------------------------------------------
@@ -415,11 +653,19 @@ def test_writer_thread_and_status(tmp_path: Path) -> None:
     assert saved(tmp_path)["motors"][0]["position"] == 10
 
 
-def test_open_with_unwritable_journal(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+def test_open_with_unwritable_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                      caplog: pytest.LogCaptureFixture) -> None:
     d = build(tmp_path)
     d.persistence.close()
-    (tmp_path / st.JOURNAL_NAME).unlink()
-    (tmp_path / st.JOURNAL_NAME).symlink_to(tmp_path / "missing" / "j")
+    journal = str(tmp_path / st.JOURNAL_NAME)
+    real = os.open
+
+    def refuse(path: Any, flags: int, mode: int = 0o777, **kw: Any) -> int:
+        if str(path) == journal:
+            raise OSError(errno.EIO, "Input/output error")
+        return real(path, flags, mode, **kw)
+
+    monkeypatch.setattr(os, "open", refuse)
     d = build(tmp_path)
     assert "cannot start the motion journal" in caplog.text
     assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
