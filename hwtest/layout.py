@@ -8,6 +8,8 @@ way of naming a line.
 
 from __future__ import annotations
 
+import re
+
 from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
 from motorctl.hal.wiring import LineRef
 
@@ -48,3 +50,20 @@ def axis_section(motor: int, dir_hold_us: float = 0.0) -> GpiodAxisConfig:
 
 def pin_section(number: int) -> GpiodPinConfig:
     return make(GpiodPinConfig, line=PINS[number])
+
+
+#: the tolerance of lag the guest's daemons get (motors[].max_lag_full_steps, its maximum)
+GUEST_MAX_LAG = 64.0
+
+
+def in_the_guest(example: str, api: str) -> str:
+    """docs/examples/raspberry-pi.toml as the tier's daemons run it: the libgpiod API forced,
+    no real-time priority, and the widest lag tolerance. The guest is emulated (QEMU TCG,
+    no KVM): its step timing says nothing about a board's, and the tier checks what reaches
+    the lines, not timing; the lag rule's own tests run in `make test` (docs/timing.md)."""
+    text = example.replace("priority = 50 ", "priority = 0  ")
+    text = text.replace('api = "auto"', f'api = "{api}"')
+    text, n = re.subn(r"^(max_speed = [^\n]*)$", rf"\1\nmax_lag_full_steps = {GUEST_MAX_LAG}",
+                      text, flags=re.M)
+    assert n == 3 and "priority = 0 " in text and f'api = "{api}"' in text, "example changed"
+    return text

@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from hwtest import gsim
-from hwtest.layout import DC, MOTORS, PINS, where
+from hwtest.layout import DC, MOTORS, PINS, in_the_guest, where
 from motorctl.client.client import Client
 from tests.daemon_proc import DaemonProcess
 
@@ -31,15 +31,12 @@ API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 
 
 def example_config() -> str:
-    """The documented example, with the API forced, without real-time priority and without
-    its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
+    """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`),
+    without its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
     hwtest/spi_wire.py and tests/test_tmc*.py)."""
     text = re.sub(r"  \[motors\.tmc\][^\n]*\n(  \w+ = [^\n]*\n)*", "", EXAMPLE.read_text())
     assert not re.search(r"^\s*\[motors\.tmc\]|^\s*driver = ", text, re.M)
-    text = text.replace("priority = 50 ", "priority = 0  ")
-    text = text.replace('api = "auto"', f'api = "{API}"')
-    assert f'api = "{API}"' in text and "priority = 0 " in text
-    return text
+    return in_the_guest(text, API)
 
 
 def gpio(line: str) -> int:

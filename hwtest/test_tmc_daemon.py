@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 
 from hwtest import gsim
-from hwtest.layout import MOTORS, where
+from hwtest.layout import MOTORS, in_the_guest, where
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
 from tests.daemon_proc import DaemonProcess
@@ -35,11 +35,10 @@ CHIPS = {"0.0": "tmc5160:step_dir", "0.1": "tmc5160:step_dir", "0.2": "tmc5160:s
 
 
 def example_config() -> str:
-    """The documented example as it is, but for the API and without real-time priority."""
+    """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`)."""
     text = EXAMPLE.read_text()
     assert len(re.findall(r"^\s*\[motors\.tmc\]", text, re.M)) == 3
-    text = text.replace("priority = 50 ", "priority = 0  ")
-    return text.replace('api = "auto"', f'api = "{API}"')
+    return in_the_guest(text, API)
 
 
 def shim_env(control: Path) -> dict[str, str]:
