@@ -55,20 +55,25 @@ bench: venv
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
 # ignored), in build/deb: an orig tarball from git, debian/ beside it, patches applied
-# there (never in the work tree). Result: build/deb/motorctl_<version>-1_all.deb.
-DEB_DEPS = build-essential debhelper dh-python pybuild-plugin-pyproject python3-all \
-           python3-setuptools python3-build python3-installer python3-wheel lintian \
-           debootstrap fakeroot systemd-container help2man
+# there (never in the work tree). Built as Debian's build daemons do (tools/build-deb.sh):
+# in a fresh Debian 12 root holding build-essential and debian/control's Build-Depends only
+# (a debootstrap cached in build/, see tools/debroot.sh), as an unprivileged user, without
+# network; so a Build-Depends missing from debian/control fails for everyone, whatever this
+# machine has installed. Then lintian. Needs root. Result:
+# build/deb/motorctl_<version>-1_all.deb (log: build/deb/build.log).
+# DEB_DEPS: what the host needs for make deb and make test-deb (not for building the package).
+DEB_DEPS = debootstrap lintian systemd-container
 DEB_VERSION = $(shell awk 'NR == 1 { v = $$2; gsub(/[()]/, "", v); sub(/-[^-]*$$/, "", v); print v }' debian/changelog)
 DEB_DIR = build/deb
-SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's python3, not a venv's or pyenv's
+SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's tools, not a venv's or pyenv's
 
 deb-deps:
 	@missing=$$(for p in $(DEB_DEPS); do dpkg-query -W -f='$${db:Status-Status}' $$p 2>/dev/null \
 	  | grep -qx installed || echo $$p; done); \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" != 0 ]; then echo "missing: sudo apt-get install $$missing" >&2; exit 1; fi; \
-	  apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $$missing; \
+	  apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q \
+	    -o DPkg::Lock::Timeout=300 --no-install-recommends $$missing; \
 	fi
 
 deb: deb-deps
@@ -79,12 +84,12 @@ deb: deb-deps
 	  | gzip -n > $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	tar -C $(DEB_DIR) -xzf $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	cp -a debian $(DEB_DIR)/motorctl-$(DEB_VERSION)/
-	cd $(DEB_DIR)/motorctl-$(DEB_VERSION) && PATH=$(SYSPATH) dpkg-buildpackage -us -uc -b
+	PATH=$(SYSPATH) bash tools/build-deb.sh $(DEB_DIR)/motorctl-$(DEB_VERSION)
 	PATH=$(SYSPATH) lintian --fail-on error --display-info $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_all.deb
 	@ls -l $(DEB_DIR)/*.deb
 
-# Install the package on a fresh Debian 12 root (debootstrap, cached in build/) and check
-# it there: see tests/deb/check-install.sh.
+# Install the package on a fresh Debian 12 root (the same cached debootstrap) and check it
+# there: see tests/deb/check-install.sh.
 test-deb: deb
 	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_all.deb
 
