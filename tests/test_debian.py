@@ -121,3 +121,30 @@ def test_build_depends_has_what_the_build_imports() -> None:
 def test_build_depends_parsed() -> None:
     deps = build_depends()
     assert {"debhelper-compat", "dh-python", "help2man", "pybuild-plugin-pyproject"} <= deps
+
+
+def test_the_template_is_installed_and_its_instances_are_restarted_and_stopped() -> None:
+    rules = (DEBIAN / "rules").read_text()
+    assert ("install -D -m 0644 systemd/motorctld@.service "
+            "debian/motorctl/lib/systemd/system/motorctld@.service") in rules
+    # dh_installsystemd --name=motorctld handles the single unit only: a template has no
+    # instance to enable, so the maintainer scripts look after the ones the admin made
+    assert "dh_installsystemd --name=motorctld" in rules
+    postinst = (DEBIAN / "motorctl.postinst").read_text()
+    assert "systemctl --no-block try-restart 'motorctld@*.service'" in postinst
+    prerm = (DEBIAN / "motorctl.prerm").read_text()
+    assert "#DEBHELPER#" in prerm and '"$1" = "remove"' in prerm
+    assert "systemctl stop 'motorctld@*.service'" in prerm
+
+
+def test_an_instance_has_its_own_config_serving_place_and_state() -> None:
+    unit = (ROOT / "systemd" / "motorctld@.service").read_text()
+    lines = unit.splitlines()
+    assert "EnvironmentFile=-/etc/default/motorctld-%i" in lines
+    assert 'Environment="MOTORCTLD_SERVE=--pty /run/motorctl-%i/motorctl.pty"' in lines
+    assert "ExecStartPre=/usr/bin/motorctld --check-config /etc/motorctl/%i.toml" in lines
+    (start,) = [ln for ln in lines if ln.startswith("ExecStart=")]
+    assert "--config /etc/motorctl/%i.toml" in start and "$MOTORCTLD_SERVE" in start
+    # the state directory the daemon is given is the runtime directory systemd makes for it
+    assert "--state-dir /run/motorctl-%i " in start and "RuntimeDirectory=motorctl-%i" in lines
+    assert "StateDirectory=motorctl-%i" in lines

@@ -68,17 +68,21 @@ grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorc
 in_root motorctld --check-config /etc/motorctl/motorctl.toml
 in_root motorctl --help >/dev/null
 
-step "the installed unit: systemd-analyze security --offline=true and verify"
+step "the installed units: systemd-analyze security --offline=true and verify"
+# each unit by the name it runs under: the template as an instance of it
+for name in motorctld.service motorctld@left.service; do
+  systemd-analyze security --offline=true --root="$root" "$name" --no-pager \
+    > "$build/deb-security.txt" 2>&1 || true
+  score=$(sed -n "s/.*Overall exposure level for $name: \([0-9.]*\).*/\1/p" \
+    "$build/deb-security.txt")
+  [ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score for $name"; }
+  echo "$name exposure: $score (at most $max_exposure)"
+  awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
+  systemd-analyze verify --root="$root" "lib/systemd/system/$name" || fail "systemd-analyze verify $name"
+  echo "$name verify: clean"
+done
+[ -f "$root/lib/systemd/system/motorctld@.service" ] || fail "the template unit is not installed"
 unit=lib/systemd/system/motorctld.service
-systemd-analyze security --offline=true --root="$root" "/$unit" --no-pager \
-  > "$build/deb-security.txt" 2>&1 || true
-score=$(sed -n 's/.*Overall exposure level for motorctld.service: \([0-9.]*\).*/\1/p' \
-  "$build/deb-security.txt")
-[ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score"; }
-echo "exposure: $score (at most $max_exposure)"
-awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
-systemd-analyze verify --root="$root" "$unit" || fail "systemd-analyze verify"
-echo "verify: clean"
 
 step "the daemon as the unit starts it: user motorctl, fake NOTIFY_SOCKET, systemd-python"
 mkdir -p "$root/run/motorctl" && in_root chown motorctl:motorctl /run/motorctl
@@ -114,6 +118,17 @@ expect "status-socket: 1"
 expect "after-stop: inactive success"
 expect "left-in-run: state.json state.moving "
 expect "journal-fields: 2"
+# two instances of the template at once (report.sh): own config, PTY, state, executor CPU
+for i in left right; do
+  expect "instance $i: active running NRestarts=0"
+  expect "instance $i client: motor 0 at $([ $i = left ] && echo 100 || echo 200)"
+  expect "instance $i state: motorctld.lock state.json state.moving status.sock"
+done
+expect "instance left pty: crw-rw---- motorctl motorctl /run/motorctl-left/motorctl.pty"
+expect "instance right pty: crw-rw---- motorctl motorctl /run/motorctl-right/host.pty"
+expect "instance left executor cpus: 0"
+expect "instance right executor cpus: $([ "$(nproc)" -gt 1 ] && echo 1 || echo 0)"
+expect "instances after stop: inactive inactive"
 expect "var-lib: running motorctld.lock state.json state.moving "
 grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STATUS= line"
 grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"

@@ -24,4 +24,35 @@ echo "var-lib: $(systemctl show -P SubState motorctld) $(ls -A /var/lib/motorctl
 systemctl stop motorctld
 journalctl -u motorctld --no-pager -o verbose | grep -c '^ *SIGNAL=SIGTERM$' | sed 's/^/journal-fields: /'
 journalctl -u motorctld --no-pager | sed 's/^/  | /'
+
+# Two instances of the template at once: each its own config (/etc/motorctl/NAME.toml, its
+# executor on its own CPU), serving place (right: from /etc/default/motorctld-right) and state.
+cpus=$(nproc)
+for i in left right; do
+  cpu=0; [ $i = right ] && [ "$cpus" -gt 1 ] && cpu=1
+  sed "s/^cpu = -1$/cpu = $cpu/" /etc/motorctl/motorctl.toml > /etc/motorctl/$i.toml
+done
+echo 'MOTORCTLD_SERVE="--pty /run/motorctl-right/host.pty"' > /etc/default/motorctld-right
+systemctl enable --now motorctld@left motorctld@right 2>&1 | sed 's/^/  | /'
+for i in left right; do
+  n=0
+  while [ "$(systemctl show -P SubState motorctld@$i)" != running ] && [ $n -lt 60 ]; do
+    sleep 0.5; n=$((n + 1))
+  done
+done
+for i in left right; do
+  pty=/run/motorctl-$i/motorctl.pty; [ $i = right ] && pty=/run/motorctl-right/host.pty
+  target=100; [ $i = right ] && target=200
+  echo "instance $i: $(systemctl show -P ActiveState motorctld@$i) $(systemctl show -P SubState motorctld@$i) NRestarts=$(systemctl show -P NRestarts motorctld@$i)"
+  echo "instance $i pty: $(stat -L -c '%A %U %G' $pty) $pty"
+  su -s /bin/sh -c "motorctl -p $pty moveto 0 $target && motorctl -p $pty wait 0" motorctl >/dev/null 2>&1
+  echo "instance $i client: $(su -s /bin/sh -c "motorctl -p $pty pos 0" motorctl 2>&1)"
+  pid=$(su -s /bin/sh -c "motorctld --status --state-dir /run/motorctl-$i" motorctl \
+    | python3 -c 'import json, sys; print(json.load(sys.stdin)["executor"]["pid"])')
+  echo "instance $i executor cpus: $(sed -n 's/^Cpus_allowed_list:\t*//p' /proc/$pid/status)"
+  echo "instance $i state: $(ls /run/motorctl-$i | grep -v '\.pty$' | tr '\n' ' ' | sed 's/ $//')"
+done
+systemctl stop motorctld@left motorctld@right
+echo "instances after stop: $(systemctl show -P ActiveState motorctld@left) $(systemctl show -P ActiveState motorctld@right)"
+journalctl -u motorctld@left -u motorctld@right --no-pager | sed 's/^/  | /'
 systemctl poweroff
