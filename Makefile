@@ -2,7 +2,9 @@
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
 #   make test   the test suite (what .ci/run calls first)
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
-#               builds its VM into ~/.cache/motorctl-gpio-sim on first use, as root)
+#               builds its VM on first use, as root, into $XDG_CACHE_HOME/motorctl-gpio-sim,
+#               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
+#               is made when missing; in the guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
@@ -52,6 +54,7 @@ bench: venv
 	$(BIN)/python bench/latency.py
 	$(BIN)/python bench/steps.py
 	$(BIN)/python bench/rings.py
+	$(BIN)/python bench/instances.py
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
 # ignored), in build/deb: an orig tarball from git, debian/ beside it, patches applied
