@@ -122,8 +122,10 @@ expect "journal-fields: 2"
 for i in left right; do
   expect "instance $i: active running NRestarts=0"
   expect "instance $i client: motor 0 at $([ $i = left ] && echo 100 || echo 200)"
-  expect "instance $i state: motorctld.lock state.json state.moving status.sock"
 done
+expect "instance left run: motorctld.lock state.json state.moving status.sock"
+expect "instance right run: motorctld.lock status.sock"
+expect "instance right var-lib: motorctld.lock state.json state.moving"
 expect "instance left pty: crw-rw---- motorctl motorctl /run/motorctl-left/motorctl.pty"
 expect "instance right pty: crw-rw---- motorctl motorctl /run/motorctl-right/host.pty"
 expect "instance left executor cpus: 0"
