@@ -19,8 +19,8 @@ debroot_needs "make deb"
 
 root=$debroot_build/deb-build-root
 trap 'debroot_remove "$root"' EXIT
-t0=$SECONDS
 debroot_fresh "$root"
+t0=$SECONDS
 echo "== a fresh Debian $(cat "$root/etc/debian_version") root: build-essential and the Build-Depends only"
 mkdir -p "$root/build"
 cp -a "$src" "$root/build/"
