@@ -49,6 +49,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench.steps import percentiles  # noqa: E402
 from motorctl.client.client import Client, DeviceError  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
 from tests.daemon_proc import DaemonProcess  # noqa: E402
@@ -86,23 +87,6 @@ def proc_status(pid: int) -> dict[str, str]:
         key, _, value = line.partition(":")
         fields[key] = value.strip()
     return fields
-
-
-def percentiles(hist: dict[int, int]) -> dict[str, float]:
-    total = sum(hist.values())
-    out: dict[str, float] = {"steps": total}
-    if not total:
-        return out
-    keys = sorted(hist)
-    for name, q in (("p50_us", 0.5), ("p99_us", 0.99), ("p999_us", 0.999)):
-        seen = 0
-        for k in keys:
-            seen += hist[k]
-            if seen >= q * total:
-                out[name] = float(k)
-                break
-    out["max_us"] = float(keys[-1])
-    return out
 
 
 class Instance:
@@ -171,7 +155,7 @@ def scenario(work: Path, cpus: tuple[int, ...], priority: int, seconds: float,
             pid = after[inst.name]["executor"]["pid"]
             ctx1 = proc_status(pid)
             r: dict[str, Any] = percentiles(window)
-            r["steps_per_s"] = round(r["steps"] / seconds)
+            r["steps_per_s"] = round(r["count"] / seconds)
             r["late"] = a["late"] - b["late"]
             r["timing_lost"] = a.get("timing_lost", 0) - b.get("timing_lost", 0)
             r["motors_lost"] = len(inst.lost)
