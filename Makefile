@@ -2,7 +2,9 @@
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
 #   make test   the test suite (what .ci/run calls first)
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
-#               builds its VM into ~/.cache/motorctl-gpio-sim on first use, as root)
+#               builds its VM on first use, as root, into $XDG_CACHE_HOME/motorctl-gpio-sim,
+#               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
+#               is made when missing; in the guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
 # tear a socat PTY pair down and make it again; without socat they skip, saying so loudly).
@@ -62,23 +64,29 @@ bench: venv
 	$(BIN)/python bench/latency.py
 	$(BIN)/python bench/steps.py
 	$(BIN)/python bench/rings.py
+	$(BIN)/python bench/instances.py
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
 # ignored), in build/deb: an orig tarball from git, debian/ beside it, patches applied
-# there (never in the work tree). Result: build/deb/motorctl_<version>-1_all.deb.
-DEB_DEPS = build-essential debhelper dh-python pybuild-plugin-pyproject python3-all \
-           python3-setuptools python3-build python3-installer python3-wheel lintian \
-           debootstrap fakeroot systemd-container help2man
+# there (never in the work tree). Built as Debian's build daemons do (tools/build-deb.sh):
+# in a fresh Debian 12 root holding build-essential and debian/control's Build-Depends only
+# (a debootstrap cached in build/, see tools/debroot.sh), as an unprivileged user, without
+# network; so a Build-Depends missing from debian/control fails for everyone, whatever this
+# machine has installed. Then lintian. Needs root. Result:
+# build/deb/motorctl_<version>-1_all.deb (log: build/deb/build.log).
+# DEB_DEPS: what the host needs for make deb and make test-deb (not for building the package).
+DEB_DEPS = debootstrap lintian systemd-container
 DEB_VERSION = $(shell awk 'NR == 1 { v = $$2; gsub(/[()]/, "", v); sub(/-[^-]*$$/, "", v); print v }' debian/changelog)
 DEB_DIR = build/deb
-SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's python3, not a venv's or pyenv's
+SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's tools, not a venv's or pyenv's
 
 deb-deps:
 	@missing=$$(for p in $(DEB_DEPS); do dpkg-query -W -f='$${db:Status-Status}' $$p 2>/dev/null \
 	  | grep -qx installed || echo $$p; done); \
 	if [ -n "$$missing" ]; then \
 	  if [ "$$(id -u)" != 0 ]; then echo "missing: sudo apt-get install $$missing" >&2; exit 1; fi; \
-	  apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends $$missing; \
+	  apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q \
+	    -o DPkg::Lock::Timeout=300 --no-install-recommends $$missing; \
 	fi
 
 deb: deb-deps
@@ -89,12 +97,12 @@ deb: deb-deps
 	  | gzip -n > $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	tar -C $(DEB_DIR) -xzf $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	cp -a debian $(DEB_DIR)/motorctl-$(DEB_VERSION)/
-	cd $(DEB_DIR)/motorctl-$(DEB_VERSION) && PATH=$(SYSPATH) dpkg-buildpackage -us -uc -b
+	PATH=$(SYSPATH) bash tools/build-deb.sh $(DEB_DIR)/motorctl-$(DEB_VERSION)
 	PATH=$(SYSPATH) lintian --fail-on error --display-info $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_all.deb
 	@ls -l $(DEB_DIR)/*.deb
 
-# Install the package on a fresh Debian 12 root (debootstrap, cached in build/) and check
-# it there: see tests/deb/check-install.sh.
+# Install the package on a fresh Debian 12 root (the same cached debootstrap) and check it
+# there: see tests/deb/check-install.sh.
 test-deb: deb
 	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_all.deb
 

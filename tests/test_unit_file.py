@@ -1,8 +1,11 @@
-"""The systemd unit: hardening score, `systemd-analyze verify`, and real-time priority without
+"""The systemd units: hardening score, `systemd-analyze verify`, and real-time priority without
 capabilities (LimitRTPRIO/LimitMEMLOCK only) measured on this kernel.
 
-The unit checked here is the file the package installs verbatim (debian/rules); `make
-test-deb` checks it again as installed on a fresh Debian 12 root.
+Two units, both installed verbatim by the package (debian/rules): motorctld.service (one
+daemon) and the template motorctld@.service (one daemon per instance name, each with its own
+config, serving place and state directory); the template is the single unit line for line
+but for the lines that name those. `make test-deb` checks both again as installed on a
+fresh Debian 12 root, and runs two instances of the template under a booted systemd.
 """
 
 from __future__ import annotations
@@ -18,53 +21,103 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 UNIT = ROOT / "systemd" / "motorctld.service"
+TEMPLATE = ROOT / "systemd" / "motorctld@.service"
 MAX_EXPOSURE = 2.0
+#: each unit with the name it is checked under (a template as one of its instances)
+UNITS = [pytest.param(UNIT, "motorctld.service", id="single"),
+         pytest.param(TEMPLATE, "motorctld@left.service", id="template")]
 
 analyze = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(analyze is None, reason="systemd-analyze is not installed")
 
 
-def exposure(unit: Path, root: Path | None = None) -> float:
+def exposure(unit: Path, root: Path | None = None, name: str | None = None) -> float:
+    """The overall exposure of ``unit`` (a file), or of unit ``name`` found under ``root``."""
     assert analyze is not None
     cmd = [analyze, "security", "--offline=true", "--no-pager"]
     if root is not None:
         cmd.append(f"--root={root}")
-    out = subprocess.run([*cmd, str(unit)], capture_output=True, text=True, timeout=60)
+    out = subprocess.run([*cmd, name or str(unit)], capture_output=True, text=True, timeout=60)
     m = re.search(r"Overall exposure level for \S+: ([0-9.]+)", out.stdout + out.stderr)
     assert m, out.stdout + out.stderr
     return float(m.group(1))
 
 
-@needs_analyze
-def test_security_exposure_at_most_2() -> None:
-    assert exposure(UNIT) <= MAX_EXPOSURE
-
-
-@needs_analyze
-def test_verify_clean(tmp_path: Path) -> None:
-    """Against a root laid out as the package installs it (the unit and /usr/bin/motorctld)."""
+def installed_root(tmp_path: Path, unit: Path) -> Path:
+    """A root laid out as the package installs it (the unit and /usr/bin/motorctld)."""
     units = tmp_path / "lib" / "systemd" / "system"
     shutil.copytree("/lib/systemd/system", units, symlinks=True)  # the targets it needs
-    shutil.copy(UNIT, units / UNIT.name)
+    shutil.copy(unit, units / unit.name)
     (tmp_path / "usr" / "bin").mkdir(parents=True)
     daemon = tmp_path / "usr" / "bin" / "motorctld"
     daemon.write_text(f"#!{sys.executable}\nfrom motorctl.daemon.main import main\nmain()\n")
     daemon.chmod(0o755)
+    return tmp_path
+
+
+@needs_analyze
+@pytest.mark.parametrize(("unit", "name"), UNITS)
+def test_security_exposure_at_most_2(unit: Path, name: str, tmp_path: Path) -> None:
+    assert exposure(unit, installed_root(tmp_path, unit), name) <= MAX_EXPOSURE
+
+
+@needs_analyze
+def test_the_template_is_exposed_no_more_than_the_single_unit(tmp_path: Path) -> None:
+    single = exposure(UNIT, installed_root(tmp_path / "a", UNIT), "motorctld.service")
+    template = exposure(TEMPLATE, installed_root(tmp_path / "b", TEMPLATE), "motorctld@b.service")
+    assert template <= single
+
+
+@needs_analyze
+@pytest.mark.parametrize(("unit", "name"), UNITS)
+def test_verify_clean(unit: Path, name: str, tmp_path: Path) -> None:
+    root = installed_root(tmp_path, unit)
     assert analyze is not None
-    out = subprocess.run([analyze, "verify", f"--root={tmp_path}",
-                          f"lib/systemd/system/{UNIT.name}"],
+    out = subprocess.run([analyze, "verify", f"--root={root}", f"lib/systemd/system/{name}"],
                          capture_output=True, text=True, timeout=60)
     assert out.returncode == 0 and not out.stderr.strip(), out.stderr
 
 
-def test_unit_needs_no_group_that_debian_lacks() -> None:
-    text = UNIT.read_text()
+@pytest.mark.parametrize(("unit", "suffix"), [(UNIT, ""), (TEMPLATE, "-%i")])
+def test_unit_needs_no_group_that_debian_lacks(unit: Path, suffix: str) -> None:
+    text = unit.read_text()
     assert "SupplementaryGroups" not in text  # groups come from sysusers.d membership
     assert "User=motorctl" in text and "/opt/" not in text
     for line in ("NoNewPrivileges=yes", "ProtectSystem=strict", "PrivateNetwork=yes",
                  "RestrictAddressFamilies=AF_UNIX", "DevicePolicy=closed", "CapabilityBoundingSet=",
-                 "RuntimeDirectory=motorctl", "StateDirectory=motorctl", "Type=notify"):
+                 f"RuntimeDirectory=motorctl{suffix}", f"StateDirectory=motorctl{suffix}",
+                 "Type=notify"):
         assert line in text.splitlines(), line
+
+
+def settings(unit: Path) -> list[str]:
+    return [line for line in unit.read_text().splitlines() if line and not line.startswith("#")]
+
+
+#: the only settings in which an instance differs from the single daemon: its name, its
+#: config, where it serves, its state and runtime directories
+INSTANCE_LINES = {
+    "Description=motorctl: motor-controller protocol daemon, instance %i",
+    "ExecStartPre=/usr/bin/motorctld --check-config /etc/motorctl/%i.toml",
+    'Environment="MOTORCTLD_SERVE=--pty /run/motorctl-%i/motorctl.pty"',
+    "EnvironmentFile=-/etc/default/motorctld-%i",
+    "ExecStart=/usr/bin/motorctld --config /etc/motorctl/%i.toml --state-dir /run/motorctl-%i"
+    " $MOTORCTLD_SERVE",
+    "RuntimeDirectory=motorctl-%i",
+    "StateDirectory=motorctl-%i",
+}
+
+
+def test_the_template_is_the_single_unit_but_for_the_instance_lines() -> None:
+    """systemd has no include: the template repeats the single unit's hardening, and this
+    keeps the two in step (a setting added to one and not the other fails here)."""
+    single, template = settings(UNIT), settings(TEMPLATE)
+    differing = [line for line in template if line not in single]
+    assert set(differing) == INSTANCE_LINES, differing
+    assert len(template) == len(single)
+    same = [line for line in template if line not in INSTANCE_LINES]
+    assert same == [line for line in single if line in same], "same settings, same order"
+    assert "%i" not in "".join(single) and "%I" not in TEMPLATE.read_text()
 
 
 RT_PROBE = """

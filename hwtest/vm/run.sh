@@ -15,6 +15,7 @@
 set -uo pipefail
 C=${GSIM_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/gpio-sim-vm}
 [ -f "$C/initrd.img" ] || { echo "run.sh: $C/initrd.img missing, run build.sh first" >&2; exit 2; }
+command -v qemu-system-x86_64 >/dev/null || { echo "run.sh: qemu-system-x86_64 missing: apt-get install qemu-system-x86 (build.sh installs it)" >&2; exit 2; }
 C=$(cd "$C" && pwd); K=$C/vmlinux; [ -f "$K" ] || K=$C/vmlinuz; ROOT=${GSIM_ROOT:-host}; RW=$(cd "${GSIM_RW:-$PWD}" && pwd) || exit 2
 CTL=$(mktemp -d "${TMPDIR:-/tmp}/gsim-ctl.XXXXXX"); trap 'rm -rf "$CTL"' EXIT
 q() { printf "'%s'" "$(printf %s "$1" | sed "s/'/'\\\\''/g")"; }   # single-quote for sh

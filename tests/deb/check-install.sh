@@ -1,9 +1,10 @@
 #!/usr/bin/env bash
 # Install the motorctl .deb on a fresh Debian 12 root and check it there (make test-deb).
 #
-# The root is a debootstrap --variant=minbase of bookworm, made once and cached as
-# build/bookworm-minbase.tar; every run unpacks a fresh copy into build/deb-root and
-# chroots into it (needs root: mounts /proc and /dev there). apt installs the package
+# The root is a fresh copy, in build/deb-root, of the debootstrap minbase of bookworm that
+# make deb's build root starts from too (tools/debroot.sh: cached as
+# build/bookworm-minbase.tar), chrooted into (needs root: mounts /proc and /dev there), so it
+# holds no package that make deb's Build-Depends brought in. apt installs the package
 # with its dependencies from Debian's archive, then this script checks:
 #   the user and groups (sysusers.d), the conffiles, the udev rules, --check-config on the
 #   example config; the daemon started as the unit starts it (user motorctl, the unit's
@@ -14,38 +15,24 @@
 #   systemd-nspawn, so the service runs under a real systemd with its whole sandbox
 #   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop); and a clean purge.
 set -euo pipefail
-deb=$(realpath "$1")
+deb=$(realpath "${1:?usage: tests/deb/check-install.sh PACKAGE.deb}")
 here=$(cd "$(dirname "$0")/../.." && pwd)
-build=$here/build
-cache=$build/bookworm-minbase.tar
+# shellcheck source=tools/debroot.sh
+. "$here/tools/debroot.sh"
+debroot_needs "make test-deb"
+for tool in systemd-nspawn:systemd-container systemd-analyze:systemd; do
+  command -v "${tool%:*}" >/dev/null \
+    || { echo "make test-deb needs ${tool%:*}: apt-get install ${tool#*:}" >&2; exit 2; }
+done
+build=$debroot_build
 root=$build/deb-root
-mirror=${DEBIAN_MIRROR:-http://deb.debian.org/debian}
 max_exposure=${MAX_EXPOSURE:-2.0}
 
 step() { printf '\n== %s\n' "$*"; }
 fail() { echo "FAILED: $*" >&2; exit 1; }
 
-if [ ! -f "$cache" ]; then
-  step "debootstrap bookworm (minbase), once"
-  rm -rf "$build/debootstrap"
-  debootstrap --variant=minbase bookworm "$build/debootstrap" "$mirror" >"$build/debootstrap.log"
-  tar -C "$build/debootstrap" -cf "$cache" .
-  rm -rf "$build/debootstrap"
-fi
-
-cleanup() {
-  for m in dev/shm dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
-  rm -rf "$root"
-}
-trap cleanup EXIT
-cleanup
-mkdir -p "$root"
-tar -C "$root" -xf "$cache"
-mount -t proc proc "$root/proc"
-mount --bind /dev "$root/dev"
-mount --bind /dev/pts "$root/dev/pts"
-mount -t tmpfs -o mode=1777 shm "$root/dev/shm"  # POSIX shared memory (the step executor's)
-cp /etc/resolv.conf "$root/etc/resolv.conf" 2>/dev/null || true
+trap 'debroot_remove "$root"' EXIT
+debroot_fresh "$root"
 in_root() { chroot "$root" env -i PATH=/usr/sbin:/usr/bin:/sbin:/bin LANG=C.UTF-8 "$@"; }
 
 step "apt-get install ./$(basename "$deb") on a fresh Debian $(cat "$root/etc/debian_version")"
@@ -81,17 +68,21 @@ grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorc
 in_root motorctld --check-config /etc/motorctl/motorctl.toml
 in_root motorctl --help >/dev/null
 
-step "the installed unit: systemd-analyze security --offline=true and verify"
+step "the installed units: systemd-analyze security --offline=true and verify"
+# each unit by the name it runs under: the template as an instance of it
+for name in motorctld.service motorctld@left.service; do
+  systemd-analyze security --offline=true --root="$root" "$name" --no-pager \
+    > "$build/deb-security.txt" 2>&1 || true
+  score=$(sed -n "s/.*Overall exposure level for $name: \([0-9.]*\).*/\1/p" \
+    "$build/deb-security.txt")
+  [ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score for $name"; }
+  echo "$name exposure: $score (at most $max_exposure)"
+  awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
+  systemd-analyze verify --root="$root" "lib/systemd/system/$name" || fail "systemd-analyze verify $name"
+  echo "$name verify: clean"
+done
+[ -f "$root/lib/systemd/system/motorctld@.service" ] || fail "the template unit is not installed"
 unit=lib/systemd/system/motorctld.service
-systemd-analyze security --offline=true --root="$root" "/$unit" --no-pager \
-  > "$build/deb-security.txt" 2>&1 || true
-score=$(sed -n 's/.*Overall exposure level for motorctld.service: \([0-9.]*\).*/\1/p' \
-  "$build/deb-security.txt")
-[ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score"; }
-echo "exposure: $score (at most $max_exposure)"
-awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
-systemd-analyze verify --root="$root" "$unit" || fail "systemd-analyze verify"
-echo "verify: clean"
 
 step "the daemon as the unit starts it: user motorctl, fake NOTIFY_SOCKET, systemd-python"
 mkdir -p "$root/run/motorctl" && in_root chown motorctl:motorctl /run/motorctl
@@ -106,7 +97,7 @@ in_root python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
   || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
 
 step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
-for m in dev/shm dev/pts dev proc; do mountpoint -q "$root/$m" && umount -l "$root/$m"; done
+debroot_umount "$root"
 cp "$here/tests/deb/report.service" "$root/etc/systemd/system/"
 cp "$here/tests/deb/report.sh" "$root/root/"
 ln -sf /etc/systemd/system/report.service "$root/etc/systemd/system/multi-user.target.wants/"
@@ -127,13 +118,23 @@ expect "status-socket: 1"
 expect "after-stop: inactive success"
 expect "left-in-run: state.json state.moving "
 expect "journal-fields: 2"
+# two instances of the template at once (report.sh): own config, PTY, state, executor CPU
+for i in left right; do
+  expect "instance $i: active running NRestarts=0"
+  expect "instance $i client: motor 0 at $([ $i = left ] && echo 100 || echo 200)"
+done
+expect "instance left run: motorctld.lock state.json state.moving status.sock"
+expect "instance right run: motorctld.lock status.sock"
+expect "instance right var-lib: motorctld.lock state.json state.moving"
+expect "instance left pty: crw-rw---- motorctl motorctl /run/motorctl-left/motorctl.pty"
+expect "instance right pty: crw-rw---- motorctl motorctl /run/motorctl-right/host.pty"
+expect "instance left executor cpus: 0"
+expect "instance right executor cpus: $([ "$(nproc)" -gt 1 ] && echo 1 || echo 0)"
+expect "instances after stop: inactive inactive"
 expect "var-lib: running motorctld.lock state.json state.moving "
 grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STATUS= line"
 grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"
-mount -t proc proc "$root/proc"
-mount --bind /dev "$root/dev"
-mount --bind /dev/pts "$root/dev/pts"
-mount -t tmpfs -o mode=1777 shm "$root/dev/shm"  # POSIX shared memory (the step executor's)
+debroot_mount "$root"
 
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \

@@ -24,4 +24,47 @@ echo "var-lib: $(systemctl show -P SubState motorctld) $(ls -A /var/lib/motorctl
 systemctl stop motorctld
 journalctl -u motorctld --no-pager -o verbose | grep -c '^ *SIGNAL=SIGTERM$' | sed 's/^/journal-fields: /'
 journalctl -u motorctld --no-pager | sed 's/^/  | /'
+
+# Two instances of the template at once: each its own config (/etc/motorctl/NAME.toml, its
+# executor on its own CPU), serving place (right: from /etc/default/motorctld-right) and state
+# (left: /run/motorctl-left; right: kept across reboots in /var/lib/motorctl-right).
+cpus=$(nproc)
+for i in left right; do
+  cpu=0; [ $i = right ] && [ "$cpus" -gt 1 ] && cpu=1
+  dir=; [ $i = right ] && dir=/var/lib/motorctl-right
+  # The container cannot give the executors SCHED_FIFO (no CAP_SYS_RESOURCE to raise
+  # RLIMIT_RTPRIO), so their timing is best effort on a busy machine: the embedded default's
+  # simulated motors slide late steps and never fault for it; this checks the units,
+  # bench/instances.py the timing.
+  motorctld --print-default-config | sed -e "s/^cpu = -1$/cpu = $cpu/" \
+    -e "s|^directory = \"\"|directory = \"$dir\"|" > /etc/motorctl/$i.toml
+done
+echo 'MOTORCTLD_SERVE="--pty /run/motorctl-right/host.pty"' > /etc/default/motorctld-right
+systemctl enable --now motorctld@left motorctld@right 2>&1 | sed 's/^/  | /'
+for i in left right; do
+  n=0
+  while [ "$(systemctl show -P SubState motorctld@$i)" != running ] && [ $n -lt 60 ]; do
+    sleep 0.5; n=$((n + 1))
+  done
+done
+for i in left right; do
+  pty=/run/motorctl-$i/motorctl.pty; [ $i = right ] && pty=/run/motorctl-right/host.pty
+  target=100; [ $i = right ] && target=200
+  echo "instance $i: $(systemctl show -P ActiveState motorctld@$i) $(systemctl show -P SubState motorctld@$i) NRestarts=$(systemctl show -P NRestarts motorctld@$i)"
+  echo "instance $i pty: $(stat -L -c '%A %U %G' $pty) $pty"
+  su -s /bin/sh -c "motorctl -p $pty moveto 0 $target && motorctl -p $pty wait 0" motorctl \
+    | sed "s/^/  instance $i: /"
+  echo "instance $i client: $(su -s /bin/sh -c "motorctl -p $pty pos 0" motorctl 2>&1)"
+  pid=$(su -s /bin/sh -c "motorctld --status --state-dir /run/motorctl-$i" motorctl \
+    | python3 -c 'import json, sys; print(json.load(sys.stdin)["executor"]["pid"])')
+  echo "instance $i executor cpus: $(sed -n 's/^Cpus_allowed_list:\t*//p' /proc/$pid/status)"
+  echo "instance $i run: $(ls /run/motorctl-$i | grep -v '\.pty$' | tr '\n' ' ' | sed 's/ $//')"
+  [ $i = right ] && echo "instance $i var-lib: $(ls /var/lib/motorctl-$i | tr '\n' ' ' | sed 's/ $//')"
+done
+systemctl stop motorctld@left motorctld@right
+echo "instances after stop: $(systemctl show -P ActiveState motorctld@left) $(systemctl show -P ActiveState motorctld@right)"
+journalctl -u motorctld@left -u motorctld@right --no-pager | sed 's/^/  | /'
+# what the admin made goes before the package is purged (dpkg keeps /etc/motorctl otherwise)
+systemctl disable --quiet motorctld@left motorctld@right
+rm -f /etc/motorctl/left.toml /etc/motorctl/right.toml /etc/default/motorctld-right
 systemctl poweroff
