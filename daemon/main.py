@@ -681,7 +681,9 @@ def shutdown(daemon: Daemon) -> bool:
     deadline = time.monotonic() + SHUTDOWN_LIMIT_S
     while time.monotonic() < deadline:
         with engine.lock:
-            if not any(m.active or m.stopping for m in engine.motors):
+            # a dead executor confirms no stop and moves nothing: nothing to wait for
+            if engine.executor_died is not None or not any(m.active or m.stopping
+                                                           for m in engine.motors):
                 break
         time.sleep(0.005)
     with engine.lock:

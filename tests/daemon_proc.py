@@ -150,3 +150,46 @@ class DaemonProcess:
                 self.kill()
         if self.proc is not None and self.proc.stdout is not None:
             self.proc.stdout.close()
+
+
+def children_of(pid: int) -> list[int]:
+    """The PIDs whose parent is ``pid`` (zombies included)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            out.append(int(entry.name))
+    return sorted(out)
+
+
+def memfd_labels(pid: int) -> set[str]:
+    """The labels of the memfd blocks (``/memfd:LABEL``) process ``pid`` maps."""
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    return {line.split("/memfd:", 1)[1].split(" (deleted)")[0]
+            for line in maps.splitlines() if "/memfd:" in line}
+
+
+def memfd_holders(labels: set[str]) -> list[int]:
+    """Every process on the machine that still maps, or holds a descriptor of, a memfd
+    labelled one of ``labels`` (a memfd lives exactly as long as one of those)."""
+    wanted = {f"/memfd:{label} (deleted)" for label in labels}
+    holders = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            held = any(line.split(None, 5)[-1] in wanted
+                       for line in (entry / "maps").read_text().splitlines()
+                       if "/memfd:" in line)
+            if not held:
+                held = any(os.readlink(fd) in wanted for fd in (entry / "fd").iterdir())
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        if held:
+            holders.append(int(entry.name))
+    return holders

@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import Client, DeviceError
+from motorctl.daemon.main import EXECUTOR_DEATH_GRACE_S, SHUTDOWN_LIMIT_S
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,
@@ -26,7 +27,7 @@ from motorctl.protocol.codec import (
     encode_command,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.daemon_proc import DaemonProcess, until
+from tests.daemon_proc import DaemonProcess, children_of, memfd_holders, memfd_labels, until
 
 E = ErrorCode
 OPTS = CodecOptions()
@@ -517,6 +518,10 @@ def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
 
     status = daemon.status()
     assert status["executor"]["kind"] == "process" and status["executor"]["alive"]
+    assert daemon.proc is not None
+    assert children_of(daemon.proc.pid) == [status["executor"]["pid"]]  # no tracker
+    blocks = memfd_labels(daemon.proc.pid)
+    assert len(blocks) == 2  # the executor's block, the mock's mechanics
     with daemon.client() as c:
         c.move(0, True, speed=1)
         until_moving = time.monotonic() + 10
@@ -538,9 +543,11 @@ def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
         st = daemon.status()
         assert not st["executor"]["alive"] and "died" in st["executor"]["reason"]
         assert all(m["position_lost"] and "died" in m["fault"] for m in st["motors"])
-    assert daemon.proc is not None
-    assert daemon.proc.wait(20) == 3  # exits non-zero for the service manager to restart
+    # exits non-zero for the service manager to restart, after the grace period and without
+    # waiting for stops that a dead executor can never confirm (SHUTDOWN_LIMIT_S)
+    assert daemon.proc.wait(EXECUTOR_DEATH_GRACE_S + SHUTDOWN_LIMIT_S - 2) == 3
     assert "step executor" in daemon.stderr() and "died" in daemon.stderr()
+    assert memfd_holders(blocks) == []  # the shared memory is gone with both processes
 
 
 def code_of_error(exc: DeviceError) -> ErrorCode:
