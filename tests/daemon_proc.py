@@ -1,4 +1,10 @@
-"""Run motorctld as a real subprocess on a real PTY, for end-to-end tests."""
+"""Run motorctld as a real subprocess on a real PTY, for end-to-end tests.
+
+A daemon (and its step executor process) logs into ``motorctld.stderr`` in its test's
+directory, never into pytest's output; when the daemon ends (``close``, ``kill``) its part
+of that file is printed to the test's captured stderr, which pytest shows only when the test
+fails.
+"""
 
 from __future__ import annotations
 
@@ -93,12 +99,15 @@ class DaemonProcess:
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready_line = ""
         self.stderr_path = workdir / "motorctld.stderr"
+        self._log_from = 0  # this daemon's part of the file (a restart appends to it)
+        self._log_shown = False
 
     def start(self) -> DaemonProcess:
         cmd = [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(self.pty),
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
         cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
+        self._log_from = stderr.tell()
         env = {**os.environ, **self.env} if self.env is not None else None
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
                                      cwd=Path(__file__).resolve().parent.parent)
@@ -141,6 +150,7 @@ class DaemonProcess:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(10)
+        self.show_log()
 
     def close(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -150,6 +160,18 @@ class DaemonProcess:
                 self.kill()
         if self.proc is not None and self.proc.stdout is not None:
             self.proc.stdout.close()
+        self.show_log()
+
+    def show_log(self) -> None:
+        """This daemon's log, once, to the test's captured stderr (shown if it fails)."""
+        if self._log_shown or self.proc is None or not self.stderr_path.exists():
+            return
+        self._log_shown = True
+        with open(self.stderr_path, "rb") as f:
+            f.seek(self._log_from)
+            text = f.read().decode(errors="replace")
+        sys.stderr.write(f"---- motorctld (PID {self.proc.pid}) log, {self.stderr_path} "
+                         f"----\n{text}---- end of the motorctld log ----\n")
 
 
 def children_of(pid: int) -> list[int]:
