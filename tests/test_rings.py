@@ -193,12 +193,14 @@ def test_every_word_mix_of_the_old_and_the_new_segment_is_taken_only_when_whole(
 
 
 @settings(max_examples=300, deadline=None)
-@given(mask=st.lists(st.booleans(), min_size=192, max_size=192), lap=st.integers(1, 50))
+@given(bits=st.binary(min_size=24, max_size=24), lap=st.integers(1, 50))
 def test_any_byte_mix_of_an_event_slot_with_its_text_is_taken_only_when_whole(
-    mask: list[bool], lap: int
+    bits: bytes, lap: int
 ) -> None:
     """struct packs standard-size fields byte by byte and the text with memcpy: a weakly
-    ordered CPU may show any byte mix of the previous lap's record and the new one."""
+    ordered CPU may show any byte mix of the previous lap's record and the new one (``bits``:
+    one bit a byte of the slot, set: the byte is already the new record's)."""
+    mask = [bool(bits[k // 8] >> (k % 8) & 1) for k in range(192)]
     ring = _ring(_EVENT, 2)
     assert ring.slot == 192
     for i in range(2 * lap):
