@@ -136,7 +136,7 @@ def test_move_change_speed_and_soft_stop(client: Client) -> None:
 
 
 def test_init_move_homes_at_end_stop(client: Client) -> None:
-    client.init_move(2, False, speed=1)  # 4096 step/s towards the end stop at -10000
+    client.init_move(2, False, speed=3)  # 12,288 step/s towards the end stop at -10000
     client.wait_moved(2, 20_000)
     assert client.position(2) == 0
     client.move_to(2, 500)
@@ -472,7 +472,7 @@ def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
                     call()
                 assert code_of(exc) is E.MOTOR_ERROR
             assert c.is_ready(0)
-            c.init_move(0, False, speed=1)
+            c.init_move(0, False, speed=3)  # 12,288 step/s: the end stop at -10000 in 1.6 s
             c.wait_moved(0, 20_000)
             assert c.position(0) == 0
             c.move_to(0, 10)
