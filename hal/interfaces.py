@@ -372,8 +372,9 @@ class Hardware:
     #: what an executor in another process must add to the spec's options to open its
     #: step IO consistently with this hardware (the mock: its shared mechanics)
     step_io_options: dict[str, object] = field(default_factory=dict)
-    #: descriptors that executor's process inherits for it (the mock's shared mechanics)
-    step_io_fds: list[int] = field(default_factory=list)
+    #: descriptors that executor's process gets for it, each as the option of that name
+    #: (the mock's shared mechanics): its own copy, under a number of its own
+    step_io_fds: dict[str, int] = field(default_factory=dict)
 
     def close(self) -> None:
         for close in reversed(self.closers):

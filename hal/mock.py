@@ -327,10 +327,10 @@ class MockWorld:
     """The simulated machine. Build it with :func:`build`; poke it from tests.
 
     Owned by the daemon's process; its axes' mechanics may be shared (``share``: an anonymous
-    shared block, :mod:`motorctl.hal.shm`) with the step executor's process, which inherits
-    its descriptor (``mechanics``), then has a world of its own over the same mechanics and
-    keeps its own timeline (written to ``timeline_file``, JSON lines, when its step IO
-    closes).
+    shared block, :mod:`motorctl.hal.shm`) with the step executor's process, which gets a
+    copy of its descriptor (``mechanics``), then has a world of its own over the same
+    mechanics and keeps its own timeline (written to ``timeline_file``, JSON lines, when its
+    step IO closes).
     """
 
     def __init__(
@@ -439,8 +439,7 @@ class MockWorld:
         steppers = [StepperHardware(driver=MockDriver(axis)) for axis in self.axes]
         hw = MockHardware(self.clock, steppers, dict(self.pins), self.bridge, world=self)
         if self.mechanics is not None:
-            hw.step_io_options["mechanics"] = self.mechanics
-            hw.step_io_fds.append(self.mechanics)
+            hw.step_io_fds["mechanics"] = self.mechanics
         hw.closers.append(self.close)
         return hw
 
@@ -472,8 +471,8 @@ def build(spec: HardwareSpec, clock: Clock) -> Hardware:
     """The mock backend's entry point for :mod:`hal.registry`.
 
     ``options["executor_process"]``: the step executor runs in another process, so the
-    axes' mechanics go to shared memory (its descriptor in ``Hardware.step_io_options`` and
-    ``step_io_fds``, for the executor's process to inherit).
+    axes' mechanics go to shared memory (its descriptor in ``Hardware.step_io_fds``: the
+    executor's process gets a copy as its ``mechanics`` option).
     """
     share = bool(spec.options.get("executor_process", False))
     return MockWorld(spec, clock, _timeline_len(spec), share=share).hardware()

@@ -66,8 +66,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import os
-import pickle
 import select
+import socket
 import struct
 import subprocess
 import sys
@@ -79,9 +79,10 @@ from dataclasses import replace
 from typing import Any
 
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
-from motorctl.hal.registry import open_step_io
+from motorctl.hal.registry import config_sections, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
+from motorctl.motion import procstart
 from motorctl.motion.executor import (
     AxisLimits,
     ExecEvent,
@@ -319,20 +320,25 @@ def _die_with_parent(parent: int) -> None:
         raise SystemExit("motorctld executor: the daemon is gone")
 
 
-#: The executor process's program (``python -c``): the daemon's ``sys.path`` (so that it
-#: imports the very modules the daemon did, from a checkout as from a package), then this
-#: module's entry point; both come pickled on its stdin.
-_CHILD_CODE = ("import pickle, sys; sys.path[:] = pickle.load(sys.stdin.buffer); "
-               "from motorctl.motion.procexec import child_main; child_main()")
-
-
-def child_main() -> None:
-    """The executor process's entry (after :data:`_CHILD_CODE` set its path): its
-    parameters (:func:`_child_main`'s keyword arguments) come pickled on stdin, from the
-    daemon that started it."""
-    kwargs = pickle.load(sys.stdin.buffer)
-    sys.stdin.close()
-    _child_main(**kwargs)
+def child_main(channel: socket.socket) -> None:
+    """The executor process's entry (``motion/procstart.py``'s bootstrap, once this module
+    is imported): wait for the parameters of :func:`_child_main` and the descriptors named
+    in them (``fds``: their names, in the order they came), then run. Dismissed (the
+    socket ended without them): exit quietly."""
+    parent = os.getppid()
+    _die_with_parent(parent)  # from now on, however the daemon ends
+    # while the daemon is still starting: the modules of the config sections that the
+    # parameters carry (in the hardware spec; none imports a hardware library)
+    config_sections()
+    got = procstart.receive(channel)
+    if got is None:
+        return
+    params, fds = got
+    named = dict(zip(params.pop("fds"), fds, strict=True))
+    spec = params.pop("spec")
+    options = {key: named.pop(key) for key in params.pop("step_io_fds")}
+    _child_main(parent=parent, spec=replace(spec, options={**spec.options, **options}),
+                **named, **params)
 
 
 def _child_main(
@@ -439,7 +445,10 @@ class ProcessStepExecutor(StepExecutor):
         late_threshold_s: float = 100e-6,
         rt: RealtimeOptions | None = None,
         start_timeout_s: float = 30.0,
+        process: procstart.ExecutorProcess | None = None,
     ) -> None:
+        """``process``: an executor process started earlier (``daemon/launch.py``), else
+        one is started here."""
         if hw.clock.is_virtual:
             raise ValueError("the process executor runs on the real clock; tests on a virtual "
                              "clock use the thread executor")
@@ -459,7 +468,7 @@ class ProcessStepExecutor(StepExecutor):
         self.shm = SharedBlock.create(self.layout.size, "motorctl-executor")
         self.shared = Shared(self.shm, self.layout)
         self.stats = LatencyStats(late_threshold_s, self.shared.latency)
-        self._step_io_fds = list(hw.step_io_fds)
+        self._step_io_fds = dict(hw.step_io_fds)
         # raw bytes on two pipes: only wake-ups, never messages. The child's ends (wake
         # read, event write) are closed here once it has them: the event pipe's end (EOF)
         # then says the child is gone
@@ -471,46 +480,43 @@ class ProcessStepExecutor(StepExecutor):
         self._batching = False  # in service(): one wake-up byte for all its pushes
         self._kick_owed = False
         self.proc: subprocess.Popen[bytes] | None = None
-        self._spawned = 0.0  # time.monotonic() then
+        self._spawned = time.monotonic()  # (or earlier: a process started before)
         self.died: str | None = None
         self._died_reported = False
         self._closing = False
         self._watcher: threading.Thread | None = None
         self._closed: tuple[list[int], dict[str, int]] | None = None
         self.pending: list[list[StepSegment]] = [[] for _ in range(motors)]
-        # the child starts now, while the daemon builds the rest; start() waits for it
+        # the child runs from now on (if it was not started already, it starts now), while
+        # the daemon builds the rest; start() waits for it
         self.shared.header[_RUN] = 1
         try:
-            self._spawn()
+            self._hand_over(process)
         except BaseException:
             self.close()
             raise
 
     # -- lifecycle -----------------------------------------------------------------------
-    def _spawn(self) -> None:
+    def _hand_over(self, process: procstart.ExecutorProcess | None) -> None:
+        """The process its parameters and descriptors (our copies are closed then)."""
+        if process is None:
+            try:
+                process = procstart.ExecutorProcess.start()
+            except OSError as exc:
+                raise HalError(f"cannot start the step executor process ({sys.executable}): "
+                               f"{exc}") from exc
+            self._spawned = time.monotonic()
+        self.proc = process.proc
         assert self.shm.fd is not None
-        kwargs = {"parent": os.getpid(), "shm_fd": self.shm.fd, "motors": self.layout.motors,
-                  "lines": self.lines, "backend": self.backend, "spec": self.spec,
-                  "limits": list(self.limits), "rt": self.rt, "spin_s": self.spin_s,
-                  "late_threshold_s": self.late_threshold_s, "coalesce_s": self.coalesce_s,
-                  "wake_fd": self._wake_r, "event_fd": self._event_w}
-        # the child's path first (so that it imports the very modules the daemon did), then
-        # its parameters: two pickles on its stdin (see _CHILD_CODE and child_main)
-        payload = pickle.dumps(list(sys.path)) + pickle.dumps(kwargs)
-        try:
-            self.proc = subprocess.Popen(
-                [sys.executable, "-c", _CHILD_CODE], stdin=subprocess.PIPE,
-                pass_fds=(self.shm.fd, *self._child_fds, *self._step_io_fds))
-        except OSError as exc:
-            raise HalError(f"cannot start the step executor process ({sys.executable}): "
-                           f"{exc}") from exc
-        self._spawned = time.monotonic()
-        proc = self.proc
-        assert proc.stdin is not None
-        with contextlib.suppress(BrokenPipeError):  # it died at once: told below
-            proc.stdin.write(payload)
-        with contextlib.suppress(BrokenPipeError):
-            proc.stdin.close()
+        fds = {"shm_fd": self.shm.fd, "wake_fd": self._wake_r, "event_fd": self._event_w,
+               **self._step_io_fds}
+        params = {"fds": list(fds), "step_io_fds": list(self._step_io_fds),
+                  "motors": self.layout.motors, "lines": self.lines, "backend": self.backend,
+                  "spec": self.spec, "limits": list(self.limits), "rt": self.rt,
+                  "spin_s": self.spin_s, "late_threshold_s": self.late_threshold_s,
+                  "coalesce_s": self.coalesce_s}
+        with contextlib.suppress(OSError):  # it is gone already: start() says how it ended
+            process.hand_over(params, list(fds.values()))
         self._forget_child_fds()  # the child has its own now
 
     def start(self) -> None:

@@ -103,7 +103,8 @@ class DaemonProcess:
         self._log_shown = False
 
     def start(self) -> DaemonProcess:
-        cmd = [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(self.pty),
+        # the motorctld command's entry point (its executor process starts first)
+        cmd = [sys.executable, "-m", "motorctl.daemon.launch", "--pty", str(self.pty),
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
         cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115

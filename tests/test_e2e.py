@@ -494,6 +494,8 @@ def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
     d.start()
     try:
         assert d.status()["executor"]["kind"] == "thread"
+        assert d.proc is not None  # motorctld started an executor process early: ended
+        assert children_of(d.proc.pid) == []
         with d.client() as c:
             c.move_to(0, 300)
             c.move_to(1, -200)
