@@ -1,15 +1,17 @@
 """The ``process`` step executor: the step core in a process of its own.
 
-The child (``python -c`` through :mod:`subprocess`: a fresh interpreter with its own GIL,
-which imports this module and what the step core needs, nothing of the daemon) reads its
-parameters pickled from its stdin, enters SCHED_FIFO, mlockall and its CPU
+The child (``python -c`` through :mod:`subprocess`, ``motion/procstart.py``: a fresh
+interpreter with its own GIL, which imports this module and what the step core needs,
+nothing of the daemon; ``motorctld`` starts it before the daemon's own imports) receives its
+parameters and descriptors over a Unix socket, enters SCHED_FIFO, mlockall and its CPU
 (``RealtimeOptions``), opens its OWN step/dir and end-stop lines from the picklable spec
 (``hal.registry.open_step_io``), and runs :class:`~motorctl.motion.stepcore.StepCore`.
 
 The two processes share one block of anonymous shared memory (:mod:`motorctl.hal.shm`, a
-memfd the child inherits by descriptor): it has no name to remove, the kernel frees it when
-both processes are gone however they end (``kill -9`` of either included; the child dies
-with the daemon, ``PR_SET_PDEATHSIG``), so no resource-tracker process runs. The block holds:
+memfd the child receives as a descriptor): it has no name to remove, the kernel frees it
+when both processes are gone however they end (``kill -9`` of either included; the child
+dies with the daemon, ``PR_SET_PDEATHSIG``), so no resource-tracker process runs. The block
+holds:
 
 - header cells: run flag, heartbeat (the core's loop counter), counters, positions, end-stop
   levels, the latency histogram (the child writes; the daemon reads snapshots, no lock);
@@ -17,7 +19,7 @@ with the daemon, ``PR_SET_PDEATHSIG``), so no resource-tracker process runs. The
 - one ring of stops (daemon -> child) and one of events (child -> daemon).
 
 A byte on a pipe wakes the other side (the child sleeps on it while nothing is due; the
-daemon's event thread on its own pipe and on the child's pidfd).
+daemon's event thread on its own pipe, whose end also says that the child is gone).
 
 Memory ordering (x86-64 and ARM64 alike; Python has no memory barrier): ARM64 (a Raspberry
 Pi 4/5) may make one process's stores visible to the other in any order and satisfy loads
@@ -53,9 +55,9 @@ A torn slot is taken only if its CRC-32 matches by chance: never for a differenc
 a mix is only visible for the moment a store takes to propagate. The check adds about
 0.3 us per record on each side (``bench/rings.py``); records are segments, not steps.
 
-If the child dies, the event thread notices at once (its pidfd, or the end of the event
-pipe, whose only writer it was) and reports DIED: every
-motor faults (E4, position lost) and health says why; the service then exits non-zero.
+If the child dies, the event thread notices at once (the end of the event pipe, whose only
+writer it was) and reports DIED: every motor faults (E4, position lost) and health says why;
+the service then exits non-zero.
 
 Owners: in the daemon, the planner side (engine lock) writes the segment and stop rings and
 drains the event ring; the event thread only waits and wakes the planner.
@@ -320,13 +322,12 @@ def _die_with_parent(parent: int) -> None:
         raise SystemExit("motorctld executor: the daemon is gone")
 
 
-def child_main(channel: socket.socket) -> None:
+def child_main(channel: socket.socket, parent: int) -> None:
     """The executor process's entry (``motion/procstart.py``'s bootstrap, once this module
-    is imported): wait for the parameters of :func:`_child_main` and the descriptors named
-    in them (``fds``: their names, in the order they came), then run. Dismissed (the
-    socket ended without them): exit quietly."""
-    parent = os.getppid()
-    _die_with_parent(parent)  # from now on, however the daemon ends
+    is imported; ``parent``: the daemon's PID): wait for the parameters of
+    :func:`_child_main` and the descriptors named in them (``fds``: their names, in the
+    order they came), then run. Dismissed (the socket ended without them): exit quietly."""
+    _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
     config_sections()
@@ -367,7 +368,6 @@ def _child_main(
     # daemon's orderly shutdown ramps them down and writes the state.
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
-    _die_with_parent(parent)
     logging.basicConfig(level=logging.INFO, format="motorctld executor %(levelname)s: %(message)s")
     enter_realtime(rt, "the step executor process")
     layout = Layout(motors, lines)
@@ -403,7 +403,8 @@ def _child_main(
         r, _, _ = select.select([wake_fd], [], [], timeout)
         if r:
             with contextlib.suppress(BlockingIOError):
-                os.read(wake_fd, 4096)
+                if os.read(wake_fd, 4096) == b"":  # the daemon's end is closed: it is gone
+                    header[_RUN] = 0
 
     os.set_blocking(wake_fd, False)
     gc.collect()

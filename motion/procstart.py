@@ -8,8 +8,9 @@ memory (:class:`~motorctl.motion.procexec.ProcessStepExecutor`). This module imp
 nothing of motorctl, so the early start costs no import of its own.
 
 The process runs ``python -c`` :data:`BOOTSTRAP` with one end of a Unix ``SOCK_SEQPACKET``
-socket pair as its stdin. The first message is the daemon's ``sys.path`` (so that both
-processes import the very same modules); the child then imports the step core and waits for
+socket pair as its stdin. The first message is the daemon's PID (the child dies with it)
+and ``sys.path`` (so that both processes import the very same modules); the child then
+imports the step core and waits for
 the second: its parameters, pickled, with its descriptors (``SCM_RIGHTS``: the shared block,
 its pipe ends, the step IO's). The end of the socket without a message (the daemon did not
 need it, or is gone) ends it quietly.
@@ -38,12 +39,12 @@ import pickle, signal, socket, sys
 for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
     signal.signal(s, signal.SIG_IGN)
 channel = socket.socket(fileno=0)
-path = channel.recv(1 << 20)
-if not path:
+first = channel.recv(1 << 20)
+if not first:
     sys.exit()  # the daemon is gone already
-sys.path[:] = pickle.loads(path)
+daemon, sys.path[:] = pickle.loads(first)
 from motorctl.motion.procexec import child_main
-child_main(channel)
+child_main(channel, daemon)
 """
 
 #: The largest parameter message and the most descriptors it may carry.
@@ -70,7 +71,7 @@ class ExecutorProcess:
         finally:
             theirs.close()
         with contextlib.suppress(OSError):  # it died at once: the hand-over says so
-            ours.send(pickle.dumps(list(sys.path)))
+            ours.send(pickle.dumps((os.getpid(), list(sys.path))))
         return cls(proc, ours)
 
     @property
