@@ -15,12 +15,12 @@ import json
 import sys
 import time
 import timeit
-from multiprocessing import shared_memory
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from motorctl.hal.shm import SharedBlock  # noqa: E402
 from motorctl.motion.procexec import (  # noqa: E402
     _EVENT,
     _SEG,
@@ -36,10 +36,9 @@ from motorctl.motion.procexec import (  # noqa: E402
 def measure(number: int, repeat: int) -> dict[str, float]:
     rings = {"seg": (_SEG, SEG_RING), "stop": (_STOP, STOP_RING), "event": (_EVENT, EVENT_RING)}
     size = sum(ring_size(rec, cap) for rec, cap in rings.values())
-    shm = shared_memory.SharedMemory(create=True, size=size)
+    shm = SharedBlock.create(size, "motorctl-bench-rings")  # the executor's kind of block
     out: dict[str, float] = {}
     try:
-        assert shm.buf is not None
         off = 0
         made: dict[str, Ring] = {}
         for name, (rec, cap) in rings.items():
@@ -53,7 +52,7 @@ def measure(number: int, repeat: int) -> dict[str, float]:
             seg.get()
 
         def stop_round() -> None:
-            stop.put(2, 9)
+            stop.put(2, 9, -1)  # motor, gen, cut (-1: a hard stop)
             stop.get()
 
         def event_round() -> None:
@@ -74,7 +73,6 @@ def measure(number: int, repeat: int) -> dict[str, float]:
             ring.release()
     finally:
         shm.close()
-        shm.unlink()
     return out
 
 

@@ -193,7 +193,7 @@ class Daemon:
         self.proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> Daemon:
-        cmdline = [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(self.pty),
+        cmdline = [sys.executable, "-m", "motorctl.daemon.launch", "--pty", str(self.pty),
                    "--state-dir", str(self.state_dir), "--config", str(self.config),
                    "--log-level", "warning"]
         with open(self.stderr, "ab") as err_file:

@@ -53,6 +53,7 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import Executor
 from motorctl.motion.motor import Motor
 from motorctl.motion.procexec import ProcessStepExecutor
+from motorctl.motion.procstart import ExecutorProcess
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
@@ -197,7 +198,9 @@ class Daemon:
     started: float = field(default_factory=time.monotonic)
 
     @classmethod
-    def build(cls, config: Config, state_dir: Path, clock: Clock | None = None) -> Daemon:
+    def build(cls, config: Config, state_dir: Path, clock: Clock | None = None,
+              executor_process: ExecutorProcess | None = None) -> Daemon:
+        """Everything behind the serial port; ``executor_process``: see :func:`main`."""
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
         spec = hardware_spec(config)
@@ -211,7 +214,7 @@ class Daemon:
         executor: Executor | None = None
         try:  # what is open is closed again when a later part fails (lines, the executor)
             try:
-                executor = build_executor(config, hw, spec, params)
+                executor = build_executor(config, hw, spec, params, executor_process)
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
             engine = MotionEngine(
@@ -509,7 +512,20 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None) -> int:
+def main(argv: Sequence[str] | None = None,
+         executor_process: ExecutorProcess | None = None) -> int:
+    """motorctld. ``executor_process``: the step executor's process, started before this
+    module was imported (``daemon/launch.py``, the ``motorctld`` command): the process
+    executor takes it over; ended unused otherwise (another executor, another command, an
+    error)."""
+    try:
+        return _main(argv, executor_process)
+    finally:
+        if executor_process is not None:
+            executor_process.dismiss()  # a no-op once taken over
+
+
+def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) -> int:
     args = parse_args(argv)
     logs_to = setup_logging(args.log_level)
     if args.print_default_config:
@@ -543,7 +559,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     log.debug("logging to %s", logs_to)
     try:
-        return serve(args)
+        return serve(args, executor_process)
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -623,13 +639,16 @@ def step_executor_kind(config: Config, executor: Executor) -> str:
 
 
 def build_executor(
-    config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams]
+    config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams],
+    process: ExecutorProcess | None = None,
 ) -> Executor:
     """The step executor the config asks for (only it runs real-time and locks memory), for
     the motors ``spec.stepped()`` names; the motors whose TMC5160 runs its own ramp
     (``[motors.tmc] mode = "ramp"``) go to a RampExecutor instead and are not the step
     executor's at all (no STEP/DIR, no slot). Without stepped motors there is no step
-    executor (nothing to run in real time)."""
+    executor (nothing to run in real time). ``process``: an executor process started early
+    (daemon/launch.py), the process executor's; ended here when the config has no use
+    for it."""
     st = config.step_thread
     stepped = spec.stepped()
     drivers = [s.driver for s in hw.steppers]
@@ -645,28 +664,36 @@ def build_executor(
         pass
     elif hw.clock.is_virtual:  # tests drive a virtual clock themselves: the thread kind's job
         steps = ThreadStepExecutor(hw, config.hal.backend, spec, limits, max_error_s=0.0)
+    elif st.executor == "process":
+        steps = ProcessStepExecutor(
+            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
+            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
+            late_threshold_s=st.late_threshold_us / 1e6, rt=rt, process=process,
+        )
     else:
-        kind = ProcessStepExecutor if st.executor == "process" else ThreadStepExecutor
-        steps = kind(
+        steps = ThreadStepExecutor(
             hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
             max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
             late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
         )
+    if process is not None:
+        process.dismiss()  # no process executor after all (a no-op when it took it)
     spi = config.section(SpidevConfig)
     return with_ramp_motors(steps, drivers, hw.clock, spi.ramp_poll_ms / 1000,
                             spi.ramp_idle_poll_ms / 1000)
 
 
-def serve(args: argparse.Namespace) -> int:
+def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = None) -> int:
     config = load_config(args.config)
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
     with contextlib.ExitStack() as cleanup:
         owned = Owned()
         cleanup.callback(owned.cleanup)
-        return _serve(args, config, stop, owned)
+        return _serve(args, config, stop, owned, executor_process)
 
 
-def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: Owned) -> int:
+def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: Owned,
+           executor_process: ExecutorProcess | None = None) -> int:
     st = config.step_thread
     for notice in config.notices:
         log.warning("%s", notice)
@@ -686,7 +713,7 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
             owned.lock(args.pty.with_name(f".{args.pty.name}.lock"), f"PTY {args.pty}")
     except InstanceError as exc:
         raise StartupError(str(exc)) from exc
-    daemon = Daemon.build(config, args.state_dir)
+    daemon = Daemon.build(config, args.state_dir, executor_process=executor_process)
     uart: SerialDevice | None = None
     try:
         if args.pty is not None:
@@ -862,7 +889,9 @@ def shutdown(daemon: Daemon) -> bool:
     deadline = time.monotonic() + SHUTDOWN_LIMIT_S
     while time.monotonic() < deadline:
         with engine.lock:
-            if not any(m.active or m.stopping for m in engine.motors):
+            # a dead executor confirms no stop and moves nothing: nothing to wait for
+            if engine.executor_died is not None or not any(m.active or m.stopping
+                                                           for m in engine.motors):
                 break
         time.sleep(0.005)
     with engine.lock:

@@ -375,6 +375,9 @@ class Hardware:
     #: whether a late step may have cost a motor steps (a real rotor); False for simulated
     #: motors, whose lateness is counted but never a fault (docs/timing.md)
     motors_lose_steps: bool = True
+    #: descriptors that executor's process gets for it, each as the option of that name
+    #: (the mock's shared mechanics): its own copy, under a number of its own
+    step_io_fds: dict[str, int] = field(default_factory=dict)
 
     def close(self) -> None:
         for close in reversed(self.closers):

@@ -13,7 +13,6 @@ import threading
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
-from multiprocessing import shared_memory
 from typing import Any, NamedTuple
 
 from motorctl.hal.interfaces import (
@@ -32,6 +31,7 @@ from motorctl.hal.interfaces import (
     StepperHardware,
 )
 from motorctl.hal.mock_config import MockConfig
+from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 
 
@@ -324,20 +324,14 @@ class MockBridge(DcBridge):
         self._world.timeline.record(self._world.clock.now(), EventKind.DC, 0, state.value)
 
 
-def _buffer(shm: shared_memory.SharedMemory) -> memoryview:
-    buf = shm.buf
-    if buf is None:
-        raise ValueError(f"shared memory {shm.name} is closed")
-    return buf
-
-
 class MockWorld:
     """The simulated machine. Build it with :func:`build`; poke it from tests.
 
-    Owned by the daemon's process; its axes' mechanics may be shared (``mechanics``: the name
-    of a shared-memory block) with the step executor's process, which then has a world of its
-    own over the same mechanics and keeps its own timeline (written to ``timeline_file``, JSON
-    lines, when its step IO closes).
+    Owned by the daemon's process; its axes' mechanics may be shared (``share``: an anonymous
+    shared block, :mod:`motorctl.hal.shm`) with the step executor's process, which gets a
+    copy of its descriptor (``mechanics``), then has a world of its own over the same
+    mechanics and keeps its own timeline (written to ``timeline_file``, JSON lines, when its
+    step IO closes).
     """
 
     def __init__(
@@ -347,23 +341,20 @@ class MockWorld:
         timeline_len: int | None,
         *,
         share: bool = False,
-        mechanics: str | None = None,
+        mechanics: int | None = None,
     ) -> None:
         self.spec = spec
         self.clock = clock
         self.lock = threading.Lock()
         self.timeline = Timeline(timeline_len)
         size = max(1, len(spec.axes)) * _FIELDS * 8
-        self._shm: shared_memory.SharedMemory | None = None
-        self._owner = False
+        self._shm: SharedBlock | None = None
         if mechanics is not None:
-            shm = self._shm = shared_memory.SharedMemory(name=mechanics)
-            buf = _buffer(shm)
-        elif share:
-            shm = self._shm = shared_memory.SharedMemory(create=True, size=size)
-            self._owner = True
-            buf = _buffer(shm)
-            buf[:size] = bytes(size)
+            self._shm = SharedBlock.attach(mechanics, size, "motorctl-mock-mechanics")
+            buf = self._shm.buf
+        elif share:  # zero-filled
+            self._shm = SharedBlock.create(size, "motorctl-mock-mechanics")
+            buf = self._shm.buf
         else:
             buf = memoryview(bytearray(size))
         self._cells = buf.cast("q")
@@ -382,9 +373,10 @@ class MockWorld:
         self.bridge = MockBridge(self) if spec.dc else None
 
     @property
-    def mechanics(self) -> str | None:
-        """The shared-memory block's name when the mechanics are shared."""
-        return None if self._shm is None else self._shm.name
+    def mechanics(self) -> int | None:
+        """The shared mechanics' descriptor (for the executor's process to inherit), when
+        they are shared and this world created them."""
+        return None if self._shm is None else self._shm.fd
 
     def close(self) -> None:
         if self._shm is None:
@@ -393,8 +385,6 @@ class MockWorld:
             a.detach()
         self._cells.release()
         self._shm.close()
-        if self._owner:
-            self._shm.unlink()
         self._shm = None
 
     def dump_timeline(self, path: str) -> None:
@@ -452,7 +442,7 @@ class MockWorld:
         world = self.spec.sections.get(MockConfig)
         hw.motors_lose_steps = isinstance(world, MockConfig) and world.lose_steps
         if self.mechanics is not None:
-            hw.step_io_options["mechanics"] = self.mechanics
+            hw.step_io_fds["mechanics"] = self.mechanics
         hw.closers.append(self.close)
         return hw
 
@@ -484,7 +474,8 @@ def build(spec: HardwareSpec, clock: Clock) -> Hardware:
     """The mock backend's entry point for :mod:`hal.registry`.
 
     ``options["executor_process"]``: the step executor runs in another process, so the
-    axes' mechanics go to shared memory (named in ``Hardware.step_io_options``).
+    axes' mechanics go to shared memory (its descriptor in ``Hardware.step_io_fds``: the
+    executor's process gets a copy as its ``mechanics`` option).
     """
     share = bool(spec.options.get("executor_process", False))
     return MockWorld(spec, clock, _timeline_len(spec), share=share).hardware()
@@ -495,8 +486,8 @@ def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None) -> 
     if parent is not None:
         return world_of(parent).step_io()
     mechanics = spec.options.get("mechanics")
-    if mechanics is not None and not isinstance(mechanics, str):
-        raise ValueError("mechanics must name a shared-memory block")
+    if mechanics is not None and not isinstance(mechanics, int):
+        raise ValueError("mechanics must be the descriptor of the shared mechanics")
     world = MockWorld(spec, clock, _timeline_len(spec), mechanics=mechanics)
     io = world.step_io()
     path = spec.options.get("timeline_file")

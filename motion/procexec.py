@@ -1,11 +1,17 @@
 """The ``process`` step executor: the step core in a process of its own.
 
-The child (started with multiprocessing's ``spawn``: a fresh interpreter with its own GIL)
-enters SCHED_FIFO, mlockall and its CPU (``RealtimeOptions``), opens its OWN step/dir and
-end-stop lines from the picklable spec (``hal.registry.open_step_io``), and runs
-:class:`~motorctl.motion.stepcore.StepCore`. Nothing of the daemon runs in it.
+The child (``python -c`` through :mod:`subprocess`, ``motion/procstart.py``: a fresh
+interpreter with its own GIL, which imports this module and what the step core needs,
+nothing of the daemon; ``motorctld`` starts it before the daemon's own imports) receives its
+parameters and descriptors over a Unix socket, enters SCHED_FIFO, mlockall and its CPU
+(``RealtimeOptions``), opens its OWN step/dir and end-stop lines from the picklable spec
+(``hal.registry.open_step_io``), and runs :class:`~motorctl.motion.stepcore.StepCore`.
 
-The two processes share one block of shared memory:
+The two processes share one block of anonymous shared memory (:mod:`motorctl.hal.shm`, a
+memfd the child receives as a descriptor): it has no name to remove, the kernel frees it
+when both processes are gone however they end (``kill -9`` of either included; the child
+dies with the daemon, ``PR_SET_PDEATHSIG``), so no resource-tracker process runs. The block
+holds:
 
 - header cells: run flag, heartbeat (the core's loop counter), counters, positions, end-stop
   levels, the latency histogram (the child writes; the daemon reads snapshots, no lock);
@@ -13,7 +19,7 @@ The two processes share one block of shared memory:
 - one ring of stops (daemon -> child) and one of events (child -> daemon).
 
 A byte on a pipe wakes the other side (the child sleeps on it while nothing is due; the
-daemon's event thread on its own pipe and on the child's process sentinel).
+daemon's event thread on its own pipe, whose end also says that the child is gone).
 
 Memory ordering (x86-64 and ARM64 alike; Python has no memory barrier): ARM64 (a Raspberry
 Pi 4/5) may make one process's stores visible to the other in any order and satisfy loads
@@ -49,8 +55,9 @@ A torn slot is taken only if its CRC-32 matches by chance: never for a differenc
 a mix is only visible for the moment a store takes to propagate. The check adds about
 0.3 us per record on each side (``bench/rings.py``); records are segments, not steps.
 
-If the child dies, the event thread notices at once (the sentinel) and reports DIED: every
-motor faults (E4, position lost) and health says why; the service then exits non-zero.
+If the child dies, the event thread notices at once (the end of the event pipe, whose only
+writer it was) and reports DIED: every motor faults (E4, position lost) and health says why;
+the service then exits non-zero.
 
 Owners: in the daemon, the planner side (engine lock) writes the segment and stop rings and
 drains the event ring; the event thread only waits and wakes the planner.
@@ -60,22 +67,24 @@ from __future__ import annotations
 
 import contextlib
 import logging
-import multiprocessing
 import os
 import select
+import socket
 import struct
+import subprocess
+import sys
 import threading
 import time
 import zlib
 from collections.abc import Sequence
 from dataclasses import replace
-from multiprocessing import shared_memory
-from multiprocessing.connection import wait as mp_wait
 from typing import Any
 
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
-from motorctl.hal.registry import open_step_io
+from motorctl.hal.registry import config_sections, open_step_io
+from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
+from motorctl.motion import procstart
 from motorctl.motion.executor import (
     AxisLimits,
     ExecEvent,
@@ -240,7 +249,7 @@ class Ring:
 class Shared:
     """The shared block seen through typed views (either process)."""
 
-    def __init__(self, shm: shared_memory.SharedMemory, layout: Layout) -> None:
+    def __init__(self, shm: SharedBlock, layout: Layout) -> None:
         buf = shm.buf
         if buf is None:
             raise ValueError("shared memory closed")
@@ -304,19 +313,42 @@ class _ShmInbox(CoreInbox):
                                      bool(flags & _LAST), bool(flags & _WATCH)))
 
 
-def _die_with_parent() -> None:
-    """prctl(PR_SET_PDEATHSIG, SIGKILL): the kernel kills us when the daemon dies."""
+def _die_with_parent(parent: int) -> None:
+    """prctl(PR_SET_PDEATHSIG, SIGKILL): the kernel kills us when the daemon dies; if it
+    died before that (we have another parent already), exit at once."""
     import ctypes
-    import ctypes.util
     import signal
 
-    name = ctypes.util.find_library("c")
-    if name is not None:
-        ctypes.CDLL(name, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)
+    libc = ctypes.CDLL(None, use_errno=True)  # the interpreter's own libc (no ldconfig run)
+    if libc.prctl(1, int(signal.SIGKILL), 0, 0, 0) != 0:
+        raise OSError(ctypes.get_errno(), "prctl(PR_SET_PDEATHSIG)")
+    if os.getppid() != parent:
+        raise SystemExit("motorctld executor: the daemon is gone")
+
+
+def child_main(channel: socket.socket, parent: int) -> None:
+    """The executor process's entry (``motion/procstart.py``'s bootstrap, once this module
+    is imported; ``parent``: the daemon's PID): wait for the parameters of
+    :func:`_child_main` and the descriptors named in them (``fds``: their names, in the
+    order they came), then run. Dismissed (the socket ended without them): exit quietly."""
+    _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
+    # while the daemon is still starting: the modules of the config sections that the
+    # parameters carry (in the hardware spec; none imports a hardware library)
+    config_sections()
+    got = procstart.receive(channel)
+    if got is None:
+        return
+    params, fds = got
+    named = dict(zip(params.pop("fds"), fds, strict=True))
+    spec = params.pop("spec")
+    options = {key: named.pop(key) for key in params.pop("step_io_fds")}
+    _child_main(parent=parent, spec=replace(spec, options={**spec.options, **options}),
+                **named, **params)
 
 
 def _child_main(
-    shm_name: str,
+    parent: int,
+    shm_fd: int,
     motors: int,
     lines: int,
     backend: str,
@@ -326,10 +358,12 @@ def _child_main(
     spin_s: float,
     late_threshold_s: float,
     coalesce_s: float,
-    wake: Any,
-    events: Any,
+    wake_fd: int,
+    event_fd: int,
 ) -> None:
-    """The executor process: real-time set-up, own lines, then the step loop."""
+    """The executor process: real-time set-up, own lines, then the step loop. ``shm_fd``,
+    ``wake_fd`` and ``event_fd`` are inherited descriptors (the shared block, the read end
+    of the daemon's wake-up pipe, the write end of the event pipe)."""
     import gc
     import signal
 
@@ -338,12 +372,11 @@ def _child_main(
     # daemon's orderly shutdown ramps them down and writes the state.
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
-    parent = os.getppid()
-    _die_with_parent()
     logging.basicConfig(level=logging.INFO, format="motorctld executor %(levelname)s: %(message)s")
     enter_realtime(rt, "the step executor process")
-    shm = shared_memory.SharedMemory(name=shm_name)
-    shared = Shared(shm, Layout(motors, lines))
+    layout = Layout(motors, lines)
+    shm = SharedBlock.attach(shm_fd, layout.size, "motorctl-executor")
+    shared = Shared(shm, layout)
     io = open_step_io(backend, spec, MonotonicClock(), None)
     if len(io.inputs.names) > lines:
         raise HalError(f"the step IO has {len(io.inputs.names)} inputs, room for {lines}")
@@ -351,7 +384,6 @@ def _child_main(
         shared.endmap[2 * m] = -1 if lo is None else lo
         shared.endmap[2 * m + 1] = -1 if hi is None else hi
     inbox = _ShmInbox(shared)
-    wake_fd, event_fd = wake.fileno(), events.fileno()
     os.set_blocking(event_fd, False)
 
     def emit(ev: ExecEvent) -> None:
@@ -375,7 +407,8 @@ def _child_main(
         r, _, _ = select.select([wake_fd], [], [], timeout)
         if r:
             with contextlib.suppress(BlockingIOError):
-                os.read(wake_fd, 4096)
+                if os.read(wake_fd, 4096) == b"":  # the daemon's end is closed: it is gone
+                    header[_RUN] = 0
 
     os.set_blocking(wake_fd, False)
     gc.collect()
@@ -417,7 +450,10 @@ class ProcessStepExecutor(StepExecutor):
         late_threshold_s: float = 100e-6,
         rt: RealtimeOptions | None = None,
         start_timeout_s: float = 30.0,
+        process: procstart.ExecutorProcess | None = None,
     ) -> None:
+        """``process``: an executor process started earlier (``daemon/launch.py``), else
+        one is started here."""
         if hw.clock.is_virtual:
             raise ValueError("the process executor runs on the real clock; tests on a virtual "
                              "clock use the thread executor")
@@ -433,85 +469,121 @@ class ProcessStepExecutor(StepExecutor):
         motors = len(limits)
         self.lines = 2 * len(spec.axes)
         self.layout = Layout(motors, self.lines)
-        self.shm = shared_memory.SharedMemory(create=True, size=self.layout.size)
-        buf = self.shm.buf
-        assert buf is not None
-        buf[: self.layout.size] = bytes(self.layout.size)
+        # zero-filled, anonymous: nothing to remove, whatever happens (see the module's doc)
+        self.shm = SharedBlock.create(self.layout.size, "motorctl-executor")
         self.shared = Shared(self.shm, self.layout)
         self.stats = LatencyStats(late_threshold_s, self.shared.latency)
         self.motor_cells = self.shared.motor_cells
-        ctx = multiprocessing.get_context("spawn")
-        self._ctx = ctx
-        # raw bytes on the pipes' descriptors: only wake-ups, never messages
-        self._wake_conn_r, self._wake_conn_w = ctx.Pipe(duplex=False)
-        self._event_conn_r, self._event_conn_w = ctx.Pipe(duplex=False)
-        self._wake_w = self._wake_conn_w.fileno()
-        self._event_r = self._event_conn_r.fileno()
+        self._step_io_fds = dict(hw.step_io_fds)
+        # raw bytes on two pipes: only wake-ups, never messages. The child's ends (wake
+        # read, event write) are closed here once it has them: the event pipe's end (EOF)
+        # then says the child is gone
+        self._wake_r, self._wake_w = os.pipe()
+        self._event_r, self._event_w = os.pipe()
+        self._child_fds: list[int] = [self._wake_r, self._event_w]
         os.set_blocking(self._wake_w, False)
         os.set_blocking(self._event_r, False)
         self._batching = False  # in service(): one wake-up byte for all its pushes
         self._kick_owed = False
-        self.proc: Any = None
+        self.proc: subprocess.Popen[bytes] | None = None
+        self._spawned = time.monotonic()  # (or earlier: a process started before)
         self.died: str | None = None
         self._died_reported = False
         self._closing = False
         self._watcher: threading.Thread | None = None
         self._closed: tuple[list[int], dict[str, int]] | None = None
         self.pending: list[list[StepSegment]] = [[] for _ in range(motors)]
+        # the child runs from now on (if it was not started already, it starts now), while
+        # the daemon builds the rest; start() waits for it
+        self.shared.header[_RUN] = 1
+        try:
+            self._hand_over(process)
+        except BaseException:
+            self.close()
+            raise
 
     # -- lifecycle -----------------------------------------------------------------------
+    def _hand_over(self, process: procstart.ExecutorProcess | None) -> None:
+        """The process its parameters and descriptors (our copies are closed then)."""
+        if process is None:
+            try:
+                process = procstart.ExecutorProcess.start()
+            except OSError as exc:
+                raise HalError(f"cannot start the step executor process ({sys.executable}): "
+                               f"{exc}") from exc
+            self._spawned = time.monotonic()
+        self.proc = process.proc
+        assert self.shm.fd is not None
+        fds = {"shm_fd": self.shm.fd, "wake_fd": self._wake_r, "event_fd": self._event_w,
+               **self._step_io_fds}
+        params = {"fds": list(fds), "step_io_fds": list(self._step_io_fds),
+                  "motors": self.layout.motors, "lines": self.lines, "backend": self.backend,
+                  "spec": self.spec, "limits": list(self.limits), "rt": self.rt,
+                  "spin_s": self.spin_s, "late_threshold_s": self.late_threshold_s,
+                  "coalesce_s": self.coalesce_s}
+        with contextlib.suppress(OSError):  # it is gone already: start() says how it ended
+            process.hand_over(params, list(fds.values()))
+        self._forget_child_fds()  # the child has its own now
+
     def start(self) -> None:
-        self.shared.header[_RUN] = 1
-        self.proc = self._ctx.Process(
-            target=_child_main,
-            args=(self.shm.name, self.layout.motors, self.lines, self.backend, self.spec,
-                  list(self.limits), self.rt, self.spin_s, self.late_threshold_s,
-                  self.coalesce_s,
-                  self._wake_conn_r, self._event_conn_w),
-            name="motorctl-executor",
-            daemon=True,
-        )
-        self.proc.start()
+        """Wait until the child is ready (at most ``start_timeout_s``), then watch it."""
+        proc = self.proc
+        if proc is None or self._watcher is not None or self._closed is not None:
+            raise RuntimeError("the step executor process starts once, before close()")
         # READY is read only after the child's byte on the event pipe (see _child_main): the
         # end-stop map it wrote before is then visible here on ARM64 too
-        deadline = time.monotonic() + self.start_timeout_s
+        deadline = self._spawned + self.start_timeout_s
         while True:
             left = deadline - time.monotonic()
             if left <= 0:
-                self.proc.kill()
-                self.proc.join(5)
+                proc.kill()
+                proc.wait(5)
                 raise HalError("the step executor process did not start within "
                                f"{self.start_timeout_s:.0f} s")
-            if self._event_r in mp_wait([self.proc.sentinel, self._event_r], left):
-                # the child's first byte on this pipe; event bytes after it are the watcher's
-                with contextlib.suppress(BlockingIOError, OSError):
-                    os.read(self._event_r, 1)
-                if self.shared.header[_READY]:
-                    break
-            if not self.proc.is_alive():
+            if not select.select([self._event_r], [], [], left)[0]:
+                continue
+            # the child's first byte on this pipe; event bytes after it are the watcher's
+            try:
+                byte = os.read(self._event_r, 1)
+            except BlockingIOError:
+                continue
+            if byte == b"":  # its end closed: it exited
                 raise HalError(f"the step executor process exited at start (code "
-                               f"{self.proc.exitcode}); see the log above")
+                               f"{proc.wait()}); see the log above")
+            if self.shared.header[_READY]:
+                break
         self._watcher = threading.Thread(target=self._watch, name="motorctl-exec-watch",
                                          daemon=True)
         self._watcher.start()
 
+    def _forget_child_fds(self) -> None:
+        """Close this process's copies of the child's descriptors (its pipe ends, the block's
+        memfd; the mapping stays)."""
+        for fd in self._child_fds:
+            os.close(fd)
+        self._child_fds = []
+        self.shm.forget_fd()
+
     def _watch(self) -> None:
-        """Wake the planner on events; notice at once when the child dies."""
+        """Wake the planner on events; notice at once when the child dies: the event pipe
+        ends (its only writer is gone, however it ended)."""
         proc = self.proc
+        assert proc is not None
         while True:
-            ready = mp_wait([proc.sentinel, self._event_r])
-            if self._event_r in ready:
-                with contextlib.suppress(BlockingIOError, OSError):
-                    os.read(self._event_r, 4096)
+            select.select([self._event_r], [], [])
+            try:
+                data = os.read(self._event_r, 4096)
+            except BlockingIOError:
+                continue
+            if data:
                 self.on_event()
-            if proc.sentinel in ready:
-                proc.join()
-                if not self._closing:
-                    self.died = (f"step executor process {proc.pid} died "
-                                 f"(exit code {proc.exitcode})")
-                    log.error("%s: every motor faults, positions lost", self.died)
-                self.on_event()
-                return
+                continue
+            code = proc.wait()
+            if not self._closing:
+                self.died = f"step executor process {proc.pid} died (exit code {code})"
+                log.error("%s: every motor faults, positions lost", self.died)
+            self.on_event()
+            return
 
     def close(self) -> None:
         if self._closed is not None:
@@ -520,10 +592,11 @@ class ProcessStepExecutor(StepExecutor):
         self.shared.header[_RUN] = 0
         self._kick()
         if self.proc is not None:
-            self.proc.join(10)
-            if self.proc.is_alive():
+            try:
+                self.proc.wait(10)
+            except subprocess.TimeoutExpired:
                 self.proc.kill()
-                self.proc.join(5)
+                self.proc.wait(5)
         if self._watcher is not None:
             self._watcher.join(5)
             self._watcher = None
@@ -533,12 +606,10 @@ class ProcessStepExecutor(StepExecutor):
         self.stats = LatencyStats(self.late_threshold_s, cells)
         self.motor_cells = [int(x) for x in self.shared.motor_cells]
         self.shared.release()
+        self._forget_child_fds()  # not started: they are still here
         self.shm.close()
-        with contextlib.suppress(FileNotFoundError):
-            self.shm.unlink()
-        for conn in (self._wake_conn_r, self._wake_conn_w, self._event_conn_r,
-                     self._event_conn_w):
-            conn.close()
+        for fd in (self._wake_w, self._event_r):
+            os.close(fd)
 
     @property
     def pid(self) -> int | None:
@@ -547,6 +618,7 @@ class ProcessStepExecutor(StepExecutor):
 
     def kill_for_test(self, sig: int) -> None:
         """Send ``sig`` to the executor process (tests and benchmarks: stalls, death)."""
+        assert self.proc is not None
         os.kill(self.proc.pid, sig)
 
     # -- the transport ---------------------------------------------------------------------
@@ -630,7 +702,7 @@ class ProcessStepExecutor(StepExecutor):
         if self._closed is not None:
             return ExecutorHealth(False, self._closed[1]["progress"], self.died,
                                   dict(self._closed[1]), self.stats.summary())
-        alive = self.proc is not None and self.proc.is_alive() and self.died is None
+        alive = self.proc is not None and self.proc.poll() is None and self.died is None
         counters = self._counters()
         return ExecutorHealth(
             alive=alive,

@@ -9,7 +9,6 @@ runs get best-effort timing).
 from __future__ import annotations
 
 import ctypes
-import ctypes.util
 import gc
 import logging
 import os
@@ -32,10 +31,7 @@ class RealtimeOptions:
 
 def lock_memory() -> str | None:
     """mlockall(MCL_CURRENT | MCL_FUTURE); returns why not, or None on success."""
-    libc_name = ctypes.util.find_library("c")
-    if libc_name is None:
-        return "libc not found"
-    libc = ctypes.CDLL(libc_name, use_errno=True)
+    libc = ctypes.CDLL(None, use_errno=True)  # the interpreter's own libc (no ldconfig run)
     if libc.mlockall(_MCL_CURRENT | _MCL_FUTURE) != 0:
         return os.strerror(ctypes.get_errno())
     return None

@@ -1,4 +1,10 @@
-"""Run motorctld as a real subprocess on a real PTY, for end-to-end tests."""
+"""Run motorctld as a real subprocess on a real PTY, for end-to-end tests.
+
+A daemon (and its step executor process) logs into ``motorctld.stderr`` in its test's
+directory, never into pytest's output; when the daemon ends (``close``, ``kill``) its part
+of that file is printed to the test's captured stderr, which pytest shows only when the test
+fails.
+"""
 
 from __future__ import annotations
 
@@ -94,13 +100,17 @@ class DaemonProcess:
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready_line = ""
         self.stderr_path = workdir / "motorctld.stderr"
+        self._log_from = 0  # this daemon's part of the file (a restart appends to it)
+        self._log_shown = False
 
     def start(self) -> DaemonProcess:
         where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
-        cmd = [sys.executable, "-m", "motorctl.daemon.main", *where,
+        # the motorctld command's entry point (its executor process starts first)
+        cmd = [sys.executable, "-m", "motorctl.daemon.launch", *where,
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
         cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
+        self._log_from = stderr.tell()
         env = {**os.environ, **self.env} if self.env is not None else None
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
                                      cwd=Path(__file__).resolve().parent.parent)
@@ -143,6 +153,7 @@ class DaemonProcess:
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(10)
+        self.show_log()
 
     def close(self) -> None:
         if self.proc is not None and self.proc.poll() is None:
@@ -152,3 +163,58 @@ class DaemonProcess:
                 self.kill()
         if self.proc is not None and self.proc.stdout is not None:
             self.proc.stdout.close()
+        self.show_log()
+
+    def show_log(self) -> None:
+        """This daemon's log, once, to the test's captured stderr (shown if it fails)."""
+        if self._log_shown or self.proc is None or not self.stderr_path.exists():
+            return
+        self._log_shown = True
+        with open(self.stderr_path, "rb") as f:
+            f.seek(self._log_from)
+            text = f.read().decode(errors="replace")
+        sys.stderr.write(f"---- motorctld (PID {self.proc.pid}) log, {self.stderr_path} "
+                         f"----\n{text}---- end of the motorctld log ----\n")
+
+
+def children_of(pid: int) -> list[int]:
+    """The PIDs whose parent is ``pid`` (zombies included)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            out.append(int(entry.name))
+    return sorted(out)
+
+
+def memfd_labels(pid: int) -> set[str]:
+    """The labels of the memfd blocks (``/memfd:LABEL``) process ``pid`` maps."""
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    return {line.split("/memfd:", 1)[1].split(" (deleted)")[0]
+            for line in maps.splitlines() if "/memfd:" in line}
+
+
+def memfd_holders(labels: set[str]) -> list[int]:
+    """Every process on the machine that still maps, or holds a descriptor of, a memfd
+    labelled one of ``labels`` (a memfd lives exactly as long as one of those)."""
+    wanted = {f"/memfd:{label} (deleted)" for label in labels}
+    holders = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            held = any(line.split(None, 5)[-1] in wanted
+                       for line in (entry / "maps").read_text().splitlines()
+                       if "/memfd:" in line)
+            if not held:
+                held = any(os.readlink(fd) in wanted for fd in (entry / "fd").iterdir())
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        if held:
+            holders.append(int(entry.name))
+    return holders

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import Client, DeviceError
+from motorctl.daemon.main import EXECUTOR_DEATH_GRACE_S, SHUTDOWN_LIMIT_S
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,
@@ -28,7 +29,7 @@ from motorctl.protocol.codec import (
     encode_command,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.daemon_proc import DaemonProcess, until
+from tests.daemon_proc import DaemonProcess, children_of, memfd_holders, memfd_labels, until
 
 E = ErrorCode
 OPTS = CodecOptions()
@@ -137,7 +138,7 @@ def test_move_change_speed_and_soft_stop(client: Client) -> None:
 
 
 def test_init_move_homes_at_end_stop(client: Client) -> None:
-    client.init_move(2, False, speed=1)  # 4096 step/s towards the end stop at -10000
+    client.init_move(2, False, speed=3)  # 12,288 step/s towards the end stop at -10000
     client.wait_moved(2, 20_000)
     assert client.position(2) == 0
     client.move_to(2, 500)
@@ -493,7 +494,7 @@ def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
                     call()
                 assert code_of(exc) is E.MOTOR_ERROR
             assert c.is_ready(0)
-            c.init_move(0, False, speed=1)
+            c.init_move(0, False, speed=3)  # 12,288 step/s: the end stop at -10000 in 1.6 s
             c.wait_moved(0, 20_000)
             assert c.position(0) == 0
             c.move_to(0, 10)
@@ -515,6 +516,8 @@ def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
     d.start()
     try:
         assert d.status()["executor"]["kind"] == "thread"
+        assert d.proc is not None  # motorctld started an executor process early: ended
+        assert children_of(d.proc.pid) == []
         with d.client() as c:
             c.move_to(0, 300)
             c.move_to(1, -200)
@@ -539,6 +542,10 @@ def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
 
     status = daemon.status()
     assert status["executor"]["kind"] == "process" and status["executor"]["alive"]
+    assert daemon.proc is not None
+    assert children_of(daemon.proc.pid) == [status["executor"]["pid"]]  # no tracker
+    blocks = memfd_labels(daemon.proc.pid)
+    assert len(blocks) == 2  # the executor's block, the mock's mechanics
     with daemon.client() as c:
         c.move(0, True, speed=1)
         until_moving = time.monotonic() + 10
@@ -560,9 +567,11 @@ def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
         st = daemon.status()
         assert not st["executor"]["alive"] and "died" in st["executor"]["reason"]
         assert all(m["position_lost"] and "died" in m["fault"] for m in st["motors"])
-    assert daemon.proc is not None
-    assert daemon.proc.wait(20) == 3  # exits non-zero for the service manager to restart
+    # exits non-zero for the service manager to restart, after the grace period and without
+    # waiting for stops that a dead executor can never confirm (SHUTDOWN_LIMIT_S)
+    assert daemon.proc.wait(EXECUTOR_DEATH_GRACE_S + SHUTDOWN_LIMIT_S - 2) == 3
     assert "step executor" in daemon.stderr() and "died" in daemon.stderr()
+    assert memfd_holders(blocks) == []  # the shared memory is gone with both processes
 
 
 def code_of_error(exc: DeviceError) -> ErrorCode:

@@ -5,7 +5,11 @@ thread's stack and the whole interpreter, which a 512 MB board feels. A real dae
 ``lock_memory = true`` (its default) and the ``process`` executor, no real-time priority:
 the executor process has locked pages (``VmLck``), the daemon none.
 
-A start that fails after the executor was made leaves no shared memory block behind.
+The shared memory of the daemon and its executor (the executor's block, the mock's shared
+mechanics) is anonymous (memfd): no resource-tracker process runs beside them, nothing is
+ever in /dev/shm, and the blocks are gone once both processes are, whichever was killed
+(``kill -9`` of the daemon here, of the executor in test_e2e.py); a start that fails after
+the executor was made leaves no block behind either.
 """
 
 from __future__ import annotations
@@ -16,7 +20,13 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess, until
+from tests.daemon_proc import (
+    DaemonProcess,
+    children_of,
+    memfd_holders,
+    memfd_labels,
+    until,
+)
 
 CONFIG = """
 [step_thread]
@@ -62,6 +72,28 @@ def test_only_the_step_executor_locks_its_memory(tmp_path: Path) -> None:
         daemon.close()
 
 
+def test_no_resource_tracker_and_no_block_left_after_a_kill_9_of_the_daemon(
+    tmp_path: Path,
+) -> None:
+    daemon = DaemonProcess(tmp_path, CONFIG.replace("lock_memory = true",
+                                                    "lock_memory = false")).start()
+    try:
+        assert daemon.proc is not None
+        pid = daemon.proc.pid
+        executor = daemon.status()["executor"]["pid"]
+        assert children_of(pid) == [executor]  # no multiprocessing resource tracker
+        labels = memfd_labels(pid)
+        assert {label.split("-")[1] for label in labels} == {"executor", "mock"}, labels
+        assert memfd_labels(executor) == labels  # both map both
+        assert sorted(memfd_holders(labels)) == sorted([pid, executor])
+        for p in (pid, executor):  # nothing named in /dev/shm
+            assert "/dev/shm/" not in Path(f"/proc/{p}/maps").read_text()
+        daemon.kill()  # SIGKILL; the executor dies with it (PR_SET_PDEATHSIG)
+        until("no process holding the shared blocks", lambda: not memfd_holders(labels))
+    finally:
+        daemon.close()
+
+
 def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
 ) -> None:
@@ -87,5 +119,8 @@ def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
     with pytest.raises(main.StartupError, match="not-a-dir"):
         main.Daemon.build(config, tmp_path / "state", None)
     (executor,) = made
-    name = executor.shm.name  # type: ignore[attr-defined]
-    assert not Path("/dev/shm", name.lstrip("/")).exists()
+    label = executor.shm.name  # type: ignore[attr-defined]
+    proc = executor.proc  # type: ignore[attr-defined]
+    assert proc.poll() is not None  # its process (started when it was made) is gone
+    assert label.startswith("motorctl-executor-")
+    assert memfd_holders({label}) == []  # unmapped and closed here, gone with the child

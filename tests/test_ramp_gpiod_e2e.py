@@ -70,17 +70,17 @@ def daemon(tmp_path: Path, env: dict[str, str]) -> Iterator[DaemonProcess]:
 
 def test_a_ramp_motor_without_step_dir_lines_moves_end_to_end(daemon: DaemonProcess) -> None:
     with daemon.client() as c:
-        c.move_to(0, 3000, speed=250)  # XTARGET on the chip; its ramp makes the steps
-        seen = positions_until_ready(c, 0)
-        assert c.position(0) == 3000
-        assert any(0 < p < 3000 for p in seen)  # GetAbsPos follows XACTUAL while moving
-        c.move_to(0, -400, speed=250)
+        c.move_to(0, 800, speed=255)  # XTARGET on the chip; its ramp makes the steps
+        seen = positions_until_ready(c, 0)  # 1,020 step/s: 0.8 s, a look every 50 ms
+        assert c.position(0) == 800
+        assert any(0 < p < 800 for p in seen)  # GetAbsPos follows XACTUAL while moving
+        c.move_to(0, -200, speed=255)
         c.wait_moved(0, timeout_ms=10_000)
-        assert c.position(0) == -400
+        assert c.position(0) == -200
     status = daemon.status()
     executor = status["executor"]
     assert executor["alive"] and (executor["kind"], executor["pid"]) == ("none", None)
-    assert status["motors"][0]["position"] == -400
+    assert status["motors"][0]["position"] == -200
     assert daemon.terminate() == 0
     assert "fakegpiod" not in daemon.stderr()  # no line was ever asked for
 

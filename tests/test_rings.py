@@ -26,6 +26,7 @@ from hypothesis import strategies as st
 
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.mock import build
+from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.executor import AxisLimits, ExecEvent, ExecEventKind
 from motorctl.motion.procexec import (
@@ -123,10 +124,11 @@ def test_a_slot_whose_check_matches_its_record_has_the_constant_crc(body: bytes)
 def test_slots_are_8_byte_aligned_in_the_real_shared_block() -> None:
     """head/tail and every slot are aligned 8-byte cells (single-copy atomic stores)."""
     layout = Layout(3, 6)
-    shm = shared_memory.SharedMemory(create=True, size=layout.size)
+    shm = SharedBlock.create(layout.size, "test")
     try:
-        assert shm.buf is not None
-        address = ctypes.addressof(ctypes.c_char.from_buffer(shm.buf))
+        anchor = ctypes.c_char.from_buffer(shm.buf)
+        address = ctypes.addressof(anchor)
+        del anchor  # its export of the buffer ends
         shared = Shared(shm, layout)
         try:
             for ring in (*shared.segs, shared.stops, shared.events):
@@ -137,7 +139,6 @@ def test_slots_are_8_byte_aligned_in_the_real_shared_block() -> None:
             shared.release()
     finally:
         shm.close()
-        shm.unlink()
     with pytest.raises(ValueError, match="not 8-byte aligned"):
         Ring(memoryview(bytearray(4096)), 4, _STOP, 4)
 
@@ -192,12 +193,14 @@ def test_every_word_mix_of_the_old_and_the_new_segment_is_taken_only_when_whole(
 
 
 @settings(max_examples=300, deadline=None)
-@given(mask=st.lists(st.booleans(), min_size=192, max_size=192), lap=st.integers(1, 50))
+@given(bits=st.binary(min_size=24, max_size=24), lap=st.integers(1, 50))
 def test_any_byte_mix_of_an_event_slot_with_its_text_is_taken_only_when_whole(
-    mask: list[bool], lap: int
+    bits: bytes, lap: int
 ) -> None:
     """struct packs standard-size fields byte by byte and the text with memcpy: a weakly
-    ordered CPU may show any byte mix of the previous lap's record and the new one."""
+    ordered CPU may show any byte mix of the previous lap's record and the new one (``bits``:
+    one bit a byte of the slot, set: the byte is already the new record's)."""
+    mask = [bool(bits[k // 8] >> (k % 8) & 1) for k in range(192)]
     ring = _ring(_EVENT, 2)
     assert ring.slot == 192
     for i in range(2 * lap):
@@ -451,7 +454,7 @@ def test_start_gives_up_after_its_timeout() -> None:
     try:
         with pytest.raises(HalError, match="did not start within"):
             ex.start()
-        assert not ex.proc.is_alive()
+        assert ex.proc is not None and ex.proc.poll() is not None
     finally:
         ex.close()
         hw.close()
@@ -479,10 +482,8 @@ def test_a_consumer_counts_each_read_of_a_torn_or_stale_record_as_a_retry() -> N
 
 def test_the_shared_block_sums_retries_by_direction() -> None:
     layout = Layout(2, 4)
-    shm = shared_memory.SharedMemory(create=True, size=layout.size)
+    shm = SharedBlock.create(layout.size, "test")  # zero-filled
     try:
-        assert shm.buf is not None
-        shm.buf[: layout.size] = bytes(layout.size)
         shared = Shared(shm, layout)
         try:
             for ring, torn in ((shared.segs[1], 2), (shared.stops, 1), (shared.events, 4)):
@@ -495,7 +496,6 @@ def test_the_shared_block_sums_retries_by_direction() -> None:
             shared.release()
     finally:
         shm.close()
-        shm.unlink()
 
 
 def test_retries_of_both_directions_are_in_the_process_executors_health() -> None:

@@ -165,17 +165,7 @@ def test_watchdog_pings_only_while_healthy(fake_systemd: FakeSystemd,
 
 
 # -- logging ------------------------------------------------------------------------------------
-@pytest.fixture(autouse=True)
-def keep_root_logger() -> Iterator[None]:
-    """setup_logging() configures the root logger: put it back for the tests that follow."""
-    root = logging.getLogger()
-    handlers, level = list(root.handlers), root.level
-    yield
-    for h in list(root.handlers):
-        root.removeHandler(h)
-    for h in handlers:
-        root.addHandler(h)
-    root.setLevel(level)
+# setup_logging() configures the root logger: tests/conftest.py puts it back after each test.
 
 
 def test_logging_to_stderr_with_fields(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

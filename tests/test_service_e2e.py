@@ -108,7 +108,7 @@ def test_bad_state_file_starts_with_every_motor_lost(tmp_path: Path, kind: str) 
             with pytest.raises(DeviceError) as exc:
                 c.move_to(0, 10)
             assert exc.value.code == E.MOTOR_ERROR
-            c.init_move(0, False, speed=1)
+            c.init_move(0, False, speed=3)  # 12,288 step/s: the end stop at -10000 in 1.6 s
             c.wait_moved(0, 20_000)
             c.move_to(0, 10)  # homed: position known again
         assert "nothing restored" in d.status()["state"]["restored"]

@@ -136,11 +136,11 @@ def test_a_tmc5160_ramp_motor_moves_homes_and_reports_its_position(
     daemon: DaemonProcess, fake_spi: Path
 ) -> None:
     with daemon.client() as c:
-        c.move_to(2, 2000, speed=250)  # 1000 steps/s: XTARGET, VMAX, AMAX/DMAX on the chip
-        seen = positions_until_ready(c, 2)
-        assert c.position(2) == 2000
-        assert any(0 < p < 2000 for p in seen)  # GetAbsPos follows XACTUAL while moving
-        set_chips(fake_spi, {"0.2": {"ref_l_at": 1500}})  # REFL: 500 steps below here
+        c.move_to(2, 800, speed=250)  # 1000 steps/s: XTARGET, VMAX, AMAX/DMAX on the chip
+        seen = positions_until_ready(c, 2)  # 0.8 s, a look every 50 ms
+        assert c.position(2) == 800
+        assert any(0 < p < 800 for p in seen)  # GetAbsPos follows XACTUAL while moving
+        set_chips(fake_spi, {"0.2": {"ref_l_at": 300}})  # REFL: 500 steps below here
         c.init_move(2, False, speed=1)  # home down onto the chip's left reference switch
         c.wait_moved(2, timeout_ms=20_000)
         assert abs(c.position(2)) <= 2  # zero at the switch's edge (XLATCH)

@@ -10,9 +10,10 @@ import pytest
 
 import motorctl
 from motorctl.client import cli
+from motorctl.daemon import launch
 from motorctl.daemon import main as daemon_main
 
-ENTRIES = [("motorctl", cli.main), ("motorctld", daemon_main.main)]
+ENTRIES = [("motorctl", cli.main), ("motorctld", launch.main), ("motorctld", daemon_main.main)]
 
 
 @pytest.mark.parametrize(("name", "entry"), ENTRIES)

@@ -1,0 +1,48 @@
+"""The ``motorctld`` command: the step executor's interpreter starts first, then the daemon.
+
+The executor's process is the longest part of motorctld's start-up: a second Python
+interpreter, then the step core's modules (``motion/procstart.py``). Started here, before
+the daemon imports its own modules, the two interpreters start side by side and READY
+comes sooner (bench/startup.py, docs/service.md). It is started only for a command line
+that serves (``--pty`` or ``--port``, none of the commands that print and exit) and when a
+second CPU can run it; the daemon takes it over once it has read its config, or ends it at
+once when the config has no use for it (the thread executor, no stepped motor) or the start
+fails. ``python -m motorctl.daemon.main`` runs the same daemon without this head start.
+
+Owners: the main thread, before anything else runs.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Sequence
+
+from motorctl.motion.procstart import ExecutorProcess
+
+#: Options after which motorctld prints something and exits instead of serving.
+ONE_SHOT = frozenset({"--check-config", "--print-default-config", "--probe", "--status",
+                      "--histogram", "--help", "-h", "--version"})
+
+
+def serves(argv: Sequence[str]) -> bool:
+    """Whether this command line would serve (a quick look; argparse decides later)."""
+    options = {arg.split("=", 1)[0] for arg in argv if arg.startswith("-")}
+    return bool(options & {"--pty", "--port"}) and not options & ONE_SHOT
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    early = None
+    if serves(args) and len(os.sched_getaffinity(0)) > 1:
+        try:
+            early = ExecutorProcess.start()
+        except OSError:
+            early = None  # the daemon starts it itself, and reports what is wrong then
+    from motorctl.daemon.main import main as daemon_main
+
+    return daemon_main(args, executor_process=early)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,46 @@
+"""What every test shares.
+
+- The root logger is put back after each test. A test that runs motorctld's ``main()`` in
+  this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
+  handler; left in place, it printed the INFO lines of later tests' link threads (which may
+  log after their test ended) between pytest's dots.
+- The processes the tests start (daemons, their step executors, the CLIs) keep their
+  compiled bytecode in ``build/pycache`` when the environment says not to write any beside
+  the sources (``PYTHONDONTWRITEBYTECODE``): otherwise each daemon start compiled the whole
+  package twice (the daemon and its executor process), a tenth of a second of CPU at every
+  one of the suite's hundred-odd starts. The bytecode is the same either way.
+
+Daemons started by the tests (tests/daemon_proc.py) log into a file of their test, shown
+with the test's output when it fails.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from collections.abc import Iterator
+
+import pytest
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    if os.environ.get("PYTHONDONTWRITEBYTECODE") and not os.environ.get("PYTHONPYCACHEPREFIX"):
+        cache = config.rootpath / "build" / "pycache"
+        cache.mkdir(parents=True, exist_ok=True)
+        os.environ["PYTHONPYCACHEPREFIX"] = str(cache)
+        del os.environ["PYTHONDONTWRITEBYTECODE"]
+
+
+@pytest.fixture(autouse=True)
+def keep_root_logger() -> Iterator[None]:
+    """Whatever a test does to the root logger (handlers, level) is undone after it."""
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    yield
+    for h in list(root.handlers):
+        if h not in handlers:
+            root.removeHandler(h)
+    for h in handlers:
+        if h not in root.handlers:
+            root.addHandler(h)
+    root.setLevel(level)
