@@ -35,7 +35,6 @@ import contextlib
 import json
 import os
 import re
-import selectors
 import shutil
 import signal
 import subprocess
@@ -53,10 +52,10 @@ from motorctl.client.client import Client, DeviceError, error_text  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
 from motorctl.daemon.status import read_status  # noqa: E402
 from motorctl.protocol.codec import ErrorCode  # noqa: E402
+from tests.daemon_proc import DaemonProcess  # noqa: E402
 from tests.test_readme import walkthrough  # noqa: E402
 
 RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
-READY_S = 30.0
 #: "step N us late at R step/s: lag L full steps > max_lag_full_steps M"
 LAG_FAULT = re.compile(r"step (\d+) us late at (\d+) step/s: lag ([\d.]+) full steps > "
                        r"max_lag_full_steps ([\d.]+)")
@@ -80,51 +79,26 @@ def rule_config(rule: str, fast: bool) -> str | None:
     return text
 
 
-class Daemon:
-    """motorctld started as a user starts it, in its own folder."""
+class Daemon(DaemonProcess):
+    """motorctld started as a user starts it (`make run`), in its own folder."""
 
     def __init__(self, work: Path, config: str | None) -> None:
+        super().__init__(work, config, state_dir=work / ".run" / "state", as_user=True)
         self.work = work
-        self.pty = work / "motorctl.pty"
-        self.state = work / ".run" / "state"
-        cmd = [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(self.pty),
-               "--state-dir", str(self.state)]
-        if config is not None:
-            (work / "motorctl.toml").write_text(config)
-            cmd += ["--config", str(work / "motorctl.toml")]
-        self.err_path = work / "motorctld.stderr"
-        with open(self.err_path, "ab") as err:
-            self.proc = subprocess.Popen(cmd, cwd=work, stdout=subprocess.PIPE, stderr=err,
-                                         env={**os.environ, "PYTHONPATH": str(ROOT)})
-        assert self.proc.stdout is not None
-        sel = selectors.DefaultSelector()
-        sel.register(self.proc.stdout, selectors.EVENT_READ)
-        line = b""
-        end = time.monotonic() + READY_S
-        while not line.endswith(b"\n"):
-            if not sel.select(max(0.0, end - time.monotonic())):
-                self.close()
-                raise RuntimeError(f"motorctld not ready: {self.stderr()}")
-            chunk = os.read(self.proc.stdout.fileno(), 1)
-            if not chunk:
-                raise RuntimeError(f"motorctld exited: {self.stderr()}")
-            line += chunk
-        sel.close()
+        self.start()
 
-    def stderr(self) -> str:
-        return self.err_path.read_text(errors="replace")
+    def status(self, histogram: bool = False) -> dict[str, Any]:
+        return read_status(self.state_dir / "status.sock", timeout=10.0, histogram=histogram)
 
-    def status(self) -> dict[str, Any]:
-        return read_status(self.state / "status.sock", timeout=10.0)
-
-    def close(self) -> int | None:
-        self.proc.send_signal(signal.SIGTERM)
+    def stop(self) -> int | None:
+        """SIGTERM; its exit status (None: it had to be killed)."""
         try:
-            return self.proc.wait(30)
+            return self.terminate(30.0)
         except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
+            self.kill()
             return None
+        finally:
+            self.close()
 
 
 # -- the three parts of a run ----------------------------------------------------------------
@@ -270,7 +244,11 @@ def one_run(work: Path, rule: str, fast_s: float) -> dict[str, Any]:
         folder = work / part
         shutil.rmtree(folder, ignore_errors=True)
         folder.mkdir(parents=True)
-        d = Daemon(folder, rule_config(rule, fast))
+        try:
+            d = Daemon(folder, rule_config(rule, fast))
+        except RuntimeError as exc:  # it did not start: that run failed
+            problems.append(f"{part}: {exc}")
+            continue
         try:
             if fast:
                 problems += [f"fast: {x}" for x in run_fast(d, fast_s)]
@@ -281,7 +259,7 @@ def one_run(work: Path, rule: str, fast_s: float) -> dict[str, Any]:
         except (OSError, RuntimeError, DeviceError, subprocess.TimeoutExpired) as exc:
             problems.append(f"{part}: {type(exc).__name__}: {exc}")
         finally:
-            code = d.close()
+            code = d.stop()
             stderr += d.stderr()
             if code != 0:
                 problems.append(f"{part}: motorctld exited {code}")

@@ -81,15 +81,26 @@ def for_tests(text: str, force: bool = False) -> str:
 
 
 class DaemonProcess:
+    """motorctld in a process of its own, as the motorctld command starts it. A test daemon
+    (the default) gets the test settings (``TEST_STEP_THREAD``) and, without
+    ``config_text``, the embedded default written out; ``as_user``: started as a user starts
+    it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default)."""
+
     def __init__(self, workdir: Path, config_text: str | None = None,
                  state_dir: Path | None = None, extra: list[str] | None = None,
-                 env: dict[str, str] | None = None, port: str | None = None) -> None:
+                 env: dict[str, str] | None = None, port: str | None = None,
+                 as_user: bool = False) -> None:
         self.workdir = workdir
         self.port = port  # serve this serial device (--port) instead of a PTY of its own
         self.pty = workdir / "motorctl.pty"
         self.state_dir = state_dir or workdir / "state"
-        self.config = workdir / "motorctl.toml"
-        if config_text is None:
+        self.config: Path | None = workdir / "motorctl.toml"
+        if as_user:
+            if config_text is None:
+                self.config = None
+            else:
+                self.config.write_text(config_text)
+        elif config_text is None:
             from motorctl.daemon.config import default_config_text
 
             self.config.write_text(for_tests(default_config_text(), force=True))
@@ -108,7 +119,8 @@ class DaemonProcess:
         # the motorctld command's entry point (its executor process starts first)
         cmd = [sys.executable, "-m", "motorctl.daemon.launch", *where,
                "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
-        cmd += ["--config", str(self.config)]
+        if self.config is not None:
+            cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
         self._log_from = stderr.tell()
         env = {**os.environ, **self.env} if self.env is not None else None
