@@ -112,7 +112,7 @@ class DaemonProcess:
         self.ready_line = ""
         self.stderr_path = workdir / "motorctld.stderr"
         self._log_from = 0  # this daemon's part of the file (a restart appends to it)
-        self._log_shown = False
+        self._log_shown = as_user  # a user's daemon: its log is the caller's to read
 
     def start(self) -> DaemonProcess:
         where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
