@@ -238,10 +238,10 @@ def core_cost_us(steps: int = 30_000) -> float:
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.mock import build, build_step_io
     from motorctl.hal.spec import AxisSpec, HardwareSpec
-    from motorctl.motion.executor import AxisLimits
+    from motorctl.motion.executor_seam import AxisLimits
     from motorctl.motion.latency import LatencyStats
     from motorctl.motion.segments import StepSegment
-    from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+    from motorctl.motion.step_core import COUNTER_NAMES, CoreInbox, StepCore
 
     clock = VirtualClock()
     far = AxisSpec(endstop_min=-10**9, endstop_max=10**9)

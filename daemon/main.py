@@ -50,14 +50,14 @@ from motorctl.hal.tmc import Tmc5160, TmcDriver
 from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import Executor
+from motorctl.motion.executor_chip_ramp import RampExecutor, with_ramp_motors
+from motorctl.motion.executor_process import ProcessStepExecutor
+from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executor_seam import Executor
 from motorctl.motion.motor import Motor
-from motorctl.motion.procexec import ProcessStepExecutor
-from motorctl.motion.procstart import ExecutorProcess
 from motorctl.motion.profile import Trajectory
-from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
 from motorctl.protocol.capture import CaptureInfo
 from motorctl.protocol.codec import wrap24

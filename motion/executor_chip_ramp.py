@@ -13,7 +13,7 @@ stop by stallGuard is reported as the driver's stall flag. Units: see hal.tmc.Ra
 :class:`SplitExecutor` gives each motor to one of several executors (STEP/DIR motors to the
 step executor, TMC5160 ramp motors to a RampExecutor) behind the one seam the engine uses.
 
-Threads: as every :class:`~motorctl.motion.executor.Executor`: commands and :meth:`service`
+Threads: as every :class:`~motorctl.motion.executor_seam.Executor`: commands and :meth:`service`
 come with the engine's lock held (the planner thread); SPI transfers happen there (a few
 datagrams, tens of microseconds each) and never on a step path. :meth:`position`,
 :meth:`endstop_active` and :meth:`health` read snapshots that :meth:`service` refreshes.
@@ -33,7 +33,7 @@ from typing import Any
 
 from motorctl.hal.interfaces import Clock, HalError
 from motorctl.hal.tmc import F, RampState, Reg, Tmc5160, signed32
-from motorctl.motion.executor import (
+from motorctl.motion.executor_seam import (
     Committed,
     ExecEvent,
     ExecEventKind,

@@ -3,7 +3,7 @@
 An :class:`Executor` turns each motor's planned :class:`~motorctl.motion.profile.Trajectory`
 into motion and reports what really happened. Implementations:
 
-- ``motion.stepexec``: timed STEP/DIR edges. The planner in the daemon's process cuts each
+- ``motion.step_planner``: timed STEP/DIR edges. The planner in the daemon's process cuts each
   trajectory into Klipper-style step segments a few milliseconds ahead and feeds them to a
   real-time step core that runs in a thread (``thread``) or a process of its own
   (``process``), and that owns the STEP/DIR and end-stop lines.

@@ -3,14 +3,14 @@
 Owner: exactly one thread, the executor's (a thread of the daemon for the ``thread`` kind,
 the main thread of the executor process for ``process``). Nothing else touches its state;
 the planner talks to it only through :class:`CoreInbox` (lock-free deques, or the
-shared-memory rings of ``motion.procexec``) and it answers through ``emit`` and the
+shared-memory rings of ``motion.executor_process``) and it answers through ``emit`` and the
 ``positions`` and ``counters`` cells. It may block only in ``wait`` (nothing due) and spins
 only for the last ``spin_s`` before an edge.
 
 Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
 the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
 plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
-motor may not survive (:class:`~motorctl.motion.executor.AxisLimits`): then it stops
+motor may not survive (:class:`~motorctl.motion.executor_seam.AxisLimits`): then it stops
 (TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
 DIR has settled, raise the STEP lines of every due motor in one
 call, account while they are high, lower them, then look at the end stop ahead of each
@@ -33,7 +33,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from motorctl.hal.interfaces import HalError, StepIO
-from motorctl.motion.executor import (
+from motorctl.motion.executor_seam import (
     TICKS_PER_S,
     AxisLimits,
     ExecEvent,

@@ -3,11 +3,11 @@
 :class:`StepExecutor` is the planner half (the daemon's process, engine lock held): it
 walks each motor's trajectory a little ahead of time (``ahead_s``), cuts the steps into
 segments in closed form (:class:`motion.segments.SegmentCutter`) and hands them to a step
-core through a :class:`~motorctl.motion.stepcore.CoreInbox`. Subclasses say where the core runs:
+core through a :class:`~motorctl.motion.step_core.CoreInbox`. Subclasses say where the core runs:
 
 - :class:`ThreadStepExecutor` (kind ``thread``): a thread of this process, or, on a virtual
   clock, no thread at all (the engine drives it through ``next_deadline``/``advance``).
-- ``motion.procexec.ProcessStepExecutor`` (kind ``process``): a process of its own.
+- ``motion.executor_process.ProcessStepExecutor`` (kind ``process``): a process of its own.
 """
 
 from __future__ import annotations
@@ -22,7 +22,7 @@ from typing import Any
 from motorctl.hal.interfaces import Clock, Hardware
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import HardwareSpec
-from motorctl.motion.executor import (
+from motorctl.motion.executor_seam import (
     AxisLimits,
     Committed,
     ExecEvent,
@@ -36,7 +36,7 @@ from motorctl.motion.latency import CELLS, Cells, LatencyStats
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
 from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.stepcore import (
+from motorctl.motion.step_core import (
     ABSORBED,
     COUNTER_NAMES,
     LAG_FAULTS,

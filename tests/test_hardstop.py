@@ -28,7 +28,7 @@ from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualCloc
 from motorctl.hal.mock import world_of
 from motorctl.hal.registry import open_hardware
 from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine
-from motorctl.motion.executor import (
+from motorctl.motion.executor_seam import (
     Committed,
     ExecEvent,
     ExecEventKind,

@@ -17,15 +17,15 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings, TmcSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import ExecEvent, ExecEventKind, Executor
-from motorctl.motion.profile import plan_move_to, plan_run
-from motorctl.motion.ramp_executor import (
+from motorctl.motion.executor_chip_ramp import (
     RampExecutor,
     SplitExecutor,
     peak_speed,
     with_ramp_motors,
 )
-from motorctl.motion.stepexec import ThreadStepExecutor
+from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, Executor
+from motorctl.motion.profile import plan_move_to, plan_run
+from motorctl.motion.step_planner import ThreadStepExecutor
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -202,7 +202,7 @@ class Recorder(Executor):
         return False
 
     def health(self):  # type: ignore[no-untyped-def]
-        from motorctl.motion.executor import ExecutorHealth
+        from motorctl.motion.executor_seam import ExecutorHealth
 
         return ExecutorHealth(True, 1)
 
@@ -248,7 +248,7 @@ def test_split_executor_shows_the_step_executors_lateness_and_process() -> None:
 
 
 def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
-    from motorctl.motion.executor import ExecutorHealth
+    from motorctl.motion.executor_seam import ExecutorHealth
 
     class Counting(Recorder):
         def __init__(self, counters: dict[str, int]) -> None:

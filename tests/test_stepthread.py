@@ -19,7 +19,7 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.motor import Motor
 from motorctl.motion.rt import GcPolicy
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     MotionCmd,
