@@ -21,10 +21,11 @@ from motorctl.hal.mock import build
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
 from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
 from motorctl.motion.step_core import COUNTER_NAMES
-from motorctl.motion.step_planner import REFILL_S, ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import REFILL_S, axis_limits
 from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
 
 from .test_executor import Core

@@ -20,6 +20,7 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_process import ProcessStepExecutor
 from motorctl.motion.executor_seam import AxisLimits, ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.segments import StepSegment
 from motorctl.motion.step_core import (
@@ -34,7 +35,7 @@ from motorctl.motion.step_core import (
     CoreInbox,
     StepCore,
 )
-from motorctl.motion.step_planner import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 
 K = ExecEventKind

@@ -16,10 +16,11 @@ from motorctl.hal.mock import Event, EventKind, MockWorld, build, build_step_io,
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_seam import from_ticks, to_ticks
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Steps, plan_move_to
-from motorctl.motion.step_planner import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,

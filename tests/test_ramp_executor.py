@@ -24,8 +24,8 @@ from motorctl.motion.executor_chip_ramp import (
     with_ramp_motors,
 )
 from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, Executor
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.profile import plan_move_to, plan_run
-from motorctl.motion.step_planner import ThreadStepExecutor
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,

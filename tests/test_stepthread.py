@@ -17,9 +17,10 @@ from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.mock import EventKind, MockWorld, build, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.rt import GcPolicy
-from motorctl.motion.step_planner import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     MotionCmd,

@@ -50,7 +50,8 @@ from motorctl.hal.tmc import (
 from motorctl.hal.tmc_backend import probe
 from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.step_planner import ThreadStepExecutor, axis_limits
+from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
