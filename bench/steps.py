@@ -235,8 +235,8 @@ def stall(work: Path, prio: int, cpu: int, kind: str) -> dict[str, Any]:
 
 def core_cost_us(steps: int = 30_000) -> float:
     """CPU time per step of the step core on mock lines (3 motors), in this process."""
+    from motorctl.hal.backends.mock.backend import build, build_step_io
     from motorctl.hal.interfaces import VirtualClock
-    from motorctl.hal.mock import build, build_step_io
     from motorctl.hal.spec import AxisSpec, HardwareSpec
     from motorctl.motion.executor_seam import AxisLimits
     from motorctl.motion.latency import LatencyStats

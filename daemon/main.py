@@ -41,13 +41,13 @@ from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
 from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.daemon.trace import TraceRecorder
+from motorctl.hal.backends.mock.backend import MockHardware
+from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
+from motorctl.hal.backends.tmc.config import SpidevConfig, TmcAxisConfig, driver_spec
+from motorctl.hal.backends.tmc.driver import Tmc5160, TmcDriver
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin
-from motorctl.hal.mock import MockHardware
-from motorctl.hal.mock_config import MockAxisConfig, MockConfig
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motorctl.hal.tmc import Tmc5160, TmcDriver
-from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_chip_ramp import RampExecutor, with_ramp_motors

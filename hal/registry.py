@@ -21,7 +21,7 @@ chosen: it may import its hardware library) and the one that declares its config
 exports ``CONFIG_SECTIONS``, a tuple of `motorctl.schema.Extension`.
 
 Adding a backend's config section:
-  1. write ``hal/<backend>_config.py``: one ``@section`` dataclass per table, whose fields
+  1. write ``hal/backends/<backend>/config.py``: one ``@section`` dataclass per table, whose fields
      declare the keys (`motorctl.schema`), and ``CONFIG_SECTIONS = (Extension("", "<name>",
      TopConfig, owner=...), Extension("motors", "<name>", AxisConfig, owner=...), ...)``
      (parent "" = top-level ``[<name>]``, "motors" = ``[motors.<name>]`` in every motor,
@@ -48,9 +48,9 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, cast
 
+from motorctl.hal.backends.gpiod.wiring import ProbeReport
 from motorctl.hal.interfaces import Clock, HalError, Hardware, StepIO
 from motorctl.hal.spec import HardwareSpec
-from motorctl.hal.wiring import ProbeReport
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
 Prober = Callable[[HardwareSpec, Clock, ProbeReport], None]
@@ -69,14 +69,17 @@ class Backend:
 
 BACKENDS: dict[str, Backend] = {
     "mock": Backend(
-        "motorctl.hal.mock", "build", "nothing: it is part of motorctl", "motorctl.hal.mock_config"
+        "motorctl.hal.backends.mock.backend",
+        "build",
+        "nothing: it is part of motorctl",
+        "motorctl.hal.backends.mock.config",
     ),
     "gpiod": Backend(
-        "motorctl.hal.gpiod_backend",
+        "motorctl.hal.backends.gpiod.backend",
         "build",
         "libgpiod's Python binding: pip install 'motorctl[hardware]' (gpiod>=2) or "
         "apt install python3-libgpiod",
-        "motorctl.hal.gpiod_config",
+        "motorctl.hal.backends.gpiod.config",
     ),
 }
 
@@ -86,14 +89,14 @@ def _has_drivers(spec: HardwareSpec) -> bool:
 
 #: extra probe hooks: name -> (module, function, applies(spec)); run after the backend's own
 PROBES: dict[str, tuple[str, str, Callable[[HardwareSpec], bool]]] = {
-    "spidev": ("motorctl.hal.tmc_backend", "probe", _has_drivers),
+    "spidev": ("motorctl.hal.backends.tmc.backend", "probe", _has_drivers),
 }
 
 
 #: layers that work with any backend and own config sections: name -> config module (which
 #: imports no hardware library). "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C.
 LAYERS: dict[str, str] = {
-    "spidev": "motorctl.hal.tmc_config",
+    "spidev": "motorctl.hal.backends.tmc.config",
 }
 
 
@@ -128,7 +131,7 @@ def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
     hw = build(spec, clock)
     drivers = [a.driver for a in spec.axes]
     if any(drivers):
-        from motorctl.hal.tmc_backend import attach_drivers  # imports py-spidev lazily
+        from motorctl.hal.backends.tmc.backend import attach_drivers  # imports py-spidev lazily
 
         names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
         try:

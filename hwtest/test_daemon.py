@@ -275,8 +275,8 @@ def test_a_line_held_by_another_consumer_is_a_clear_error(tmp_path: Path) -> Non
 
 HOLD = """
 import sys
-from motorctl.hal.gpiochip import LineSettings, load_api
-from motorctl.hal.wiring import LineRef
+from motorctl.hal.backends.gpiod.chip import LineSettings, load_api
+from motorctl.hal.backends.gpiod.wiring import LineRef
 api = load_api()
 (line,) = api.resolve([("held", LineRef(chip=sys.argv[1], offset=int(sys.argv[2])))])
 req = api.request("intruder", [(line, LineSettings(output=True))])

@@ -31,8 +31,8 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import Any
 
+from motorctl.hal.backends.tmc.driver import F, RampState, Reg, Tmc5160, signed32
 from motorctl.hal.interfaces import Clock, HalError
-from motorctl.hal.tmc import F, RampState, Reg, Tmc5160, signed32
 from motorctl.motion.executor_seam import (
     Committed,
     ExecEvent,

@@ -32,15 +32,15 @@ from motorctl.daemon.config import (
     schema,
 )
 from motorctl.daemon.config.docs import DOCS, render
-from motorctl.hal.gpiod_config import (
+from motorctl.hal.backends.gpiod.config import (
     GpiodAxisConfig,
     GpiodConfig,
     GpiodDcConfig,
     GpiodPinConfig,
     GpiodPwmConfig,
 )
-from motorctl.hal.mock_config import MockAxisConfig, MockConfig
-from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig
+from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
+from motorctl.hal.backends.tmc.config import SpidevConfig, TmcAxisConfig
 from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import CodecOptions
 from motorctl.protocol.crc import SMBUS, crc8_by_name
@@ -695,7 +695,7 @@ def test_checking_a_config_imports_no_backend_module() -> None:
         "import sys\n"
         "from motorctl.daemon.config import load_config, default_config_text\n"
         "load_config(None); default_config_text()\n"
-        "print(sorted(m for m in sys.modules if m == 'motorctl.hal.mock' or "
+        "print(sorted(m for m in sys.modules if m == 'motorctl.hal.backends.mock.backend' or "
         "m.split('.')[0] in ('gpiod', 'spidev', 'systemd')))\n"
     )
     out = subprocess.run(
@@ -761,7 +761,7 @@ def test_table_of_the_whole_file() -> None:
 
 
 def test_mock_position_range_is_the_protocols() -> None:
-    from motorctl.hal import mock_config
+    from motorctl.hal.backends.mock import config as mock_config
     from motorctl.protocol.codec import POS_MAX, POS_MIN
 
     assert (mock_config.POSITION_MIN, mock_config.POSITION_MAX) == (POS_MIN, POS_MAX)

@@ -16,8 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import build
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
@@ -203,7 +203,7 @@ def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepEx
 
 
 def step_times(engine: MotionEngine) -> list[float]:
-    from motorctl.hal.mock import world_of
+    from motorctl.hal.backends.mock.backend import world_of
 
     return world_of(engine.hw).timeline.step_times(0)
 

@@ -14,8 +14,14 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.service import ProgressWatch
+from motorctl.hal.backends.mock.backend import (
+    EventKind,
+    build,
+    build_step_io,
+    read_timeline,
+    world_of,
+)
 from motorctl.hal.interfaces import MonotonicClock, VirtualClock
-from motorctl.hal.mock import EventKind, build, build_step_io, read_timeline, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_process import ProcessStepExecutor

@@ -11,8 +11,15 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.hal.backends.mock.backend import (
+    Event,
+    EventKind,
+    MockWorld,
+    build,
+    build_step_io,
+    world_of,
+)
 from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, VirtualClock
-from motorctl.hal.mock import Event, EventKind, MockWorld, build, build_step_io, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_seam import from_ticks, to_ticks

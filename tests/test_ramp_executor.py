@@ -10,12 +10,12 @@ import pytest
 
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.main import build_executor, hardware_spec, motor_params
+from motorctl.hal.backends.mock.backend import EventKind, build, world_of
+from motorctl.hal.backends.tmc.driver import RefSwitches, Tmc5160, TmcSettings, TmcSpec
+from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import EventKind, build, world_of
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice
-from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings, TmcSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_chip_ramp import (
     RampExecutor,

@@ -13,8 +13,8 @@ from dataclasses import dataclass
 
 import pytest
 
+from motorctl.hal.backends.mock.backend import EventKind, MockWorld, build, world_of
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
-from motorctl.hal.mock import EventKind, MockWorld, build, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_thread import ThreadStepExecutor

@@ -22,12 +22,10 @@ from hypothesis import strategies as st
 
 from motorctl.daemon.config import ConfigError, parse_config
 from motorctl.daemon.main import hardware_spec
-from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
-from motorctl.hal.mock import build, world_of
-from motorctl.hal.registry import open_hardware
-from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
-from motorctl.hal.tmc import (
+from motorctl.hal.backends.mock.backend import build, world_of
+from motorctl.hal.backends.tmc.backend import probe
+from motorctl.hal.backends.tmc.config import driver_spec
+from motorctl.hal.backends.tmc.driver import (
     TMC2130,
     TMC5160,
     Chip,
@@ -47,8 +45,10 @@ from motorctl.hal.tmc import (
     mres_of,
     register_values,
 )
-from motorctl.hal.tmc_backend import probe
-from motorctl.hal.tmc_config import driver_spec
+from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
+from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
+from motorctl.hal.registry import open_hardware
+from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.step_planner import axis_limits
@@ -281,8 +281,8 @@ def test_spidev_missing_is_a_hal_error_saying_how_to_install(
 ) -> None:
     import builtins
 
+    from motorctl.hal.backends.tmc.spi import spidev_factory
     from motorctl.hal.interfaces import HalError
-    from motorctl.hal.spi import spidev_factory
 
     real_import = builtins.__import__
 

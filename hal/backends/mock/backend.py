@@ -15,6 +15,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from motorctl.hal.backends.mock.config import MockConfig
 from motorctl.hal.interfaces import (
     BridgeState,
     Clock,
@@ -30,7 +31,6 @@ from motorctl.hal.interfaces import (
     StepperDriver,
     StepperHardware,
 )
-from motorctl.hal.mock_config import MockConfig
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 

@@ -4,7 +4,7 @@ A motor's STEP/DIR lines, end stops and pins come from the hardware backend (``m
 ``gpiod``); its driver chip, when the config names one, is opened here: each chip is
 identified, configured and verified before anything moves, and one :class:`DriverMonitor`
 thread polls their DRV_STATUS from then on. py-spidev is imported only when a driver is
-configured (through :func:`motorctl.hal.spi.spidev_factory`).
+configured (through :func:`motorctl.hal.backends.tmc.spi.spidev_factory`).
 
 Threads: :func:`attach_drivers` runs on the thread that opens the hardware; afterwards the
 drivers belong to the monitor thread (polls) and are read lock-free by the step path. The
@@ -18,10 +18,23 @@ import logging
 from collections.abc import Sequence
 from typing import Protocol
 
+from motorctl.hal.backends.tmc.driver import (
+    DriverMonitor,
+    RefSwitches,
+    Tmc5160,
+    TmcDriver,
+    TmcError,
+    TmcSpec,
+)
+from motorctl.hal.backends.tmc.spi import (
+    SpiAddress,
+    SpiBuses,
+    SpiDevice,
+    SpiFactory,
+    spidev_factory,
+)
 from motorctl.hal.interfaces import Clock, HalError, Hardware
 from motorctl.hal.spec import HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiFactory, spidev_factory
-from motorctl.hal.tmc import DriverMonitor, RefSwitches, Tmc5160, TmcDriver, TmcError, TmcSpec
 
 log = logging.getLogger("motorctl.tmc")
 
@@ -88,7 +101,7 @@ def attach_drivers(
 
 
 class Report(Protocol):
-    """What ``motorctld --probe`` collects (motorctl.hal.wiring.ProbeReport)."""
+    """What ``motorctld --probe`` collects (motorctl.hal.backends.gpiod.wiring.ProbeReport)."""
 
     problems: list[str]
 

@@ -14,7 +14,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.hal.tmc import CHIPS, TmcSettings, TmcSpec, current_setting, mres_of
+from motorctl.hal.backends.tmc.driver import CHIPS, TmcSettings, TmcSpec, current_setting, mres_of
 from motorctl.schema import (
     Extension,
     Rule,

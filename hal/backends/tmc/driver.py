@@ -16,7 +16,8 @@ Threads: a :class:`TmcDriver` is started by the thread that builds the hardware;
 calls :meth:`TmcDriver.status`, which returns the monitor's last result without any I/O
 (a reference read: never blocks). Ramp-generator calls of :class:`Tmc5160` come from the
 thread of the executor that owns the motor. All SPI traffic of one bus is serialised by its
-bus lock (:class:`motorctl.hal.spi.SpiBuses`); a pipelined read holds it for both datagrams.
+bus lock (:class:`~motorctl.hal.backends.tmc.spi.SpiBuses`); a pipelined read holds it for
+both datagrams.
 """
 
 from __future__ import annotations
@@ -28,8 +29,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Final
 
+from motorctl.hal.backends.tmc.spi import SpiDevice, SpiError
 from motorctl.hal.interfaces import DriverStatus, HalError, StepperDriver
-from motorctl.hal.spi import SpiDevice, SpiError
 
 log = logging.getLogger("motorctl.tmc")
 
