@@ -44,7 +44,8 @@ from motorctl.daemon.trace import TraceRecorder
 from motorctl.hal.backends.mock.backend import MockHardware
 from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
 from motorctl.hal.backends.tmc.config import SpidevConfig, TmcAxisConfig, driver_spec
-from motorctl.hal.backends.tmc.driver import Tmc5160, TmcDriver
+from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.backends.tmc.ramp import Tmc5160
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING, Any
 from motorctl.schema import Sectioned
 
 if TYPE_CHECKING:
-    from motorctl.hal.backends.tmc.driver import TmcSpec
+    from motorctl.hal.backends.tmc.settings import TmcSpec
 
 
 @dataclass(frozen=True)

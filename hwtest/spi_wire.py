@@ -23,8 +23,12 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.dont_write_bytecode = True
 
-from motorctl.hal.backends.tmc.driver import TMC2130, Reg, TmcDriver, TmcError, TmcLink, TmcSettings  # noqa: E402
+from motorctl.hal.backends.tmc.driver import TmcDriver  # noqa: E402
+from motorctl.hal.backends.tmc.fields import Reg  # noqa: E402
+from motorctl.hal.backends.tmc.link import TmcError, TmcLink  # noqa: E402
+from motorctl.hal.backends.tmc.settings import TmcSettings  # noqa: E402
 from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice, spidev_factory  # noqa: E402
+from motorctl.hal.backends.tmc.tmc2130 import TMC2130  # noqa: E402
 
 SCK, MOSI, MISO, CS = 0, 1, 2, 3
 TRACE = "/sys/kernel/tracing"

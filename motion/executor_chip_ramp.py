@@ -31,7 +31,9 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.hal.backends.tmc.driver import F, RampState, Reg, Tmc5160, signed32
+from motorctl.hal.backends.tmc.fields import signed32
+from motorctl.hal.backends.tmc.ramp import RampState, Tmc5160
+from motorctl.hal.backends.tmc.tmc5160 import F, Reg
 from motorctl.hal.interfaces import Clock, HalError
 from motorctl.motion.executor_seam import (
     Committed,

@@ -11,7 +11,8 @@ import pytest
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.main import build_executor, hardware_spec, motor_params
 from motorctl.hal.backends.mock.backend import EventKind, build, world_of
-from motorctl.hal.backends.tmc.driver import RefSwitches, Tmc5160, TmcSettings, TmcSpec
+from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
+from motorctl.hal.backends.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.registry import open_step_io

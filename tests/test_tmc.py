@@ -25,27 +25,20 @@ from motorctl.daemon.main import hardware_spec
 from motorctl.hal.backends.mock.backend import build, world_of
 from motorctl.hal.backends.tmc.backend import probe
 from motorctl.hal.backends.tmc.config import driver_spec
-from motorctl.hal.backends.tmc.driver import (
-    TMC2130,
-    TMC5160,
-    Chip,
-    DriverMonitor,
-    F,
-    RampState,
-    RampUnits,
-    RefSwitches,
-    Reg,
-    Tmc5160,
-    TmcDriver,
-    TmcError,
-    TmcLink,
+from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.backends.tmc.fields import Chip, mres_of
+from motorctl.hal.backends.tmc.link import TmcError, TmcLink
+from motorctl.hal.backends.tmc.monitor import DriverMonitor
+from motorctl.hal.backends.tmc.ramp import RampState, RefSwitches, Tmc5160
+from motorctl.hal.backends.tmc.settings import (
     TmcSettings,
     TmcSpec,
     current_setting,
-    mres_of,
     register_values,
 )
 from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
+from motorctl.hal.backends.tmc.tmc2130 import TMC2130
+from motorctl.hal.backends.tmc.tmc5160 import TMC5160, F, RampUnits, Reg
 from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec

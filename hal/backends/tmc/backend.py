@@ -18,14 +18,11 @@ import logging
 from collections.abc import Sequence
 from typing import Protocol
 
-from motorctl.hal.backends.tmc.driver import (
-    DriverMonitor,
-    RefSwitches,
-    Tmc5160,
-    TmcDriver,
-    TmcError,
-    TmcSpec,
-)
+from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.backends.tmc.link import TmcError
+from motorctl.hal.backends.tmc.monitor import DriverMonitor
+from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
+from motorctl.hal.backends.tmc.settings import TmcSpec
 from motorctl.hal.backends.tmc.spi import (
     SpiAddress,
     SpiBuses,
