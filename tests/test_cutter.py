@@ -16,9 +16,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.backend import build
+from motorctl.hal.backends.mock.backend import build, mock_axis
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
 from motorctl.motion.executor_thread import ThreadStepExecutor
@@ -31,7 +31,7 @@ from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
 from .test_executor import Core
 
 K = ExecEventKind
-FAR = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
+FAR = mock_axis(endstop_min=-10**9, endstop_max=10**9)
 ERR = 5000  # ticks (5 us)
 SPAN = 2_000_000  # ticks (2 ms)
 

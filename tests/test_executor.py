@@ -18,11 +18,12 @@ from motorctl.hal.backends.mock.backend import (
     EventKind,
     build,
     build_step_io,
+    mock_axis,
     read_timeline,
     world_of,
 )
 from motorctl.hal.interfaces import MonotonicClock, VirtualClock
-from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_process import ProcessStepExecutor
 from motorctl.motion.executor_seam import AxisLimits, ExecEvent, ExecEventKind, to_ticks
@@ -45,7 +46,7 @@ from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 
 K = ExecEventKind
-FAR = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
+FAR = mock_axis(endstop_min=-10**9, endstop_max=10**9)
 TIMEOUT = 30.0
 
 

@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.main import hardware_spec
 from motorctl.hal.backends.gpiod.backend import wiring_of
 from motorctl.hal.backends.gpiod.config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
 from motorctl.hal.backends.gpiod.wiring import LineRef

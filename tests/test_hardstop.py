@@ -20,10 +20,11 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import Daemon, build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link
-from motorctl.daemon.main import Daemon, build_executor, hardware_spec, motor_params, open_pty
+from motorctl.daemon.ports import open_pty
 from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
 from motorctl.hal.registry import open_hardware

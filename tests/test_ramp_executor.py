@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import pytest
 
+from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import parse_config
-from motorctl.daemon.main import build_executor, hardware_spec, motor_params
 from motorctl.hal.backends.mock.backend import EventKind, build, world_of
 from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
 from motorctl.hal.backends.tmc.settings import TmcSettings, TmcSpec

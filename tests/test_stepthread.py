@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import pytest
 
-from motorctl.hal.backends.mock.backend import EventKind, MockWorld, build, world_of
+from motorctl.hal.backends.mock.backend import EventKind, MockWorld, build, mock_axis, world_of
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
@@ -85,7 +85,7 @@ def live(request: pytest.FixtureRequest) -> Iterator[Live]:
     params: MotorParams = getattr(request, "param", MotorParams())
     clock = MonotonicClock()
     spec = HardwareSpec(
-        axes=(AxisSpec(endstop_min=-5000, endstop_max=5000),),
+        axes=(mock_axis(endstop_min=-5000, endstop_max=5000),),
         dc=True,
         options={"timeline_len": None},
     )

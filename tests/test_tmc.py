@@ -20,8 +20,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.main import hardware_spec
 from motorctl.hal.backends.mock.backend import build, world_of
 from motorctl.hal.backends.tmc.backend import probe
 from motorctl.hal.backends.tmc.config import driver_spec

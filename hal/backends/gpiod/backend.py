@@ -40,7 +40,6 @@ from motorctl.hal.backends.gpiod.wiring import (
     DcWiring,
     GpioWiring,
     MotorWiring,
-    ProbeReport,
     PwmWiring,
     ResolvedLine,
 )
@@ -55,6 +54,7 @@ from motorctl.hal.interfaces import (
     HalIOError,
     Hardware,
     Pin,
+    ProbeReport,
     StepIO,
     StepOutputs,
     StepperDriver,

@@ -29,7 +29,7 @@ from motorctl.hal.backends.tmc.tmc5160 import (
     RampUnits,
     Reg,
 )
-from motorctl.hal.interfaces import DriverStatus
+from motorctl.hal.interfaces import DriverStatus, RampDriver, RampStatus
 
 
 @dataclass(frozen=True)
@@ -56,8 +56,10 @@ class RefSwitches:
     right_active_low: bool = False
 
 
-class Tmc5160(TmcDriver):
-    """A TMC5160 whose own ramp generator moves the motor (SD_MODE low)."""
+class Tmc5160(TmcDriver, RampDriver):
+    """A TMC5160 whose own ramp generator moves the motor (SD_MODE low): the HAL's
+    :class:`~motorctl.hal.interfaces.RampDriver` capability. ``poll_s``/``idle_poll_s``:
+    how often its executor reads it (``[spidev] ramp_poll_ms``/``ramp_idle_poll_ms``)."""
 
     def __init__(
         self,
@@ -65,6 +67,9 @@ class Tmc5160(TmcDriver):
         device: SpiDevice,
         settings: TmcSettings,
         switches: RefSwitches | None = None,
+        *,
+        poll_s: float = 0.005,
+        idle_poll_s: float = 0.05,
     ) -> None:
         if settings.kind is not TMC5160:
             raise ValueError("the ramp generator needs a TMC5160")
@@ -73,6 +78,8 @@ class Tmc5160(TmcDriver):
         self.switches = switches or RefSwitches()
         self.sw_mode = self._sw_mode_base()
         self.sg_stopped = False  # the chip stopped itself on stallGuard (set by the executor)
+        self.poll_s = poll_s
+        self.idle_poll_s = idle_poll_s
 
     def _sw_mode_base(self) -> int:
         sw = F.POL_STOP_L.put(0, int(self.switches.left_active_low))
@@ -178,6 +185,32 @@ class Tmc5160(TmcDriver):
     def state(self) -> RampState:
         x, v, rs = self.link.read_many([Reg.XACTUAL, Reg.VACTUAL, Reg.RAMP_STAT])
         return RampState(signed32(x), Field(0, 24, signed=True).get(v), rs)
+
+    def ramp_status(self) -> RampStatus:
+        """:meth:`state` in the HAL's terms: REFL is the min side, REFR the max side."""
+        st = self.state()
+        v = st.vactual
+        return RampStatus(
+            position=st.xactual,
+            velocity=self.units.steps_s(abs(v)) * (1 if v >= 0 else -1),
+            active_min=st.flag(F.STATUS_STOP_L),
+            active_max=st.flag(F.STATUS_STOP_R),
+            stopped_min=st.flag(F.EVENT_STOP_L),
+            stopped_max=st.flag(F.EVENT_STOP_R),
+            latched_min=st.flag(F.STATUS_LATCH_L),
+            latched_max=st.flag(F.STATUS_LATCH_R),
+            stall_stopped=st.flag(F.EVENT_STOP_SG),
+        )
+
+    def latched_position(self) -> int:
+        """XLATCH: XACTUAL at the reference switch's active edge."""
+        return signed32(self.link.read(Reg.XLATCH))
+
+    def report_stall_stop(self) -> bool:
+        if self.sg_stopped:
+            return False
+        self.sg_stopped = True  # status() reports the stall: the engine's monitor acts on it
+        return True
 
     def position(self) -> int:
         return signed32(self.link.read(Reg.XACTUAL))

@@ -15,6 +15,7 @@ from motorctl.hal.backends.tmc import tmc2130, tmc5160
 from motorctl.hal.backends.tmc.fields import Chip, F, Reg, mres_of, tstep_for
 from motorctl.hal.backends.tmc.tmc2130 import TMC2130
 from motorctl.hal.backends.tmc.tmc5160 import TMC5160
+from motorctl.hal.spec import DriverSpec
 
 CHIPS: Final = {"tmc2130": TMC2130, "tmc5160": TMC5160}
 CHIP_BY_VERSION: Final = {c.version: c for c in CHIPS.values()}
@@ -138,8 +139,8 @@ def register_values(s: TmcSettings) -> dict[int, int]:
 
 
 @dataclass(frozen=True)
-class TmcSpec:
-    """What a backend needs to open one motor's driver: where, how fast, how configured."""
+class TmcSpec(DriverSpec):
+    """What the SPI layer needs to open one motor's driver: where, how fast, how configured."""
 
     spi: str  # "/dev/spidevB.C"
     settings: TmcSettings
@@ -148,3 +149,11 @@ class TmcSpec:
     ref_left_active_low: bool = False
     ref_right_active_low: bool = False
     disable_at_exit: bool = True
+
+    @property
+    def own_ramp(self) -> bool:
+        return self.ramp
+
+    @property
+    def microsteps(self) -> int | None:
+        return self.settings.microsteps
