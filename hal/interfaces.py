@@ -1,5 +1,8 @@
 """Small typed interfaces between motion logic and hardware.
 
+Over 500 lines on purpose: this is the whole contract between motion and a backend,
+read in one place; each interface is short.
+
 Each interface follows one pattern: the public method validates and records, the
 backend implements one small hook (``_write``, ``_read``, ...). Backends live in
 their own packages (``hal/backends/``); nothing here imports a hardware library.

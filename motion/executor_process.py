@@ -1,5 +1,9 @@
 """The ``process`` step executor: the step core in a process of its own.
 
+Over 500 lines on purpose: the shared memory's layout, its rings and both processes'
+sides of them are one contract (the memory ordering below holds only if writer and reader
+agree to the byte), read and changed in one place.
+
 The child (``python -c`` through :mod:`subprocess`, ``motion/executor_process_start.py``: a fresh
 interpreter with its own GIL, which imports this module and what the step core needs,
 nothing of the daemon; ``motorctld`` starts it before the daemon's own imports) receives its

@@ -31,6 +31,8 @@ changing anything here, and keep to them in what it calls:
   width (``StepOutputs.fall``). Nothing here sleeps, joins or waits for the planner.
 - Its cost is measured: ``bench/steps.py`` prints ``core_cost_us``, the CPU time per step
   on mock lines. A change here quotes it before and after and must not make it worse.
+- One module, a little over 500 lines with this fence, on purpose: the loop's state and
+  every path that touches it are read together.
 
 Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
 the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and

@@ -2,6 +2,10 @@
 pins on Linux GPIO character devices, through libgpiod's Python binding (v1 or v2, see
 :mod:`motorctl.hal.backends.gpiod.chip`). Consumer name ``motorctl`` (``[gpiod] consumer``).
 
+Over 500 lines on purpose: the backend's two entry points and every part they build
+(pins, step outputs, edge inputs, the PWM bridge, the probe) share the line resolution and
+its checks; the chip API (``chip.py``) and the wiring (``wiring.py``) are already apart.
+
 Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge,
 and whatever lines are named for a motor whose TMC5160 runs its own ramp: held, never
 stepped) and :func:`build_step_io` the step executor's (STEP/DIR/ENABLE of the stepped

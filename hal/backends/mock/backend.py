@@ -1,8 +1,13 @@
 """Simulated hardware: a world of axes with end stops, wired pins, a DC bridge.
 
+Over 500 lines on purpose: one simulated machine whose parts (axes, step outputs, edge
+inputs, pins, bridge) share its cells and timeline, as the real parts share one board.
+
 Every mock part subclasses the real interface and records each change with its
 timestamp in a shared timeline (gpiozero's MockFactory does the same). Tests can
-inject end-stop levels, driver faults and stalls.
+inject end-stop levels, driver faults and stalls. The simulated end stops and the wires
+come from the mock's own config sections in the spec (``[motors.mock]``, ``[mock]``:
+``config.py``); :func:`mock_axis` builds an axis with them by hand.
 """
 
 from __future__ import annotations
