@@ -58,11 +58,6 @@ def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory,
     return TmcDriver(name, device, spec.settings)
 
 
-def uses_drivers(spec: HardwareSpec) -> bool:
-    """Whether the config gives any motor a driver chip of this layer."""
-    return any(isinstance(a.driver, TmcSpec) for a in spec.axes)
-
-
 def attach(
     hw: Hardware, spec: HardwareSpec, clock: Clock, factory: SpiFactory | None = None
 ) -> list[TmcDriver]:
