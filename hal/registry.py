@@ -90,20 +90,25 @@ BACKENDS: dict[str, Backend] = {
     ),
 }
 
-def _has_drivers(spec: HardwareSpec) -> bool:
-    return any(a.driver is not None for a in spec.axes)
-
 
 @dataclass(frozen=True)
 class Layer:
     """A part of the machine that works with any backend, attached to what the backend
-    built: its driver chips (the SPI layer's TMC2130/TMC5160)."""
+    built (the SPI layer: driver chips).
 
-    module: str  # attach(hw, spec, clock) and probe(spec, clock, report): imported only
-    # when ``applies`` (may import its hardware library)
-    config: str  # declares its config sections (imports no hardware library); may define
-    # driver_spec(motor) -> DriverSpec | None, a motor's driver chip from its sections
+    ``module`` has ``attach(hw, spec, clock)`` and ``probe(spec, clock, report)``; it is
+    imported only when ``applies(spec)`` (and may import its hardware library). ``config``
+    declares the layer's config sections (no hardware library) and may define
+    ``driver_spec(motor) -> DriverSpec | None``: a motor's driver chip from its sections.
+    """
+
+    module: str
+    config: str
     applies: Callable[[HardwareSpec], bool]
+
+
+def _has_drivers(spec: HardwareSpec) -> bool:
+    return any(a.driver is not None for a in spec.axes)
 
 
 #: "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C
