@@ -1,5 +1,9 @@
 """The robustness harness: motorctld as a subprocess on a PTY, driven by an independent host.
 
+Over 500 lines on purpose: one harness, run as ``python -m bench.robustness``, whose
+host side is deliberately written from PROTOCOL.md alone (below), so it shares nothing with
+the package and keeps its own helpers beside its parts.
+
     python -m bench.robustness                 # everything: frames, kill -9, soak (~20 min)
     python -m bench.robustness --quick         # a short run of each part (~2 min)
     python -m bench.robustness --parts frames --frames 1000000 --json out.json

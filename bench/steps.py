@@ -235,16 +235,16 @@ def stall(work: Path, prio: int, cpu: int, kind: str) -> dict[str, Any]:
 
 def core_cost_us(steps: int = 30_000) -> float:
     """CPU time per step of the step core on mock lines (3 motors), in this process."""
+    from motorctl.hal.backends.mock.backend import build, build_step_io, mock_axis
     from motorctl.hal.interfaces import VirtualClock
-    from motorctl.hal.mock import build, build_step_io
-    from motorctl.hal.spec import AxisSpec, HardwareSpec
-    from motorctl.motion.executor import AxisLimits
+    from motorctl.hal.spec import HardwareSpec
+    from motorctl.motion.executor_seam import AxisLimits
     from motorctl.motion.latency import LatencyStats
     from motorctl.motion.segments import StepSegment
-    from motorctl.motion.stepcore import COUNTER_NAMES, CoreInbox, StepCore
+    from motorctl.motion.step_core import COUNTER_NAMES, CoreInbox, StepCore
 
     clock = VirtualClock()
-    far = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
+    far = mock_axis(endstop_min=-10**9, endstop_max=10**9)
     spec = HardwareSpec(axes=(far,) * 3, options={"timeline_len": 1000})
     hw = build(spec, clock)
     inbox = CoreInbox(3)

@@ -1,6 +1,9 @@
 """``motorctl replay FILE --port P``: play a recording's host side against a device and
 compare every answer with the recorded one (docs/trace.md, "Replay").
 
+Over 500 lines on purpose: one command, whose player and comparison rules (below) are
+read together; the rules are most of it, and each is a short function.
+
 What is sent: the recorded host -> device byte runs, byte for byte and cut as recorded (so
 the device frames them as the original did). When: each run waits for what it waited for in
 the recording (the answers the host had received before it, and the run before it), then

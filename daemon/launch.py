@@ -1,9 +1,9 @@
 """The ``motorctld`` command: the step executor's interpreter starts first, then the daemon.
 
 The executor's process is the longest part of motorctld's start-up: a second Python
-interpreter, then the step core's modules (``motion/procstart.py``). Started here, before
-the daemon imports its own modules, the two interpreters start side by side and READY
-comes sooner (bench/startup.py, docs/service.md). It is started only for a command line
+interpreter, then the step core's modules (``motion/executor_process_start.py``). Started
+here, before the daemon imports its own modules, the two interpreters start side by side
+and READY comes sooner (bench/startup.py, docs/service.md). It is started only for a command line
 that serves (``--pty`` or ``--port``, none of the commands that print and exit) and when a
 second CPU can run it; the daemon takes it over once it has read its config, or ends it at
 once when the config has no use for it (the thread executor, no stepped motor) or the start
@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from motorctl.motion.procstart import ExecutorProcess
+from motorctl.motion.executor_process_start import ExecutorProcess
 
 #: Options after which motorctld prints something and exits instead of serving.
 ONE_SHOT = frozenset({"--check-config", "--print-default-config", "--probe", "--status",

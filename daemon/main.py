@@ -1,4 +1,15 @@
-"""motorctld: serve the motor-controller protocol on a PTY or a UART."""
+"""motorctld: serve the motor-controller protocol on a PTY or a UART.
+
+The command line only: its options (:func:`parse_args`), the commands that print and exit
+(``--check-config``, ``--print-default-config``, ``--probe``, ``--status``), and serving:
+lock the state directory and port, assemble the daemon (daemon/assemble.py), open the port
+(daemon/ports.py), serve until a stop signal (daemon/signals.py) or the executor's death,
+then shut down (motors ramp down, state written) and say why it stopped in the exit status.
+
+Threads: the main thread runs all of it, and the link loop (``Link.serve``) while serving;
+it starts ``motorctl-exec-death`` (:func:`stop_when_executor_dies`), which only waits and
+stops the link.
+"""
 
 from __future__ import annotations
 
@@ -7,29 +18,33 @@ import contextlib
 import gc
 import logging
 import os
-import signal
 import sys
-import termios
 import threading
 import time
-import tty
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field, replace
 from functools import partial
 from pathlib import Path
-from types import FrameType
-from typing import Any
 
 from motorctl import __version__
 from motorctl.daemon import platform_check
-from motorctl.daemon.config import Config, ConfigError, MotorConfig, load_config
-from motorctl.daemon.dispatcher import Dispatcher
+from motorctl.daemon.assemble import (
+    Daemon,
+    StartupError,
+    hardware_spec,
+    known_microsteps,
+    make_state_dir,
+    open_trace,
+    progress_watch,
+    silence_watch,
+    state_files_dir,
+)
+from motorctl.daemon.config import Config, ConfigError, load_config
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.serialport import DeviceError, SerialDevice
+from motorctl.daemon.ports import open_pty, open_uart
+from motorctl.daemon.serialport import SerialDevice
 from motorctl.daemon.service import (
     MotorEventLog,
-    ProgressWatch,
     StatusLine,
     Watchdog,
     notify_backend,
@@ -37,418 +52,25 @@ from motorctl.daemon.service import (
     setup_logging,
     watchdog_interval,
 )
-from motorctl.daemon.silence import SilenceWatch
-from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
+from motorctl.daemon.signals import StopSignals
 from motorctl.daemon.status import StatusServer, read_status, summary_line
-from motorctl.daemon.trace import TraceRecorder
-from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin
-from motorctl.hal.mock import MockHardware
-from motorctl.hal.mock_config import MockAxisConfig, MockConfig
-from motorctl.hal.registry import open_hardware, probe_hardware
-from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motorctl.hal.tmc import Tmc5160, TmcDriver
-from motorctl.hal.tmc_config import SpidevConfig, TmcAxisConfig, driver_spec
-from motorctl.motion.dc import DcMotor
+from motorctl.hal.interfaces import MonotonicClock
+from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import Executor
+from motorctl.motion.executor_process_start import ExecutorProcess
 from motorctl.motion.motor import Motor
-from motorctl.motion.procexec import ProcessStepExecutor
-from motorctl.motion.procstart import ExecutorProcess
-from motorctl.motion.profile import Trajectory
-from motorctl.motion.ramp_executor import RampExecutor, with_ramp_motors
-from motorctl.motion.rt import GcPolicy, RealtimeOptions
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
-from motorctl.motion.types import HomingParams, MotorParams
-from motorctl.protocol.capture import CaptureInfo
-from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")
 
 SHUTDOWN_LIMIT_S = 10.0
+
 #: exit code when the step executor died; answers go on this long before that
 EXIT_EXECUTOR_DIED = 3
 EXECUTOR_DEATH_GRACE_S = 2.0
+
 #: exit code when the final state could not be written at shutdown (e.g. a read-only or full
 #: state directory): the state file keeps what was last written
 EXIT_STATE_NOT_SAVED = 4
-#: the planner's step-time error bound (segments' reproduction of exact step times)
-STEP_ERROR_S = 5e-6
-
-
-class StartupError(Exception):
-    """Something the user must fix before the daemon can start; the message says what."""
-
-
-def hardware_spec(config: Config) -> HardwareSpec:
-    """What the backend builds; every backend's config sections travel along (`sections`)."""
-    st = config.step_thread
-    axes = tuple(
-        AxisSpec(
-            invert_dir=m.invert_dir,
-            endstop_active_low=m.endstop.active_low,
-            endstop_min=m.section(MockAxisConfig).endstop_min,
-            endstop_max=m.section(MockAxisConfig).endstop_max,
-            endstop_debounce_s=m.endstop.debounce_ms / 1000.0,
-            name=m.name,
-            driver=driver_spec(m),
-            dir_setup_s=st.dir_setup_us / 1e6,
-            sections=m.sections,
-        )
-        for m in config.motors
-    )
-    pins = tuple(
-        PinSpec(p.number, p.is_output, p.initial, sections=p.sections) for p in config.pins
-    )
-    wires = config.section(MockConfig).wires
-    return HardwareSpec(
-        axes, pins, dc=config.dc is not None, wires=wires, sections=config.sections
-    )
-
-
-def motor_params(config: Config) -> list[MotorParams]:
-    st = config.step_thread
-    return [
-        MotorParams(
-            name=m.name,
-            steps_per_rev=m.steps_per_rev,
-            queue_depth=m.queue_depth,
-            max_waypoints=m.max_waypoints,
-            soft_min=m.soft_limit_min,
-            soft_max=m.soft_limit_max,
-            homing=HomingParams(
-                source=m.homing.source,
-                max_travel=m.homing.max_travel,
-                pull_off=m.homing.pull_off,
-                second_speed=m.homing.second_speed,
-            ),
-            debounce_s=m.endstop.debounce_ms / 1000.0,
-            dir_setup_s=st.dir_setup_us / 1e6,
-            pulse_s=st.step_pulse_us / 1e6,
-            max_speed=m.max_speed,
-            start_speed=m.start_speed,
-            microsteps=motor_microsteps(m),
-            max_lag_full_steps=m.max_lag_full_steps,
-            host_position=wrap24,
-        )
-        for m in config.motors
-    ]
-
-
-def motor_microsteps(m: MotorConfig) -> int:
-    """Microsteps per full step: its own key, else its [motors.tmc] table's, else 16."""
-    if m.microsteps is not None:
-        return m.microsteps
-    tmc = m.section(TmcAxisConfig)
-    return tmc.microsteps if isinstance(tmc, TmcAxisConfig) else 16
-
-
-def motor_geometry(config: Config, m: MotorConfig) -> dict[str, object]:
-    """What gives a motor's saved positions their meaning: a change restores nothing."""
-    tmc = m.section(TmcAxisConfig)
-    return {"steps_per_rev": m.steps_per_rev, "invert_dir": m.invert_dir,
-            "backend": config.hal.backend,
-            "microsteps": tmc.microsteps if isinstance(tmc, TmcAxisConfig) else None}
-
-
-def motor_identities(config: Config) -> list[MotorIdentity]:
-    """Names and geometry fingerprints: a saved motor is restored only onto its own match."""
-    return [
-        MotorIdentity(
-            name=m.name,
-            fingerprint=geometry_fingerprint(motor_geometry(config, m)),
-            max_waypoints=m.max_waypoints,
-            steps_per_rev=m.steps_per_rev,
-        )
-        for m in config.motors
-    ]
-
-
-def mock_extra(hw: Hardware) -> tuple[Callable[[], dict[str, Any]],
-                                      Callable[[dict[str, Any]], None]] | None:
-    """The mock world's axis positions live and die with the state file."""
-    world = hw.world if isinstance(hw, MockHardware) else None
-    if world is None:
-        return None
-
-    def get() -> dict[str, Any]:
-        return {"mock": world.snapshot()}
-
-    def put(extra: dict[str, Any]) -> None:
-        mock = extra.get("mock")
-        if isinstance(mock, dict):
-            world.restore(mock)
-
-    return get, put
-
-
-@dataclass
-class Daemon:
-    """Everything behind the serial port, wired together (no serial port yet)."""
-
-    config: Config
-    state_dir: Path
-    clock: Clock
-    hw: Hardware
-    engine: MotionEngine
-    dispatcher: Dispatcher
-    persistence: Persistence
-    gc_policy: GcPolicy = field(default_factory=GcPolicy)
-    link: Link | None = None
-    trace: TraceRecorder | None = None
-    started: float = field(default_factory=time.monotonic)
-
-    @classmethod
-    def build(cls, config: Config, state_dir: Path, clock: Clock | None = None,
-              executor_process: ExecutorProcess | None = None) -> Daemon:
-        """Everything behind the serial port; ``executor_process``: see :func:`main`."""
-        clock = clock or MonotonicClock()
-        make_state_dir(state_dir)
-        spec = hardware_spec(config)
-        if config.step_thread.executor == "process" and not clock.is_virtual:
-            spec = replace(spec, options={**spec.options, "executor_process": True})
-        params = motor_params(config)
-        try:
-            hw = open_hardware(config.hal.backend, spec, clock)
-        except HalError as exc:
-            raise StartupError(str(exc)) from exc
-        executor: Executor | None = None
-        try:  # what is open is closed again when a later part fails (lines, the executor)
-            try:
-                executor = build_executor(config, hw, spec, params, executor_process)
-            except HalError as exc:
-                raise StartupError(str(exc)) from exc
-            engine = MotionEngine(
-                hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
-                stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
-            )
-            files_dir = state_files_dir(config, state_dir)
-            make_state_dir(files_dir)
-            persistence = Persistence(files_dir, motor_identities(config), engine,
-                                      mock_extra(hw))
-            dispatcher = Dispatcher(config, engine, hw.pins, persist=persistence)
-            daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
-            persistence.restore()
-            persistence.open()
-        except BaseException:
-            if executor is not None:
-                with contextlib.suppress(Exception):
-                    executor.close()
-            with contextlib.suppress(Exception):
-                hw.close()
-            raise
-        engine.listeners.append(daemon._on_motor_event)
-        return daemon
-
-    @property
-    def writer(self) -> StateWriter:
-        return self.persistence.writer
-
-    def _on_motor_event(self, motor: Motor, event: str) -> None:
-        # Runs with the engine lock held, often on the step thread: no I/O here.
-        self.writer.request()
-        if event == "start":
-            self.gc_policy.motion(True)
-        elif not self.engine.any_active:
-            self.gc_policy.motion(False)
-        if self.link is not None:
-            self.link.wake()
-
-    # -- status --------------------------------------------------------------------
-    def status(self, histogram: bool = False) -> dict[str, Any]:
-        """A snapshot for the status socket, taken WITHOUT the motion lock: each field is
-        read whole (the executor's counters and histogram are its own snapshots), so a
-        status read never delays planning, let alone a step. Its cost is bounded (the
-        lateness percentiles come from the histogram's blocks), except ``histogram``: the
-        step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
-        up to 20,001), for the benchmarks that ask for it."""
-        executor = self.engine.executor
-        motors: list[dict[str, Any]] = [
-            {"index": m.index, "name": m.params.name, "state": m.state.value,
-             "position": m.position, "queued": len(m.queue), "fault": m.fault,
-             "position_lost": m.position_lost, "waypoints": len(m.waypoints),
-             "faults": dict(m.faults),
-             "timing": {**executor.motor_timing(m.index),
-                        "microsteps": m.params.microsteps,
-                        "max_lag_full_steps": m.params.max_lag_full_steps},
-             "soft_stops": {"count": m.soft_stops,
-                            "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
-                            "takeover_steps": list(m.takeover_steps)}}
-            for m in list(self.engine.motors)
-        ]
-        now = self.engine.clock.now()
-        for doc, m in zip(motors, self.engine.motors, strict=True):
-            doc["speed"] = motor_speed(m.traj, executor.motor_time(m.index, now))
-        health = executor.health()
-        steps = dict(health.latency)
-        steps.update(health.counters)
-        stats = executor.step_lateness()
-        if histogram and stats is not None:  # the step executor's, with or without ramps
-            steps["histogram_us"] = stats.histogram()
-        out: dict[str, Any] = {"motors": motors, "steps": steps,
-                               "executor": {"alive": health.alive, "reason": health.reason,
-                                            "kind": step_executor_kind(self.config,
-                                                                       executor),
-                                            "pid": getattr(executor, "pid", None)},
-                               "clamped": dict(self.dispatcher.clamped),
-                               "hard_stops": self.engine.stop_wait_status(),
-                               "state": self.persistence.status(),
-                               "pins": pin_status(self.hw.pins),
-                               "dc": dc_status(self.engine.dc, now)}
-        mono = time.monotonic()
-        out.update(monotonic_s=mono, uptime_s=round(mono - self.started, 3),
-                   unix_s=round(time.time(), 3))
-        if self.link is not None:
-            out["link"] = self.link.status()
-        if self.trace is not None:
-            out["trace"] = self.trace.status()
-        drivers = [s.driver.stats() for s in self.hw.steppers if isinstance(s.driver, TmcDriver)]
-        if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
-            out["drivers"] = drivers
-        return out
-
-
-def motor_speed(traj: Trajectory | None, now: float) -> float:
-    """The planned speed at ``now`` in step/s, signed (0 without a trajectory)."""
-    return 0.0 if traj is None else round(traj.velocity(now), 1)
-
-
-def pin_status(pins: dict[int, Pin]) -> list[dict[str, Any]]:
-    """Each IO pin: number, output or not, level (an input is read now; None if that
-    failed, ``error`` says why)."""
-    out: list[dict[str, Any]] = []
-    for number, pin in sorted(pins.items()):
-        entry: dict[str, Any] = {"number": number, "output": pin.is_output}
-        try:
-            entry["level"] = pin.read()
-        except (HalError, OSError) as exc:
-            entry.update(level=None, error=str(exc))
-        out.append(entry)
-    return out
-
-
-def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
-    """The DC motor's bridge state and the time left of its run; None: no DC motor."""
-    if dc is None:
-        return None
-    deadline = dc.deadline
-    return {"state": dc.bridge.state.value, "running": deadline is not None,
-            "left_s": None if deadline is None else round(max(0.0, deadline - now), 3)}
-
-
-def state_files_dir(config: Config, state_dir: Path) -> Path:
-    """Where state.json lives: [state] directory, else the --state-dir (docs/service.md)."""
-    return Path(config.state.directory) if config.state.directory else state_dir
-
-
-def make_state_dir(state_dir: Path) -> None:
-    try:
-        state_dir.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:
-        raise StartupError(
-            f"cannot create state directory {state_dir}: {exc.strerror}; "
-            "pass --state-dir with a writable directory"
-        ) from exc
-    if not os.access(state_dir, os.W_OK):
-        raise StartupError(f"state directory {state_dir} is not writable; pass --state-dir")
-
-
-class StopSignals:
-    """SIGTERM, SIGINT and SIGHUP all stop the daemon cleanly (docs/service.md says why).
-
-    Installed first thing (main thread), so a signal during start-up is not lost: it is
-    remembered and the daemon stops as soon as it could serve.
-
-    Python runs a signal's handler in the main thread between bytecodes only: a signal that
-    arrives just before the link loop's ``poll()`` (or is taken by another thread) would
-    wait for the next byte from the host, for ever on an idle, open port. :meth:`attach`
-    therefore also makes the link's wake-up pipe the signal wake-up descriptor
-    (``signal.set_wakeup_fd``): the signal itself ends that ``poll()``. :meth:`detach`
-    undoes it before the pipe is closed; later signals are only logged.
-    """
-
-    SIGNALS = (signal.SIGTERM, signal.SIGINT, signal.SIGHUP)
-
-    def __init__(self) -> None:
-        self.requested: str | None = None
-        self._stop: Callable[[], None] | None = None
-        self._wakeup: int | None = None  # the descriptor it replaced, while attached
-        self._previous = {sig: signal.signal(sig, self._on_signal) for sig in self.SIGNALS}
-
-    def attach(self, stop: Callable[[], None], wakeup_fd: int | None = None) -> None:
-        """Call ``stop`` on a signal (at once if one came already); ``wakeup_fd``: a
-        non-blocking descriptor the signal itself writes a byte to (main thread only)."""
-        self._stop = stop
-        if wakeup_fd is not None:
-            old = signal.set_wakeup_fd(wakeup_fd, warn_on_full_buffer=False)
-            if self._wakeup is None:
-                self._wakeup = old
-        if self.requested is not None:
-            stop()
-
-    def detach(self) -> None:
-        """Before the wake-up descriptor is closed: signals from now on are only logged."""
-        self._stop = None
-        if self._wakeup is not None:
-            signal.set_wakeup_fd(self._wakeup)
-            self._wakeup = None
-
-    def restore(self) -> None:
-        """Detach and give the signals back the handlers they had (tests in one process)."""
-        self.detach()
-        for sig, handler in self._previous.items():
-            signal.signal(sig, handler)
-
-    def _on_signal(self, signum: int, frame: FrameType | None) -> None:
-        name = signal.Signals(signum).name
-        again = self.requested is not None
-        self.requested = name
-        how = " (the terminal closed, or someone asked): stopping as for SIGTERM" \
-            if signum == signal.SIGHUP else ": stopping"
-        if again:
-            how = ": already stopping"
-        log.info("%s%s", name, how, extra={"SIGNAL": name})
-        if self._stop is not None:
-            self._stop()
-
-
-def open_pty(path: Path) -> tuple[int, str]:
-    """A new PTY in raw mode; ``path`` becomes a symlink to its slave. Returns the master fd
-    and the slave's name.
-
-    The daemon does not keep the slave open: the master then sees the host close the port
-    (POLLHUP, EIO) and drops what was meant for it, as a UART's bytes to a closed port are
-    lost, instead of leaving stale responses for the next host. The raw mode stays set while
-    the master is open.
-
-    The slave is mode 0660 with the daemon's group (the ``motorctl`` group under systemd):
-    only that group's members may drive the motors."""
-    if (path.exists() or path.is_symlink()) and not path.is_symlink():
-        raise StartupError(f"{path} exists and is not a symlink; remove it or choose "
-                           "another --pty path")
-    master, slave = os.openpty()
-    tty.setraw(slave, termios.TCSANOW)
-    name = os.ttyname(slave)
-    os.chown(name, -1, os.getegid())
-    os.chmod(name, 0o660)
-    os.close(slave)
-    os.set_blocking(master, False)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}")
-    try:
-        os.symlink(name, tmp)
-        os.replace(tmp, path)
-    except OSError as exc:
-        raise StartupError(f"cannot create symlink {path}: {exc.strerror}") from exc
-    return master, name
-
-
-def open_uart(device: str, baud: int) -> tuple[SerialDevice, int]:
-    """The UART (or any serial device) at ``device``, opened by that path so that it can be
-    opened again by it when it goes away and comes back (daemon.serialport)."""
-    uart = SerialDevice(device, baud)
-    try:
-        return uart, uart.open()
-    except DeviceError as exc:
-        raise StartupError(str(exc)) from exc
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -608,19 +230,17 @@ def probe(config_path: str | None, latency_s: float = 3.0,
     except ConfigError as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
-    report = probe_hardware(config.hal.backend, hardware_spec(config), MonotonicClock())
+    spec = hardware_spec(config)
+    report = probe_hardware(config.hal.backend, spec, MonotonicClock())
     print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
     sys.stdout.write(report.text())
     sys.stdout.flush()
     st = config.step_thread
     timing = platform_check.TimingConfig(cpu=st.cpu, priority=st.priority, spin_us=st.spin_us,
                                          executor=st.executor)
-    loses = config.hal.backend != "mock" or config.section(MockConfig).lose_steps
-    motors = [platform_check.MotorRate(
-        m.name, m.max_speed,
-        motor_microsteps(m) if m.microsteps is not None or isinstance(
-            m.section(TmcAxisConfig), TmcAxisConfig) else None,
-        m.start_speed, m.max_lag_full_steps, loses) for m in config.motors]
+    loses = motors_lose_steps(config.hal.backend, spec)
+    motors = [platform_check.MotorRate(m.name, m.max_speed, known_microsteps(m), m.start_speed,
+                                       m.max_lag_full_steps, loses) for m in config.motors]
     found = platform_check.read_platform(roots or platform_check.Roots())
     if latency_s > 0:
         print(f"measuring timer wake-ups for {latency_s:g} s ...", flush=True)
@@ -630,57 +250,6 @@ def probe(config_path: str | None, latency_s: float = 3.0,
         latency, skipped = None, "not measured (--latency-seconds 0)"
     sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
     return 1 if report.problems else 0
-
-
-def step_executor_kind(config: Config, executor: Executor) -> str:
-    """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
-    TMC5160's own ramp (no step executor at all)."""
-    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
-
-
-def build_executor(
-    config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams],
-    process: ExecutorProcess | None = None,
-) -> Executor:
-    """The step executor the config asks for (only it runs real-time and locks memory), for
-    the motors ``spec.stepped()`` names; the motors whose TMC5160 runs its own ramp
-    (``[motors.tmc] mode = "ramp"``) go to a RampExecutor instead and are not the step
-    executor's at all (no STEP/DIR, no slot). Without stepped motors there is no step
-    executor (nothing to run in real time). ``process``: an executor process started early
-    (daemon/launch.py), the process executor's; ended here when the config has no use
-    for it."""
-    st = config.step_thread
-    stepped = spec.stepped()
-    drivers = [s.driver for s in hw.steppers]
-    ramp = [i for i, d in enumerate(drivers) if isinstance(d, Tmc5160)]
-    if set(ramp) | set(stepped) != set(range(len(drivers))) or set(ramp) & set(stepped):
-        raise StartupError(f"ramp motors {ramp} and stepped motors {list(stepped)} disagree")
-    limits = axis_limits([params[i] for i in stepped], STEP_ERROR_S,
-                         slide_after_s=st.late_threshold_us / 1e6,
-                         lag_faults=hw.motors_lose_steps)
-    rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
-    steps: Executor | None = None
-    if not stepped:
-        pass
-    elif hw.clock.is_virtual:  # tests drive a virtual clock themselves: the thread kind's job
-        steps = ThreadStepExecutor(hw, config.hal.backend, spec, limits, max_error_s=0.0)
-    elif st.executor == "process":
-        steps = ProcessStepExecutor(
-            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
-            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
-            late_threshold_s=st.late_threshold_us / 1e6, rt=rt, process=process,
-        )
-    else:
-        steps = ThreadStepExecutor(
-            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
-            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
-            late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
-        )
-    if process is not None:
-        process.dismiss()  # no process executor after all (a no-op when it took it)
-    spi = config.section(SpidevConfig)
-    return with_ramp_motors(steps, drivers, hw.clock, spi.ramp_poll_ms / 1000,
-                            spi.ramp_idle_poll_ms / 1000)
 
 
 def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = None) -> int:
@@ -808,44 +377,6 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     return 0
 
 
-def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> SilenceWatch:
-    """``[link] timeout_ms`` and ``timeout_action``: the host's silence stops the motors
-    (its silence counted from ``now``, on the link's clock)."""
-    c = config.link
-    hard = c.timeout_action == "hard"
-    reason = f"link timeout: no byte from the host for {c.timeout_ms:g} ms"
-
-    def act(now: float) -> list[str]:
-        return dispatcher.link_silent(hard=hard, reason=reason)
-
-    if c.timeout_ms > 0:
-        log.info("[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
-                 c.timeout_ms, c.timeout_action)
-    return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
-
-
-def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder | None:
-    """The link's trace recorder, when ``--trace`` or ``[trace] file`` asks for one."""
-    t = config.trace
-    path = option.absolute() if option is not None else Path(t.file) if t.file else None
-    if path is None:
-        return None
-    c = config.link
-    info = CaptureInfo(role="daemon", checksum=c.checksum, crc_covers_ack=c.crc_covers_ack,
-                       strict_padding=c.strict_padding, frame_gap_ms=c.frame_gap_ms,
-                       port=where, application=f"motorctld {__version__}")
-    recorder = TraceRecorder(path, info, max(4096, int(t.max_file_mb * (1 << 20))), t.files,
-                             time.monotonic())
-    try:
-        recorder.open()
-    except OSError as exc:
-        raise StartupError(f"cannot write the trace file {path}: {exc.strerror or exc}; "
-                           "give --trace (or [trace] file) a writable path") from exc
-    log.info("tracing the link to %s (%d files of %.3g MiB at most)", path, t.files,
-             t.max_file_mb)
-    return recorder
-
-
 def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> None:
     """After the executor died (every motor already faulted, E4), keep answering for
     ``EXECUTOR_DEATH_GRACE_S`` so the host and ``--status`` see why, then stop the daemon
@@ -857,28 +388,6 @@ def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> N
               EXECUTOR_DEATH_GRACE_S)
     pause.wait(EXECUTOR_DEATH_GRACE_S)
     stop()
-
-
-def progress_watch(daemon: Daemon, link: Link) -> ProgressWatch:
-    """WATCHDOG=1 only while the link loop, the planner, the step executor and the state
-    writer each made progress since the watchdog's previous look."""
-    engine, writer = daemon.engine, daemon.writer
-
-    def executor() -> int | None:
-        h = engine.executor.health()
-        return h.progress if h.alive else None
-
-    def planner() -> int | None:
-        return engine.planner_progress if engine.threads_alive else None
-
-    def state_writer() -> int | None:
-        return writer.writes if writer.pending else ProgressWatch.IDLE
-
-    return ProgressWatch(
-        {"link loop": lambda: link.turns, "planner": planner, "step executor": executor,
-         "state writer": state_writer},
-        pokes=(link.poke,),
-    )
 
 
 def shutdown(daemon: Daemon) -> bool:

@@ -1,5 +1,9 @@
 """Persistence: home positions, waypoints and positions of motors at rest.
 
+Over 500 lines on purpose: the state file's reader, its writers (the motion journal,
+atomic writes, the writer thread) and :class:`Persistence` share one format and the trust
+rules this docstring states once; they change together.
+
 Where: ``state.json`` and the motion journal ``state.moving`` live in one directory, by
 default the runtime directory /run/motorctl (a tmpfs: state survives a daemon restart and
 is gone after a reboot, like a microcontroller's RAM); ``[state] directory`` in the config

@@ -2,6 +2,10 @@
 or subscribe and receive one JSON document per line for as long as you stay; and the summary
 line.
 
+Over 500 lines on purpose: the socket's server and its two clients (:func:`read_status`,
+:func:`subscribe`) are one protocol (request words, one JSON document per line), kept in one
+place so that they cannot drift apart; each part is small.
+
 The request is one line of words, ``\n``-terminated: empty for the status, ``histogram`` for
 the status with the full step-lateness histogram (``steps.histogram_us``, up to 20,001 bins:
 built and encoded only when asked), ``subscribe [PERIOD_MS]`` for a stream of updates
@@ -18,10 +22,9 @@ or to read holds up nobody (it is dropped after ``SEND_TIMEOUT_S``); at most
 ``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot. A subscriber that
 has not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being
 sent, newer ones are not queued behind it (it gets the state of its next turn). An
-``accept()`` error other
-than the socket being closed is logged and retried after a pause, never the end of the
-server. ``status()`` is called on that thread and takes no lock of the motion engine: a
-read of its own snapshots, bounded in cost (docs/service.md).
+``accept()`` error other than the socket being closed is logged and retried after a pause,
+never the end of the server. ``status()`` is called on that thread and takes no lock of the
+motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
 """
 
 from __future__ import annotations

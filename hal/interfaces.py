@@ -1,8 +1,19 @@
 """Small typed interfaces between motion logic and hardware.
 
+Over 500 lines on purpose: this is the whole contract between motion and a backend,
+read in one place; each interface is short.
+
 Each interface follows one pattern: the public method validates and records, the
 backend implements one small hook (``_write``, ``_read``, ...). Backends live in
-their own modules; nothing here imports a hardware library.
+their own packages (``hal/backends/``); nothing here imports a hardware library.
+
+What only some hardware can do is asked for, never found out from a backend's class:
+
+- a capability is an interface of its own that a backend's class also implements
+  (:class:`RampDriver`: a driver chip that runs its own ramp); callers ask with
+  ``isinstance(driver, RampDriver)``;
+- what every part has, but only some have something of, is a method with a neutral default
+  here (:meth:`StepperDriver.stats`, :meth:`Hardware.persistent_state`).
 """
 
 from __future__ import annotations
@@ -12,6 +23,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from typing import Any
 
 
 class HalError(RuntimeError):
@@ -323,6 +335,98 @@ class StepperDriver(ABC):
     @abstractmethod
     def status(self) -> DriverStatus: ...
 
+    def stats(self) -> dict[str, object] | None:
+        """The driver's figures for the status document's ``drivers`` list (docs/status.md:
+        polls, SPI status flags, fault and warning counts), read without I/O from any
+        thread; None (the default): a driver with nothing to report."""
+        return None
+
+
+@dataclass(frozen=True)
+class RampStatus:
+    """A :class:`RampDriver`'s ramp as one read gave it.
+
+    ``position``: the driver's step counter (steps of the configured microstep resolution);
+    ``velocity``: step/s, signed. Its reference switches, by side (``min``: below, direction
+    -1; ``max``: above, +1): ``active``, the switch's level now; ``stopped``, the switch
+    stopped the motor (an event, kept until the next :meth:`RampDriver.watch`);
+    ``latched``, the position at the switch's active edge is latched
+    (:meth:`RampDriver.latched_position`). ``stall_stopped``: stallGuard stopped the motor.
+    """
+
+    position: int
+    velocity: float
+    active_min: bool = False
+    active_max: bool = False
+    stopped_min: bool = False
+    stopped_max: bool = False
+    latched_min: bool = False
+    latched_max: bool = False
+    stall_stopped: bool = False
+
+    def switch_active(self, direction: int) -> bool:
+        """The level of the switch on the side of ``direction`` (+1: max, -1: min)."""
+        return self.active_max if direction > 0 else self.active_min
+
+    def switch_stopped(self, direction: int) -> bool:
+        return self.stopped_max if direction > 0 else self.stopped_min
+
+    def latched(self, direction: int) -> bool:
+        return self.latched_max if direction > 0 else self.latched_min
+
+
+class RampDriver(ABC):
+    """The capability of a driver chip that runs its own ramp (a TMC5160 in
+    motion-controller mode): it moves its motor itself, with no STEP/DIR lines; an executor
+    (``motion/executor_chip_ramp.py``) hands it targets, speeds and ramps, and reads back
+    where it is. Asked for with ``isinstance(stepper.driver, RampDriver)``.
+
+    Positions are the driver's step counter (steps of the configured microstep resolution),
+    speeds step/s, accelerations step/s^2 (positive), directions +1 (up) or -1 (down). Each
+    call is a few bus transfers from the thread of the executor that owns the motor (the
+    planner, the motion engine's lock held); a failure raises :class:`HalError`, which the
+    executor makes a fault of the motor.
+    """
+
+    name: str
+    #: how often its executor reads it while a motion runs, and at rest (s)
+    poll_s: float = 0.005
+    idle_poll_s: float = 0.05
+    #: resets of the chip seen while running: each one lost the position
+    resets: int = 0
+
+    @abstractmethod
+    def ramp_status(self) -> RampStatus:
+        """Where the motor is and how fast it goes, the switches and stops: one read."""
+
+    @abstractmethod
+    def latched_position(self) -> int:
+        """The position the reference switch latched at its active edge."""
+
+    @abstractmethod
+    def watch(self, direction: int, stall: bool = False) -> None:
+        """Arm the stops for the next motion: the reference switch ahead in ``direction``
+        (+1, -1; 0: none) stops the motor at once and latches the position at its active
+        edge; ``stall``: stallGuard stops it. Old events and latches are cleared."""
+
+    @abstractmethod
+    def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
+        """Run a trapezoid to ``target``: up to ``speed``, ramps ``acc`` and ``dec``."""
+
+    @abstractmethod
+    def run(self, direction: int, speed: float, acc: float) -> None:
+        """Accelerate with ``acc`` to ``speed`` in ``direction`` and keep going."""
+
+    @abstractmethod
+    def stop(self, dec: float | None) -> None:
+        """Stop along ``dec``, or as hard as the chip can (``None``)."""
+
+    @abstractmethod
+    def report_stall_stop(self) -> bool:
+        """The executor saw stallGuard stop the motor: from now until the next
+        :meth:`watch` the driver's :meth:`StepperDriver.status` reports a stall. True the
+        first time (not yet reported)."""
+
 
 class BridgeState(enum.Enum):
     FORWARD = "forward"
@@ -379,7 +483,38 @@ class Hardware:
     #: (the mock's shared mechanics): its own copy, under a number of its own
     step_io_fds: dict[str, int] = field(default_factory=dict)
 
+    def persistent_state(self) -> dict[str, Any]:
+        """What of the machine lives and dies with the daemon's state file (saved with it,
+        under keys of the backend's own): a simulated machine's axis positions. Real
+        hardware keeps nothing there: ``{}`` (the default)."""
+        return {}
+
+    def restore_persistent_state(self, saved: dict[str, Any]) -> None:
+        """Take back what :meth:`persistent_state` gave, from ``saved`` (the state file's
+        other keys; ones that are not the backend's are ignored). The default: nothing."""
+        return None
+
     def close(self) -> None:
         for close in reversed(self.closers):
             close()
         self.closers.clear()
+
+
+@dataclass
+class ProbeReport:
+    """What ``motorctld --probe`` prints: sections of lines, each backend adds its own."""
+
+    sections: list[tuple[str, list[str]]] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+    def add(self, title: str, lines: list[str]) -> None:
+        self.sections.append((title, lines))
+
+    def text(self) -> str:
+        out: list[str] = []
+        for title, lines in self.sections:
+            out.append(f"{title}:")
+            out += [f"  {line}" for line in lines]
+        for p in self.problems:
+            out.append(f"PROBLEM: {p}")
+        return "\n".join(out) + "\n"

@@ -21,7 +21,7 @@ chosen: it may import its hardware library) and the one that declares its config
 exports ``CONFIG_SECTIONS``, a tuple of `motorctl.schema.Extension`.
 
 Adding a backend's config section:
-  1. write ``hal/<backend>_config.py``: one ``@section`` dataclass per table, whose fields
+  1. write ``hal/backends/<backend>/config.py``: one ``@section`` dataclass per table, whose fields
      declare the keys (`motorctl.schema`), and ``CONFIG_SECTIONS = (Extension("", "<name>",
      TopConfig, owner=...), Extension("motors", "<name>", AxisConfig, owner=...), ...)``
      (parent "" = top-level ``[<name>]``, "motors" = ``[motors.<name>]`` in every motor,
@@ -29,13 +29,20 @@ Adding a backend's config section:
   2. name it in ``BACKENDS`` below;
   3. read it in the backend's build(spec, clock): ``spec.section(TopConfig)``,
      ``spec.axes[i].section(AxisConfig)``, ``spec.pins[i].section(PinConfig)`` (the daemon
-     passes every backend's sections along in the HardwareSpec; daemon/main.hardware_spec);
+     passes every backend's sections along in the HardwareSpec;
+     daemon/assemble.hardware_spec);
   4. regenerate docs/config.md: ``python -m motorctl.daemon.config.docs --write``.
 
 A backend module may also define ``probe(spec, clock, report)``: it opens what the config
 names without moving anything and adds what it found to a `ProbeReport` (``motorctld
---probe``). Other layers (an SPI driver layer, for example) add their part through
-`PROBES`, each run when its ``applies(spec)`` says the config uses it.
+--probe``). A config module may define ``motors_lose_steps(spec)`` (see
+:func:`motors_lose_steps`).
+
+Layers (`LAYERS`) work with any backend: the SPI driver layer attaches a TMC2130/TMC5160 to
+a motor whose config has a ``[motors.tmc]`` table. A layer names its config module (which
+may give a motor its :class:`~motorctl.hal.spec.DriverSpec`, :func:`driver_spec`) and the
+module whose ``attach(hw, spec, clock)`` and ``probe(spec, clock, report)`` run when its
+``applies(spec)`` says the config uses it.
 
 The registry is a constant; lookups are pure and thread-safe.
 """
@@ -48,11 +55,11 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Any, cast
 
-from motorctl.hal.interfaces import Clock, HalError, Hardware, StepIO
-from motorctl.hal.spec import HardwareSpec
-from motorctl.hal.wiring import ProbeReport
+from motorctl.hal.interfaces import Clock, HalError, Hardware, ProbeReport, StepIO
+from motorctl.hal.spec import DriverSpec, HardwareSpec
 
 Builder = Callable[[HardwareSpec, Clock], Hardware]
+Attacher = Callable[[Hardware, HardwareSpec, Clock], object]
 Prober = Callable[[HardwareSpec, Clock, ProbeReport], None]
 StepIOBuilder = Callable[[HardwareSpec, Clock, Hardware | None], StepIO]
 
@@ -69,31 +76,46 @@ class Backend:
 
 BACKENDS: dict[str, Backend] = {
     "mock": Backend(
-        "motorctl.hal.mock", "build", "nothing: it is part of motorctl", "motorctl.hal.mock_config"
+        "motorctl.hal.backends.mock.backend",
+        "build",
+        "nothing: it is part of motorctl",
+        "motorctl.hal.backends.mock.config",
     ),
     "gpiod": Backend(
-        "motorctl.hal.gpiod_backend",
+        "motorctl.hal.backends.gpiod.backend",
         "build",
         "libgpiod's Python binding: pip install 'motorctl[hardware]' (gpiod>=2) or "
         "apt install python3-libgpiod",
-        "motorctl.hal.gpiod_config",
+        "motorctl.hal.backends.gpiod.config",
     ),
 }
+
+
+@dataclass(frozen=True)
+class Layer:
+    """A part of the machine that works with any backend, attached to what the backend
+    built (the SPI layer: driver chips).
+
+    ``module`` has ``attach(hw, spec, clock)`` and ``probe(spec, clock, report)``; it is
+    imported only when ``applies(spec)`` (and may import its hardware library). ``config``
+    declares the layer's config sections (no hardware library) and may define
+    ``driver_spec(motor) -> DriverSpec | None``: a motor's driver chip from its sections.
+    """
+
+    module: str
+    config: str
+    applies: Callable[[HardwareSpec], bool]
+
 
 def _has_drivers(spec: HardwareSpec) -> bool:
     return any(a.driver is not None for a in spec.axes)
 
 
-#: extra probe hooks: name -> (module, function, applies(spec)); run after the backend's own
-PROBES: dict[str, tuple[str, str, Callable[[HardwareSpec], bool]]] = {
-    "spidev": ("motorctl.hal.tmc_backend", "probe", _has_drivers),
-}
-
-
-#: layers that work with any backend and own config sections: name -> config module (which
-#: imports no hardware library). "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C.
-LAYERS: dict[str, str] = {
-    "spidev": "motorctl.hal.tmc_config",
+#: "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C
+LAYERS: dict[str, Layer] = {
+    "spidev": Layer(
+        "motorctl.hal.backends.tmc.backend", "motorctl.hal.backends.tmc.config", _has_drivers
+    ),
 }
 
 
@@ -101,10 +123,34 @@ def config_sections() -> list[tuple[str, tuple[Any, ...]]]:
     """(backend or layer name, its CONFIG_SECTIONS) of everything that declares sections."""
     modules = [(name, b.config) for name, b in BACKENDS.items() if b.config is not None]
     found = []
-    for name, module_name in [*modules, *LAYERS.items()]:
+    for name, module_name in [*modules, *((n, layer.config) for n, layer in LAYERS.items())]:
         module = importlib.import_module(module_name)
         found.append((name, tuple(module.CONFIG_SECTIONS)))
     return found
+
+
+def driver_spec(motor: Any) -> DriverSpec | None:
+    """The driver chip a motor's config (a ``[[motors]]`` entry, with its layers' sections)
+    gives it, from the layer that declares it; None: no driver chip to talk to. Imports
+    config modules only."""
+    for layer in LAYERS.values():
+        make = getattr(importlib.import_module(layer.config), "driver_spec", None)
+        found = None if make is None else cast(DriverSpec | None, make(motor))
+        if found is not None:
+            return found
+    return None
+
+
+def motors_lose_steps(backend: str, spec: HardwareSpec) -> bool:
+    """Whether a late step may cost the backend's motors steps (as the Hardware it builds
+    says, ``Hardware.motors_lose_steps``), known without building it: its config module's
+    ``motors_lose_steps(spec)`` if it has one (the mock: ``[mock] lose_steps``), else True
+    (real rotors)."""
+    entry = BACKENDS.get(backend)
+    if entry is None or entry.config is None:
+        return True
+    ask = getattr(importlib.import_module(entry.config), "motors_lose_steps", None)
+    return True if ask is None else bool(ask(spec))
 
 
 def _module(backend: str) -> ModuleType:
@@ -123,19 +169,18 @@ def _module(backend: str) -> ModuleType:
 
 
 def open_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> Hardware:
-    """The daemon's part of the machine (drivers, pins, DC bridge), with any SPI drivers."""
+    """The daemon's part of the machine (drivers, pins, DC bridge), with the layers the
+    config uses attached (its driver chips)."""
     build = cast(Builder, getattr(_module(backend), BACKENDS[backend].function))
     hw = build(spec, clock)
-    drivers = [a.driver for a in spec.axes]
-    if any(drivers):
-        from motorctl.hal.tmc_backend import attach_drivers  # imports py-spidev lazily
-
-        names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
-        try:
-            attach_drivers(hw, drivers, clock, names)
-        except BaseException:
-            hw.close()
-            raise
+    try:
+        for layer in LAYERS.values():
+            if layer.applies(spec):
+                attach = cast(Attacher, importlib.import_module(layer.module).attach)
+                attach(hw, spec, clock)
+    except BaseException:
+        hw.close()
+        raise
     return hw
 
 
@@ -152,11 +197,11 @@ def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeRepor
             own(spec, clock, report)
     except HalError as exc:
         report.problems.append(str(exc))
-    for name, (module_name, func_name, applies) in sorted(PROBES.items()):
-        if not applies(spec):
+    for name, layer in sorted(LAYERS.items()):
+        if not layer.applies(spec):
             continue
         try:
-            extra = cast(Prober, getattr(importlib.import_module(module_name), func_name))
+            extra = cast(Prober, importlib.import_module(layer.module).probe)
             extra(spec, clock, report)
         except (HalError, ImportError) as exc:
             report.problems.append(f"{name}: {exc}")

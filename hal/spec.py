@@ -11,12 +11,26 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from motorctl.schema import Sectioned
 
-if TYPE_CHECKING:
-    from motorctl.hal.tmc import TmcSpec
+
+@dataclass(frozen=True)
+class DriverSpec:
+    """A driver chip a layer of the HAL talks to (the SPI layer's TMC2130/TMC5160), as the
+    config gives it. The layer's own subclass carries the rest (``hal/backends/tmc``); the
+    daemon gets one from :func:`motorctl.hal.registry.driver_spec` and reads only this."""
+
+    @property
+    def own_ramp(self) -> bool:
+        """The chip runs its own ramp: the motor has no STEP/DIR (not a step executor's)."""
+        return False
+
+    @property
+    def microsteps(self) -> int | None:
+        """The microsteps per full step the chip is set to; None: the chip does not say."""
+        return None
 
 
 @dataclass(frozen=True)
@@ -27,16 +41,14 @@ class AxisSpec(Sectioned):
     ``(("step", "gpiochip0:17"), ("dir", "GPIO27"), ("min", "gpiochip0:5"))``; roles:
     step, dir, enable, min, max. ``endstop_active_low`` is the end stops' polarity (backends
     report logical levels). ``dir_setup_s``/``dir_hold_s``: DIR must be stable this long
-    before a STEP rise / after a STEP fall. ``endstop_min``/``endstop_max`` place the mock's
-    simulated end stops (the mock only).
+    before a STEP rise / after a STEP fall. What only one backend needs is in its own
+    section (``sections``), e.g. the mock's simulated end stops.
     """
 
     invert_dir: bool = False
     endstop_active_low: bool = False
-    endstop_min: int = -10_000
-    endstop_max: int = 10_000
     name: str = ""
-    driver: TmcSpec | None = None  # a TMC2130/TMC5160 on SPI; None: no driver to talk to
+    driver: DriverSpec | None = None  # a driver chip a layer talks to; None: none
     wiring: tuple[tuple[str, str], ...] = ()
     dir_setup_s: float = 5e-6
     dir_hold_s: float = 0.0
@@ -45,8 +57,8 @@ class AxisSpec(Sectioned):
 
     @property
     def own_ramp(self) -> bool:
-        """Its TMC5160 runs its own ramp: no STEP/DIR, not the step executor's."""
-        return self.driver is not None and self.driver.ramp
+        """Its driver chip runs its own ramp: no STEP/DIR, not the step executor's."""
+        return self.driver is not None and self.driver.own_ramp
 
     def line(self, role: str) -> str | None:
         for r, name in self.wiring:
@@ -68,11 +80,10 @@ class HardwareSpec(Sectioned):
     axes: tuple[AxisSpec, ...]
     pins: tuple[PinSpec, ...] = ()
     dc: bool = False
-    wires: tuple[tuple[int, int], ...] = ()
     options: dict[str, object] = field(default_factory=dict)
     sections: Mapping[type[Any], Any] = field(default_factory=dict)  # [<backend>]
 
     def stepped(self) -> tuple[int, ...]:
-        """The axes a step executor drives (all but those whose TMC5160 runs its own ramp),
-        in order: a StepIO's motor ``j`` is axis ``stepped()[j]``."""
+        """The axes a step executor drives (all but those whose driver chip runs its own
+        ramp), in order: a StepIO's motor ``j`` is axis ``stepped()[j]``."""
         return tuple(i for i, a in enumerate(self.axes) if not a.own_ramp)

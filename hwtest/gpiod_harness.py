@@ -8,7 +8,7 @@ from collections.abc import Sequence
 
 from hwtest import gsim
 from hwtest.layout import DC, MOTORS, PINS, axis_section, pin_section, top_section, where
-from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig
+from motorctl.hal.backends.gpiod.config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig
 from motorctl.hal.interfaces import BridgeState
 from motorctl.hal.spec import HardwareSpec, PinSpec
 from tests.contract.harness import Harness

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import re
 
-from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
-from motorctl.hal.wiring import LineRef
+from motorctl.hal.backends.gpiod.config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
+from motorctl.hal.backends.gpiod.wiring import LineRef
 
 #: step, dir, enable, min, max
 MOTORS = [

@@ -12,8 +12,8 @@ import pytest
 from hwtest import gsim
 from hwtest.gpiod_harness import GpiodHarness
 from hwtest.layout import MOTORS, axis_section, where
-from motorctl.hal.gpiochip import load_api
-from motorctl.hal.gpiod_config import GpiodAxisConfig
+from motorctl.hal.backends.gpiod.chip import load_api
+from motorctl.hal.backends.gpiod.config import GpiodAxisConfig
 from motorctl.hal.interfaces import HalError, MonotonicClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.spec import HardwareSpec

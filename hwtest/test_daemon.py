@@ -275,8 +275,8 @@ def test_a_line_held_by_another_consumer_is_a_clear_error(tmp_path: Path) -> Non
 
 HOLD = """
 import sys
-from motorctl.hal.gpiochip import LineSettings, load_api
-from motorctl.hal.wiring import LineRef
+from motorctl.hal.backends.gpiod.chip import LineSettings, load_api
+from motorctl.hal.backends.gpiod.wiring import LineRef
 api = load_api()
 (line,) = api.resolve([("held", LineRef(chip=sys.argv[1], offset=int(sys.argv[2])))])
 req = api.request("intruder", [(line, LineSettings(output=True))])
@@ -312,7 +312,7 @@ def test_shutdown_leaves_outputs_at_their_safe_values(tmp_path: Path) -> None:
 
 def test_probe_of_the_full_example_adds_the_spi_drivers_through_the_hook(tmp_path: Path) -> None:
     """With its [motors.tmc] tables the example's probe also asks the SPI layer (registry
-    PROBES): the guest has no /dev/spidev0.x, which is a named problem, the GPIO part stays."""
+    LAYERS): the guest has no /dev/spidev0.x, which is a named problem, the GPIO part stays."""
     cfg = tmp_path / "pi.toml"
     cfg.write_text(EXAMPLE.read_text().replace('api = "auto"', f'api = "{API}"'))
     end_stops_clear()

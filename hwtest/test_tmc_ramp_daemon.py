@@ -17,7 +17,7 @@ import pytest
 from hwtest import gsim
 from hwtest.layout import MOTORS, where
 from hwtest.test_tmc_daemon import API, REPO, example_config
-from motorctl.hal.gpiochip import load_api
+from motorctl.hal.backends.gpiod.chip import load_api
 from tests.daemon_proc import DaemonProcess
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")

@@ -1,5 +1,8 @@
 """A small declarative schema for TOML configuration (Klipper style), generic and dependency-free.
 
+Over 500 lines on purpose: one engine whose declarations, parser and docs renderer read
+the same ``Key``/``Table`` objects; split, each part would need the others' internals.
+
 A config section is a frozen dataclass whose fields *are* the key declarations: each field is
 made by one of the helpers below (`integer`, `number`, `boolean`, `choice`, `text`, `pairs`,
 `table`, `tables`), which records the key's kind, default, bounds and documentation in the

@@ -1,5 +1,9 @@
 """Pure encoder/decoder for command frames and response frames (PROTOCOL.md sections 1, 3, 5).
 
+Over 500 lines on purpose: the whole wire format in one place, both directions, so
+that the encoder and the decoder of a frame sit side by side; each command is a small
+dataclass.
+
 Command frame: B0 = code, B1..B8 = parameters then 0x00 padding, B9 = checksum over B0..B8.
 Response frame: R0 = ACK, R1..R3 = payload, R4 = checksum over R1..R3 (R0..R3 with
 `crc_covers_ack`). Multi-byte values are big-endian; positions are 24-bit two's complement.

@@ -16,21 +16,22 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.hal.backends.mock.backend import build, mock_axis
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import build
-from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
 from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.stepcore import COUNTER_NAMES
-from motorctl.motion.stepexec import REFILL_S, ThreadStepExecutor, axis_limits
+from motorctl.motion.step_core import COUNTER_NAMES
+from motorctl.motion.step_planner import REFILL_S, axis_limits
 from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
 
 from .test_executor import Core
 
 K = ExecEventKind
-FAR = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
+FAR = mock_axis(endstop_min=-10**9, endstop_max=10**9)
 ERR = 5000  # ticks (5 us)
 SPAN = 2_000_000  # ticks (2 ms)
 
@@ -202,7 +203,7 @@ def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepEx
 
 
 def step_times(engine: MotionEngine) -> list[float]:
-    from motorctl.hal.mock import world_of
+    from motorctl.hal.backends.mock.backend import world_of
 
     return world_of(engine.hw).timeline.step_times(0)
 

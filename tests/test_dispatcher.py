@@ -6,11 +6,11 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Wait
-from motorctl.daemon.main import Daemon
+from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import BridgeState, VirtualClock
-from motorctl.hal.mock import world_of
 from motorctl.protocol.codec import (
     ConfigPin,
     DcMove,

@@ -14,15 +14,23 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.service import ProgressWatch
+from motorctl.hal.backends.mock.backend import (
+    EventKind,
+    build,
+    build_step_io,
+    mock_axis,
+    read_timeline,
+    world_of,
+)
 from motorctl.hal.interfaces import MonotonicClock, VirtualClock
-from motorctl.hal.mock import EventKind, build, build_step_io, read_timeline, world_of
-from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import AxisLimits, ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executor_process import ProcessStepExecutor
+from motorctl.motion.executor_seam import AxisLimits, ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
-from motorctl.motion.procexec import ProcessStepExecutor
 from motorctl.motion.segments import StepSegment
-from motorctl.motion.stepcore import (
+from motorctl.motion.step_core import (
     ABSORBED,
     COUNTER_NAMES,
     LAG_FAULTS,
@@ -34,11 +42,11 @@ from motorctl.motion.stepcore import (
     CoreInbox,
     StepCore,
 )
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 
 K = ExecEventKind
-FAR = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
+FAR = mock_axis(endstop_min=-10**9, endstop_max=10**9)
 TIMEOUT = 30.0
 
 

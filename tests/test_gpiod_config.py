@@ -11,13 +11,13 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.main import hardware_spec
-from motorctl.hal.gpiod_backend import wiring_of
-from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
+from motorctl.hal.backends.gpiod.backend import wiring_of
+from motorctl.hal.backends.gpiod.config import GpiodAxisConfig, GpiodConfig, GpiodPinConfig, make
+from motorctl.hal.backends.gpiod.wiring import LineRef
 from motorctl.hal.interfaces import HalError, MonotonicClock
 from motorctl.hal.registry import open_hardware, probe_hardware
-from motorctl.hal.wiring import LineRef
 
 REPO = Path(__file__).resolve().parent.parent
 EXAMPLE = REPO / "docs" / "examples" / "raspberry-pi.toml"

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.hal.gpiochip import Edge, LineRequest
-from motorctl.hal.gpiod_backend import GpiodBridge, PwmChannel
+from motorctl.hal.backends.gpiod.backend import GpiodBridge, PwmChannel
+from motorctl.hal.backends.gpiod.chip import Edge, LineRequest
+from motorctl.hal.backends.gpiod.wiring import DcWiring, LineRef, PwmWiring
 from motorctl.hal.interfaces import BridgeState, HalError, VirtualClock
-from motorctl.hal.wiring import DcWiring, LineRef, PwmWiring
 
 
 class Recorder(LineRequest):

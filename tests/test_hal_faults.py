@@ -11,11 +11,12 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.main import Daemon, open_pty
+from motorctl.daemon.ports import open_pty
+from motorctl.hal.backends.mock.backend import MockWorld, world_of
 from motorctl.hal.interfaces import MonotonicClock
-from motorctl.hal.mock import MockWorld, world_of
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,

@@ -20,15 +20,16 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import Daemon, build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link
-from motorctl.daemon.main import Daemon, build_executor, hardware_spec, motor_params, open_pty
+from motorctl.daemon.ports import open_pty
+from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
-from motorctl.hal.mock import world_of
 from motorctl.hal.registry import open_hardware
 from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine
-from motorctl.motion.executor import (
+from motorctl.motion.executor_seam import (
     Committed,
     ExecEvent,
     ExecEventKind,

@@ -1,6 +1,6 @@
 """The motorctld command (daemon/launch.py) starts the step executor's interpreter before
-the daemon's imports (motion/procstart.py): the process executor takes it over; any other
-outcome ends it, also when the daemon fails to start or is gone before handing it its
+the daemon's imports (motion/executor_process_start.py): the process executor takes it over;
+any other outcome ends it, also when the daemon fails to start or is gone before handing it its
 parameters. Real processes throughout."""
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon import launch
-from motorctl.motion.procstart import ExecutorProcess
+from motorctl.motion.executor_process_start import ExecutorProcess
 from tests.daemon_proc import DaemonProcess, children_of, until
 
 REPO = Path(__file__).resolve().parent.parent
@@ -69,7 +69,8 @@ def test_the_early_process_ends_by_itself_when_the_daemon_is_gone() -> None:
     """A daemon that dies before handing its parameters over (kill -9 during start-up):
     the process sees its socket end and exits 0, holding nothing."""
     out = subprocess.run(
-        [sys.executable, "-c", "from motorctl.motion.procstart import ExecutorProcess; "
+        [sys.executable, "-c",
+         "from motorctl.motion.executor_process_start import ExecutorProcess; "
          "print(ExecutorProcess.start().pid)"],
         capture_output=True, text=True, timeout=60, cwd=REPO, check=True)
     pid = int(out.stdout)

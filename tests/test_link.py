@@ -20,10 +20,12 @@ from typing import Any
 
 import pytest
 
+from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Dispatcher, Wait
 from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.main import Daemon, StopSignals, open_pty
+from motorctl.daemon.ports import open_pty
+from motorctl.daemon.signals import StopSignals
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
     CodecOptions,

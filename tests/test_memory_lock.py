@@ -100,24 +100,24 @@ def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
     """Daemon.build closes what it opened when a later part fails: here the [state]
     directory is a file, found after the step executor was made (its shared memory block
     would stay in /dev/shm until the next reboot)."""
-    from motorctl.daemon import main
+    from motorctl.daemon import assemble
     from motorctl.daemon.config import parse_config
 
     made: list[object] = []
-    real = main.build_executor
+    real = assemble.build_executor
 
     def spy(*args: object) -> object:
         made.append(real(*args))  # type: ignore[arg-type]
         return made[-1]
 
-    monkeypatch.setattr(main, "build_executor", spy)
+    monkeypatch.setattr(assemble, "build_executor", spy)
     blocker = tmp_path / "not-a-dir"
     blocker.write_text("x")
     config = parse_config(
         CONFIG.replace("lock_memory = true", "lock_memory = false")
         + f'[state]\ndirectory = "{blocker}"\n', "t.toml")
-    with pytest.raises(main.StartupError, match="not-a-dir"):
-        main.Daemon.build(config, tmp_path / "state", None)
+    with pytest.raises(assemble.StartupError, match="not-a-dir"):
+        assemble.Daemon.build(config, tmp_path / "state", None)
     (executor,) = made
     label = executor.shm.name  # type: ignore[attr-defined]
     proc = executor.proc  # type: ignore[attr-defined]

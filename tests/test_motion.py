@@ -11,15 +11,24 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.hal.backends.mock.backend import (
+    Event,
+    EventKind,
+    MockWorld,
+    build,
+    build_step_io,
+    mock_axis,
+    world_of,
+)
 from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, VirtualClock
-from motorctl.hal.mock import Event, EventKind, MockWorld, build, build_step_io, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import from_ticks, to_ticks
+from motorctl.motion.executor_seam import from_ticks, to_ticks
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Steps, plan_move_to
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -106,7 +115,7 @@ def make(
     if not params:
         params = (MotorParams(),)
     if axes is None:
-        axes = [AxisSpec(endstop_min=-1000, endstop_max=1000) for _ in params]
+        axes = [mock_axis(endstop_min=-1000, endstop_max=1000) for _ in params]
     clock = VirtualClock()
     if lows is not None:
         axes = [replace(a, endstop_active_low=low) for a, low in zip(axes, lows, strict=True)]
@@ -308,7 +317,7 @@ def test_run_with_commands_queued_behind_it_is_not_replanned() -> None:
 
 
 def test_run_speed_change_replans_at_once() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(1000.0, 5000.0, 5000.0)))
     ts = rig.advance(1.0)
     before = rig.times()
@@ -338,7 +347,7 @@ def test_run_speed_change_replans_at_once() -> None:
 
 
 def test_run_reversal_changes_direction_once() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(2000.0, 8000.0, 8000.0)))
     ts = rig.advance(1.0)
     up_before = len(rig.times())
@@ -362,7 +371,7 @@ def test_run_reversal_changes_direction_once() -> None:
 
 @pytest.mark.parametrize("cmd", [MoveToCmd(5000, RAMP), RunCmd(1, RAMP)])
 def test_soft_stop_decelerates_and_empties_the_queue(cmd: MotionCmd) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(cmd)
     rig.submit(MoveToCmd(-300, RAMP))
     rig.submit(MoveToCmd(700, RAMP))
@@ -392,7 +401,7 @@ def test_soft_stop_when_idle_is_harmless() -> None:
 
 @pytest.mark.parametrize("cmd", [MoveToCmd(5000, RAMP), RunCmd(-1, RAMP), HomeCmd(1, RAMP)])
 def test_hard_stop_stops_at_once(cmd: MotionCmd) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(cmd)
     rig.submit(MoveToCmd(3, RAMP))
     ts = rig.advance(0.4)
@@ -545,7 +554,7 @@ def test_homing_fails_beyond_max_travel() -> None:
 
 
 def test_homing_fails_when_the_reapproach_finds_nothing() -> None:
-    far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = make(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.2)
@@ -560,7 +569,7 @@ def test_homing_fails_when_the_reapproach_finds_nothing() -> None:
 
 
 def test_homing_fails_when_the_switch_stays_active_after_pull_off() -> None:
-    far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = make(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.2)
@@ -592,7 +601,7 @@ def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
 
 
 def test_homing_with_debounce_ignores_short_glitches() -> None:
-    far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = make(MotorParams(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)  # 1 ms per step almost at once
     rig.submit(HomeCmd(1, ramp))
@@ -612,7 +621,7 @@ def test_homing_with_debounce_ignores_short_glitches() -> None:
 
 
 def test_endstop_hit_with_debounce_outside_homing() -> None:
-    far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = make(MotorParams(debounce_s=0.0105), axes=[far])
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.1)
@@ -628,7 +637,7 @@ def test_endstop_hit_with_debounce_outside_homing() -> None:
 
 def test_debounce_forgets_what_it_no_longer_watches() -> None:
     """Two short glitches far apart, each shorter than the debounce, never add up."""
-    far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = make(MotorParams(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)
     rig.submit(RunCmd(1, ramp))
@@ -647,7 +656,7 @@ def test_debounce_forgets_what_it_no_longer_watches() -> None:
 
 
 def test_homing_with_active_low_end_stops() -> None:
-    axis = AxisSpec(endstop_active_low=True, endstop_min=-400, endstop_max=400)
+    axis = mock_axis(endstop_active_low=True, endstop_min=-400, endstop_max=400)
     rig = make(axes=[axis], lows=[True])
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
@@ -762,7 +771,7 @@ def test_rotary_moves_in_the_given_direction() -> None:
 
 def test_rotary_position_stays_in_range_while_moving() -> None:
     rig = make(MotorParams(steps_per_rev=100),
-               axes=[AxisSpec(endstop_min=-10**6, endstop_max=10**6)])
+               axes=[mock_axis(endstop_min=-10**6, endstop_max=10**6)])
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
     seen = set()
@@ -805,7 +814,7 @@ def test_target_allowed() -> None:
 
 @pytest.mark.parametrize(("direction", "limit"), [(1, 800), (-1, -500)])
 def test_run_stops_exactly_at_the_soft_limit(direction: int, limit: int) -> None:
-    rig = make(soft(-500, 800), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(soft(-500, 800), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(MoveToCmd(100, RAMP))
     rig.submit(RunCmd(direction, RAMP))
     rig.engine.run_until_idle()
@@ -825,7 +834,7 @@ def test_run_stops_exactly_at_the_soft_limit(direction: int, limit: int) -> None
 
 
 def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
-    rig = make(soft(-5000, 3000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(soft(-5000, 3000), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(500.0, 2000.0, 2000.0)))
     rig.advance(0.5)
     rig.submit(RunCmd(1, Ramp(4000.0, 20000.0, 20000.0)))
@@ -840,7 +849,7 @@ def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
 def test_linear_position_wraps_at_24_bits() -> None:
     rig = make(
         MotorParams(host_position=wrap24),
-        axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)],
+        axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)],
     )
     with rig.engine.lock:
         rig.m.set_position(8_388_600)
@@ -863,7 +872,7 @@ def test_linear_position_wraps_at_24_bits() -> None:
 
 def test_linear_position_unbounded_without_a_host_counter() -> None:
     """Motion itself counts without bound; the 24-bit wrap is the protocol's, passed in."""
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     with rig.engine.lock:
         rig.m.set_position(8_388_600)
     rig.submit(MoveToCmd(8_388_610, RAMP))
@@ -1024,7 +1033,7 @@ def test_engine_checks_its_configuration_and_clock() -> None:
 
 
 def test_run_until_idle_gives_up_on_an_endless_run() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(10.0, 100.0, 100.0)))
     with pytest.raises(TimeoutError):
         rig.engine.run_until_idle(limit_s=1.0)
@@ -1066,7 +1075,7 @@ moves = st.lists(
 @FAST
 @given(moves)
 def test_random_queues_end_at_the_last_target(queue: list[tuple[int, Ramp]]) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     for target, r in queue:
         rig.submit(MoveToCmd(target, r))
     rig.engine.run_until_idle()
@@ -1102,7 +1111,7 @@ run_changes = st.lists(
 def test_random_run_changes_keep_counter_and_mechanics_together(
     changes: list[tuple[int, float, float]], hard: bool
 ) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     for direction, speed, dt in changes:
         rig.submit(RunCmd(direction, Ramp(speed, 20000.0, 15000.0)))
         assert rig.state() is MotorState.RUNNING and not rig.m.queue
@@ -1143,7 +1152,7 @@ def test_random_run_changes_keep_counter_and_mechanics_together(
 def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
     spr = 97
     rig = make(MotorParams(steps_per_rev=spr),
-               axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+               axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     expected = 0
     pos = 0
     for target, direction in queue:
@@ -1157,7 +1166,7 @@ def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
 
 
 def test_debounce_forgets_the_end_stop_behind_a_reversal() -> None:
-    far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = make(MotorParams(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)
     rig.submit(RunCmd(1, ramp))
@@ -1181,7 +1190,7 @@ def test_debounce_forgets_the_end_stop_behind_a_reversal() -> None:
 def test_run_replanned_with_a_lower_dec_still_stops_at_the_soft_limit(
     direction: int, soft_stop: bool
 ) -> None:
-    rig = make(soft(-3000, 3000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(soft(-3000, 3000), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(4000.0, 40000.0, 40000.0)))
     for _ in range(2000):
         if rig.m.position >= 2500:
@@ -1223,7 +1232,7 @@ actions = st.lists(
 def test_random_command_mixes_keep_every_invariant(
     script: list[tuple[str, int | bool, Ramp]], waits: list[float]
 ) -> None:
-    rig = make(soft(-1000, 1000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = make(soft(-1000, 1000), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     for (kind, arg, ramp), dt in zip(script, waits, strict=False):
         if kind == "stop":
             assert rig.stop(hard=bool(arg))
@@ -1275,7 +1284,7 @@ def test_a_fault_on_one_motor_leaves_the_other_alone() -> None:
 
 def test_rotary_run_wraps_and_agrees_with_the_mechanics() -> None:
     rig = make(MotorParams(steps_per_rev=50),
-               axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+               axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.3)
     assert rig.stop(hard=True)
@@ -1284,7 +1293,7 @@ def test_rotary_run_wraps_and_agrees_with_the_mechanics() -> None:
 
 def test_mock_stall_only_while_driven_past_the_stop() -> None:
     clock = VirtualClock()
-    spec = HardwareSpec(axes=(AxisSpec(endstop_min=-5, endstop_max=5),))
+    spec = HardwareSpec(axes=(mock_axis(endstop_min=-5, endstop_max=5),))
     hw = build(spec, clock)
     world = world_of(hw)
     out, driver = build_step_io(spec, clock, hw).outputs, hw.steppers[0].driver
@@ -1302,7 +1311,7 @@ def test_mock_stall_only_while_driven_past_the_stop() -> None:
     for _ in range(12):
         out.pulse([0], 1e-6)
     assert world.axes[0].position == -6 and driver.status().stall
-    spec2 = HardwareSpec(axes=(AxisSpec(invert_dir=True, endstop_max=0),))
+    spec2 = HardwareSpec(axes=(mock_axis(invert_dir=True, endstop_max=0),))
     hw2 = build(spec2, clock)
     out2 = build_step_io(spec2, clock, hw2).outputs
     out2.set_direction(0, True)

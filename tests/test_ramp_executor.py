@@ -8,24 +8,25 @@ from dataclasses import replace
 
 import pytest
 
+from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import parse_config
-from motorctl.daemon.main import build_executor, hardware_spec, motor_params
+from motorctl.hal.backends.mock.backend import EventKind, build, world_of
+from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
+from motorctl.hal.backends.tmc.settings import TmcSettings, TmcSpec
+from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import EventKind, build, world_of
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice
-from motorctl.hal.tmc import RefSwitches, Tmc5160, TmcSettings, TmcSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor import ExecEvent, ExecEventKind, Executor
-from motorctl.motion.profile import plan_move_to, plan_run
-from motorctl.motion.ramp_executor import (
+from motorctl.motion.executor_chip_ramp import (
     RampExecutor,
     SplitExecutor,
     peak_speed,
     with_ramp_motors,
 )
-from motorctl.motion.stepexec import ThreadStepExecutor
+from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, Executor
+from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.profile import plan_move_to, plan_run
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -202,7 +203,7 @@ class Recorder(Executor):
         return False
 
     def health(self):  # type: ignore[no-untyped-def]
-        from motorctl.motion.executor import ExecutorHealth
+        from motorctl.motion.executor_seam import ExecutorHealth
 
         return ExecutorHealth(True, 1)
 
@@ -248,7 +249,7 @@ def test_split_executor_shows_the_step_executors_lateness_and_process() -> None:
 
 
 def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
-    from motorctl.motion.executor import ExecutorHealth
+    from motorctl.motion.executor_seam import ExecutorHealth
 
     class Counting(Recorder):
         def __init__(self, counters: dict[str, int]) -> None:

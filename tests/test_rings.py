@@ -1,4 +1,4 @@
-"""The shared-memory rings of the process step executor (motion/procexec.py ``Ring``).
+"""The shared-memory rings of the process step executor (motion/executor_process.py ``Ring``).
 
 A weakly ordered CPU (ARM64) may show the consumer a slot in any mix of old and new bytes,
 with the head and the sequence number already new; the consumer must take a record only
@@ -24,12 +24,11 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
-from motorctl.hal.mock import build
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.executor import AxisLimits, ExecEvent, ExecEventKind
-from motorctl.motion.procexec import (
+from motorctl.motion.executor_process import (
     _CHECK,
     _EVENT,
     _KINDS,
@@ -42,6 +41,7 @@ from motorctl.motion.procexec import (
     Shared,
     ring_size,
 )
+from motorctl.motion.executor_seam import AxisLimits, ExecEvent, ExecEventKind
 from tests.daemon_proc import until
 
 DEADLINE_S = 60.0

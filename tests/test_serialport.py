@@ -25,9 +25,10 @@ from typing import Any
 import pytest
 import serial
 
+from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.link import Link
-from motorctl.daemon.main import Daemon, open_pty
+from motorctl.daemon.ports import open_pty
 from motorctl.daemon.serialport import Backoff, DeviceError, SerialDevice
 from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.status import summary_line

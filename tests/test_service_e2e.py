@@ -153,8 +153,8 @@ def test_whatever_stands_at_the_state_file_is_set_aside_under_a_free_name(
 
 
 def _state_file(state: Path, motors: list[dict[str, object]]) -> bytes:
+    from motorctl.daemon.assemble import motor_identities
     from motorctl.daemon.config import default_config_text, parse_config
-    from motorctl.daemon.main import motor_identities
 
     idents = motor_identities(parse_config(default_config_text(), "default"))
     records = [{"name": i.name, "fingerprint": i.fingerprint, "position": 0, "home": 0,

@@ -15,12 +15,12 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Wait
-from motorctl.daemon.main import Daemon
 from motorctl.daemon.session import LinkSession
+from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.mock import world_of
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,

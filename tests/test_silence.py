@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.daemon.assemble import Daemon, silence_watch
 from motorctl.daemon.config import parse_config
-from motorctl.daemon.main import Daemon, silence_watch
 from motorctl.daemon.session import LinkSession
 from motorctl.hal.interfaces import BridgeState, DcBridge, VirtualClock
 from motorctl.motion.motor import Motor

@@ -15,8 +15,8 @@ from typing import Any
 import pytest
 
 from motorctl.daemon import state as st
+from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.main import Daemon
 from motorctl.daemon.state import (
     MotionJournal,
     MotorIdentity,
@@ -690,7 +690,7 @@ def test_state_directory_option(tmp_path: Path) -> None:
 
 
 def test_geometry_fingerprint_covers_microsteps_and_backend() -> None:
-    from motorctl.daemon.main import motor_identities
+    from motorctl.daemon.assemble import motor_identities
 
     tmc = CONFIG + "  [motors.tmc]\n  microsteps = 16\n"
 

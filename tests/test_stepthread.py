@@ -13,13 +13,14 @@ from dataclasses import dataclass
 
 import pytest
 
+from motorctl.hal.backends.mock.backend import EventKind, MockWorld, build, mock_axis, world_of
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
-from motorctl.hal.mock import EventKind, MockWorld, build, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.rt import GcPolicy
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     MotionCmd,
@@ -84,7 +85,7 @@ def live(request: pytest.FixtureRequest) -> Iterator[Live]:
     params: MotorParams = getattr(request, "param", MotorParams())
     clock = MonotonicClock()
     spec = HardwareSpec(
-        axes=(AxisSpec(endstop_min=-5000, endstop_max=5000),),
+        axes=(mock_axis(endstop_min=-5000, endstop_max=5000),),
         dc=True,
         options={"timeline_len": None},
     )

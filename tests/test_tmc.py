@@ -20,37 +20,31 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.main import hardware_spec
-from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
-from motorctl.hal.mock import build, world_of
-from motorctl.hal.registry import open_hardware
-from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
-from motorctl.hal.tmc import (
-    TMC2130,
-    TMC5160,
-    Chip,
-    DriverMonitor,
-    F,
-    RampState,
-    RampUnits,
-    RefSwitches,
-    Reg,
-    Tmc5160,
-    TmcDriver,
-    TmcError,
-    TmcLink,
+from motorctl.hal.backends.mock.backend import build, world_of
+from motorctl.hal.backends.tmc.backend import probe
+from motorctl.hal.backends.tmc.config import driver_spec
+from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.backends.tmc.fields import Chip, mres_of
+from motorctl.hal.backends.tmc.link import TmcError, TmcLink
+from motorctl.hal.backends.tmc.monitor import DriverMonitor
+from motorctl.hal.backends.tmc.ramp import RampState, RefSwitches, Tmc5160
+from motorctl.hal.backends.tmc.settings import (
     TmcSettings,
     TmcSpec,
     current_setting,
-    mres_of,
     register_values,
 )
-from motorctl.hal.tmc_backend import probe
-from motorctl.hal.tmc_config import driver_spec
+from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
+from motorctl.hal.backends.tmc.tmc2130 import TMC2130
+from motorctl.hal.backends.tmc.tmc5160 import TMC5160, F, RampUnits, Reg
+from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
+from motorctl.hal.registry import open_hardware
+from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
+from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -280,8 +274,8 @@ def test_spidev_missing_is_a_hal_error_saying_how_to_install(
 ) -> None:
     import builtins
 
+    from motorctl.hal.backends.tmc.spi import spidev_factory
     from motorctl.hal.interfaces import HalError
-    from motorctl.hal.spi import spidev_factory
 
     real_import = builtins.__import__
 

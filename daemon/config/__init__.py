@@ -7,8 +7,8 @@ Split by owner:
   below every room so that hal/ and motion/ can declare the sections they own.
 - `model`: the core tables (link, units, hal, step_thread, dc, motors, pins); each key is a
   field of the dataclass the code reads, declared once with its default, bounds and doc.
-- HAL backends' sections: declared next to each backend (hal/mock_config.py) and named in
-  hal/registry.py; attached by `loader.schema()`.
+- HAL backends' sections: declared next to each backend (hal/backends/<name>/config.py) and
+  named in hal/registry.py; attached by `loader.schema()`.
 - `loader`: parse and load a file, the embedded default and its commented text.
 - `docs`: docs/config.md, generated (`python -m motorctl.daemon.config.docs --write`); it
   also says how to add a key or a section.

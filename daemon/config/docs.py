@@ -110,8 +110,8 @@ the doc; the same dataclass is what the code reads. This page, the checks and
 `--print-default-config` are all generated from those declarations.
 
 - **A key in an existing table**: add one field to the table's dataclass
-  (`daemon/config/model.py` for the core tables, `hal/<backend>_config.py` for a backend's),
-  then run `python -m motorctl.daemon.config.docs --write`.
+  (`daemon/config/model.py` for the core tables, `hal/backends/<backend>/config.py` for a
+  backend's), then run `python -m motorctl.daemon.config.docs --write`.
 - **A core table** (say `[executor]` with `kind = "process"` or `"thread"`, or `[state]`):
   declare a `@section` dataclass in `daemon/config/model.py`, add one field
   `executor: ExecutorConfig = table(ExecutorConfig)` to `Config`, regenerate this page. Use
@@ -119,7 +119,7 @@ the doc; the same dataclass is what the code reads. This page, the checks and
   The dataclass may live with the code that owns it (an executor's table in `motion/`, which
   may import `motorctl.schema` but not the daemon); only the `Config` field is in model.py.
 - **A hardware backend's tables** (say `[gpiod]` and `[motors.gpiod]`): declare them in
-  `hal/<backend>_config.py`, a module that imports no hardware library, export
+  `hal/backends/<backend>/config.py`, a module that imports no hardware library, export
   `CONFIG_SECTIONS = (Extension("", "gpiod", GpiodConfig, owner=...), Extension("motors",
   "gpiod", GpiodAxisConfig, owner=...))` and name that module as the `config` of the
   backend's entry in `hal/registry.py`. The backend's `build(spec, clock)` reads them from

@@ -1,5 +1,8 @@
 """The daemon's configuration model: every core key, declared once.
 
+Over 500 lines on purpose: every core key with its default, bounds and doc, one
+dataclass per table; it is declarations only, and the length is their documentation.
+
 Each dataclass below is both the schema of its table and the frozen value the code reads
 (`motorctl.schema`): a field's helper call holds the key's default, bounds and doc. Sections
 owned elsewhere (a HAL backend's tables) are not here: they are declared next to their owner

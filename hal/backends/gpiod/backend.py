@@ -1,6 +1,10 @@
 """The ``gpiod`` hardware backend: steppers (STEP/DIR/ENABLE), end stops, an H-bridge and user
 pins on Linux GPIO character devices, through libgpiod's Python binding (v1 or v2, see
-:mod:`motorctl.hal.gpiochip`). Consumer name ``motorctl`` (``[gpiod] consumer``).
+:mod:`motorctl.hal.backends.gpiod.chip`). Consumer name ``motorctl`` (``[gpiod] consumer``).
+
+Over 500 lines on purpose: the backend's two entry points and every part they build
+(pins, step outputs, edge inputs, the PWM bridge, the probe) share the line resolution and
+its checks; the chip API (``chip.py``) and the wiring (``wiring.py``) are already apart.
 
 Two entry points (hal/registry.py): :func:`build` opens the daemon's part (pins, the bridge,
 and whatever lines are named for a motor whose TMC5160 runs its own ramp: held, never
@@ -27,14 +31,21 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from motorctl.hal.gpiochip import GpioApi, LineRequest, LineSettings, load_api
-from motorctl.hal.gpiod_config import (
+from motorctl.hal.backends.gpiod.chip import GpioApi, LineRequest, LineSettings, load_api
+from motorctl.hal.backends.gpiod.config import (
     AxisRole,
     GpiodAxisConfig,
     GpiodConfig,
     GpiodPinConfig,
     WiringMissing,
     wiring_from,
+)
+from motorctl.hal.backends.gpiod.wiring import (
+    DcWiring,
+    GpioWiring,
+    MotorWiring,
+    PwmWiring,
+    ResolvedLine,
 )
 from motorctl.hal.interfaces import (
     BridgeState,
@@ -47,20 +58,13 @@ from motorctl.hal.interfaces import (
     HalIOError,
     Hardware,
     Pin,
+    ProbeReport,
     StepIO,
     StepOutputs,
     StepperDriver,
     StepperHardware,
 )
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.hal.wiring import (
-    DcWiring,
-    GpioWiring,
-    MotorWiring,
-    ProbeReport,
-    PwmWiring,
-    ResolvedLine,
-)
 
 log = logging.getLogger("motorctl.gpiod")
 

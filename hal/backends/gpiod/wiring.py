@@ -13,7 +13,7 @@ or a line name such as ``GPIO17`` that is looked up across all chips.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Final
 
 BIASES: Final = ("as-is", "pull-up", "pull-down", "disabled")
@@ -165,23 +165,3 @@ class ResolvedLine:
     offset: int
     chip_label: str = ""
     line_name: str = ""
-
-
-@dataclass
-class ProbeReport:
-    """What ``motorctld --probe`` prints: sections of lines, each backend adds its own."""
-
-    sections: list[tuple[str, list[str]]] = field(default_factory=list)
-    problems: list[str] = field(default_factory=list)
-
-    def add(self, title: str, lines: list[str]) -> None:
-        self.sections.append((title, lines))
-
-    def text(self) -> str:
-        out: list[str] = []
-        for title, lines in self.sections:
-            out.append(f"{title}:")
-            out += [f"  {line}" for line in lines]
-        for p in self.problems:
-            out.append(f"PROBLEM: {p}")
-        return "\n".join(out) + "\n"

@@ -19,8 +19,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
-from motorctl.hal.tmc_config import TmcAxisConfig
-from motorctl.hal.wiring import (
+from motorctl.hal.backends.gpiod.wiring import (
     BIASES,
     BRIDGE_STOPS,
     DcWiring,
@@ -31,6 +30,7 @@ from motorctl.hal.wiring import (
     PinWiring,
     PwmWiring,
 )
+from motorctl.hal.backends.tmc.config import TmcAxisConfig
 from motorctl.schema import (
     REQUIRED,
     Extension,

@@ -1,11 +1,15 @@
 """The ``process`` step executor: the step core in a process of its own.
 
-The child (``python -c`` through :mod:`subprocess`, ``motion/procstart.py``: a fresh
+Over 500 lines on purpose: the shared memory's layout, its rings and both processes'
+sides of them are one contract (the memory ordering below holds only if writer and reader
+agree to the byte), read and changed in one place.
+
+The child (``python -c`` through :mod:`subprocess`, ``motion/executor_process_start.py``: a fresh
 interpreter with its own GIL, which imports this module and what the step core needs,
 nothing of the daemon; ``motorctld`` starts it before the daemon's own imports) receives its
 parameters and descriptors over a Unix socket, enters SCHED_FIFO, mlockall and its CPU
 (``RealtimeOptions``), opens its OWN step/dir and end-stop lines from the picklable spec
-(``hal.registry.open_step_io``), and runs :class:`~motorctl.motion.stepcore.StepCore`.
+(``hal.registry.open_step_io``), and runs :class:`~motorctl.motion.step_core.StepCore`.
 
 The two processes share one block of anonymous shared memory (:mod:`motorctl.hal.shm`, a
 memfd the child receives as a descriptor): it has no name to remove, the kernel frees it
@@ -84,8 +88,8 @@ from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.registry import config_sections, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
-from motorctl.motion import procstart
-from motorctl.motion.executor import (
+from motorctl.motion import executor_process_start
+from motorctl.motion.executor_seam import (
     AxisLimits,
     ExecEvent,
     ExecEventKind,
@@ -96,8 +100,8 @@ from motorctl.motion.executor import (
 from motorctl.motion.latency import CELLS, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
 from motorctl.motion.segments import StepSegment
-from motorctl.motion.stepcore import COUNTER_NAMES, MOTOR_CELLS, CoreInbox, StepCore
-from motorctl.motion.stepexec import StepExecutor
+from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS, CoreInbox, StepCore
+from motorctl.motion.step_planner import StepExecutor
 
 log = logging.getLogger("motorctl.executor")
 
@@ -134,7 +138,7 @@ class Layout:
         off += motors * 2 * 8
         self.latency = off
         off += CELLS * 8
-        self.motor_cells = off  # per motor: shift, late-step figures (stepcore.MOTOR_CELLS)
+        self.motor_cells = off  # per motor: shift, late-step figures (step_core.MOTOR_CELLS)
         off += motors * MOTOR_CELLS * 8
         # rings: head, tail cells then records
         self.seg_rings = []
@@ -327,15 +331,15 @@ def _die_with_parent(parent: int) -> None:
 
 
 def child_main(channel: socket.socket, parent: int) -> None:
-    """The executor process's entry (``motion/procstart.py``'s bootstrap, once this module
-    is imported; ``parent``: the daemon's PID): wait for the parameters of
+    """The executor process's entry (``motion/executor_process_start.py``'s bootstrap, once
+    this module is imported; ``parent``: the daemon's PID): wait for the parameters of
     :func:`_child_main` and the descriptors named in them (``fds``: their names, in the
     order they came), then run. Dismissed (the socket ended without them): exit quietly."""
     _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
     config_sections()
-    got = procstart.receive(channel)
+    got = executor_process_start.receive(channel)
     if got is None:
         return
     params, fds = got
@@ -450,7 +454,7 @@ class ProcessStepExecutor(StepExecutor):
         late_threshold_s: float = 100e-6,
         rt: RealtimeOptions | None = None,
         start_timeout_s: float = 30.0,
-        process: procstart.ExecutorProcess | None = None,
+        process: executor_process_start.ExecutorProcess | None = None,
     ) -> None:
         """``process``: an executor process started earlier (``daemon/launch.py``), else
         one is started here."""
@@ -503,11 +507,11 @@ class ProcessStepExecutor(StepExecutor):
             raise
 
     # -- lifecycle -----------------------------------------------------------------------
-    def _hand_over(self, process: procstart.ExecutorProcess | None) -> None:
+    def _hand_over(self, process: executor_process_start.ExecutorProcess | None) -> None:
         """The process its parameters and descriptors (our copies are closed then)."""
         if process is None:
             try:
-                process = procstart.ExecutorProcess.start()
+                process = executor_process_start.ExecutorProcess.start()
             except OSError as exc:
                 raise HalError(f"cannot start the step executor process ({sys.executable}): "
                                f"{exc}") from exc

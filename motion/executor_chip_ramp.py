@@ -1,24 +1,24 @@
-"""Executors for TMC5160s that run their own ramps, and for a machine that mixes executors.
+"""Executors for driver chips that run their own ramps, and for a machine that mixes executors.
 
-:class:`RampExecutor` carries out the motors' plans with each TMC5160's ramp generator
-(motion-controller mode): a finite plan (MoveTo, a soft stop, a homing back-off, a run up to
-a soft limit) becomes positioning mode with XTARGET = the plan's end, VMAX = the plan's peak
-speed, AMAX/A1 = ACC, DMAX/D1 = DEC; an endless run becomes velocity mode (RAMPMODE 1/2, VMAX,
-AMAX). A hard stop is velocity mode with VMAX = 0 at the chip's largest deceleration.
-Positions are XACTUAL (the executed step counter). End stops are the chip's REFL/REFR inputs:
-the one ahead stops the motor in the chip and latches XLATCH, reported as ENDSTOP at the
-latched position; stall homing (a plan without end stops) enables sg_stop, and the chip's
-stop by stallGuard is reported as the driver's stall flag. Units: see hal.tmc.RampUnits.
+:class:`RampExecutor` carries out the motors' plans with each driver's own ramp generator,
+through the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability (a TMC5160 in
+motion-controller mode): a finite plan (MoveTo, a soft stop, a homing back-off, a run up to
+a soft limit) becomes a trapezoid to the plan's end at the plan's peak speed with its ramps
+(``move_to``); an endless run becomes ``run`` at its speed. A hard stop is ``stop(None)``:
+the chip's largest deceleration. Positions are the chip's step counter. End stops are the
+chip's reference switches: the one ahead stops the motor in the chip and latches the
+position, reported as ENDSTOP at the latched position; stall homing (a plan without end
+stops) lets stallGuard stop the motor, and that stop is reported as the driver's stall flag.
 
 :class:`SplitExecutor` gives each motor to one of several executors (STEP/DIR motors to the
-step executor, TMC5160 ramp motors to a RampExecutor) behind the one seam the engine uses.
+step executor, ramp motors to a RampExecutor) behind the one seam the engine uses.
 
-Threads: as every :class:`~motorctl.motion.executor.Executor`: commands and :meth:`service`
-come with the engine's lock held (the planner thread); SPI transfers happen there (a few
-datagrams, tens of microseconds each) and never on a step path. :meth:`position`,
-:meth:`endstop_active` and :meth:`health` read snapshots that :meth:`service` refreshes.
-SPI failures become FAULT events (the axis stops, its position is lost): never an exception
-out of the seam, never a dead thread.
+Threads: as every :class:`~motorctl.motion.executor_seam.Executor`: commands and
+:meth:`service` come with the engine's lock held (the planner thread); the drivers' bus
+transfers happen there (a few SPI datagrams, tens of microseconds each) and never on a step
+path. :meth:`position`, :meth:`endstop_active` and :meth:`health` read snapshots that
+:meth:`service` refreshes. Driver failures become FAULT events (the axis stops, its
+position is lost): never an exception out of the seam, never a dead thread.
 """
 
 from __future__ import annotations
@@ -31,9 +31,8 @@ from contextlib import suppress
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.hal.interfaces import Clock, HalError
-from motorctl.hal.tmc import F, RampState, Reg, Tmc5160, signed32
-from motorctl.motion.executor import (
+from motorctl.hal.interfaces import Clock, HalError, RampDriver, RampStatus
+from motorctl.motion.executor_seam import (
     Committed,
     ExecEvent,
     ExecEventKind,
@@ -59,7 +58,7 @@ class _Axis:
     blocked: bool = False  # stopped on its own: plans dropped until the caller's stop()
     position: int = 0
     velocity: float = 0.0  # steps/s
-    ramp_stat: int = 0
+    status: RampStatus | None = None  # the last read
     next_poll: float = 0.0
     resets: int = 0  # chip resets already reported
 
@@ -73,11 +72,11 @@ def peak_speed(traj: Trajectory) -> float:
 
 
 class RampExecutor(Executor):
-    """Motors whose TMC5160 moves them (SD_MODE low): one chip per motor."""
+    """Motors whose driver chip moves them (:class:`RampDriver`): one chip per motor."""
 
     def __init__(
         self,
-        chips: Sequence[Tmc5160],
+        chips: Sequence[RampDriver],
         clock: Clock,
         poll_s: float = 0.005,
         idle_poll_s: float = 0.05,
@@ -94,14 +93,14 @@ class RampExecutor(Executor):
         self.counters = {"polls": 0, "spi_errors": 0, "endstops": 0, "sg_stops": 0}
         for i, chip in enumerate(self.chips):  # the counters are XACTUAL from the start:
             with suppress(HalError):  # the daemon restores positions before start()
-                self._refresh(i, chip.state())
+                self._refresh(i, chip.ramp_status())
 
     # -- lifecycle -----------------------------------------------------------------
     def start(self) -> None:
         now = self.clock.now()
         for i, chip in enumerate(self.chips):
             try:
-                self._refresh(i, chip.state())
+                self._refresh(i, chip.ramp_status())
             except HalError as exc:
                 self._fault(i, now, exc)
 
@@ -185,20 +184,18 @@ class RampExecutor(Executor):
     def committed(self, motor: int, now: float) -> Committed:
         ax = self._axes[motor]
         with suppress(HalError):  # the snapshot will do; the next poll reports the failure
-            self._refresh(motor, self.chips[motor].state())
+            self._refresh(motor, self.chips[motor].ramp_status())
         return Committed(now, float(ax.position), ax.velocity, ax.position)
 
     def planned(self, motor: int) -> bool:
         return self._axes[motor].plan != ""
 
     # -- the planner's side ----------------------------------------------------------------
-    def _refresh(self, motor: int, st: RampState) -> None:
+    def _refresh(self, motor: int, st: RampStatus) -> None:
         ax = self._axes[motor]
-        ax.position = st.xactual
-        ax.velocity = self.chips[motor].units.steps_s(abs(st.vactual)) * (
-            1 if st.vactual >= 0 else -1
-        )
-        ax.ramp_stat = st.ramp_stat
+        ax.position = st.position
+        ax.velocity = st.velocity
+        ax.status = st
 
     def service(self, now: float) -> float:
         self._progress += 1
@@ -210,10 +207,10 @@ class RampExecutor(Executor):
             nxt = min(nxt, ax.next_poll)
         return nxt
 
-    def _poll(self, i: int, ax: _Axis, chip: Tmc5160, now: float) -> None:
+    def _poll(self, i: int, ax: _Axis, chip: RampDriver, now: float) -> None:
         self.counters["polls"] += 1
         try:
-            st = chip.state()
+            st = chip.ramp_status()
         except HalError as exc:
             if ax.plan:
                 self._fault(i, now, exc)
@@ -225,25 +222,20 @@ class RampExecutor(Executor):
             self._emit(ExecEvent(K.FAULT, i, ax.gen, ax.position, now, speed=math.inf,
                                  detail=f"{chip.name}: the driver was reset; position lost"))
             return
-        if st.flag(F.EVENT_STOP_SG) and not chip.sg_stopped:
-            chip.sg_stopped = True  # the driver's stall flag: the engine's monitor acts on it
-            self.counters["sg_stops"] += 1
+        if st.stall_stopped and chip.report_stall_stop():  # the driver's stall flag: the
+            self.counters["sg_stops"] += 1  # engine's driver monitor acts on it
         if ax.plan == "stop":
-            if st.vactual == 0:
+            if st.velocity == 0:
                 ax.plan = ""
                 self._emit(ExecEvent(K.STOPPED, i, ax.stop_gen, ax.position, now))
             return
         if ax.plan == "" or ax.blocked:
             return
-        hit = (ax.watch > 0 and st.flag(F.EVENT_STOP_R)) or (
-            ax.watch < 0 and st.flag(F.EVENT_STOP_L)
-        )
-        if hit:
-            latched = st.flag(F.STATUS_LATCH_R if ax.watch > 0 else F.STATUS_LATCH_L)
+        if ax.watch and st.switch_stopped(ax.watch):
             where = ax.position
-            if latched:
+            if st.latched(ax.watch):
                 try:
-                    where = signed32(chip.link.read(Reg.XLATCH))
+                    where = chip.latched_position()
                 except HalError as exc:
                     self._fault(i, now, exc)
                     return
@@ -252,7 +244,7 @@ class RampExecutor(Executor):
             self._emit(ExecEvent(K.ENDSTOP, i, ax.gen, where, now, direction=ax.watch,
                                  speed=abs(ax.velocity), detail="reference switch"))
             return
-        if ax.plan == "move" and st.vactual == 0 and ax.position == ax.target:
+        if ax.plan == "move" and st.velocity == 0 and ax.position == ax.target:
             ax.plan = ""
             self._emit(ExecEvent(K.DONE, i, ax.gen, ax.position, now))
 
@@ -261,8 +253,8 @@ class RampExecutor(Executor):
         return self._axes[motor].position
 
     def endstop_active(self, motor: int, direction: int) -> bool:
-        rs = self._axes[motor].ramp_stat
-        return bool((F.STATUS_STOP_R if direction > 0 else F.STATUS_STOP_L).get(rs))
+        st = self._axes[motor].status
+        return st is not None and st.switch_active(direction)
 
     def health(self) -> ExecutorHealth:
         return ExecutorHealth(alive=True, progress=self._progress, counters=dict(self.counters))
@@ -408,22 +400,26 @@ def with_ramp_motors(
     executor: Executor | None,
     drivers: Sequence[object],
     clock: Clock,
-    poll_s: float = 0.005,
-    idle_poll_s: float = 0.05,
+    poll_s: float | None = None,
+    idle_poll_s: float | None = None,
 ) -> Executor:
     """The machine's executor: ``executor`` (the step executor) for the motors whose driver
-    is not a TMC5160 in ramp mode (:class:`Tmc5160`), numbered among themselves in order as
-    ``HardwareSpec.stepped()`` numbers them; the ramp motors go to one :class:`RampExecutor`.
-    ``executor`` unchanged when there are no ramp motors; None when every motor is one."""
-    ramp = [i for i, d in enumerate(drivers) if isinstance(d, Tmc5160)]
-    stepped = [i for i, d in enumerate(drivers) if not isinstance(d, Tmc5160)]
+    does not run its own ramp (is no :class:`RampDriver`), numbered among themselves in order
+    as ``HardwareSpec.stepped()`` numbers them; the ramp motors go to one
+    :class:`RampExecutor`, polled as often as the most eager of them asks (``poll_s``,
+    ``idle_poll_s`` given: those). ``executor`` unchanged when there are no ramp motors; None
+    when every motor is one."""
+    ramp = [i for i, d in enumerate(drivers) if isinstance(d, RampDriver)]
+    stepped = [i for i, d in enumerate(drivers) if not isinstance(d, RampDriver)]
     if stepped and executor is None:
         raise ValueError(f"motors {stepped} need a step executor")
     if not ramp:
         assert executor is not None
         return executor
-    chips = [d for d in drivers if isinstance(d, Tmc5160)]
-    ramp_ex = RampExecutor(chips, clock, poll_s, idle_poll_s)
+    chips = [d for d in drivers if isinstance(d, RampDriver)]
+    poll = min(c.poll_s for c in chips) if poll_s is None else poll_s
+    idle = min(c.idle_poll_s for c in chips) if idle_poll_s is None else idle_poll_s
+    ramp_ex = RampExecutor(chips, clock, poll, idle)
     if not stepped:
         return ramp_ex
     assert executor is not None

@@ -13,13 +13,25 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.schema import Extension, Rule, Violation, boolean, integer, pairs, section
+from motorctl.schema import (
+    Extension,
+    Rule,
+    Sectioned,
+    Violation,
+    boolean,
+    integer,
+    pairs,
+    section,
+)
 
 # The simulated end stops sit inside the protocol's 24-bit position range (PROTOCOL.md §3).
 # hal may not import protocol, so the range is written out here and checked against
 # motorctl.protocol.codec.POS_MIN/POS_MAX by tests/test_config.py.
 POSITION_MIN = -(1 << 23)
 POSITION_MAX = (1 << 23) - 1
+#: where the simulated end stops sit without a [motors.mock] table
+ENDSTOP_MIN = -10_000
+ENDSTOP_MAX = 10_000
 
 
 def _endstops_ordered(v: Mapping[str, Any]) -> Violation | None:
@@ -42,13 +54,13 @@ class MockAxisConfig:
     """[motors.mock]: the simulated axis of one motor."""
 
     endstop_min: int = integer(
-        -10000,
+        ENDSTOP_MIN,
         POSITION_MIN,
         POSITION_MAX,
         "Position of the simulated end stop below, relative to the start position 0.",
     )
     endstop_max: int = integer(
-        10000,
+        ENDSTOP_MAX,
         POSITION_MIN,
         POSITION_MAX,
         "Position of the simulated end stop above, relative to the start position 0.",
@@ -101,6 +113,13 @@ def _wires_disjoint(v: Mapping[str, Any]) -> Violation | None:
                 return (f"mock.wires[{i}]", list(wire), f"pin {pin} is also in {where}")
             seen[pin] = i
     return None
+
+
+def motors_lose_steps(spec: Sectioned) -> bool:
+    """``[mock] lose_steps``: whether the simulated motors may lose steps as real ones
+    (False without a [mock] table; the registry's ``motors_lose_steps``)."""
+    world = spec.sections.get(MockConfig)
+    return isinstance(world, MockConfig) and world.lose_steps
 
 
 CONFIG_SECTIONS = (

@@ -1,44 +1,44 @@
-"""Step executors: the planner into step segments, and a step core in a thread.
+"""The step planner: the half of a step executor that cuts plans into step segments.
 
-:class:`StepExecutor` is the planner half (the daemon's process, engine lock held): it
-walks each motor's trajectory a little ahead of time (``ahead_s``), cuts the steps into
-segments in closed form (:class:`motion.segments.SegmentCutter`) and hands them to a step
-core through a :class:`~motorctl.motion.stepcore.CoreInbox`. Subclasses say where the core runs:
+:class:`StepExecutor` is the planner half of the STEP/DIR executors: it walks each motor's
+trajectory a little ahead of time (``ahead_s``), cuts the steps into segments in closed
+form (:class:`~motorctl.motion.segments.SegmentCutter`) and hands them to a step core
+(:mod:`motorctl.motion.step_core`) through a :class:`~motorctl.motion.step_core.CoreInbox`.
+Subclasses say where the core runs and how the inbox reaches it:
 
-- :class:`ThreadStepExecutor` (kind ``thread``): a thread of this process, or, on a virtual
-  clock, no thread at all (the engine drives it through ``next_deadline``/``advance``).
-- ``motion.procexec.ProcessStepExecutor`` (kind ``process``): a process of its own.
+- ``motion/executor_thread.py``, :class:`~motorctl.motion.executor_thread.ThreadStepExecutor`
+  (kind ``thread``): a thread of the daemon, or, on a virtual clock, no thread at all;
+- ``motion/executor_process.py``,
+  :class:`~motorctl.motion.executor_process.ProcessStepExecutor` (kind ``process``): a
+  process of its own, over shared memory.
+
+Threads: the daemon's planner side only (the engine's lock held: commands and
+:meth:`StepExecutor.service`); it reads the core's per-motor cells (``motor_cells``) as
+snapshots and never waits for the core.
 """
 
 from __future__ import annotations
 
-import logging
-import threading
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from motorctl.hal.interfaces import Clock, Hardware
-from motorctl.hal.registry import open_step_io
-from motorctl.hal.spec import HardwareSpec
-from motorctl.motion.executor import (
+from motorctl.hal.interfaces import Clock
+from motorctl.motion.executor_seam import (
     AxisLimits,
     Committed,
     ExecEvent,
     ExecEventKind,
     Executor,
-    ExecutorHealth,
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.latency import CELLS, Cells, LatencyStats
+from motorctl.motion.latency import Cells
 from motorctl.motion.profile import Trajectory
-from motorctl.motion.rt import RealtimeOptions, enter_realtime
 from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.stepcore import (
+from motorctl.motion.step_core import (
     ABSORBED,
-    COUNTER_NAMES,
     LAG_FAULTS,
     LAG_UNIT,
     MOTOR_CELLS,
@@ -46,11 +46,8 @@ from motorctl.motion.stepcore import (
     WORST_LAG,
     WORST_LATE,
     CoreInbox,
-    StepCore,
 )
 from motorctl.motion.types import MotorParams, Ramp
-
-log = logging.getLogger("motorctl.executor")
 
 K = ExecEventKind
 #: the planner tops up the handed-over steps once this much of the horizon has been used
@@ -327,154 +324,3 @@ class StepExecutor(Executor):
                 p.busy = False
                 p.counter = ev.position
         return out
-
-
-class ThreadStepExecutor(StepExecutor):
-    """The step core in a thread of this process (kind ``thread``), or driven by the
-    engine on a virtual clock.
-
-    Owner of the core: its thread (or the engine's caller on a virtual clock). Shared with
-    the planner: only the inbox deques and the ``positions``/``levels``/``counters`` lists,
-    which the GIL keeps whole.
-    """
-
-    def __init__(
-        self,
-        hw: Hardware,
-        backend: str,
-        spec: HardwareSpec,
-        limits: Sequence[AxisLimits],
-        *,
-        ahead_s: float | None = None,
-        lead_s: float | None = None,
-        max_error_s: float = 5e-6,
-        spin_s: float = 200e-6,
-        late_threshold_s: float = 100e-6,
-        rt: RealtimeOptions | None = None,
-    ) -> None:
-        virtual = hw.clock.is_virtual
-        super().__init__(
-            hw.clock,
-            limits,
-            ahead_s=(0.0 if virtual else 0.02) if ahead_s is None else ahead_s,
-            lead_s=(0.0 if virtual else 0.002) if lead_s is None else lead_s,
-            max_error_s=max_error_s,
-        )
-        self.io = open_step_io(backend, spec, hw.clock, parent=hw)
-        self.rt = rt or RealtimeOptions(priority=0, lock_memory=False)
-        n = len(limits)
-        self.positions = [0] * n
-        self.levels = [0] * len(self.io.inputs.names)
-        self.counters = [0] * len(COUNTER_NAMES)
-        self.stats = LatencyStats(late_threshold_s, [0] * CELLS)
-        self._events: deque[ExecEvent] = deque()
-        self.core = StepCore(
-            self.io, limits, self.inbox, self._emit,
-            positions=self.positions, levels=self.levels, counters=self.counters,
-            stats=self.stats, motor_cells=self.motor_cells, spin_s=spin_s,
-            coalesce_s=0.0 if virtual else max_error_s,  # virtual: the exact planned ticks
-        )
-        self._wake = threading.Event()
-        self._running = False
-        self._thread: threading.Thread | None = None
-        self.died: str | None = None
-        self.warnings: list[str] = []
-
-    @property
-    def virtual(self) -> bool:
-        return self.clock.is_virtual
-
-    def _emit(self, ev: ExecEvent) -> None:
-        self._events.append(ev)
-        self.on_event()
-
-    def _raw_events(self) -> list[ExecEvent]:
-        out = []
-        events = self._events
-        while events:
-            out.append(events.popleft())
-        return out
-
-    def _kick(self) -> None:
-        if not self.virtual:
-            self._wake.set()
-
-    def _sync(self) -> bool:
-        if self.virtual:
-            self.core.refill()
-            return True
-        return False
-
-    # -- lifecycle -----------------------------------------------------------------------
-    def start(self) -> None:
-        if self.virtual or self._thread is not None:
-            return
-        self._running = True
-        started = threading.Event()
-        self._thread = threading.Thread(
-            target=self._run, args=(started,), name="motorctl-steps", daemon=True
-        )
-        self._thread.start()
-        started.wait()
-
-    def _run(self, started: threading.Event) -> None:
-        self.warnings = enter_realtime(self.rt, "the step thread")
-        started.set()
-        wake = self._wake
-
-        def wait(timeout: float) -> None:
-            if wake.wait(timeout):
-                wake.clear()
-
-        try:
-            self.core.run(lambda: self._running, wait)
-        except BaseException as exc:  # the contract: a fault, never a silent dead thread
-            self.died = f"step thread died: {type(exc).__name__}: {exc}"
-            log.exception("%s", self.died)
-            self._emit(ExecEvent(K.DIED, -1, -1, 0, self.clock.now(), detail=self.died))
-
-    def close(self) -> None:
-        self._running = False
-        self._wake.set()
-        if self._thread is not None:
-            self._thread.join()
-            self._thread = None
-        self.core.halt_all()
-        self.io.close()
-
-    # -- snapshots -----------------------------------------------------------------------
-    def position(self, motor: int) -> int:
-        return self.positions[motor]
-
-    def endstop_active(self, motor: int, direction: int) -> bool:
-        if self.virtual:
-            self.core.refill()
-        line = self.io.endstops[motor][1 if direction > 0 else 0]
-        return line is not None and bool(self.levels[line])
-
-    def health(self) -> ExecutorHealth:
-        alive = self.virtual or (self._thread is not None and self._thread.is_alive())
-        return ExecutorHealth(
-            alive=alive and self.died is None,
-            progress=self.counters[0],
-            reason=self.died,
-            counters=dict(zip(COUNTER_NAMES, self.counters, strict=True)),
-            latency=self.stats.summary(),
-        )
-
-    def step_lateness(self) -> LatencyStats:
-        return self.stats
-
-    # -- the virtual clock ---------------------------------------------------------------
-    def next_deadline(self) -> float | None:
-        if not self.virtual:
-            return super().next_deadline()
-        self.core.refill()
-        d = self.core.deadline()
-        return None if d is None else from_ticks(d)
-
-    def advance(self, now: float) -> None:
-        if not self.virtual:
-            super().advance(now)
-            return
-        self.core.advance(to_ticks(now))

@@ -1,15 +1,18 @@
 """The executor seam: what carries out the motion the motor state machines plan.
 
 An :class:`Executor` turns each motor's planned :class:`~motorctl.motion.profile.Trajectory`
-into motion and reports what really happened. Implementations:
+into motion and reports what really happened. Implementations, each in its own module:
 
-- ``motion.stepexec``: timed STEP/DIR edges. The planner in the daemon's process cuts each
-  trajectory into Klipper-style step segments a few milliseconds ahead and feeds them to a
-  real-time step core that runs in a thread (``thread``) or a process of its own
-  (``process``), and that owns the STEP/DIR and end-stop lines.
-- a driver chip that runs its own ramp (TMC5160 motion-controller mode, ``hal`` backend
-  ``spidev``): ``follow`` maps to XTARGET/VMAX/AMAX/DMAX or velocity mode, ``position`` is
-  XACTUAL.
+- timed STEP/DIR edges: ``step_planner.py`` (the planner half, in the daemon's process)
+  cuts each trajectory into Klipper-style step segments a few milliseconds ahead and
+  feeds them to the step core (``step_core.py``, the hot loop), which owns the STEP/DIR
+  and end-stop lines and runs in a thread (``executor_thread.py``, kind ``thread``) or a
+  process of its own (``executor_process.py`` and ``executor_process_start.py``, kind
+  ``process``);
+- a driver chip that runs its own ramp (``executor_chip_ramp.py``: TMC5160
+  motion-controller mode, through the HAL's :class:`~motorctl.hal.interfaces.RampDriver`
+  capability): ``follow`` maps to the chip's target, speed and ramps, ``position`` is its
+  step counter; ``SplitExecutor`` there mixes it with a step executor.
 
 Threads: the methods are called by the motion engine with its lock held (the command and
 planner side), except :meth:`Executor.position`, :meth:`Executor.health`,

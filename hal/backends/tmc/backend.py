@@ -1,12 +1,15 @@
-"""Attach TMC2130/TMC5160 drivers over spidev to hardware that another backend built.
+"""The SPI driver layer's entry points: attach TMC2130/TMC5160 drivers over spidev to
+hardware that another backend built, and probe them.
 
 A motor's STEP/DIR lines, end stops and pins come from the hardware backend (``mock``,
 ``gpiod``); its driver chip, when the config names one, is opened here: each chip is
 identified, configured and verified before anything moves, and one :class:`DriverMonitor`
 thread polls their DRV_STATUS from then on. py-spidev is imported only when a driver is
-configured (through :func:`motorctl.hal.spi.spidev_factory`).
+configured (through :func:`motorctl.hal.backends.tmc.spi.spidev_factory`). The registry
+(``hal/registry.py``, ``LAYERS``) calls :func:`attach` and :func:`probe` when the config
+gives a motor a driver.
 
-Threads: :func:`attach_drivers` runs on the thread that opens the hardware; afterwards the
+Threads: :func:`attach` runs on the thread that opens the hardware; afterwards the
 drivers belong to the monitor thread (polls) and are read lock-free by the step path. The
 closer registered in ``Hardware.closers`` stops the monitor (bounded join) and leaves each
 driver disabled (TOFF = 0) when so configured.
@@ -15,19 +18,32 @@ driver disabled (TOFF = 0) when so configured.
 from __future__ import annotations
 
 import logging
-from collections.abc import Sequence
 from typing import Protocol
 
+from motorctl.hal.backends.tmc.config import SpidevConfig
+from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.backends.tmc.link import TmcError
+from motorctl.hal.backends.tmc.monitor import DriverMonitor
+from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
+from motorctl.hal.backends.tmc.settings import TmcSpec
+from motorctl.hal.backends.tmc.spi import (
+    SpiAddress,
+    SpiBuses,
+    SpiDevice,
+    SpiFactory,
+    spidev_factory,
+)
 from motorctl.hal.interfaces import Clock, HalError, Hardware
 from motorctl.hal.spec import HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiFactory, spidev_factory
-from motorctl.hal.tmc import DriverMonitor, RefSwitches, Tmc5160, TmcDriver, TmcError, TmcSpec
 
 log = logging.getLogger("motorctl.tmc")
 
 
-def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory) -> TmcDriver:
-    """A driver object for ``spec`` (not started); ValueError for an impossible setting."""
+def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory,
+                layer: SpidevConfig | None = None) -> TmcDriver:
+    """A driver object for ``spec`` (not started); ValueError for an impossible setting.
+    ``layer``: the ``[spidev]`` settings (a ramp chip's poll periods; None: the driver's
+    defaults, the keys' defaults too)."""
     try:
         address = SpiAddress.parse(spec.spi)
     except ValueError as exc:
@@ -35,39 +51,41 @@ def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory) 
     device = SpiDevice(address, buses, factory, spec.spi_speed_hz)
     if spec.ramp:
         switches = RefSwitches(spec.ref_left_active_low, spec.ref_right_active_low)
-        return Tmc5160(name, device, spec.settings, switches)
+        if layer is None:
+            return Tmc5160(name, device, spec.settings, switches)
+        return Tmc5160(name, device, spec.settings, switches, poll_s=layer.ramp_poll_ms / 1000,
+                       idle_poll_s=layer.ramp_idle_poll_ms / 1000)
     return TmcDriver(name, device, spec.settings)
 
 
-def attach_drivers(
-    hw: Hardware,
-    specs: Sequence[TmcSpec | None],
-    clock: Clock,
-    names: Sequence[str],
-    factory: SpiFactory | None = None,
+def attach(
+    hw: Hardware, spec: HardwareSpec, clock: Clock, factory: SpiFactory | None = None
 ) -> list[TmcDriver]:
-    """Open, check and configure every configured driver, put each in place of its motor's
-    driver, start the monitor. On any error the drivers already opened are closed again and
-    a TmcError/SpiError (HalError) names the device and the fix."""
+    """Open, check and configure every driver the spec's axes name, put each in place of its
+    motor's driver, start the monitor. On any error the drivers already opened are closed
+    again and a TmcError/SpiError (HalError) names the device and the fix."""
+    specs = [a.driver if isinstance(a.driver, TmcSpec) else None for a in spec.axes]
     if not any(specs):
         return []
     if len(specs) > len(hw.steppers):
         raise TmcError(f"{len(specs)} drivers configured for {len(hw.steppers)} motors")
+    names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
+    layer = spec.sections.get(SpidevConfig)
     factory = factory or spidev_factory()
     buses = SpiBuses()
     started: list[tuple[int, TmcDriver, TmcSpec]] = []
     try:
-        for i, spec in enumerate(specs):
-            if spec is None:
+        for i, tmc in enumerate(specs):
+            if tmc is None:
                 continue
-            driver = open_driver(names[i], spec, buses, factory)
+            driver = open_driver(names[i], tmc, buses, factory, layer)
             driver.start()
-            started.append((i, driver, spec))
+            started.append((i, driver, tmc))
     except BaseException:
-        for _, driver, _spec in started:
+        for _, driver, _tmc in started:
             driver.device.close()
         raise
-    for i, driver, _spec in started:
+    for i, driver, _tmc in started:
         hw.steppers[i].driver = driver
     drivers = [d for _, d, _ in started]
     monitor = DriverMonitor(drivers, clock.now)
@@ -75,8 +93,8 @@ def attach_drivers(
 
     def close() -> None:
         monitor.stop()
-        for _, driver, spec in started:
-            if spec.disable_at_exit:
+        for _, driver, tmc in started:
+            if tmc.disable_at_exit:
                 driver.close()
             else:
                 driver.device.close()
@@ -88,7 +106,7 @@ def attach_drivers(
 
 
 class Report(Protocol):
-    """What ``motorctld --probe`` collects (motorctl.hal.wiring.ProbeReport)."""
+    """What ``motorctld --probe`` collects (:class:`motorctl.hal.interfaces.ProbeReport`)."""
 
     problems: list[str]
 
@@ -101,7 +119,8 @@ def probe(
     """``--probe``: each configured driver's chip and version, DRV_STATUS decoded, SPI status;
     reads registers only (nothing is written, nothing moves). Problems go to the report."""
     del clock
-    configured = [(i, a) for i, a in enumerate(spec.axes) if a.driver is not None]
+    configured = [(i, a.name or f"motor {i}", a.driver) for i, a in enumerate(spec.axes)
+                  if isinstance(a.driver, TmcSpec)]
     if not configured:
         return
     try:
@@ -111,11 +130,9 @@ def probe(
         return
     buses = SpiBuses()
     lines: list[str] = []
-    for i, axis in configured:
-        assert axis.driver is not None
-        name = axis.name or f"motor {i}"
+    for _, name, tmc in configured:
         try:
-            driver = open_driver(name, axis.driver, buses, factory)
+            driver = open_driver(name, tmc, buses, factory)
         except (HalError, ValueError) as exc:
             report.problems.append(f"{name}: {exc}")
             continue
@@ -129,7 +146,7 @@ def probe(
         lines += found
         if any("MISMATCH" in line or "no driver chip answers" in line for line in found):
             report.problems.append(found[0])
-        elif axis.driver.ramp and any("SD_MODE=1" in line for line in found):
+        elif tmc.ramp and any("SD_MODE=1" in line for line in found):
             report.problems.append(
                 f"{name}: configured for the TMC5160's ramp generator but its SD_MODE pin is "
                 "high (STEP/DIR); tie SD_MODE to GND"

@@ -1,8 +1,13 @@
 """Simulated hardware: a world of axes with end stops, wired pins, a DC bridge.
 
+Over 500 lines on purpose: one simulated machine whose parts (axes, step outputs, edge
+inputs, pins, bridge) share its cells and timeline, as the real parts share one board.
+
 Every mock part subclasses the real interface and records each change with its
 timestamp in a shared timeline (gpiozero's MockFactory does the same). Tests can
-inject end-stop levels, driver faults and stalls.
+inject end-stop levels, driver faults and stalls. The simulated end stops and the wires
+come from the mock's own config sections in the spec (``[motors.mock]``, ``[mock]``:
+``config.py``); :func:`mock_axis` builds an axis with them by hand.
 """
 
 from __future__ import annotations
@@ -15,6 +20,13 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+from motorctl.hal.backends.mock.config import (
+    ENDSTOP_MAX,
+    ENDSTOP_MIN,
+    MockAxisConfig,
+    MockConfig,
+    motors_lose_steps,
+)
 from motorctl.hal.interfaces import (
     BridgeState,
     Clock,
@@ -30,7 +42,6 @@ from motorctl.hal.interfaces import (
     StepperDriver,
     StepperHardware,
 )
-from motorctl.hal.mock_config import MockConfig
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 
@@ -109,6 +120,9 @@ class MockAxis:
 
     def __init__(self, spec: AxisSpec, cells: memoryview) -> None:
         self.spec = spec
+        ends = spec.sections.get(MockAxisConfig)  # [motors.mock]: where the end stops sit
+        self.endstop_min: int = ENDSTOP_MIN if ends is None else ends.endstop_min
+        self.endstop_max: int = ENDSTOP_MAX if ends is None else ends.endstop_max
         self._c = cells
         self.fault: str | None = None  # the driver chip's fault: the daemon's process only
 
@@ -169,8 +183,8 @@ class MockAxis:
         if forced != _UNSET:
             return bool(forced == _ON)
         if which == "min":
-            return self.position <= self.spec.endstop_min
-        return self.position >= self.spec.endstop_max
+            return self.position <= self.endstop_min
+        return self.position >= self.endstop_max
 
     @property
     def stalled(self) -> bool:
@@ -180,8 +194,8 @@ class MockAxis:
         """
         return (
             self.forced_stall
-            or (self.position > self.spec.endstop_max and self.heading is True)
-            or (self.position < self.spec.endstop_min and self.heading is False)
+            or (self.position > self.endstop_max and self.heading is True)
+            or (self.position < self.endstop_min and self.heading is False)
         )
 
 
@@ -367,7 +381,8 @@ class MockWorld:
         }
         self.line_errors: dict[tuple[str, int], OSError] = {}
         self._wires: dict[int, int] = {}
-        for a, b in spec.wires:
+        world = spec.sections.get(MockConfig)
+        for a, b in world.wires if isinstance(world, MockConfig) else ():
             self._wires[a] = b
             self._wires[b] = a
         self.bridge = MockBridge(self) if spec.dc else None
@@ -439,8 +454,7 @@ class MockWorld:
     def hardware(self) -> Hardware:
         steppers = [StepperHardware(driver=MockDriver(axis)) for axis in self.axes]
         hw = MockHardware(self.clock, steppers, dict(self.pins), self.bridge, world=self)
-        world = self.spec.sections.get(MockConfig)
-        hw.motors_lose_steps = isinstance(world, MockConfig) and world.lose_steps
+        hw.motors_lose_steps = motors_lose_steps(self.spec)
         if self.mechanics is not None:
             hw.step_io_fds["mechanics"] = self.mechanics
         hw.closers.append(self.close)
@@ -458,9 +472,19 @@ class MockWorld:
 
 @dataclass
 class MockHardware(Hardware):
-    """Hardware whose parts are simulated by ``world``."""
+    """Hardware whose parts are simulated by ``world``. The simulated axes' positions live
+    and die with the daemon's state file (key ``mock``), as the machine they stand for
+    would keep its place across a restart of the daemon."""
 
     world: MockWorld | None = None
+
+    def persistent_state(self) -> dict[str, Any]:
+        return {} if self.world is None else {"mock": self.world.snapshot()}
+
+    def restore_persistent_state(self, saved: dict[str, Any]) -> None:
+        mock = saved.get("mock")
+        if self.world is not None and isinstance(mock, dict):
+            self.world.restore(mock)
 
 
 def _timeline_len(spec: HardwareSpec) -> int | None:
@@ -505,6 +529,16 @@ def read_timeline(path: str) -> Timeline:
             t, kind, index, value = json.loads(line)
             timeline.record(t, EventKind(kind), index, value)
     return timeline
+
+
+def mock_axis(
+    endstop_min: int = ENDSTOP_MIN, endstop_max: int = ENDSTOP_MAX, **axis: Any
+) -> AxisSpec:
+    """An axis for the mock built by hand (tests, benchmarks): ``axis`` as AxisSpec takes
+    it, the simulated end stops where its ``[motors.mock]`` table would put them."""
+    sections = {**axis.pop("sections", {}),
+                MockAxisConfig: MockAxisConfig(endstop_min=endstop_min, endstop_max=endstop_max)}
+    return AxisSpec(**axis, sections=sections)
 
 
 def world_of(hw: Hardware) -> MockWorld:

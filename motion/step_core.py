@@ -1,19 +1,46 @@
 """The step core: timed STEP/DIR edges from queued step segments, failing safe.
 
-Owner: exactly one thread, the executor's (a thread of the daemon for the ``thread`` kind,
-the main thread of the executor process for ``process``). Nothing else touches its state;
-the planner talks to it only through :class:`CoreInbox` (lock-free deques, or the
-shared-memory rings of ``motion.procexec``) and it answers through ``emit`` and the
-``positions`` and ``counters`` cells. It may block only in ``wait`` (nothing due) and spins
-only for the last ``spin_s`` before an edge.
+THE HOT LOOP. This module is to motorctl what Klipper's C helper is to Klippy: the one
+place that runs per step, in real time, and it keeps rules of its own. Read them before
+changing anything here, and keep to them in what it calls:
+
+- One owner. Exactly one thread runs it: a thread of the daemon for the ``thread`` kind
+  (``executor_thread.py``), the main thread of the executor's own process for ``process``
+  (``executor_process.py``), or the engine's caller on a virtual clock. Nothing else
+  touches its state.
+- No locks. The planner reaches it only through :class:`CoreInbox` (deques that the GIL
+  makes safe for one producer and one consumer, or the shared-memory rings of
+  ``executor_process.py``); it answers through ``emit`` and cells (``positions``,
+  ``levels``, ``counters``, ``motor_cells``, the latency histogram): one store per
+  value, read by others as snapshots. ``emit`` must be cheap and never block (a deque
+  append, a ring record and a wake-up byte).
+- No allocation per step. Per-motor state lives in lists made at start, indexed by
+  motor; the motors due and done at an edge go into the core's own two lists, cleared
+  and refilled. New objects are made only for what ends or stops a motion (an
+  :class:`~motorctl.motion.executor_seam.ExecEvent`), never per step; the ints of the
+  tick arithmetic are CPython's own. The executor's process runs with the garbage
+  collector off, the daemon while anything moves (``rt.GcPolicy``): garbage made here
+  would pile up, or cost a collection pause in the thread kind.
+- No logging, no printing, no I/O but the HAL's. The only calls out are the StepIO's
+  (``StepOutputs.set_direction``/``rise``/``fall``, ``EdgeInputs.read_edges``/``level``):
+  one backend call each, which may not block. A backend raises only ``HalError`` at run
+  time; the core catches it at each call and makes it a FAULT event of the motors
+  concerned: the loop never dies of a hardware error.
+- What may block: only ``wait`` (the caller's, when nothing is due within ``spin_s``);
+  the core spins only for the last ``spin_s`` before an edge and for the STEP pulse
+  width (``StepOutputs.fall``). Nothing here sleeps, joins or waits for the planner.
+- Its cost is measured: ``bench/steps.py`` prints ``core_cost_us``, the CPU time per step
+  on mock lines. A change here quotes it before and after and must not make it worse.
+- One module, a little over 500 lines with this fence, on purpose: the loop's state and
+  every path that touches it are read together.
 
 Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
 the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
 plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
-motor may not survive (:class:`~motorctl.motion.executor.AxisLimits`): then it stops
+motor may not survive (:class:`~motorctl.motion.executor_seam.AxisLimits`): then it stops
 (TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
-DIR has settled, raise the STEP lines of every due motor in one
-call, account while they are high, lower them, then look at the end stop ahead of each
+DIR has settled, raise the STEP lines of every due motor in one call, account while they
+are high, lower them, then look at the end stop ahead of each
 motor that stepped. Each motor's next due time is kept up to date as its state changes, so
 finding the next edge is one ``min`` over the motors. Times are integer ns (ticks); a
 segment's ticks are plan ticks, made at plan tick + the motor's shift. A motor
@@ -33,7 +60,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from motorctl.hal.interfaces import HalError, StepIO
-from motorctl.motion.executor import (
+from motorctl.motion.executor_seam import (
     TICKS_PER_S,
     AxisLimits,
     ExecEvent,
@@ -155,6 +182,10 @@ class StepCore:
             self.levels[line] = int(inputs.level(line))
         # (min line, max line) per motor, indexed by direction > 0
         self.ends = [(lo, hi) for lo, hi in io.endstops]
+        # the motors due at this edge and those whose segment it ended: the core's own
+        # lists, cleared and refilled by each step() (nothing is allocated per step)
+        self._due: list[int] = []
+        self._done: list[int] = []
 
     # -- the planner's requests ---------------------------------------------------
     def _apply_stops(self) -> None:
@@ -287,7 +318,8 @@ class StepCore:
         # due now, or planned within ``coalesce`` of now with nothing else holding it back
         # (spacing, DIR set-up): it shares this pulse rather than queue behind it
         soon = now + self.coalesce
-        due: list[int] = []
+        due = self._due
+        due.clear()
         slid = False
         for m in self.motors:
             d = due_t[m]
@@ -310,7 +342,8 @@ class StepCore:
         left, iv, add, min_iv = self.left, self.iv, self.add, self.min_iv
         last_edge, prev_t = self.last_edge, self.prev_t
         width = 0
-        done: list[int] = []
+        done = self._done
+        done.clear()
         for m in due:
             planned = next_t[m]
             if slid and self.slid[m]:  # lateness is judged against the schedule before it slid

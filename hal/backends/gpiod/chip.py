@@ -2,7 +2,7 @@
 
 ``gpiod`` is imported only here and only when :func:`load_api` is called. :class:`GpioApi`
 finds chips and lines and makes :class:`LineRequest` objects; the backend
-(:mod:`motorctl.hal.gpiod_backend`) builds pins, bridges, end stops and step ports on
+(:mod:`motorctl.hal.backends.gpiod.backend`) builds pins, bridges, end stops and step ports on
 them. Levels here are physical (no active-low inversion): the caller inverts.
 
 Threads: a request belongs to the part that made it (pin, bridge, step port, end stop);
@@ -21,8 +21,8 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
+from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
 from motorctl.hal.interfaces import HalError
-from motorctl.hal.wiring import LineRef, ResolvedLine
 
 DEV = "/dev"
 

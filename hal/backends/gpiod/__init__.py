@@ -1,0 +1,2 @@
+"""The gpiod backend: STEP/DIR, end stops, an H-bridge and IO pins on Linux GPIO lines
+through libgpiod (its v1 or v2 Python API: ``chip.py``), wired as ``wiring.py`` says."""

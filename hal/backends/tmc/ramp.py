@@ -1,0 +1,255 @@
+"""A TMC5160 whose own ramp generator moves the motor (motion-controller mode, SD_MODE low).
+
+:class:`Tmc5160` is a :class:`~motorctl.hal.backends.tmc.driver.TmcDriver` that also sets up
+and drives the chip's ramp generator: positioning and velocity mode, hard and soft stops,
+the reference switches REFL/REFR (stop and latch XACTUAL into XLATCH), stallGuard stops,
+and homing on them. Units: ``tmc5160.RampUnits``.
+
+Threads: started like every driver (``driver.py``; its DRV_STATUS is polled by the monitor
+thread); the ramp calls come from the thread of the executor that owns the motor (the
+planner, with the motion engine's lock held). Each is a few SPI datagrams in one bus
+session.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.backends.tmc.fields import Field, signed32
+from motorctl.hal.backends.tmc.link import TmcError
+from motorctl.hal.backends.tmc.settings import TmcSettings
+from motorctl.hal.backends.tmc.spi import SpiDevice
+from motorctl.hal.backends.tmc.tmc5160 import (
+    RAMP_STAT_WC,
+    TMC5160,
+    VSTOP_MIN,
+    F,
+    RampMode,
+    RampUnits,
+    Reg,
+)
+from motorctl.hal.interfaces import DriverStatus, RampDriver, RampStatus
+
+
+@dataclass(frozen=True)
+class RampState:
+    """XACTUAL, VACTUAL (both signed) and RAMP_STAT, read in one bus session."""
+
+    xactual: int
+    vactual: int
+    ramp_stat: int
+
+    def flag(self, f: Field) -> bool:
+        return bool(f.get(self.ramp_stat))
+
+    @property
+    def stopped(self) -> bool:
+        return self.vactual == 0
+
+
+@dataclass
+class RefSwitches:
+    """The TMC5160's REFL/REFR inputs: polarity (True = active low)."""
+
+    left_active_low: bool = False
+    right_active_low: bool = False
+
+
+class Tmc5160(TmcDriver, RampDriver):
+    """A TMC5160 whose own ramp generator moves the motor (SD_MODE low): the HAL's
+    :class:`~motorctl.hal.interfaces.RampDriver` capability. ``poll_s``/``idle_poll_s``:
+    how often its executor reads it (``[spidev] ramp_poll_ms``/``ramp_idle_poll_ms``)."""
+
+    def __init__(
+        self,
+        name: str,
+        device: SpiDevice,
+        settings: TmcSettings,
+        switches: RefSwitches | None = None,
+        *,
+        poll_s: float = 0.005,
+        idle_poll_s: float = 0.05,
+    ) -> None:
+        if settings.kind is not TMC5160:
+            raise ValueError("the ramp generator needs a TMC5160")
+        super().__init__(name, device, settings)
+        self.units = RampUnits(settings.clock_hz)
+        self.switches = switches or RefSwitches()
+        self.sw_mode = self._sw_mode_base()
+        self.sg_stopped = False  # the chip stopped itself on stallGuard (set by the executor)
+        self.poll_s = poll_s
+        self.idle_poll_s = idle_poll_s
+
+    def _sw_mode_base(self) -> int:
+        sw = F.POL_STOP_L.put(0, int(self.switches.left_active_low))
+        return F.POL_STOP_R.put(sw, int(self.switches.right_active_low))
+
+    def _bring_up(self) -> None:
+        super()._bring_up()
+        if F.SD_MODE.get(self.link.read(Reg.IOIN)):
+            raise TmcError(
+                f"{self.device.path} ({self.name}): the TMC5160's SD_MODE pin is high, so "
+                "it takes STEP/DIR and its ramp generator is off; tie SD_MODE to GND or "
+                "configure the motor with mode = \"step_dir\""
+            )
+        self.ramp_init()
+
+    def reinit(self) -> None:
+        """A reset cleared the ramp registers too (and XACTUAL: the position is lost)."""
+        self.configure()
+        self.ramp_init()
+
+    def ramp_init(self) -> None:
+        """Hold still where it is, with the ramp registers the datasheet requires non-zero."""
+        link = self.link
+        x = signed32(link.read(Reg.XACTUAL))
+        link.write(Reg.RAMPMODE, RampMode.HOLD)
+        link.write(Reg.VMAX, 0)
+        link.write(Reg.XTARGET, x)
+        link.write(Reg.VSTART, 0)
+        link.write(Reg.V1, 0)  # single acceleration phase: AMAX/DMAX only
+        link.write(Reg.VSTOP, VSTOP_MIN)
+        link.write(Reg.TZEROWAIT, 0)
+        link.write(Reg.SW_MODE, self.sw_mode)
+        link.write(Reg.RAMP_STAT, RAMP_STAT_WC)
+        link.write(Reg.RAMPMODE, RampMode.POSITION)
+        self.verify_ramp(x)
+
+    def verify_ramp(self, x: int) -> None:
+        mode, target, sw = self.link.read_many([Reg.RAMPMODE, Reg.XTARGET, Reg.SW_MODE])
+        if (mode & 3, signed32(target), sw) != (RampMode.POSITION, x, self.sw_mode):
+            raise TmcError(
+                f"{self.device.path} ({self.name}): ramp registers read back wrong "
+                f"(RAMPMODE={mode}, XTARGET={signed32(target)}, SW_MODE=0x{sw:x})"
+            )
+
+    def watch(self, direction: int, stall: bool = False) -> None:
+        """Stop switches for the next motion: the one ahead in ``direction`` (+1: REFR,
+        -1: REFL, 0: none) stops the motor hard and latches XACTUAL into XLATCH on its active
+        edge; ``stall``: stallGuard stops it (sg_stop). Old latches and events are cleared."""
+        sw = self._sw_mode_base()
+        if direction > 0:
+            sw = F.LATCH_R_ACTIVE.put(F.STOP_R_ENABLE.put(sw, 1), 1)
+        elif direction < 0:
+            sw = F.LATCH_L_ACTIVE.put(F.STOP_L_ENABLE.put(sw, 1), 1)
+        if stall:
+            sw = F.SG_STOP.put(sw, 1)
+        with self.device.session():
+            self.link.write(Reg.RAMP_STAT, RAMP_STAT_WC)
+            self.link.write(Reg.SW_MODE, sw)
+        self.sg_stopped = False
+
+    def status(self) -> DriverStatus:
+        """As :meth:`TmcDriver.status`; a stop by stallGuard (seen by the executor) is a stall."""
+        status = super().status()
+        if self.sg_stopped and not status.stall:
+            return DriverStatus(status.fault, stall=True)
+        return status
+
+    def _ramps(self, acc: float, dec: float) -> None:
+        a, d = self.units.accel(acc), self.units.decel(dec)
+        self.link.write(Reg.AMAX, a)
+        self.link.write(Reg.A1, a)
+        self.link.write(Reg.DMAX, d)
+        self.link.write(Reg.D1, d)  # never 0 in positioning mode, even with V1 = 0
+
+    def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
+        """Positioning mode: run a trapezoid to ``target`` (steps)."""
+        with self.device.session():
+            self._ramps(acc, dec)
+            self.link.write(Reg.VMAX, self.units.velocity(speed))
+            self.link.write(Reg.RAMPMODE, RampMode.POSITION)
+            self.link.write(Reg.XTARGET, target)
+
+    def run(self, direction: int, speed: float, acc: float) -> None:
+        """Velocity mode: accelerate with ``acc`` to ``speed`` in ``direction`` (+1/-1)."""
+        with self.device.session():
+            self.link.write(Reg.AMAX, self.units.accel(acc))
+            self.link.write(Reg.VMAX, self.units.velocity(speed))
+            mode = RampMode.VELOCITY_POS if direction > 0 else RampMode.VELOCITY_NEG
+            self.link.write(Reg.RAMPMODE, mode)
+
+    def stop(self, dec: float | None) -> None:
+        """Stop along ``dec`` (steps/s^2), or as hard as the chip can (``None``)."""
+        with self.device.session():
+            a = self.units.AMAX_MAX if dec is None else self.units.decel(dec)
+            state = self.state()
+            self.link.write(Reg.AMAX, a)
+            self.link.write(Reg.DMAX, a)
+            self.link.write(Reg.D1, a)
+            self.link.write(Reg.VMAX, 0)  # velocity mode ramps to 0 with AMAX
+            mode = RampMode.VELOCITY_POS if state.vactual >= 0 else RampMode.VELOCITY_NEG
+            self.link.write(Reg.RAMPMODE, mode)
+
+    def state(self) -> RampState:
+        x, v, rs = self.link.read_many([Reg.XACTUAL, Reg.VACTUAL, Reg.RAMP_STAT])
+        return RampState(signed32(x), Field(0, 24, signed=True).get(v), rs)
+
+    def ramp_status(self) -> RampStatus:
+        """:meth:`state` in the HAL's terms: REFL is the min side, REFR the max side."""
+        st = self.state()
+        v = st.vactual
+        return RampStatus(
+            position=st.xactual,
+            velocity=self.units.steps_s(abs(v)) * (1 if v >= 0 else -1),
+            active_min=st.flag(F.STATUS_STOP_L),
+            active_max=st.flag(F.STATUS_STOP_R),
+            stopped_min=st.flag(F.EVENT_STOP_L),
+            stopped_max=st.flag(F.EVENT_STOP_R),
+            latched_min=st.flag(F.STATUS_LATCH_L),
+            latched_max=st.flag(F.STATUS_LATCH_R),
+            stall_stopped=st.flag(F.EVENT_STOP_SG),
+        )
+
+    def latched_position(self) -> int:
+        """XLATCH: XACTUAL at the reference switch's active edge."""
+        return signed32(self.link.read(Reg.XLATCH))
+
+    def report_stall_stop(self) -> bool:
+        if self.sg_stopped:
+            return False
+        self.sg_stopped = True  # status() reports the stall: the engine's monitor acts on it
+        return True
+
+    def position(self) -> int:
+        return signed32(self.link.read(Reg.XACTUAL))
+
+    def set_position(self, x: int) -> None:
+        """Declare the (standing) motor to be at ``x`` without moving it."""
+        with self.device.session():
+            self.link.write(Reg.RAMPMODE, RampMode.HOLD)
+            self.link.write(Reg.VMAX, 0)
+            self.link.write(Reg.XACTUAL, x)
+            self.link.write(Reg.XTARGET, x)
+            self.link.write(Reg.RAMPMODE, RampMode.POSITION)
+
+    def home_start(self, direction: int, speed: float, acc: float, source: str) -> None:
+        """Run toward the reference switch (REFR for +, REFL for -) or until stallGuard stops
+        the chip; the switch's active edge latches XACTUAL into XLATCH."""
+        with self.device.session():
+            self.watch(0 if source == "stall" else direction, stall=source == "stall")
+            self.run(direction, speed, acc)
+
+    def home_event(self, state: RampState, direction: int, source: str) -> bool:
+        """True when the homing stop happened (the chip stopped the motor itself)."""
+        if source == "stall":
+            return state.flag(F.EVENT_STOP_SG)
+        return state.flag(F.EVENT_STOP_R if direction > 0 else F.EVENT_STOP_L)
+
+    def home_finish(self, source: str) -> int:
+        """After the stop: make the trigger point position 0; returns the overshoot (steps).
+
+        The switch latched XACTUAL at its active edge (XLATCH); for a stall, the stop
+        position is the reference. Stop switches and sg_stop are disabled again so that
+        the motor can leave the switch.
+        """
+        with self.device.session():
+            self.link.write(Reg.VMAX, 0)  # else clearing the stop would start it again
+            self.link.write(Reg.RAMPMODE, RampMode.HOLD)
+            x, latch = (signed32(v) for v in self.link.read_many([Reg.XACTUAL, Reg.XLATCH]))
+            ref = x if source == "stall" else latch
+            self.link.write(Reg.SW_MODE, self._sw_mode_base())
+            self.link.write(Reg.RAMP_STAT, RAMP_STAT_WC)
+            self.set_position(x - ref)
+        return x - ref
