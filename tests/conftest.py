@@ -10,7 +10,7 @@
   package twice (the daemon and its executor process), a tenth of a second of CPU at every
   one of the suite's hundred-odd starts. The bytecode is the same either way.
 
-Daemons started by the tests (tests/daemon_proc.py) log into a file of their test, shown
+Daemons started by the tests (tests/support/daemon_proc.py) log into a file of their test, shown
 with the test's output when it fails.
 """
 

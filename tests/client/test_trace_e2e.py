@@ -33,7 +33,8 @@ from motorctl.protocol.codec import (
     WaitMoved,
     encode_command,
 )
-from tests.daemon_proc import DaemonProcess
+from tests.support import REPO
+from tests.support.daemon_proc import DaemonProcess
 
 OPTS = CodecOptions()
 CONFIG = """
@@ -56,7 +57,7 @@ SESSION_FRAMES = 17
 def motorctl(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
     return subprocess.run([sys.executable, "-m", "motorctl.client.cli", *args],
                           capture_output=True, text=True, timeout=timeout,
-                          cwd=Path(__file__).resolve().parent.parent)
+                          cwd=REPO)
 
 
 def session(c: Client) -> None:
@@ -185,7 +186,7 @@ def start_tap(host: str, device: str, out: Path) -> subprocess.Popen[str]:
     proc = subprocess.Popen([sys.executable, "-m", "motorctl.client.cli", "tap", "--host",
                              host, "--device", device, "--out", str(out), "--json"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=Path(__file__).resolve().parent.parent)
+                            cwd=REPO)
     assert proc.stdout is not None
     line = proc.stdout.readline()
     assert proc.stderr is not None

@@ -177,7 +177,7 @@ def test_defaults_agree_with_describe_keys() -> None:
         if path in ("motors[].name", "mock.wires", "motors[].microsteps"):
             continue  # (microsteps: test_microsteps_come_from_the_motor_or_its_tmc_table)
         if path.split(".")[0] == "gpiod" or ".gpiod" in path:
-            continue  # not in this config; tests/test_gpiod_config.py checks those defaults
+            continue  # not in this config; tests/hal/test_gpiod_config.py checks those defaults
         expected = tomllib.loads(f"v = {default}")["v"]
         actual = lookup(config, path)
         assert actual == expected, path

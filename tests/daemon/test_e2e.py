@@ -29,7 +29,7 @@ from motorctl.protocol.codec import (
     encode_command,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.daemon_proc import DaemonProcess, children_of, memfd_holders, memfd_labels, until
+from tests.support.daemon_proc import DaemonProcess, children_of, memfd_holders, memfd_labels, until
 
 E = ErrorCode
 OPTS = CodecOptions()
@@ -509,7 +509,7 @@ def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
 # -- both step executors, and the executor's death ----------------------------------------
 def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
     from motorctl.daemon.config import default_config_text
-    from tests.daemon_proc import for_tests
+    from tests.support.daemon_proc import for_tests
 
     text = for_tests(default_config_text(), force=True)
     d = DaemonProcess(tmp_path, text.replace('executor = "process"', 'executor = "thread"'))
@@ -635,7 +635,7 @@ def test_with_lose_steps_the_mock_faults_as_a_real_motor_would(tmp_path: Path) -
     start speed: E4 "step timing lost", position lost (home again), one journal line with
     the figures, counted under its cause."""
     from motorctl.daemon.config import default_config_text
-    from tests.daemon_proc import for_tests
+    from tests.support.daemon_proc import for_tests
 
     text = for_tests(default_config_text(), force=True)
     assert "lose_steps = false" in text

@@ -30,8 +30,8 @@ from motorctl.protocol.codec import (
     WaitMoved,
     encode_command,
 )
-from tests.daemon_proc import IN_PROCESS_CONFIG, until
-from tests.test_link import Host
+from tests.daemon.test_link import Host
+from tests.support.daemon_proc import IN_PROCESS_CONFIG, until
 
 E = ErrorCode
 OPTS = CodecOptions()

@@ -52,7 +52,7 @@ from motorctl.protocol.codec import (
     decode_response,
     encode_command,
 )
-from tests.daemon_proc import IN_PROCESS_CONFIG
+from tests.support.daemon_proc import IN_PROCESS_CONFIG
 
 E = ErrorCode
 K = ExecEventKind

@@ -29,7 +29,7 @@ from motorctl.protocol.codec import (
     StopMove,
     encode_command,
 )
-from tests.daemon_proc import DaemonProcess, until
+from tests.support.daemon_proc import DaemonProcess, until
 
 OPTS = CodecOptions()
 

@@ -13,9 +13,10 @@ import pytest
 
 from motorctl.daemon import launch
 from motorctl.motion.procstart import ExecutorProcess
-from tests.daemon_proc import DaemonProcess, children_of, until
+from tests.support import REPO
+from tests.support.daemon_proc import DaemonProcess, children_of, until
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = REPO
 
 
 @pytest.mark.parametrize(("argv", "serves"), [

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_proc import (
+from tests.support.daemon_proc import (
     DaemonProcess,
     children_of,
     memfd_holders,

@@ -1,7 +1,7 @@
 """The live monitor's view drawn from known documents into a string (rich's recording
 console): what a user reads for a known state, with and without the per-motor timing
 figures of issue 15; frames/s; the message when rich is missing. Against a live daemon:
-tests/test_observe_e2e.py."""
+tests/daemon/test_observe_e2e.py."""
 
 from __future__ import annotations
 
@@ -14,7 +14,8 @@ from typing import Any
 from rich.console import Console
 
 from motorctl.daemon.monitor_view import Seen, frames_per_second, render
-from tests.test_metrics import DOC
+from tests.daemon.test_metrics import DOC
+from tests.support import REPO
 
 
 def drawn(doc: dict[str, Any], width: int = 140, **kw: Any) -> str:
@@ -88,7 +89,7 @@ def test_without_rich_the_monitor_says_what_to_install(tmp_path: Path) -> None:
                  f"sys.exit(main(['monitor', '--state-dir', '{tmp_path}']))"):
         out = subprocess.run([sys.executable, "-c", "import sys; sys.modules['rich'] = None; "
                               + call], capture_output=True, text=True, timeout=60,
-                             cwd=Path(__file__).resolve().parent.parent)
+                             cwd=REPO)
         assert out.returncode == 1, out.stderr
         assert "apt install python3-rich" in out.stderr and "motorctl[monitor]" in out.stderr
         assert "Traceback" not in out.stderr

@@ -17,10 +17,11 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.status import subscribe
-from tests.daemon_proc import WAIT_S, DaemonProcess
-from tests.test_metrics import parse_om, parse_prometheus
+from tests.daemon.test_metrics import parse_om, parse_prometheus
+from tests.support import REPO
+from tests.support.daemon_proc import WAIT_S, DaemonProcess
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 
 
 @pytest.fixture

@@ -24,9 +24,10 @@ from motorctl.daemon.platform_check import (
     report,
     throttled_text,
 )
-from tests.daemon_proc import for_tests
+from tests.support import REPO
+from tests.support.daemon_proc import for_tests
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 
 
 def tree(base: Path, files: dict[str, str]) -> Roots:

@@ -19,7 +19,7 @@ import pytest
 
 from motorctl.client.client import Client, DeviceError
 from motorctl.protocol.codec import CodecOptions, ErrorCode, MoveTo, WaitMoved, encode_command
-from tests.daemon_proc import DaemonProcess, until
+from tests.support.daemon_proc import DaemonProcess, until
 
 E = ErrorCode
 OPTS = CodecOptions()

@@ -23,7 +23,7 @@ from motorctl.daemon import service
 from motorctl.daemon import status as status_module
 from motorctl.daemon.instance import InstanceError, InstanceLock, Owned, flock_holder
 from motorctl.daemon.status import StatusServer, StatusSource, read_status, summary_line
-from tests.fsutil import read_only
+from tests.support.fsutil import read_only
 
 DEADLINE_S = 5.0
 

@@ -20,8 +20,8 @@ import pytest
 from motorctl.client.client import DeviceError
 from motorctl.daemon.main import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
-from tests.daemon_proc import DaemonProcess, until
-from tests.fsutil import fill, read_only, small_tmpfs
+from tests.support.daemon_proc import DaemonProcess, until
+from tests.support.fsutil import fill, read_only, small_tmpfs
 
 E = ErrorCode
 DEADLINE_S = 20.0

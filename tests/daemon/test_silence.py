@@ -34,7 +34,7 @@ from motorctl.protocol.codec import (
     encode_command,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.daemon_proc import IN_PROCESS_CONFIG
+from tests.support.daemon_proc import IN_PROCESS_CONFIG
 
 E = ErrorCode
 OPTS = CodecOptions()

@@ -39,7 +39,7 @@ from motorctl.protocol.codec import (
     SaveHome,
     SaveWayPoint,
 )
-from tests.fsutil import read_only
+from tests.support.fsutil import read_only
 
 E = ErrorCode
 

@@ -17,8 +17,8 @@ import pytest
 from motorctl.daemon.status import StatusServer, read_status
 from motorctl.motion.latency import BINS
 from motorctl.protocol.codec import Move, StopMove, WaitMoved
-from tests.daemon_proc import until
-from tests.test_hal_faults import Live, moving
+from tests.daemon.test_hal_faults import Live, moving
+from tests.support.daemon_proc import until
 
 READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
 

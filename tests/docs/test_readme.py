@@ -18,9 +18,10 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tests.daemon_proc import DaemonProcess
+from tests.support import REPO
+from tests.support.daemon_proc import DaemonProcess
 
-README = Path(__file__).resolve().parent.parent / "README.md"
+README = REPO / "README.md"
 LINE_TIMEOUT_S = 30.0
 
 

@@ -7,7 +7,6 @@ from __future__ import annotations
 import importlib.util
 import subprocess
 import sys
-from pathlib import Path
 
 import pytest
 
@@ -18,8 +17,9 @@ from motorctl.hal.gpiod_config import GpiodAxisConfig, GpiodConfig, GpiodPinConf
 from motorctl.hal.interfaces import HalError, MonotonicClock
 from motorctl.hal.registry import open_hardware, probe_hardware
 from motorctl.hal.wiring import LineRef
+from tests.support import REPO
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = REPO
 EXAMPLE = REPO / "docs" / "examples" / "raspberry-pi.toml"
 SOURCE = "/etc/motorctl.toml"
 

@@ -4,7 +4,7 @@ STEP/DIR line: it starts, moves end to end on the chip model and stops, opening 
 The daemon imports ``gpiod`` and ``spidev`` as on a Raspberry Pi: tests/fakegpiod/ stands in
 for libgpiod's binding and refuses every line request (so any line opened for the ramp
 motor would stop the daemon), tests/fakespi/ for py-spidev with the register-level TMC5160
-model of tests/tmc_model.py behind it.
+model of tests/support/tmc_model.py behind it.
 """
 
 from __future__ import annotations
@@ -18,9 +18,10 @@ from pathlib import Path
 
 import pytest
 
-from tests.daemon_proc import DaemonProcess, positions_until_ready
+from tests.support import REPO
+from tests.support.daemon_proc import DaemonProcess, positions_until_ready
 
-TESTS = Path(__file__).resolve().parent
+TESTS = REPO / "tests"
 REPO = TESTS.parent
 
 RAMP_ONLY = """\

@@ -1,6 +1,6 @@
 """TMC2130/TMC5160 drivers over SPI against register-level chip models behind a fake py-spidev.
 
-No kernel device is needed: tests/tmc_model.py implements py-spidev's API (open, mode,
+No kernel device is needed: tests/support/tmc_model.py implements py-spidev's API (open, mode,
 max_speed_hz, xfer2 overwriting its list) in front of chip models written from the datasheets.
 Time is a VirtualClock; the one test of the monitor thread waits on a deadline.
 """
@@ -60,8 +60,8 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
-from tests import tmc_model as tm
-from tests.tmc_model import FakeKernel, FakeSpiDev, TmcModel
+from tests.support import tmc_model as tm
+from tests.support.tmc_model import FakeKernel, FakeSpiDev, TmcModel
 
 SPEED = 4_000_000
 

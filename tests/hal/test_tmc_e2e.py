@@ -1,7 +1,7 @@
 """motorctld as a real process with TMC drivers on (fake) SPI: start-up checks and E4 faults.
 
 The daemon imports ``spidev`` as it would on a Raspberry Pi; tests/fakespi/spidev.py stands
-in for py-spidev there, with register-level chip models (tests/tmc_model.py) behind it.
+in for py-spidev there, with register-level chip models (tests/support/tmc_model.py) behind it.
 """
 
 from __future__ import annotations
@@ -16,9 +16,10 @@ import pytest
 
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
-from tests.daemon_proc import DaemonProcess, positions_until_ready
+from tests.support import REPO
+from tests.support.daemon_proc import DaemonProcess, positions_until_ready
 
-FAKESPI = Path(__file__).resolve().parent / "fakespi"
+FAKESPI = REPO / "tests" / "fakespi"
 
 CONFIG = """\
 [[motors]]

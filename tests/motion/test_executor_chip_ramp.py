@@ -36,7 +36,7 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
-from tests.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
+from tests.support.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
 
 K = ExecEventKind
 RAMP = Ramp(4000.0, 40_000.0, 40_000.0)

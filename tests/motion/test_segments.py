@@ -26,8 +26,7 @@ from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
 from motorctl.motion.stepcore import COUNTER_NAMES
 from motorctl.motion.stepexec import REFILL_S, ThreadStepExecutor, axis_limits
 from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
-
-from .test_executor import Core
+from tests.motion.test_step_core import Core
 
 K = ExecEventKind
 FAR = AxisSpec(endstop_min=-10**9, endstop_max=10**9)

@@ -15,8 +15,9 @@ from pathlib import Path
 import pytest
 
 from motorctl import __version__
+from tests.support import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 DEBIAN = ROOT / "debian"
 
 

@@ -21,8 +21,9 @@ from pathlib import Path
 import pytest
 
 from hwtest.no_skips import PREFIX
+from tests.support import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 TIMEOUT_S = 120.0
 
 FAKE_BUILD = """#!/bin/sh

@@ -19,7 +19,9 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parent.parent
+from tests.support import REPO
+
+ROOT = REPO
 UNIT = ROOT / "systemd" / "motorctld.service"
 TEMPLATE = ROOT / "systemd" / "motorctld@.service"
 MAX_EXPOSURE = 2.0

@@ -20,8 +20,9 @@ from pathlib import Path
 import pytest
 
 import motorctl
+from tests.support import REPO
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = REPO
 STEP_TIMEOUT_S = 300.0
 
 pytestmark = pytest.mark.packaging

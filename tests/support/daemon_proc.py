@@ -20,6 +20,7 @@ from typing import Any
 
 from motorctl.client.client import Client
 from motorctl.daemon.status import read_status
+from tests.support import REPO
 
 READY_TIMEOUT_S = 30.0
 WAIT_S = 30.0  # a deadline for conditions that take milliseconds (a loaded 2-core machine)
@@ -125,7 +126,7 @@ class DaemonProcess:
         self._log_from = stderr.tell()
         env = {**os.environ, **self.env} if self.env is not None else None
         self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
-                                     cwd=Path(__file__).resolve().parent.parent)
+                                     cwd=REPO)
         stderr.close()
         assert self.proc.stdout is not None
         sel = selectors.DefaultSelector()
