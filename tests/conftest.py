@@ -12,6 +12,11 @@
 
 Daemons started by the tests (tests/support/daemon_proc.py) log into a file of their test, shown
 with the test's output when it fails.
+
+The shared rigs live in tests/support/ (one module each: wait, frames, rigs, inprocess,
+daemon_proc, spi_bench); the fixtures every room uses are here. This file is also loaded
+for tests/contract in the hardware tier's guests: it imports nothing beyond pytest at
+module level.
 """
 
 from __future__ import annotations
@@ -19,8 +24,13 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pytest
+
+if TYPE_CHECKING:
+    from tests.support.daemon_proc import DaemonProcess, StartDaemon
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -44,3 +54,26 @@ def keep_root_logger() -> Iterator[None]:
         if h not in root.handlers:
             root.addHandler(h)
     root.setLevel(level)
+
+
+@pytest.fixture
+def motorctld(tmp_path: Path) -> Iterator[StartDaemon]:
+    """Start motorctld processes on PTYs (``DaemonProcess``; in the test's directory unless
+    ``workdir`` is given): ``motorctld(config_text, **kw)``. Each is stopped at the end of
+    the test (SIGTERM, or SIGKILL where started with ``kill_at_end=True``)."""
+    from tests.support.daemon_proc import DaemonProcess
+
+    started: list[tuple[DaemonProcess, bool]] = []
+
+    def start(config_text: str | None = None, *, workdir: Path | None = None,
+              kill_at_end: bool = False, **kw: Any) -> DaemonProcess:
+        d = DaemonProcess(workdir or tmp_path, config_text, **kw)
+        started.append((d, kill_at_end))
+        return d.start()
+
+    yield start
+    for d, kill in reversed(started):
+        if kill:
+            d.kill()
+        else:
+            d.close()

@@ -26,25 +26,9 @@ from motorctl.protocol.codec import (
     encode_response,
 )
 from motorctl.protocol.crc import crc8_by_name
+from tests.support.frames import raw_frame, ref_crc8
 
 # -- reference checksum and frames --------------------------------------------------------
-
-
-def ref_crc8(data: bytes, poly: int = 0x07) -> int:
-    """Bitwise CRC-8/SMBUS (init 0, not reflected, xorout 0); independent of protocol.crc."""
-    crc = 0
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ poly) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
-
-
-def frame(body_hex: str) -> bytes:
-    """Command frame: the given bytes, zero padding to 9 bytes, reference CRC."""
-    body = bytes.fromhex(body_hex)
-    body += bytes(9 - len(body))
-    return body + bytes([ref_crc8(body)])
 
 
 def resp(hex_text: str) -> bytes:
@@ -55,7 +39,7 @@ def resp(hex_text: str) -> bytes:
 
 def test_reference_checksum_matches_protocol() -> None:
     assert ref_crc8(b"123456789") == 0xF4
-    assert frame("03 00") == bytes.fromhex("03 00 00 00 00 00 00 00 00 8B")
+    assert raw_frame("03 00") == bytes.fromhex("03 00 00 00 00 00 00 00 00 8B")
 
 
 # -- the scripted peer --------------------------------------------------------------------
@@ -239,7 +223,7 @@ def test_typed_method_frame_and_result(
     peer.answer(reply)
     assert call(client) == expected
     sent = peer.next_frame()
-    assert sent == frame(body)
+    assert sent == raw_frame(body)
     assert client.last_request == sent
     assert client.last_response == encode_response(reply, CodecOptions())
 
@@ -258,7 +242,7 @@ def test_wait_moved_reads_longer_than_client_timeout(peer: Peer) -> None:
     with Client(peer.port, timeout=0.1) as c:
         peer.answer(Delayed(0.4, OK))
         c.wait_moved(0, 1000)
-    assert peer.next_frame() == frame("02 00 03 e8")
+    assert peer.next_frame() == raw_frame("02 00 03 e8")
 
 
 # -- device errors ------------------------------------------------------------------------
@@ -306,7 +290,7 @@ def test_silence_is_a_link_error(peer: Peer) -> None:
             c.is_ready(0)
     text = str(info.value)
     assert "no response" in text
-    assert frame("03 00").hex(" ") in text
+    assert raw_frame("03 00").hex(" ") in text
     assert "IsReady(motor=0)" in text
 
 
@@ -343,16 +327,16 @@ def test_crc_covers_ack_mismatch_is_a_link_error(make_peer: PeerFactory) -> None
 
 def test_pipelined_frames_answered_in_order(peer: Peer, client: Client) -> None:
     peer.answer(Response.position(-7), Response.boolean(True))
-    client.send_frame(frame("06 00"))
-    client.send_frame(frame("03 00"))
+    client.send_frame(raw_frame("06 00"))
+    client.send_frame(raw_frame("03 00"))
     assert client.read_response().as_position == -7
     assert client.read_response().as_bool is True
-    assert [peer.next_frame(), peer.next_frame()] == [frame("06 00"), frame("03 00")]
+    assert [peer.next_frame(), peer.next_frame()] == [raw_frame("06 00"), raw_frame("03 00")]
 
 
 def test_split_frame_and_read_raw(peer: Peer, client: Client) -> None:
     peer.answer(Response.boolean(False))
-    whole = frame("03 01")
+    whole = raw_frame("03 01")
     client.send_bytes(whole[:3])
     client.send_bytes(whole[3:])
     assert client.last_request == whole[3:]
@@ -361,7 +345,7 @@ def test_split_frame_and_read_raw(peer: Peer, client: Client) -> None:
 
 
 def test_broken_frame_gets_the_peers_e1(peer: Peer, client: Client) -> None:
-    broken = bytearray(frame("03 00"))
+    broken = bytearray(raw_frame("03 00"))
     broken[9] ^= 0xFF
     client.send_frame(bytes(broken))
     got = client.read_response()
@@ -446,7 +430,7 @@ def test_cli_success(
 ) -> None:
     peer.answer(reply)
     assert cli.main(["-p", peer.port, *args]) == 0
-    assert peer.next_frame() == frame(body)
+    assert peer.next_frame() == raw_frame(body)
     captured = capsys.readouterr()
     assert captured.out == out + "\n"
     assert captured.err == ""
@@ -463,7 +447,7 @@ def test_cli_device_error(peer: Peer, capsys: pytest.CaptureFixture[str]) -> Non
 def test_cli_raw(peer: Peer, capsys: pytest.CaptureFixture[str]) -> None:
     peer.answer(Response(True, b"\x00\x04\xb0"))
     assert cli.main(["-p", peer.port, "--raw", "pos", "0"]) == 0
-    sent = frame("06 00").hex(" ")
+    sent = raw_frame("06 00").hex(" ")
     got = resp("01 00 04 b0").hex(" ")
     assert capsys.readouterr().out == f"-> {sent}\n<- {got}\nmotor 0 at 1200\n"
 
@@ -472,7 +456,7 @@ def test_cli_raw_on_device_error(peer: Peer, capsys: pytest.CaptureFixture[str])
     peer.answer(Response.error(ErrorCode.INVALID_ADDRESS))
     assert cli.main(["--raw", "-p", peer.port, "ready", "9"]) == 1
     captured = capsys.readouterr()
-    assert captured.out == f"-> {frame('03 09').hex(' ')}\n<- {resp('00 e2 00 00').hex(' ')}\n"
+    assert captured.out == f"-> {raw_frame('03 09').hex(' ')}\n<- {resp('00 e2 00 00').hex(' ')}\n"
     assert captured.err == "error: E2 invalid address\n"
 
 
@@ -485,8 +469,8 @@ def test_cli_send_ten_bytes_as_is(peer: Peer, capsys: pytest.CaptureFixture[str]
 
 def test_cli_send_ten_bytes_good_checksum(peer: Peer, capsys: pytest.CaptureFixture[str]) -> None:
     peer.answer(Response.boolean(True))
-    assert cli.main(["-p", peer.port, "send", *frame("03 07").hex(" ").split()]) == 0
-    assert peer.next_frame() == frame("03 07")
+    assert cli.main(["-p", peer.port, "send", *raw_frame("03 07").hex(" ").split()]) == 0
+    assert peer.next_frame() == raw_frame("03 07")
     assert capsys.readouterr().out == "ok, payload 01 00 00\n"
 
 

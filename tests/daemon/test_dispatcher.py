@@ -6,10 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Wait
 from motorctl.daemon.main import Daemon
-from motorctl.hal.interfaces import BridgeState, VirtualClock
+from motorctl.hal.interfaces import BridgeState
 from motorctl.hal.mock import world_of
 from motorctl.protocol.codec import (
     ConfigPin,
@@ -29,6 +28,7 @@ from motorctl.protocol.codec import (
     StopMove,
     WaitMoved,
 )
+from tests.support.inprocess import build_daemon
 
 E = ErrorCode
 
@@ -57,7 +57,7 @@ mode = "input"
 
 @pytest.fixture
 def d(tmp_path: Path) -> Daemon:
-    return Daemon.build(parse_config(CONFIG, "test.toml"), tmp_path, VirtualClock())
+    return build_daemon(CONFIG, tmp_path)
 
 
 def code(r: Response | Wait) -> ErrorCode | None:

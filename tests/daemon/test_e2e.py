@@ -29,7 +29,15 @@ from motorctl.protocol.codec import (
     encode_command,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.support.daemon_proc import DaemonProcess, children_of, memfd_holders, memfd_labels, until
+from tests.support.daemon_proc import (
+    DaemonProcess,
+    StartDaemon,
+    children_of,
+    memfd_holders,
+    memfd_labels,
+)
+from tests.support.frames import frame, raw_frame
+from tests.support.wait import until
 
 E = ErrorCode
 OPTS = CodecOptions()
@@ -60,10 +68,8 @@ mode = "input"
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[DaemonProcess]:
-    d = DaemonProcess(tmp_path).start()
-    yield d
-    d.close()
+def daemon(motorctld: StartDaemon) -> DaemonProcess:
+    return motorctld()
 
 
 @pytest.fixture
@@ -73,10 +79,8 @@ def client(daemon: DaemonProcess) -> Iterator[Client]:
 
 
 @pytest.fixture
-def small(tmp_path: Path) -> Iterator[DaemonProcess]:
-    d = DaemonProcess(tmp_path, SMALL).start()
-    yield d
-    d.close()
+def small(motorctld: StartDaemon) -> DaemonProcess:
+    return motorctld(SMALL)
 
 
 def code_of(exc: pytest.ExceptionInfo[DeviceError]) -> ErrorCode:
@@ -85,13 +89,8 @@ def code_of(exc: pytest.ExceptionInfo[DeviceError]) -> ErrorCode:
 
 def pipeline(c: Client, cmds: Sequence[Command], timeout: float = 10.0) -> list[Response]:
     for cmd in cmds:
-        c.send_frame(encode_command(cmd, OPTS))
+        c.send_frame(frame(cmd))
     return [c.read_response(timeout) for _ in cmds]
-
-
-def frame(payload: bytes) -> bytes:
-    body = payload.ljust(9, b"\0")
-    return body + bytes([SMBUS.compute(body)])
 
 
 # -- every command ---------------------------------------------------------------------
@@ -208,10 +207,10 @@ def test_e1_bad_checksum_and_padding_not_executed(client: Client, daemon: Daemon
     good = encode_command(MoveTo(0, True, 1000, 0, 0, 0), OPTS)
     client.send_frame(good[:9] + bytes([good[9] ^ 0x55]))
     assert client.read_response().error_code is E.INVALID_COMMAND
-    padded = frame(bytes([0x03, 0x00, 0x07]))  # IsReady with garbage padding
+    padded = raw_frame(bytes([0x03, 0x00, 0x07]))  # IsReady with garbage padding
     client.send_frame(padded)
     assert client.read_response().error_code is E.INVALID_COMMAND
-    client.send_frame(frame(bytes([0x0F, 0x00])))  # unknown code
+    client.send_frame(raw_frame(bytes([0x0F, 0x00])))  # unknown code
     assert client.read_response().error_code is E.INVALID_COMMAND
     assert client.is_ready(0) and client.position(0) == 0
     counters = daemon.status()["link"]["counters"]
@@ -329,7 +328,7 @@ def test_gap_discard(client: Client, daemon: DaemonProcess) -> None:
     assert client.read_raw(1, timeout=0.1) == b""  # an incomplete frame gets no response
     # The gap itself: silence until the daemon has watched frame_gap_ms (10 ms) pass.
     until("the gap discard", lambda: daemon.status()["link"]["counters"]["gap_discards"] == 1)
-    client.send_frame(encode_command(IsReady(0), OPTS))
+    client.send_frame(frame(IsReady(0)))
     assert client.read_response().as_bool is True
     assert client.position(0) == 0
     assert daemon.status()["link"]["counters"]["gap_discards"] == 1

@@ -23,7 +23,7 @@ import pytest
 from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link
-from motorctl.daemon.main import Daemon, build_executor, hardware_spec, motor_params, open_pty
+from motorctl.daemon.main import build_executor, hardware_spec, motor_params, open_pty
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
 from motorctl.hal.mock import world_of
 from motorctl.hal.registry import open_hardware
@@ -40,7 +40,6 @@ from motorctl.motion.executor import (
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import MotorState, Ramp
 from motorctl.protocol.codec import (
-    CodecOptions,
     Command,
     ErrorCode,
     GetAbsPos,
@@ -49,17 +48,14 @@ from motorctl.protocol.codec import (
     Move,
     Response,
     StopMove,
-    decode_response,
-    encode_command,
 )
-from tests.support.daemon_proc import IN_PROCESS_CONFIG
+from tests.support.frames import OPTS, answers, frame
+from tests.support.inprocess import IN_PROCESS_CONFIG, build_daemon
+from tests.support.wait import until
 
 E = ErrorCode
 K = ExecEventKind
-OPTS = CodecOptions()
 DEADLINE_S = 20.0  # for conditions that take milliseconds, on a loaded 2-core machine
-
-CONFIG = IN_PROCESS_CONFIG
 
 
 class SlowToConfirm(Executor):
@@ -191,7 +187,7 @@ class Rig:
 
 def rig_on(clock: Clock, delay_s: float | None, stop_confirm_s: float = STOP_CONFIRM_S,
            config: Config | None = None) -> Rig:
-    config = config or parse_config(CONFIG, "test.toml")
+    config = config or parse_config(IN_PROCESS_CONFIG, "test.toml")
     spec = hardware_spec(config)
     params = motor_params(config)
     hw = open_hardware(config.hal.backend, spec, clock)
@@ -334,7 +330,7 @@ def test_thread_executor_on_a_virtual_clock_confirms_at_once(tmp_path: Path) -> 
     """The executor the virtual-clock tests use answers stop() with the position: nothing
     waits, virtual time does not move, IsReady is 1 at once (unchanged behaviour)."""
     clock = VirtualClock()
-    d = Daemon.build(parse_config(CONFIG, "test.toml"), tmp_path, clock)
+    d = build_daemon(IN_PROCESS_CONFIG, tmp_path, clock)
     assert d.dispatcher.handle(Move(0, True, 1, 0, 0)).ack
     d.engine.run_until(clock.now() + 0.2)
     t0 = clock.now()
@@ -372,13 +368,6 @@ def patient() -> Iterator[Rig]:
     rig = start_real(DEADLINE_S)
     yield rig
     close_real(rig)
-
-
-def until(what: str, cond: object, timeout: float = DEADLINE_S) -> None:
-    end = time.monotonic() + timeout
-    while not cond():  # type: ignore[operator]
-        assert time.monotonic() < end, f"timed out waiting for {what}"
-        time.sleep(0.001)
 
 
 def real_moving(rig: Rig, motor: int = 0) -> None:
@@ -426,7 +415,7 @@ def test_link_with_a_stalled_executor_answers_a_burst_and_notices_shutdown(
     try:
         thread.start()
         real_moving(rig)
-        burst = encode_command(StopMove(0, True), OPTS) * 100
+        burst = frame(StopMove(0, True)) * 100
         os.write(host, burst)
         until("the burst read", lambda: link.session.counters["bytes_in"] == len(burst))
         t0 = time.monotonic()
@@ -438,8 +427,8 @@ def test_link_with_a_stalled_executor_answers_a_burst_and_notices_shutdown(
         data = b""
         while len(data) < 500 and select.select([host], [], [], 5.0)[0]:
             data += os.read(host, 500 - len(data))
-        answers = [decode_response(data[i : i + 5], OPTS) for i in range(0, len(data), 5)]
-        assert len(answers) == 100 and all(a.ack for a in answers)
+        got = answers(data)
+        assert len(got) == 100 and all(a.ack for a in got)
         assert rig.engine.stop_waits["timed_out"] == 1
         assert rig.engine.stop_waits["skipped"] == 99
     finally:

@@ -29,7 +29,8 @@ from motorctl.protocol.codec import (
     StopMove,
     encode_command,
 )
-from tests.support.daemon_proc import DaemonProcess, until
+from tests.support.daemon_proc import DaemonProcess, StartDaemon
+from tests.support.wait import until
 
 OPTS = CodecOptions()
 
@@ -74,16 +75,15 @@ def moved(c: Client, motor: int, start: int, by: int) -> Callable[[], bool]:
 
 
 @pytest.fixture(params=["process", "thread"])
-def fast(tmp_path: Path, request: pytest.FixtureRequest) -> Iterator[DaemonProcess]:
+def fast(motorctld: StartDaemon, request: pytest.FixtureRequest) -> DaemonProcess:
     """A daemon with either step executor: neither confirms a stop before StopMove returns
     on a real clock (the process one through its event ring, the thread one through its
     deque), so both must wait for the confirmation."""
     kind = request.param
     text = f'{MOTORS}{PATIENT}executor = "{kind}"\n'
-    d = DaemonProcess(tmp_path, text).start()
+    d = motorctld(text)
     assert d.status()["executor"]["kind"] == kind
-    yield d
-    d.close()
+    return d
 
 
 def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProcess) -> None:

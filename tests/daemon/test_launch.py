@@ -14,7 +14,8 @@ import pytest
 from motorctl.daemon import launch
 from motorctl.motion.procstart import ExecutorProcess
 from tests.support import REPO
-from tests.support.daemon_proc import DaemonProcess, children_of, until
+from tests.support.daemon_proc import DaemonProcess, children_of
+from tests.support.wait import until
 
 REPO = REPO
 

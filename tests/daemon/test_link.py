@@ -6,27 +6,20 @@ virtual clock: these tests are about the bytes, not the motors.
 
 from __future__ import annotations
 
-import contextlib
 import errno
 import os
-import select
 import signal
 import socket
 import threading
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
-from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Dispatcher, Wait
-from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.main import Daemon, StopSignals, open_pty
-from motorctl.hal.interfaces import VirtualClock
+from motorctl.daemon.main import StopSignals
 from motorctl.protocol.codec import (
-    CodecOptions,
     Command,
     ErrorCode,
     GetAbsPos,
@@ -35,25 +28,12 @@ from motorctl.protocol.codec import (
     Response,
     StopMove,
     WaitMoved,
-    decode_response,
-    encode_command,
 )
+from tests.support.frames import frame
+from tests.support.inprocess import LiveDaemon
 
 E = ErrorCode
-OPTS = CodecOptions()
 DEADLINE_S = 20.0  # generous: these tests must pass on a loaded 2-core machine
-
-CONFIG = """
-[[motors]]
-name = "a"
-[[motors]]
-name = "b"
-"""
-
-
-def frame(cmd: Command) -> bytes:
-    return encode_command(cmd, OPTS)
-
 
 class SlowPort:
     """The dispatcher, made slow: the daemon is busy while bytes keep arriving."""
@@ -73,100 +53,14 @@ class SlowPort:
         return self.inner.wait_poll(wait, now)
 
 
-class Host:
-    """The other side of the PTY, opened like a serial port by a host program."""
-
-    def __init__(self, path: str) -> None:
-        # non-blocking: a write never waits inside the kernel for room the daemon may never
-        # make (it stopped reading), so that ``stop`` always ends one within 50 ms
-        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-
-    def write(self, data: bytes, stop: threading.Event | None = None) -> None:
-        """Write it all (waiting for room, as a host does), or until ``stop`` is set."""
-        view = memoryview(data)
-        end = time.monotonic() + 120.0
-        while view and not (stop is not None and stop.is_set()):
-            assert time.monotonic() < end, "the daemon never took the host's bytes"
-            if select.select([], [self.fd], [], 0.05)[1]:
-                with contextlib.suppress(BlockingIOError):
-                    view = view[os.write(self.fd, view[:4096]):]
-
-    def read(self, n: int, timeout: float = DEADLINE_S) -> bytes:
-        out = bytearray()
-        end = time.monotonic() + timeout
-        while len(out) < n:
-            left = end - time.monotonic()
-            if left <= 0 or not select.select([self.fd], [], [], left)[0]:
-                break
-            with contextlib.suppress(BlockingIOError):
-                out += os.read(self.fd, n - len(out))
-        return bytes(out)
-
-    def responses(self, n: int, timeout: float = DEADLINE_S) -> list[Response]:
-        data = self.read(5 * n, timeout)
-        assert len(data) == 5 * n, f"got {len(data) // 5} of {n} responses in {timeout} s"
-        return [decode_response(data[i : i + 5], OPTS) for i in range(0, len(data), 5)]
-
-    def nothing_within(self, seconds: float) -> bool:
-        return not select.select([self.fd], [], [], seconds)[0]
-
-    def close(self) -> None:
-        os.close(self.fd)
-
-
-class Served:
-    """A Link serving a PTY on a thread, with a daemon on a virtual clock behind it."""
-
-    def __init__(self, tmp: Path, port: Any = None, fd: int | None = None,
-                 gap_s: float = 0.010, start: bool = True, **kw: Any) -> None:
-        self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state", VirtualClock())
-        self.path = tmp / "pty"
-        if fd is None:
-            fd, self.name = open_pty(self.path)
-            kw.setdefault("on_hangup", lambda: flush_pty_input(self.name))
-        self.fd = fd
-        self.link = Link(fd, port or self.daemon.dispatcher, OPTS, gap_s, 16, **kw)
-        self.daemon.link = self.link
-        self.thread = threading.Thread(target=self.link.serve, name="link", daemon=True)
-        if start:
-            self.thread.start()
-
-    def host(self) -> Host:
-        return Host(self.name)
-
-    def counters(self) -> dict[str, Any]:
-        counters = self.link.status()["counters"]
-        assert isinstance(counters, dict)
-        return counters
-
-    def until(self, what: str, cond: Any, timeout: float = DEADLINE_S) -> None:
-        end = time.monotonic() + timeout
-        while not cond():
-            assert time.monotonic() < end, f"timed out waiting for {what}: {self.counters()}"
-            time.sleep(0.005)
-
-    def stop(self, timeout: float = DEADLINE_S) -> float:
-        t = time.monotonic()
-        self.link.stop()
-        self.thread.join(timeout)
-        assert not self.thread.is_alive(), "the link thread did not stop"
-        return time.monotonic() - t
-
-    def close(self) -> None:
-        if self.thread.is_alive():
-            self.stop()
-        self.link.close()
-        os.close(self.fd)
-
-
 @pytest.fixture
-def served(tmp_path: Path) -> Iterator[Served]:
-    s = Served(tmp_path)
+def served(tmp_path: Path) -> Iterator[LiveDaemon]:
+    s = LiveDaemon(tmp_path)
     yield s
     s.close()
 
 
-def test_serves_and_stops(served: Served) -> None:
+def test_serves_and_stops(served: LiveDaemon) -> None:
     host = served.host()
     host.write(frame(IsReady(0)))
     assert [r.as_bool for r in host.responses(1)] == [True]
@@ -177,7 +71,7 @@ def test_serves_and_stops(served: Served) -> None:
 def test_a_stop_before_serve_is_not_forgotten(tmp_path: Path) -> None:
     """A SIGTERM during start-up calls stop() before serve(): serve() must return at once
     (it used to start by setting "running" again, and served on for ever)."""
-    s = Served(tmp_path, start=False)
+    s = LiveDaemon(tmp_path, start=False)
     try:
         s.link.stop()
         s.thread.start()
@@ -202,7 +96,7 @@ def test_a_signal_that_another_thread_takes_still_wakes_an_idle_link(tmp_path: P
         pytest.skip("signal handlers run in the main thread only")
     before = signal.set_wakeup_fd(-1)  # whatever this process had: given back at the end
     signal.set_wakeup_fd(before)
-    s = Served(tmp_path, start=False)
+    s = LiveDaemon(tmp_path, start=False)
     host = s.host()
     stop = StopSignals()
     sent: list[float] = []
@@ -240,10 +134,10 @@ def test_a_signal_that_another_thread_takes_still_wakes_an_idle_link(tmp_path: P
     assert signal.set_wakeup_fd(before) == before  # detached: no byte for a closed pipe
 
 
-def test_burst_of_20000_frames_read_concurrently(served: Served) -> None:
+def test_burst_of_20000_frames_read_concurrently(served: LiveDaemon) -> None:
     host = served.host()
     cmds = [GetAbsPos(i % 2) if i % 2 else IsReady(i % 2) for i in range(20_000)]
-    writer = threading.Thread(target=host.write, args=(b"".join(frame(c) for c in cmds),))
+    writer = threading.Thread(target=host.write, args=(frame(*cmds),))
     writer.start()
     rs = host.responses(20_000, timeout=60.0)
     writer.join(DEADLINE_S)
@@ -254,7 +148,7 @@ def test_burst_of_20000_frames_read_concurrently(served: Served) -> None:
     host.close()
 
 
-def test_slow_reader_loses_nothing(served: Served) -> None:
+def test_slow_reader_loses_nothing(served: LiveDaemon) -> None:
     """The host writes 10,000 frames and reads nothing until the daemon's answers have
     filled the PTY: the daemon stops reading (back pressure) instead of blocking in a write
     or growing without bound, and once the host reads, every answer comes."""
@@ -283,9 +177,9 @@ def test_bytes_buffered_while_busy_are_not_a_gap(tmp_path: Path) -> None:
     """Byte by byte, 20 ms apart (well below a 100 ms gap, so that a loaded machine does
     not stretch it into a real one), to a daemon that takes 300 ms per command: each read
     finds bytes, often part of a frame, that waited while it was busy. None is a gap."""
-    base = Served(tmp_path / "a")
+    base = LiveDaemon(tmp_path / "a")
     base.close()
-    s = Served(tmp_path, port=SlowPort(base.daemon.dispatcher, 0.300), gap_s=0.100)
+    s = LiveDaemon(tmp_path, port=SlowPort(base.daemon.dispatcher, 0.300), gap_s=0.100)
     try:
         host = s.host()
         data = b"".join(frame(IsReady(0)) for _ in range(3))
@@ -302,7 +196,7 @@ def test_bytes_buffered_while_busy_are_not_a_gap(tmp_path: Path) -> None:
         s.close()
 
 
-def test_a_real_gap_is_watched_and_discards(served: Served) -> None:
+def test_a_real_gap_is_watched_and_discards(served: LiveDaemon) -> None:
     host = served.host()
     host.write(frame(Move(0, True, 1, 0, 0))[:6])
     served.until("the gap discard", lambda: served.counters()["gap_discards"] == 1)
@@ -311,7 +205,7 @@ def test_a_real_gap_is_watched_and_discards(served: Served) -> None:
     host.close()
 
 
-def test_host_closes_and_reopens(served: Served) -> None:
+def test_host_closes_and_reopens(served: LiveDaemon) -> None:
     host = served.host()
     host.write(frame(IsReady(0)))
     assert len(host.responses(1)) == 1
@@ -334,7 +228,7 @@ def test_host_closes_and_reopens(served: Served) -> None:
     host.close()
 
 
-def test_no_host_yet_then_host(served: Served) -> None:
+def test_no_host_yet_then_host(served: LiveDaemon) -> None:
     served.until("the link to notice no host", lambda: served.link.peer_gone)
     time.sleep(0.1)
     host = served.host()
@@ -343,7 +237,7 @@ def test_no_host_yet_then_host(served: Served) -> None:
     host.close()
 
 
-def test_wait_moved_woken_by_motor_event(served: Served) -> None:
+def test_wait_moved_woken_by_motor_event(served: LiveDaemon) -> None:
     host = served.host()
     host.write(frame(Move(0, True, 1, 0, 0)) + frame(WaitMoved(0, 60_000)) + frame(IsReady(1)))
     assert len(host.responses(1)) == 1
@@ -358,7 +252,7 @@ def test_wait_moved_woken_by_motor_event(served: Served) -> None:
     host.close()
 
 
-def test_wait_moved_times_out_on_the_link_clock(served: Served) -> None:
+def test_wait_moved_times_out_on_the_link_clock(served: LiveDaemon) -> None:
     host = served.host()
     host.write(frame(Move(0, True, 1, 0, 0)) + frame(WaitMoved(0, 200)))
     rs = host.responses(2)
@@ -369,7 +263,7 @@ def test_wait_moved_times_out_on_the_link_clock(served: Served) -> None:
 
 
 def test_stop_bounded_while_host_does_not_read(tmp_path: Path) -> None:
-    s = Served(tmp_path, drain_s=0.3)
+    s = LiveDaemon(tmp_path, drain_s=0.3)
     try:
         host = s.host()
         data = b"".join(frame(IsReady(0)) for _ in range(30_000))
@@ -390,7 +284,7 @@ def test_read_error_is_counted_and_survived(tmp_path: Path) -> None:
     # A directory polls readable and fails every read (EISDIR): the stand-in for a device
     # that errors. The thread must neither die nor spin, and stop() must still end it.
     fd = os.open(tmp_path, os.O_RDONLY)
-    s = Served(tmp_path, fd=fd, retry_s=0.01)
+    s = LiveDaemon(tmp_path, fd=fd, retry_s=0.01)
     try:
         s.until("the link error", lambda: s.counters()["link_errors"] == 1)
         time.sleep(0.1)
@@ -403,7 +297,7 @@ def test_write_error_is_counted_and_survived(tmp_path: Path) -> None:
     ours, theirs = socket.socketpair()
     ours.setblocking(False)
     ours.shutdown(socket.SHUT_WR)  # every write now fails with EPIPE
-    s = Served(tmp_path, fd=ours.fileno())
+    s = LiveDaemon(tmp_path, fd=ours.fileno())
     try:
         theirs.sendall(frame(IsReady(0)))
         s.until("the write error", lambda: s.counters()["link_errors"] == 1)
@@ -420,7 +314,7 @@ def test_write_error_is_counted_and_survived(tmp_path: Path) -> None:
         theirs.close()
 
 
-def test_eio_from_pty_without_host_is_not_an_error(served: Served) -> None:
+def test_eio_from_pty_without_host_is_not_an_error(served: LiveDaemon) -> None:
     served.until("no host", lambda: served.link.peer_gone)
 
     def read_errno() -> int | None:

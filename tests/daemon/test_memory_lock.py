@@ -20,13 +20,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.daemon_proc import (
-    DaemonProcess,
-    children_of,
-    memfd_holders,
-    memfd_labels,
-    until,
-)
+from tests.support.daemon_proc import DaemonProcess, children_of, memfd_holders, memfd_labels
+from tests.support.wait import until
 
 CONFIG = """
 [step_thread]

@@ -11,26 +11,21 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from pathlib import Path
 
 import pytest
 
 from motorctl.daemon.status import subscribe
 from tests.daemon.test_metrics import parse_om, parse_prometheus
 from tests.support import REPO
-from tests.support.daemon_proc import WAIT_S, DaemonProcess
+from tests.support.daemon_proc import DaemonProcess, StartDaemon
+from tests.support.wait import WAIT_S
 
 ROOT = REPO
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[DaemonProcess]:
-    d = DaemonProcess(tmp_path).start()  # the embedded default: mock world, pins, DC motor
-    try:
-        yield d
-    finally:
-        d.close()
+def daemon(motorctld: StartDaemon) -> DaemonProcess:
+    return motorctld()  # the embedded default: mock world, pins, DC motor
 
 
 def run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:

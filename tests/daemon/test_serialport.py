@@ -25,37 +25,21 @@ from typing import Any
 import pytest
 import serial
 
-from motorctl.daemon.config import parse_config
 from motorctl.daemon.link import Link
-from motorctl.daemon.main import Daemon, open_pty
+from motorctl.daemon.main import open_pty
 from motorctl.daemon.serialport import Backoff, DeviceError, SerialDevice
 from motorctl.daemon.silence import SilenceWatch
 from motorctl.daemon.status import summary_line
-from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
-    CodecOptions,
-    Command,
     GetAbsPos,
     IsReady,
     Response,
-    decode_response,
-    encode_command,
 )
+from tests.support.frames import OPTS, answers, frame
+from tests.support.inprocess import TWO_MOTORS, build_daemon
+from tests.support.wait import until
 
-OPTS = CodecOptions()
 DEADLINE_S = 20.0  # for conditions that take milliseconds, on a loaded 2-core machine
-CONFIG = '[[motors]]\nname = "a"\n[[motors]]\nname = "b"\n'
-
-
-def frame(cmd: Command) -> bytes:
-    return encode_command(cmd, OPTS)
-
-
-def until(what: str, cond: Any, detail: Any = None) -> None:
-    end = time.monotonic() + DEADLINE_S
-    while not cond():
-        assert time.monotonic() < end, f"timed out waiting for {what}: {detail and detail()}"
-        time.sleep(0.002)
 
 
 class Adapter:
@@ -80,7 +64,7 @@ class Adapter:
             assert left > 0 and select.select([self.master], [], [], left)[0], \
                 f"got {len(out) // 5} of {n} responses"
             out += os.read(self.master, 5 * n - len(out))
-        return [decode_response(bytes(out[i:i + 5]), OPTS) for i in range(0, len(out), 5)]
+        return answers(out)
 
     def nothing_within(self, seconds: float) -> bool:
         return not select.select([self.master], [], [], seconds)[0]
@@ -111,8 +95,7 @@ class DeviceServed:
     """A Link serving a SerialDevice on a thread, with a daemon on a virtual clock behind."""
 
     def __init__(self, tmp: Path, device: SerialDevice, **kw: Any) -> None:
-        self.daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp / "state",
-                                   VirtualClock())
+        self.daemon = build_daemon(TWO_MOTORS, tmp / "state")
         self.device = device
         self.link = Link(device.open(), self.daemon.dispatcher, OPTS, 0.010, 16,
                          device=device, backoff=Backoff(0.005, 0.02), **kw)
@@ -160,16 +143,17 @@ def test_unplugged_and_plugged_back_in_it_is_served_again(
         adapter.write(frame(IsReady(0)))
         assert adapter.responses(1) == [Response.boolean(True)]
         adapter.write(frame(GetAbsPos(0))[:4])  # half a frame, then pulled out
-        until("the 4 bytes", lambda: s.counters()["bytes_in"] == 14, s.counters)
+        until("the 4 bytes", lambda: s.counters()["bytes_in"] == 14, detail=s.counters)
         adapter.unplug()
         # the dead descriptor is closed (the link thread marks the peer gone first)
         until("the loss", lambda: s.link.status()["peer"] == "gone" and s.link.fd == -1,
-              s.counters)
-        until("attempts to reopen it", lambda: s.counters()["reopen_attempts"] >= 3, s.counters)
+              detail=s.counters)
+        until("attempts to reopen it", lambda: s.counters()["reopen_attempts"] >= 3,
+              detail=s.counters)
         assert s.counters()["device_reopened"] == 0
         again = Adapter(names[0])  # back, as another tty behind the same names
         try:
-            until("the reopen", lambda: s.counters()["device_reopened"] == 1, s.counters)
+            until("the reopen", lambda: s.counters()["device_reopened"] == 1, detail=s.counters)
             assert s.link.status()["peer"] == "open"
             again.write(frame(IsReady(1)))
             assert again.responses(1) == [Response.boolean(True)]  # its own answer only
@@ -198,9 +182,9 @@ def test_a_device_back_but_not_yet_usable_is_named_once_and_retried(
     again: Adapter | None = None
     try:
         adapter.unplug()
-        until("the loss", lambda: s.link.status()["peer"] == "gone", s.counters)
+        until("the loss", lambda: s.link.status()["peer"] == "gone", detail=s.counters)
         again = Adapter(names[0])
-        until("the reopen", lambda: s.counters()["device_reopened"] == 1, s.counters)
+        until("the reopen", lambda: s.counters()["device_reopened"] == 1, detail=s.counters)
         again.write(frame(IsReady(0)))
         assert again.responses(1) == [Response.boolean(True)]
         assert device.opened == 5  # at start, 3 refused, then it
@@ -239,7 +223,7 @@ def test_the_host_keeps_the_link_alive_with_any_bytes(tmp_path: Path) -> None:
         acted.append(t)
         return ["motor 0 (a)"]
 
-    daemon = Daemon.build(parse_config(CONFIG, "t.toml"), tmp_path / "state", VirtualClock())
+    daemon = build_daemon(TWO_MOTORS, tmp_path / "state")
     fd, name = open_pty(tmp_path / "pty")
     link = Link(fd, daemon.dispatcher, OPTS, 0.010, 16, clock=lambda: now[0],
                 watch=SilenceWatch(0.5, act, 0.0))
@@ -259,16 +243,20 @@ def test_the_host_keeps_the_link_alive_with_any_bytes(tmp_path: Path) -> None:
         for _ in range(2):
             turns = link.turns
             link.poke()
-            until("a turn", lambda t=turns: link.turns > t, counters)
+
+            def turned(t: int = turns) -> bool:
+                return link.turns > t
+
+            until("a turn", turned, detail=counters)
 
     try:
         good = frame(GetAbsPos(0))
         at(0.4)
         os.write(host, good[:9] + bytes([good[9] ^ 0xFF]))  # fails its checksum
-        until("the bad frame", lambda: counters()["checksum_errors"] == 1, counters)
+        until("the bad frame", lambda: counters()["checksum_errors"] == 1, detail=counters)
         at(0.8)
         os.write(host, good[:3])  # three bytes of a frame that never completes
-        until("the bytes", lambda: counters()["bytes_in"] == 13, counters)
+        until("the bytes", lambda: counters()["bytes_in"] == 13, detail=counters)
         at(1.25)
         assert acted == []
         at(1.35)

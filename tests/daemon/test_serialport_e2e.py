@@ -19,7 +19,8 @@ import pytest
 
 from motorctl.client.client import Client, DeviceError
 from motorctl.protocol.codec import CodecOptions, ErrorCode, MoveTo, WaitMoved, encode_command
-from tests.support.daemon_proc import DaemonProcess, until
+from tests.support.daemon_proc import DaemonProcess
+from tests.support.wait import until
 
 E = ErrorCode
 OPTS = CodecOptions()

@@ -22,6 +22,7 @@ import pytest
 from motorctl.daemon import service
 from motorctl.daemon import status as status_module
 from motorctl.daemon.instance import InstanceError, InstanceLock, Owned, flock_holder
+from motorctl.daemon.service import ProgressWatch
 from motorctl.daemon.status import StatusServer, StatusSource, read_status, summary_line
 from tests.support.fsutil import read_only
 
@@ -496,3 +497,36 @@ def test_stderr_handler_follows_sys_stderr(monkeypatch: pytest.MonkeyPatch) -> N
     monkeypatch.setattr(sys, "stderr", later)  # e.g. a test runner swapping streams
     logging.getLogger("motorctl.test").info("still here")
     assert later.getvalue() == "motorctld INFO motorctl.test: still here\n"
+
+
+# ------------------------------------------------------------------ the watchdog's health
+
+
+def test_progress_watch_feeds_only_while_every_part_progresses() -> None:
+    counters = {"link loop": 0, "step executor": 0}
+    dead: dict[str, bool] = {"step executor": False}
+    pokes: list[int] = []
+
+    def probe(name: str) -> object:
+        return lambda: None if dead.get(name) else counters[name]
+
+    watch = ProgressWatch({n: probe(n) for n in counters},  # type: ignore[misc]
+                          pokes=(lambda: pokes.append(1),))
+    assert watch.healthy()  # the first look has nothing to compare with
+    counters["link loop"] += 1
+    counters["step executor"] += 5
+    assert watch.healthy() and watch.hung is None
+    counters["step executor"] += 1  # the link loop did not turn
+    assert not watch.healthy() and watch.hung == "link loop: no progress"
+    counters["link loop"] += 1
+    counters["step executor"] += 1
+    assert watch.healthy() and watch.hung is None
+    dead["step executor"] = True
+    counters["link loop"] += 1
+    assert not watch.healthy() and watch.hung == "step executor: dead"
+    assert len(pokes) == 5
+
+
+def test_progress_watch_idle_parts_are_healthy() -> None:
+    watch = ProgressWatch({"state writer": lambda: ProgressWatch.IDLE})
+    assert watch.healthy() and watch.healthy()

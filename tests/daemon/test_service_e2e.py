@@ -12,7 +12,6 @@ import socket
 import stat
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -20,18 +19,17 @@ import pytest
 from motorctl.client.client import DeviceError
 from motorctl.daemon.main import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
-from tests.support.daemon_proc import DaemonProcess, until
+from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.fsutil import fill, read_only, small_tmpfs
+from tests.support.wait import until
 
 E = ErrorCode
 DEADLINE_S = 20.0
 
 
 @pytest.fixture
-def daemon(tmp_path: Path) -> Iterator[DaemonProcess]:
-    d = DaemonProcess(tmp_path).start()
-    yield d
-    d.close()
+def daemon(motorctld: StartDaemon) -> DaemonProcess:
+    return motorctld()
 
 
 def no_traceback(d: DaemonProcess) -> None:

@@ -15,14 +15,11 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from motorctl.daemon.config import parse_config
 from motorctl.daemon.dispatcher import Wait
-from motorctl.daemon.main import Daemon
 from motorctl.daemon.session import LinkSession
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.mock import world_of
 from motorctl.protocol.codec import (
-    CodecOptions,
     Command,
     ErrorCode,
     GetAbsPos,
@@ -36,11 +33,11 @@ from motorctl.protocol.codec import (
     StopMove,
     WaitMoved,
     decode_response,
-    encode_command,
 )
+from tests.support.frames import OPTS, answers, frame
+from tests.support.inprocess import build_daemon
 
 E = ErrorCode
-OPTS = CodecOptions()
 GAP = 0.010
 
 CONFIG = """
@@ -58,7 +55,7 @@ class World:
 
     def __init__(self, tmp: Path, held: int = 16, backlog: int = 4096) -> None:
         self.clock = VirtualClock()
-        self.daemon = Daemon.build(parse_config(CONFIG, "test.toml"), tmp, self.clock)
+        self.daemon = build_daemon(CONFIG, tmp, self.clock)
         self.session = LinkSession(self.daemon.dispatcher, OPTS, GAP, held, backlog)
         self.engine = self.daemon.engine
 
@@ -67,7 +64,7 @@ class World:
         return self.clock.now()
 
     def send(self, *cmds: Command) -> None:
-        self.session.receive(b"".join(encode_command(c, OPTS) for c in cmds), self.now)
+        self.session.receive(frame(*cmds), self.now)
 
     def run(self, dt: float) -> None:
         """Let the motors move for ``dt`` seconds, then let the session look at its wait."""
@@ -75,9 +72,7 @@ class World:
         self.session.poll(self.now)
 
     def responses(self) -> list[Response]:
-        data = self.session.take_output()
-        assert len(data) % 5 == 0
-        return [decode_response(data[i : i + 5], OPTS) for i in range(0, len(data), 5)]
+        return answers(self.session.take_output())
 
 
 @pytest.fixture
@@ -87,10 +82,6 @@ def w(tmp_path: Path) -> World:
 
 def codes(rs: Sequence[Response]) -> list[ErrorCode | None]:
     return [r.error_code for r in rs]
-
-
-def frame(cmd: Command) -> bytes:
-    return encode_command(cmd, OPTS)
 
 
 def corrupt(data: bytes, bit: int) -> bytes:

@@ -12,14 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.config import parse_config
-from motorctl.daemon.main import Daemon, silence_watch
+from motorctl.daemon.main import silence_watch
 from motorctl.daemon.session import LinkSession
-from motorctl.hal.interfaces import BridgeState, DcBridge, VirtualClock
+from motorctl.hal.interfaces import BridgeState, DcBridge
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorState
 from motorctl.protocol.codec import (
-    CodecOptions,
     Command,
     DcMove,
     ErrorCode,
@@ -30,27 +28,21 @@ from motorctl.protocol.codec import (
     Response,
     StopMove,
     WaitMoved,
-    decode_response,
-    encode_command,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.support.daemon_proc import IN_PROCESS_CONFIG
+from tests.support.frames import OPTS, answers, frame
+from tests.support.inprocess import IN_PROCESS_CONFIG, build_daemon
 
 E = ErrorCode
-OPTS = CodecOptions()
 STEP_S = 0.005  # how finely Line.run lets time pass (the shell's turns)
-
-
-def frame(cmd: Command) -> bytes:
-    return encode_command(cmd, OPTS)
 
 
 class Line:
     """The link shell's part on a virtual clock: what it tells the session and the watch."""
 
     def __init__(self, tmp: Path, link: str = "") -> None:
-        config = parse_config(IN_PROCESS_CONFIG + "[dc]\n" + link, "t.toml")
-        self.d = Daemon.build(config, tmp, VirtualClock())
+        self.d = build_daemon(IN_PROCESS_CONFIG + "[dc]\n" + link, tmp)
+        config = self.d.config
         self.clock = self.d.clock
         self.session = LinkSession(self.d.dispatcher, OPTS, 0.010)
         self.watch = silence_watch(config, self.d.dispatcher, self.clock.now())
@@ -61,8 +53,7 @@ class Line:
         now = self.clock.now()
         self.watch.heard(now)
         self.session.receive(data, now)
-        out = self.session.take_output()
-        return [decode_response(out[i:i + 5], OPTS) for i in range(0, len(out), 5)]
+        return answers(self.session.take_output())
 
     def call(self, cmd: Command) -> Response:
         (resp,) = self.send(frame(cmd))
@@ -81,7 +72,7 @@ class Line:
             self.watch.hold(self.session.waiting, t)
             self.watch.check(t)
             out += self.session.take_output()
-        return [decode_response(bytes(out[i:i + 5]), OPTS) for i in range(0, len(out), 5)]
+        return answers(out)
 
     def poll(self, seconds: float, every_s: float = 0.1) -> None:
         """Let ``seconds`` pass with the host asking GetAbsPos(0) every ``every_s``."""

@@ -26,7 +26,6 @@ from motorctl.daemon.state import (
     write_all,
     write_atomic,
 )
-from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,
@@ -40,6 +39,7 @@ from motorctl.protocol.codec import (
     SaveWayPoint,
 )
 from tests.support.fsutil import read_only
+from tests.support.inprocess import build_daemon
 
 E = ErrorCode
 
@@ -56,7 +56,7 @@ ROTARY = CONFIG.replace('name = "b"', 'name = "b"\nsteps_per_rev = 400')
 
 
 def build(tmp_path: Path, config: str = CONFIG) -> Daemon:
-    return Daemon.build(parse_config(config, "test.toml"), tmp_path, VirtualClock())
+    return build_daemon(config, tmp_path)
 
 
 def move(d: Daemon, motor: int, pos: int) -> None:

@@ -17,8 +17,8 @@ import pytest
 from motorctl.daemon.status import StatusServer, read_status
 from motorctl.motion.latency import BINS
 from motorctl.protocol.codec import Move, StopMove, WaitMoved
-from tests.daemon.test_hal_faults import Live, moving
-from tests.support.daemon_proc import until
+from tests.support.inprocess import LIVE_CONFIG, LiveDaemon
+from tests.support.wait import until
 
 READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
 
@@ -33,8 +33,8 @@ STEP_KEYS = {"steps", "p50_us", "p99_us", "p999_us", "max_us", "late", "late_thr
 
 
 @pytest.fixture
-def served(tmp_path: Path) -> Iterator[tuple[Live, Path]]:
-    live = Live(tmp_path)
+def served(tmp_path: Path) -> Iterator[tuple[LiveDaemon, Path]]:
+    live = LiveDaemon(tmp_path, LIVE_CONFIG, motion=True)
     path = tmp_path / "status.sock"
     server = StatusServer(path, live.daemon.status)
     server.start()
@@ -55,10 +55,10 @@ def nearest_rank(histogram: dict[int, int], q: float) -> float:
 
 
 def test_status_is_complete_and_the_histogram_comes_when_asked(
-    served: tuple[Live, Path],
+    served: tuple[LiveDaemon, Path],
 ) -> None:
     live, path = served
-    moving(live, 0)
+    live.moving(0)
     doc = read_status(path, timeout=READ_DEADLINE_S)
     assert {"motors", "steps", "executor", "clamped", "state", "link"} <= set(doc)
     assert [m["index"] for m in doc["motors"]] == [0, 1]
@@ -93,7 +93,7 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
         k: v for k, v in steps.items() if k not in moving_on}
 
 
-def test_a_status_read_takes_no_motion_lock(served: tuple[Live, Path]) -> None:
+def test_a_status_read_takes_no_motion_lock(served: tuple[LiveDaemon, Path]) -> None:
     """While something holds the engine lock (planning, a command), status still answers:
     a read that waited for the lock would time out here."""
     live, path = served
@@ -158,13 +158,13 @@ def test_read_status_gives_up_on_a_backlog_that_stays_full(tmp_path: Path) -> No
 
 
 def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
-    served: tuple[Live, Path],
+    served: tuple[LiveDaemon, Path],
 ) -> None:
     """A soft StopMove re-plans from the executed state: the deceleration takes over at the
     first segment boundary after the executor's lead, within lead + one segment's span of
     the command, and the motor's status says how soon and how many steps on."""
     live, path = served
-    moving(live, 1)
+    live.moving(1)
     until("cruise", lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"]
           > 500)
     assert live.code(StopMove(1, False)) is None

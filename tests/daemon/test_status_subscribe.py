@@ -23,7 +23,7 @@ from motorctl.daemon.status import (
     stable_view,
     subscribe,
 )
-from tests.support.daemon_proc import until
+from tests.support.wait import until
 
 DEADLINE_S = 30.0
 

@@ -13,13 +13,12 @@ import json
 import os
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from tests.support import REPO
-from tests.support.daemon_proc import DaemonProcess, positions_until_ready
+from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
 
 TESTS = REPO / "tests"
 REPO = TESTS.parent
@@ -61,12 +60,8 @@ def env(tmp_path: Path) -> dict[str, str]:
 
 
 @pytest.fixture
-def daemon(tmp_path: Path, env: dict[str, str]) -> Iterator[DaemonProcess]:
-    d = DaemonProcess(tmp_path, RAMP_ONLY, env=env).start()
-    try:
-        yield d
-    finally:
-        d.kill()
+def daemon(motorctld: StartDaemon, env: dict[str, str]) -> DaemonProcess:
+    return motorctld(RAMP_ONLY, env=env, kill_at_end=True)
 
 
 def test_a_ramp_motor_without_step_dir_lines_moves_end_to_end(daemon: DaemonProcess) -> None:

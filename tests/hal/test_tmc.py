@@ -22,11 +22,11 @@ from hypothesis import strategies as st
 
 from motorctl.daemon.config import ConfigError, parse_config
 from motorctl.daemon.main import hardware_spec
-from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
-from motorctl.hal.mock import build, world_of
+from motorctl.hal.interfaces import HalError, MonotonicClock
+from motorctl.hal.mock import world_of
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.hal.spi import SpiAddress, SpiBuses, SpiDevice, SpiError
+from motorctl.hal.spi import SpiAddress, SpiError
 from motorctl.hal.tmc import (
     TMC2130,
     TMC5160,
@@ -50,7 +50,6 @@ from motorctl.hal.tmc import (
 from motorctl.hal.tmc_backend import probe
 from motorctl.hal.tmc_config import driver_spec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
@@ -61,34 +60,14 @@ from motorctl.motion.types import (
     RunCmd,
 )
 from tests.support import tmc_model as tm
+from tests.support.rigs import engine_rig
+from tests.support.spi_bench import SPEED, SpiBench
 from tests.support.tmc_model import FakeKernel, FakeSpiDev, TmcModel
-
-SPEED = 4_000_000
-
-
-class Bench:
-    """A fake kernel with chips on /dev/spidev0.x and the bus locks."""
-
-    def __init__(self) -> None:
-        self.kernel = FakeKernel()
-        self.buses = SpiBuses()
-        self.clock = VirtualClock()
-
-    def chip(self, kind: str, cs: int = 0, **kw: object) -> TmcModel:
-        model = TmcModel(kind, clock=self.clock, **kw)  # type: ignore[arg-type]
-        self.kernel.chips[(0, cs)] = model
-        return model
-
-    def device(self, cs: int = 0, bus: int = 0) -> SpiDevice:
-        return SpiDevice(SpiAddress(bus, cs), self.buses, self.kernel.factory(), SPEED)
-
-    def driver(self, settings: TmcSettings, cs: int = 0) -> TmcDriver:
-        return TmcDriver(f"m{cs}", self.device(cs), settings)
 
 
 @pytest.fixture
-def bench() -> Bench:
-    return Bench()
+def bench() -> SpiBench:
+    return SpiBench()
 
 
 S2130 = TmcSettings(chip="tmc2130", run_current=0.8, hold_current=0.4, microsteps=16,
@@ -100,7 +79,7 @@ S5160 = TmcSettings(chip="tmc5160", run_current=2.0, hold_current=1.0, microstep
 # ------------------------------------------------------------------ the fake is py-spidev
 
 
-def test_fake_spidev_keeps_py_spidevs_contract(bench: Bench) -> None:
+def test_fake_spidev_keeps_py_spidevs_contract(bench: SpiBench) -> None:
     bench.chip("tmc2130")
     dev = FakeSpiDev(bench.kernel)
     with pytest.raises(OSError) as e:
@@ -127,7 +106,7 @@ def test_spi_address_parsing() -> None:
 # ------------------------------------------------------------------ datagrams on the wire
 
 
-def test_reads_are_pipelined_and_writes_echo(bench: Bench) -> None:
+def test_reads_are_pipelined_and_writes_echo(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     dev = bench.device()
     dev.open()
@@ -145,7 +124,7 @@ def test_reads_are_pipelined_and_writes_echo(bench: Bench) -> None:
     assert link.read_many([Reg.GCONF, Reg.CHOPCONF]) == [0, 0x12345678]
 
 
-def test_status_byte_flags_are_counted_on_their_rising_edge(bench: Bench) -> None:
+def test_status_byte_flags_are_counted_on_their_rising_edge(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()  # the reset flag was up, and went down when GSTAT was read
@@ -167,7 +146,7 @@ def test_status_byte_flags_are_counted_on_their_rising_edge(bench: Bench) -> Non
 
 @pytest.mark.parametrize("settings_", [S2130, S5160], ids=["tmc2130", "tmc5160"])
 def test_start_writes_the_configuration_and_reads_it_back(
-    bench: Bench, settings_: TmcSettings
+    bench: SpiBench, settings_: TmcSettings
 ) -> None:
     model = bench.chip(settings_.chip)
     drv = bench.driver(settings_)
@@ -220,7 +199,7 @@ def test_impossible_settings_are_refused_with_the_reason() -> None:
         register_values(TmcSettings(chip="tmc2209"))
 
 
-def test_a_wrong_chip_is_refused_naming_both(bench: Bench) -> None:
+def test_a_wrong_chip_is_refused_naming_both(bench: SpiBench) -> None:
     bench.chip("tmc5160")
     with pytest.raises(TmcError) as e:
         bench.driver(S2130).start()
@@ -229,13 +208,13 @@ def test_a_wrong_chip_is_refused_naming_both(bench: Bench) -> None:
     assert 'driver = "tmc5160"' in msg
 
 
-def test_no_chip_answering_is_a_clear_error(bench: Bench) -> None:
+def test_no_chip_answering_is_a_clear_error(bench: SpiBench) -> None:
     bench.chip("tmc2130", dead=True)
     with pytest.raises(TmcError, match=r"no driver chip answers.*0xffffffff.*VIO"):
         bench.driver(S2130).start()
 
 
-def test_a_register_that_does_not_read_back_is_an_error(bench: Bench) -> None:
+def test_a_register_that_does_not_read_back_is_an_error(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
@@ -244,7 +223,7 @@ def test_a_register_that_does_not_read_back_is_an_error(bench: Bench) -> None:
         drv.verify()
 
 
-def test_a_garbled_write_is_caught_by_its_echo(bench: Bench) -> None:
+def test_a_garbled_write_is_caught_by_its_echo(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
@@ -261,14 +240,14 @@ def test_a_garbled_write_is_caught_by_its_echo(bench: Bench) -> None:
 # ------------------------------------------------------------------ SPI errors
 
 
-def test_missing_device_names_the_path_and_the_fix(bench: Bench) -> None:
+def test_missing_device_names_the_path_and_the_fix(bench: SpiBench) -> None:
     with pytest.raises(SpiError) as e:
         bench.driver(S2130, cs=1).start()
     assert "/dev/spidev0.1 does not exist" in str(e.value)
     assert "dtparam=spi=on" in str(e.value)
 
 
-def test_permission_denied_names_the_group(bench: Bench) -> None:
+def test_permission_denied_names_the_group(bench: SpiBench) -> None:
     bench.chip("tmc2130")
     bench.kernel.no_permission.add((0, 0))
     with pytest.raises(SpiError, match=r"no permission to open /dev/spidev0.0.*usermod -aG spi"):
@@ -295,7 +274,7 @@ def test_spidev_missing_is_a_hal_error_saying_how_to_install(
         spidev_factory()
 
 
-def test_a_transfer_error_at_start_is_a_clear_error(bench: Bench) -> None:
+def test_a_transfer_error_at_start_is_a_clear_error(bench: SpiBench) -> None:
     bench.chip("tmc2130")
     bench.kernel.fail_xfers = 1
     with pytest.raises(TmcError, match=r"m0: cannot transfer on /dev/spidev0.0: Input/output"):
@@ -303,7 +282,7 @@ def test_a_transfer_error_at_start_is_a_clear_error(bench: Bench) -> None:
 
 
 def test_a_transfer_error_while_running_is_a_latched_fault_not_an_exception(
-    bench: Bench,
+    bench: SpiBench,
 ) -> None:
     bench.chip("tmc2130")
     drv = bench.driver(S2130)
@@ -337,7 +316,7 @@ FAULTS = [
 
 
 @pytest.mark.parametrize(("kind", "bit", "text"), FAULTS)
-def test_every_fault_bit_becomes_a_fault(bench: Bench, kind: str, bit: int, text: str) -> None:
+def test_every_fault_bit_becomes_a_fault(bench: SpiBench, kind: str, bit: int, text: str) -> None:
     model = bench.chip(kind, sd_mode=1)
     drv = bench.driver(S2130 if kind == "tmc2130" else S5160)
     drv.start()
@@ -356,7 +335,7 @@ def test_every_fault_bit_becomes_a_fault(bench: Bench, kind: str, bit: int, text
         assert drv.poll().fault is None  # over-temperature and open load clear themselves
 
 
-def test_tmc2130_has_no_short_to_supply_flags(bench: Bench) -> None:
+def test_tmc2130_has_no_short_to_supply_flags(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
@@ -364,7 +343,7 @@ def test_tmc2130_has_no_short_to_supply_flags(bench: Bench) -> None:
     assert drv.poll().fault is None
 
 
-def test_open_load_at_standstill_is_not_a_fault(bench: Bench) -> None:
+def test_open_load_at_standstill_is_not_a_fault(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
@@ -372,7 +351,7 @@ def test_open_load_at_standstill_is_not_a_fault(bench: Bench) -> None:
     assert drv.poll().fault is None  # datasheet: false detection at standstill
 
 
-def test_open_load_as_warning_and_otpw_are_counted_not_faults(bench: Bench) -> None:
+def test_open_load_as_warning_and_otpw_are_counted_not_faults(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(TmcSettings(open_load="warn"))
     drv.start()
@@ -383,7 +362,7 @@ def test_open_load_as_warning_and_otpw_are_counted_not_faults(bench: Bench) -> N
     assert drv.warning_counts["over-temperature pre-warning (otpw)"] == 1
 
 
-def test_stall_flag_counts_only_in_motion_above_the_threshold_speed(bench: Bench) -> None:
+def test_stall_flag_counts_only_in_motion_above_the_threshold_speed(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)  # stall_min_speed = 500 steps/s
     drv.start()
@@ -396,7 +375,7 @@ def test_stall_flag_counts_only_in_motion_above_the_threshold_speed(bench: Bench
     assert drv.poll().fault is None  # a stall is not a driver fault; the motion layer decides
 
 
-def test_a_chip_reset_while_running_is_reported_and_reconfigured(bench: Bench) -> None:
+def test_a_chip_reset_while_running_is_reported_and_reconfigured(bench: SpiBench) -> None:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
@@ -409,7 +388,7 @@ def test_a_chip_reset_while_running_is_reported_and_reconfigured(bench: Bench) -
     assert drv.poll().fault is None  # ...then it is gone
 
 
-def test_a_monitor_thread_survives_a_failing_poll(bench: Bench) -> None:
+def test_a_monitor_thread_survives_a_failing_poll(bench: SpiBench) -> None:
     bench.chip("tmc2130")
     bench.chip("tmc2130", cs=1)
     good = bench.driver(TmcSettings(poll_ms=1.0))
@@ -435,7 +414,7 @@ def test_a_monitor_thread_survives_a_failing_poll(bench: Bench) -> None:
     assert good.polls >= 5
 
 
-def test_one_bus_lock_keeps_pipelined_reads_whole_across_threads(bench: Bench) -> None:
+def test_one_bus_lock_keeps_pipelined_reads_whole_across_threads(bench: SpiBench) -> None:
     bench.chip("tmc2130", cs=0)
     bench.chip("tmc5160", cs=1, sd_mode=1)
     a, b = bench.device(0), bench.device(1)
@@ -476,7 +455,7 @@ def test_ramp_units_follow_the_datasheet() -> None:
     assert u.accel(1e12) == 65535 and u.accel(0.0) == 1
 
 
-def ramp_driver(bench: Bench) -> tuple[Tmc5160, TmcModel]:
+def ramp_driver(bench: SpiBench) -> tuple[Tmc5160, TmcModel]:
     model = bench.chip("tmc5160")
     drv = Tmc5160("x", bench.device(), S5160, RefSwitches(left_active_low=True))
     drv.start()
@@ -484,7 +463,7 @@ def ramp_driver(bench: Bench) -> tuple[Tmc5160, TmcModel]:
 
 
 def run_until(
-    bench: Bench, drv: Tmc5160, cond: Callable[[RampState], bool], limit_s: float
+    bench: SpiBench, drv: Tmc5160, cond: Callable[[RampState], bool], limit_s: float
 ) -> float:
     """Advance the virtual clock in 10 ms steps until ``cond(state)``; the time it took."""
     t0 = bench.clock.now()
@@ -494,14 +473,14 @@ def run_until(
     return bench.clock.now() - t0
 
 
-def test_ramp_mode_needs_sd_mode_low(bench: Bench) -> None:
+def test_ramp_mode_needs_sd_mode_low(bench: SpiBench) -> None:
     bench.chip("tmc5160", sd_mode=1)
     drv = Tmc5160("x", bench.device(), S5160)
     with pytest.raises(TmcError, match=r"SD_MODE pin is high.*tie SD_MODE to GND"):
         drv.start()
 
 
-def test_ramp_start_holds_still_with_the_required_registers(bench: Bench) -> None:
+def test_ramp_start_holds_still_with_the_required_registers(bench: SpiBench) -> None:
     drv, model = ramp_driver(bench)
     assert model.regs[tm.A_RAMPMODE] == 0
     assert model.regs[tm.A_VSTOP] >= 10 and model.regs[tm.A_VSTART] == 0
@@ -510,7 +489,7 @@ def test_ramp_start_holds_still_with_the_required_registers(bench: Bench) -> Non
     assert drv.state().xactual == 0
 
 
-def test_move_to_reaches_xtarget_along_a_trapezoid(bench: Bench) -> None:
+def test_move_to_reaches_xtarget_along_a_trapezoid(bench: SpiBench) -> None:
     drv, model = ramp_driver(bench)
     drv.move_to(10_000, 5000.0, 20_000.0, 10_000.0)
     assert model.regs[tm.A_XTARGET] == 10_000
@@ -530,7 +509,7 @@ def test_move_to_reaches_xtarget_along_a_trapezoid(bench: Bench) -> None:
     assert drv.position() == 10_000
 
 
-def test_run_and_soft_stop_in_velocity_mode(bench: Bench) -> None:
+def test_run_and_soft_stop_in_velocity_mode(bench: SpiBench) -> None:
     drv, _ = ramp_driver(bench)
     drv.run(-1, 3000.0, 30_000.0)
     run_until(bench, drv, lambda s: s.vactual * 12e6 / 2**24 < -2999, 2.0)
@@ -543,7 +522,7 @@ def test_run_and_soft_stop_in_velocity_mode(bench: Bench) -> None:
     assert drv.state().vactual == 0  # stays stopped
 
 
-def test_hard_stop_uses_the_chips_largest_deceleration(bench: Bench) -> None:
+def test_hard_stop_uses_the_chips_largest_deceleration(bench: SpiBench) -> None:
     drv, model = ramp_driver(bench)
     drv.run(1, 20_000.0, 200_000.0)
     run_until(bench, drv, lambda s: s.vactual > 0 and s.flag(F.VELOCITY_REACHED), 2.0)
@@ -553,7 +532,7 @@ def test_hard_stop_uses_the_chips_largest_deceleration(bench: Bench) -> None:
     assert took <= 0.02
 
 
-def test_homing_on_the_reference_switch_zeroes_at_the_trigger(bench: Bench) -> None:
+def test_homing_on_the_reference_switch_zeroes_at_the_trigger(bench: SpiBench) -> None:
     drv, model = ramp_driver(bench)
     model.ref_l_at = -2500.0
     drv.home_start(-1, 4000.0, 40_000.0, "endstop")
@@ -567,7 +546,7 @@ def test_homing_on_the_reference_switch_zeroes_at_the_trigger(bench: Bench) -> N
     assert model.physical == pytest.approx(-2500 + 1000, abs=1)  # positions count from the switch
 
 
-def test_homing_by_stallguard_stops_at_the_wall(bench: Bench) -> None:
+def test_homing_by_stallguard_stops_at_the_wall(bench: SpiBench) -> None:
     drv, model = ramp_driver(bench)
     model.wall_at = 3000.0
     drv.home_start(1, 4000.0, 40_000.0, "stall")
@@ -586,17 +565,14 @@ Tick = Callable[[], None]
 
 
 def engine_with_tmc(
-    bench: Bench, homing: HomingParams
+    bench: SpiBench, homing: HomingParams
 ) -> tuple[MotionEngine, TmcModel, Tick]:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
-    spec = HardwareSpec((AxisSpec(),))
-    hw = build(spec, bench.clock)
-    hw.steppers[0].driver = drv  # the mock's STEP/DIR, a TMC2130 for the status
-    params = [MotorParams(homing=homing)]
-    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 0.0))
-    engine = MotionEngine(hw, params, executor, driver_poll_s=0.005)
+    # the mock's STEP/DIR, a TMC2130 for the status
+    engine = engine_rig(MotorParams(homing=homing), axes=[AxisSpec()], clock=bench.clock,
+                        driver_poll_s=0.005, drivers=[drv]).engine
 
     def monitor_tick() -> None:  # what the monitor thread does, in virtual time
         moving = engine.motors[0].active
@@ -606,7 +582,7 @@ def engine_with_tmc(
     return engine, model, monitor_tick
 
 
-def run_engine(bench: Bench, engine: MotionEngine, tick: Tick, seconds: float) -> None:
+def run_engine(bench: SpiBench, engine: MotionEngine, tick: Tick, seconds: float) -> None:
     """Run the engine on the virtual clock with a monitor poll every 10 ms."""
     end = bench.clock.now() + seconds
     while bench.clock.now() < end:
@@ -614,7 +590,7 @@ def run_engine(bench: Bench, engine: MotionEngine, tick: Tick, seconds: float) -
         tick()
 
 
-def test_a_driver_fault_stops_the_motor_and_latches_e4(bench: Bench) -> None:
+def test_a_driver_fault_stops_the_motor_and_latches_e4(bench: SpiBench) -> None:
     engine, model, tick = engine_with_tmc(bench, HomingParams())
     motor = engine.motors[0]
 
@@ -638,7 +614,7 @@ def test_a_driver_fault_stops_the_motor_and_latches_e4(bench: Bench) -> None:
     assert state() is MotorState.IDLE
 
 
-def test_stall_homing_ends_on_the_drivers_stall_flag(bench: Bench) -> None:
+def test_stall_homing_ends_on_the_drivers_stall_flag(bench: SpiBench) -> None:
     homing = HomingParams(source=HomingSource.STALL, max_travel=100_000)
     engine, model, tick = engine_with_tmc(bench, homing)
     motor = engine.motors[0]
@@ -670,7 +646,7 @@ def spec_with(*drivers: TmcSpec | None) -> HardwareSpec:
 
 
 def test_open_hardware_starts_configured_drivers_and_their_monitor(
-    bench: Bench, monkeypatch: pytest.MonkeyPatch
+    bench: SpiBench, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     model = bench.chip("tmc2130", cs=1)
     fake_spidev_module(monkeypatch, bench.kernel)
@@ -695,7 +671,7 @@ def test_open_hardware_starts_configured_drivers_and_their_monitor(
 
 
 def test_a_failing_driver_closes_the_ones_already_opened(
-    bench: Bench, monkeypatch: pytest.MonkeyPatch
+    bench: SpiBench, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     bench.chip("tmc2130", cs=0)
     bench.chip("tmc5160", cs=1)
@@ -725,7 +701,7 @@ class Report:
         self.sections.append((title, lines))
 
 
-def test_probe_reports_chip_versions_and_drv_status_without_writing(bench: Bench) -> None:
+def test_probe_reports_chip_versions_and_drv_status_without_writing(bench: SpiBench) -> None:
     ok = bench.chip("tmc2130", cs=0)
     ok.faults.add(tm.OTPW)
     bench.chip("tmc2130", cs=1)  # configured as a TMC5160 below: a mismatch
@@ -799,7 +775,7 @@ def test_config_refuses_one_spi_device_for_two_motors() -> None:
     assert "also the device of motors[0]" in config_error(text)
 
 
-def test_a_transient_fault_set_between_two_publications_is_not_lost(bench: Bench) -> None:
+def test_a_transient_fault_set_between_two_publications_is_not_lost(bench: SpiBench) -> None:
     bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
@@ -811,7 +787,7 @@ def test_a_transient_fault_set_between_two_publications_is_not_lost(bench: Bench
     assert drv.poll().fault is None
 
 
-def test_a_tmc5160_reset_in_ramp_mode_restores_the_ramp_set_up(bench: Bench) -> None:
+def test_a_tmc5160_reset_in_ramp_mode_restores_the_ramp_set_up(bench: SpiBench) -> None:
     drv, model = ramp_driver(bench)
     model.power_cycle()
     status = drv.poll()

@@ -9,7 +9,6 @@ from __future__ import annotations
 import json
 import os
 import time
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -17,7 +16,7 @@ import pytest
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
 from tests.support import REPO
-from tests.support.daemon_proc import DaemonProcess, positions_until_ready
+from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
 
 FAKESPI = REPO / "tests" / "fakespi"
 
@@ -68,12 +67,8 @@ def set_chips(control: Path, state: dict[str, object]) -> None:
 
 
 @pytest.fixture
-def daemon(tmp_path: Path, fake_spi: Path) -> Iterator[DaemonProcess]:
-    d = DaemonProcess(tmp_path, CONFIG).start()
-    try:
-        yield d
-    finally:
-        d.kill()
+def daemon(motorctld: StartDaemon, fake_spi: Path) -> DaemonProcess:
+    return motorctld(CONFIG, kill_at_end=True)
 
 
 def test_a_driver_fault_answers_e4_until_it_clears(daemon: DaemonProcess, fake_spi: Path) -> None:

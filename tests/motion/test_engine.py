@@ -5,19 +5,17 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field, replace
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, VirtualClock
-from motorctl.hal.mock import Event, EventKind, MockWorld, build, build_step_io, world_of
+from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
+from motorctl.hal.mock import EventKind, build, build_step_io, world_of
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import from_ticks, to_ticks
 from motorctl.motion.latency import LatencyStats
-from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Steps, plan_move_to
 from motorctl.motion.stepexec import ThreadStepExecutor, axis_limits
 from motorctl.motion.types import (
@@ -32,6 +30,7 @@ from motorctl.motion.types import (
     RunCmd,
 )
 from motorctl.protocol.codec import wrap24
+from tests.support.rigs import engine_rig
 
 FAST = settings(max_examples=40, deadline=None)
 RAMP = Ramp(2000.0, 8000.0, 8000.0)
@@ -40,83 +39,7 @@ MAX_LATENESS = 1e-3
 TICK = 2e-9  # step times are whole nanoseconds: a gap may be 1 ns off
 
 
-# ---------------------------------------------------------------- a world to test in
-
-
-@dataclass
-class Rig:
-    clock: VirtualClock
-    hw: Hardware
-    world: MockWorld
-    engine: MotionEngine
-    events: list[tuple[float, int, str]] = field(default_factory=list)
-
-    def state(self, i: int = 0) -> MotorState:
-        """The motor's state, read afresh (a call, so type checkers do not pin it)."""
-        return self.engine.motors[i].state
-
-    @property
-    def executor(self) -> ThreadStepExecutor:
-        ex = self.engine.executor
-        assert isinstance(ex, ThreadStepExecutor)
-        return ex
-
-    def motor(self, i: int = 0) -> Motor:
-        return self.engine.motors[i]
-
-    @property
-    def m(self) -> Motor:
-        return self.engine.motors[0]
-
-    def submit(self, cmd: MotionCmd, i: int = 0) -> None:
-        with self.engine.lock:
-            self.engine.motors[i].submit(cmd, self.clock.now())
-
-    def stop(self, hard: bool, i: int = 0) -> bool:
-        with self.engine.lock:
-            return self.engine.motors[i].stop(hard, self.clock.now())
-
-    def steps(self, i: int = 0) -> list[Event]:
-        return self.world.timeline.of(EventKind.STEP, i)
-
-    def times(self, i: int = 0) -> list[float]:
-        return self.world.timeline.step_times(i)
-
-    def dirs(self, i: int = 0) -> list[bool]:
-        return [bool(e.value) for e in self.steps(i)]
-
-    def axis(self, i: int = 0) -> int:
-        return self.world.axes[i].position
-
-    def advance(self, dt: float) -> float:
-        t = self.clock.now() + dt
-        self.engine.run_until(t)
-        return t
-
-    def event_times(self, name: str, i: int = 0) -> list[float]:
-        return [t for t, idx, e in self.events if e == name and idx == i]
-
-
-def make(
-    *params: MotorParams,
-    axes: Sequence[AxisSpec] | None = None,
-    dc: bool = False,
-    lows: Sequence[bool] | None = None,
-) -> Rig:
-    if not params:
-        params = (MotorParams(),)
-    if axes is None:
-        axes = [AxisSpec(endstop_min=-1000, endstop_max=1000) for _ in params]
-    clock = VirtualClock()
-    if lows is not None:
-        axes = [replace(a, endstop_active_low=low) for a, low in zip(axes, lows, strict=True)]
-    spec = HardwareSpec(axes=tuple(axes), dc=dc, options={"timeline_len": None})
-    hw = build(spec, clock)
-    executor = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 0.0))
-    engine = MotionEngine(hw, list(params), executor, driver_poll_s=POLL)
-    rig = Rig(clock, hw, world_of(hw), engine)
-    engine.listeners.append(lambda m, e: rig.events.append((clock.now(), m.index, e)))
-    return rig
+# ---------------------------------------------------------------- step-time helpers
 
 
 def direction_runs(dirs: Sequence[bool]) -> list[tuple[bool, int]]:
@@ -177,7 +100,7 @@ def trapezoid_times(distance: int, vmax: float, acc: float, dec: float) -> list[
     ],
 )
 def test_move_timeline_is_the_planned_one(target: int, ramp: Ramp) -> None:
-    rig = make()
+    rig = engine_rig()
     t0 = rig.clock.now()
     rig.submit(MoveToCmd(target, ramp))
     assert rig.state() is MotorState.MOVING
@@ -201,7 +124,7 @@ def test_move_timeline_is_the_planned_one(target: int, ramp: Ramp) -> None:
 
 
 def test_move_to_current_position_does_nothing() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(0, RAMP))
     assert rig.m.idle
     rig.advance(1.0)
@@ -209,7 +132,7 @@ def test_move_to_current_position_does_nothing() -> None:
 
 
 def test_invert_dir_swaps_the_dir_line_not_the_motion() -> None:
-    rig = make(axes=[AxisSpec(invert_dir=True)])
+    rig = engine_rig(axes=[AxisSpec(invert_dir=True)])
     rig.submit(MoveToCmd(30, RAMP))
     rig.engine.run_until_idle()
     assert [e.value for e in rig.world.timeline.of(EventKind.DIR, 0)] == [False]
@@ -217,7 +140,7 @@ def test_invert_dir_swaps_the_dir_line_not_the_motion() -> None:
 
 
 def test_two_motors_step_independently() -> None:
-    rig = make(MotorParams(name="a"), MotorParams(name="b"))
+    rig = engine_rig(MotorParams(name="a"), MotorParams(name="b"))
     t0 = rig.clock.now()
     rig.submit(MoveToCmd(300, RAMP), 0)
     rig.submit(MoveToCmd(-150, Ramp(900.0, 3000.0, 3000.0)), 1)
@@ -229,7 +152,7 @@ def test_two_motors_step_independently() -> None:
 
 
 def test_position_readable_while_moving() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(900, RAMP))
     seen = []
     for _ in range(100):
@@ -245,7 +168,7 @@ def test_position_readable_while_moving() -> None:
 
 
 def test_queued_moves_run_in_order_back_to_back() -> None:
-    rig = make()
+    rig = engine_rig()
     t0 = rig.clock.now()
     targets = [(100, RAMP), (-50, Ramp(800.0, 4000.0, 2000.0)), (300, RAMP)]
     for target, r in targets:
@@ -268,7 +191,7 @@ def test_queued_moves_run_in_order_back_to_back() -> None:
 
 
 def test_queue_full_at_queue_depth_behind_the_running_command() -> None:
-    rig = make(MotorParams(queue_depth=3))
+    rig = engine_rig(MotorParams(queue_depth=3))
     assert not rig.m.queue_full
     rig.submit(MoveToCmd(500, RAMP))  # runs at once, queue still empty
     assert not rig.m.queue and not rig.m.queue_full
@@ -283,7 +206,7 @@ def test_queue_full_at_queue_depth_behind_the_running_command() -> None:
 
 
 def test_move_behind_a_move_to_waits_for_it() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(200, RAMP))
     rig.submit(RunCmd(-1, RAMP))
     assert len(rig.m.queue) == 1 and rig.state() is MotorState.MOVING
@@ -294,7 +217,7 @@ def test_move_behind_a_move_to_waits_for_it() -> None:
 
 
 def test_run_with_commands_queued_behind_it_is_not_replanned() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(100, RAMP))
     rig.submit(RunCmd(1, RAMP))
     rig.submit(MoveToCmd(0, RAMP))
@@ -308,7 +231,7 @@ def test_run_with_commands_queued_behind_it_is_not_replanned() -> None:
 
 
 def test_run_speed_change_replans_at_once() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(1000.0, 5000.0, 5000.0)))
     ts = rig.advance(1.0)
     before = rig.times()
@@ -338,7 +261,7 @@ def test_run_speed_change_replans_at_once() -> None:
 
 
 def test_run_reversal_changes_direction_once() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(2000.0, 8000.0, 8000.0)))
     ts = rig.advance(1.0)
     up_before = len(rig.times())
@@ -362,7 +285,7 @@ def test_run_reversal_changes_direction_once() -> None:
 
 @pytest.mark.parametrize("cmd", [MoveToCmd(5000, RAMP), RunCmd(1, RAMP)])
 def test_soft_stop_decelerates_and_empties_the_queue(cmd: MotionCmd) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(cmd)
     rig.submit(MoveToCmd(-300, RAMP))
     rig.submit(MoveToCmd(700, RAMP))
@@ -385,14 +308,14 @@ def test_soft_stop_decelerates_and_empties_the_queue(cmd: MotionCmd) -> None:
 
 
 def test_soft_stop_when_idle_is_harmless() -> None:
-    rig = make()
+    rig = engine_rig()
     assert rig.stop(hard=False) and rig.stop(hard=True)
     assert rig.m.idle and rig.times() == []
 
 
 @pytest.mark.parametrize("cmd", [MoveToCmd(5000, RAMP), RunCmd(-1, RAMP), HomeCmd(1, RAMP)])
 def test_hard_stop_stops_at_once(cmd: MotionCmd) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(cmd)
     rig.submit(MoveToCmd(3, RAMP))
     ts = rig.advance(0.4)
@@ -408,7 +331,7 @@ def test_hard_stop_stops_at_once(cmd: MotionCmd) -> None:
 
 
 def test_engine_shutdown_soft_stops_everything() -> None:
-    rig = make(MotorParams(), MotorParams(), dc=True)
+    rig = engine_rig(MotorParams(), MotorParams(), dc=True)
     rig.submit(RunCmd(1, RAMP), 0)
     rig.submit(MoveToCmd(-5000, RAMP), 1)
     with rig.engine.lock:
@@ -426,7 +349,7 @@ def test_engine_shutdown_soft_stops_everything() -> None:
 
 
 def test_one_phase_homing() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(300, RAMP))
     rig.submit(HomeCmd(-1, Ramp(1000.0, 5000.0, 5000.0)))
     rig.engine.run_until_idle()
@@ -441,7 +364,7 @@ def test_one_phase_homing() -> None:
 
 
 def test_homing_clears_a_lost_position() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.m.position_lost = True
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
@@ -450,7 +373,7 @@ def test_homing_clears_a_lost_position() -> None:
 
 def test_two_phase_homing_backs_off_and_reapproaches_slowly() -> None:
     homing = HomingParams(pull_off=50, second_speed=200.0)
-    rig = make(MotorParams(homing=homing))
+    rig = engine_rig(MotorParams(homing=homing))
     ramp = Ramp(1500.0, 6000.0, 6000.0)
     rig.submit(HomeCmd(-1, ramp))
     assert rig.state() is MotorState.HOMING
@@ -469,7 +392,7 @@ def test_two_phase_homing_backs_off_and_reapproaches_slowly() -> None:
 
 def test_two_phase_homing_with_second_speed_above_the_ramp_uses_the_ramp() -> None:
     homing = HomingParams(pull_off=20, second_speed=5000.0)
-    rig = make(MotorParams(homing=homing))
+    rig = engine_rig(MotorParams(homing=homing))
     rig.submit(HomeCmd(1, Ramp(400.0, 100_000.0, 100_000.0)))
     rig.engine.run_until_idle()
     approach = rig.steps()[1020:]
@@ -485,7 +408,7 @@ STALL_OVERRUN = int(RAMP.speed * POLL) + 1
 
 
 def test_stall_homing() -> None:
-    rig = make(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
+    rig = engine_rig(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     # The mock stalls once it is pushed past its end stop.
@@ -496,7 +419,7 @@ def test_stall_homing() -> None:
 
 def test_two_phase_stall_homing() -> None:
     homing = HomingParams(source=HomingSource.STALL, pull_off=30, second_speed=300.0)
-    rig = make(MotorParams(homing=homing))
+    rig = engine_rig(MotorParams(homing=homing))
     rig.submit(HomeCmd(-1, RAMP))
     rig.engine.run_until_idle()
     assert rig.m.fault is None and rig.m.position == 0
@@ -508,7 +431,7 @@ def test_two_phase_stall_homing() -> None:
 
 
 def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None:
-    rig = make(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
+    rig = engine_rig(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     rig.advance(0.1)
@@ -521,7 +444,7 @@ def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None
 
 
 def test_stall_during_endstop_homing_is_a_fault() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.1)
     rig.world.inject_stall(0, True)
@@ -530,7 +453,7 @@ def test_stall_during_endstop_homing_is_a_fault() -> None:
 
 
 def test_homing_fails_beyond_max_travel() -> None:
-    rig = make(MotorParams(homing=HomingParams(max_travel=300)))
+    rig = engine_rig(MotorParams(homing=HomingParams(max_travel=300)))
     rig.submit(HomeCmd(-1, RAMP))
     rig.submit(MoveToCmd(50, RAMP))
     rig.engine.run_until_idle()
@@ -546,7 +469,7 @@ def test_homing_fails_beyond_max_travel() -> None:
 
 def test_homing_fails_when_the_reapproach_finds_nothing() -> None:
     far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
-    rig = make(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
+    rig = engine_rig(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.2)
     rig.world.force_endstop(0, "max", True)
@@ -561,7 +484,7 @@ def test_homing_fails_when_the_reapproach_finds_nothing() -> None:
 
 def test_homing_fails_when_the_switch_stays_active_after_pull_off() -> None:
     far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
-    rig = make(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
+    rig = engine_rig(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.2)
     rig.world.force_endstop(0, "max", True)
@@ -572,7 +495,7 @@ def test_homing_fails_when_the_switch_stays_active_after_pull_off() -> None:
 
 
 def test_homing_that_starts_on_the_switch_does_not_move() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.world.axes[0].position = -1000  # resting on the min switch
     rig.submit(HomeCmd(-1, RAMP))
     assert rig.m.idle and rig.m.position == 0
@@ -582,7 +505,7 @@ def test_homing_that_starts_on_the_switch_does_not_move() -> None:
 
 
 def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
-    rig = make(MotorParams(homing=HomingParams(pull_off=25, second_speed=100.0)))
+    rig = engine_rig(MotorParams(homing=HomingParams(pull_off=25, second_speed=100.0)))
     rig.world.axes[0].position = 1000
     rig.submit(HomeCmd(1, RAMP))
     assert rig.state() is MotorState.HOMING
@@ -593,7 +516,7 @@ def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
 
 def test_homing_with_debounce_ignores_short_glitches() -> None:
     far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
-    rig = make(MotorParams(debounce_s=0.02), axes=[far])
+    rig = engine_rig(MotorParams(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)  # 1 ms per step almost at once
     rig.submit(HomeCmd(1, ramp))
     rig.advance(0.2)
@@ -613,7 +536,7 @@ def test_homing_with_debounce_ignores_short_glitches() -> None:
 
 def test_endstop_hit_with_debounce_outside_homing() -> None:
     far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
-    rig = make(MotorParams(debounce_s=0.0105), axes=[far])
+    rig = engine_rig(MotorParams(debounce_s=0.0105), axes=[far])
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.1)
     rig.world.force_endstop(0, "min", True)
@@ -629,7 +552,7 @@ def test_endstop_hit_with_debounce_outside_homing() -> None:
 def test_debounce_forgets_what_it_no_longer_watches() -> None:
     """Two short glitches far apart, each shorter than the debounce, never add up."""
     far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
-    rig = make(MotorParams(debounce_s=0.02), axes=[far])
+    rig = engine_rig(MotorParams(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)
     rig.submit(RunCmd(1, ramp))
     rig.advance(0.1)
@@ -648,7 +571,7 @@ def test_debounce_forgets_what_it_no_longer_watches() -> None:
 
 def test_homing_with_active_low_end_stops() -> None:
     axis = AxisSpec(endstop_active_low=True, endstop_min=-400, endstop_max=400)
-    rig = make(axes=[axis], lows=[True])
+    rig = engine_rig(axes=[axis], lows=[True])
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     assert rig.axis() == 400 and rig.m.position == 0 and rig.m.fault is None
@@ -658,7 +581,7 @@ def test_homing_with_active_low_end_stops() -> None:
 
 
 def test_endstop_hit_outside_homing_is_a_hard_stop_and_fault() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(1500, RAMP))
     rig.submit(MoveToCmd(0, RAMP))
     rig.engine.run_until_idle()
@@ -677,7 +600,7 @@ def test_endstop_hit_outside_homing_is_a_hard_stop_and_fault() -> None:
 
 
 def test_leaving_an_active_endstop_is_fine() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.world.force_endstop(0, "max", True)
     rig.submit(MoveToCmd(-300, RAMP))
     rig.engine.run_until_idle()
@@ -688,7 +611,7 @@ def test_leaving_an_active_endstop_is_fine() -> None:
 
 
 def test_driver_fault_while_moving_stops_at_once_and_latches() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(900, RAMP))
     rig.submit(MoveToCmd(0, RAMP))
     t_inject = rig.advance(0.2)
@@ -717,14 +640,14 @@ def test_driver_fault_while_moving_stops_at_once_and_latches() -> None:
 
 
 def test_driver_fault_while_idle_latches_too() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.world.inject_fault(0, "short")
     rig.advance(2 * POLL)
     assert rig.m.fault == "driver fault: short"
 
 
 def test_stall_outside_homing_is_a_fault() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(RunCmd(1, Ramp(500.0, 5000.0, 5000.0)))
     t_inject = rig.advance(0.3)
     rig.world.inject_stall(0, True)
@@ -736,7 +659,7 @@ def test_stall_outside_homing_is_a_fault() -> None:
 
 
 def test_stall_while_idle_is_not_a_fault() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.world.inject_stall(0, True)
     rig.advance(0.1)
     assert rig.m.fault is None
@@ -746,7 +669,7 @@ def test_stall_while_idle_is_not_a_fault() -> None:
 
 
 def test_rotary_moves_in_the_given_direction() -> None:
-    rig = make(MotorParams(steps_per_rev=200))
+    rig = engine_rig(MotorParams(steps_per_rev=200))
     rig.submit(MoveToCmd(150, RAMP, 1))  # 0 -> 150 up: 150 steps
     rig.submit(MoveToCmd(50, RAMP, 1))  # 150 -> 50 up, across 0: 100 steps
     rig.submit(MoveToCmd(150, RAMP, -1))  # 50 -> 150 down, across 0: 100 steps
@@ -761,7 +684,7 @@ def test_rotary_moves_in_the_given_direction() -> None:
 
 
 def test_rotary_position_stays_in_range_while_moving() -> None:
-    rig = make(MotorParams(steps_per_rev=100),
+    rig = engine_rig(MotorParams(steps_per_rev=100),
                axes=[AxisSpec(endstop_min=-10**6, endstop_max=10**6)])
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
@@ -778,7 +701,7 @@ def test_rotary_position_stays_in_range_while_moving() -> None:
 
 
 def test_rotary_homing_sets_zero() -> None:
-    rig = make(MotorParams(steps_per_rev=360))
+    rig = engine_rig(MotorParams(steps_per_rev=360))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     assert rig.m.position == 0 and rig.axis() == 1000
@@ -795,17 +718,17 @@ def soft(lo: int, hi: int) -> MotorParams:
 
 
 def test_target_allowed() -> None:
-    rig = make(soft(-500, 800))
+    rig = engine_rig(soft(-500, 800))
     m = rig.m
     assert m.target_allowed(800) and m.target_allowed(-500) and m.target_allowed(0)
     assert not m.target_allowed(801) and not m.target_allowed(-501)
-    free = make().m
+    free = engine_rig().m
     assert free.target_allowed(8_388_607) and free.target_allowed(-8_388_608)
 
 
 @pytest.mark.parametrize(("direction", "limit"), [(1, 800), (-1, -500)])
 def test_run_stops_exactly_at_the_soft_limit(direction: int, limit: int) -> None:
-    rig = make(soft(-500, 800), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(soft(-500, 800), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(MoveToCmd(100, RAMP))
     rig.submit(RunCmd(direction, RAMP))
     rig.engine.run_until_idle()
@@ -825,7 +748,7 @@ def test_run_stops_exactly_at_the_soft_limit(direction: int, limit: int) -> None
 
 
 def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
-    rig = make(soft(-5000, 3000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(soft(-5000, 3000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(500.0, 2000.0, 2000.0)))
     rig.advance(0.5)
     rig.submit(RunCmd(1, Ramp(4000.0, 20000.0, 20000.0)))
@@ -838,7 +761,7 @@ def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
 
 
 def test_linear_position_wraps_at_24_bits() -> None:
-    rig = make(
+    rig = engine_rig(
         MotorParams(host_position=wrap24),
         axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)],
     )
@@ -863,7 +786,7 @@ def test_linear_position_wraps_at_24_bits() -> None:
 
 def test_linear_position_unbounded_without_a_host_counter() -> None:
     """Motion itself counts without bound; the 24-bit wrap is the protocol's, passed in."""
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     with rig.engine.lock:
         rig.m.set_position(8_388_600)
     rig.submit(MoveToCmd(8_388_610, RAMP))
@@ -876,7 +799,7 @@ def test_linear_position_unbounded_without_a_host_counter() -> None:
 
 @pytest.mark.parametrize("end", [BridgeState.BRAKE, BridgeState.COAST])
 def test_dc_run_ends_at_exactly_now_plus_duration(end: BridgeState) -> None:
-    rig = make(dc=True)
+    rig = engine_rig(dc=True)
     t0 = rig.clock.now()
     with rig.engine.lock:
         rig.engine.dc_run(False, 0.25, end)
@@ -888,7 +811,7 @@ def test_dc_run_ends_at_exactly_now_plus_duration(end: BridgeState) -> None:
 
 
 def test_dc_new_run_replaces_the_old_one() -> None:
-    rig = make(dc=True)
+    rig = engine_rig(dc=True)
     t0 = rig.clock.now()
     with rig.engine.lock:
         rig.engine.dc_run(True, 1.0, BridgeState.COAST)
@@ -905,7 +828,7 @@ def test_dc_new_run_replaces_the_old_one() -> None:
 
 
 def test_dc_duration_zero_stops_at_once() -> None:
-    rig = make(dc=True)
+    rig = engine_rig(dc=True)
     t0 = rig.clock.now()
     with rig.engine.lock:
         rig.engine.dc_run(True, 1.0, BridgeState.COAST)
@@ -919,11 +842,11 @@ def test_dc_duration_zero_stops_at_once() -> None:
 
 
 def test_dc_run_rejects_a_driving_end_state_and_missing_motor() -> None:
-    rig = make(dc=True)
+    rig = engine_rig(dc=True)
     with rig.engine.lock, pytest.raises(ValueError):
         rig.engine.dc_run(True, 1.0, BridgeState.FORWARD)
-    with make().engine.lock, pytest.raises(LookupError):
-        make().engine.dc_run(True, 1.0, BridgeState.BRAKE)
+    with engine_rig().engine.lock, pytest.raises(LookupError):
+        engine_rig().engine.dc_run(True, 1.0, BridgeState.BRAKE)
 
 
 # ---------------------------------------------------------------- latency statistics
@@ -1024,14 +947,14 @@ def test_engine_checks_its_configuration_and_clock() -> None:
 
 
 def test_run_until_idle_gives_up_on_an_endless_run() -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(10.0, 100.0, 100.0)))
     with pytest.raises(TimeoutError):
         rig.engine.run_until_idle(limit_s=1.0)
 
 
 def test_deadlines() -> None:
-    rig = make(dc=True)
+    rig = engine_rig(dc=True)
     e = rig.engine
     assert rig.executor.next_deadline() is None
     assert e.next_deadline() == rig.clock.now() + POLL
@@ -1066,7 +989,7 @@ moves = st.lists(
 @FAST
 @given(moves)
 def test_random_queues_end_at_the_last_target(queue: list[tuple[int, Ramp]]) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     for target, r in queue:
         rig.submit(MoveToCmd(target, r))
     rig.engine.run_until_idle()
@@ -1102,7 +1025,7 @@ run_changes = st.lists(
 def test_random_run_changes_keep_counter_and_mechanics_together(
     changes: list[tuple[int, float, float]], hard: bool
 ) -> None:
-    rig = make(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     for direction, speed, dt in changes:
         rig.submit(RunCmd(direction, Ramp(speed, 20000.0, 15000.0)))
         assert rig.state() is MotorState.RUNNING and not rig.m.queue
@@ -1142,7 +1065,7 @@ def test_random_run_changes_keep_counter_and_mechanics_together(
 )
 def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
     spr = 97
-    rig = make(MotorParams(steps_per_rev=spr),
+    rig = engine_rig(MotorParams(steps_per_rev=spr),
                axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     expected = 0
     pos = 0
@@ -1158,7 +1081,7 @@ def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
 
 def test_debounce_forgets_the_end_stop_behind_a_reversal() -> None:
     far = AxisSpec(endstop_min=-100_000, endstop_max=100_000)
-    rig = make(MotorParams(debounce_s=0.02), axes=[far])
+    rig = engine_rig(MotorParams(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)
     rig.submit(RunCmd(1, ramp))
     rig.advance(0.1)
@@ -1181,7 +1104,7 @@ def test_debounce_forgets_the_end_stop_behind_a_reversal() -> None:
 def test_run_replanned_with_a_lower_dec_still_stops_at_the_soft_limit(
     direction: int, soft_stop: bool
 ) -> None:
-    rig = make(soft(-3000, 3000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(soft(-3000, 3000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(1, Ramp(4000.0, 40000.0, 40000.0)))
     for _ in range(2000):
         if rig.m.position >= 2500:
@@ -1223,7 +1146,7 @@ actions = st.lists(
 def test_random_command_mixes_keep_every_invariant(
     script: list[tuple[str, int | bool, Ramp]], waits: list[float]
 ) -> None:
-    rig = make(soft(-1000, 1000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(soft(-1000, 1000), axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     for (kind, arg, ramp), dt in zip(script, waits, strict=False):
         if kind == "stop":
             assert rig.stop(hard=bool(arg))
@@ -1252,7 +1175,7 @@ def test_random_command_mixes_keep_every_invariant(
 
 
 def test_a_move_queued_behind_homing_counts_from_the_switch() -> None:
-    rig = make()
+    rig = engine_rig()
     rig.submit(MoveToCmd(400, RAMP))
     rig.submit(HomeCmd(1, RAMP))
     rig.submit(MoveToCmd(-300, RAMP))
@@ -1262,7 +1185,7 @@ def test_a_move_queued_behind_homing_counts_from_the_switch() -> None:
 
 
 def test_a_fault_on_one_motor_leaves_the_other_alone() -> None:
-    rig = make(MotorParams(), MotorParams())
+    rig = engine_rig(MotorParams(), MotorParams())
     rig.submit(MoveToCmd(800, RAMP), 0)
     rig.submit(MoveToCmd(-800, RAMP), 1)
     rig.advance(0.1)
@@ -1274,7 +1197,7 @@ def test_a_fault_on_one_motor_leaves_the_other_alone() -> None:
 
 
 def test_rotary_run_wraps_and_agrees_with_the_mechanics() -> None:
-    rig = make(MotorParams(steps_per_rev=50),
+    rig = engine_rig(MotorParams(steps_per_rev=50),
                axes=[AxisSpec(endstop_min=-100_000, endstop_max=100_000)])
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.3)

@@ -36,6 +36,8 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
+from tests.support.rigs import engine_rig
+from tests.support.spi_bench import SpiBench
 from tests.support.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
 
 K = ExecEventKind
@@ -44,20 +46,19 @@ SETTINGS = TmcSettings(chip="tmc5160", run_current=2.0, hold_current=1.0, micros
                        stall_min_speed=500.0)
 
 
-class Rig:
+class RampRig:
     """n TMC5160 models on /dev/spidev0.x, started as ramp chips, and a RampExecutor."""
 
     def __init__(self, n: int = 1) -> None:
-        self.clock = VirtualClock()
-        self.kernel = FakeKernel()
-        buses = SpiBuses()
+        self.bench = SpiBench()
+        self.clock = self.bench.clock
+        self.kernel = self.bench.kernel
         self.models: list[TmcModel] = []
         self.chips: list[Tmc5160] = []
         for i in range(n):
-            model = TmcModel("tmc5160", clock=self.clock)
-            self.kernel.chips[(0, i)] = model
-            dev = SpiDevice(SpiAddress(0, i), buses, self.kernel.factory(), 1_000_000)
-            chip = Tmc5160(f"m{i}", dev, SETTINGS, RefSwitches())
+            model = self.bench.chip("tmc5160", cs=i)
+            chip = Tmc5160(f"m{i}", self.bench.device(i, speed=1_000_000), SETTINGS,
+                           RefSwitches())
             chip.start()
             self.models.append(model)
             self.chips.append(chip)
@@ -81,7 +82,7 @@ class Rig:
 
 
 def test_a_move_runs_on_the_chip_and_reports_done() -> None:
-    rig = Rig()
+    rig = RampRig()
     traj = plan_move_to(rig.clock.now(), 0.0, 0.0, 6000.0, RAMP.speed, RAMP.acc, RAMP.dec)
     assert rig.ex.follow(0, traj, RAMP, gen=1)
     assert rig.ex.planned(0)
@@ -96,7 +97,7 @@ def test_a_move_runs_on_the_chip_and_reports_done() -> None:
 
 
 def test_the_peak_speed_of_a_plan_becomes_vmax() -> None:
-    rig = Rig()
+    rig = RampRig()
     slow = plan_run(rig.clock.now(), 0.0, 0.0, 250.0, 4e4, 4e4, 2000.0)  # to a limit at 2000
     assert peak_speed(slow) == pytest.approx(250.0)
     rig.ex.follow(0, slow, RAMP, gen=1)
@@ -106,7 +107,7 @@ def test_the_peak_speed_of_a_plan_becomes_vmax() -> None:
 
 
 def test_a_run_and_a_hard_stop_report_stopped_with_the_final_position() -> None:
-    rig = Rig()
+    rig = RampRig()
     run = plan_run(rig.clock.now(), 0.0, 0.0, -3000.0, 30_000.0, 30_000.0, None)
     rig.ex.follow(0, run, RAMP, gen=1)
     assert rig.models[0].regs[0x20] == 2  # RAMPMODE: velocity, negative
@@ -119,7 +120,7 @@ def test_a_run_and_a_hard_stop_report_stopped_with_the_final_position() -> None:
 
 
 def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped() -> None:
-    rig = Rig()
+    rig = RampRig()
     rig.models[0].ref_l_at = -1500.0
     run = plan_run(rig.clock.now(), 0.0, 0.0, -4000.0, 40_000.0, 40_000.0, None)
     rig.ex.follow(0, run, RAMP, gen=1)
@@ -139,7 +140,7 @@ def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped(
 
 
 def test_a_plan_without_end_stops_arms_stallguard_and_a_stop_reads_as_a_stall() -> None:
-    rig = Rig()
+    rig = RampRig()
     rig.models[0].wall_at = 2500.0
     run = plan_run(rig.clock.now(), 0.0, 0.0, 4000.0, 40_000.0, 40_000.0, None)
     rig.ex.follow(0, run, RAMP, gen=1, endstops=False)
@@ -153,7 +154,7 @@ def test_a_plan_without_end_stops_arms_stallguard_and_a_stop_reads_as_a_stall() 
 
 
 def test_spi_errors_become_fault_events_never_exceptions() -> None:
-    rig = Rig()
+    rig = RampRig()
     traj = plan_move_to(rig.clock.now(), 0.0, 0.0, 6000.0, RAMP.speed, RAMP.acc, RAMP.dec)
     rig.ex.follow(0, traj, RAMP, gen=1)
     rig.kernel.fail_xfers = 1000
@@ -270,16 +271,15 @@ def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
 # ------------------------------------------------------------------ through the engine
 
 
-def engine_rig(homing: HomingParams | None = None) -> tuple[Rig, MotionEngine]:
-    rig = Rig()
-    hw = build(HardwareSpec((AxisSpec(),)), rig.clock)
-    hw.steppers[0].driver = rig.chips[0]
-    params = MotorParams(homing=homing or HomingParams())
-    engine = MotionEngine(hw, [params], rig.ex, driver_poll_s=0.005)
+def ramp_engine(homing: HomingParams | None = None) -> tuple[RampRig, MotionEngine]:
+    rig = RampRig()
+    engine = engine_rig(MotorParams(homing=homing or HomingParams()), axes=[AxisSpec()],
+                        clock=rig.clock, driver_poll_s=0.005, drivers=rig.chips,
+                        executor=lambda hw, spec, params: rig.ex).engine
     return rig, engine
 
 
-def poll_drivers(rig: Rig, engine: MotionEngine, seconds: float) -> None:
+def poll_drivers(rig: RampRig, engine: MotionEngine, seconds: float) -> None:
     """Run the engine with the driver monitor's polls (virtual time)."""
     end = rig.clock.now() + seconds
     while rig.clock.now() < end:
@@ -288,7 +288,7 @@ def poll_drivers(rig: Rig, engine: MotionEngine, seconds: float) -> None:
 
 
 def test_engine_moveto_and_getabspos_through_the_chip() -> None:
-    rig, engine = engine_rig()
+    rig, engine = ramp_engine()
     m = engine.motors[0]
     with engine.lock:
         m.submit(MoveToCmd(5000, RAMP), rig.clock.now())
@@ -305,7 +305,7 @@ def test_engine_moveto_and_getabspos_through_the_chip() -> None:
 
 
 def test_engine_homing_on_the_chips_reference_switch() -> None:
-    rig, engine = engine_rig(HomingParams(max_travel=20_000))
+    rig, engine = ramp_engine(HomingParams(max_travel=20_000))
     rig.models[0].ref_l_at = -3000.0
     m = engine.motors[0]
     with engine.lock:
@@ -321,7 +321,7 @@ def test_engine_homing_on_the_chips_reference_switch() -> None:
 
 def test_engine_stall_homing_with_the_chips_stallguard_stop() -> None:
     homing = HomingParams(source=HomingSource.STALL, max_travel=20_000)
-    rig, engine = engine_rig(homing)
+    rig, engine = ramp_engine(homing)
     rig.models[0].wall_at = 2200.0
     m = engine.motors[0]
     with engine.lock:
@@ -336,7 +336,7 @@ def test_engine_stall_homing_with_the_chips_stallguard_stop() -> None:
 
 
 def test_engine_faults_on_spi_failure_without_raising() -> None:
-    rig, engine = engine_rig()
+    rig, engine = ramp_engine()
     m = engine.motors[0]
     with engine.lock:
         m.submit(MoveToCmd(50_000, RAMP), rig.clock.now())
@@ -348,7 +348,7 @@ def test_engine_faults_on_spi_failure_without_raising() -> None:
 
 
 def test_with_ramp_motors_splits_only_when_a_ramp_chip_is_configured() -> None:
-    rig = Rig()
+    rig = RampRig()
     steps = Recorder(2)
     assert with_ramp_motors(steps, [object(), object()], rig.clock) is steps
     split = with_ramp_motors(steps, [object(), rig.chips[0]], rig.clock)
@@ -359,7 +359,7 @@ def test_with_ramp_motors_splits_only_when_a_ramp_chip_is_configured() -> None:
 
 
 def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
-    rig, engine = engine_rig()
+    rig, engine = ramp_engine()
     m = engine.motors[0]
     with engine.lock:
         m.submit(MoveToCmd(8000, RAMP), rig.clock.now())
@@ -373,7 +373,7 @@ def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
 
 
 def test_positions_are_xactual_from_construction_for_a_restore_before_start() -> None:
-    rig = Rig()
+    rig = RampRig()
     rig.chips[0].set_position(12_345)  # where an earlier daemon left the chip
     ex = RampExecutor(rig.chips, rig.clock)
     assert ex.position(0) == 12_345  # before start(): the daemon restores offsets now
@@ -413,7 +413,7 @@ def test_the_mock_step_io_leaves_out_a_ramp_axis() -> None:
 
 
 def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
-    rig = Rig()
+    rig = RampRig()
     config = parse_config(MIXED, "mixed.toml")
     spec = hardware_spec(config)
     hw = build(spec, rig.clock)
@@ -442,7 +442,7 @@ def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
 
 
 def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
-    rig = Rig(2)
+    rig = RampRig(2)
     assert with_ramp_motors(None, rig.chips, rig.clock) is not None
     assert isinstance(with_ramp_motors(None, rig.chips, rig.clock), RampExecutor)
     with pytest.raises(ValueError, match=r"motors \[1\] need a step executor"):

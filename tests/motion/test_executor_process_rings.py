@@ -42,7 +42,7 @@ from motorctl.motion.procexec import (
     Shared,
     ring_size,
 )
-from tests.support.daemon_proc import until
+from tests.support.wait import until
 
 DEADLINE_S = 60.0
 TEXT = 120  # the event record's text field

@@ -18,7 +18,7 @@ from hypothesis import strategies as st
 
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.mock import build
-from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor import ExecEvent, ExecEventKind, to_ticks
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
@@ -26,10 +26,9 @@ from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
 from motorctl.motion.stepcore import COUNTER_NAMES
 from motorctl.motion.stepexec import REFILL_S, ThreadStepExecutor, axis_limits
 from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
-from tests.motion.test_step_core import Core
+from tests.support.rigs import FAR, StepCoreRig, engine_rig
 
 K = ExecEventKind
-FAR = AxisSpec(endstop_min=-10**9, endstop_max=10**9)
 ERR = 5000  # ticks (5 us)
 SPAN = 2_000_000  # ticks (2 ms)
 
@@ -192,12 +191,9 @@ def test_a_plan_that_makes_no_step_is_done_at_once() -> None:
 def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepExecutor]:
     """A thread executor on a virtual clock that plans ``ahead_s`` ahead, as on a real clock."""
     clock = VirtualClock()
-    spec = HardwareSpec(axes=(FAR,), options={"timeline_len": None})
-    hw = build(spec, clock)
-    params = [MotorParams(max_speed=10_000.0)]
-    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits(params, 5e-6),
-                            ahead_s=ahead_s, lead_s=0.002)
-    return clock, MotionEngine(hw, params, ex), ex
+    r = engine_rig(MotorParams(max_speed=10_000.0), axes=[FAR], clock=clock, max_error_s=5e-6,
+                   ahead_s=ahead_s, lead_s=0.002)
+    return clock, r.engine, r.executor
 
 
 def step_times(engine: MotionEngine) -> list[float]:
@@ -277,7 +273,7 @@ def test_an_empty_re_plan_behind_handed_over_steps_reports_done_after_them() -> 
 
 
 def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twice() -> None:
-    c = Core()
+    c = StepCoreRig()
     t0 = c.clock.now()
     first = to_ticks(t0 + 0.001)
     c.inbox.queues[0].extend([StepSegment(first, 200_000, 5, 0, 1, 1),
@@ -291,7 +287,7 @@ def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twi
 
 
 def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows() -> None:
-    c = Core()
+    c = StepCoreRig()
     t0 = c.clock.now()
     first = to_ticks(t0 + 0.001)
     c.inbox.queues[0].extend([StepSegment(first, 200_000, 5, 0, 1, 1),
@@ -307,7 +303,7 @@ def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows() -> No
 def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_plan() -> None:
     """Two re-plans in quick succession: a segment of the first plan that reaches the core
     only after the second cut (it was still in the ring) is judged by the first cut too."""
-    c = Core()
+    c = StepCoreRig()
     t0 = c.clock.now()
     ms = to_ticks(0.001)
     base = to_ticks(t0)

@@ -46,20 +46,11 @@ from motorctl.protocol.codec import (
     wrap24,
 )
 from motorctl.protocol.crc import crc8_by_name
+from tests.support.frames import raw_frame, ref_crc8
 
 OPTS = CodecOptions()
 NO_CRC = CodecOptions(crc=None)
 LOOSE = CodecOptions(strict_padding=False)
-
-
-def smbus(data: bytes) -> int:
-    """Bitwise CRC-8/SMBUS (poly 0x07, init 0, no reflection, xorout 0)."""
-    crc = 0
-    for byte in data:
-        crc ^= byte
-        for _ in range(8):
-            crc = ((crc << 1) ^ 0x07) & 0xFF if crc & 0x80 else (crc << 1) & 0xFF
-    return crc
 
 
 def maxim(data: bytes) -> int:
@@ -72,15 +63,8 @@ def maxim(data: bytes) -> int:
     return crc
 
 
-def frame(body_hex: str) -> bytes:
-    """B0..B8 from hex (zero-padded to 9 bytes) plus the SMBUS checksum."""
-    body = bytes.fromhex(body_hex)
-    body += bytes(9 - len(body))
-    return body + bytes([smbus(body)])
-
-
 def with_crc(body: bytes) -> bytes:
-    return body + bytes([smbus(body)])
+    return body + bytes([ref_crc8(body)])
 
 
 VECTORS: list[tuple[Command, str]] = [
@@ -166,19 +150,19 @@ def test_vectors_cover_every_command() -> None:
 
 def test_protocol_example() -> None:
     example = bytes.fromhex("03 00 00 00 00 00 00 00 00 8B")
-    assert smbus(example[:9]) == 0x8B  # the reference CRC agrees with PROTOCOL.md
+    assert ref_crc8(example[:9]) == 0x8B  # the reference CRC agrees with PROTOCOL.md
     assert encode_command(IsReady(0), OPTS) == example
     assert decode_command(example, OPTS) == IsReady(0)
 
 
 @pytest.mark.parametrize(("cmd", "body"), VECTORS, ids=lambda v: str(v))
 def test_vector_encode(cmd: Command, body: str) -> None:
-    assert encode_command(cmd, OPTS) == frame(body)
+    assert encode_command(cmd, OPTS) == raw_frame(body)
 
 
 @pytest.mark.parametrize(("cmd", "body"), VECTORS, ids=lambda v: str(v))
 def test_vector_decode(cmd: Command, body: str) -> None:
-    decoded = decode_command(frame(body), OPTS)
+    decoded = decode_command(raw_frame(body), OPTS)
     assert decoded == cmd
     assert type(decoded) is type(cmd)
 
@@ -190,14 +174,14 @@ def test_used_bytes() -> None:
 
 def test_true_bytes_any_nonzero_decode_true() -> None:
     for value in (0x01, 0x02, 0x80, 0xFF):
-        assert decode_command(frame(f"05 01 {value:02X}"), OPTS) == StopMove(1, True)
-        assert decode_command(frame(f"0E {value:02X} 00 05 {value:02X}"), OPTS) == DcMove(
+        assert decode_command(raw_frame(f"05 01 {value:02X}"), OPTS) == StopMove(1, True)
+        assert decode_command(raw_frame(f"0E {value:02X} 00 05 {value:02X}"), OPTS) == DcMove(
             True, 5, True
         )
-        cmd = decode_command(frame(f"01 00 {value:02X} 00 00 01"), OPTS)
+        cmd = decode_command(raw_frame(f"01 00 {value:02X} 00 00 01"), OPTS)
         assert isinstance(cmd, MoveTo)
         assert cmd.direction is True
-    decoded = decode_command(frame("07 03 00"), OPTS)
+    decoded = decode_command(raw_frame("07 03 00"), OPTS)
     assert isinstance(decoded, SetPin)
     assert decoded.high is False
 
@@ -210,7 +194,7 @@ def test_true_encodes_as_one() -> None:
 
 
 def test_bad_checksum() -> None:
-    good = frame("03")
+    good = raw_frame("03")
     bad = good[:9] + bytes([good[9] ^ 0x01])
     with pytest.raises(FrameError) as info:
         decode_command(bad, OPTS)
@@ -221,7 +205,7 @@ def test_bad_checksum() -> None:
 def test_unknown_code() -> None:
     for code in (0x0F, 0x10, 0x7F, 0xFF):
         with pytest.raises(FrameError) as info:
-            decode_command(frame(f"{code:02X} 00"), OPTS)
+            decode_command(raw_frame(f"{code:02X} 00"), OPTS)
         assert info.value.reason == "unknown"
         assert info.value.code is ErrorCode.INVALID_COMMAND
 
@@ -229,13 +213,13 @@ def test_unknown_code() -> None:
 def test_checksum_checked_before_code() -> None:
     body = bytes.fromhex("FF 00 00 00 00 00 00 00 00")
     with pytest.raises(FrameError) as info:
-        decode_command(body + bytes([smbus(body) ^ 0xFF]), OPTS)
+        decode_command(body + bytes([ref_crc8(body) ^ 0xFF]), OPTS)
     assert info.value.reason == "checksum"
 
 
 def test_code_checked_before_padding() -> None:
     with pytest.raises(FrameError) as info:
-        decode_command(frame("FF 01 01 01 01 01 01 01 01"), OPTS)
+        decode_command(raw_frame("FF 01 01 01 01 01 01 01 01"), OPTS)
     assert info.value.reason == "unknown"
 
 
@@ -262,7 +246,7 @@ def test_strict_padding(cmd: Command, body: str) -> None:
 def test_strict_padding_leaves_parameters_alone() -> None:
     # B8 is a parameter of MoveTo, so a non-zero B8 is not padding.
     expected = MoveTo(0, False, 0, 0, 0, 255)
-    assert decode_command(frame("01 00 00 00 00 00 00 00 FF"), OPTS) == expected
+    assert decode_command(raw_frame("01 00 00 00 00 00 00 00 FF"), OPTS) == expected
 
 
 def test_checksum_none_ignores_input_and_sends_zero() -> None:
@@ -283,7 +267,7 @@ def test_other_crc_variant_end_to_end() -> None:
     cmd = MoveTo(motor=1, direction=True, position=-1200, speed=9, acc=8, dec=7)
     encoded = encode_command(cmd, opts)
     assert encoded[9] == maxim(encoded[:9])
-    assert encoded[9] != smbus(encoded[:9])
+    assert encoded[9] != ref_crc8(encoded[:9])
     assert decode_command(encoded, opts) == cmd
     with pytest.raises(FrameError):
         decode_command(encoded, OPTS)
@@ -361,7 +345,7 @@ def test_roundtrip_smbus(cmd: Command) -> None:
     encoded = encode_command(cmd, OPTS)
     assert len(encoded) == FRAME_LEN
     assert encoded[0] == cmd.code
-    assert encoded[9] == smbus(encoded[:9])
+    assert encoded[9] == ref_crc8(encoded[:9])
     assert not any(encoded[1 + USED[type(cmd)] : 9])
     assert decode_command(encoded, OPTS) == cmd
 
@@ -412,7 +396,7 @@ def test_random_lengths_never_escape_frame_error(data: bytes) -> None:
 def test_ack_response() -> None:
     resp = Response.ok()
     assert resp == Response(True, b"\x00\x00\x00")
-    assert encode_response(resp, OPTS) == bytes([1, 0, 0, 0, smbus(b"\x00\x00\x00")])
+    assert encode_response(resp, OPTS) == bytes([1, 0, 0, 0, ref_crc8(b"\x00\x00\x00")])
     assert resp.error_code is None
     assert Response.ok(b"\x07") == Response(True, b"\x07\x00\x00")
 
@@ -431,12 +415,12 @@ def test_error_response(code: ErrorCode) -> None:
     assert resp.payload == bytes([code, 0, 0])
     assert resp.error_code is code
     wire = encode_response(resp, OPTS)
-    assert wire == bytes([0, code, 0, 0, smbus(bytes([code, 0, 0]))])
+    assert wire == bytes([0, code, 0, 0, ref_crc8(bytes([code, 0, 0]))])
     assert decode_response(wire, OPTS) == resp
 
 
 def test_unknown_error_byte() -> None:
-    resp = decode_response(bytes([0x00, 0x42, 0x00, 0x00, smbus(b"\x42\x00\x00")]), OPTS)
+    resp = decode_response(bytes([0x00, 0x42, 0x00, 0x00, ref_crc8(b"\x42\x00\x00")]), OPTS)
     assert resp.ack is False
     assert resp.error_code is None
     assert resp.payload[0] == 0x42
@@ -460,7 +444,7 @@ def test_position_response(value: int, wire: str) -> None:
     assert resp.payload == bytes.fromhex(wire)
     assert resp.as_position == value
     encoded = encode_response(resp, OPTS)
-    assert encoded == bytes([1]) + bytes.fromhex(wire) + bytes([smbus(bytes.fromhex(wire))])
+    assert encoded == bytes([1]) + bytes.fromhex(wire) + bytes([ref_crc8(bytes.fromhex(wire))])
     assert decode_response(encoded, OPTS).as_position == value
 
 
@@ -476,7 +460,7 @@ def test_crc_covers_ack() -> None:
     for resp in (Response.ok(), Response.boolean(True), Response.error(ErrorCode.MOTOR_ERROR)):
         r0 = 1 if resp.ack else 0
         wire = encode_response(resp, covers)
-        assert wire[4] == smbus(bytes([r0]) + resp.payload)
+        assert wire[4] == ref_crc8(bytes([r0]) + resp.payload)
         assert wire[:4] == encode_response(resp, OPTS)[:4]
         assert decode_response(wire, covers) == resp
     # Only the ACK byte differs in coverage, so the two settings disagree on the CRC.
@@ -503,7 +487,7 @@ def test_response_errors() -> None:
 
 def test_response_nonzero_ack_reads_true() -> None:
     payload = b"\x00\x00\x00"
-    assert decode_response(bytes([0x7F, *payload, smbus(payload)]), OPTS).ack is True
+    assert decode_response(bytes([0x7F, *payload, ref_crc8(payload)]), OPTS).ack is True
 
 
 @given(st.booleans(), st.binary(min_size=3, max_size=3), ALL_OPTIONS)

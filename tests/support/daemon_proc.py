@@ -23,16 +23,10 @@ from motorctl.daemon.status import read_status
 from tests.support import REPO
 
 READY_TIMEOUT_S = 30.0
-WAIT_S = 30.0  # a deadline for conditions that take milliseconds (a loaded 2-core machine)
 
+#: The ``motorctld`` fixture (tests/conftest.py): ``start(config_text, **kw)``.
+StartDaemon = Callable[..., "DaemonProcess"]
 
-def until(what: str, cond: Callable[[], bool], timeout: float = WAIT_S) -> None:
-    """Poll ``cond`` until it holds; fail naming ``what`` after ``timeout`` seconds."""
-    end = time.monotonic() + timeout
-    while not cond():
-        if time.monotonic() > end:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(0.001)
 
 def positions_until_ready(c: Client, motor: int, timeout: float = 10.0) -> list[int]:
     """GetAbsPos of ``motor`` every 50 ms while it moves (until IsReady); fail after
@@ -51,14 +45,6 @@ def positions_until_ready(c: Client, motor: int, timeout: float = 10.0) -> list[
 #: Their lateness rule is the one users get: the mock's simulated motors never lose steps
 #: (late steps slide); tests about the fail-safe set ``[mock] lose_steps = true``.
 TEST_STEP_THREAD = {"priority": "0", "lock_memory": "false"}
-
-#: The config of an in-process test daemon (``Daemon.build``): the thread step executor, the
-#: best-effort timing above, two motors "a" and "b"; tests append their own tables.
-IN_PROCESS_CONFIG = (
-    '[step_thread]\nexecutor = "thread"\n'
-    + "".join(f"{k} = {v}\n" for k, v in TEST_STEP_THREAD.items())
-    + '[[motors]]\nname = "a"\n[[motors]]\nname = "b"\n'
-)
 
 
 def for_tests(text: str, force: bool = False) -> str:
