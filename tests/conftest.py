@@ -1,5 +1,23 @@
 """What every test shares.
 
+The tests mirror the package, one folder a room, each test file named after the module it
+tests (``_e2e``: against motorctld as a process on a real PTY):
+
+    protocol/   client/   daemon/   motion/   hal/    the rooms' tests
+    contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
+    docs/       the README's walkthrough run as written; every path the pages name exists
+    packaging/  debian/, the wheel, the systemd units, --version, hwtest/run
+    support/    the shared rigs, one module each: wait (``until``, the deadline wait),
+                frames, rigs (the engine or the step core on a virtual clock), inprocess
+                (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
+                (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
+                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
+    deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
+
+This file is also loaded for tests/contract in the hardware tier's guests: it imports
+nothing beyond pytest at module level. Here: the ``motorctld`` fixture (daemons as
+processes, stopped after their test), and for every test:
+
 - The root logger is put back after each test. A test that runs motorctld's ``main()`` in
   this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
   handler; left in place, it printed the INFO lines of later tests' link threads (which may
@@ -12,11 +30,6 @@
 
 Daemons started by the tests (tests/support/daemon_proc.py) log into a file of their test, shown
 with the test's output when it fails.
-
-The shared rigs live in tests/support/ (one module each: wait, frames, rigs, inprocess,
-daemon_proc, spi_bench); the fixtures every room uses are here. This file is also loaded
-for tests/contract in the hardware tier's guests: it imports nothing beyond pytest at
-module level.
 """
 
 from __future__ import annotations

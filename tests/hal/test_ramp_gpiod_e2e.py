@@ -9,7 +9,6 @@ model of tests/support/tmc_model.py behind it.
 
 from __future__ import annotations
 
-import json
 import os
 import subprocess
 import sys
@@ -19,9 +18,7 @@ import pytest
 
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
-
-TESTS = REPO / "tests"
-REPO = TESTS.parent
+from tests.support.stand_ins import stand_in_env
 
 RAMP_ONLY = """\
 [hal]
@@ -51,12 +48,8 @@ name = "s"
 
 
 @pytest.fixture
-def env(tmp_path: Path) -> dict[str, str]:
-    shims = [str(TESTS / "fakegpiod"), str(TESTS / "fakespi"), os.environ.get("PYTHONPATH")]
-    return {
-        "PYTHONPATH": os.pathsep.join(p for p in shims if p),
-        "MOTORCTL_FAKE_SPI": json.dumps({"chips": {"0.0": "tmc5160"}}),
-    }
+def env() -> dict[str, str]:
+    return stand_in_env("gpiod", "spidev", chips={"0.0": "tmc5160"})
 
 
 @pytest.fixture

@@ -15,10 +15,8 @@ import pytest
 
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
-from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
-
-FAKESPI = REPO / "tests" / "fakespi"
+from tests.support.stand_ins import stand_in_env
 
 CONFIG = """\
 [[motors]]
@@ -52,11 +50,9 @@ name = "z"
 @pytest.fixture
 def fake_spi(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     control = tmp_path / "control.json"
-    path = os.pathsep.join(p for p in (str(FAKESPI), os.environ.get("PYTHONPATH")) if p)
-    monkeypatch.setenv("PYTHONPATH", path)
     chips = {"0.0": "tmc2130", "0.1": "tmc5160:step_dir", "0.2": "tmc5160"}
-    monkeypatch.setenv("MOTORCTL_FAKE_SPI", json.dumps({"chips": chips,
-                                                        "control": str(control)}))
+    for name, value in stand_in_env("spidev", chips=chips, control=control).items():
+        monkeypatch.setenv(name, value)
     return control
 
 
