@@ -34,7 +34,7 @@ $(VENV)/.installed: pyproject.toml
 run: venv
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-# What the tests need from Debian besides the venv: socat (tests/test_link_loss.py).
+# What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py).
 test-deps:
 	@command -v socat >/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \

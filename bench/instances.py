@@ -52,7 +52,7 @@ sys.path.insert(0, str(ROOT))
 from bench.steps import percentiles  # noqa: E402
 from motorctl.client.client import Client, DeviceError  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
-from tests.daemon_proc import DaemonProcess  # noqa: E402
+from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 SPEED_FACTOR = 100.0  # MoveTo's SPEED byte n = n * 100 step/s here (the default is 4)

@@ -35,7 +35,7 @@ sys.path.insert(0, str(ROOT))
 
 from motorctl.daemon.status import read_status  # noqa: E402
 from motorctl.protocol.codec import CodecOptions, IsReady, encode_command  # noqa: E402
-from tests.daemon_proc import DaemonProcess  # noqa: E402
+from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 
 def pct(values: list[float], q: float) -> float:

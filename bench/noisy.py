@@ -3,7 +3,7 @@
 Each run is a fresh start of motorctld as a user starts it (`make run`: `--pty`, no config,
 real-time priority and locked memory when root), then:
 
-  walkthrough  the README's client walkthrough, line by line, as tests/test_readme.py runs it
+  walkthrough  the README's client walkthrough, line by line, as tests/docs/test_readme.py runs it
   sweep        every command of the protocol on every motor, pin and the DC motor, with the
                answers a host expects (a conformance-style sweep, ~80 transactions)
   fast         a second fresh start, the same world with its travel and ramps opened up (the
@@ -52,8 +52,8 @@ from motorctl.client.client import Client, DeviceError, error_text  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
 from motorctl.daemon.status import read_status  # noqa: E402
 from motorctl.protocol.codec import ErrorCode  # noqa: E402
-from tests.daemon_proc import DaemonProcess  # noqa: E402
-from tests.test_readme import walkthrough  # noqa: E402
+from tests.docs.test_readme import walkthrough  # noqa: E402
+from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 #: "step N us late at R step/s: lag L full steps > max_lag_full_steps M"

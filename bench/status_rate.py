@@ -28,7 +28,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.steps import config_text  # noqa: E402  (the daemon of its status scenario)
 from motorctl.daemon.status import read_status  # noqa: E402
-from tests.daemon_proc import DaemonProcess  # noqa: E402
+from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 
 def quantile(sorted_values: list[float], q: float) -> float:

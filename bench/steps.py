@@ -38,7 +38,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from tests.daemon_proc import DaemonProcess  # noqa: E402
+from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 

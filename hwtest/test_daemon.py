@@ -21,7 +21,7 @@ import pytest
 from hwtest import gsim
 from hwtest.layout import DC, MOTORS, PINS, in_the_guest, where
 from motorctl.client.client import Client
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_proc import DaemonProcess
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 
@@ -33,7 +33,7 @@ API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 def example_config() -> str:
     """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`),
     without its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
-    hwtest/spi_wire.py and tests/test_tmc*.py)."""
+    hwtest/spi_wire.py and tests/hal/test_tmc*.py)."""
     text = re.sub(r"  \[motors\.tmc\][^\n]*\n(  \w+ = [^\n]*\n)*", "", EXAMPLE.read_text())
     assert not re.search(r"^\s*\[motors\.tmc\]|^\s*driver = ", text, re.M)
     return in_the_guest(text, API)

@@ -1,10 +1,10 @@
 """The whole Raspberry Pi example, [motors.tmc] included, inside the gpio-sim guest.
 
 GPIO is the kernel's (gpio-sim, both libgpiod APIs as the tier runs them); the three TMC5160s
-on /dev/spidev0.0-0.2 are the register-level models of tests/tmc_model.py behind the stand-in
-py-spidev of tests/fakespi/ (no chip can answer on the guest's SPI bus; the bytes on a real
-kernel SPI bus are checked by hwtest/spi_wire.py). So the daemon starts the example exactly
-as on a Pi: every driver identified, configured and read back, then watched.
+on /dev/spidev0.0-0.2 are the register-level models of tests/support/tmc_model.py behind
+the stand-in py-spidev of tests/fakespi/ (no chip can answer on the guest's SPI bus; the
+bytes on a real kernel SPI bus are checked by hwtest/spi_wire.py). So the daemon starts the
+example exactly as on a Pi: every driver identified, configured and read back, then watched.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from hwtest import gsim
 from hwtest.layout import MOTORS, in_the_guest, where
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_proc import DaemonProcess
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 

@@ -18,7 +18,7 @@ from hwtest import gsim
 from hwtest.layout import MOTORS, where
 from hwtest.test_tmc_daemon import API, REPO, example_config
 from motorctl.hal.backends.gpiod.chip import load_api
-from tests.daemon_proc import DaemonProcess
+from tests.support.daemon_proc import DaemonProcess
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 

@@ -1,5 +1,23 @@
 """What every test shares.
 
+The tests mirror the package, one folder a room, each test file named after the module it
+tests (``_e2e``: against motorctld as a process on a real PTY):
+
+    protocol/   client/   daemon/   motion/   hal/    the rooms' tests
+    contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
+    docs/       the README's walkthrough run as written; every path the pages name exists
+    packaging/  debian/, the wheel, the systemd units, --version, hwtest/run
+    support/    the shared rigs, one module each: wait (``until``, the deadline wait),
+                frames, rigs (the engine or the step core on a virtual clock), inprocess
+                (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
+                (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
+                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
+    deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
+
+This file is also loaded for tests/contract in the hardware tier's guests: it imports
+nothing beyond pytest at module level. Here: the ``motorctld`` fixture (daemons as
+processes, stopped after their test), and for every test:
+
 - The root logger is put back after each test. A test that runs motorctld's ``main()`` in
   this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
   handler; left in place, it printed the INFO lines of later tests' link threads (which may
@@ -10,7 +28,7 @@
   package twice (the daemon and its executor process), a tenth of a second of CPU at every
   one of the suite's hundred-odd starts. The bytecode is the same either way.
 
-Daemons started by the tests (tests/daemon_proc.py) log into a file of their test, shown
+Daemons started by the tests (tests/support/daemon_proc.py) log into a file of their test, shown
 with the test's output when it fails.
 """
 
@@ -19,8 +37,13 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import pytest
+
+if TYPE_CHECKING:
+    from tests.support.daemon_proc import DaemonProcess, StartDaemon
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -44,3 +67,26 @@ def keep_root_logger() -> Iterator[None]:
         if h not in root.handlers:
             root.addHandler(h)
     root.setLevel(level)
+
+
+@pytest.fixture
+def motorctld(tmp_path: Path) -> Iterator[StartDaemon]:
+    """Start motorctld processes on PTYs (``DaemonProcess``; in the test's directory unless
+    ``workdir`` is given): ``motorctld(config_text, **kw)``. Each is stopped at the end of
+    the test (SIGTERM, or SIGKILL where started with ``kill_at_end=True``)."""
+    from tests.support.daemon_proc import DaemonProcess
+
+    started: list[tuple[DaemonProcess, bool]] = []
+
+    def start(config_text: str | None = None, *, workdir: Path | None = None,
+              kill_at_end: bool = False, **kw: Any) -> DaemonProcess:
+        d = DaemonProcess(workdir or tmp_path, config_text, **kw)
+        started.append((d, kill_at_end))
+        return d.start()
+
+    yield start
+    for d, kill in reversed(started):
+        if kill:
+            d.kill()
+        else:
+            d.close()

@@ -1,7 +1,7 @@
 """docs/config.md, generated from the schema: `python -m motorctl.daemon.config.docs --write`.
 
 The page is the prose below plus, for every table, its rows (`motorctl.schema.describe`) and
-the prose its `@section` declares. tests/test_config.py checks that docs/config.md equals
+the prose its `@section` declares. tests/daemon/test_config.py checks that docs/config.md equals
 `render()`, so a new or changed key fails the tests until the page is regenerated.
 
 Pure: `render()` reads only the schema; `main()` writes or checks the file.

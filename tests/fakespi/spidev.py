@@ -1,11 +1,11 @@
-"""A stand-in for the py-spidev module in a motorctld subprocess (tests/test_tmc_e2e.py).
+"""A stand-in for the py-spidev module in a motorctld subprocess (tests/hal/test_tmc_e2e.py).
 
 Put this folder first on PYTHONPATH and describe the chips in MOTORCTL_FAKE_SPI (JSON):
 ``{"chips": {"0.0": "tmc2130", "0.1": "tmc5160:step_dir", "0.2": "tmc5160"}, "control":
 "/path/control.json"}`` (a TMC5160's SD_MODE is low, ramp generator on, unless ":step_dir").
 Before each transfer the control file, when it changed, sets each chip's injected state:
 ``{"0.0": {"faults": [25], "step_rate": 0.0, "stall": false, "ref_l_at": -500}}``. The chips are the
-register-level models of tests/tmc_model.py behind the same fake py-spidev API.
+register-level models of tests/support/tmc_model.py behind the same fake py-spidev API.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import os
 from typing import Any
 
 from motorctl.hal.interfaces import MonotonicClock
-from tests.tmc_model import FakeKernel, FakeSpiDev, TmcModel
+from tests.support.tmc_model import FakeKernel, FakeSpiDev, TmcModel
 
 _config: dict[str, Any] = json.loads(os.environ.get("MOTORCTL_FAKE_SPI", '{"chips": {}}'))
 _kernel = FakeKernel()

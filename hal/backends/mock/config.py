@@ -26,7 +26,7 @@ from motorctl.schema import (
 
 # The simulated end stops sit inside the protocol's 24-bit position range (PROTOCOL.md §3).
 # hal may not import protocol, so the range is written out here and checked against
-# motorctl.protocol.codec.POS_MIN/POS_MAX by tests/test_config.py.
+# motorctl.protocol.codec.POS_MIN/POS_MAX by tests/daemon/test_config.py.
 POSITION_MIN = -(1 << 23)
 POSITION_MAX = (1 << 23) - 1
 #: where the simulated end stops sit without a [motors.mock] table

@@ -1,0 +1,182 @@
+"""The status socket of a live daemon (in-process, thread executor, link on a real PTY): the
+document is complete, a read takes no motion lock, the whole histogram comes only when asked.
+(How fast reads are is a figure, not a test: bench/status_rate.py.)"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import socket
+import threading
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from motorctl.daemon.status import StatusServer, read_status
+from motorctl.motion.latency import BINS
+from motorctl.protocol.codec import Move, StopMove, WaitMoved
+from tests.support.inprocess import LIVE_CONFIG, LiveDaemon
+from tests.support.wait import until
+
+READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
+
+MOTOR_KEYS = {"index", "name", "state", "position", "queued", "fault", "position_lost",
+              "waypoints", "faults", "timing", "soft_stops", "speed"}
+#: each motor's late-step figures and rule (docs/timing.md, "Reading the figures")
+TIMING_KEYS = {"late_absorbed", "slid_ms", "worst_late_us", "worst_lag_full_steps",
+               "lag_faults", "microsteps", "max_lag_full_steps"}
+#: what bench/steps.py, bench/latency.py, docs/timing.md and the tests read from ``steps``
+STEP_KEYS = {"steps", "p50_us", "p99_us", "p999_us", "max_us", "late", "late_threshold_us",
+             "timing_lost", "min_gap_ns", "dropped", "io_errors", "endstops", "progress"}
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[tuple[LiveDaemon, Path]]:
+    live = LiveDaemon(tmp_path, LIVE_CONFIG, motion=True)
+    path = tmp_path / "status.sock"
+    server = StatusServer(path, live.daemon.status)
+    server.start()
+    try:
+        yield live, path
+    finally:
+        server.close()
+        assert live.alive(), "a daemon thread died"
+        live.close()
+
+
+def nearest_rank(histogram: dict[int, int], q: float) -> float:
+    keys = sorted(histogram)
+    cum = list(itertools.accumulate(histogram[k] for k in keys))
+    exact = q / 100 * cum[-1]
+    rank = max(1, math.ceil(exact - 1e-12 * exact))
+    return float(next(k for k, c in zip(keys, cum, strict=True) if c >= rank))
+
+
+def test_status_is_complete_and_the_histogram_comes_when_asked(
+    served: tuple[LiveDaemon, Path],
+) -> None:
+    live, path = served
+    live.moving(0)
+    doc = read_status(path, timeout=READ_DEADLINE_S)
+    assert {"motors", "steps", "executor", "clamped", "state", "link"} <= set(doc)
+    assert [m["index"] for m in doc["motors"]] == [0, 1]
+    assert all(set(m) >= MOTOR_KEYS for m in doc["motors"])
+    assert all(set(m["timing"]) == TIMING_KEYS for m in doc["motors"])
+    assert doc["motors"][0]["soft_stops"] == {"count": 0, "takeover_ms": [0.0, 0.0],
+                                              "takeover_steps": [0, 0]}
+    assert doc["motors"][0]["state"] != "idle" and doc["motors"][0]["fault"] is None
+    assert doc["motors"][0]["speed"] > 0 and doc["motors"][1]["speed"] == 0
+    assert doc["pins"] == [{"number": 0, "output": True, "level": False}]
+    assert doc["dc"] is None  # none configured
+    assert doc["uptime_s"] > 0 and doc["monotonic_s"] > 0 and doc["unix_s"] > 0
+    last = doc["link"]["recent"][-1]  # moving() asked for the position until it moved
+    assert last["command"] == "GetAbsPos(motor=0)" and last["result"].startswith("pos=")
+    assert set(doc["steps"]) >= STEP_KEYS and doc["steps"]["steps"] > 0
+    assert "histogram_us" not in doc["steps"]  # bounded cost unless asked
+    assert doc["executor"] == {"alive": True, "reason": None, "kind": "thread", "pid": None}
+    assert {"counters", "processing"} <= set(doc["link"])
+    assert doc["state"]["ok"] is True
+    assert live.code(StopMove(0, True)) is None
+    assert live.code(WaitMoved(0, 20_000)) is None
+    full = read_status(path, timeout=READ_DEADLINE_S, histogram=True)
+    steps = full["steps"]
+    histogram = {int(us): n for us, n in steps["histogram_us"].items()}
+    assert sum(histogram.values()) == steps["steps"] > 0  # at rest: one snapshot
+    for name, q in (("p50_us", 50), ("p99_us", 99), ("p999_us", 99.9)):
+        expected = nearest_rank(histogram, q)  # the summary agrees (beyond: the maximum)
+        assert steps[name] == expected if expected < BINS else steps[name] >= BINS, name
+    plain = read_status(path, timeout=READ_DEADLINE_S)["steps"]
+    moving_on = ("histogram_us", "progress")  # progress: the core's turns, also at rest
+    assert {k: v for k, v in plain.items() if k not in moving_on} == {
+        k: v for k, v in steps.items() if k not in moving_on}
+
+
+def test_a_status_read_takes_no_motion_lock(served: tuple[LiveDaemon, Path]) -> None:
+    """While something holds the engine lock (planning, a command), status still answers:
+    a read that waited for the lock would time out here."""
+    live, path = served
+    assert live.code(Move(1, True, 1, 0, 0)) is None
+    until("motor 1 stepping",
+          lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"] > 0)
+    with live.daemon.engine.lock:
+        doc = read_status(path, timeout=READ_DEADLINE_S)
+        full = read_status(path, timeout=READ_DEADLINE_S, histogram=True)
+    assert doc["motors"][1]["state"] != "idle" and doc["executor"]["alive"]
+    assert sum(full["steps"]["histogram_us"].values()) > 0
+
+
+def _full_backlog(path: Path) -> tuple[socket.socket, socket.socket]:
+    """A listening socket that accepts nothing yet, its one backlog place taken."""
+    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    srv.bind(str(path))
+    srv.listen(0)
+    filler = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    filler.setblocking(False)
+    filler.connect(str(path))
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    probe.setblocking(False)
+    with pytest.raises(BlockingIOError), probe:  # the backlog is full indeed
+        probe.connect(str(path))
+    return srv, filler
+
+
+def test_read_status_waits_for_room_in_a_full_backlog(tmp_path: Path) -> None:
+    """A full backlog makes a connect with a timeout fail at once (EAGAIN on AF_UNIX):
+    the reader waits for room instead, within its timeout."""
+    path = tmp_path / "status.sock"
+    srv, filler = _full_backlog(path)
+    got: dict[str, Any] = {}
+
+    def reader() -> None:
+        try:
+            got["doc"] = read_status(path, timeout=READ_DEADLINE_S)
+        except Exception as exc:  # reported by the assertion below
+            got["error"] = exc
+
+    t = threading.Thread(target=reader)
+    with srv, filler:
+        t.start()
+        srv.settimeout(READ_DEADLINE_S)
+        first, _ = srv.accept()  # the filler's place: room for the reader
+        first.close()
+        conn, _ = srv.accept()
+        with conn:
+            conn.settimeout(READ_DEADLINE_S)
+            assert conn.recv(64) == b"\n"
+            conn.sendall(b'{"ok": true}')
+        t.join(READ_DEADLINE_S)
+    assert got == {"doc": {"ok": True}}
+
+
+def test_read_status_gives_up_on_a_backlog_that_stays_full(tmp_path: Path) -> None:
+    path = tmp_path / "status.sock"
+    srv, filler = _full_backlog(path)
+    with srv, filler, pytest.raises(TimeoutError, match="status slot stayed busy"):
+        read_status(path, timeout=0.2)
+
+
+def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
+    served: tuple[LiveDaemon, Path],
+) -> None:
+    """A soft StopMove re-plans from the executed state: the deceleration takes over at the
+    first segment boundary after the executor's lead, within lead + one segment's span of
+    the command, and the motor's status says how soon and how many steps on."""
+    live, path = served
+    live.moving(1)
+    until("cruise", lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"]
+          > 500)
+    assert live.code(StopMove(1, False)) is None
+    assert live.code(WaitMoved(1, 20_000)) is None
+    doc = read_status(path, timeout=READ_DEADLINE_S)
+    soft = doc["motors"][1]["soft_stops"]
+    executor = live.daemon.engine.executor
+    bound_ms = (executor.lead_s + executor.span / 1e9) * 1000  # type: ignore[attr-defined]
+    assert soft["count"] == 1
+    assert 0 < soft["takeover_ms"][0] == soft["takeover_ms"][1] <= bound_ms + 1e-6
+    # in steps: those planned before the takeover, and those the executor was behind with
+    # when the command came (no real-time priority here: up to its worst lateness)
+    speed = live.daemon.config.units.run_speed_factor * 1  # Move SPEED 1, in step/s
+    behind_ms = doc["steps"]["max_us"] / 1000
+    assert 0 < soft["takeover_steps"][0] <= (bound_ms + behind_ms) / 1000 * speed + 1

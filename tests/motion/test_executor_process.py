@@ -1,0 +1,157 @@
+"""The ``process`` step executor on the real clock: it moves and reports positions, its
+process dying faults every motor, a stopped process never bursts afterwards (the real
+motors' rule) or slides a simulated motor (the mock's), and it needs a real clock. (Its
+shared-memory rings: test_executor_process_rings.py.)"""
+
+from __future__ import annotations
+
+import itertools
+import signal
+import time
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+
+from motorctl.hal.backends.mock.backend import EventKind, build, read_timeline, world_of
+from motorctl.hal.interfaces import MonotonicClock, VirtualClock
+from motorctl.hal.spec import HardwareSpec
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executor_process import ProcessStepExecutor
+from motorctl.motion.executor_seam import AxisLimits
+from motorctl.motion.step_planner import axis_limits
+from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from tests.support.rigs import FAR
+from tests.support.wait import until
+
+
+@pytest.fixture
+def proc(
+    tmp_path: Path, request: pytest.FixtureRequest
+) -> Iterator[tuple[MotionEngine, ProcessStepExecutor, Path]]:
+    clock = MonotonicClock()
+    timeline = tmp_path / "timeline.jsonl"
+    spec = HardwareSpec(axes=(FAR, FAR), options={
+        "timeline_len": None, "executor_process": True, "timeline_file": str(timeline)})
+    hw = build(spec, clock)
+    params = [MotorParams(max_speed=10_000.0)] * 2
+    # tests run without real-time priority on a shared machine: the simulated motors' rule
+    # (late steps slide, never a fault), but the real-hardware rule where the test is about it
+    real = request.node.get_closest_marker("real_rule") is not None
+    ex = ProcessStepExecutor(hw, "mock", spec, axis_limits(params, 5e-6, lag_faults=real))
+    engine = MotionEngine(hw, params, ex, driver_poll_s=0.01)
+    ex.start()
+    engine.start()
+    try:
+        yield engine, ex, timeline
+    finally:
+        engine.stop_threads()
+        ex.close()
+        hw.close()
+
+
+def faults(engine: MotionEngine) -> Callable[[], object]:
+    """What ``until`` names when it times out: each motor's fault."""
+    return lambda: f"faults {[m.fault for m in engine.motors]}"
+
+
+def test_the_process_executor_moves_and_reports_positions(
+    proc: tuple[MotionEngine, ProcessStepExecutor, Path],
+) -> None:
+    engine, ex, timeline = proc
+    with engine.lock:
+        engine.motors[0].submit(MoveToCmd(400, Ramp(4000.0, 40_000.0, 40_000.0)),
+                                engine.clock.now())
+        engine.motors[1].submit(MoveToCmd(-250, Ramp(3000.0, 40_000.0, 40_000.0)),
+                                engine.clock.now())
+    until("both motors idle", lambda: all(m.idle for m in engine.motors) and not any(
+        ex.planned(i) for i in range(2)), detail=faults(engine))
+    assert [m.position for m in engine.motors] == [400, -250]
+    world = world_of(engine.hw)
+    assert [a.position for a in world.axes] == [400, -250]  # the shared mechanics
+    assert ex.health().alive and ex.health().counters["steps"] == 650
+    engine.stop_threads()
+    ex.close()  # writes the child's timeline
+    tl = read_timeline(str(timeline))
+    assert len(tl.of(EventKind.STEP, 0)) == 400 and len(tl.of(EventKind.STEP, 1)) == 250
+
+
+def test_the_executor_process_dying_faults_every_motor(
+    proc: tuple[MotionEngine, ProcessStepExecutor, Path],
+) -> None:
+    engine, ex, _ = proc
+    with engine.lock:
+        engine.motors[0].submit(RunCmd(1, Ramp(2000.0, 20_000.0, 20_000.0)), engine.clock.now())
+    until("steps", lambda: ex.position(0) > 50, detail=faults(engine))
+    ex.kill_for_test(signal.SIGKILL)
+    until("the faults", lambda: all(m.state is MotorState.FAULT for m in engine.motors))
+    for m in engine.motors:
+        assert m.position_lost and m.fault is not None and "died" in m.fault
+    h = ex.health()
+    assert not h.alive and h.reason is not None and "exit code -9" in h.reason
+    assert engine.executor_died == h.reason
+
+
+@pytest.mark.real_rule
+def test_a_stopped_executor_does_not_burst_afterwards(
+    proc: tuple[MotionEngine, ProcessStepExecutor, Path],
+) -> None:
+    """SIGSTOP for 50 ms while a motor runs at 5,000 step/s, then SIGCONT, with the real
+    motors' rule: the motor stops with "step timing lost" (15 full steps of lag, tolerance
+    0.5), and the smallest gap between two steps on the timeline is never below the profile's
+    bound."""
+    engine, ex, timeline = proc
+    with engine.lock:
+        engine.motors[0].submit(RunCmd(1, Ramp(5000.0, 50_000.0, 50_000.0)), engine.clock.now())
+    until("cruise", lambda: ex.position(0) > 1000 or engine.motors[0].fault is not None,
+          detail=faults(engine))
+    ex.kill_for_test(signal.SIGSTOP)
+    time.sleep(0.05)
+    ex.kill_for_test(signal.SIGCONT)
+    until("the fault", lambda: engine.motors[0].state is MotorState.FAULT)
+    m = engine.motors[0]
+    assert m.fault is not None and m.fault.startswith("step timing lost")
+    assert m.position_lost and ex.motor_timing(0)["lag_faults"] == 1
+    engine.stop_threads()
+    ex.close()
+    times = read_timeline(str(timeline)).step_times(0)
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert min(gaps) >= ex.limits[0].min_interval_s - 1e-9
+    assert len(times) == engine.motors[0].abs_steps
+
+
+def test_a_stopped_executor_slides_a_simulated_motor(
+    proc: tuple[MotionEngine, ProcessStepExecutor, Path],
+) -> None:
+    """The same stop on the mock's own rule: the move slides by the stop, reaches its target
+    with every step, no fault, and the status figures of the executor process show it."""
+    engine, ex, timeline = proc
+    with engine.lock:
+        engine.motors[0].submit(MoveToCmd(4000, Ramp(5000.0, 50_000.0, 50_000.0)),
+                                engine.clock.now())
+    until("cruise", lambda: ex.position(0) > 1000, detail=faults(engine))
+    ex.kill_for_test(signal.SIGSTOP)
+    time.sleep(0.05)
+    ex.kill_for_test(signal.SIGCONT)
+    until("the target", lambda: engine.motors[0].idle, detail=faults(engine))
+    m = engine.motors[0]
+    assert m.fault is None and m.position == 4000
+    timing = ex.motor_timing(0)
+    assert timing["late_absorbed"] >= 1 and timing["lag_faults"] == 0
+    assert timing["worst_late_us"] >= 40_000 and timing["slid_ms"] >= 40
+    engine.stop_threads()
+    ex.close()
+    assert ex.motor_timing(0) == timing  # kept after close
+    times = read_timeline(str(timeline)).step_times(0)
+    assert len(times) == 4000
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert min(gaps) >= ex.limits[0].min_interval_s - 1e-9
+    assert max(gaps) >= 0.04  # the stop is in the timeline, not made up with a burst
+
+
+def test_the_process_executor_needs_a_real_clock() -> None:
+    clock = VirtualClock()
+    spec = HardwareSpec(axes=(FAR,))
+    with pytest.raises(ValueError, match="real clock"):
+        ProcessStepExecutor(build(spec, clock), "mock", spec,
+                            [AxisLimits(1e-5)])

@@ -1,0 +1,219 @@
+"""Run motorctld as a real subprocess on a real PTY, for end-to-end tests.
+
+A daemon (and its step executor process) logs into ``motorctld.stderr`` in its test's
+directory, never into pytest's output; when the daemon ends (``close``, ``kill``) its part
+of that file is printed to the test's captured stderr, which pytest shows only when the test
+fails.
+"""
+
+from __future__ import annotations
+
+import os
+import selectors
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from motorctl.client.client import Client
+from motorctl.daemon.status import read_status
+from tests.support import REPO
+
+READY_TIMEOUT_S = 30.0
+
+#: The ``motorctld`` fixture (tests/conftest.py): ``start(config_text, **kw)``.
+StartDaemon = Callable[..., "DaemonProcess"]
+
+
+def positions_until_ready(c: Client, motor: int, timeout: float = 10.0) -> list[int]:
+    """GetAbsPos of ``motor`` every 50 ms while it moves (until IsReady); fail after
+    ``timeout`` seconds. The positions seen on the way, to check the motion was followed."""
+    seen = []
+    end = time.monotonic() + timeout
+    while not c.is_ready(motor):
+        seen.append(c.position(motor))
+        if time.monotonic() > end:
+            raise AssertionError(f"motor {motor} still moving after {timeout} s")
+        time.sleep(0.05)
+    return seen
+
+
+#: Test daemons run without real-time priority (and lock no memory) on a shared machine.
+#: Their lateness rule is the one users get: the mock's simulated motors never lose steps
+#: (late steps slide); tests about the fail-safe set ``[mock] lose_steps = true``.
+TEST_STEP_THREAD = {"priority": "0", "lock_memory": "false"}
+
+
+def for_tests(text: str, force: bool = False) -> str:
+    """``text`` with the [step_thread] settings of a test daemon where it does not set them
+    (``force``: even where it does, for the embedded default that writes every key out)."""
+    lines = text.splitlines()
+    try:
+        start = next(i for i, line in enumerate(lines)
+                     if line.split("#")[0].strip() == "[step_thread]")
+    except StopIteration:
+        extra = "\n".join(f"{k} = {v}" for k, v in TEST_STEP_THREAD.items())
+        return f"{text}\n[step_thread]\n{extra}\n"
+    end = next((i for i in range(start + 1, len(lines)) if lines[i].lstrip().startswith("[")),
+               len(lines))
+    body = lines[start + 1 : end]
+    if force:
+        body = [line for line in body if line.split("=")[0].strip() not in TEST_STEP_THREAD]
+    present = {line.split("=")[0].strip() for line in body if "=" in line}
+    add = [f"{k} = {v}" for k, v in TEST_STEP_THREAD.items() if k not in present]
+    return "\n".join(lines[: start + 1] + add + body + lines[end:]) + "\n"
+
+
+class DaemonProcess:
+    """motorctld in a process of its own, as the motorctld command starts it. A test daemon
+    (the default) gets the test settings (``TEST_STEP_THREAD``) and, without
+    ``config_text``, the embedded default written out; ``as_user``: started as a user starts
+    it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default)."""
+
+    def __init__(self, workdir: Path, config_text: str | None = None,
+                 state_dir: Path | None = None, extra: list[str] | None = None,
+                 env: dict[str, str] | None = None, port: str | None = None,
+                 as_user: bool = False) -> None:
+        self.workdir = workdir
+        self.port = port  # serve this serial device (--port) instead of a PTY of its own
+        self.pty = workdir / "motorctl.pty"
+        self.state_dir = state_dir or workdir / "state"
+        self.config: Path | None = workdir / "motorctl.toml"
+        if as_user:
+            if config_text is None:
+                self.config = None
+            else:
+                self.config.write_text(config_text)
+        elif config_text is None:
+            from motorctl.daemon.config import default_config_text
+
+            self.config.write_text(for_tests(default_config_text(), force=True))
+        else:
+            self.config.write_text(for_tests(config_text))
+        self.extra = extra or []
+        self.env = env  # added to this process's environment (e.g. NOTIFY_SOCKET)
+        self.proc: subprocess.Popen[bytes] | None = None
+        self.ready_line = ""
+        self.stderr_path = workdir / "motorctld.stderr"
+        self._log_from = 0  # this daemon's part of the file (a restart appends to it)
+        self._log_shown = as_user  # a user's daemon: its log is the caller's to read
+
+    def start(self) -> DaemonProcess:
+        where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
+        # the motorctld command's entry point (its executor process starts first)
+        cmd = [sys.executable, "-m", "motorctl.daemon.launch", *where,
+               "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
+        if self.config is not None:
+            cmd += ["--config", str(self.config)]
+        stderr = open(self.stderr_path, "ab")  # noqa: SIM115
+        self._log_from = stderr.tell()
+        env = {**os.environ, **self.env} if self.env is not None else None
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
+                                     cwd=REPO)
+        stderr.close()
+        assert self.proc.stdout is not None
+        sel = selectors.DefaultSelector()
+        sel.register(self.proc.stdout, selectors.EVENT_READ)
+        line = b""
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while not line.endswith(b"\n"):
+            left = deadline - time.monotonic()
+            if left <= 0 or not sel.select(left):
+                self.kill()
+                raise RuntimeError(f"motorctld not ready: {self.stderr()}")
+            chunk = os.read(self.proc.stdout.fileno(), 1)
+            if not chunk:
+                raise RuntimeError(f"motorctld exited: {self.stderr()}")
+            line += chunk
+        sel.close()
+        self.ready_line = line.decode()
+        assert "ready" in self.ready_line, self.ready_line
+        return self
+
+    def stderr(self) -> str:
+        return self.stderr_path.read_text() if self.stderr_path.exists() else ""
+
+    def client(self, timeout: float = 5.0, **kw: Any) -> Client:
+        return Client(str(self.pty), timeout=timeout, **kw)
+
+    def status(self, histogram: bool = False) -> dict[str, Any]:
+        """The daemon's status; ``histogram``: with ``steps.histogram_us``."""
+        return read_status(self.state_dir / "status.sock", histogram=histogram)
+
+    def terminate(self, timeout: float = 20.0) -> int:
+        assert self.proc is not None
+        self.proc.send_signal(signal.SIGTERM)
+        return self.proc.wait(timeout)
+
+    def kill(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(10)
+        self.show_log()
+
+    def close(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            try:
+                self.terminate()
+            except subprocess.TimeoutExpired:
+                self.kill()
+        if self.proc is not None and self.proc.stdout is not None:
+            self.proc.stdout.close()
+        self.show_log()
+
+    def show_log(self) -> None:
+        """This daemon's log, once, to the test's captured stderr (shown if it fails)."""
+        if self._log_shown or self.proc is None or not self.stderr_path.exists():
+            return
+        self._log_shown = True
+        with open(self.stderr_path, "rb") as f:
+            f.seek(self._log_from)
+            text = f.read().decode(errors="replace")
+        sys.stderr.write(f"---- motorctld (PID {self.proc.pid}) log, {self.stderr_path} "
+                         f"----\n{text}---- end of the motorctld log ----\n")
+
+
+def children_of(pid: int) -> list[int]:
+    """The PIDs whose parent is ``pid`` (zombies included)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:
+            continue
+        if int(stat.rsplit(")", 1)[1].split()[1]) == pid:
+            out.append(int(entry.name))
+    return sorted(out)
+
+
+def memfd_labels(pid: int) -> set[str]:
+    """The labels of the memfd blocks (``/memfd:LABEL``) process ``pid`` maps."""
+    maps = Path(f"/proc/{pid}/maps").read_text()
+    return {line.split("/memfd:", 1)[1].split(" (deleted)")[0]
+            for line in maps.splitlines() if "/memfd:" in line}
+
+
+def memfd_holders(labels: set[str]) -> list[int]:
+    """Every process on the machine that still maps, or holds a descriptor of, a memfd
+    labelled one of ``labels`` (a memfd lives exactly as long as one of those)."""
+    wanted = {f"/memfd:{label} (deleted)" for label in labels}
+    holders = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            held = any(line.split(None, 5)[-1] in wanted
+                       for line in (entry / "maps").read_text().splitlines()
+                       if "/memfd:" in line)
+            if not held:
+                held = any(os.readlink(fd) in wanted for fd in (entry / "fd").iterdir())
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+        if held:
+            holders.append(int(entry.name))
+    return holders
