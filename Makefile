@@ -44,6 +44,7 @@ test-deps:
 
 test: venv test-deps
 	$(BIN)/ruff check .
+	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
 

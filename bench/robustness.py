@@ -197,12 +197,21 @@ class Daemon:
         self.proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> Daemon:
-        cmdline = [sys.executable, "-m", "motorctl.daemon.launch", "--pty", str(self.pty),
-                   "--state-dir", str(self.state_dir), "--config", str(self.config),
-                   "--log-level", "warning"]
+        cmdline = [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.launch",
+            "--pty",
+            str(self.pty),
+            "--state-dir",
+            str(self.state_dir),
+            "--config",
+            str(self.config),
+            "--log-level",
+            "warning",
+        ]
         with open(self.stderr, "ab") as err_file:
-            self.proc = subprocess.Popen(cmdline, stdout=subprocess.PIPE, stderr=err_file,
-                                         cwd=ROOT)
+            self.proc = subprocess.Popen(cmdline, stdout=subprocess.PIPE, stderr=err_file, cwd=ROOT)
         assert self.proc.stdout is not None
         fd = self.proc.stdout.fileno()
         line = b""
@@ -377,8 +386,13 @@ class Report:
         print(f"  VIOLATION: {what}", flush=True)
 
 
-def exchange(port: Port, frames: Sequence[bytes], report: Report,
-             expected: Sequence[bytes | None] | None = None, what: str = "") -> list[bytes]:
+def exchange(
+    port: Port,
+    frames: Sequence[bytes],
+    report: Report,
+    expected: Sequence[bytes | None] | None = None,
+    what: str = "",
+) -> list[bytes]:
     """Send frames in one write; read one response each; check form and expected bytes."""
     port.clear_stall()
     port.write(b"".join(frames))
@@ -394,9 +408,10 @@ def exchange(port: Port, frames: Sequence[bytes], report: Report,
         bad = malformed(r)
         if bad:
             report.violation(f"{what}: response {i}: {bad}")
-        elif expected is not None and expected[i] is not None and r != expected[i]:
-            report.violation(f"{what}: response {i} to {frames[i].hex()} is {r.hex()}, "
-                             f"expected {expected[i].hex()}")  # type: ignore[union-attr]
+        elif expected is not None and (want := expected[i]) is not None and r != want:
+            report.violation(
+                f"{what}: response {i} to {frames[i].hex()} is {r.hex()}, expected {want.hex()}"
+            )
     return rs
 
 
@@ -405,8 +420,10 @@ def recover_from_host_stall(port: Port, report: Report, what: str) -> None:
     daemon may rightly have used to discard a partial frame. Nothing about this segment
     can be asserted; keep silent, drop its answers, and go on from the daemon's count."""
     report.host_stalls += 1
-    print(f"  host stalled {port.stall * 1000:.0f} ms mid-frame in {what}: segment skipped",
-          flush=True)
+    print(
+        f"  host stalled {port.stall * 1000:.0f} ms mid-frame in {what}: segment skipped",
+        flush=True,
+    )
     time.sleep(3 * GAP_S)
     port.extra(0.5)
     port.clear_stall(0)
@@ -478,12 +495,19 @@ class Baseline:
 def bad_frame(rng: random.Random, kind: str) -> bytes:
     """A frame that a correct daemon must answer E1 and not execute, aimed at the quiet
     motor 0, the pins, the waypoint table and the DC motor."""
-    victims = [cmd(MOVE_TO, 0, 1, rng.randrange(-5000, 5000), 10, 10, 10),
-               cmd(MOVE, 0, rng.randrange(2), 1, 0, 0), cmd(INIT_MOVE, 0, 0, 1, 0, 0),
-               cmd(SET_PIN, rng.randrange(4), rng.randrange(2)),
-               cmd(CONFIG_PIN, rng.randrange(8), rng.randrange(2)),
-               cmd(SAVE_WP, 0), cmd(SAVE_HOME, 0), cmd(GO_HOME, 0),
-               cmd(MOVE_TO_WP, 0, 0, 0, 0, 0), cmd(DC_MOVE, 1, 500, 0), cmd(STOP, 1, 1)]
+    victims = [
+        cmd(MOVE_TO, 0, 1, rng.randrange(-5000, 5000), 10, 10, 10),
+        cmd(MOVE, 0, rng.randrange(2), 1, 0, 0),
+        cmd(INIT_MOVE, 0, 0, 1, 0, 0),
+        cmd(SET_PIN, rng.randrange(4), rng.randrange(2)),
+        cmd(CONFIG_PIN, rng.randrange(8), rng.randrange(2)),
+        cmd(SAVE_WP, 0),
+        cmd(SAVE_HOME, 0),
+        cmd(GO_HOME, 0),
+        cmd(MOVE_TO_WP, 0, 0, 0, 0, 0),
+        cmd(DC_MOVE, 1, 500, 0),
+        cmd(STOP, 1, 1),
+    ]
     frame = bytearray(rng.choice(victims))
     if kind == "flip":
         bit = rng.randrange(80)
@@ -545,8 +569,16 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
     violations_before = len(report.violations)
     d = Daemon(workdir, workdir / "state").start()
     port = Port(d.pty)
-    sent = {"burst": 0, "bytewise": 0, "random_bytes": 0, "flipped": 0, "padding": 0,
-            "truncated": 0, "valid_random": 0, "queries": 0}
+    sent = {
+        "burst": 0,
+        "bytewise": 0,
+        "random_bytes": 0,
+        "flipped": 0,
+        "padding": 0,
+        "truncated": 0,
+        "valid_random": 0,
+        "queries": 0,
+    }
     frames_total = 0
     discards = 0
     base = Baseline(port, report)
@@ -557,9 +589,18 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
     try:
         while frames_total < total and len(report.violations) == violations_before:
             movers.kick()
-            kind = rng.choices(["burst", "bytewise", "random_bytes", "flipped", "padding",
-                                "truncated", "valid_random"],
-                               weights=[30, 2, 10, 10, 5, 5, 8])[0]
+            kind = rng.choices(
+                [
+                    "burst",
+                    "bytewise",
+                    "random_bytes",
+                    "flipped",
+                    "padding",
+                    "truncated",
+                    "valid_random",
+                ],
+                weights=[30, 2, 10, 10, 5, 5, 8],
+            )[0]
             if kind == "burst":
                 n = rng.randrange(1, 10_001)
                 frames, answers = base.queries(rng, n)
@@ -579,10 +620,13 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                 data = port.take(5 * len(frames))
                 each = [data[i : i + 5] for i in range(0, len(data), 5)]
                 if len(each) != len(answers) or any(
-                        malformed(g) or (a is not None and g != a)
-                        for g, a in zip(each, answers, strict=True)):
-                    report.violation(f"byte by byte: got {data.hex()}, expected "
-                                     f"{[a.hex() if a else 'any' for a in answers]}")
+                    malformed(g) or (a is not None and g != a)
+                    for g, a in zip(each, answers, strict=True)
+                ):
+                    report.violation(
+                        f"byte by byte: got {data.hex()}, expected "
+                        f"{[a.hex() if a else 'any' for a in answers]}"
+                    )
                 sent["bytewise"] += len(frames)
                 frames_total += len(frames)
             elif kind in ("random_bytes", "truncated"):
@@ -592,9 +636,11 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                         if frame_valid(bytes(junk[i : i + 10])):
                             junk[i + 9] ^= 0xFF
                 else:
-                    junk = bytearray(rng.choice([cmd(MOVE_TO, 0, 1, 3000, 0, 0, 0),
-                                                 cmd(SET_PIN, 0, 1), cmd(SAVE_WP, 0)])
-                                     [: rng.randrange(1, 10)])
+                    junk = bytearray(
+                        rng.choice(
+                            [cmd(MOVE_TO, 0, 1, 3000, 0, 0, 0), cmd(SET_PIN, 0, 1), cmd(SAVE_WP, 0)]
+                        )[: rng.randrange(1, 10)]
+                    )
                 complete = len(junk) // 10
                 port.write(bytes(junk))
                 got = port.take(5 * complete)
@@ -611,8 +657,7 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                 frames_total += max(complete, 1)
             elif kind in ("flipped", "padding"):
                 n = rng.randrange(1, 2000)
-                frames = [bad_frame(rng, "flip" if kind == "flipped" else "pad")
-                          for _ in range(n)]
+                frames = [bad_frame(rng, "flip" if kind == "flipped" else "pad") for _ in range(n)]
                 exchange(port, frames, report, [err(E1)] * n, kind)
                 sent[kind] += n
                 frames_total += n
@@ -623,8 +668,9 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
                 for f, r in zip(frames, rs, strict=False):
                     if f[0] == SAVE_WP and f[1] == 0 and r[0] == 1:
                         if r[1] != base.waypoints:
-                            report.violation(f"SaveWayPoint(0) numbered {r[1]}, expected "
-                                             f"{base.waypoints}")
+                            report.violation(
+                                f"SaveWayPoint(0) numbered {r[1]}, expected {base.waypoints}"
+                            )
                         base.waypoints = r[1] + 1
                 base.take()  # the random frames may have moved motor 0 or set pins
                 movers.kick(force=True)
@@ -651,21 +697,28 @@ def part_frames(workdir: Path, total: int, seed: int, report: Report) -> None:
         status = d.status()
         counters = status["link"]["counters"]
         if counters["gap_discards"] != discards:
-            report.violation(f"daemon counted {counters['gap_discards']} gap discards, "
-                             f"the host made {discards}")
+            report.violation(
+                f"daemon counted {counters['gap_discards']} gap discards, the host made {discards}"
+            )
         extra = port.extra(0.2)
         if extra:
             report.violation(f"{len(extra)} bytes nobody asked for: {extra[:40].hex()}")
         report.figures["frames"] = {
-            "frames": frames_total, "seconds": round(elapsed, 1),
-            "frames_per_s": round(frames_total / elapsed), "by_kind": sent,
-            "gap_discards_made": discards, "final_answer_ms": round(answer_s * 1000, 2),
+            "frames": frames_total,
+            "seconds": round(elapsed, 1),
+            "frames_per_s": round(frames_total / elapsed),
+            "by_kind": sent,
+            "gap_discards_made": discards,
+            "final_answer_ms": round(answer_s * 1000, 2),
             "mover_faults_cleared": movers.faults,
-            "daemon_counters": counters, "processing": status["link"]["processing"],
+            "daemon_counters": counters,
+            "processing": status["link"]["processing"],
             "steps": status["steps"],
         }
-        print(f"  frames: {frames_total} in {elapsed:.1f} s = "
-              f"{frames_total / elapsed:.0f} frames/s", flush=True)
+        print(
+            f"  frames: {frames_total} in {elapsed:.1f} s = {frames_total / elapsed:.0f} frames/s",
+            flush=True,
+        )
     finally:
         port.close()
         if d.alive():
@@ -712,18 +765,29 @@ def part_kill(workdir: Path, cycles: int, seed: int, report: Report) -> None:
             lost_seen += check_after_restart(d, port, models, report, cycle)
             if cycle == 0:
                 set_homes_clear_of_end_stops(port, models, report)
-            moment = rng.choice(["motion_start", "after_waypoint_ack", "after_home_ack",
-                                 "mid_move", "at_rest", "during_burst"])
+            moment = rng.choice(
+                [
+                    "motion_start",
+                    "after_waypoint_ack",
+                    "after_home_ack",
+                    "mid_move",
+                    "at_rest",
+                    "during_burst",
+                ]
+            )
             outcomes[moment] = outcomes.get(moment, 0) + 1
             provoke(port, models, rng, moment, report)
         finally:
             d.kill()
             port.close()
-    report.figures["kill"] = {"cycles": cycle + 1, "moments": outcomes,
-                              "losses": sum("kill" in v for v in report.violations),
-                              "restarts_with_lost_positions": lost_seen,
-                              "seconds": round(time.monotonic() - t0, 1),
-                              "waypoints_acknowledged": [len(m.waypoints) for m in models]}
+    report.figures["kill"] = {
+        "cycles": cycle + 1,
+        "moments": outcomes,
+        "losses": sum("kill" in v for v in report.violations),
+        "restarts_with_lost_positions": lost_seen,
+        "seconds": round(time.monotonic() - t0, 1),
+        "waypoints_acknowledged": [len(m.waypoints) for m in models],
+    }
     print(f"  kill -9: {cycle + 1} cycles, {lost_seen} motors restarted lost (homed again)")
 
 
@@ -737,16 +801,19 @@ def set_homes_clear_of_end_stops(port: Port, models: list[MotorModel], report: R
         m.position = {1000}
 
 
-def check_after_restart(d: Daemon, port: Port, models: list[MotorModel], report: Report,
-                        cycle: int) -> int:
+def check_after_restart(
+    d: Daemon, port: Port, models: list[MotorModel], report: Report, cycle: int
+) -> int:
     lost = 0
     status = d.status()
     for i, m in enumerate(models):
         st = status["motors"][i]
         what = f"cycle {cycle} motor {i}"
         if not st["position_lost"] and st["position"] not in m.position:
-            report.violation(f"kill {what}: reports position {st['position']} as valid; it "
-                             f"can only be one of {sorted(m.position)}")
+            report.violation(
+                f"kill {what}: reports position {st['position']} as valid; it "
+                f"can only be one of {sorted(m.position)}"
+            )
         # Every acknowledged waypoint is there: E6 would say it is not (E6 precedes E4).
         for n in range(len(m.waypoints)):
             r = ask(port, cmd(MOVE_TO_WP, i, n, 0, 0, 0), report, what)
@@ -758,8 +825,9 @@ def check_after_restart(d: Daemon, port: Port, models: list[MotorModel], report:
                 wait_idle(port, i, report)
                 got = pos_of(ask(port, cmd(GET_POS, i), report, what))
                 if got != m.waypoints[n]:
-                    report.violation(f"{what}: waypoint {n} took it to {got}, saved at "
-                                     f"{m.waypoints[n]}")
+                    report.violation(
+                        f"{what}: waypoint {n} took it to {got}, saved at {m.waypoints[n]}"
+                    )
             elif r != err(E4):
                 report.violation(f"{what}: MoveToWayPoint({n}) answered {r.hex()}")
         if m.wp_pending is not None:  # saved or not: both are right, the host never knew
@@ -809,8 +877,9 @@ def state_of(port: Port, motor: int) -> str:
 _current_daemon: list[Daemon] = []
 
 
-def provoke(port: Port, models: list[MotorModel], rng: random.Random, moment: str,
-            report: Report) -> None:
+def provoke(
+    port: Port, models: list[MotorModel], rng: random.Random, moment: str, report: Report
+) -> None:
     """Do something, then return at the moment the daemon is to be killed."""
     i = rng.randrange(3)
     m = models[i]
@@ -831,16 +900,14 @@ def provoke(port: Port, models: list[MotorModel], rng: random.Random, moment: st
         if r[:1] == b"\x01":
             if code == SAVE_WP:
                 if r[1] != len(m.waypoints):
-                    report.violation(f"SaveWayPoint numbered {r[1]}, expected "
-                                     f"{len(m.waypoints)}")
+                    report.violation(f"SaveWayPoint numbered {r[1]}, expected {len(m.waypoints)}")
                 m.waypoints.append(here)
                 m.wp_pending = None
             else:
                 m.home = here
                 m.home_pending = None
         else:
-            report.violation(f"{moment}: motor {i} answered {r.hex()} at rest: "
-                             f"{state_of(port, i)}")
+            report.violation(f"{moment}: motor {i} answered {r.hex()} at rest: {state_of(port, i)}")
         return  # killed right after the ACK
     m.position = {here, target}  # sent, not acknowledged: either may be right
     if moment == "during_burst":
@@ -919,41 +986,55 @@ def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
             frames_total += len(frames)
             if now >= next_sample:
                 next_sample = now + 10.0
-                samples.append({"t": round(now - t0, 1), "rss_kib": d.rss_kib(),
-                                "fds": d.fds()})
+                samples.append({"t": round(now - t0, 1), "rss_kib": d.rss_kib(), "fds": d.fds()})
         del base
         last = d.status()["link"]["counters"]
-        grown = {k: last[k] - first.get(k, 0) for k in last
-                 if (k.endswith("_errors") or k.startswith("sent_E") or k in (
-                     "gap_discards", "link_errors", "responses_dropped", "held_overflow"))
-                 and last[k] != first.get(k, 0)}
+        grown = {
+            k: last[k] - first.get(k, 0)
+            for k in last
+            if (
+                k.endswith("_errors")
+                or k.startswith("sent_E")
+                or k in ("gap_discards", "link_errors", "responses_dropped", "held_overflow")
+            )
+            and last[k] != first.get(k, 0)
+        }
         stalls = report.host_stalls - stalls_before
         for k, v in grown.items():
             allowed = provoked["sent_E1"] if k in ("sent_E1", "checksum_errors") else 0
             if v != allowed and not stalls:  # a host stall makes a real gap: counts differ
-                report.violation(f"soak: counter {k} grew by {v}, the traffic provoked "
-                                 f"{allowed}")
+                report.violation(f"soak: counter {k} grew by {v}, the traffic provoked {allowed}")
         elapsed = time.monotonic() - t0
         rss = [s["rss_kib"] for s in samples]
         fds = [s["fds"] for s in samples]
         # Flat: after the first minute, RSS grows by less than 2 MiB and fds not at all.
         settled = [s for s in samples if s["t"] >= min(60.0, seconds / 2)]
         if settled and max(s["rss_kib"] for s in settled) - settled[0]["rss_kib"] > 2048:
-            report.violation(f"soak: RSS grew from {settled[0]['rss_kib']} to "
-                             f"{max(s['rss_kib'] for s in settled)} KiB")
+            report.violation(
+                f"soak: RSS grew from {settled[0]['rss_kib']} to "
+                f"{max(s['rss_kib'] for s in settled)} KiB"
+            )
         # Flat: no growth between the first and the last settled sample; one fd more or less
         # in a sample is the state writer's file or a status connection caught in passing.
         if settled and max(s["fds"] for s in settled) > min(s["fds"] for s in settled) + 1:
             report.violation(f"soak: open fds grew: {fds}")
         report.figures["soak"] = {
-            "seconds": round(elapsed, 1), "frames": frames_total,
-            "frames_per_s": round(frames_total / elapsed), "rss_kib": [min(rss), max(rss)],
-            "fds": [min(fds), max(fds)], "samples": samples, "counters_grown": grown,
-            "provoked": provoked, "host_stalls": stalls,
+            "seconds": round(elapsed, 1),
+            "frames": frames_total,
+            "frames_per_s": round(frames_total / elapsed),
+            "rss_kib": [min(rss), max(rss)],
+            "fds": [min(fds), max(fds)],
+            "samples": samples,
+            "counters_grown": grown,
+            "provoked": provoked,
+            "host_stalls": stalls,
         }
-        print(f"  soak: {frames_total} frames in {elapsed:.0f} s "
-              f"({frames_total / elapsed:.0f}/s), RSS {min(rss)}..{max(rss)} KiB, "
-              f"fds {min(fds)}..{max(fds)}", flush=True)
+        print(
+            f"  soak: {frames_total} frames in {elapsed:.0f} s "
+            f"({frames_total / elapsed:.0f}/s), RSS {min(rss)}..{max(rss)} KiB, "
+            f"fds {min(fds)}..{max(fds)}",
+            flush=True,
+        )
     finally:
         port.close()
         if d.alive():
@@ -991,8 +1072,10 @@ def part_faults(workdir: Path, report: Report) -> None:
             r = ask(port, frame, report, name)
             answers[name + " read-only"] = r.hex()
             if r != err(E4):
-                report.violation(f"faults: {name} on a read-only state directory answered "
-                                 f"{r.hex()}, not E4 (PROTOCOL.md §4: ACK only once written)")
+                report.violation(
+                    f"faults: {name} on a read-only state directory answered "
+                    f"{r.hex()}, not E4 (PROTOCOL.md §4: ACK only once written)"
+                )
         r = ask(port, cmd(IS_READY, 0), report, "IsReady")
         if r != ok(b"\x01\0\0"):
             report.violation(f"faults: IsReady after the failed saves answered {r.hex()}")
@@ -1029,8 +1112,10 @@ def part_faults(workdir: Path, report: Report) -> None:
 
 def make_read_only(path: Path) -> str | None:
     """Bind-mount ``path`` read-only onto itself; None, or why it could not be done."""
-    steps = (["mount", "--bind", str(path), str(path)],
-             ["mount", "-o", "remount,bind,ro", str(path)])
+    steps = (
+        ["mount", "--bind", str(path), str(path)],
+        ["mount", "-o", "remount,bind,ro", str(path)],
+    )
     for i, step in enumerate(steps):
         done = subprocess.run(step, capture_output=True, text=True)
         if done.returncode != 0:
@@ -1050,14 +1135,16 @@ PARTS: dict[str, Callable[[Path, argparse.Namespace, Report], None]] = {
 
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
-    p.add_argument("--parts", default="frames,kill,faults,soak", help="comma-separated: "
-                   + ", ".join(PARTS))
+    p.add_argument(
+        "--parts", default="frames,kill,faults,soak", help="comma-separated: " + ", ".join(PARTS)
+    )
     p.add_argument("--frames", type=int, default=1_000_000)
     p.add_argument("--kills", type=int, default=100)
     p.add_argument("--soak-s", type=float, default=600.0)
     p.add_argument("--seed", type=int, default=1)
-    p.add_argument("--quick", action="store_true",
-                   help="20,000 frames, 10 kill cycles, a 30 s soak")
+    p.add_argument(
+        "--quick", action="store_true", help="20,000 frames, 10 kill cycles, a 30 s soak"
+    )
     p.add_argument("--json", metavar="FILE", help="write the figures and violations here")
     args = p.parse_args(argv)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(2))  # so that daemons get cleaned up
