@@ -63,9 +63,12 @@ def config(cpu: int, priority: int, lose_steps: bool) -> str:
     """The embedded default with the executor's CPU, priority and lateness rule set and a
     coarser SPEED."""
     text = default_config_text()
-    for key, value in (("cpu", cpu), ("priority", priority),
-                       ("lose_steps", str(lose_steps).lower()),
-                       ("move_speed_factor", SPEED_FACTOR)):
+    for key, value in (
+        ("cpu", cpu),
+        ("priority", priority),
+        ("lose_steps", str(lose_steps).lower()),
+        ("move_speed_factor", SPEED_FACTOR),
+    ):
         lines = [ln for ln in text.splitlines() if ln.split("=")[0].strip() == key]
         assert len(lines) == 1, f"{key}: {lines}"
         text = text.replace(lines[0], f"{key} = {value}")
@@ -74,9 +77,22 @@ def config(cpu: int, priority: int, lose_steps: bool) -> str:
 
 def status(state_dir: Path) -> dict[str, Any]:
     """What `motorctld --status --histogram` prints, as a user would read it."""
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--status", "--histogram",
-                          "--state-dir", str(state_dir)], capture_output=True, text=True,
-                         timeout=30, check=True, cwd=ROOT)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--status",
+            "--histogram",
+            "--state-dir",
+            str(state_dir),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=30,
+        check=True,
+        cwd=ROOT,
+    )
     doc: dict[str, Any] = json.loads(out.stdout)
     return doc
 
@@ -90,8 +106,7 @@ def proc_status(pid: int) -> dict[str, str]:
 
 
 class Instance:
-    def __init__(self, name: str, work: Path, cpu: int, priority: int,
-                 lose_steps: bool) -> None:
+    def __init__(self, name: str, work: Path, cpu: int, priority: int, lose_steps: bool) -> None:
         self.name = name
         work.mkdir(parents=True)
         self.daemon = DaemonProcess(work, config(cpu, priority, lose_steps))
@@ -127,11 +142,13 @@ class Instance:
         self.daemon.close()
 
 
-def scenario(work: Path, cpus: tuple[int, ...], priority: int, seconds: float,
-             speed: int, lose_steps: bool) -> dict[str, Any]:
+def scenario(
+    work: Path, cpus: tuple[int, ...], priority: int, seconds: float, speed: int, lose_steps: bool
+) -> dict[str, Any]:
     speed_byte = max(1, min(255, round(speed / SPEED_FACTOR)))
-    insts = [Instance(n, work / n, cpu, priority, lose_steps)
-             for n, cpu in zip("AB", cpus, strict=False)]
+    insts = [
+        Instance(n, work / n, cpu, priority, lose_steps) for n, cpu in zip("AB", cpus, strict=False)
+    ]
     try:
         for inst in insts:
             inst.start()
@@ -161,9 +178,9 @@ def scenario(work: Path, cpus: tuple[int, ...], priority: int, seconds: float,
             r["motors_lost"] = len(inst.lost)
             r["moves"] = inst.moves
             r["executor_cpus"] = ctx1["Cpus_allowed_list"]
-            r["executor_involuntary_switches"] = (
-                int(ctx1["nonvoluntary_ctxt_switches"])
-                - int(ctx0[inst.name]["nonvoluntary_ctxt_switches"]))
+            r["executor_involuntary_switches"] = int(ctx1["nonvoluntary_ctxt_switches"]) - int(
+                ctx0[inst.name]["nonvoluntary_ctxt_switches"]
+            )
             result[inst.name] = r
         return result
     finally:
@@ -172,20 +189,30 @@ def scenario(work: Path, cpus: tuple[int, ...], priority: int, seconds: float,
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--seconds", type=float, default=10.0, help="length of each window")
     ap.add_argument("--speed", type=int, default=500, help="step/s of every motor")
     ap.add_argument("--priority", type=int, default=50, help="both executors' SCHED_FIFO")
     n = os.cpu_count() or 1
-    ap.add_argument("--cpus", default=f"{max(0, n - 2)},{n - 1}",
-                    help="the two executors' CPUs for 'apart' (default: the last two)")
+    ap.add_argument(
+        "--cpus",
+        default=f"{max(0, n - 2)},{n - 1}",
+        help="the two executors' CPUs for 'apart' (default: the last two)",
+    )
     ap.add_argument("--scenarios", default="alone,apart,same")
-    ap.add_argument("--lose-steps", action="store_true",
-                    help="judge late steps as for real motors ([mock] lose_steps = true): a "
-                    "lag beyond 0.5 full steps stops the motor with E4")
-    ap.add_argument("--unlimited-rt", action="store_true",
-                    help="set kernel.sched_rt_runtime_us=-1 for the run (restored after)")
+    ap.add_argument(
+        "--lose-steps",
+        action="store_true",
+        help="judge late steps as for real motors ([mock] lose_steps = true): a "
+        "lag beyond 0.5 full steps stops the motor with E4",
+    )
+    ap.add_argument(
+        "--unlimited-rt",
+        action="store_true",
+        help="set kernel.sched_rt_runtime_us=-1 for the run (restored after)",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     args = ap.parse_args()
     a, b = (int(c) for c in args.cpus.split(","))
@@ -194,36 +221,54 @@ def main() -> int:
         print("note: not root: SCHED_FIFO will be refused, figures are best effort")
     old_rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
     figures: dict[str, Any] = {
-        "speed": args.speed, "seconds": args.seconds, "priority": args.priority,
+        "speed": args.speed,
+        "seconds": args.seconds,
+        "priority": args.priority,
         "lose_steps": args.lose_steps,
-        "cpus": n, "sched_rt_runtime_us": "-1" if args.unlimited_rt else old_rt,
-        "load_average_1m": round(os.getloadavg()[0], 2)}
+        "cpus": n,
+        "sched_rt_runtime_us": "-1" if args.unlimited_rt else old_rt,
+        "load_average_1m": round(os.getloadavg()[0], 2),
+    }
     if args.unlimited_rt and RT_RUNTIME.exists():
         RT_RUNTIME.write_text("-1\n")
     try:
         with tempfile.TemporaryDirectory() as tmp:
             for name in args.scenarios.split(","):
-                figures[name] = scenario(Path(tmp) / name, layouts[name], args.priority,
-                                         args.seconds, args.speed, args.lose_steps)
+                figures[name] = scenario(
+                    Path(tmp) / name,
+                    layouts[name],
+                    args.priority,
+                    args.seconds,
+                    args.speed,
+                    args.lose_steps,
+                )
     finally:
         if args.unlimited_rt and RT_RUNTIME.exists():
             RT_RUNTIME.write_text(old_rt + "\n")
-    print(f"two instances, 3 motors each at {args.speed} step/s, {args.seconds:.0f} s windows, "
-          f"SCHED_FIFO {args.priority}, {n} CPUs, sched_rt_runtime_us "
-          f"{figures['sched_rt_runtime_us']}, load average {figures['load_average_1m']}:")
-    print(f"{'':8} {'':2} {'cpus':>5} {'steps/s':>8} {'p50':>6} {'p99':>6} {'p99.9':>7} "
-          f"{'max':>7} {'late':>6} {'lost':>5} {'out':>4} {'preempted':>9}")
+    print(
+        f"two instances, 3 motors each at {args.speed} step/s, {args.seconds:.0f} s windows, "
+        f"SCHED_FIFO {args.priority}, {n} CPUs, sched_rt_runtime_us "
+        f"{figures['sched_rt_runtime_us']}, load average {figures['load_average_1m']}:"
+    )
+    print(
+        f"{'':8} {'':2} {'cpus':>5} {'steps/s':>8} {'p50':>6} {'p99':>6} {'p99.9':>7} "
+        f"{'max':>7} {'late':>6} {'lost':>5} {'out':>4} {'preempted':>9}"
+    )
     for name in args.scenarios.split(","):
         for inst, r in figures[name].items():
-            print(f"{name:8} {inst:2} {r['executor_cpus']:>5} {r['steps_per_s']:>8} "
-                  f"{r.get('p50_us', 0):>6.0f} {r.get('p99_us', 0):>6.0f} "
-                  f"{r.get('p999_us', 0):>7.0f} {r.get('max_us', 0):>7.0f} {r['late']:>6} "
-                  f"{r['timing_lost']:>5} {r['motors_lost']:>4} "
-                  f"{r['executor_involuntary_switches']:>9}")
-    print("(lateness in us from each daemon's `motorctld --status --histogram` over the window; "
-          "late: steps later than late_threshold_us; lost: motors stopped by 'step timing "
-          "lost'; out: motors that answered E4 since and were left out (position lost); "
-          "preempted: the executor's involuntary context switches)")
+            print(
+                f"{name:8} {inst:2} {r['executor_cpus']:>5} {r['steps_per_s']:>8} "
+                f"{r.get('p50_us', 0):>6.0f} {r.get('p99_us', 0):>6.0f} "
+                f"{r.get('p999_us', 0):>7.0f} {r.get('max_us', 0):>7.0f} {r['late']:>6} "
+                f"{r['timing_lost']:>5} {r['motors_lost']:>4} "
+                f"{r['executor_involuntary_switches']:>9}"
+            )
+    print(
+        "(lateness in us from each daemon's `motorctld --status --histogram` over the window; "
+        "late: steps later than late_threshold_us; lost: motors stopped by 'step timing "
+        "lost'; out: motors that answered E4 since and were left out (position lost); "
+        "preempted: the executor's involuntary context switches)"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=1))
     return 0

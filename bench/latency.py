@@ -70,39 +70,59 @@ def cpu_s(pid: int) -> float:
 
 
 def summary(times: list[float]) -> dict[str, float]:
-    return {"p50_us": round(pct(times, 50) * 1e6, 1), "p99_us": round(pct(times, 99) * 1e6, 1),
-            "max_us": round(max(times) * 1e6, 1), "mean_us": round(statistics.mean(times) * 1e6, 1)}
+    return {
+        "p50_us": round(pct(times, 50) * 1e6, 1),
+        "p99_us": round(pct(times, 99) * 1e6, 1),
+        "max_us": round(max(times) * 1e6, 1),
+        "mean_us": round(statistics.mean(times) * 1e6, 1),
+    }
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("-n", type=int, default=1000, help="round trips per peer and round")
     ap.add_argument("--rounds", type=int, default=20)
-    ap.add_argument("--motion", type=int, default=0, metavar="STEPS_PER_S",
-                    help="run 3 motors at this many step/s each during the daemon's rounds "
-                    "(issue 7: 25000); the echo peer's rounds are the reference")
+    ap.add_argument(
+        "--motion",
+        type=int,
+        default=0,
+        metavar="STEPS_PER_S",
+        help="run 3 motors at this many step/s each during the daemon's rounds "
+        "(issue 7: 25000); the echo peer's rounds are the reference",
+    )
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
-    ap.add_argument("--switch-interval-us", type=float, metavar="US",
-                    help="[step_thread] switch_interval_us for the daemon with --motion "
-                    "(default: its own)")
-    ap.add_argument("--trace", action="store_true",
-                    help="also a daemon with --trace: the trace's cost (target p99 <= 1.1x)")
+    ap.add_argument(
+        "--switch-interval-us",
+        type=float,
+        metavar="US",
+        help="[step_thread] switch_interval_us for the daemon with --motion (default: its own)",
+    )
+    ap.add_argument(
+        "--trace",
+        action="store_true",
+        help="also a daemon with --trace: the trace's cost (target p99 <= 1.1x)",
+    )
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
     frame = encode_command(IsReady(0), CodecOptions())
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         echo_link = work / "echo.pty"
-        echo = subprocess.Popen([sys.executable, str(ROOT / "bench" / "echo_peer.py"),
-                                 str(echo_link)], stdout=subprocess.PIPE)
+        echo = subprocess.Popen(
+            [sys.executable, str(ROOT / "bench" / "echo_peer.py"), str(echo_link)],
+            stdout=subprocess.PIPE,
+        )
         assert echo.stdout is not None
         echo.stdout.readline()
         config = None
         if args.motion:
             from bench.steps import config_text
 
-            extra = ("" if args.switch_interval_us is None else
-                     f"switch_interval_us = {args.switch_interval_us}")
+            extra = (
+                ""
+                if args.switch_interval_us is None
+                else f"switch_interval_us = {args.switch_interval_us}"
+            )
             # run_speed_factor 1000: SPEED kHz
             config = config_text(50, 0, args.executor, step_thread=extra)
         daemon = DaemonProcess(work, config).start()
@@ -110,8 +130,9 @@ def main() -> int:
         try:
             if args.trace:
                 (work / "traced").mkdir()
-                traced = DaemonProcess(work / "traced", config,
-                                       extra=["--trace", str(work / "trace.pcapng")]).start()
+                traced = DaemonProcess(
+                    work / "traced", config, extra=["--trace", str(work / "trace.pcapng")]
+                ).start()
             for d in (daemon, traced):
                 if args.motion and d is not None:
                     with d.client() as c:
@@ -126,7 +147,8 @@ def main() -> int:
             cpu = {"echo": 0.0, "daemon": 0.0, "traced": 0.0}
             peers: list[tuple[str, int, Path, list[float]]] = [
                 ("echo", echo.pid, echo_link, echo_t),
-                ("daemon", daemon.proc.pid, daemon.pty, daemon_t)]
+                ("daemon", daemon.proc.pid, daemon.pty, daemon_t),
+            ]
             if traced is not None:
                 assert traced.proc is not None
                 peers.append(("traced", traced.proc.pid, traced.pty, traced_t))
@@ -136,8 +158,7 @@ def main() -> int:
                     into += round_trips(str(port), args.n, frame)
                     cpu[name] += cpu_s(pid) - before
             status = read_status(daemon.state_dir / "status.sock")
-            trace_status = None if traced is None else \
-                read_status(traced.state_dir / "status.sock")
+            trace_status = None if traced is None else read_status(traced.state_dir / "status.sock")
         finally:
             daemon.close()
             if traced is not None:
@@ -164,17 +185,22 @@ def main() -> int:
     e, d, p = result["echo_peer"], result["daemon"], result["processing"]
     print(f"IsReady round trip over a PTY, {len(daemon_t)} each:")
     for name, r in (("echo peer", e), ("motorctld", d)):
-        print(f"  {name:<10} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
-              f"max {r['max_us']:.0f}")
+        print(
+            f"  {name:<10} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
+            f"max {r['max_us']:.0f}"
+        )
     target = 1.5 if args.motion else 2.0
     result["target_p99_ratio"] = target
-    print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  "
-          f"(target p99 <= {target})")
-    print(f"  CPU per round trip: echo peer {result['echo_cpu_per_round_trip_us']} us, "
-          f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us")
+    print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  (target p99 <= {target})")
+    print(
+        f"  CPU per round trip: echo peer {result['echo_cpu_per_round_trip_us']} us, "
+        f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us"
+    )
     print(f"daemon processing (last byte read -> reply written), {p['steps']} commands:")
-    print(f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
-          f"max {p['max_us']} us  (target p99 <= 108 us)")
+    print(
+        f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
+        f"max {p['max_us']} us  (target p99 <= 108 us)"
+    )
     if trace_status is not None:
         t = result["daemon_traced"] = summary(traced_t)
         result["trace_p50_ratio"] = round(t["p50_us"] / d["p50_us"], 2)
@@ -182,13 +208,19 @@ def main() -> int:
         result["traced_cpu_per_round_trip_us"] = round(cpu["traced"] / made * 1e6, 1)
         result["trace"] = trace_status["trace"]
         result["traced_processing"] = trace_status["link"]["processing"]
-        print(f"with --trace ({trace_status['trace']['runs']} byte runs recorded, "
-              f"{trace_status['trace']['dropped_runs']} dropped):")
-        print(f"  motorctld  p50 {t['p50_us']:8.1f} us  p99 {t['p99_us']:8.1f} us  "
-              f"max {t['max_us']:.0f}")
-        print(f"  ratio to untraced: p50 {result['trace_p50_ratio']}  p99 "
-              f"{result['trace_p99_ratio']}  (target p99 <= 1.1); CPU per round trip "
-              f"{result['traced_cpu_per_round_trip_us']} us")
+        print(
+            f"with --trace ({trace_status['trace']['runs']} byte runs recorded, "
+            f"{trace_status['trace']['dropped_runs']} dropped):"
+        )
+        print(
+            f"  motorctld  p50 {t['p50_us']:8.1f} us  p99 {t['p99_us']:8.1f} us  "
+            f"max {t['max_us']:.0f}"
+        )
+        print(
+            f"  ratio to untraced: p50 {result['trace_p50_ratio']}  p99 "
+            f"{result['trace_p99_ratio']}  (target p99 <= 1.1); CPU per round trip "
+            f"{result['traced_cpu_per_round_trip_us']} us"
+        )
     result["load_avg_1min"] = os.getloadavg()[0]
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))

@@ -57,8 +57,10 @@ from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 #: "step N us late at R step/s: lag L full steps > max_lag_full_steps M"
-LAG_FAULT = re.compile(r"step (\d+) us late at (\d+) step/s: lag ([\d.]+) full steps > "
-                       r"max_lag_full_steps ([\d.]+)")
+LAG_FAULT = re.compile(
+    r"step (\d+) us late at (\d+) step/s: lag ([\d.]+) full steps > "
+    r"max_lag_full_steps ([\d.]+)"
+)
 FAST_SPEED = 7  # Move SPEED byte: 7 x 4096 step/s, clamped to max_speed (25,000)
 
 
@@ -114,8 +116,13 @@ def run_walkthrough(d: Daemon) -> list[str]:
         if command.startswith("export "):
             exports.append(command)
             continue
-        run = subprocess.run(["bash", "-c", "; ".join(["set -u", *exports, command])],
-                             cwd=d.work, capture_output=True, text=True, timeout=60)
+        run = subprocess.run(
+            ["bash", "-c", "; ".join(["set -u", *exports, command])],
+            cwd=d.work,
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
         wanted = re.search(r"exit status (\d+)", comment)
         output = (run.stdout + run.stderr).strip()
         if run.returncode != (int(wanted.group(1)) if wanted else 0):
@@ -127,16 +134,24 @@ def run_walkthrough(d: Daemon) -> list[str]:
     return problems
 
 
-def expect(problems: list[str], what: str, call: Callable[..., object], *args: Any,
-           want: object = None, error: int | None = None) -> object:
+def expect(
+    problems: list[str],
+    what: str,
+    call: Callable[..., object],
+    *args: Any,
+    want: object = None,
+    error: int | None = None,
+) -> object:
     """Run one transaction, ``call(*args)``; note a problem when its answer is not the one
     expected (``want``, or the error code ``error``)."""
     try:
         got = call(*args)
     except DeviceError as exc:
         if error is None or exc.code != error:
-            problems.append(f"{what}: {exc}; expected "
-                            + ("an answer" if error is None else error_text(ErrorCode(error))))
+            problems.append(
+                f"{what}: {exc}; expected "
+                + ("an answer" if error is None else error_text(ErrorCode(error)))
+            )
         return None
     if error is not None:
         problems.append(f"{what}: answered {got!r}; expected {error_text(ErrorCode(error))}")
@@ -164,8 +179,7 @@ def run_sweep(d: Daemon) -> list[str]:
             expect(p, f"WaitMoved({m})", c.wait_moved, m, 20_000)
             expect(p, f"GetAbsPos({m}) at home", c.position, m, want=target)
             if isinstance(point, int):
-                expect(p, f"MoveToWayPoint({m}, {point})",
-                       c.move_to_waypoint, m, point, 250)
+                expect(p, f"MoveToWayPoint({m}, {point})", c.move_to_waypoint, m, point, 250)
                 expect(p, f"WaitMoved({m})", c.wait_moved, m, 20_000)
                 expect(p, f"GetAbsPos({m}) at waypoint {point}", c.position, m, want=150)
             expect(p, f"Move({m})", c.move, m, False, 1)
@@ -178,8 +192,14 @@ def run_sweep(d: Daemon) -> list[str]:
             expect(p, f"InitMove({m})", c.init_move, m, False, 4)
             expect(p, f"WaitMoved({m}) homing", c.wait_moved, m, 30_000)
             expect(p, f"GetAbsPos({m}) homed", c.position, m, want=0)
-            expect(p, f"MoveToWayPoint({m}, 9)", c.move_to_waypoint, m, 9,
-                   error=ErrorCode.INVALID_WAYPOINT)
+            expect(
+                p,
+                f"MoveToWayPoint({m}, 9)",
+                c.move_to_waypoint,
+                m,
+                9,
+                error=ErrorCode.INVALID_WAYPOINT,
+            )
         for pin in range(4):
             for high in (True, False):
                 expect(p, f"SetPin({pin}, {high})", c.set_pin, pin, high)
@@ -207,8 +227,13 @@ def run_fast(d: Daemon, seconds: float) -> list[str]:
             expect(p, f"StopMove({m}) soft", c.stop, m)
         for m in range(3):
             expect(p, f"WaitMoved({m})", c.wait_moved, m, 20_000)
-            expect(p, f"GetAbsPos({m}) vs status", c.position, m,
-                   want=d.status()["motors"][m]["position"])
+            expect(
+                p,
+                f"GetAbsPos({m}) vs status",
+                c.position,
+                m,
+                want=d.status()["motors"][m]["position"],
+            )
     return p
 
 
@@ -220,18 +245,23 @@ def figures_of(statuses: list[dict[str, Any]], stderr: str) -> dict[str, Any]:
     for m in motors:
         for cause, n in m.get("faults", {}).items():
             causes[cause] = causes.get(cause, 0) + n
-    faults = [line.split("fault latched: ", 1)[1] for line in stderr.splitlines()
-              if "fault latched: " in line]
+    faults = [
+        line.split("fault latched: ", 1)[1]
+        for line in stderr.splitlines()
+        if "fault latched: " in line
+    ]
     return {
         "late_absorbed": sum(t.get("late_absorbed", 0) for t in timing),
         "worst_late_us": max((t.get("worst_late_us", 0.0) for t in timing), default=0.0),
-        "worst_lag_full_steps": max((t.get("worst_lag_full_steps", 0.0) for t in timing),
-                                    default=0.0),
+        "worst_lag_full_steps": max(
+            (t.get("worst_lag_full_steps", 0.0) for t in timing), default=0.0
+        ),
         "faults_by_cause": causes,
         "fault_texts": faults,
         "takeover_ms_max": max((m["soft_stops"]["takeover_ms"][1] for m in motors), default=0),
-        "takeover_steps_max": max((m["soft_stops"]["takeover_steps"][1] for m in motors),
-                                  default=0),
+        "takeover_steps_max": max(
+            (m["soft_stops"]["takeover_steps"][1] for m in motors), default=0
+        ),
         "steps_max_us": max(st["steps"].get("max_us", 0) for st in statuses),
     }
 
@@ -263,8 +293,7 @@ def one_run(work: Path, rule: str, fast_s: float) -> dict[str, Any]:
             stderr += d.stderr()
             if code != 0:
                 problems.append(f"{part}: motorctld exited {code}")
-    out = figures_of(statuses, stderr) if statuses else {"fault_texts": [],
-                                                         "faults_by_cause": {}}
+    out = figures_of(statuses, stderr) if statuses else {"fault_texts": [], "faults_by_cause": {}}
     e4 = error_text(ErrorCode.MOTOR_ERROR)
     out["e4"] = sum(1 for x in problems if e4 in x)
     out["problems"] = problems
@@ -278,12 +307,21 @@ def load(kind: str, work: Path) -> Iterator[None]:
     procs: list[subprocess.Popen[bytes]] = []
     if kind == "loaded":
         for _ in range(2):
-            procs.append(subprocess.Popen(["sh", "-c", "exec yes > /dev/null"],
-                                          start_new_session=True))
+            procs.append(
+                subprocess.Popen(["sh", "-c", "exec yes > /dev/null"], start_new_session=True)
+            )
         target = work / "dd.out"
-        procs.append(subprocess.Popen(
-            ["sh", "-c", f"while :; do dd if=/dev/zero of={target} bs=1M count=256 "
-             "conv=fsync status=none; done"], start_new_session=True))
+        procs.append(
+            subprocess.Popen(
+                [
+                    "sh",
+                    "-c",
+                    f"while :; do dd if=/dev/zero of={target} bs=1M count=256 "
+                    "conv=fsync status=none; done",
+                ],
+                start_new_session=True,
+            )
+        )
     try:
         yield
     finally:
@@ -304,14 +342,19 @@ def cyclictest_max(seconds: float) -> int | None:
         if exe is None:
             print("note: cyclictest not found (apt-get install rt-tests): no reference")
         return None
-    out = subprocess.run([exe, "-m", "-q", "-p", "50", "-i", "1000", "-t", "2", "-D",
-                          f"{seconds:.0f}"], capture_output=True, text=True, check=True).stdout
+    out = subprocess.run(
+        [exe, "-m", "-q", "-p", "50", "-i", "1000", "-t", "2", "-D", f"{seconds:.0f}"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     found = [int(x) for x in re.findall(r"Max:\s*(\d+)", out)]
     return max(found) if found else None
 
 
-def condition(work: Path, load_kind: str, rule: str, runs: int, fast_s: float,
-              cyclictest_s: float) -> dict[str, Any]:
+def condition(
+    work: Path, load_kind: str, rule: str, runs: int, fast_s: float, cyclictest_s: float
+) -> dict[str, Any]:
     results = []
     with load(load_kind, work):
         ct_max = cyclictest_max(cyclictest_s)
@@ -319,10 +362,13 @@ def condition(work: Path, load_kind: str, rule: str, runs: int, fast_s: float,
             r = one_run(work / "run", rule, fast_s)
             results.append(r)
             tag = "ok" if r["passed"] else f"{len(r['problems'])} problems"
-            print(f"  {load_kind:6} {rule:4} run {i + 1:2}/{runs}: {tag}; late absorbed "
-                  f"{r.get('late_absorbed', 0)}, worst lag "
-                  f"{r.get('worst_lag_full_steps', 0):.3f} full steps, faults "
-                  f"{r['faults_by_cause'] or 'none'}", flush=True)
+            print(
+                f"  {load_kind:6} {rule:4} run {i + 1:2}/{runs}: {tag}; late absorbed "
+                f"{r.get('late_absorbed', 0)}, worst lag "
+                f"{r.get('worst_lag_full_steps', 0):.3f} full steps, faults "
+                f"{r['faults_by_cause'] or 'none'}",
+                flush=True,
+            )
             for x in r["problems"][:3]:
                 print(f"      {x}")
     lag_faults = []
@@ -333,28 +379,36 @@ def condition(work: Path, load_kind: str, rule: str, runs: int, fast_s: float,
             if m is None:
                 other_faults.append(text)
             else:
-                lag_faults.append({"late_us": int(m.group(1)), "speed": int(m.group(2)),
-                                   "lag": float(m.group(3)), "tolerance": float(m.group(4))})
+                lag_faults.append(
+                    {
+                        "late_us": int(m.group(1)),
+                        "speed": int(m.group(2)),
+                        "lag": float(m.group(3)),
+                        "tolerance": float(m.group(4)),
+                    }
+                )
     causes: dict[str, int] = {}
     for r in results:
         for cause, n in r["faults_by_cause"].items():
             causes[cause] = causes.get(cause, 0) + n
     return {
-        "load": load_kind, "rule": rule, "runs": runs,
+        "load": load_kind,
+        "rule": rule,
+        "runs": runs,
         "passed": sum(r["passed"] for r in results),
         "e4": sum(r["e4"] for r in results),
         "faults_by_cause": causes,
         "late_absorbed": sum(r.get("late_absorbed", 0) for r in results),
         "worst_late_us": max((r.get("worst_late_us", 0.0) for r in results), default=0.0),
-        "worst_lag_full_steps": max((r.get("worst_lag_full_steps", 0.0) for r in results),
-                                    default=0.0),
+        "worst_lag_full_steps": max(
+            (r.get("worst_lag_full_steps", 0.0) for r in results), default=0.0
+        ),
         "takeover_ms_max": max((r.get("takeover_ms_max", 0) for r in results), default=0),
-        "takeover_steps_max": max((r.get("takeover_steps_max", 0) for r in results),
-                                  default=0),
+        "takeover_steps_max": max((r.get("takeover_steps_max", 0) for r in results), default=0),
         "lag_faults": lag_faults,
         "lag_fault_speeds": sorted({f["speed"] for f in lag_faults}),
-        "every_fault_a_lag_beyond_tolerance": not other_faults and all(
-            f["lag"] > f["tolerance"] for f in lag_faults),
+        "every_fault_a_lag_beyond_tolerance": not other_faults
+        and all(f["lag"] > f["tolerance"] for f in lag_faults),
         "other_faults": other_faults,
         "cyclictest_max_us": ct_max,
         "problems": [x for r in results for x in r["problems"]][:20],
@@ -362,17 +416,29 @@ def condition(work: Path, load_kind: str, rule: str, runs: int, fast_s: float,
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--runs", type=int, default=20, help="fresh starts per condition")
     ap.add_argument("--loads", default="quiet,loaded", help="quiet, loaded or both")
     ap.add_argument("--rules", default="mock,real", help="mock, real or both")
-    ap.add_argument("--fast-seconds", type=float, default=10.0,
-                    help="how long 3 motors run at 25,000 step/s in each run")
-    ap.add_argument("--cyclictest-seconds", type=float, default=30.0,
-                    help="cyclictest under each condition's load, before its runs (0: none)")
-    ap.add_argument("--keep-rt-throttling", action="store_true",
-                    help="leave kernel.sched_rt_runtime_us as it is")
+    ap.add_argument(
+        "--fast-seconds",
+        type=float,
+        default=10.0,
+        help="how long 3 motors run at 25,000 step/s in each run",
+    )
+    ap.add_argument(
+        "--cyclictest-seconds",
+        type=float,
+        default=30.0,
+        help="cyclictest under each condition's load, before its runs (0: none)",
+    )
+    ap.add_argument(
+        "--keep-rt-throttling",
+        action="store_true",
+        help="leave kernel.sched_rt_runtime_us as it is",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     args = ap.parse_args()
     if os.geteuid() != 0:
@@ -382,28 +448,42 @@ def main() -> int:
         RT_RUNTIME.write_text("-1\n")
     out: dict[str, Any] = {"sched_rt_runtime_us_before": old_rt, "conditions": []}
     try:
-        with tempfile.TemporaryDirectory(dir=ROOT / "build" if (ROOT / "build").is_dir()
-                                         else None) as tmp:
+        with tempfile.TemporaryDirectory(
+            dir=ROOT / "build" if (ROOT / "build").is_dir() else None
+        ) as tmp:
             for load_kind in args.loads.split(","):
                 for rule in args.rules.split(","):
                     out["conditions"].append(
-                        condition(Path(tmp), load_kind, rule, args.runs, args.fast_seconds,
-                                  args.cyclictest_seconds))
+                        condition(
+                            Path(tmp),
+                            load_kind,
+                            rule,
+                            args.runs,
+                            args.fast_seconds,
+                            args.cyclictest_seconds,
+                        )
+                    )
     finally:
         if not args.keep_rt_throttling and old_rt is not None and os.geteuid() == 0:
             RT_RUNTIME.write_text(old_rt + "\n")
-    print("\nlateness judged as the motor would feel it "
-          f"(sched_rt_runtime_us -1 during the run, {old_rt} before):")
+    print(
+        "\nlateness judged as the motor would feel it "
+        f"(sched_rt_runtime_us -1 during the run, {old_rt} before):"
+    )
     for c in out["conditions"]:
-        print(f"  {c['load']:6} {c['rule']:4}: {c['passed']}/{c['runs']} runs passed, "
-              f"E4 {c['e4']}, faults {c['faults_by_cause'] or 'none'}, late steps absorbed "
-              f"{c['late_absorbed']}, worst lateness {c['worst_late_us']:,.0f} us, worst lag "
-              f"{c['worst_lag_full_steps']:.3f} full steps, soft stop take-over <= "
-              f"{c['takeover_ms_max']} ms / {c['takeover_steps_max']} steps; cyclictest max "
-              f"{c['cyclictest_max_us']} us")
+        print(
+            f"  {c['load']:6} {c['rule']:4}: {c['passed']}/{c['runs']} runs passed, "
+            f"E4 {c['e4']}, faults {c['faults_by_cause'] or 'none'}, late steps absorbed "
+            f"{c['late_absorbed']}, worst lateness {c['worst_late_us']:,.0f} us, worst lag "
+            f"{c['worst_lag_full_steps']:.3f} full steps, soft stop take-over <= "
+            f"{c['takeover_ms_max']} ms / {c['takeover_steps_max']} steps; cyclictest max "
+            f"{c['cyclictest_max_us']} us"
+        )
         if c["rule"] == "real":
-            print(f"         lag faults at {c['lag_fault_speeds'] or 'no'} step/s; every fault "
-                  f"a lag beyond the tolerance: {c['every_fault_a_lag_beyond_tolerance']}")
+            print(
+                f"         lag faults at {c['lag_fault_speeds'] or 'no'} step/s; every fault "
+                f"a lag beyond the tolerance: {c['every_fault_a_lag_beyond_tolerance']}"
+            )
     if args.json:
         Path(args.json).write_text(json.dumps(out, indent=1))
     return 0

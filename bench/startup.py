@@ -93,8 +93,17 @@ def cmdline(pid: int) -> str:
 def one_start(module: str, env: dict[str, str], work: Path) -> dict[str, Any]:
     """Start motorctld, time READY, look at its processes, stop it."""
     work.mkdir()
-    cmd = [sys.executable, "-m", module, "--pty", str(work / "pty"), "--state-dir",
-           str(work / "state"), "--log-level", "warning"]
+    cmd = [
+        sys.executable,
+        "-m",
+        module,
+        "--pty",
+        str(work / "pty"),
+        "--state-dir",
+        str(work / "state"),
+        "--log-level",
+        "warning",
+    ]
     with open(work / "stderr", "wb") as err:
         t0 = time.perf_counter()
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=err, env=env, cwd=ROOT)
@@ -106,8 +115,9 @@ def one_start(module: str, env: dict[str, str], work: Path) -> dict[str, Any]:
         while not line.endswith(b"\n"):
             left = t0 + TIMEOUT_S - time.perf_counter()
             if left <= 0 or not sel.select(left):
-                raise RuntimeError(f"no READY within {TIMEOUT_S} s: "
-                                   f"{(work / 'stderr').read_text()}")
+                raise RuntimeError(
+                    f"no READY within {TIMEOUT_S} s: {(work / 'stderr').read_text()}"
+                )
             chunk = os.read(proc.stdout.fileno(), 1)
             if not chunk:
                 raise RuntimeError(f"motorctld exited: {(work / 'stderr').read_text()}")
@@ -126,13 +136,14 @@ def one_start(module: str, env: dict[str, str], work: Path) -> dict[str, Any]:
             "processes": len(pids),
             "resource_tracker": any("resource_tracker" in name for name in names.values()),
             "dev_shm_mappings": maps.count("/dev/shm/"),
-            "rss_kib": {"daemon": status_kib(proc.pid, "VmRSS"),
-                        "executor": sum(status_kib(p, "VmRSS") for p in executors),
-                        "total": sum(status_kib(p, "VmRSS") for p in pids)},
+            "rss_kib": {
+                "daemon": status_kib(proc.pid, "VmRSS"),
+                "executor": sum(status_kib(p, "VmRSS") for p in executors),
+                "total": sum(status_kib(p, "VmRSS") for p in pids),
+            },
             "pss_kib_total": sum(pss_kib(p) for p in pids),
             "executor_locked_kib": sum(status_kib(p, "VmLck") for p in executors),
-            "executor_fifo": any(os.sched_getscheduler(p) == os.SCHED_FIFO
-                                 for p in executors),
+            "executor_fifo": any(os.sched_getscheduler(p) == os.SCHED_FIFO for p in executors),
         }
     finally:
         sel.close()
@@ -157,8 +168,11 @@ def bare_interpreter_ms(runs: int, env: dict[str, str]) -> list[float]:
 
 
 def spread(values: list[float]) -> dict[str, float]:
-    return {"min": round(min(values), 1), "median": round(statistics.median(values), 1),
-            "max": round(max(values), 1)}
+    return {
+        "min": round(min(values), 1),
+        "median": round(statistics.median(values), 1),
+        "max": round(max(values), 1),
+    }
 
 
 def checkout_has_bytecode() -> bool:
@@ -167,12 +181,18 @@ def checkout_has_bytecode() -> bool:
 
 
 def measure(runs: int, modes: list[str], entries: list[str]) -> dict[str, Any]:
-    base = {k: v for k, v in os.environ.items()
-            if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX", "NOTIFY_SOCKET")}
+    base = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("PYTHONDONTWRITEBYTECODE", "PYTHONPYCACHEPREFIX", "NOTIFY_SOCKET")
+    }
     result: dict[str, Any] = {
-        "python": sys.executable, "python_version": sys.version.split()[0],
-        "cpus": len(os.sched_getaffinity(0)), "load_before": os.getloadavg()[0],
-        "runs": runs, "targets": {"ready_ms": READY_TARGET_MS, "rss_mib": RSS_TARGET_MIB},
+        "python": sys.executable,
+        "python_version": sys.version.split()[0],
+        "cpus": len(os.sched_getaffinity(0)),
+        "load_before": os.getloadavg()[0],
+        "runs": runs,
+        "targets": {"ready_ms": READY_TARGET_MS, "rss_mib": RSS_TARGET_MIB},
         "modes": {},
     }
     with tempfile.TemporaryDirectory(prefix="motorctl-startup-") as tmp:
@@ -187,10 +207,10 @@ def measure(runs: int, modes: list[str], entries: list[str]) -> dict[str, Any]:
             samples: dict[str, list[dict[str, Any]]] = {e: [] for e in entries}
             for i in range(runs):
                 for entry in entries:  # alternate: both see the same load
-                    samples[entry].append(one_start(ENTRIES[entry], env,
-                                                    tmpdir / f"{mode}-{entry}-{i}"))
-            fig: dict[str, Any] = {
-                "bare_interpreter_ms": spread(bare_interpreter_ms(runs, env))}
+                    samples[entry].append(
+                        one_start(ENTRIES[entry], env, tmpdir / f"{mode}-{entry}-{i}")
+                    )
+            fig: dict[str, Any] = {"bare_interpreter_ms": spread(bare_interpreter_ms(runs, env))}
             if mode == "sources":
                 fig["checkout_has_bytecode"] = checkout_has_bytecode()
             for entry, runs_of in samples.items():
@@ -200,10 +220,13 @@ def measure(runs: int, modes: list[str], entries: list[str]) -> dict[str, Any]:
                     "processes": last["processes"],
                     "resource_tracker": any(r["resource_tracker"] for r in runs_of),
                     "dev_shm_mappings": max(r["dev_shm_mappings"] for r in runs_of),
-                    "rss_mib": {k: round(statistics.median(r["rss_kib"][k] for r in runs_of)
-                                         / 1024, 1) for k in ("daemon", "executor", "total")},
-                    "pss_mib_total": round(statistics.median(
-                        r["pss_kib_total"] for r in runs_of) / 1024, 1),
+                    "rss_mib": {
+                        k: round(statistics.median(r["rss_kib"][k] for r in runs_of) / 1024, 1)
+                        for k in ("daemon", "executor", "total")
+                    },
+                    "pss_mib_total": round(
+                        statistics.median(r["pss_kib_total"] for r in runs_of) / 1024, 1
+                    ),
                     "executor_locked_mib": round(last["executor_locked_kib"] / 1024, 1),
                     "executor_fifo": last["executor_fifo"],
                 }
@@ -213,37 +236,53 @@ def measure(runs: int, modes: list[str], entries: list[str]) -> dict[str, Any]:
 
 
 def report(result: dict[str, Any]) -> None:
-    print(f"motorctld start-up, {result['runs']} runs each ({result['python']} "
-          f"{result['python_version']}, {result['cpus']} CPUs, load "
-          f"{result['load_before']:.2f} -> {result['load_after']:.2f}):")
+    print(
+        f"motorctld start-up, {result['runs']} runs each ({result['python']} "
+        f"{result['python_version']}, {result['cpus']} CPUs, load "
+        f"{result['load_before']:.2f} -> {result['load_after']:.2f}):"
+    )
     for mode, fig in result["modes"].items():
         bare = fig["bare_interpreter_ms"]
-        print(f"  bytecode {mode}: a bare interpreter {bare['median']} ms (min {bare['min']})"
-              + ("; NOTE: the checkout has __pycache__, so this is not cold"
-                 if fig.get("checkout_has_bytecode") else ""))
+        print(
+            f"  bytecode {mode}: a bare interpreter {bare['median']} ms (min {bare['min']})"
+            + (
+                "; NOTE: the checkout has __pycache__, so this is not cold"
+                if fig.get("checkout_has_bytecode")
+                else ""
+            )
+        )
         for entry in ENTRIES:
             if entry not in fig:
                 continue
             f = fig[entry]
             r, rss = f["ready_ms"], f["rss_mib"]
-            print(f"    {entry:9s} READY median {r['median']:6.1f} ms (min {r['min']:.1f}, "
-                  f"max {r['max']:.1f}); {f['processes']} processes, resource tracker "
-                  f"{'YES' if f['resource_tracker'] else 'no'}, /dev/shm mappings "
-                  f"{f['dev_shm_mappings']}; RSS daemon {rss['daemon']} + executor "
-                  f"{rss['executor']} = {rss['total']} MiB (PSS {f['pss_mib_total']} MiB; "
-                  f"executor locks {f['executor_locked_mib']} MiB, SCHED_FIFO "
-                  f"{'yes' if f['executor_fifo'] else 'no'})")
-    print(f"  targets: READY <= {READY_TARGET_MS:.0f} ms, no resource tracker, RSS <= "
-          f"{RSS_TARGET_MIB:.0f} MiB")
+            print(
+                f"    {entry:9s} READY median {r['median']:6.1f} ms (min {r['min']:.1f}, "
+                f"max {r['max']:.1f}); {f['processes']} processes, resource tracker "
+                f"{'YES' if f['resource_tracker'] else 'no'}, /dev/shm mappings "
+                f"{f['dev_shm_mappings']}; RSS daemon {rss['daemon']} + executor "
+                f"{rss['executor']} = {rss['total']} MiB (PSS {f['pss_mib_total']} MiB; "
+                f"executor locks {f['executor_locked_mib']} MiB, SCHED_FIFO "
+                f"{'yes' if f['executor_fifo'] else 'no'})"
+            )
+    print(
+        f"  targets: READY <= {READY_TARGET_MS:.0f} ms, no resource tracker, RSS <= "
+        f"{RSS_TARGET_MIB:.0f} MiB"
+    )
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
     ap.add_argument("--runs", type=int, default=10, help="starts of each kind (default 10)")
     ap.add_argument("--bytecode", choices=("cached", "sources", "both"), default="both")
-    ap.add_argument("--entry", choices=(*ENTRIES, "both"), default="both",
-                    help="motorctld (the command), main (python -m motorctl.daemon.main)")
+    ap.add_argument(
+        "--entry",
+        choices=(*ENTRIES, "both"),
+        default="both",
+        help="motorctld (the command), main (python -m motorctl.daemon.main)",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON")
     args = ap.parse_args()
     modes = ["cached", "sources"] if args.bytecode == "both" else [args.bytecode]

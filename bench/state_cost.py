@@ -36,9 +36,11 @@ from motorctl.daemon.state import (  # noqa: E402
 
 def percentiles(samples: list[float]) -> dict[str, float]:
     s = sorted(samples)
-    return {"median_us": round(statistics.median(s) * 1e6, 1),
-            "p99_us": round(s[int(len(s) * 0.99) - 1] * 1e6, 1),
-            "max_us": round(s[-1] * 1e6, 1)}
+    return {
+        "median_us": round(statistics.median(s) * 1e6, 1),
+        "p99_us": round(s[int(len(s) * 0.99) - 1] * 1e6, 1),
+        "max_us": round(s[-1] * 1e6, 1),
+    }
 
 
 def bench_journal(where: Path, n: int) -> dict[str, float]:
@@ -56,8 +58,10 @@ def bench_journal(where: Path, n: int) -> dict[str, float]:
 
 
 def bench_state(where: Path, n: int, waypoints: int) -> dict[str, float]:
-    motors = [SavedMotor(f"m{i}", "0123456789abcdef", 1000 * i, 0, list(range(waypoints)),
-                         False, False) for i in range(3)]
+    motors = [
+        SavedMotor(f"m{i}", "0123456789abcdef", 1000 * i, 0, list(range(waypoints)), False, False)
+        for i in range(3)
+    ]
     snap = Snapshot(SavedState(motors), {})
     writer = StateWriter(where / "state.json", lambda: snap)
     samples = []

@@ -78,8 +78,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 assert d.proc is not None
                 before = d.status()["steps"]
                 cpu0 = cpu_s(d.proc.pid)
-                n, elapsed, lat, size = read_paced(d.state_dir / "status.sock", args.seconds,
-                                                   args.per_s)
+                n, elapsed, lat, size = read_paced(
+                    d.state_dir / "status.sock", args.seconds, args.per_s
+                )
                 cpu = cpu_s(d.proc.pid) - cpu0
                 after = d.status()
                 for m in range(3):
@@ -105,23 +106,29 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__,
-                                 formatter_class=argparse.RawTextHelpFormatter)
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--seconds", type=float, default=3.0, help="length of the read window")
-    ap.add_argument("--per-s", type=int, default=1000,
-                    help="target reads a second (0: back to back)")
+    ap.add_argument(
+        "--per-s", type=int, default=1000, help="target reads a second (0: back to back)"
+    )
     ap.add_argument("--rate", type=int, default=10000, help="step/s per motor")
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON (flat keys)")
     args = ap.parse_args()
     fig = measure(args)
-    print(f"status reads against a daemon ({fig['executor']} executor, 3 motors x "
-          f"{args.rate} step/s, {fig['steps_in_window']} steps in the window):")
-    print(f"  {fig['reads_per_s']} reads/s (target {args.per_s or 'back to back'}), "
-          f"per read p50 {fig['read_p50_ms']} ms, p99 {fig['read_p99_ms']} ms, "
-          f"max {fig['read_max_ms']} ms; {fig['status_bytes']} bytes a document")
-    print(f"  the daemon's process used {fig['daemon_cpu_percent']} % of a CPU meanwhile "
-          "(its threads; the process executor's own process not counted)")
+    print(
+        f"status reads against a daemon ({fig['executor']} executor, 3 motors x "
+        f"{args.rate} step/s, {fig['steps_in_window']} steps in the window):"
+    )
+    print(
+        f"  {fig['reads_per_s']} reads/s (target {args.per_s or 'back to back'}), "
+        f"per read p50 {fig['read_p50_ms']} ms, p99 {fig['read_p99_ms']} ms, "
+        f"max {fig['read_max_ms']} ms; {fig['status_bytes']} bytes a document"
+    )
+    print(
+        f"  the daemon's process used {fig['daemon_cpu_percent']} % of a CPU meanwhile "
+        "(its threads; the process executor's own process not counted)"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(fig, indent=1))
     return 0

@@ -66,13 +66,15 @@ default_decel = 500000.0
 """
 
 
-def config_text(prio: int, cpu: int, kind: str = "process", lose_steps: bool = False,
-                step_thread: str = "") -> str:
+def config_text(
+    prio: int, cpu: int, kind: str = "process", lose_steps: bool = False, step_thread: str = ""
+) -> str:
     """Three motors; ``step_thread``: more ``[step_thread]`` lines (``key = value``);
     ``lose_steps``: the executor judges lateness as for real motors (docs/timing.md)."""
     one = CONFIG.split("[[motors]]")[1]
     head = CONFIG.split("[[motors]]")[0].format(
-        prio=prio, cpu=cpu, kind=kind, lose_steps=str(lose_steps).lower(), extra=step_thread)
+        prio=prio, cpu=cpu, kind=kind, lose_steps=str(lose_steps).lower(), extra=step_thread
+    )
     return head + "".join("[[motors]]" + one.replace('"a"', f'"{n}"') for n in "abc")
 
 
@@ -98,8 +100,25 @@ def cyclictest(prio: int, period_us: int, seconds: float, cpu: int) -> dict[str,
     if exe is None:
         raise SystemExit("cyclictest not found: apt-get install rt-tests")
     out = subprocess.run(
-        [exe, "-m", "-q", "-p", str(prio), "-i", str(period_us), "-D", f"{seconds:.0f}",
-         "-h", "20000", "-a", str(cpu)], capture_output=True, text=True, check=True).stdout
+        [
+            exe,
+            "-m",
+            "-q",
+            "-p",
+            str(prio),
+            "-i",
+            str(period_us),
+            "-D",
+            f"{seconds:.0f}",
+            "-h",
+            "20000",
+            "-a",
+            str(cpu),
+        ],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     hist = {}
     for line in out.splitlines():
         parts = line.split()
@@ -158,9 +177,16 @@ def memory_kb(pid: int | None) -> dict[str, int]:
     return out
 
 
-def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: int,
-               flood_cpu: int | None, kind: str = "process",
-               status_per_s: int = 0) -> dict[str, Any]:
+def run_daemon(
+    work: Path,
+    prio: int,
+    rate_per_motor: int,
+    seconds: float,
+    cpu: int,
+    flood_cpu: int | None,
+    kind: str = "process",
+    status_per_s: int = 0,
+) -> dict[str, Any]:
     d = DaemonProcess(work, config_text(prio, cpu, kind))  # the daemon pins its executor
     d.start()
     try:
@@ -184,8 +210,9 @@ def run_daemon(work: Path, prio: int, rate_per_motor: int, seconds: float, cpu: 
             after = hist_of(status)
             assert d.proc is not None
             memory = {f"daemon_{k}": v for k, v in memory_kb(d.proc.pid).items()}
-            memory.update({f"executor_{k}": v
-                           for k, v in memory_kb(status["executor"]["pid"]).items()})
+            memory.update(
+                {f"executor_{k}": v for k, v in memory_kb(status["executor"]["pid"]).items()}
+            )
             for m in range(3):
                 c.stop(m, hard=True)
     finally:
@@ -244,13 +271,20 @@ def core_cost_us(steps: int = 30_000) -> float:
     from motorctl.motion.step_core import COUNTER_NAMES, CoreInbox, StepCore
 
     clock = VirtualClock()
-    far = mock_axis(endstop_min=-10**9, endstop_max=10**9)
+    far = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
     spec = HardwareSpec(axes=(far,) * 3, options={"timeline_len": 1000})
     hw = build(spec, clock)
     inbox = CoreInbox(3)
-    core = StepCore(build_step_io(spec, clock, hw), [AxisLimits(1e-6)] * 3, inbox,
-                    lambda e: None, positions=[0] * 3, levels=[0] * 6,
-                    counters=[0] * len(COUNTER_NAMES), stats=LatencyStats())
+    core = StepCore(
+        build_step_io(spec, clock, hw),
+        [AxisLimits(1e-6)] * 3,
+        inbox,
+        lambda e: None,
+        positions=[0] * 3,
+        levels=[0] * 6,
+        counters=[0] * len(COUNTER_NAMES),
+        stats=LatencyStats(),
+    )
     start = round(clock.now() * 1e9) + 1000
     for m in range(3):
         inbox.queues[m].append(StepSegment(start, 10_000 + 7 * m, steps // 3, 0, 1, 0))
@@ -269,11 +303,17 @@ def main() -> int:
     ap.add_argument("--cpu", type=int, default=0, help="the executor's CPU")
     ap.add_argument("--period-us", type=int, default=100, help="cyclictest interval")
     ap.add_argument("--rate", type=int, default=10000, help="step/s per motor, idle/flood/status")
-    ap.add_argument("--sweep", default="10000,20000,30000,35000,40000",
-                    help="step/s per motor to try (x3 aggregate)")
+    ap.add_argument(
+        "--sweep",
+        default="10000,20000,30000,35000,40000",
+        help="step/s per motor to try (x3 aggregate)",
+    )
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
-    ap.add_argument("--unlimited-rt", action="store_true",
-                    help="set kernel.sched_rt_runtime_us=-1 for the run (restored after)")
+    ap.add_argument(
+        "--unlimited-rt",
+        action="store_true",
+        help="set kernel.sched_rt_runtime_us=-1 for the run (restored after)",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON (flat keys)")
     args = ap.parse_args()
     if os.geteuid() != 0:
@@ -295,17 +335,23 @@ def main() -> int:
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
     kind = args.executor
-    fig: dict[str, Any] = {"executor": kind, "sched_rt_runtime_us": rt, "cpu": args.cpu,
-                           "priority": args.prio, "seconds": args.seconds,
-                           "load_average_1m": os.getloadavg()[0]}
+    fig: dict[str, Any] = {
+        "executor": kind,
+        "sched_rt_runtime_us": rt,
+        "cpu": args.cpu,
+        "priority": args.prio,
+        "seconds": args.seconds,
+        "load_average_1m": os.getloadavg()[0],
+    }
     flood_cpu = (args.cpu + 1) % (os.cpu_count() or 1)
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         ct = cyclictest(args.prio, args.period_us, args.seconds, args.cpu)
         idle = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, None, kind)
         fl = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, flood_cpu, kind)
-        stq = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, None, kind,
-                         status_per_s=1000)
+        stq = run_daemon(
+            work, args.prio, args.rate, args.seconds, args.cpu, None, kind, status_per_s=1000
+        )
         sweep = []
         best = 0
         for per_motor in (int(x) for x in args.sweep.split(",")):
@@ -340,30 +386,39 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     fig["timing_lost_in_windows"] = sum(r.get("timing_lost", 0) for r in (idle, fl, stq))
 
     def row(name: str, r: dict[str, Any]) -> str:
-        return (f"  {name:<24} p50 {r.get('p50_us', 0):7.0f}  p99 {r.get('p99_us', 0):7.0f}  "
-                f"p99.9 {r.get('p999_us', 0):7.0f}  max {r.get('max_us', 0):7.0f} us"
-                + (f"  ({r['rate_steps_per_s']} steps/s)" if "rate_steps_per_s" in r else ""))
+        return (
+            f"  {name:<24} p50 {r.get('p50_us', 0):7.0f}  p99 {r.get('p99_us', 0):7.0f}  "
+            f"p99.9 {r.get('p999_us', 0):7.0f}  max {r.get('max_us', 0):7.0f} us"
+            + (f"  ({r['rate_steps_per_s']} steps/s)" if "rate_steps_per_s" in r else "")
+        )
 
-    print(f"step-edge lateness, {kind} executor on CPU {args.cpu}, SCHED_FIFO {args.prio}, "
-          f"sched_rt_runtime_us {rt}, load average {fig['load_average_1m']:.1f}:")
+    print(
+        f"step-edge lateness, {kind} executor on CPU {args.cpu}, SCHED_FIFO {args.prio}, "
+        f"sched_rt_runtime_us {rt}, load average {fig['load_average_1m']:.1f}:"
+    )
     print(row(f"cyclictest -i {args.period_us}", ct))
     print(row(f"idle 3x{args.rate}", idle))
     print(row("under a command flood", fl) + f"  [{fig['flood_commands_per_s']} commands/s]")
     print(row("under status reads", stq) + f"  [{fig['status_reads_per_s']} reads/s]")
     for r in sweep:
-        print(row(f"sweep 3x{r['per_motor']}", r)
-              + ("" if r["within_1_5x_cyclictest"] else "  > 1.5x cyclictest"))
+        print(
+            row(f"sweep 3x{r['per_motor']}", r)
+            + ("" if r["within_1_5x_cyclictest"] else "  > 1.5x cyclictest")
+        )
     print(f"idle p99 / cyclictest p99 = {fig['idle_vs_cyclictest_p99']} (target <= 1.2)")
     print(f"flood p99 / idle p99 = {fig['flood_vs_idle_p99']} (target <= 1.5)")
     print(f"status p99 / idle p99 = {fig['status_vs_idle_p99']} (target <= 1.5)")
-    print(f"highest aggregate rate with p99 <= 1.5x cyclictest: {best} steps/s "
-          "(target >= 100000)")
-    print(f"50 ms stall at 5000 step/s: fault latched {stl['fault_latched']} ({stl['fault']!r}),"
-          f" smallest gap {stl['min_gap_us']:.1f} us (bound {stl['profile_bound_us']} us)")
+    print(f"highest aggregate rate with p99 <= 1.5x cyclictest: {best} steps/s (target >= 100000)")
+    print(
+        f"50 ms stall at 5000 step/s: fault latched {stl['fault_latched']} ({stl['fault']!r}),"
+        f" smallest gap {stl['min_gap_us']:.1f} us (bound {stl['profile_bound_us']} us)"
+    )
     print(f"step core CPU per step: {cost} us")
-    print(f"memory while 3 motors step: daemon RSS {fig['daemon_rss_kb'] / 1024:.1f} MB "
-          f"(locked {fig['daemon_locked_kb'] / 1024:.1f}), step executor RSS "
-          f"{fig['executor_rss_kb'] / 1024:.1f} MB (locked {fig['executor_locked_kb'] / 1024:.1f})")
+    print(
+        f"memory while 3 motors step: daemon RSS {fig['daemon_rss_kb'] / 1024:.1f} MB "
+        f"(locked {fig['daemon_locked_kb'] / 1024:.1f}), step executor RSS "
+        f"{fig['executor_rss_kb'] / 1024:.1f} MB (locked {fig['executor_locked_kb'] / 1024:.1f})"
+    )
     return fig
 
 

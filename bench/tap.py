@@ -71,8 +71,11 @@ def round_trips(fd: int, n: int) -> list[float]:
 
 
 def summary(times: list[float]) -> dict[str, float]:
-    return {"p50_us": round(pct(times, 50) * 1e6, 1), "p99_us": round(pct(times, 99) * 1e6, 1),
-            "max_us": round(max(times) * 1e6, 1)}
+    return {
+        "p50_us": round(pct(times, 50) * 1e6, 1),
+        "p99_us": round(pct(times, 99) * 1e6, 1),
+        "max_us": round(max(times) * 1e6, 1),
+    }
 
 
 def main() -> int:
@@ -93,10 +96,26 @@ def main() -> int:
     host_port = os.ttyname(host_slave)
     os.close(host_slave)
     out = work / f"bench-tap-{os.getpid()}.pcapng"
-    tap = subprocess.Popen([sys.executable, "-m", "motorctl.client.cli", "tap", "--host",
-                            host_port, "--device", device_port, "--out", str(out),
-                            "--baud", "115200", "--json"], stdout=subprocess.PIPE, text=True,
-                           cwd=ROOT)
+    tap = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.client.cli",
+            "tap",
+            "--host",
+            host_port,
+            "--device",
+            device_port,
+            "--out",
+            str(out),
+            "--baud",
+            "115200",
+            "--json",
+        ],
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=ROOT,
+    )
     try:
         assert tap.stdout is not None
         tap.stdout.readline()
@@ -108,8 +127,7 @@ def main() -> int:
                 tapped_t += round_trips(host, args.n)
             except OSError:
                 tap.send_signal(signal.SIGTERM)
-                raise RuntimeError(f"the tap stopped: {tap.communicate(timeout=30)[0]}") \
-                    from None
+                raise RuntimeError(f"the tap stopped: {tap.communicate(timeout=30)[0]}") from None
         tap.send_signal(signal.SIGTERM)
         report: dict[str, Any] = json.loads(tap.communicate(timeout=30)[0])
     finally:
@@ -121,8 +139,10 @@ def main() -> int:
         out.unlink(missing_ok=True)
     s, t = summary(straight_t), summary(tapped_t)
     result = {
-        "baud": 115200, "round_trips_each": len(straight_t),
-        "straight": s, "tapped": t,
+        "baud": 115200,
+        "round_trips_each": len(straight_t),
+        "straight": s,
+        "tapped": t,
         "added_p50_us": round(t["p50_us"] - s["p50_us"], 1),
         "added_p99_us": round(t["p99_us"] - s["p99_us"], 1),
         "tap_internal_delay_us": report["added_delay_us"],
@@ -130,13 +150,19 @@ def main() -> int:
     }
     print(f"IsReady-sized round trips over PTYs at 115200 baud, {len(straight_t)} each:")
     for name, r in (("straight", s), ("via tap", t)):
-        print(f"  {name:<9} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
-              f"max {r['max_us']:.0f} us")
+        print(
+            f"  {name:<9} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
+            f"max {r['max_us']:.0f} us"
+        )
     d = report["added_delay_us"]
-    print(f"  added by the tap (round trip, two crossings): p50 {result['added_p50_us']} us, "
-          f"p99 {result['added_p99_us']} us")
-    print(f"  the tap's own read-to-write delay per run: p50 {d['p50']} us, p99 {d['p99']} us,"
-          f" max {d['max']} us  (load average {result['load_avg_1min']:.2f})")
+    print(
+        f"  added by the tap (round trip, two crossings): p50 {result['added_p50_us']} us, "
+        f"p99 {result['added_p99_us']} us"
+    )
+    print(
+        f"  the tap's own read-to-write delay per run: p50 {d['p50']} us, p99 {d['p99']} us,"
+        f" max {d['max']} us  (load average {result['load_avg_1min']:.2f})"
+    )
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
     return 0

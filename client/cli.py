@@ -103,16 +103,24 @@ def build_parser() -> argparse.ArgumentParser:
     )
     parser.add_argument("--version", action="version", version=f"motorctl {__version__}")
     parser.add_argument(
-        "-p", "--port", metavar="PATH", default=os.environ.get("MOTORCTL_PORT"),
+        "-p",
+        "--port",
+        metavar="PATH",
+        default=os.environ.get("MOTORCTL_PORT"),
         help="serial port (default: $MOTORCTL_PORT)",
     )
     parser.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
     parser.add_argument(
-        "--timeout", type=_seconds, default=5.0, metavar="SECONDS",
+        "--timeout",
+        type=_seconds,
+        default=5.0,
+        metavar="SECONDS",
         help="response timeout in seconds (default 5; wait adds its TIMEOUT_MS)",
     )
     parser.add_argument(
-        "--checksum", default=CHECKSUM_DEFAULT, metavar="NAME",
+        "--checksum",
+        default=CHECKSUM_DEFAULT,
+        metavar="NAME",
         help=f"{CHECKSUM_TEXT}; default {CHECKSUM_DEFAULT}",
     )
     parser.add_argument(
@@ -125,7 +133,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     def add(name: str, help_text: str) -> argparse.ArgumentParser:
         return sub.add_parser(
-            name, help=help_text, description=help_text, epilog=_UNITS,
+            name,
+            help=help_text,
+            description=help_text,
+            epilog=_UNITS,
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
 
@@ -139,14 +150,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("position", type=_pos, metavar="POS")
     _add_ramp(p)
     p.add_argument(
-        "--dir", dest="direction", type=_updown, default=True, metavar="up|down",
+        "--dir",
+        dest="direction",
+        type=_updown,
+        default=True,
+        metavar="up|down",
         help="DIR byte (used on rotary axes only; default up)",
     )
 
     p = add("wait", "WaitMoved: wait until MOTOR is idle (E3 after TIMEOUT_MS)")
     p.add_argument("motor", type=_byte, metavar="MOTOR")
-    p.add_argument("timeout_ms", type=_u16, nargs="?", default=60000, metavar="TIMEOUT_MS",
-                   help="device-side timeout in ms (default 60000)")
+    p.add_argument(
+        "timeout_ms",
+        type=_u16,
+        nargs="?",
+        default=60000,
+        metavar="TIMEOUT_MS",
+        help="device-side timeout in ms (default 60000)",
+    )
 
     p = add("ready", "IsReady: is MOTOR idle with an empty queue?")
     p.add_argument("motor", type=_byte, metavar="MOTOR")
@@ -191,20 +212,33 @@ def build_parser() -> argparse.ArgumentParser:
     _add_ramp(q)
 
     p = add("dc", "DcMove: run the DC motor TIME_MS, then brake (default) or coast")
-    p.add_argument("direction", type=_choice({"forward": True, "reverse": False}, "direction"),
-                   metavar="forward|reverse")
+    p.add_argument(
+        "direction",
+        type=_choice({"forward": True, "reverse": False}, "direction"),
+        metavar="forward|reverse",
+    )
     p.add_argument("time_ms", type=_u16, metavar="TIME_MS", help="run time in ms (0 = stop)")
     end = p.add_mutually_exclusive_group()
-    end.add_argument("--brake", dest="hiz", action="store_false", default=False,
-                     help="end with the bridge braking (GO_HiZ FALSE, default)")
-    end.add_argument("--hiz", dest="hiz", action="store_true",
-                     help="end with the bridge in high impedance (GO_HiZ TRUE, coasting)")
+    end.add_argument(
+        "--brake",
+        dest="hiz",
+        action="store_false",
+        default=False,
+        help="end with the bridge braking (GO_HiZ FALSE, default)",
+    )
+    end.add_argument(
+        "--hiz",
+        dest="hiz",
+        action="store_true",
+        help="end with the bridge in high impedance (GO_HiZ TRUE, coasting)",
+    )
 
     tap.add_parser(sub)
     replay.add_parser(sub)
     trace.add_parser(sub)
     p = sub.add_parser(
-        "monitor", help="live view of a motorctld on this machine (its status socket)",
+        "monitor",
+        help="live view of a motorctld on this machine (its status socket)",
         description="A live view of the daemon on this machine, refreshing in the terminal "
         "(also over SSH): each motor's position, state, speed and fault, step timing, pins "
         "and the DC motor, link counters, frames/s and the last frames, the executor's "
@@ -212,18 +246,31 @@ def build_parser() -> argparse.ArgumentParser:
         "as 'motorctld --status --watch'. Needs the Python package rich (Debian: "
         "python3-rich; pip: motorctl[monitor]). Ctrl-C quits.",
     )
-    p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
-                   help="the daemon's --state-dir, where status.sock is "
-                   "(default /run/motorctl)")
-    p.add_argument("--period", type=int, default=250, metavar="MS",
-                   help="how often the daemon looks for a change (20..60000 ms, default 250)")
-    p.add_argument("--once", action="store_true",
-                   help="print the view once and exit (scripts, logs)")
+    p.add_argument(
+        "--state-dir",
+        type=Path,
+        default=Path("/run/motorctl"),
+        help="the daemon's --state-dir, where status.sock is (default /run/motorctl)",
+    )
+    p.add_argument(
+        "--period",
+        type=int,
+        default=250,
+        metavar="MS",
+        help="how often the daemon looks for a change (20..60000 ms, default 250)",
+    )
+    p.add_argument(
+        "--once", action="store_true", help="print the view once and exit (scripts, logs)"
+    )
 
     p = add("send", "send an arbitrary frame given as hex and print the decoded response")
-    p.add_argument("hex", nargs="+", metavar="HEX",
-                   help="9 bytes (checksum appended) or 10 bytes (sent as is), "
-                        'e.g. "03 00 00 00 00 00 00 00 00" or 030000000000000000')
+    p.add_argument(
+        "hex",
+        nargs="+",
+        metavar="HEX",
+        help="9 bytes (checksum appended) or 10 bytes (sent as is), "
+        'e.g. "03 00 00 00 00 00 00 00 00" or 030000000000000000',
+    )
     return parser
 
 

@@ -202,9 +202,7 @@ class Client:
         """IsReady: True when ``motor`` is idle with an empty queue."""
         return self._call(IsReady(motor)).as_bool
 
-    def move(
-        self, motor: int, direction: bool, speed: int = 0, acc: int = 0, dec: int = 0
-    ) -> None:
+    def move(self, motor: int, direction: bool, speed: int = 0, acc: int = 0, dec: int = 0) -> None:
         """Move: run ``motor`` continuously in ``direction`` until stopped."""
         self._call(Move(motor, direction, speed, acc, dec))
 

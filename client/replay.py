@@ -119,8 +119,7 @@ def plan(records: list[Record], info: CaptureInfo) -> list[Send]:
         if last_in_t is not None and framing:
             framer.idle((rec.ts_ns - last_in_t) / 1e9)
         framer.feed(rec.data)
-        sends.append(Send(rec.data, (rec.ts_ns - first) / 1e9, out_bytes // RESPONSE_LEN,
-                          framing))
+        sends.append(Send(rec.data, (rec.ts_ns - first) / 1e9, out_bytes // RESPONSE_LEN, framing))
         last_in_t = rec.ts_ns
     return sends
 
@@ -135,8 +134,9 @@ class ReplayAborted(Exception):
 class Player:
     """Writes the plan to ``fd`` and collects what comes back, with times."""
 
-    def __init__(self, fd: int, fast: bool, answer_timeout: float,
-                 rtts: list[float | None]) -> None:
+    def __init__(
+        self, fd: int, fast: bool, answer_timeout: float, rtts: list[float | None]
+    ) -> None:
         self.fd = fd
         self.fast = fast
         self.answer_timeout = answer_timeout
@@ -182,8 +182,9 @@ class Player:
             rtt = self.rtts[k] if k < len(self.rtts) and self.rtts[k] is not None else 0.0
             deadline = max(sent, self._last_progress) + (rtt or 0.0) + self.answer_timeout
             if not self._read(deadline) and time.monotonic() >= deadline:
-                raise ReplayAborted(f"no answer to frame #{k + 1} within "
-                                    f"{deadline - sent:.1f} s of sending it")
+                raise ReplayAborted(
+                    f"no answer to frame #{k + 1} within {deadline - sent:.1f} s of sending it"
+                )
             self._last_progress = time.monotonic()
 
     def play(self, sends: list[Send], expected_answers: int) -> str | None:
@@ -264,9 +265,10 @@ class Verdict:
     why: str = ""
 
     def line(self) -> str:
-        return (f"frame #{self.frame} at {self.t_s:.6f} s {self.command}: recorded "
-                f"{self.recorded}, replayed {self.replayed}"
-                + (f" ({self.why})" if self.why else ""))
+        return (
+            f"frame #{self.frame} at {self.t_s:.6f} s {self.command}: recorded "
+            f"{self.recorded}, replayed {self.replayed}" + (f" ({self.why})" if self.why else "")
+        )
 
 
 @dataclass
@@ -322,8 +324,11 @@ def history(conv: Conversation) -> MotorHistory:
             if isinstance(cmd, MoveTo):
                 episode.positions.append(cmd.position)
                 episode.target = cmd.position
-        elif (isinstance(cmd, StopMove) and cmd.hard) or isinstance(cmd, WaitMoved) \
-                or (isinstance(cmd, IsReady) and resp.as_bool):
+        elif (
+            (isinstance(cmd, StopMove) and cmd.hard)
+            or isinstance(cmd, WaitMoved)
+            or (isinstance(cmd, IsReady) and resp.as_bool)
+        ):
             _end(current, last_pos, motor)
     return h
 
@@ -357,23 +362,38 @@ def compare(rec: Conversation, rep: Conversation, tol: Tolerances, t0: int) -> l
     out: list[Verdict] = []
     rep_frames = {f.number: f for f in rep.frames}
     for f in rec.frames:
-        name = describe(f.command) if f.command is not None else \
-            f"bad frame {f.data.hex(' ')}"
+        name = describe(f.command) if f.command is not None else f"bad frame {f.data.hex(' ')}"
         t_s = (f.t_ns - t0) / 1e9
         a = f.answer
         g = rep_frames.get(f.number)
         b = g.answer if g is not None else None
         if a is None:
-            out.append(Verdict(f.number, t_s, name, "no answer (the recording ends)",
-                               _show(b, f), "not compared"))
+            out.append(
+                Verdict(
+                    f.number,
+                    t_s,
+                    name,
+                    "no answer (the recording ends)",
+                    _show(b, f),
+                    "not compared",
+                )
+            )
             continue
         if b is None:
             out.append(Verdict(f.number, t_s, name, _show(a, f), "no answer", "differs"))
             continue
         out.append(_judge(f, a, b, h, tol, t_s, name))
-    for g in rep.frames[len(rec.frames):]:
-        out.append(Verdict(g.number, 0.0, describe(g.command) if g.command else "bad frame",
-                           "not in the recording", _show(g.answer, g), "differs"))
+    for g in rep.frames[len(rec.frames) :]:
+        out.append(
+            Verdict(
+                g.number,
+                0.0,
+                describe(g.command) if g.command else "bad frame",
+                "not in the recording",
+                _show(g.answer, g),
+                "differs",
+            )
+        )
     return out
 
 
@@ -384,24 +404,38 @@ def _show(row: Row | None, f: Frame | None) -> str:
     return f"{row.data.hex(' ')} ({text})"
 
 
-def _judge(f: Frame, a: Row, b: Row, h: MotorHistory, tol: Tolerances, t_s: float,
-           name: str) -> Verdict:
+def _judge(
+    f: Frame, a: Row, b: Row, h: MotorHistory, tol: Tolerances, t_s: float, name: str
+) -> Verdict:
     cmd = f.command
     v = Verdict(f.number, t_s, name, _show(a, f), _show(b, f), "exact")
     if a.data == b.data:
-        if isinstance(cmd, WaitMoved) and not tol.fast and a.rtt_ns is not None \
-                and b.rtt_ns is not None:
+        if (
+            isinstance(cmd, WaitMoved)
+            and not tol.fast
+            and a.rtt_ns is not None
+            and b.rtt_ns is not None
+        ):
             allowed = tol.time_s + WAIT_RELATIVE * a.rtt_ns / 1e9
             diff = abs(b.rtt_ns - a.rtt_ns) / 1e9
             v.recorded += f" after {a.rtt_ns / 1e9:.3f} s"
             v.replayed += f" after {b.rtt_ns / 1e9:.3f} s"
             if diff > allowed:
-                v.result, v.why = "differs", f"held {diff * 1000:.0f} ms longer or shorter " \
-                    f"than recorded; tolerance {allowed * 1000:.0f} ms"
+                v.result, v.why = (
+                    "differs",
+                    f"held {diff * 1000:.0f} ms longer or shorter "
+                    f"than recorded; tolerance {allowed * 1000:.0f} ms",
+                )
         return v
     episode = h.moving.get(f.number)
-    both_ack = a.kind == ANSWER and b.kind == ANSWER and a.response is not None \
-        and b.response is not None and a.response.ack and b.response.ack
+    both_ack = (
+        a.kind == ANSWER
+        and b.kind == ANSWER
+        and a.response is not None
+        and b.response is not None
+        and a.response.ack
+        and b.response.ack
+    )
     if isinstance(cmd, GetAbsPos) and episode is not None and both_ack:
         assert a.response is not None and b.response is not None
         pa, pb = a.response.as_position, b.response.as_position
@@ -419,22 +453,32 @@ def _judge(f: Frame, a: Row, b: Row, h: MotorHistory, tol: Tolerances, t_s: floa
                 else:
                     hi = POS_MAX
             if lo <= pb <= hi:
-                v.result, v.why = "tolerated", f"moving: within {lo}..{hi}, the positions " \
-                    "that motion covered in the recording (--fast keeps no timing)"
+                v.result, v.why = (
+                    "tolerated",
+                    f"moving: within {lo}..{hi}, the positions "
+                    "that motion covered in the recording (--fast keeps no timing)",
+                )
             else:
-                v.result, v.why = "differs", f"moving, but outside {lo}..{hi}, the " \
-                    "positions that motion covered in the recording"
+                v.result, v.why = (
+                    "differs",
+                    f"moving, but outside {lo}..{hi}, the "
+                    "positions that motion covered in the recording",
+                )
             return v
         speed = _speed_around(reads, a.t_ns)
         allowed = tol.position + speed * tol.time_s
         if abs(pb - pa) <= allowed:
             v.result = "tolerated"
-            v.why = f"moving at about {speed:.0f} step/s: {abs(pb - pa)} steps off, " \
+            v.why = (
+                f"moving at about {speed:.0f} step/s: {abs(pb - pa)} steps off, "
                 f"tolerance {allowed:.0f}"
+            )
         else:
             v.result = "differs"
-            v.why = f"moving at about {speed:.0f} step/s: {abs(pb - pa)} steps off, more " \
+            v.why = (
+                f"moving at about {speed:.0f} step/s: {abs(pb - pa)} steps off, more "
                 f"than the tolerance {allowed:.0f}"
+            )
         return v
     if isinstance(cmd, IsReady) and episode is not None and both_ack:
         readies = h.ready.get(cmd.motor, [])
@@ -443,9 +487,12 @@ def _judge(f: Frame, a: Row, b: Row, h: MotorHistory, tol: Tolerances, t_s: floa
         near = any(val != mine and abs(t - a.t_ns) / 1e9 <= tol.time_s for t, val in readies)
         if tol.fast or near:
             v.result = "tolerated"
-            v.why = "the motor was moving: timing (the recorded answers change within " \
-                f"{tol.time_s * 1000:.0f} ms)" if not tol.fast else \
-                "the motor was moving: timing (--fast keeps no timing)"
+            v.why = (
+                "the motor was moving: timing (the recorded answers change within "
+                f"{tol.time_s * 1000:.0f} ms)"
+                if not tol.fast
+                else "the motor was moving: timing (--fast keeps no timing)"
+            )
             return v
     v.result = "differs"
     return v
@@ -456,27 +503,55 @@ def _judge(f: Frame, a: Row, b: Row, h: MotorHistory, tol: Tolerances, t_s: floa
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
-        "replay", help="play a recording's host side against a device and compare answers",
+        "replay",
+        help="play a recording's host side against a device and compare answers",
         description="Send the host -> device bytes of a trace file (motorctld --trace, "
         "motorctl tap) to a device as recorded, with the recorded pauses or --fast, and "
         "compare every answer with the recorded one: byte for byte, except positions read "
         "while a motor moved, IsReady of a moving motor and how long WaitMoved was held, "
         "which are compared within the tolerances (docs/trace.md). Prints a diff report; "
-        "exit status 0 when every answer matches, 1 on a difference, 2 on an error.")
+        "exit status 0 when every answer matches, 1 on a difference, 2 on an error.",
+    )
     p.add_argument("files", nargs="+", type=Path, metavar="FILE")
-    p.add_argument("-p", "--port", default=argparse.SUPPRESS, metavar="PATH",
-                   help="the device's port (default: $MOTORCTL_PORT)")
-    p.add_argument("--fast", action="store_true",
-                   help="no pauses: each run goes as soon as the answers it waited for came")
-    p.add_argument("--time-tolerance-ms", type=float, default=TIME_TOLERANCE_S * 1000,
-                   metavar="MS", help="timing tolerance (default 50)")
-    p.add_argument("--position-tolerance", type=int, default=POSITION_TOLERANCE,
-                   metavar="STEPS", help="position tolerance of moving motors (default 2)")
-    p.add_argument("--answer-timeout", type=float, default=ANSWER_TIMEOUT_S, metavar="S",
-                   help="an answer later than recorded by this much ends the replay "
-                   "(default 5)")
-    p.add_argument("-v", "--verbose", action="store_true",
-                   help="also list the answers matched within a tolerance")
+    p.add_argument(
+        "-p",
+        "--port",
+        default=argparse.SUPPRESS,
+        metavar="PATH",
+        help="the device's port (default: $MOTORCTL_PORT)",
+    )
+    p.add_argument(
+        "--fast",
+        action="store_true",
+        help="no pauses: each run goes as soon as the answers it waited for came",
+    )
+    p.add_argument(
+        "--time-tolerance-ms",
+        type=float,
+        default=TIME_TOLERANCE_S * 1000,
+        metavar="MS",
+        help="timing tolerance (default 50)",
+    )
+    p.add_argument(
+        "--position-tolerance",
+        type=int,
+        default=POSITION_TOLERANCE,
+        metavar="STEPS",
+        help="position tolerance of moving motors (default 2)",
+    )
+    p.add_argument(
+        "--answer-timeout",
+        type=float,
+        default=ANSWER_TIMEOUT_S,
+        metavar="S",
+        help="an answer later than recorded by this much ends the replay (default 5)",
+    )
+    p.add_argument(
+        "-v",
+        "--verbose",
+        action="store_true",
+        help="also list the answers matched within a tolerance",
+    )
     p.add_argument("--json", action="store_true", help="the report as JSON")
     add_settings_options(p)
 
@@ -493,8 +568,10 @@ def run(args: argparse.Namespace) -> int:
         return 2
     recorded = analyse(cap.records, info)
     sends = plan(cap.records, info)
-    rtts: list[float | None] = [None if f.answer is None or f.answer.rtt_ns is None
-                                else f.answer.rtt_ns / 1e9 for f in recorded.frames]
+    rtts: list[float | None] = [
+        None if f.answer is None or f.answer.rtt_ns is None else f.answer.rtt_ns / 1e9
+        for f in recorded.frames
+    ]
     expected = sum(1 for f in recorded.frames if f.answer is not None)
     try:
         port = serial.Serial(args.port, args.baud, timeout=0, exclusive=True)
@@ -517,13 +594,24 @@ def run(args: argparse.Namespace) -> int:
     exact = sum(1 for v in verdicts if v.result == "exact")
     failed = bool(differs or extra or aborted)
     if args.json:
-        doc = {"file": [str(f) for f in args.files], "port": args.port, "fast": args.fast,
-               "tolerances": {"time_ms": tol.time_s * 1000, "position_steps": tol.position,
-                              "wait_relative": WAIT_RELATIVE},
-               "frames": len(recorded.frames), "exact": exact, "tolerated": len(tolerated),
-               "differs": len(differs), "extra_answers": len(extra), "aborted": aborted,
-               "verdicts": [v.__dict__ for v in verdicts if v.result != "exact"],
-               "ok": not failed}
+        doc = {
+            "file": [str(f) for f in args.files],
+            "port": args.port,
+            "fast": args.fast,
+            "tolerances": {
+                "time_ms": tol.time_s * 1000,
+                "position_steps": tol.position,
+                "wait_relative": WAIT_RELATIVE,
+            },
+            "frames": len(recorded.frames),
+            "exact": exact,
+            "tolerated": len(tolerated),
+            "differs": len(differs),
+            "extra_answers": len(extra),
+            "aborted": aborted,
+            "verdicts": [v.__dict__ for v in verdicts if v.result != "exact"],
+            "ok": not failed,
+        }
         print(json.dumps(doc, indent=1))
         return 1 if failed else 0
     for v in verdicts:
@@ -535,8 +623,10 @@ def run(args: argparse.Namespace) -> int:
         print(f"DIFF  an answer more than the recording had: {r.data.hex(' ')}")
     if aborted:
         print(f"DIFF  replay stopped: {aborted}")
-    print(f"replay of {len(recorded.frames)} frames against {args.port}"
-          f"{' (--fast)' if args.fast else ''}: {exact} answers byte-exact, {len(tolerated)} "
-          f"within tolerance, {len(differs) + len(extra) + (1 if aborted else 0)} differ"
-          + ("" if failed else ": no difference"))
+    print(
+        f"replay of {len(recorded.frames)} frames against {args.port}"
+        f"{' (--fast)' if args.fast else ''}: {exact} answers byte-exact, {len(tolerated)} "
+        f"within tolerance, {len(differs) + len(extra) + (1 if aborted else 0)} differ"
+        + ("" if failed else ": no difference")
+    )
     return 1 if failed else 0

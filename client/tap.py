@@ -45,12 +45,20 @@ class TapError(Exception):
 
 def open_port(path: str, args: argparse.Namespace, what: str) -> Any:
     try:
-        return serial.Serial(path, args.baud, bytesize=args.bytesize, parity=args.parity,
-                             stopbits=args.stopbits, timeout=0, exclusive=True)
+        return serial.Serial(
+            path,
+            args.baud,
+            bytesize=args.bytesize,
+            parity=args.parity,
+            stopbits=args.stopbits,
+            timeout=0,
+            exclusive=True,
+        )
     except (serial.SerialException, ValueError, OSError) as exc:
-        raise TapError(f"cannot open the {what} port {path}: {exc}; check the path, that "
-                       "nothing else holds it, and that you may use it (group dialout)") \
-            from None
+        raise TapError(
+            f"cannot open the {what} port {path}: {exc}; check the path, that "
+            "nothing else holds it, and that you may use it (group dialout)"
+        ) from None
 
 
 class Tap:
@@ -58,8 +66,14 @@ class Tap:
 
     ``host_fd``/``device_fd`` are non-blocking; ``out`` receives the trace (header first)."""
 
-    def __init__(self, host_fd: int, device_fd: int, out: BinaryIO, info: CaptureInfo,
-                 clock: Any = time.monotonic) -> None:
+    def __init__(
+        self,
+        host_fd: int,
+        device_fd: int,
+        out: BinaryIO,
+        info: CaptureInfo,
+        clock: Any = time.monotonic,
+    ) -> None:
         self.fds = {host_fd: Direction.TO_DEVICE, device_fd: Direction.TO_HOST}
         for fd in self.fds:
             os.set_blocking(fd, False)
@@ -182,8 +196,12 @@ class Tap:
             "runs_to_host": self.runs[Direction.TO_HOST],
             "bytes_to_device": self.bytes[Direction.TO_DEVICE],
             "bytes_to_host": self.bytes[Direction.TO_HOST],
-            "added_delay_us": {"p50": pct(50), "p99": pct(99), "max": pct(100),
-                               "mean": round(statistics.mean(d) / 1e3, 1) if d else 0.0},
+            "added_delay_us": {
+                "p50": pct(50),
+                "p99": pct(99),
+                "max": pct(100),
+                "mean": round(statistics.mean(d) / 1e3, 1) if d else 0.0,
+            },
             "queued_max_bytes": self.queued_max,
             "stopped_by": self.closed_by or "signal",
         }
@@ -191,36 +209,64 @@ class Tap:
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
-        "tap", help="forward between a host and a device port, recording both directions",
+        "tap",
+        help="forward between a host and a device port, recording both directions",
         description="Open two serial ports, forward every byte both ways unchanged and at "
         "once, and record each byte run with a monotonic timestamp and its direction to "
         "FILE (pcapng, the format of motorctld --trace; read it with 'motorctl trace FILE', "
         "replay it with 'motorctl replay FILE'). Stops on SIGINT/SIGTERM or when a port "
-        "closes; then prints what passed and the delay the tap added. docs/trace.md.")
-    p.add_argument("--host", required=True, metavar="PORT",
-                   help="the port the host is connected to")
-    p.add_argument("--device", required=True, metavar="PORT",
-                   help="the port the device (the original microcontroller) is on")
+        "closes; then prints what passed and the delay the tap added. docs/trace.md.",
+    )
+    p.add_argument(
+        "--host", required=True, metavar="PORT", help="the port the host is connected to"
+    )
+    p.add_argument(
+        "--device",
+        required=True,
+        metavar="PORT",
+        help="the port the device (the original microcontroller) is on",
+    )
     p.add_argument("--out", required=True, type=Path, metavar="FILE", help="the recording")
-    p.add_argument("--baud", type=int, default=argparse.SUPPRESS,
-                   help="baud rate of both ports (default 115200)")
-    p.add_argument("--parity", default="N", choices=["N", "E", "O", "M", "S"],
-                   help="parity of both ports (default N)")
+    p.add_argument(
+        "--baud",
+        type=int,
+        default=argparse.SUPPRESS,
+        help="baud rate of both ports (default 115200)",
+    )
+    p.add_argument(
+        "--parity",
+        default="N",
+        choices=["N", "E", "O", "M", "S"],
+        help="parity of both ports (default N)",
+    )
     p.add_argument("--bytesize", type=int, default=8, choices=[5, 6, 7, 8])
     p.add_argument("--stopbits", type=float, default=1, choices=[1, 1.5, 2])
-    p.add_argument("--checksum", default=argparse.SUPPRESS, metavar="NAME",
-                   help="the link's checksum, written into the recording for the reader "
-                   f"(default {CHECKSUM_DEFAULT})")
-    p.add_argument("--frame-gap-ms", type=float, default=10.0, metavar="MS",
-                   help="the device's frame gap, written into the recording (default 10)")
+    p.add_argument(
+        "--checksum",
+        default=argparse.SUPPRESS,
+        metavar="NAME",
+        help="the link's checksum, written into the recording for the reader "
+        f"(default {CHECKSUM_DEFAULT})",
+    )
+    p.add_argument(
+        "--frame-gap-ms",
+        type=float,
+        default=10.0,
+        metavar="MS",
+        help="the device's frame gap, written into the recording (default 10)",
+    )
     p.add_argument("--json", action="store_true", help="print the final report as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
-    info = CaptureInfo(role="tap", checksum=args.checksum,
-                       crc_covers_ack=args.crc_covers_ack, frame_gap_ms=args.frame_gap_ms,
-                       port=f"host {args.host} <-> device {args.device}",
-                       application=f"motorctl tap {__version__}")
+    info = CaptureInfo(
+        role="tap",
+        checksum=args.checksum,
+        crc_covers_ack=args.crc_covers_ack,
+        frame_gap_ms=args.frame_gap_ms,
+        port=f"host {args.host} <-> device {args.device}",
+        application=f"motorctl tap {__version__}",
+    )
     try:
         info.codec_options()
     except ValueError as exc:
@@ -248,8 +294,11 @@ def run(args: argparse.Namespace) -> int:
         tap.stop()
 
     old = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
-    print(f"motorctl tap: forwarding {args.host} (host) <-> {args.device} (device), "
-          f"recording to {args.out}; Ctrl-C stops", flush=True)
+    print(
+        f"motorctl tap: forwarding {args.host} (host) <-> {args.device} (device), "
+        f"recording to {args.out}; Ctrl-C stops",
+        flush=True,
+    )
     try:
         tap.serve()
     finally:
@@ -266,9 +315,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(rep, indent=1))
     else:
         d = rep["added_delay_us"]
-        print(f"motorctl tap: stopped ({rep['stopped_by']}); host -> device "
-              f"{rep['bytes_to_device']} bytes in {rep['runs_to_device']} runs, device -> "
-              f"host {rep['bytes_to_host']} bytes in {rep['runs_to_host']} runs; added "
-              f"delay (read to written) p50 {d['p50']} us, p99 {d['p99']} us, max {d['max']} "
-              f"us; recorded in {args.out}")
+        print(
+            f"motorctl tap: stopped ({rep['stopped_by']}); host -> device "
+            f"{rep['bytes_to_device']} bytes in {rep['runs_to_device']} runs, device -> "
+            f"host {rep['bytes_to_host']} bytes in {rep['runs_to_host']} runs; added "
+            f"delay (read to written) p50 {d['p50']} us, p99 {d['p99']} us, max {d['max']} "
+            f"us; recorded in {args.out}"
+        )
     return 0

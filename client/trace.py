@@ -139,8 +139,11 @@ def answer_text(cmd: Command | None, resp: Response) -> str:
     """What an answer says, for the command it answers: "ready", "pos=1200", "E3 ..."."""
     if not resp.ack:
         code = resp.error_code
-        return f"{code.short} {code.label}" if code is not None else \
-            f"error 0x{resp.payload[0]:02x} (unknown code)"
+        return (
+            f"{code.short} {code.label}"
+            if code is not None
+            else f"error 0x{resp.payload[0]:02x} (unknown code)"
+        )
     if isinstance(cmd, IsReady):
         return "ready" if resp.as_bool else "busy"
     if isinstance(cmd, GetAbsPos):
@@ -165,19 +168,32 @@ def analyse(records: Sequence[Record], info: CaptureInfo) -> Conversation:
     for rec in records:
         if rec.dropped:
             conv.lost_runs += rec.dropped
-            conv.rows.append(Row(rec.ts_ns, rec.direction, LOST, b"",
-                                 f"{rec.dropped} byte runs left out here (the trace writer "
-                                 "fell behind): frames and answers may pair wrongly after "
-                                 "this"))
+            conv.rows.append(
+                Row(
+                    rec.ts_ns,
+                    rec.direction,
+                    LOST,
+                    b"",
+                    f"{rec.dropped} byte runs left out here (the trace writer "
+                    "fell behind): frames and answers may pair wrongly after "
+                    "this",
+                )
+            )
         if rec.direction is Direction.TO_DEVICE:
             if last_in is not None and framer.pending:
                 silence = (rec.ts_ns - last_in) / 1e9
                 if framer.idle(silence):
-                    conv.rows.append(Row(
-                        rec.ts_ns, Direction.TO_DEVICE, GAP, bytes(pending),
-                        f"partial frame dropped: {len(pending)} of {FRAME_LEN} bytes, then "
-                        f"{silence * 1000:.1f} ms of silence (> frame_gap_ms "
-                        f"{info.frame_gap_ms:g}); no answer"))
+                    conv.rows.append(
+                        Row(
+                            rec.ts_ns,
+                            Direction.TO_DEVICE,
+                            GAP,
+                            bytes(pending),
+                            f"partial frame dropped: {len(pending)} of {FRAME_LEN} bytes, then "
+                            f"{silence * 1000:.1f} ms of silence (> frame_gap_ms "
+                            f"{info.frame_gap_ms:g}); no answer",
+                        )
+                    )
                     pending.clear()
             last_in = rec.ts_ns
             frames = framer.feed(rec.data)
@@ -189,14 +205,31 @@ def analyse(records: Sequence[Record], info: CaptureInfo) -> Conversation:
                 waiting.append(frame)
                 if frame.command is not None:
                     text = f"#{frame.number} {describe(frame.command)}"
-                    conv.rows.append(Row(rec.ts_ns, rec.direction, COMMAND, data, text,
-                                         frame.number, frame.command))
+                    conv.rows.append(
+                        Row(
+                            rec.ts_ns,
+                            rec.direction,
+                            COMMAND,
+                            data,
+                            text,
+                            frame.number,
+                            frame.command,
+                        )
+                    )
                 else:
                     assert frame.error is not None
-                    conv.rows.append(Row(rec.ts_ns, rec.direction, BAD_FRAME, data,
-                                         f"#{frame.number} frame error ({frame.error.reason}):"
-                                         f" {frame.error}; E1 expected", frame.number,
-                                         error=frame.error.reason))
+                    conv.rows.append(
+                        Row(
+                            rec.ts_ns,
+                            rec.direction,
+                            BAD_FRAME,
+                            data,
+                            f"#{frame.number} frame error ({frame.error.reason}):"
+                            f" {frame.error}; E1 expected",
+                            frame.number,
+                            error=frame.error.reason,
+                        )
+                    )
         else:
             out_buf += rec.data
             while len(out_buf) >= RESPONSE_LEN:
@@ -220,20 +253,42 @@ def _frame(number: int, t_ns: int, data: bytes, opts: CodecOptions) -> Frame:
 
 def _answer(t_ns: int, data: bytes, frame: Frame | None, opts: CodecOptions) -> Row:
     if frame is None:
-        return Row(t_ns, Direction.TO_HOST, EXTRA, data,
-                   "answer with no frame to answer (the device sent more answers than it "
-                   "got complete frames)")
+        return Row(
+            t_ns,
+            Direction.TO_HOST,
+            EXTRA,
+            data,
+            "answer with no frame to answer (the device sent more answers than it "
+            "got complete frames)",
+        )
     rtt = t_ns - frame.t_ns
     try:
         resp = decode_response(data, opts)
     except ResponseError as exc:
-        row = Row(t_ns, Direction.TO_HOST, BAD_ANSWER, data, f"#{frame.number} bad answer: "
-                  f"{exc}", frame.number, frame.command, rtt_ns=rtt)
+        row = Row(
+            t_ns,
+            Direction.TO_HOST,
+            BAD_ANSWER,
+            data,
+            f"#{frame.number} bad answer: {exc}",
+            frame.number,
+            frame.command,
+            rtt_ns=rtt,
+        )
     else:
         code = resp.error_code
-        row = Row(t_ns, Direction.TO_HOST, ANSWER, data,
-                  f"#{frame.number} {answer_text(frame.command, resp)}", frame.number,
-                  frame.command, resp, code.short if code is not None else None, rtt)
+        row = Row(
+            t_ns,
+            Direction.TO_HOST,
+            ANSWER,
+            data,
+            f"#{frame.number} {answer_text(frame.command, resp)}",
+            frame.number,
+            frame.command,
+            resp,
+            code.short if code is not None else None,
+            rtt,
+        )
     frame.answer = row
     return row
 
@@ -271,46 +326,67 @@ def summary(conv: Conversation) -> dict[str, Any]:
         "partial_frame_at_end": conv.partial_in.hex(" "),
         "partial_answer_at_end": conv.partial_out.hex(" "),
         "errors": errors,
-        "rtt_us": {name: {"n": len(v), "p50": round(_pct(v, 50) / 1e3, 1),
-                          "p99": round(_pct(v, 99) / 1e3, 1), "max": round(max(v) / 1e3, 1)}
-                   for name, v in sorted(rtts.items())},
+        "rtt_us": {
+            name: {
+                "n": len(v),
+                "p50": round(_pct(v, 50) / 1e3, 1),
+                "p99": round(_pct(v, 99) / 1e3, 1),
+                "max": round(max(v) / 1e3, 1),
+            }
+            for name, v in sorted(rtts.items())
+        },
     }
 
 
 def row_json(row: Row, t0: int) -> dict[str, Any]:
-    return {"t": round((row.t_ns - t0) / 1e9, 9), "ts_ns": row.t_ns,
-            "dir": "to_device" if row.direction is Direction.TO_DEVICE else "to_host",
-            "kind": row.kind, "bytes": row.data.hex(" "), "text": row.text,
-            "frame": row.frame, "error": row.error,
-            "rtt_us": None if row.rtt_ns is None else round(row.rtt_ns / 1e3, 1)}
+    return {
+        "t": round((row.t_ns - t0) / 1e9, 9),
+        "ts_ns": row.t_ns,
+        "dir": "to_device" if row.direction is Direction.TO_DEVICE else "to_host",
+        "kind": row.kind,
+        "bytes": row.data.hex(" "),
+        "text": row.text,
+        "frame": row.frame,
+        "error": row.error,
+        "rtt_us": None if row.rtt_ns is None else round(row.rtt_ns / 1e3, 1),
+    }
 
 
 def info_json(info: CaptureInfo) -> dict[str, Any]:
-    return {"role": info.role, "checksum": info.checksum, "crc_covers_ack":
-            info.crc_covers_ack, "strict_padding": info.strict_padding,
-            "frame_gap_ms": info.frame_gap_ms, "port": info.port,
-            "application": info.application}
+    return {
+        "role": info.role,
+        "checksum": info.checksum,
+        "crc_covers_ack": info.crc_covers_ack,
+        "strict_padding": info.strict_padding,
+        "frame_gap_ms": info.frame_gap_ms,
+        "port": info.port,
+        "application": info.application,
+    }
 
 
-def print_table(conv: Conversation, info: CaptureInfo, problems: list[str],
-                t0: int) -> None:
-    print(f"# {info.role} trace of {info.port or 'an unnamed port'} ({info.application}); "
-          f"checksum {info.checksum}, frame_gap_ms {info.frame_gap_ms:g}")
+def print_table(conv: Conversation, info: CaptureInfo, problems: list[str], t0: int) -> None:
+    print(
+        f"# {info.role} trace of {info.port or 'an unnamed port'} ({info.application}); "
+        f"checksum {info.checksum}, frame_gap_ms {info.frame_gap_ms:g}"
+    )
     print(f"{'time s':>12}  dir  {'bytes':<29}  {'rtt':>10}  decoded")
     for row in conv.rows:
         rtt = "" if row.rtt_ns is None else _duration(row.rtt_ns)
         arrow = row.direction.arrow if row.kind != LOST else "!!"
-        print(f"{(row.t_ns - t0) / 1e9:12.6f}  {arrow:<3}  {row.data.hex(' '):<29}  "
-              f"{rtt:>10}  {row.text}")
+        print(
+            f"{(row.t_ns - t0) / 1e9:12.6f}  {arrow:<3}  {row.data.hex(' '):<29}  "
+            f"{rtt:>10}  {row.text}"
+        )
     s = summary(conv)
-    print(f"# {s['frames']} frames ({s['frame_errors']} frame errors), {s['answers']} "
-          f"answers, {s['gap_discards']} partial frames dropped by the gap rule, "
-          f"{len(s['unanswered'])} unanswered, {s['extra_answers']} extra answers")
+    print(
+        f"# {s['frames']} frames ({s['frame_errors']} frame errors), {s['answers']} "
+        f"answers, {s['gap_discards']} partial frames dropped by the gap rule, "
+        f"{len(s['unanswered'])} unanswered, {s['extra_answers']} extra answers"
+    )
     if s["errors"]:
         print("# error answers: " + ", ".join(f"{k}: {v}" for k, v in s["errors"].items()))
     for name, r in s["rtt_us"].items():
-        print(f"# rtt {name}: n {r['n']}  p50 {r['p50']} us  p99 {r['p99']} us  "
-              f"max {r['max']} us")
+        print(f"# rtt {name}: n {r['n']}  p50 {r['p50']} us  p99 {r['p99']} us  max {r['max']} us")
     if conv.partial_in:
         print(f"# at the end: an incomplete frame ({conv.partial_in.hex(' ')})")
     if conv.partial_out:
@@ -325,8 +401,9 @@ def _duration(ns: int) -> str:
     return f"{ns / 1e3:.0f} us"
 
 
-def settings(cap: Capture, checksum: str | None, frame_gap_ms: float | None,
-             crc_covers_ack: bool) -> CaptureInfo:
+def settings(
+    cap: Capture, checksum: str | None, frame_gap_ms: float | None, crc_covers_ack: bool
+) -> CaptureInfo:
     """The recording's settings, with what the command line overrides; ValueError for a bad
     checksum name."""
     info = cap.info or CaptureInfo(role="unknown")
@@ -341,20 +418,35 @@ def settings(cap: Capture, checksum: str | None, frame_gap_ms: float | None,
 
 
 def add_settings_options(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--frame-gap-ms", type=float, metavar="MS",
-                   help="frame gap to cut frames with (default: the recording's)")
-    p.add_argument("--trace-checksum", metavar="NAME", dest="trace_checksum",
-                   help="checksum to decode with (default: the recording's)")
+    p.add_argument(
+        "--frame-gap-ms",
+        type=float,
+        metavar="MS",
+        help="frame gap to cut frames with (default: the recording's)",
+    )
+    p.add_argument(
+        "--trace-checksum",
+        metavar="NAME",
+        dest="trace_checksum",
+        help="checksum to decode with (default: the recording's)",
+    )
 
 
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
-        "trace", help="print a trace file (motorctld --trace, motorctl tap) frame by frame",
+        "trace",
+        help="print a trace file (motorctld --trace, motorctl tap) frame by frame",
         description="Print a recorded conversation: time, direction, raw bytes, the decoded "
         "command or answer (error codes by name), frame errors, partial frames the gap rule "
-        "dropped, and each command's round-trip time. docs/trace.md.")
-    p.add_argument("files", nargs="+", type=Path, metavar="FILE",
-                   help="trace files (rotated parts FILE.1 FILE ... in any order)")
+        "dropped, and each command's round-trip time. docs/trace.md.",
+    )
+    p.add_argument(
+        "files",
+        nargs="+",
+        type=Path,
+        metavar="FILE",
+        help="trace files (rotated parts FILE.1 FILE ... in any order)",
+    )
     p.add_argument("--json", action="store_true", help="one JSON document for tools")
     add_settings_options(p)
 
@@ -375,9 +467,13 @@ def run(args: argparse.Namespace) -> int:
     if cap.info is None:
         problems.append("no motorctl header: decoded with the default settings")
     if args.json:
-        doc = {"info": info_json(info), "t0_ns": t0,
-               "rows": [row_json(r, t0) for r in conv.rows], "summary": summary(conv),
-               "problems": problems}
+        doc = {
+            "info": info_json(info),
+            "t0_ns": t0,
+            "rows": [row_json(r, t0) for r in conv.rows],
+            "summary": summary(conv),
+            "problems": problems,
+        }
         json.dump(doc, sys.stdout, indent=1)
         print()
     else:

@@ -132,9 +132,12 @@ def known_microsteps(m: MotorConfig) -> int | None:
 def motor_geometry(config: Config, m: MotorConfig) -> dict[str, object]:
     """What gives a motor's saved positions their meaning: a change restores nothing."""
     driver = driver_spec(m)
-    return {"steps_per_rev": m.steps_per_rev, "invert_dir": m.invert_dir,
-            "backend": config.hal.backend,
-            "microsteps": None if driver is None else driver.microsteps}
+    return {
+        "steps_per_rev": m.steps_per_rev,
+        "invert_dir": m.invert_dir,
+        "backend": config.hal.backend,
+        "microsteps": None if driver is None else driver.microsteps,
+    }
 
 
 def motor_identities(config: Config) -> list[MotorIdentity]:
@@ -167,8 +170,13 @@ class Daemon:
     started: float = field(default_factory=time.monotonic)
 
     @classmethod
-    def build(cls, config: Config, state_dir: Path, clock: Clock | None = None,
-              executor_process: ExecutorProcess | None = None) -> Daemon:
+    def build(
+        cls,
+        config: Config,
+        state_dir: Path,
+        clock: Clock | None = None,
+        executor_process: ExecutorProcess | None = None,
+    ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
         :func:`motorctl.daemon.main.main`."""
         clock = clock or MonotonicClock()
@@ -188,13 +196,20 @@ class Daemon:
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
             engine = MotionEngine(
-                hw, params, executor, driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
+                hw,
+                params,
+                executor,
+                driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
                 stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
             )
             files_dir = state_files_dir(config, state_dir)
             make_state_dir(files_dir)
-            persistence = Persistence(files_dir, motor_identities(config), engine,
-                                      (hw.persistent_state, hw.restore_persistent_state))
+            persistence = Persistence(
+                files_dir,
+                motor_identities(config),
+                engine,
+                (hw.persistent_state, hw.restore_persistent_state),
+            )
             dispatcher = Dispatcher(config, engine, hw.pins, persist=persistence)
             daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
             persistence.restore()
@@ -233,16 +248,27 @@ class Daemon:
         up to 20,001), for the benchmarks that ask for it."""
         executor = self.engine.executor
         motors: list[dict[str, Any]] = [
-            {"index": m.index, "name": m.params.name, "state": m.state.value,
-             "position": m.position, "queued": len(m.queue), "fault": m.fault,
-             "position_lost": m.position_lost, "waypoints": len(m.waypoints),
-             "faults": dict(m.faults),
-             "timing": {**executor.motor_timing(m.index),
-                        "microsteps": m.params.microsteps,
-                        "max_lag_full_steps": m.params.max_lag_full_steps},
-             "soft_stops": {"count": m.soft_stops,
-                            "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
-                            "takeover_steps": list(m.takeover_steps)}}
+            {
+                "index": m.index,
+                "name": m.params.name,
+                "state": m.state.value,
+                "position": m.position,
+                "queued": len(m.queue),
+                "fault": m.fault,
+                "position_lost": m.position_lost,
+                "waypoints": len(m.waypoints),
+                "faults": dict(m.faults),
+                "timing": {
+                    **executor.motor_timing(m.index),
+                    "microsteps": m.params.microsteps,
+                    "max_lag_full_steps": m.params.max_lag_full_steps,
+                },
+                "soft_stops": {
+                    "count": m.soft_stops,
+                    "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
+                    "takeover_steps": list(m.takeover_steps),
+                },
+            }
             for m in list(self.engine.motors)
         ]
         now = self.engine.clock.now()
@@ -254,19 +280,25 @@ class Daemon:
         stats = executor.step_lateness()
         if histogram and stats is not None:  # the step executor's, with or without ramps
             steps["histogram_us"] = stats.histogram()
-        out: dict[str, Any] = {"motors": motors, "steps": steps,
-                               "executor": {"alive": health.alive, "reason": health.reason,
-                                            "kind": step_executor_kind(self.config,
-                                                                       executor),
-                                            "pid": getattr(executor, "pid", None)},
-                               "clamped": dict(self.dispatcher.clamped),
-                               "hard_stops": self.engine.stop_wait_status(),
-                               "state": self.persistence.status(),
-                               "pins": pin_status(self.hw.pins),
-                               "dc": dc_status(self.engine.dc, now)}
+        out: dict[str, Any] = {
+            "motors": motors,
+            "steps": steps,
+            "executor": {
+                "alive": health.alive,
+                "reason": health.reason,
+                "kind": step_executor_kind(self.config, executor),
+                "pid": getattr(executor, "pid", None),
+            },
+            "clamped": dict(self.dispatcher.clamped),
+            "hard_stops": self.engine.stop_wait_status(),
+            "state": self.persistence.status(),
+            "pins": pin_status(self.hw.pins),
+            "dc": dc_status(self.engine.dc, now),
+        }
         mono = time.monotonic()
-        out.update(monotonic_s=mono, uptime_s=round(mono - self.started, 3),
-                   unix_s=round(time.time(), 3))
+        out.update(
+            monotonic_s=mono, uptime_s=round(mono - self.started, 3), unix_s=round(time.time(), 3)
+        )
         if self.link is not None:
             out["link"] = self.link.status()
         if self.trace is not None:
@@ -301,8 +333,11 @@ def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
     if dc is None:
         return None
     deadline = dc.deadline
-    return {"state": dc.bridge.state.value, "running": deadline is not None,
-            "left_s": None if deadline is None else round(max(0.0, deadline - now), 3)}
+    return {
+        "state": dc.bridge.state.value,
+        "running": deadline is not None,
+        "left_s": None if deadline is None else round(max(0.0, deadline - now), 3),
+    }
 
 
 def state_files_dir(config: Config, state_dir: Path) -> Path:
@@ -329,7 +364,10 @@ def step_executor_kind(config: Config, executor: Executor) -> str:
 
 
 def build_executor(
-    config: Config, hw: Hardware, spec: HardwareSpec, params: list[MotorParams],
+    config: Config,
+    hw: Hardware,
+    spec: HardwareSpec,
+    params: list[MotorParams],
     process: ExecutorProcess | None = None,
 ) -> Executor:
     """The step executor the config asks for (only it runs real-time and locks memory), for
@@ -345,9 +383,12 @@ def build_executor(
     ramp = [i for i, d in enumerate(drivers) if isinstance(d, RampDriver)]
     if set(ramp) | set(stepped) != set(range(len(drivers))) or set(ramp) & set(stepped):
         raise StartupError(f"ramp motors {ramp} and stepped motors {list(stepped)} disagree")
-    limits = axis_limits([params[i] for i in stepped], STEP_ERROR_S,
-                         slide_after_s=st.late_threshold_us / 1e6,
-                         lag_faults=hw.motors_lose_steps)
+    limits = axis_limits(
+        [params[i] for i in stepped],
+        STEP_ERROR_S,
+        slide_after_s=st.late_threshold_us / 1e6,
+        lag_faults=hw.motors_lose_steps,
+    )
     rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
     steps: Executor | None = None
     if not stepped:
@@ -356,15 +397,28 @@ def build_executor(
         steps = ThreadStepExecutor(hw, config.hal.backend, spec, limits, max_error_s=0.0)
     elif st.executor == "process":
         steps = ProcessStepExecutor(
-            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
-            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
-            late_threshold_s=st.late_threshold_us / 1e6, rt=rt, process=process,
+            hw,
+            config.hal.backend,
+            spec,
+            limits,
+            ahead_s=st.ahead_ms / 1000.0,
+            max_error_s=STEP_ERROR_S,
+            spin_s=st.spin_us / 1e6,
+            late_threshold_s=st.late_threshold_us / 1e6,
+            rt=rt,
+            process=process,
         )
     else:
         steps = ThreadStepExecutor(
-            hw, config.hal.backend, spec, limits, ahead_s=st.ahead_ms / 1000.0,
-            max_error_s=STEP_ERROR_S, spin_s=st.spin_us / 1e6,
-            late_threshold_s=st.late_threshold_us / 1e6, rt=rt,
+            hw,
+            config.hal.backend,
+            spec,
+            limits,
+            ahead_s=st.ahead_ms / 1000.0,
+            max_error_s=STEP_ERROR_S,
+            spin_s=st.spin_us / 1e6,
+            late_threshold_s=st.late_threshold_us / 1e6,
+            rt=rt,
         )
     if process is not None:
         process.dismiss()  # no process executor after all (a no-op when it took it)
@@ -382,8 +436,11 @@ def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> Silence
         return dispatcher.link_silent(hard=hard, reason=reason)
 
     if c.timeout_ms > 0:
-        log.info("[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
-                 c.timeout_ms, c.timeout_action)
+        log.info(
+            "[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
+            c.timeout_ms,
+            c.timeout_action,
+        )
     return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
 
 
@@ -394,18 +451,26 @@ def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder
     if path is None:
         return None
     c = config.link
-    info = CaptureInfo(role="daemon", checksum=c.checksum, crc_covers_ack=c.crc_covers_ack,
-                       strict_padding=c.strict_padding, frame_gap_ms=c.frame_gap_ms,
-                       port=where, application=f"motorctld {__version__}")
-    recorder = TraceRecorder(path, info, max(4096, int(t.max_file_mb * (1 << 20))), t.files,
-                             time.monotonic())
+    info = CaptureInfo(
+        role="daemon",
+        checksum=c.checksum,
+        crc_covers_ack=c.crc_covers_ack,
+        strict_padding=c.strict_padding,
+        frame_gap_ms=c.frame_gap_ms,
+        port=where,
+        application=f"motorctld {__version__}",
+    )
+    recorder = TraceRecorder(
+        path, info, max(4096, int(t.max_file_mb * (1 << 20))), t.files, time.monotonic()
+    )
     try:
         recorder.open()
     except OSError as exc:
-        raise StartupError(f"cannot write the trace file {path}: {exc.strerror or exc}; "
-                           "give --trace (or [trace] file) a writable path") from exc
-    log.info("tracing the link to %s (%d files of %.3g MiB at most)", path, t.files,
-             t.max_file_mb)
+        raise StartupError(
+            f"cannot write the trace file {path}: {exc.strerror or exc}; "
+            "give --trace (or [trace] file) a writable path"
+        ) from exc
+    log.info("tracing the link to %s (%d files of %.3g MiB at most)", path, t.files, t.max_file_mb)
     return recorder
 
 
@@ -425,7 +490,11 @@ def progress_watch(daemon: Daemon, link: Link) -> ProgressWatch:
         return writer.writes if writer.pending else ProgressWatch.IDLE
 
     return ProgressWatch(
-        {"link loop": lambda: link.turns, "planner": planner, "step executor": executor,
-         "state writer": state_writer},
+        {
+            "link loop": lambda: link.turns,
+            "planner": planner,
+            "step executor": executor,
+            "state writer": state_writer,
+        },
         pokes=(link.poke,),
     )

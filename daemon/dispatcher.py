@@ -158,8 +158,9 @@ class Dispatcher:
             if isinstance(index, int) and 0 <= index < len(self.engine.motors):
                 with self.engine.lock:  # a motion half started: stop it, latched
                     m = self.engine.motors[index]
-                    m.latch_fault(f"hardware error: {exc}", self.engine.clock.now(),
-                                  cause="io_error")
+                    m.latch_fault(
+                        f"hardware error: {exc}", self.engine.clock.now(), cause="io_error"
+                    )
             resp = Response.error(E.MOTOR_ERROR)
         finally:
             if journalled is not None:
@@ -173,10 +174,12 @@ class Dispatcher:
             with self.engine.lock:
                 undo()
             name = type(cmd).__name__
-            log.warning("motor %d: %s not saved (the state file cannot be written): E4",
-                        getattr(cmd, "motor", -1), name,
-                        extra={"MOTOR": getattr(cmd, "motor", None), "COMMAND": name,
-                               "ERROR_CODE": "E4"})
+            log.warning(
+                "motor %d: %s not saved (the state file cannot be written): E4",
+                getattr(cmd, "motor", -1),
+                name,
+                extra={"MOTOR": getattr(cmd, "motor", None), "COMMAND": name, "ERROR_CODE": "E4"},
+            )
             return Response.error(E.MOTOR_ERROR)
         return resp
 
@@ -205,18 +208,23 @@ class Dispatcher:
         """
         outcome = self.engine.settle_stop(m)
         if outcome is Settled.DIED:
-            log.error("motor %d: StopMove: the step executor died before confirming the "
-                      "stop: E4", m.index,
-                      extra={"MOTOR": m.index, "COMMAND": "StopMove", "ERROR_CODE": "E4"})
+            log.error(
+                "motor %d: StopMove: the step executor died before confirming the stop: E4",
+                m.index,
+                extra={"MOTOR": m.index, "COMMAND": "StopMove", "ERROR_CODE": "E4"},
+            )
             return Response.error(E.MOTOR_ERROR)
         if m.fault is not None:  # latched while the stop took effect (a driver fault): it
             return Response.error(E.MOTOR_ERROR)  # remains, as for a StopMove on a faulted motor
         if outcome is Settled.TIMED_OUT:
-            log.warning("motor %d: the step executor did not confirm the hard stop within "
-                        "%.0f ms (stalled?): StopMove answered anyway, IsReady answers 0 until "
-                        "it does; later hard stops are not waited for while it is unconfirmed",
-                        m.index, self.engine.stop_confirm_s * 1000,
-                        extra={"MOTOR": m.index, "COMMAND": "StopMove"})
+            log.warning(
+                "motor %d: the step executor did not confirm the hard stop within "
+                "%.0f ms (stalled?): StopMove answered anyway, IsReady answers 0 until "
+                "it does; later hard stops are not waited for while it is unconfirmed",
+                m.index,
+                self.engine.stop_confirm_s * 1000,
+                extra={"MOTOR": m.index, "COMMAND": "StopMove"},
+            )
         return OK
 
     def link_silent(self, *, hard: bool, reason: str) -> list[str]:
@@ -226,8 +234,7 @@ class Dispatcher:
         engine = self.engine
         with engine.lock:
             engine.process_events(engine.clock.now())
-            return engine.fault_stop_moving(reason, hard, engine.clock.now(),
-                                            cause="link_timeout")
+            return engine.fault_stop_moving(reason, hard, engine.clock.now(), cause="link_timeout")
 
     def wait_begin(self, cmd: WaitMoved, now: float) -> Response | Wait:
         """A WaitMoved: an answer now, or a :class:`Wait` to hold the link on."""
@@ -298,8 +305,9 @@ class Dispatcher:
             raise Reject(E.INVALID_COMMAND)
 
     # -- unit conversion --------------------------------------------------------------
-    def _ramp(self, mc: MotorConfig, speed: int, acc: int, dec: int, factor: float,
-              default_speed: float) -> Ramp:
+    def _ramp(
+        self, mc: MotorConfig, speed: int, acc: int, dec: int, factor: float, default_speed: float
+    ) -> Ramp:
         u = self.config.units
         return Ramp(
             self._scale("speed", speed, factor, default_speed, mc.max_speed),
@@ -318,8 +326,9 @@ class Dispatcher:
 
     def _move_ramp(self, m: Motor, speed: int, acc: int, dec: int) -> Ramp:
         mc = self.config.motors[m.index]
-        return self._ramp(mc, speed, acc, dec, self.config.units.move_speed_factor,
-                          mc.default_speed)
+        return self._ramp(
+            mc, speed, acc, dec, self.config.units.move_speed_factor, mc.default_speed
+        )
 
     def _run_ramp(self, m: Motor, speed: int, acc: int, dec: int, default: float) -> Ramp:
         mc = self.config.motors[m.index]
@@ -415,7 +424,7 @@ class Dispatcher:
         count = len(m.waypoints)
 
         def undo() -> None:
-            del m.waypoints[count - 1:]
+            del m.waypoints[count - 1 :]
 
         self._undo = undo
         return Response.ok(bytes([len(m.waypoints) - 1]))

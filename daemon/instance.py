@@ -74,8 +74,7 @@ class InstanceLock:
             try:
                 fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
             except OSError as exc:
-                raise InstanceError(f"cannot create lock file {self.path}: "
-                                    f"{exc.strerror}") from exc
+                raise InstanceError(f"cannot create lock file {self.path}: {exc.strerror}") from exc
             try:
                 fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
             except OSError as exc:
@@ -87,7 +86,8 @@ class InstanceLock:
                 raise InstanceError(
                     f"another motorctld ({who}) already serves the {self.what}; stop it "
                     f"first, or give this one its own --state-dir and --pty/--port "
-                    f"(lock {self.path})") from None
+                    f"(lock {self.path})"
+                ) from None
             # The previous holder may have removed the file between our open and our lock:
             # then we hold a lock on a file nobody else can find. Try again.
             st = os.fstat(fd)

@@ -21,8 +21,18 @@ from collections.abc import Sequence
 from motorctl.motion.executor_process_start import ExecutorProcess
 
 #: Options after which motorctld prints something and exits instead of serving.
-ONE_SHOT = frozenset({"--check-config", "--print-default-config", "--probe", "--status",
-                      "--histogram", "--help", "-h", "--version"})
+ONE_SHOT = frozenset(
+    {
+        "--check-config",
+        "--print-default-config",
+        "--probe",
+        "--status",
+        "--histogram",
+        "--help",
+        "-h",
+        "--version",
+    }
+)
 
 
 def serves(argv: Sequence[str]) -> bool:

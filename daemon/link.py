@@ -72,9 +72,18 @@ POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 WRITE_MAX = 65536  # bytes handed to one write()
 
 SHELL_COUNTERS = (
-    "reads", "read_eagain", "write_eagain", "link_errors", "peer_closed", "peer_reopened",
-    "hangup_partial_bytes", "responses_dropped", "backpressure", "device_lost",
-    "device_reopened", "reopen_attempts",
+    "reads",
+    "read_eagain",
+    "write_eagain",
+    "link_errors",
+    "peer_closed",
+    "peer_reopened",
+    "hangup_partial_bytes",
+    "responses_dropped",
+    "backpressure",
+    "device_lost",
+    "device_reopened",
+    "reopen_attempts",
 )
 #: errors of a reopen that only say the device is not back yet (logged at debug level);
 #: any other (no permission, busy) is logged once as a warning: the user must act
@@ -393,11 +402,17 @@ class Link:
         self._reported = set()
         self.backoff.reset()
         self._next_try = now + self.backoff.delay()
-        log.warning("serial device %s is gone (%s); motors, positions and held frames are "
-                    "kept; opening %s again when it is back (first try in %.0f ms, then "
-                    "doubling up to every %.0f ms)", path, why, path,
-                    self.backoff.first_s * 1000, self.backoff.max_s * 1000,
-                    extra={"DEVICE": path, "EVENT": "device_lost"})
+        log.warning(
+            "serial device %s is gone (%s); motors, positions and held frames are "
+            "kept; opening %s again when it is back (first try in %.0f ms, then "
+            "doubling up to every %.0f ms)",
+            path,
+            why,
+            path,
+            self.backoff.first_s * 1000,
+            self.backoff.max_s * 1000,
+            extra={"DEVICE": path, "EVENT": "device_lost"},
+        )
 
     def _look_for_device(self) -> None:
         """Device gone: wait for the next attempt (or a deadline, a wake-up), then try."""
@@ -425,16 +440,24 @@ class Link:
                 log.debug("%s; trying again in %.0f ms", exc, (self._next_try - now) * 1000)
             else:  # there, but not usable: the user must act (it is retried all the same)
                 self._reported.add(exc.errno)
-                log.warning("%s; trying again (every %.0f ms at most)", exc,
-                            self.backoff.max_s * 1000, extra={"DEVICE": self.device.path})
+                log.warning(
+                    "%s; trying again (every %.0f ms at most)",
+                    exc,
+                    self.backoff.max_s * 1000,
+                    extra={"DEVICE": self.device.path},
+                )
             return
         self.fd = fd
         self._mask = -1
         self.peer_gone = False
         self.counters["device_reopened"] += 1
-        log.info("serial device %s is back after %.1f s (%d attempts): serving again",
-                 self.device.path, now - self._lost_at, self._attempts,
-                 extra={"DEVICE": self.device.path, "EVENT": "device_back"})
+        log.info(
+            "serial device %s is back after %.1f s (%d attempts): serving again",
+            self.device.path,
+            now - self._lost_at,
+            self._attempts,
+            extra={"DEVICE": self.device.path, "EVENT": "device_back"},
+        )
 
     def _drain(self) -> None:
         """After stop(): give unsent responses at most ``drain_s`` to leave."""

@@ -78,64 +78,108 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         prog="motorctld",
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
         epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
-               "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
-               "state written, exit 0; exit 4 when the state could not be written). Under "
-               "systemd it logs to the journal and reports READY/STATUS/STOPPING. See "
-               "docs/service.md.",
+        "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
+        "state written, exit 0; exit 4 when the state could not be written). Under "
+        "systemd it logs to the journal and reports READY/STATUS/STOPPING. See "
+        "docs/service.md.",
     )
     p.add_argument("--version", action="version", version=f"motorctld {__version__}")
     where = p.add_mutually_exclusive_group()
-    where.add_argument("--pty", metavar="PATH", type=Path,
-                       help="serve on a new pseudo-terminal; PATH becomes a symlink to it")
-    where.add_argument("--port", metavar="DEVICE",
-                       help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
-                       "/dev/serial/by-id/usb-... name; a device that goes away is opened "
-                       "again by this path when it is back (state kept)")
+    where.add_argument(
+        "--pty",
+        metavar="PATH",
+        type=Path,
+        help="serve on a new pseudo-terminal; PATH becomes a symlink to it",
+    )
+    where.add_argument(
+        "--port",
+        metavar="DEVICE",
+        help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
+        "/dev/serial/by-id/usb-... name; a device that goes away is opened "
+        "again by this path when it is back (state kept)",
+    )
     p.add_argument("--baud", type=int, default=115200, help="UART baud rate (default 115200)")
-    p.add_argument("--config", metavar="FILE", help="TOML config (default: the embedded mock "
-                   "world, see docs/config.md)")
+    p.add_argument(
+        "--config",
+        metavar="FILE",
+        help="TOML config (default: the embedded mock world, see docs/config.md)",
+    )
     p.add_argument("--check-config", metavar="FILE", help="check FILE and exit")
-    p.add_argument("--print-default-config", action="store_true",
-                   help="print the embedded default config, every key written out and "
-                   "commented, and exit")
-    p.add_argument("--probe", action="store_true",
-                   help="open every line and device the --config names, without moving "
-                   "anything; print chips, lines and their current consumers, end-stop levels "
-                   "and driver status; exit 1 if something is missing or busy. Then check "
-                   "the platform: preemption model, RT throttling, cpufreq governor, "
-                   "isolated CPUs, under-voltage, a short latency measurement, and advice")
-    p.add_argument("--latency-seconds", metavar="S", type=float, default=3.0,
-                   help="with --probe: how long to measure timer wake-ups at the executor's "
-                   "priority and CPU (default 3; 0: skip)")
-    p.add_argument("--trace", metavar="FILE", type=Path,
-                   help="record every byte run on the link, timestamped, to FILE (pcapng, "
-                   "rotated as [trace] says; read it with 'motorctl trace FILE'; "
-                   "docs/trace.md); overrides [trace] file")
-    p.add_argument("--state-dir", type=Path, default=Path("/run/motorctl"),
-                   help="the runtime directory: lock, status socket and, unless [state] "
-                   "directory says otherwise, the state file (default /run/motorctl)")
-    p.add_argument("--status", action="store_true",
-                   help="print the running daemon's status (JSON) from --state-dir and exit")
-    p.add_argument("--histogram", action="store_true",
-                   help="with --status: include the step edges' whole lateness histogram "
-                   "(steps.histogram_us: microseconds late -> steps)")
-    p.add_argument("--format", choices=["json", "openmetrics"], default="json",
-                   help="with --status: json (the document, docs/status.md) or openmetrics "
-                   "(the OpenMetrics text format, names motorctl_*, for node_exporter's "
-                   "textfile collector; motorctl_up 0 and exit 1 when no daemon answers)")
-    p.add_argument("--watch", action="store_true",
-                   help="with --status: a live view that refreshes in the terminal "
-                   "(needs python3-rich; the same as 'motorctl monitor')")
-    p.add_argument("--period", metavar="MS", type=int, default=250,
-                   help="with --status --watch: how often the daemon looks for a change "
-                   "(20..60000 ms, default 250)")
-    p.add_argument("--log-level", default="info",
-                   choices=["debug", "info", "warning", "error"])
+    p.add_argument(
+        "--print-default-config",
+        action="store_true",
+        help="print the embedded default config, every key written out and commented, and exit",
+    )
+    p.add_argument(
+        "--probe",
+        action="store_true",
+        help="open every line and device the --config names, without moving "
+        "anything; print chips, lines and their current consumers, end-stop levels "
+        "and driver status; exit 1 if something is missing or busy. Then check "
+        "the platform: preemption model, RT throttling, cpufreq governor, "
+        "isolated CPUs, under-voltage, a short latency measurement, and advice",
+    )
+    p.add_argument(
+        "--latency-seconds",
+        metavar="S",
+        type=float,
+        default=3.0,
+        help="with --probe: how long to measure timer wake-ups at the executor's "
+        "priority and CPU (default 3; 0: skip)",
+    )
+    p.add_argument(
+        "--trace",
+        metavar="FILE",
+        type=Path,
+        help="record every byte run on the link, timestamped, to FILE (pcapng, "
+        "rotated as [trace] says; read it with 'motorctl trace FILE'; "
+        "docs/trace.md); overrides [trace] file",
+    )
+    p.add_argument(
+        "--state-dir",
+        type=Path,
+        default=Path("/run/motorctl"),
+        help="the runtime directory: lock, status socket and, unless [state] "
+        "directory says otherwise, the state file (default /run/motorctl)",
+    )
+    p.add_argument(
+        "--status",
+        action="store_true",
+        help="print the running daemon's status (JSON) from --state-dir and exit",
+    )
+    p.add_argument(
+        "--histogram",
+        action="store_true",
+        help="with --status: include the step edges' whole lateness histogram "
+        "(steps.histogram_us: microseconds late -> steps)",
+    )
+    p.add_argument(
+        "--format",
+        choices=["json", "openmetrics"],
+        default="json",
+        help="with --status: json (the document, docs/status.md) or openmetrics "
+        "(the OpenMetrics text format, names motorctl_*, for node_exporter's "
+        "textfile collector; motorctl_up 0 and exit 1 when no daemon answers)",
+    )
+    p.add_argument(
+        "--watch",
+        action="store_true",
+        help="with --status: a live view that refreshes in the terminal "
+        "(needs python3-rich; the same as 'motorctl monitor')",
+    )
+    p.add_argument(
+        "--period",
+        metavar="MS",
+        type=int,
+        default=250,
+        help="with --status --watch: how often the daemon looks for a change "
+        "(20..60000 ms, default 250)",
+    )
+    p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     return p.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None,
-         executor_process: ExecutorProcess | None = None) -> int:
+def main(argv: Sequence[str] | None = None, executor_process: ExecutorProcess | None = None) -> int:
     """motorctld. ``executor_process``: the step executor's process, started before this
     module was imported (``daemon/launch.py``, the ``motorctld`` command): the process
     executor takes it over; ended unused otherwise (another executor, another command, an
@@ -163,21 +207,28 @@ def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) 
             return 1
         for notice in cfg.notices:
             print(f"warning: {notice}", file=sys.stderr)
-        print(f"{args.check_config}: OK ({len(cfg.motors)} motors, {len(cfg.pins)} pins, "
-              f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})")
+        print(
+            f"{args.check_config}: OK ({len(cfg.motors)} motors, {len(cfg.pins)} pins, "
+            f"{'a' if cfg.dc else 'no'} DC motor, backend {cfg.hal.backend})"
+        )
         return 0
     if args.probe:
         return probe(args.config, args.latency_seconds)
     if args.status:
         return status_command(args)
-    for given, name in ((args.histogram, "--histogram"), (args.watch, "--watch"),
-                        (args.format != "json", "--format")):
+    for given, name in (
+        (args.histogram, "--histogram"),
+        (args.watch, "--watch"),
+        (args.format != "json", "--format"),
+    ):
         if given:
             print(f"error: {name} goes with --status", file=sys.stderr)
             return 2
     if args.pty is None and args.port is None:
-        print("error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE",
-              file=sys.stderr)
+        print(
+            "error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE",
+            file=sys.stderr,
+        )
         return 2
     log.debug("logging to %s", logs_to)
     try:
@@ -192,8 +243,11 @@ def status_command(args: argparse.Namespace) -> int:
     path = args.state_dir / "status.sock"
     if args.watch:
         if args.histogram or args.format != "json":
-            print("error: --watch shows the live view; --histogram and --format go with a "
-                  "single --status", file=sys.stderr)
+            print(
+                "error: --watch shows the live view; --histogram and --format go with a "
+                "single --status",
+                file=sys.stderr,
+            )
             return 2
         from motorctl.daemon import monitor
 
@@ -221,8 +275,9 @@ def status_command(args: argparse.Namespace) -> int:
     return 0
 
 
-def probe(config_path: str | None, latency_s: float = 3.0,
-          roots: platform_check.Roots | None = None) -> int:
+def probe(
+    config_path: str | None, latency_s: float = 3.0, roots: platform_check.Roots | None = None
+) -> int:
     """``--probe``: what the configured hardware looks like, moving nothing; then the
     platform (docs/timing.md, "Checking a platform"), which advises and never fails it."""
     try:
@@ -236,11 +291,16 @@ def probe(config_path: str | None, latency_s: float = 3.0,
     sys.stdout.write(report.text())
     sys.stdout.flush()
     st = config.step_thread
-    timing = platform_check.TimingConfig(cpu=st.cpu, priority=st.priority, spin_us=st.spin_us,
-                                         executor=st.executor)
+    timing = platform_check.TimingConfig(
+        cpu=st.cpu, priority=st.priority, spin_us=st.spin_us, executor=st.executor
+    )
     loses = motors_lose_steps(config.hal.backend, spec)
-    motors = [platform_check.MotorRate(m.name, m.max_speed, known_microsteps(m), m.start_speed,
-                                       m.max_lag_full_steps, loses) for m in config.motors]
+    motors = [
+        platform_check.MotorRate(
+            m.name, m.max_speed, known_microsteps(m), m.start_speed, m.max_lag_full_steps, loses
+        )
+        for m in config.motors
+    ]
     found = platform_check.read_platform(roots or platform_check.Roots())
     if latency_s > 0:
         print(f"measuring timer wake-ups for {latency_s:g} s ...", flush=True)
@@ -261,8 +321,13 @@ def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = N
         return _serve(args, config, stop, owned, executor_process)
 
 
-def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: Owned,
-           executor_process: ExecutorProcess | None = None) -> int:
+def _serve(
+    args: argparse.Namespace,
+    config: Config,
+    stop: StopSignals,
+    owned: Owned,
+    executor_process: ExecutorProcess | None = None,
+) -> int:
     st = config.step_thread
     for notice in config.notices:
         log.warning("%s", notice)
@@ -303,10 +368,17 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         daemon.engine.executor.close()
         daemon.hw.close()
         raise
-    link = Link(fd, daemon.dispatcher, c.codec_options(), c.frame_gap_ms / 1000.0,
-                c.held_frames, on_hangup=None if uart else partial(flush_pty_input, name),
-                device=uart, watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
-                recorder=recorder)
+    link = Link(
+        fd,
+        daemon.dispatcher,
+        c.codec_options(),
+        c.frame_gap_ms / 1000.0,
+        c.held_frames,
+        on_hangup=None if uart else partial(flush_pty_input, name),
+        device=uart,
+        watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
+        recorder=recorder,
+    )
     daemon.link = link
     daemon.trace = recorder
     status = StatusServer(args.state_dir / "status.sock", daemon.status)
@@ -314,8 +386,14 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
     line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
 
     def on_motor_event(motor: Motor, event: str) -> None:  # step thread: no I/O
-        events.record(motor.index, motor.params.name, event, motor.fault, motor.fault_cause,
-                      motor.position_lost)
+        events.record(
+            motor.index,
+            motor.params.name,
+            event,
+            motor.fault,
+            motor.fault_cause,
+            motor.position_lost,
+        )
         line.poke()
         status.poke()  # subscribers see a start, stop or fault at once
 
@@ -333,15 +411,22 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         watch = progress_watch(daemon, link)
         watchdog = Watchdog(interval, watch.healthy)
         watchdog.start()
-    print(f"motorctld ready: serving {where}; config {config.source}; "
-          f"{len(config.motors)} motors; {config.hal.backend} hardware; "
-          f"state in {args.state_dir}", flush=True)
+    print(
+        f"motorctld ready: serving {where}; config {config.source}; "
+        f"{len(config.motors)} motors; {config.hal.backend} hardware; "
+        f"state in {args.state_dir}",
+        flush=True,
+    )
     if os.environ.get("NOTIFY_SOCKET"):
         log.info("systemd notifications through %s", notify_backend()[0])
     sd_notify("READY=1")
     line.start()
-    threading.Thread(target=stop_when_executor_dies, args=(daemon.engine, link.stop),
-                     name="motorctl-exec-death", daemon=True).start()
+    threading.Thread(
+        target=stop_when_executor_dies,
+        args=(daemon.engine, link.stop),
+        name="motorctl-exec-death",
+        daemon=True,
+    ).start()
     try:
         link.serve()  # returns at once when a signal came during start-up
     finally:
@@ -362,16 +447,25 @@ def _serve(args: argparse.Namespace, config: Config, stop: StopSignals, owned: O
         daemon.hw.close()
     died = daemon.engine.executor_died
     if died is not None:
-        log.error("stopped because the step executor died (%s): exit %d for the service "
-                  "manager to restart motorctld; every motor must be homed again", died,
-                  EXIT_EXECUTOR_DIED)
+        log.error(
+            "stopped because the step executor died (%s): exit %d for the service "
+            "manager to restart motorctld; every motor must be homed again",
+            died,
+            EXIT_EXECUTOR_DIED,
+        )
         return EXIT_EXECUTOR_DIED
     if not saved:
         writer = daemon.writer
-        log.error("stopped WITHOUT saving the final state (%s): %s keeps what was last "
-                  "written (%d writes, %d failed); exit %d", writer.last_error, writer.path,
-                  writer.writes, writer.errors, EXIT_STATE_NOT_SAVED,
-                  extra={"STATE_PATH": str(writer.path)})
+        log.error(
+            "stopped WITHOUT saving the final state (%s): %s keeps what was last "
+            "written (%d writes, %d failed); exit %d",
+            writer.last_error,
+            writer.path,
+            writer.writes,
+            writer.errors,
+            EXIT_STATE_NOT_SAVED,
+            extra={"STATE_PATH": str(writer.path)},
+        )
         return EXIT_STATE_NOT_SAVED
     log.info("stopped")
     return 0
@@ -384,8 +478,11 @@ def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> N
     pause = threading.Event()
     while engine.executor_died is None:
         pause.wait(0.1)
-    log.error("the step executor died: %s; stopping in %.0f s", engine.executor_died,
-              EXECUTOR_DEATH_GRACE_S)
+    log.error(
+        "the step executor died: %s; stopping in %.0f s",
+        engine.executor_died,
+        EXECUTOR_DEATH_GRACE_S,
+    )
     pause.wait(EXECUTOR_DEATH_GRACE_S)
     stop()
 
@@ -399,16 +496,18 @@ def shutdown(daemon: Daemon) -> bool:
     while time.monotonic() < deadline:
         with engine.lock:
             # a dead executor confirms no stop and moves nothing: nothing to wait for
-            if engine.executor_died is not None or not any(m.active or m.stopping
-                                                           for m in engine.motors):
+            if engine.executor_died is not None or not any(
+                m.active or m.stopping for m in engine.motors
+            ):
                 break
         time.sleep(0.005)
     with engine.lock:
         now = engine.clock.now()
         for m in engine.motors:
             if m.active:
-                log.warning("motor %d did not stop within %.0f s: hard stop", m.index,
-                            SHUTDOWN_LIMIT_S)
+                log.warning(
+                    "motor %d did not stop within %.0f s: hard stop", m.index, SHUTDOWN_LIMIT_S
+                )
                 m.stop(hard=True, now=now)
     engine.stop_threads()
     engine.executor.close()

@@ -15,10 +15,12 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-RICH_MISSING = ("the live monitor needs the Python package 'rich', which is not installed: "
-                "'apt install python3-rich' (Debian, Raspberry Pi OS) or "
-                "'pip install motorctl[monitor]'; the daemon itself does not need it, and "
-                "'motorctld --status' prints the same figures as JSON")
+RICH_MISSING = (
+    "the live monitor needs the Python package 'rich', which is not installed: "
+    "'apt install python3-rich' (Debian, Raspberry Pi OS) or "
+    "'pip install motorctl[monitor]'; the daemon itself does not need it, and "
+    "'motorctld --status' prints the same figures as JSON"
+)
 
 
 def run(path: Path, period_ms: int, once: bool = False) -> int:

@@ -62,8 +62,9 @@ def _duration(seconds: object) -> str:
     return f"{h}:{rest // 60:02d}:{rest % 60:02d}"
 
 
-def frames_per_second(now: Seen, before: Seen | None, local_now: float,
-                      period_s: float) -> float | None:
+def frames_per_second(
+    now: Seen, before: Seen | None, local_now: float, period_s: float
+) -> float | None:
     """Frames per second between the last two updates; 0 once no update came for longer
     than a period and a half (an update would have come had a frame arrived); None with a
     single update."""
@@ -81,8 +82,9 @@ def frames_per_second(now: Seen, before: Seen | None, local_now: float,
     return (frames - frames0) / (t - t0) if t > t0 else None
 
 
-def render(doc: Mapping[str, Any], rate: float | None = None, since_s: float = 0.0,
-           note: str = "") -> RenderableType:
+def render(
+    doc: Mapping[str, Any], rate: float | None = None, since_s: float = 0.0, note: str = ""
+) -> RenderableType:
     """The whole view of ``doc``; ``rate``: frames/s; ``since_s``: how long ago it came
     (frames' ages grow by it); ``note``: a line on the connection."""
     parts: list[RenderableType] = [_header(doc)]
@@ -125,11 +127,19 @@ def _header(doc: Mapping[str, Any]) -> Text:
 
 
 def _motors(doc: Mapping[str, Any]) -> Table:
-    table = Table(title="motors", title_justify="left", box=box.SIMPLE_HEAD, expand=False,
-                  padding=(0, 1))
-    for name, justify in (("#", "right"), ("name", "left"), ("state", "left"),
-                          ("position", "right"), ("speed step/s", "right"),
-                          ("queued", "right"), ("waypoints", "right"), ("fault", "left")):
+    table = Table(
+        title="motors", title_justify="left", box=box.SIMPLE_HEAD, expand=False, padding=(0, 1)
+    )
+    for name, justify in (
+        ("#", "right"),
+        ("name", "left"),
+        ("state", "left"),
+        ("position", "right"),
+        ("speed step/s", "right"),
+        ("queued", "right"),
+        ("waypoints", "right"),
+        ("fault", "left"),
+    ):
         table.add_column(name, justify=justify)  # type: ignore[arg-type]
     for m in _l(doc.get("motors")):
         m = _d(m)
@@ -138,12 +148,19 @@ def _motors(doc: Mapping[str, Any]) -> Table:
         fault = m.get("fault")
         fault_text = Text(str(fault), style="red") if fault else Text("")
         if m.get("position_lost"):
-            fault_text.append(" (position lost: home it)" if fault else "position lost: home it",
-                              style="yellow")
-        table.add_row(Text(str(m.get("index", "?"))), Text(str(m.get("name", ""))),
-                      Text(state, style=style), Text(_num(m.get("position"))),
-                      Text(_num(m.get("speed"), "{:,.0f}")), Text(_num(m.get("queued"))),
-                      Text(_num(m.get("waypoints"))), fault_text)
+            fault_text.append(
+                " (position lost: home it)" if fault else "position lost: home it", style="yellow"
+            )
+        table.add_row(
+            Text(str(m.get("index", "?"))),
+            Text(str(m.get("name", ""))),
+            Text(state, style=style),
+            Text(_num(m.get("position"))),
+            Text(_num(m.get("speed"), "{:,.0f}")),
+            Text(_num(m.get("queued"))),
+            Text(_num(m.get("waypoints"))),
+            fault_text,
+        )
     return table
 
 
@@ -152,22 +169,38 @@ def _timing(doc: Mapping[str, Any]) -> Table | None:
     motors = [_d(m) for m in _l(doc.get("motors"))]
     if not any("timing" in m or "faults" in m for m in motors):
         return None
-    table = Table(title="step timing per motor", title_justify="left", box=box.SIMPLE_HEAD,
-                  padding=(0, 1))
-    for name in ("#", "late absorbed", "slid ms", "worst late us", "worst lag fs",
-                 "lag limit fs", "microsteps", "lag faults", "faults by cause"):
+    table = Table(
+        title="step timing per motor", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1)
+    )
+    for name in (
+        "#",
+        "late absorbed",
+        "slid ms",
+        "worst late us",
+        "worst lag fs",
+        "lag limit fs",
+        "microsteps",
+        "lag faults",
+        "faults by cause",
+    ):
         table.add_column(name, justify="left" if name == "faults by cause" else "right")
     for m in motors:
         t = _d(m.get("timing"))
-        faults = ", ".join(f"{cause} {count}" for cause, count in
-                           sorted(_d(m.get("faults")).items())) or "none"
-        table.add_row(Text(str(m.get("index", "?"))), Text(_num(t.get("late_absorbed"))),
-                      Text(_num(t.get("slid_ms"), "{:,.1f}")),
-                      Text(_num(t.get("worst_late_us"), "{:,.0f}")),
-                      Text(_num(t.get("worst_lag_full_steps"), "{:,.2f}")),
-                      Text(_num(t.get("max_lag_full_steps"), "{:,.2f}")),
-                      Text(_num(t.get("microsteps"))), Text(_num(t.get("lag_faults"))),
-                      Text(faults))
+        faults = (
+            ", ".join(f"{cause} {count}" for cause, count in sorted(_d(m.get("faults")).items()))
+            or "none"
+        )
+        table.add_row(
+            Text(str(m.get("index", "?"))),
+            Text(_num(t.get("late_absorbed"))),
+            Text(_num(t.get("slid_ms"), "{:,.1f}")),
+            Text(_num(t.get("worst_late_us"), "{:,.0f}")),
+            Text(_num(t.get("worst_lag_full_steps"), "{:,.2f}")),
+            Text(_num(t.get("max_lag_full_steps"), "{:,.2f}")),
+            Text(_num(t.get("microsteps"))),
+            Text(_num(t.get("lag_faults"))),
+            Text(faults),
+        )
     return table
 
 
@@ -175,23 +208,30 @@ def _steps(doc: Mapping[str, Any]) -> Text:
     s = _d(doc.get("steps"))
     text = Text("step edges ", style="bold")
     text.append(_num(s.get("steps")))
-    text.append(f"  lateness p50 {_num(s.get('p50_us'), '{:.0f}')}"
-                f" p99 {_num(s.get('p99_us'), '{:.0f}')}"
-                f" p99.9 {_num(s.get('p999_us'), '{:.0f}')}"
-                f" max {_num(s.get('max_us'), '{:.0f}')} us")
+    text.append(
+        f"  lateness p50 {_num(s.get('p50_us'), '{:.0f}')}"
+        f" p99 {_num(s.get('p99_us'), '{:.0f}')}"
+        f" p99.9 {_num(s.get('p999_us'), '{:.0f}')}"
+        f" max {_num(s.get('max_us'), '{:.0f}')} us"
+    )
     late = s.get("late")
     text.append(f"  late (>{_num(s.get('late_threshold_us'), '{:.0f}')} us) ")
     text.append(_num(late), style="yellow" if late else "")
-    for key, label in (("timing_lost", "timing lost"), ("dropped", "dropped"),
-                       ("io_errors", "io errors")):
+    for key, label in (
+        ("timing_lost", "timing lost"),
+        ("dropped", "dropped"),
+        ("io_errors", "io errors"),
+    ):
         value = s.get(key)
         text.append(f"  {label} ")
         text.append(_num(value), style="bold red" if value else "")
     stops = _d(doc.get("hard_stops"))
     if stops:
-        text.append(f"\nhard stops confirmed {_num(stops.get('confirmed'))}"
-                    f" timed out {_num(stops.get('timed_out'))}"
-                    f"  wait p99 {_num(stops.get('wait_p99_us'), '{:.0f}')} us")
+        text.append(
+            f"\nhard stops confirmed {_num(stops.get('confirmed'))}"
+            f" timed out {_num(stops.get('timed_out'))}"
+            f"  wait p99 {_num(stops.get('wait_p99_us'), '{:.0f}')} us"
+        )
     clamped = _d(doc.get("clamped"))
     if clamped:
         text.append("  clamped " + ", ".join(f"{k} {v}" for k, v in sorted(clamped.items())))
@@ -213,8 +253,7 @@ def _io(doc: Mapping[str, Any]) -> Text:
     text.append("\nDC motor ", style="bold")
     dc = doc.get("dc")
     if isinstance(dc, Mapping):
-        text.append(str(dc.get("state", "?")),
-                    style="bold green" if dc.get("running") else "")
+        text.append(str(dc.get("state", "?")), style="bold green" if dc.get("running") else "")
         if dc.get("running"):
             text.append(f", {_num(dc.get('left_s'), '{:.1f}')} s left")
     else:
@@ -231,21 +270,31 @@ def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
     c = _d(link.get("counters"))
     text.append(f"host port {link.get('peer', '?')}  frames {_num(c.get('frames'))}")
     text.append(f" ({_num(rate, '{:,.1f}', '?')}/s)")
-    bad = {k.removesuffix("_errors"): v for k, v in c.items()
-           if k.endswith("_errors") and k not in ("link_errors", "internal_errors") and v}
+    bad = {
+        k.removesuffix("_errors"): v
+        for k, v in c.items()
+        if k.endswith("_errors") and k not in ("link_errors", "internal_errors") and v
+    }
     text.append("  bad frames ")
-    text.append(", ".join(f"{k} {v}" for k, v in sorted(bad.items())) or "0",
-                style="yellow" if bad else "")
+    text.append(
+        ", ".join(f"{k} {v}" for k, v in sorted(bad.items())) or "0", style="yellow" if bad else ""
+    )
     sent = {k.removeprefix("sent_"): v for k, v in c.items() if k.startswith("sent_") and v}
     text.append("  errors sent ")
-    text.append(", ".join(f"{k}x{v}" for k, v in sorted(sent.items())) or "none",
-                style="yellow" if sent else "")
-    text.append(f"\n     held {_num(link.get('held'))} (max {_num(c.get('held_max'))})"
-                f"  waiting {'yes' if link.get('waiting') else 'no'}"
-                f"  gap discards {_num(c.get('gap_discards'))}")
+    text.append(
+        ", ".join(f"{k}x{v}" for k, v in sorted(sent.items())) or "none",
+        style="yellow" if sent else "",
+    )
+    text.append(
+        f"\n     held {_num(link.get('held'))} (max {_num(c.get('held_max'))})"
+        f"  waiting {'yes' if link.get('waiting') else 'no'}"
+        f"  gap discards {_num(c.get('gap_discards'))}"
+    )
     p = _d(link.get("processing"))
-    text.append(f"  processing p50 {_num(p.get('p50_us'), '{:.0f}')}"
-                f" p99 {_num(p.get('p99_us'), '{:.0f}')} max {_num(p.get('max_us'), '{:.0f}')} us")
+    text.append(
+        f"  processing p50 {_num(p.get('p50_us'), '{:.0f}')}"
+        f" p99 {_num(p.get('p99_us'), '{:.0f}')} max {_num(p.get('max_us'), '{:.0f}')} us"
+    )
     for key in ("link_errors", "internal_errors", "responses_dropped"):
         if c.get(key):
             text.append(f"  {key.replace('_', ' ')} {c[key]}", style="bold red")
@@ -253,8 +302,7 @@ def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
 
 
 def _recent(doc: Mapping[str, Any], since_s: float) -> Table:
-    table = Table(title="last frames", title_justify="left", box=box.SIMPLE_HEAD,
-                  padding=(0, 1))
+    table = Table(title="last frames", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1))
     table.add_column("age s", justify="right", no_wrap=True)
     table.add_column("frame", no_wrap=True)
     table.add_column("command")
@@ -263,13 +311,19 @@ def _recent(doc: Mapping[str, Any], since_s: float) -> Table:
     recent = [_d(r) for r in _l(_d(doc.get("link")).get("recent"))]
     for r in reversed(recent[-RECENT_SHOWN:]):
         at = r.get("at_s")
-        age = (now - at + since_s) if isinstance(now, int | float) and \
-            isinstance(at, int | float) else None
+        age = (
+            (now - at + since_s)
+            if isinstance(now, int | float) and isinstance(at, int | float)
+            else None
+        )
         result = r.get("result")
         style = "red" if isinstance(result, str) and result.startswith("E") else ""
-        table.add_row(Text(_num(age, "{:.1f}", "?")), Text(str(r.get("frame", ""))),
-                      Text(str(r.get("command", ""))),
-                      Text("(owed)" if result is None else str(result), style=style))
+        table.add_row(
+            Text(_num(age, "{:.1f}", "?")),
+            Text(str(r.get("frame", ""))),
+            Text(str(r.get("command", ""))),
+            Text("(owed)" if result is None else str(result), style=style),
+        )
     return table
 
 
@@ -279,13 +333,16 @@ def _drivers(doc: Mapping[str, Any]) -> Text | None:
         return None
     text = Text("drivers", style="bold")
     for d in drivers:
-        text.append(f"\n  {d.get('chip')} {d.get('device')}: polls {_num(d.get('polls'))}"
-                    f"  spi errors {_num(d.get('spi_errors'))}  DRV_STATUS "
-                    f"{d.get('drv_status')}")
+        text.append(
+            f"\n  {d.get('chip')} {d.get('device')}: polls {_num(d.get('polls'))}"
+            f"  spi errors {_num(d.get('spi_errors'))}  DRV_STATUS "
+            f"{d.get('drv_status')}"
+        )
         faults = _d(d.get("fault_counts"))
         if faults:
-            text.append("  faults " + ", ".join(f"{k} {v}" for k, v in sorted(faults.items())),
-                        style="red")
+            text.append(
+                "  faults " + ", ".join(f"{k} {v}" for k, v in sorted(faults.items())), style="red"
+            )
     return text
 
 
@@ -309,8 +366,9 @@ def print_error(console: Console, message: str) -> None:
     Console(stderr=True, width=console.width).print(Text(f"error: {message}"))
 
 
-def _follow(path: Path, period_s: float, updates: queue.Queue[Seen | str],
-            stop: threading.Event) -> None:
+def _follow(
+    path: Path, period_s: float, updates: queue.Queue[Seen | str], stop: threading.Event
+) -> None:
     """Reader thread: the subscription's updates into ``updates``; a string says why there
     are none (reconnecting every RETRY_S)."""
     while not stop.is_set():
@@ -336,14 +394,18 @@ def watch(path: Path, period_ms: int, console: Console | None = None) -> int:
     period_s = max(20, min(60_000, period_ms)) / 1000.0
     updates: queue.Queue[Seen | str] = queue.Queue()
     stop = threading.Event()
-    reader = threading.Thread(target=_follow, args=(path, period_s, updates, stop),
-                              name="motorctl-monitor", daemon=True)
+    reader = threading.Thread(
+        target=_follow, args=(path, period_s, updates, stop), name="motorctl-monitor", daemon=True
+    )
     reader.start()
     last: Seen | None = None
     before: Seen | None = None
     note = f"connecting to {path} ..."
-    live = Live(console=console, screen=console.is_terminal, auto_refresh=False,
-                transient=False) if console.is_terminal else None
+    live = (
+        Live(console=console, screen=console.is_terminal, auto_refresh=False, transient=False)
+        if console.is_terminal
+        else None
+    )
     try:
         with live if live is not None else contextlib.nullcontext():
             while True:
@@ -370,12 +432,13 @@ def watch(path: Path, period_ms: int, console: Console | None = None) -> int:
     return 0
 
 
-def _view(last: Seen | None, before: Seen | None, note: str,
-          period_s: float) -> RenderableType:
+def _view(last: Seen | None, before: Seen | None, note: str, period_s: float) -> RenderableType:
     if last is None:
         return Text(note or "waiting for the first update ...", style="yellow")
     now = time.monotonic()
     rate = frames_per_second(last, before, now, period_s)
-    footer = note or (f"updated {now - last.at:.1f} s ago; the daemon sends a change as it "
-                      f"comes, looking every {period_s * 1000:.0f} ms; Ctrl-C quits")
+    footer = note or (
+        f"updated {now - last.at:.1f} s ago; the daemon sends a change as it "
+        f"comes, looking every {period_s * 1000:.0f} ms; Ctrl-C quits"
+    )
     return render(last.doc, rate, since_s=now - last.at, note=footer)

@@ -35,9 +35,13 @@ from motorctl.motion.rt import set_realtime
 
 #: get_throttled's bits (the Raspberry Pi firmware's)
 THROTTLED_BITS = {
-    0: "under-voltage now", 1: "ARM frequency capped now", 2: "throttled now",
-    3: "soft temperature limit now", 16: "under-voltage has occurred",
-    17: "ARM frequency capping has occurred", 18: "throttling has occurred",
+    0: "under-voltage now",
+    1: "ARM frequency capped now",
+    2: "throttled now",
+    3: "soft temperature limit now",
+    16: "under-voltage has occurred",
+    17: "ARM frequency capping has occurred",
+    18: "throttling has occurred",
     19: "soft temperature limit has occurred",
 }
 INTERVAL_S = 0.001  # one timed sleep per millisecond
@@ -129,9 +133,12 @@ def read_platform(roots: Roots = Roots()) -> Platform:
         modes = (_read(roots.sys / "kernel" / "debug" / "sched" / "preempt") or "").split()
         current = next((m.strip("()") for m in modes if m.startswith("(")), None)
         current = current or _cmdline_value(cmdline, "preempt")
-        p.preempt = f"{current} (PREEMPT_DYNAMIC)" if current else \
-            "PREEMPT_DYNAMIC (mode not readable: /sys/kernel/debug/sched/preempt needs root " \
+        p.preempt = (
+            f"{current} (PREEMPT_DYNAMIC)"
+            if current
+            else "PREEMPT_DYNAMIC (mode not readable: /sys/kernel/debug/sched/preempt needs root "
             "and debugfs)"
+        )
     elif "PREEMPT" in version_words:
         p.preempt = "full (PREEMPT)"
     elif p.version is not None:
@@ -140,24 +147,29 @@ def read_platform(roots: Roots = Roots()) -> Platform:
     p.rt_period_us = _int(kernel / "sched_rt_period_us")
     cpu_dir = roots.sys / "devices" / "system" / "cpu"
     p.online = parse_cpulist(_read(cpu_dir / "online"))
-    p.isolated = parse_cpulist(_read(cpu_dir / "isolated")) or \
-        parse_cpulist(_cmdline_value(cmdline, "isolcpus"))
+    p.isolated = parse_cpulist(_read(cpu_dir / "isolated")) or parse_cpulist(
+        _cmdline_value(cmdline, "isolcpus")
+    )
     p.nohz_full = parse_cpulist(_read(cpu_dir / "nohz_full"))
     for gov in sorted(cpu_dir.glob("cpu[0-9]*/cpufreq/scaling_governor")):
         name = gov.parent.parent.name.removeprefix("cpu")
         text = _read(gov)
         if name.isdigit() and text:
             p.governors[int(name)] = text
-    p.model = _read(roots.proc / "device-tree" / "model") or \
-        _read(roots.sys / "firmware" / "devicetree" / "base" / "model")
+    p.model = _read(roots.proc / "device-tree" / "model") or _read(
+        roots.sys / "firmware" / "devicetree" / "base" / "model"
+    )
     for hwmon in sorted((roots.sys / "class" / "hwmon").glob("hwmon*")):
         if _read(hwmon / "name") == "rpi_volt":
             alarm = _read(hwmon / "in0_lcrit_alarm")
             if alarm in ("0", "1"):
                 p.undervoltage = alarm == "1"
     platform_dir = roots.sys / "devices" / "platform"
-    for pattern in ("soc/soc:firmware/get_throttled", "soc*/*firmware*/get_throttled",
-                    "*firmware*/get_throttled"):
+    for pattern in (
+        "soc/soc:firmware/get_throttled",
+        "soc*/*firmware*/get_throttled",
+        "*firmware*/get_throttled",
+    ):
         found = sorted(platform_dir.glob(pattern))
         text = _read(found[0]) if found else None
         if text:
@@ -170,13 +182,18 @@ def read_platform(roots: Roots = Roots()) -> Platform:
 
 
 def throttled_text(bits: int) -> list[str]:
-    return [text for bit, text in THROTTLED_BITS.items() if bits >> bit & 1] + \
-        [f"bit {b} (unknown)" for b in range(32) if bits >> b & 1 and b not in THROTTLED_BITS]
+    return [text for bit, text in THROTTLED_BITS.items() if bits >> bit & 1] + [
+        f"bit {b} (unknown)" for b in range(32) if bits >> b & 1 and b not in THROTTLED_BITS
+    ]
 
 
-def measure_latency(seconds: float, priority: int, cpu: int,
-                    realtime: Callable[[int], str | None] = set_realtime,
-                    interval_s: float = INTERVAL_S) -> Latency:
+def measure_latency(
+    seconds: float,
+    priority: int,
+    cpu: int,
+    realtime: Callable[[int], str | None] = set_realtime,
+    interval_s: float = INTERVAL_S,
+) -> Latency:
     """``seconds`` of timed sleeps of ``interval_s`` on a new thread, at SCHED_FIFO
     ``priority`` (0: normal priority) on ``cpu`` (-1: any); refusals are noted, never
     raised."""
@@ -196,9 +213,11 @@ def measure_latency(seconds: float, priority: int, cpu: int,
             if why is None:
                 policy[0] = f"SCHED_FIFO {priority}"
             else:
-                notes.append(f"SCHED_FIFO {priority} refused ({why}): measured at normal "
-                             "priority; run the probe as root, or as the service's user with "
-                             "its LimitRTPRIO, to measure what the executor gets")
+                notes.append(
+                    f"SCHED_FIFO {priority} refused ({why}): measured at normal "
+                    "priority; run the probe as root, or as the service's user with "
+                    "its LimitRTPRIO, to measure what the executor gets"
+                )
         step = round(interval_s * 1e9)
         end = time.perf_counter_ns() + round(seconds * 1e9)
         while True:
@@ -212,9 +231,14 @@ def measure_latency(seconds: float, priority: int, cpu: int,
     thread.start()
     thread.join()
     summary = stats.summary()
-    return Latency(samples=stats.count, p50_us=float(summary["p50_us"]),
-                   p99_us=float(summary["p99_us"]), max_us=float(summary["max_us"]),
-                   policy=" ".join(policy), notes=notes)
+    return Latency(
+        samples=stats.count,
+        p50_us=float(summary["p50_us"]),
+        p99_us=float(summary["p99_us"]),
+        max_us=float(summary["max_us"]),
+        policy=" ".join(policy),
+        notes=notes,
+    )
 
 
 @dataclass(frozen=True)
@@ -247,74 +271,101 @@ def lag_full_steps(lateness_us: float, rate: float, microsteps: int) -> float:
     return lateness_us * 1e-6 * rate / microsteps
 
 
-def advice(p: Platform, lat: Latency | None, cfg: TimingConfig,
-           motors: Sequence[MotorRate]) -> list[str]:
+def advice(
+    p: Platform, lat: Latency | None, cfg: TimingConfig, motors: Sequence[MotorRate]
+) -> list[str]:
     """Plain advice, most important first; an empty list: nothing to change."""
     out: list[str] = []
     if p.undervoltage or (p.throttled is not None and p.throttled & 0x5):
-        out.append("the board reports under-voltage or throttling: use a stronger power "
-                   "supply (and cooling); a throttled CPU runs every step slower")
+        out.append(
+            "the board reports under-voltage or throttling: use a stronger power "
+            "supply (and cooling); a throttled CPU runs every step slower"
+        )
     elif p.throttled is not None and p.throttled & 0x50000:
-        out.append("the board has seen under-voltage or throttling since boot: check the "
-                   "power supply")
+        out.append(
+            "the board has seen under-voltage or throttling since boot: check the power supply"
+        )
     if p.version is not None and not p.rt:
-        out.append("the kernel is not PREEMPT_RT: an RT kernel (Debian: linux-image-rt-arm64;"
-                   " Raspberry Pi OS: a PREEMPT_RT build) bounds the executor's wake-ups")
+        out.append(
+            "the kernel is not PREEMPT_RT: an RT kernel (Debian: linux-image-rt-arm64;"
+            " Raspberry Pi OS: a PREEMPT_RT build) bounds the executor's wake-ups"
+        )
     if p.rt_runtime_us is not None and p.rt_runtime_us != -1:
         period = p.rt_period_us or 1_000_000
         parked = max(0, period - p.rt_runtime_us) / 1000
-        out.append(f"kernel.sched_rt_runtime_us is {p.rt_runtime_us}: a busy SCHED_FIFO "
-                   f"executor is parked {parked:.0f} ms of every {period / 1000:.0f} ms; set "
-                   "'sysctl kernel.sched_rt_runtime_us=-1' (e.g. in /etc/sysctl.d/) on a "
-                   "multi-core board")
+        out.append(
+            f"kernel.sched_rt_runtime_us is {p.rt_runtime_us}: a busy SCHED_FIFO "
+            f"executor is parked {parked:.0f} ms of every {period / 1000:.0f} ms; set "
+            "'sysctl kernel.sched_rt_runtime_us=-1' (e.g. in /etc/sysctl.d/) on a "
+            "multi-core board"
+        )
     slow = sorted({g for g in p.governors.values() if g != "performance"})
     if slow:
-        out.append(f"cpufreq governor {', '.join(slow)}: set 'performance' (frequency changes "
-                   "delay wake-ups), e.g. cpufreq.default_governor=performance on the kernel "
-                   "command line")
+        out.append(
+            f"cpufreq governor {', '.join(slow)}: set 'performance' (frequency changes "
+            "delay wake-ups), e.g. cpufreq.default_governor=performance on the kernel "
+            "command line"
+        )
     if cfg.cpu < 0:
         spare = max(p.online) if len(p.online) > 1 else None
-        example = f" (e.g. isolcpus={spare} nohz_full={spare} on the kernel command line, " \
-            f"then [step_thread] cpu = {spare})" if spare is not None else ""
+        example = (
+            f" (e.g. isolcpus={spare} nohz_full={spare} on the kernel command line, "
+            f"then [step_thread] cpu = {spare})"
+            if spare is not None
+            else ""
+        )
         out.append(f"isolate a CPU for the executor{example}")
     elif p.online and cfg.cpu not in p.online:
-        out.append(f"[step_thread] cpu = {cfg.cpu} is not an online CPU "
-                   f"({_cpus(p.online)}): choose one of them")
+        out.append(
+            f"[step_thread] cpu = {cfg.cpu} is not an online CPU "
+            f"({_cpus(p.online)}): choose one of them"
+        )
     elif cfg.cpu not in p.isolated:
-        out.append(f"the executor's CPU {cfg.cpu} is not isolated: add isolcpus={cfg.cpu} "
-                   f"nohz_full={cfg.cpu} to the kernel command line")
+        out.append(
+            f"the executor's CPU {cfg.cpu} is not isolated: add isolcpus={cfg.cpu} "
+            f"nohz_full={cfg.cpu} to the kernel command line"
+        )
     if cfg.priority == 0:
-        out.append("[step_thread] priority = 0: the executor runs without real-time priority;"
-                   " set it (e.g. 50)")
+        out.append(
+            "[step_thread] priority = 0: the executor runs without real-time priority;"
+            " set it (e.g. 50)"
+        )
     if lat is not None and lat.samples:
         if lat.p99_us > cfg.spin_us:
-            out.append(f"1 % of wake-ups are later than {lat.p99_us:,.0f} us, more than "
-                       f"step_thread.spin_us ({cfg.spin_us:,.0f}), which busy-waits that "
-                       "part away: those steps come late")
+            out.append(
+                f"1 % of wake-ups are later than {lat.p99_us:,.0f} us, more than "
+                f"step_thread.spin_us ({cfg.spin_us:,.0f}), which busy-waits that "
+                "part away: those steps come late"
+            )
         groups: dict[tuple[float, int | None, float, float, bool], list[str]] = {}
         for m in motors:  # motors alike share a line
-            key = (m.max_speed, m.microsteps, m.start_speed, m.max_lag_full_steps,
-                   m.loses_steps)
+            key = (m.max_speed, m.microsteps, m.start_speed, m.max_lag_full_steps, m.loses_steps)
             groups.setdefault(key, []).append(m.name)
         for (rate, microsteps, start, tolerance, loses), names in groups.items():
             micro = microsteps or 16
             lag = lag_full_steps(lat.max_us, rate, micro)
             known = "" if microsteps else "; microsteps not in the config: 16 assumed"
             which = f"motor{'s' if len(names) > 1 else ''} {', '.join(names)}"
-            out.append(f"max lag at {rate:,.0f} step/s with {micro} microsteps would be "
-                       f"{lag:,.2f} full steps ({lat.max_us * 1e-6 * rate:,.1f} steps) after "
-                       f"the worst wake-up ({which}{known})")
+            out.append(
+                f"max lag at {rate:,.0f} step/s with {micro} microsteps would be "
+                f"{lag:,.2f} full steps ({lat.max_us * 1e-6 * rate:,.1f} steps) after "
+                f"the worst wake-up ({which}{known})"
+            )
             if lag > tolerance and rate > start:
                 safe = max(start, tolerance * micro / (lat.max_us * 1e-6))
                 if loses:
-                    out.append(f"that is beyond max_lag_full_steps ({tolerance:g}): a wake-up "
-                               f"that late stops {which} with E4 'step timing lost' above "
-                               f"{safe:,.0f} step/s; make the platform steadier (above) or "
-                               "keep them slower")
+                    out.append(
+                        f"that is beyond max_lag_full_steps ({tolerance:g}): a wake-up "
+                        f"that late stops {which} with E4 'step timing lost' above "
+                        f"{safe:,.0f} step/s; make the platform steadier (above) or "
+                        "keep them slower"
+                    )
                 else:
-                    out.append(f"beyond max_lag_full_steps ({tolerance:g}) above {safe:,.0f} "
-                               f"step/s: the mock's simulated {which} slide instead; real "
-                               "motors there would stop with E4 'step timing lost'")
+                    out.append(
+                        f"beyond max_lag_full_steps ({tolerance:g}) above {safe:,.0f} "
+                        f"step/s: the mock's simulated {which} slide instead; real "
+                        "motors there would stop with E4 'step timing lost'"
+                    )
     return out
 
 
@@ -322,15 +373,26 @@ def _cpus(cpus: set[int]) -> str:
     return ",".join(str(c) for c in sorted(cpus)) or "none"
 
 
-def report(p: Platform, lat: Latency | None, cfg: TimingConfig,
-           motors: Sequence[MotorRate], skipped: str | None = None) -> str:
+def report(
+    p: Platform,
+    lat: Latency | None,
+    cfg: TimingConfig,
+    motors: Sequence[MotorRate],
+    skipped: str | None = None,
+) -> str:
     """The platform section of ``--probe``."""
     lines = ["platform (what decides step timing):"]
     lines.append(f"  board: {p.model or 'not reported (no device-tree model)'}")
     lines.append(f"  kernel: {p.kernel or '?'}; preemption: {p.preempt}")
-    runtime = "not readable" if p.rt_runtime_us is None else \
-        ("-1 (no RT throttling)" if p.rt_runtime_us == -1 else
-         f"{p.rt_runtime_us} of {p.rt_period_us or '?'} (RT throttling on)")
+    runtime = (
+        "not readable"
+        if p.rt_runtime_us is None
+        else (
+            "-1 (no RT throttling)"
+            if p.rt_runtime_us == -1
+            else f"{p.rt_runtime_us} of {p.rt_period_us or '?'} (RT throttling on)"
+        )
+    )
     lines.append(f"  kernel.sched_rt_runtime_us: {runtime}")
     if p.governors:
         by_gov: dict[str, set[int]] = {}
@@ -340,25 +402,31 @@ def report(p: Platform, lat: Latency | None, cfg: TimingConfig,
     else:
         govs = "no cpufreq (fixed frequency, or not exposed)"
     lines.append(f"  cpufreq governor: {govs}")
-    lines.append(f"  CPUs online: {_cpus(p.online)}; isolated: {_cpus(p.isolated)}; "
-                 f"nohz_full: {_cpus(p.nohz_full)}")
+    lines.append(
+        f"  CPUs online: {_cpus(p.online)}; isolated: {_cpus(p.isolated)}; "
+        f"nohz_full: {_cpus(p.nohz_full)}"
+    )
     where = f"CPU {cfg.cpu}" if cfg.cpu >= 0 else "not pinned ([step_thread] cpu = -1)"
     lines.append(f"  executor: {cfg.executor}, SCHED_FIFO {cfg.priority}, {where}")
     if p.undervoltage is None and p.throttled is None:
         lines.append("  under-voltage/throttling: not reported by this board")
     else:
         if p.undervoltage is not None:
-            lines.append("  under-voltage (rpi_volt): "
-                         + ("YES, in the last 2 s" if p.undervoltage else "no"))
+            lines.append(
+                "  under-voltage (rpi_volt): "
+                + ("YES, in the last 2 s" if p.undervoltage else "no")
+            )
         if p.throttled is not None:
             what = ", ".join(throttled_text(p.throttled)) or "nothing"
             lines.append(f"  firmware get_throttled: 0x{p.throttled:x} ({what})")
     if lat is None:
         lines.append(f"  latency: {skipped or 'not measured'}")
     else:
-        lines.append(f"  latency: {lat.samples:,} timed sleeps of {INTERVAL_S * 1000:.0f} ms "
-                     f"at {lat.policy}: late p50 {lat.p50_us:,.0f} us, p99 "
-                     f"{lat.p99_us:,.0f} us, max {lat.max_us:,.0f} us")
+        lines.append(
+            f"  latency: {lat.samples:,} timed sleeps of {INTERVAL_S * 1000:.0f} ms "
+            f"at {lat.policy}: late p50 {lat.p50_us:,.0f} us, p99 "
+            f"{lat.p99_us:,.0f} us, max {lat.max_us:,.0f} us"
+        )
         lines.extend(f"    {note}" for note in lat.notes)
     tips = advice(p, lat, cfg, motors)
     lines.append("advice:" if tips else "advice: nothing to change")

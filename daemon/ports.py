@@ -27,8 +27,9 @@ def open_pty(path: Path) -> tuple[int, str]:
     The slave is mode 0660 with the daemon's group (the ``motorctl`` group under systemd):
     only that group's members may drive the motors."""
     if (path.exists() or path.is_symlink()) and not path.is_symlink():
-        raise StartupError(f"{path} exists and is not a symlink; remove it or choose "
-                           "another --pty path")
+        raise StartupError(
+            f"{path} exists and is not a symlink; remove it or choose another --pty path"
+        )
     master, slave = os.openpty()
     tty.setraw(slave, termios.TCSANOW)
     name = os.ttyname(slave)

@@ -50,25 +50,33 @@ class DeviceError(Exception):
 def explain(path: str, code: int | None, detail: str) -> str:
     """What a failed open of ``path`` means to a user, and what to do about it."""
     if code in (errno.ENOENT, errno.ENXIO, errno.ENODEV):
-        return (f"serial device {path} does not exist ({detail}): check the path ({_FIND}), "
-                "that the USB adapter is plugged in or the UART enabled; a USB adapter is best "
-                "named by its /dev/serial/by-id/ path, which stays the same when it is "
-                "plugged back in")
+        return (
+            f"serial device {path} does not exist ({detail}): check the path ({_FIND}), "
+            "that the USB adapter is plugged in or the UART enabled; a USB adapter is best "
+            "named by its /dev/serial/by-id/ path, which stays the same when it is "
+            "plugged back in"
+        )
     if code in (errno.EACCES, errno.EPERM):
-        return (f"no permission to open serial device {path} ({detail}): the user running "
-                "motorctld must be in the device's group (ls -l " + path + "; usually "
-                "'sudo usermod -aG dialout USER' and log in again; the packaged service's "
-                "user motorctl is in dialout)")
+        return (
+            f"no permission to open serial device {path} ({detail}): the user running "
+            "motorctld must be in the device's group (ls -l " + path + "; usually "
+            "'sudo usermod -aG dialout USER' and log in again; the packaged service's "
+            "user motorctl is in dialout)"
+        )
     if code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY):
         holder = flock_holder(Path(path)) if os.path.exists(path) else None
         who = f" (PID {holder})" if holder is not None else ""
-        return (f"serial device {path} is held by another process{who}: stop it first "
-                "(another motorctld, a getty such as serial-getty@, ModemManager, or a "
-                "terminal program)")
+        return (
+            f"serial device {path} is held by another process{who}: stop it first "
+            "(another motorctld, a getty such as serial-getty@, ModemManager, or a "
+            "terminal program)"
+        )
     if code == errno.ENOTTY:
-        return (f"{path} is not a serial device ({detail}): name a tty ({_FIND})")
-    return (f"cannot open serial device {path}: {detail}; check the path ({_FIND}), that the "
-            "UART is enabled, and that the user is in the dialout group")
+        return f"{path} is not a serial device ({detail}): name a tty ({_FIND})"
+    return (
+        f"cannot open serial device {path}: {detail}; check the path ({_FIND}), that the "
+        "UART is enabled, and that the user is in the dialout group"
+    )
 
 
 class Backoff:
@@ -117,8 +125,9 @@ class SerialDevice:
                 code = errno.ENOTTY  # tcgetattr on something that is not a terminal
             raise DeviceError(explain(self.path, code, detail), code) from exc
         except OSError as exc:  # e.g. ioctls of a device that vanished while being opened
-            raise DeviceError(explain(self.path, exc.errno, exc.strerror or str(exc)),
-                              exc.errno) from exc
+            raise DeviceError(
+                explain(self.path, exc.errno, exc.strerror or str(exc)), exc.errno
+            ) from exc
         fd = int(port.fileno())
         try:
             attrs = termios.tcgetattr(fd)

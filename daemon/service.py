@@ -94,8 +94,13 @@ def journal_stream_is_stderr(stderr: TextIO | None = None) -> bool:
     return (st.st_dev, st.st_ino) == (int(dev), int(ino))
 
 
-_PRIORITY = {logging.CRITICAL: 2, logging.ERROR: 3, logging.WARNING: 4, logging.INFO: 6,
-             logging.DEBUG: 7}
+_PRIORITY = {
+    logging.CRITICAL: 2,
+    logging.ERROR: 3,
+    logging.WARNING: 4,
+    logging.INFO: 6,
+    logging.DEBUG: 7,
+}
 
 
 class JournalHandler(logging.Handler):
@@ -109,8 +114,11 @@ class JournalHandler(logging.Handler):
     def emit(self, record: logging.LogRecord) -> None:
         try:
             message = self.format(record)
-            fields = {k: str(v) for k, v in record.__dict__.items()
-                      if k.isupper() and k.replace("_", "").isalnum() and v is not None}
+            fields = {
+                k: str(v)
+                for k, v in record.__dict__.items()
+                if k.isupper() and k.replace("_", "").isalnum() and v is not None
+            }
             self._send(
                 message,
                 PRIORITY=str(_PRIORITY.get(record.levelno, 6)),
@@ -131,8 +139,9 @@ class FieldsFormatter(logging.Formatter):
 
     def format(self, record: logging.LogRecord) -> str:
         text = super().format(record)
-        fields = [f"{k}={v}" for k, v in sorted(record.__dict__.items())
-                  if k.isupper() and v is not None]
+        fields = [
+            f"{k}={v}" for k, v in sorted(record.__dict__.items()) if k.isupper() and v is not None
+        ]
         return f"{text} [{' '.join(fields)}]" if fields else text
 
 
@@ -259,8 +268,13 @@ class StatusLine:
     is looked at every ``period`` seconds (counters such as frames served change quietly).
     """
 
-    def __init__(self, summary: Callable[[], str], send: Callable[[str], bool] = sd_notify,
-                 period: float = 2.0, before: Callable[[], None] = lambda: None) -> None:
+    def __init__(
+        self,
+        summary: Callable[[], str],
+        send: Callable[[str], bool] = sd_notify,
+        period: float = 2.0,
+        before: Callable[[], None] = lambda: None,
+    ) -> None:
         self.summary = summary
         self.before = before  # e.g. MotorEventLog.flush, on this thread
         self.send = send
@@ -269,8 +283,7 @@ class StatusLine:
         self.sent = 0
         self._wake = threading.Event()
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="motorctl-status-line",
-                                        daemon=True)
+        self._thread = threading.Thread(target=self._run, name="motorctl-status-line", daemon=True)
 
     def start(self) -> None:
         self.update()
@@ -331,8 +344,15 @@ class MotorEventLog:
         self._pending: collections.deque[_Event] = collections.deque(maxlen=limit)
         self._lock = threading.Lock()
 
-    def record(self, index: int, name: str, event: str, fault: str | None,
-               cause: str | None = None, lost: bool = False) -> bool:
+    def record(
+        self,
+        index: int,
+        name: str,
+        event: str,
+        fault: str | None,
+        cause: str | None = None,
+        lost: bool = False,
+    ) -> bool:
         """Queue an event worth a log line; True when it was one."""
         if event not in _EVENT_LEVELS:
             return False
@@ -342,14 +362,23 @@ class MotorEventLog:
 
     def flush(self) -> None:
         with self._lock:
-            events, self._pending = list(self._pending), collections.deque(
-                maxlen=self._pending.maxlen)
+            events, self._pending = (
+                list(self._pending),
+                collections.deque(maxlen=self._pending.maxlen),
+            )
         for index, name, event, fault, cause, lost in events:
             lost_text = "position lost (home it again); " if lost else ""
-            text = {"fault": f"fault latched: {fault}; {lost_text}E4 until StopMove clears it",
-                    "cleared": "fault cleared", "homed": "homed: position 0"}[event]
-            fields: dict[str, object] = {"MOTOR": index, "MOTOR_NAME": name, "EVENT": event,
-                                         "FAULT": fault}
+            text = {
+                "fault": f"fault latched: {fault}; {lost_text}E4 until StopMove clears it",
+                "cleared": "fault cleared",
+                "homed": "homed: position 0",
+            }[event]
+            fields: dict[str, object] = {
+                "MOTOR": index,
+                "MOTOR_NAME": name,
+                "EVENT": event,
+                "FAULT": fault,
+            }
             if event == "fault":
                 fields.update(CAUSE=cause, POSITION_LOST=int(lost))
             log.log(_EVENT_LEVELS[event], "motor %d (%s): %s", index, name, text, extra=fields)

@@ -52,9 +52,20 @@ log = logging.getLogger("motorctl.link")
 
 # Every counter exists from the start, so another thread may copy them at any time.
 COUNTERS = (
-    "bytes_in", "frames", "frames_good", "checksum_errors", "unknown_errors", "padding_errors",
-    "length_errors", "responses", "gap_discards", "held_max", "held_overflow",
-    "stops_while_held", "waits_taken_up", "internal_errors",
+    "bytes_in",
+    "frames",
+    "frames_good",
+    "checksum_errors",
+    "unknown_errors",
+    "padding_errors",
+    "length_errors",
+    "responses",
+    "gap_discards",
+    "held_max",
+    "held_overflow",
+    "stops_while_held",
+    "waits_taken_up",
+    "internal_errors",
     *(f"sent_{code.short}" for code in ErrorCode),
 )
 _SENT = {code.value: f"sent_{code.short}" for code in ErrorCode}
@@ -155,9 +166,15 @@ class LinkSession:
                 if len(described) >= CACHE_LIMIT:
                     described.clear()
                 described[(frame, answer)] = words
-            out.append({"at_s": t, "frame": frame.hex(" "), "command": words[0],
-                        "answer": None if answer is None else answer.hex(" "),
-                        "result": words[1]})
+            out.append(
+                {
+                    "at_s": t,
+                    "frame": frame.hex(" "),
+                    "command": words[0],
+                    "answer": None if answer is None else answer.hex(" "),
+                    "result": words[1],
+                }
+            )
         return out
 
     def _describe(self, frame: bytes, answer: bytes | None) -> tuple[str, str | None]:

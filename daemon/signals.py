@@ -64,8 +64,11 @@ class StopSignals:
         name = signal.Signals(signum).name
         again = self.requested is not None
         self.requested = name
-        how = " (the terminal closed, or someone asked): stopping as for SIGTERM" \
-            if signum == signal.SIGHUP else ": stopping"
+        how = (
+            " (the terminal closed, or someone asked): stopping as for SIGTERM"
+            if signum == signal.SIGHUP
+            else ": stopping"
+        )
         if again:
             how = ": already stopping"
         log.info("%s%s", name, how, extra={"SIGNAL": name})

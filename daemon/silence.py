@@ -32,8 +32,13 @@ Action = Callable[[float], Sequence[str]]
 
 
 class SilenceWatch:
-    def __init__(self, timeout_s: float, act: Action | None = None, now: float = 0.0,
-                 action: str = "decelerate") -> None:
+    def __init__(
+        self,
+        timeout_s: float,
+        act: Action | None = None,
+        now: float = 0.0,
+        action: str = "decelerate",
+    ) -> None:
         if timeout_s < 0:
             raise ValueError("timeout_s must be >= 0")
         if timeout_s > 0 and act is None:
@@ -81,11 +86,18 @@ class SilenceWatch:
         if stopped:
             self.counters["link_timeouts"] += 1
             self.counters["link_timeout_stops"] += len(stopped)
-            log.warning("no byte from the host for %.0f ms ([link] timeout_ms = %.0f, "
-                        "action %s): stopped %s; a stopped motor answers E4 until a StopMove "
-                        "clears it", (now - self.last) * 1000, self.timeout_s * 1000,
-                        self.action, ", ".join(stopped), extra={"EVENT": "link_timeout"})
+            log.warning(
+                "no byte from the host for %.0f ms ([link] timeout_ms = %.0f, "
+                "action %s): stopped %s; a stopped motor answers E4 until a StopMove "
+                "clears it",
+                (now - self.last) * 1000,
+                self.timeout_s * 1000,
+                self.action,
+                ", ".join(stopped),
+                extra={"EVENT": "link_timeout"},
+            )
         else:
-            log.debug("no byte from the host for %.0f ms: nothing was moving",
-                      (now - self.last) * 1000)
+            log.debug(
+                "no byte from the host for %.0f ms: nothing was moving", (now - self.last) * 1000
+            )
         return True

@@ -108,9 +108,15 @@ class SavedMotor:
     position_lost: bool
 
     def to_json(self) -> dict[str, Any]:
-        return {"name": self.name, "fingerprint": self.fingerprint, "position": self.position,
-                "home": self.home, "waypoints": list(self.waypoints), "moving": self.moving,
-                "position_lost": self.position_lost}
+        return {
+            "name": self.name,
+            "fingerprint": self.fingerprint,
+            "position": self.position,
+            "home": self.home,
+            "waypoints": list(self.waypoints),
+            "moving": self.moving,
+            "position_lost": self.position_lost,
+        }
 
 
 @dataclass(frozen=True)
@@ -130,8 +136,10 @@ class SavedState:
     slots: dict[str, int] = field(default_factory=dict)  # name -> place in the file (read)
 
     def to_bytes(self) -> bytes:
-        data: dict[str, Any] = {"version": STATE_VERSION,
-                                "motors": [m.to_json() for m in self.motors]}
+        data: dict[str, Any] = {
+            "version": STATE_VERSION,
+            "motors": [m.to_json() for m in self.motors],
+        }
         data.update(self.extra)
         return (json.dumps(data, indent=1, sort_keys=True) + "\n").encode()
 
@@ -194,8 +202,7 @@ def parse_state(raw: bytes) -> SavedState:
     if not isinstance(data, dict):
         raise StateError("not a JSON object")
     if data.get("version") != STATE_VERSION:
-        raise StateError(f"version is {data.get('version')!r}, this daemon writes "
-                         f"{STATE_VERSION}")
+        raise StateError(f"version is {data.get('version')!r}, this daemon writes {STATE_VERSION}")
     motors = data.get("motors")
     if not isinstance(motors, list):
         raise StateError("'motors' is missing or not a list")
@@ -211,13 +218,17 @@ def parse_state(raw: bytes) -> SavedState:
     shared = {name for name, n in names.items() if n > 1}
     for i, saved in good:
         if saved.name in shared:
-            bad.append(BadRecord(i, saved.name, f"{names[saved.name]} motor records are "
-                                                f"named {saved.name!r}"))
+            bad.append(
+                BadRecord(
+                    i, saved.name, f"{names[saved.name]} motor records are named {saved.name!r}"
+                )
+            )
     bad.sort(key=lambda b: b.index)
     kept = [(i, saved) for i, saved in good if saved.name not in shared]
     extra = {k: v for k, v in data.items() if k not in ("version", "motors")}
-    return SavedState([saved for _, saved in kept], extra, bad,
-                      {saved.name: i for i, saved in kept})
+    return SavedState(
+        [saved for _, saved in kept], extra, bad, {saved.name: i for i, saved in kept}
+    )
 
 
 def read_state(path: Path) -> SavedState | None:
@@ -232,9 +243,14 @@ def read_state(path: Path) -> SavedState | None:
         raise StateError(f"{path}: {exc}") from exc
 
 
-_KINDS = ((stat.S_ISDIR, "a directory"), (stat.S_ISLNK, "a symbolic link"),
-          (stat.S_ISFIFO, "a FIFO"), (stat.S_ISSOCK, "a socket"),
-          (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"))
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISLNK, "a symbolic link"),
+    (stat.S_ISFIFO, "a FIFO"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+)
 
 
 def _kind(mode: int) -> str:
@@ -284,12 +300,20 @@ def set_aside(path: Path) -> Path | None:
     bad = aside_name(path)
     try:
         if bad is None:
-            raise OSError(errno.EEXIST, f"{path.name}.bad .. {path.name}.bad."
-                                        f"{ASIDE_LIMIT - 1} are all taken; remove old ones")
+            raise OSError(
+                errno.EEXIST,
+                f"{path.name}.bad .. {path.name}.bad."
+                f"{ASIDE_LIMIT - 1} are all taken; remove old ones",
+            )
         os.rename(path, bad)
     except OSError as exc:
-        log.error("cannot move %s aside to %s: %s", path, bad or f"{path.name}.bad.N",
-                  exc.strerror or exc, extra={"STATE_PATH": str(path), "ERRNO": exc.errno})
+        log.error(
+            "cannot move %s aside to %s: %s",
+            path,
+            bad or f"{path.name}.bad.N",
+            exc.strerror or exc,
+            extra={"STATE_PATH": str(path), "ERRNO": exc.errno},
+        )
         return None
     return bad
 
@@ -305,8 +329,13 @@ def clear_the_way(path: Path) -> Path | None:
         return None
     bad = set_aside(path)
     if bad is not None:
-        log.warning("%s was %s, in the way of a file: moved aside to %s", path, _kind(mode),
-                    bad, extra={"STATE_PATH": str(path)})
+        log.warning(
+            "%s was %s, in the way of a file: moved aside to %s",
+            path,
+            _kind(mode),
+            bad,
+            extra={"STATE_PATH": str(path)},
+        )
     return bad
 
 
@@ -333,8 +362,13 @@ def match_motors(state: SavedState, motors: Sequence[MotorIdentity]) -> list[Mat
         elif saved.fingerprint != ident.fingerprint:
             out.append(Match(None, "its geometry changed since the state was written"))
         elif len(saved.waypoints) > ident.max_waypoints:
-            out.append(Match(None, f"{len(saved.waypoints)} waypoints saved, its table "
-                                   f"holds {ident.max_waypoints}"))
+            out.append(
+                Match(
+                    None,
+                    f"{len(saved.waypoints)} waypoints saved, its table "
+                    f"holds {ident.max_waypoints}",
+                )
+            )
         elif ident.steps_per_rev > 0 and not 0 <= saved.position < ident.steps_per_rev:
             out.append(Match(None, f"position {saved.position} outside its revolution"))
         else:
@@ -346,11 +380,16 @@ def unmatched_records(state: SavedState, motors: Sequence[MotorIdentity]) -> lis
     """The records of the file that belong to no configured motor, each described: motors
     the config does not have, and records without a usable name."""
     names = {ident.name for ident in motors}
-    out = [(state.slots.get(saved.name, -1), f"motor {saved.name!r}, which the config does "
-                                             f"not have")
-           for saved in state.motors if saved.name not in names]
-    out += [(b.index, f"motors[{b.index}] of no configured motor ({b.problem})")
-            for b in state.bad if b.name not in names]
+    out = [
+        (state.slots.get(saved.name, -1), f"motor {saved.name!r}, which the config does not have")
+        for saved in state.motors
+        if saved.name not in names
+    ]
+    out += [
+        (b.index, f"motors[{b.index}] of no configured motor ({b.problem})")
+        for b in state.bad
+        if b.name not in names
+    ]
     return [text for _, text in sorted(out)]
 
 
@@ -377,8 +416,7 @@ def write_atomic(path: Path, data: bytes, mode: int = 0o640) -> None:
     """Replace ``path`` with ``data``, complete or not at all; OSError when it cannot."""
     tmp = path.with_name(path.name + ".tmp")
     clear_the_way(tmp)  # a directory or a link there would block every write
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC,
-                 mode)
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
     try:
         try:
             write_all(fd, data)
@@ -550,9 +588,13 @@ class Snapshot:
 class StateWriter:
     """Writes ``snapshot()`` to ``path``: on request on its own thread, or synchronously."""
 
-    def __init__(self, path: Path, snapshot: Callable[[], Snapshot],
-                 journal: MotionJournal | None = None,
-                 on_change: Callable[[], None] = lambda: None) -> None:
+    def __init__(
+        self,
+        path: Path,
+        snapshot: Callable[[], Snapshot],
+        journal: MotionJournal | None = None,
+        on_change: Callable[[], None] = lambda: None,
+    ) -> None:
         self.path = path
         self.snapshot = snapshot
         self.journal = journal
@@ -602,8 +644,9 @@ class StateWriter:
                 self.errors += 1
                 message = f"cannot write state file {self.path}: {exc.strerror or exc}"
                 if self.healthy or message != self.last_error:
-                    log.error("%s", message, extra={"STATE_PATH": str(self.path),
-                                                    "ERRNO": exc.errno})
+                    log.error(
+                        "%s", message, extra={"STATE_PATH": str(self.path), "ERRNO": exc.errno}
+                    )
                 self.last_error = message
                 was, self.healthy = self.healthy, False
                 if was:
@@ -621,15 +664,22 @@ class StateWriter:
             return True
 
     def status(self) -> dict[str, Any]:
-        out: dict[str, Any] = {"file": str(self.path), "ok": self.healthy,
-                               "writes": self.writes, "errors": self.errors,
-                               "last_error": self.last_error,
-                               "last_write_ms": round(self.last_write_s * 1e3, 3)}
+        out: dict[str, Any] = {
+            "file": str(self.path),
+            "ok": self.healthy,
+            "writes": self.writes,
+            "errors": self.errors,
+            "last_error": self.last_error,
+            "last_write_ms": round(self.last_write_s * 1e3, 3),
+        }
         if self.journal is not None:
             j = self.journal
-            out["journal"] = {"file": str(j.path), "marks": j.marks, "withdrawn": j.withdrawn,
-                              "mean_mark_us": round(j.mark_seconds / j.marks * 1e6, 1)
-                              if j.marks else None}
+            out["journal"] = {
+                "file": str(j.path),
+                "marks": j.marks,
+                "withdrawn": j.withdrawn,
+                "mean_mark_us": round(j.mark_seconds / j.marks * 1e6, 1) if j.marks else None,
+            }
         return out
 
     def close(self) -> bool:
@@ -653,10 +703,14 @@ class Persistence:
     world's axis positions), restored only when every motor matched.
     """
 
-    def __init__(self, directory: Path, identities: Sequence[MotorIdentity], engine: Engine,
-                 extra: tuple[Callable[[], dict[str, Any]],
-                              Callable[[dict[str, Any]], None]] | None = None,
-                 on_change: Callable[[], None] = lambda: None) -> None:
+    def __init__(
+        self,
+        directory: Path,
+        identities: Sequence[MotorIdentity],
+        engine: Engine,
+        extra: tuple[Callable[[], dict[str, Any]], Callable[[dict[str, Any]], None]] | None = None,
+        on_change: Callable[[], None] = lambda: None,
+    ) -> None:
         if len(identities) != len(engine.motors):
             raise ValueError("one identity per motor")
         self.directory = directory
@@ -685,12 +739,16 @@ class Persistence:
         marks = MotionJournal.read(self.journal.path)
         if state is None:
             if marks is None or any(marks):
-                self._lose_all(f"{self.journal.path} says a motor was moving and "
-                               f"{self.path} is missing", None)
+                self._lose_all(
+                    f"{self.journal.path} says a motor was moving and {self.path} is missing", None
+                )
             return
         if marks is None:
-            log.error("motion journal %s is unreadable: every motor counts as moved",
-                      self.journal.path, extra={"STATE_PATH": str(self.journal.path)})
+            log.error(
+                "motion journal %s is unreadable: every motor counts as moved",
+                self.journal.path,
+                extra={"STATE_PATH": str(self.journal.path)},
+            )
         matches = match_motors(state, self.identities)
         moved = []
         with self.engine.lock:
@@ -710,24 +768,39 @@ class Persistence:
                         moved.append(f"{m.index} ({ident.name})")
         for m, match, ident in zip(motors, matches, self.identities, strict=True):
             if match.problem is not None:
-                log.warning("motor %d (%s): nothing restored from %s, %s: position lost, "
-                            "home it with InitMove", m.index, ident.name, self.path,
-                            match.problem, extra={"MOTOR": m.index, "STATE_PATH": str(self.path)})
+                log.warning(
+                    "motor %d (%s): nothing restored from %s, %s: position lost, "
+                    "home it with InitMove",
+                    m.index,
+                    ident.name,
+                    self.path,
+                    match.problem,
+                    extra={"MOTOR": m.index, "STATE_PATH": str(self.path)},
+                )
         if moved:
-            log.warning("motor %s was moving when the daemon stopped: position lost, home it "
-                        "with InitMove", ", ".join(moved), extra={"STATE_PATH": str(self.path)})
+            log.warning(
+                "motor %s was moving when the daemon stopped: position lost, home it with InitMove",
+                ", ".join(moved),
+                extra={"STATE_PATH": str(self.path)},
+            )
         orphans = unmatched_records(state, self.identities)
         for what in orphans:
-            log.warning("%s has %s: nothing restored from that record", self.path, what,
-                        extra={"STATE_PATH": str(self.path)})
+            log.warning(
+                "%s has %s: nothing restored from that record",
+                self.path,
+                what,
+                extra={"STATE_PATH": str(self.path)},
+            )
         problems = [mt for mt in matches if mt.problem is not None]
         if problems or orphans:
             bad = set_aside(self.path)
             kept = f"kept as {bad}" if bad is not None else "could not be moved aside"
             n = len(orphans)
             unused = f", {n} record{'s' * (n != 1)} for no configured motor" if n else ""
-            self.restored = (f"restored {len(matches) - len(problems)} of {len(matches)} "
-                             f"motors{unused}; the file was {kept}")
+            self.restored = (
+                f"restored {len(matches) - len(problems)} of {len(matches)} "
+                f"motors{unused}; the file was {kept}"
+            )
         else:
             if self.extra is not None:
                 self.extra[1](state.extra)
@@ -736,8 +809,12 @@ class Persistence:
 
     def _lose_all(self, why: str, bad: Path | None) -> None:
         kept = f"kept it as {bad}" if bad is not None else "it stays where it is"
-        log.error("%s; %s; every motor must be homed again", why, kept,
-                  extra={"STATE_PATH": str(self.path)})
+        log.error(
+            "%s; %s; every motor must be homed again",
+            why,
+            kept,
+            extra={"STATE_PATH": str(self.path)},
+        )
         self.restored = f"nothing restored: {why}"
         with self.engine.lock:
             for m in self.engine.motors:
@@ -750,9 +827,13 @@ class Persistence:
         try:
             self.journal.reset()
         except OSError as exc:
-            log.error("cannot start the motion journal %s: %s; motion commands answer "
-                      "E4 until it can be written", self.journal.path, exc.strerror,
-                      extra={"STATE_PATH": str(self.journal.path), "ERRNO": exc.errno})
+            log.error(
+                "cannot start the motion journal %s: %s; motion commands answer "
+                "E4 until it can be written",
+                self.journal.path,
+                exc.strerror,
+                extra={"STATE_PATH": str(self.journal.path), "ERRNO": exc.errno},
+            )
 
     def start(self) -> None:
         """Start the writer thread (motor events request writes from now on)."""
@@ -770,8 +851,17 @@ class Persistence:
                 moving = m.active or bool(m.queue)
                 if not moving:
                     at_rest[m.index] = self.journal.token(m.index)
-                motors.append(SavedMotor(ident.name, ident.fingerprint, m.position, m.home,
-                                         list(m.waypoints), moving, m.position_lost))
+                motors.append(
+                    SavedMotor(
+                        ident.name,
+                        ident.fingerprint,
+                        m.position,
+                        m.home,
+                        list(m.waypoints),
+                        moving,
+                        m.position_lost,
+                    )
+                )
             extra = self.extra[0]() if self.extra is not None else {}
         return Snapshot(SavedState(motors, extra), at_rest)
 
@@ -782,9 +872,13 @@ class Persistence:
             token = self.journal.begin(index)
         except OSError as exc:
             self.motion_refused += 1
-            log.error("motor %d: cannot record the start of a motion in %s: %s; answered E4",
-                      index, self.journal.path, exc.strerror or exc,
-                      extra={"MOTOR": index, "ERROR_CODE": "E4", "ERRNO": exc.errno})
+            log.error(
+                "motor %d: cannot record the start of a motion in %s: %s; answered E4",
+                index,
+                self.journal.path,
+                exc.strerror or exc,
+                extra={"MOTOR": index, "ERROR_CODE": "E4", "ERRNO": exc.errno},
+            )
             return False
         if token is not None:  # from rest on disk: where the disk has it
             with self.engine.lock:
@@ -798,8 +892,7 @@ class Persistence:
         if from_rest is not None:
             token, position = from_rest
             with self.engine.lock:
-                unmoved = (not m.active and not m.queue and not m.stopping
-                           and m.position == position)
+                unmoved = not m.active and not m.queue and not m.stopping and m.position == position
             # A move of no distance, or a refused command: the disk is still right about
             # this motor, and a kill now must not make it lost (only a motor that really
             # moved may come back lost).
@@ -817,6 +910,7 @@ class Persistence:
 
     def status(self) -> dict[str, Any]:
         out = self.writer.status()
-        out.update(restored=self.restored, save_errors=self.save_errors,
-                   motion_refused=self.motion_refused)
+        out.update(
+            restored=self.restored, save_errors=self.save_errors, motion_refused=self.motion_refused
+        )
         return out

@@ -93,8 +93,9 @@ class _Request:
 
     __slots__ = ("error", "histogram", "period")
 
-    def __init__(self, histogram: bool = False, period: float | None = None,
-                 error: str | None = None) -> None:
+    def __init__(
+        self, histogram: bool = False, period: float | None = None, error: str | None = None
+    ) -> None:
         self.histogram = histogram
         self.period = period  # a subscription's period in seconds; None: one document
         self.error = error
@@ -103,8 +104,9 @@ class _Request:
 def parse_request(request: bytes) -> _Request:
     """The request line's meaning (docs/status.md)."""
     if len(request) > MAX_REQUEST:
-        return _Request(error="unknown status request: a request line too long; "
-                              f"known: {', '.join(REQUESTS)}")
+        return _Request(
+            error=f"unknown status request: a request line too long; known: {', '.join(REQUESTS)}"
+        )
     words = request.split(b"\n", 1)[0].decode("ascii", "replace").split()
     if words[:1] == ["subscribe"]:
         lo, hi = PERIOD_MS_RANGE
@@ -112,12 +114,15 @@ def parse_request(request: bytes) -> _Request:
             return _Request(period=SUBSCRIBE_PERIOD_S)
         if len(words) == 2 and words[1].isdigit() and lo <= int(words[1]) <= hi:
             return _Request(period=int(words[1]) / 1000.0)
-        return _Request(error=f"subscribe: PERIOD_MS must be a whole number of milliseconds "
-                              f"from {lo} to {hi}, got {' '.join(words[1:])!r}")
+        return _Request(
+            error=f"subscribe: PERIOD_MS must be a whole number of milliseconds "
+            f"from {lo} to {hi}, got {' '.join(words[1:])!r}"
+        )
     unknown = [w for w in words if w != "histogram"]
     if unknown:
-        return _Request(error=f"unknown status request: {' '.join(unknown)}; "
-                              f"known: {', '.join(REQUESTS)}")
+        return _Request(
+            error=f"unknown status request: {' '.join(unknown)}; known: {', '.join(REQUESTS)}"
+        )
     return _Request(histogram="histogram" in words)
 
 
@@ -177,8 +182,10 @@ class StatusServer:
         try:
             while not self._closed.is_set():
                 now = time.monotonic()
-                due = [c.sub.due if c.sub is not None and c.out is None else c.deadline
-                       for c in self._clients.values()]
+                due = [
+                    c.sub.due if c.sub is not None and c.out is None else c.deadline
+                    for c in self._clients.values()
+                ]
                 if not self._accepting and len(self._clients) < MAX_CLIENTS:
                     due.append(self._resume_accept)
                 timeout = max(0.0, min(due) - now) if due else None
@@ -263,8 +270,9 @@ class StatusServer:
         request = parse_request(client.request)
         if request.period is not None and request.error is None:
             if self.subscribers >= MAX_SUBSCRIBERS:
-                request.error = (f"too many subscribers ({MAX_SUBSCRIBERS}): "
-                                 "close one, or read the status once")
+                request.error = (
+                    f"too many subscribers ({MAX_SUBSCRIBERS}): close one, or read the status once"
+                )
             else:
                 self.subscribers += 1
                 client.sub = _Subscription(request.period)
@@ -291,8 +299,7 @@ class StatusServer:
         if client.out is not None:
             self._send(client)
 
-    def _update(self, client: _Client, now: float,
-                built: list[tuple[bytes, bytes]] | None) -> None:
+    def _update(self, client: _Client, now: float, built: list[tuple[bytes, bytes]] | None) -> None:
         """Look for a change for subscriber ``client`` (not sending one now): send the
         status when it changed or the heartbeat is due. ``built``: the document of this
         turn, shared by the subscribers due in it (empty: not built yet)."""
@@ -333,8 +340,10 @@ class StatusServer:
             return
         client.out = client.out[sent:]
         if client.out:
-            self._watch(client, selectors.EVENT_WRITE | (selectors.EVENT_READ
-                                                       if client.sub is not None else 0))
+            self._watch(
+                client,
+                selectors.EVENT_WRITE | (selectors.EVENT_READ if client.sub is not None else 0),
+            )
             return
         self.served += 1
         if client.sub is None:
@@ -366,8 +375,7 @@ class StatusServer:
                     self._send(client)
                 else:
                     self._drop(client)  # not reading its answer
-        if not self._accepting and len(self._clients) < MAX_CLIENTS \
-                and now >= self._resume_accept:
+        if not self._accepting and len(self._clients) < MAX_CLIENTS and now >= self._resume_accept:
             self._accept_on(True)
 
     def _drop(self, client: _Client) -> None:
@@ -390,11 +398,11 @@ class StatusServer:
         if request.error is not None:
             return json.dumps({"error": request.error}).encode()
         if request.period is not None:
-            return json.dumps({"error": "a subscription is answered by the server's "
-                                        "thread"}).encode()
+            return json.dumps(
+                {"error": "a subscription is answered by the server's thread"}
+            ).encode()
         try:
-            return json.dumps(self.status(histogram=request.histogram),
-                              sort_keys=True).encode()
+            return json.dumps(self.status(histogram=request.histogram), sort_keys=True).encode()
         except Exception:
             log.exception("cannot build the status document")
             return json.dumps({"error": "status unavailable, see the log"}).encode()
@@ -429,8 +437,9 @@ def _connect(sock: socket.socket, path: Path, timeout: float) -> None:
             return
         except BlockingIOError:  # the server's backlog is full: a slot frees soon
             if time.monotonic() >= deadline:
-                raise TimeoutError(f"{path}: every status slot stayed busy for "
-                                   f"{timeout:.0f} s") from None
+                raise TimeoutError(
+                    f"{path}: every status slot stayed busy for {timeout:.0f} s"
+                ) from None
             time.sleep(0.005)
 
 
@@ -454,14 +463,16 @@ class StatusError(Exception):
     """The status socket answered with an error document (its text is the message)."""
 
 
-def subscribe(path: Path, period_s: float | None = None,
-              timeout: float = 5.0) -> Generator[dict[str, Any], None, None]:
+def subscribe(
+    path: Path, period_s: float | None = None, timeout: float = 5.0
+) -> Generator[dict[str, Any], None, None]:
     """The daemon's status updates as they come (docs/status.md), until the daemon closes
     the stream (it stopped: the iterator ends). ``period_s``: how often the daemon looks
     for a change (None: its default). OSError when it cannot connect; TimeoutError when no
     update came for three heartbeats; StatusError for an error document."""
-    request = b"subscribe\n" if period_s is None else \
-        f"subscribe {round(period_s * 1000)}\n".encode()
+    request = (
+        b"subscribe\n" if period_s is None else f"subscribe {round(period_s * 1000)}\n".encode()
+    )
     with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
         sock.settimeout(timeout)
         _connect(sock, path, timeout)
@@ -472,8 +483,9 @@ def subscribe(path: Path, period_s: float | None = None,
             try:
                 chunk = sock.recv(65536)
             except TimeoutError:
-                raise TimeoutError(f"{path}: no status update for "
-                                   f"{3 * HEARTBEAT_S + timeout:.0f} s") from None
+                raise TimeoutError(
+                    f"{path}: no status update for {3 * HEARTBEAT_S + timeout:.0f} s"
+                ) from None
             if not chunk:
                 if buffered.strip():  # an answer without a line end: an error document
                     yield _update_of(buffered, path)
@@ -506,8 +518,11 @@ def summary_line(status: dict[str, Any]) -> str:
     link = status.get("link")
     if isinstance(link, dict):
         counters = link.get("counters", {})
-        errors = sum(v for k, v in counters.items()
-                     if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_")))
+        errors = sum(
+            v
+            for k, v in counters.items()
+            if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_"))
+        )
         parts.append(f"{counters.get('responses', 0)} frames served, {errors} errors")
         if link.get("peer") == "gone":
             parts.append("SERIAL DEVICE GONE, reopening it")

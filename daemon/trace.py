@@ -46,9 +46,18 @@ def rotated(path: Path, index: int) -> Path:
 class TraceRecorder:
     """Records the link's byte runs (the link's ``recorder``)."""
 
-    def __init__(self, path: Path, info: CaptureInfo, max_bytes: int, files: int,
-                 clock_origin: float, wall_origin_ns: int | None = None, *,
-                 flush_s: float = FLUSH_S, buffer_limit: int = BUFFER_LIMIT) -> None:
+    def __init__(
+        self,
+        path: Path,
+        info: CaptureInfo,
+        max_bytes: int,
+        files: int,
+        clock_origin: float,
+        wall_origin_ns: int | None = None,
+        *,
+        flush_s: float = FLUSH_S,
+        buffer_limit: int = BUFFER_LIMIT,
+    ) -> None:
         self.path = path
         self.info = info
         self.max_bytes = max_bytes
@@ -136,8 +145,11 @@ class TraceRecorder:
             self.lost_bytes += len(data)
             if not self._failing:
                 self._failing = True
-                log.error("trace %s: cannot write (%s); records are lost until it works "
-                          "again", self.path, exc.strerror or exc)
+                log.error(
+                    "trace %s: cannot write (%s); records are lost until it works again",
+                    self.path,
+                    exc.strerror or exc,
+                )
             return
         if self._failing:
             self._failing = False
@@ -192,8 +204,14 @@ class TraceRecorder:
                 os.replace(src, rotated(self.path, index + 1))
 
     def status(self) -> dict[str, object]:
-        return {"file": str(self.path), "runs": self.runs, "dropped_runs": self.dropped_runs,
-                "bytes_written": self.bytes_written, "rotations": self.rotations,
-                "write_errors": self.write_errors, "lost_bytes": self.lost_bytes,
-                "max_file_bytes": self.max_bytes, "files": self.files}
-
+        return {
+            "file": str(self.path),
+            "runs": self.runs,
+            "dropped_runs": self.dropped_runs,
+            "bytes_written": self.bytes_written,
+            "rotations": self.rotations,
+            "write_errors": self.write_errors,
+            "lost_bytes": self.lost_bytes,
+            "max_file_bytes": self.max_bytes,
+            "files": self.files,
+        }

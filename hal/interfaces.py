@@ -64,8 +64,11 @@ class Clock(ABC):
 class MonotonicClock(Clock):
     """The system's monotonic clock (CLOCK_MONOTONIC via time.perf_counter)."""
 
-    def __init__(self, source: Callable[[], float] = time.perf_counter,
-                 source_ns: Callable[[], int] | None = None) -> None:
+    def __init__(
+        self,
+        source: Callable[[], float] = time.perf_counter,
+        source_ns: Callable[[], int] | None = None,
+    ) -> None:
         self._source = source
         if source_ns is None and source is time.perf_counter:
             source_ns = time.perf_counter_ns

@@ -13,8 +13,12 @@ from motorctl.hal.interfaces import BridgeState
 from motorctl.hal.spec import HardwareSpec, PinSpec
 from tests.contract.harness import Harness
 
-LEVELS = {(True, False, True): BridgeState.FORWARD, (False, True, True): BridgeState.REVERSE,
-          (True, True, True): BridgeState.BRAKE, (False, False, False): BridgeState.COAST}
+LEVELS = {
+    (True, False, True): BridgeState.FORWARD,
+    (False, True, True): BridgeState.REVERSE,
+    (True, True, True): BridgeState.BRAKE,
+    (False, False, False): BridgeState.COAST,
+}
 
 
 class GpiodHarness(Harness):
@@ -25,15 +29,26 @@ class GpiodHarness(Harness):
         self.api = os.environ.get("MOTORCTL_GPIOD_API", "auto")
         self.name = f"gpiod-{self.api}"
 
-    def spec(self, motors: int, pins: Sequence[PinSpec], dc: bool,
-             endstop_active_low: bool = False, invert_dir: bool = False) -> HardwareSpec:
+    def spec(
+        self,
+        motors: int,
+        pins: Sequence[PinSpec],
+        dc: bool,
+        endstop_active_low: bool = False,
+        invert_dir: bool = False,
+    ) -> HardwareSpec:
         base = super().spec(motors, pins, dc, endstop_active_low, invert_dir)
-        axes = tuple(dataclasses.replace(a, sections={GpiodAxisConfig: axis_section(i)})
-                     for i, a in enumerate(base.axes))
-        wired = tuple(dataclasses.replace(p, sections={GpiodPinConfig: pin_section(p.number)})
-                      for p in base.pins)
-        return dataclasses.replace(base, axes=axes, pins=wired,
-                                   sections={GpiodConfig: top_section(self.api)})
+        axes = tuple(
+            dataclasses.replace(a, sections={GpiodAxisConfig: axis_section(i)})
+            for i, a in enumerate(base.axes)
+        )
+        wired = tuple(
+            dataclasses.replace(p, sections={GpiodPinConfig: pin_section(p.number)})
+            for p in base.pins
+        )
+        return dataclasses.replace(
+            base, axes=axes, pins=wired, sections={GpiodConfig: top_section(self.api)}
+        )
 
     def drive_pin(self, number: int, level: bool) -> None:
         chip, off = where(PINS[number])

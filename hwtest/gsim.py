@@ -75,8 +75,10 @@ class Ev:
     value: int
 
 
-_RE = re.compile(r"^\s*(.*?)-\d+\s+\[\d+\].*?(\d+\.\d+): (gpio_value|gpio_direction): (\d+)\s+"
-                 r"(get|set|in|out) \(?(-?\d+)\)?")
+_RE = re.compile(
+    r"^\s*(.*?)-\d+\s+\[\d+\].*?(\d+\.\d+): (gpio_value|gpio_direction): (\d+)\s+"
+    r"(get|set|in|out) \(?(-?\d+)\)?"
+)
 
 
 def trace_read() -> list[Ev]:
@@ -85,8 +87,9 @@ def trace_read() -> list[Ev]:
         for line in f:
             m = _RE.match(line)
             if m:
-                out.append(Ev(float(m.group(2)), m.group(3), int(m.group(4)), m.group(5),
-                              int(m.group(6))))
+                out.append(
+                    Ev(float(m.group(2)), m.group(3), int(m.group(4)), m.group(5), int(m.group(6)))
+                )
     return out
 
 

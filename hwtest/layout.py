@@ -38,14 +38,22 @@ def where(text: str) -> tuple[str, int]:
 
 def top_section(api: str = "auto", dead_time_ms: float = 0.0) -> GpiodConfig:
     in1, in2, en = DC
-    return make(GpiodConfig, api=api,
-                dc={"in1": in1, "in2": in2, "en": en, "dead_time_ms": dead_time_ms})
+    return make(
+        GpiodConfig, api=api, dc={"in1": in1, "in2": in2, "en": en, "dead_time_ms": dead_time_ms}
+    )
 
 
 def axis_section(motor: int, dir_hold_us: float = 0.0) -> GpiodAxisConfig:
     s, d, e, lo, hi = MOTORS[motor]
-    return make(GpiodAxisConfig, step=s, dir=d, enable=e, dir_hold_us=dir_hold_us,
-                endstop_min=lo, endstop_max=hi)
+    return make(
+        GpiodAxisConfig,
+        step=s,
+        dir=d,
+        enable=e,
+        dir_hold_us=dir_hold_us,
+        endstop_min=lo,
+        endstop_max=hi,
+    )
 
 
 def pin_section(number: int) -> GpiodPinConfig:
@@ -63,7 +71,8 @@ def in_the_guest(example: str, api: str) -> str:
     the lines, not timing; the lag rule's own tests run in `make test` (docs/timing.md)."""
     text = example.replace("priority = 50 ", "priority = 0  ")
     text = text.replace('api = "auto"', f'api = "{api}"')
-    text, n = re.subn(r"^(max_speed = [^\n]*)$", rf"\1\nmax_lag_full_steps = {GUEST_MAX_LAG}",
-                      text, flags=re.M)
+    text, n = re.subn(
+        r"^(max_speed = [^\n]*)$", rf"\1\nmax_lag_full_steps = {GUEST_MAX_LAG}", text, flags=re.M
+    )
     assert n == 3 and "priority = 0 " in text and f'api = "{api}"' in text, "example changed"
     return text

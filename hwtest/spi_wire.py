@@ -66,13 +66,19 @@ def traced(action: Callable[[], object]) -> tuple[list[tuple[int, str, int]], ob
     except Exception as exc:  # the result to check, not a failure of the script
         result = exc
     put("tracing_on", 0)
-    lost = sum(int(v) for st in glob.glob(f"{TRACE}/per_cpu/cpu*/stats")
-               for k, _, v in (ln.partition(":") for ln in Path(st).read_text().splitlines())
-               if k.strip() == "overrun")
+    lost = sum(
+        int(v)
+        for st in glob.glob(f"{TRACE}/per_cpu/cpu*/stats")
+        for k, _, v in (ln.partition(":") for ln in Path(st).read_text().splitlines())
+        if k.strip() == "overrun"
+    )
     assert lost == 0, f"the trace lost {lost} events"
     b = base()
-    events = [(int(m.group(2)) - b, m.group(3), int(m.group(4)))
-              for m in map(EVENT.search, Path(TRACE, "trace").read_text().splitlines()) if m]
+    events = [
+        (int(m.group(2)) - b, m.group(3), int(m.group(4)))
+        for m in map(EVENT.search, Path(TRACE, "trace").read_text().splitlines())
+        if m
+    ]
     return [e for e in events if 0 <= e[0] <= 3], result
 
 
@@ -94,8 +100,10 @@ def datagrams(events: list[tuple[int, str, int]]) -> tuple[list[bytes], list[int
         elif line == SCK and level.get(CS) == 0 and before == 0 and value == 1:
             frames[-1].append(level[MOSI])  # mode 3 samples on the rising edge
             rising[-1] += 1
-    out = [bytes(int("".join(map(str, bits[i:i + 8])), 2) for i in range(0, len(bits), 8))
-           for bits in frames]
+    out = [
+        bytes(int("".join(map(str, bits[i : i + 8])), 2) for i in range(0, len(bits), 8))
+        for bits in frames
+    ]
     return out, rising, idle
 
 
@@ -115,13 +123,22 @@ def main() -> int:
     driver = TmcDriver("x", dev, TmcSettings(chip="tmc2130"))
     events, result = traced(driver.start)
     frames, clocks, idle = datagrams(events)
-    good &= check("no chip answers", isinstance(result, TmcError)
-                  and "/dev/spidev1.0: no driver chip answers (IOIN reads 0xffffffff)"
-                  in str(result), str(result))
-    good &= check("IOIN read = two datagrams", frames == [bytes([Reg.IOIN, 0, 0, 0, 0])] * 2,
-                  " ".join(f.hex() for f in frames))
-    good &= check("40 clocks per datagram, SCK idle high (mode 3)",
-                  clocks == [40, 40] and idle == [1, 1], f"clocks {clocks}, SCK at CS {idle}")
+    good &= check(
+        "no chip answers",
+        isinstance(result, TmcError)
+        and "/dev/spidev1.0: no driver chip answers (IOIN reads 0xffffffff)" in str(result),
+        str(result),
+    )
+    good &= check(
+        "IOIN read = two datagrams",
+        frames == [bytes([Reg.IOIN, 0, 0, 0, 0])] * 2,
+        " ".join(f.hex() for f in frames),
+    )
+    good &= check(
+        "40 clocks per datagram, SCK idle high (mode 3)",
+        clocks == [40, 40] and idle == [1, 1],
+        f"clocks {clocks}, SCK at CS {idle}",
+    )
 
     # 2. a verified write: the datagram, then the echo read; MISO low echoes zeros
     pull_miso("pull-down")
@@ -132,19 +149,28 @@ def main() -> int:
     frames, clocks, idle = datagrams(events)
     write = bytes([0x80 | Reg.CHOPCONF]) + value.to_bytes(4, "big")
     expect = [write, bytes([Reg.IOIN, 0, 0, 0, 0])]
-    good &= check("write datagram and echo read on the wire", frames == expect,
-                  " ".join(f.hex() for f in frames))
-    good &= check("the missing echo is caught", isinstance(result, TmcError)
-                  and "did not receive CHOPCONF = 0x140300c3 intact (it echoed 0x00000000)"
-                  in str(result), str(result))
+    good &= check(
+        "write datagram and echo read on the wire",
+        frames == expect,
+        " ".join(f.hex() for f in frames),
+    )
+    good &= check(
+        "the missing echo is caught",
+        isinstance(result, TmcError)
+        and "did not receive CHOPCONF = 0x140300c3 intact (it echoed 0x00000000)" in str(result),
+        str(result),
+    )
     good &= check("40 clocks per datagram", clocks == [40, 40], str(clocks))
 
     # 3. a pipelined multi-register read: n + 1 datagrams, the last address repeated
     events, result = traced(lambda: link.read_many([Reg.GCONF, Reg.DRV_STATUS, Reg.TSTEP]))
     frames, _, _ = datagrams(events)
     addrs = [f[0] for f in frames]
-    good &= check("pipelined read order", addrs == [0x00, 0x6F, 0x12, 0x12]
-                  and all(f[1:] == b"\0\0\0\0" for f in frames), str([hex(a) for a in addrs]))
+    good &= check(
+        "pipelined read order",
+        addrs == [0x00, 0x6F, 0x12, 0x12] and all(f[1:] == b"\0\0\0\0" for f in frames),
+        str([hex(a) for a in addrs]),
+    )
     good &= check("values as MISO gave them", result == [0, 0, 0], str(result))
     dev.close()
     print("PASS spi_wire" if good else "FAIL spi_wire")

@@ -40,20 +40,22 @@ def all_free() -> bool:
 @pytest.mark.parametrize(
     ("lines", "message"),
     [
-        ({"step": "gpiochip7:1"},
-         "motors[0].step: no GPIO chip 'gpiochip7' (chips: gpiochip0 [sim-bank0], "
-         "gpiochip1 [sim-bank1])"),
+        (
+            {"step": "gpiochip7:1"},
+            "motors[0].step: no GPIO chip 'gpiochip7' (chips: gpiochip0 [sim-bank0], "
+            "gpiochip1 [sim-bank1])",
+        ),
         ({"dir_": "GPIO99"}, "motors[0].dir: no GPIO line named 'GPIO99' on any chip"),
-        ({"dir_": "gpiochip0:17"}, "motors[0].dir and motors[0].step are the same line "
-                                  "(gpiochip0:17 'GPIO17')"),
+        (
+            {"dir_": "gpiochip0:17"},
+            "motors[0].dir and motors[0].step are the same line (gpiochip0:17 'GPIO17')",
+        ),
         ({"step": "sim-bank1:40"}, "motors[0].step: gpiochip1 has lines 0..15, not 40"),
     ],
 )
-def test_bad_lines_are_named_and_nothing_is_requested(lines: dict[str, str],
-                                                      message: str) -> None:
+def test_bad_lines_are_named_and_nothing_is_requested(lines: dict[str, str], message: str) -> None:
     with pytest.raises(HalError) as err:
-        open_hardware("gpiod", spec_with(2, lines.get("step"), lines.get("dir_")),
-                      MonotonicClock())
+        open_hardware("gpiod", spec_with(2, lines.get("step"), lines.get("dir_")), MonotonicClock())
     assert message in str(err.value)
     assert all_free(), "a line stayed requested after the error"
 
@@ -76,7 +78,7 @@ def test_several_step_lines_in_one_call() -> None:
         # one call: the three rises of a pulse are consecutive, no fall in between
         on_steps = [e for e in ev if e.gpio in steps and e.op == "set"]
         for i in range(0, len(on_steps), 6):
-            assert [e.value for e in on_steps[i:i + 6]] == [1, 1, 1, 0, 0, 0]
+            assert [e.value for e in on_steps[i : i + 6]] == [1, 1, 1, 0, 0, 0]
     finally:
         h.close()
 
@@ -84,8 +86,9 @@ def test_several_step_lines_in_one_call() -> None:
 def test_dir_is_held_after_the_last_step_fall() -> None:
     spec = spec_with(1)
     a0 = dataclasses.replace(axis_section(0), dir_hold_us=2000.0)
-    spec = dataclasses.replace(spec, axes=(dataclasses.replace(
-        spec.axes[0], sections={GpiodAxisConfig: a0}),))
+    spec = dataclasses.replace(
+        spec, axes=(dataclasses.replace(spec.axes[0], sections={GpiodAxisConfig: a0}),)
+    )
     clock = MonotonicClock()
     hw = open_hardware("gpiod", spec, clock)
     io = open_step_io("gpiod", spec, clock, parent=hw)
@@ -100,8 +103,9 @@ def test_dir_is_held_after_the_last_step_fall() -> None:
         base = gsim.chip_base()
         step = gsim.changes(gsim.sets(ev, base + where(MOTORS[0][0])[1]))
         fall = [e for e in step if e.value == 0][-1]
-        flip = [e for e in gsim.changes(gsim.sets(ev, base + where(MOTORS[0][1])[1]))
-                if e.value == 0]
+        flip = [
+            e for e in gsim.changes(gsim.sets(ev, base + where(MOTORS[0][1])[1])) if e.value == 0
+        ]
         assert flip and flip[0].ts - fall.ts >= 0.002 * 0.99
     finally:
         io.close()

@@ -171,8 +171,9 @@ def test_end_stop_raised_by_the_sim_stops_homing_at_the_trigger(client: Client) 
     # max_travel (250000 steps).
     late = after[-1].ts - trigger if after else 0.0
     print(f"homing: {len(after)} steps in {late * 1000:.2f} ms after the trigger")
-    assert len(after) <= 40 and late <= 0.2, \
+    assert len(after) <= 40 and late <= 0.2, (
         f"{len(after)} steps, the last {late * 1000:.2f} ms after the trigger"
+    )
     assert client.position(motor) == 0  # homed: the trigger is the new zero
     pull(endstop, True)
 
@@ -212,23 +213,52 @@ def test_probe_shows_lines_consumers_and_end_stops(daemon: DaemonProcess) -> Non
     # the running daemon holds every line: --probe must say by whom and fail
     cfg = daemon.config
     assert cfg is not None
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
-                          "--latency-seconds", "0", "--config",
-                          str(cfg)], capture_output=True, text=True, cwd=REPO, timeout=60)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--probe",
+            "--latency-seconds",
+            "0",
+            "--config",
+            str(cfg),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
     assert out.returncode == 1, out.stdout + out.stderr
     assert "held by 'motorctl'" in out.stdout
-    assert "PROBLEM: motors[0].step: line gpiochip0:17 'GPIO17' is already in use by 'motorctl'" \
+    assert (
+        "PROBLEM: motors[0].step: line gpiochip0:17 'GPIO17' is already in use by 'motorctl'"
         in out.stdout
+    )
 
 
 def run_probe(config: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
-                           "--latency-seconds", "0", "--config",
-                           str(config)], capture_output=True, text=True, cwd=REPO, timeout=60)
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--probe",
+            "--latency-seconds",
+            "0",
+            "--config",
+            str(config),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
 
 
-def test_probe_on_free_lines_reads_end_stops_and_moves_nothing(tmp_path: Path,
-                                                               daemon: DaemonProcess) -> None:
+def test_probe_on_free_lines_reads_end_stops_and_moves_nothing(
+    tmp_path: Path, daemon: DaemonProcess
+) -> None:
     daemon.close()  # after the module's other tests: the lines are free again
     cfg = tmp_path / "pi.toml"
     # gpio-sim models a requested pull-up as the outside level, so z's end stop is requested
@@ -256,7 +286,10 @@ def test_a_line_held_by_another_consumer_is_a_clear_error(tmp_path: Path) -> Non
     """Another program holds z's STEP line: the daemon refuses to start and names it."""
     holder = subprocess.Popen(
         [sys.executable, "-c", HOLD, *map(str, where(MOTORS[2][0]))],
-        stdout=subprocess.PIPE, text=True, cwd=REPO)
+        stdout=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
     try:
         assert holder.stdout is not None
         assert holder.stdout.readline().strip() == "holding"
@@ -265,8 +298,9 @@ def test_a_line_held_by_another_consumer_is_a_clear_error(tmp_path: Path) -> Non
             d.start()
         d.kill()
         message = str(err.value)
-        assert "motors[2].step: line gpiochip0:5 'GPIO5' is already in use by 'intruder'" \
-            in message, message
+        assert (
+            "motors[2].step: line gpiochip0:5 'GPIO5' is already in use by 'intruder'" in message
+        ), message
         assert "Traceback" not in message
     finally:
         holder.kill()

@@ -55,10 +55,21 @@ def test_probe_lists_the_three_drivers(tmp_path: Path) -> None:
     config = tmp_path / "pi.toml"
     config.write_text(example_config())
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe",
-         "--latency-seconds", "0", "--config", str(config)],
-        env={**os.environ, **shim_env(tmp_path / "control.json")}, capture_output=True,
-        text=True, timeout=120, cwd=REPO,
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--probe",
+            "--latency-seconds",
+            "0",
+            "--config",
+            str(config),
+        ],
+        env={**os.environ, **shim_env(tmp_path / "control.json")},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=REPO,
     )
     assert out.returncode == 0, out.stdout + out.stderr
     for i, name in enumerate(("x", "y", "z")):
@@ -85,7 +96,8 @@ def test_the_example_starts_with_its_three_tmc5160s(daemon: tuple[DaemonProcess,
     assert "gpiod hardware" in d.ready_line
     drivers = d.status()["drivers"]
     assert [(x["chip"], x["device"]) for x in drivers] == [
-        ("TMC5160", f"/dev/spidev0.{i}") for i in range(3)]
+        ("TMC5160", f"/dev/spidev0.{i}") for i in range(3)
+    ]
     assert all(x["polls"] > 0 and x["spi_errors"] == 0 for x in drivers)
 
 

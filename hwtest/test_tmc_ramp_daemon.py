@@ -56,8 +56,10 @@ def test_a_ramp_motor_without_step_dir_leaves_those_lines_alone(
         chip, off = where(m[3])
         gsim.sim_pull(off, True, chip)
     shim = str(REPO / "tests" / "fakespi")
-    env = {"PYTHONPATH": os.pathsep.join(p for p in (shim, os.environ.get("PYTHONPATH")) if p),
-           "MOTORCTL_FAKE_SPI": json.dumps({"chips": CHIPS})}
+    env = {
+        "PYTHONPATH": os.pathsep.join(p for p in (shim, os.environ.get("PYTHONPATH")) if p),
+        "MOTORCTL_FAKE_SPI": json.dumps({"chips": CHIPS}),
+    }
     base = gsim.chip_base("gpiochip0")
     gsim.trace_start()  # every level the daemon sets, from its start to its exit
     d = DaemonProcess(tmp_path, ramp_config(), env=env).start()

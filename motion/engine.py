@@ -39,6 +39,7 @@ from motorctl.motion.types import MotorParams
 
 log = logging.getLogger("motorctl.engine")
 
+
 def _on_tick(t: float) -> float:
     """A virtual clock only stops on the step path's ticks, so edges land on their times."""
     return from_ticks(to_ticks(t))
@@ -90,8 +91,7 @@ class MotionEngine:
         self.wake = threading.Event()
         self.listeners: list[Listener] = []
         self.motors = [
-            Motor(i, p, hw.steppers[i].driver, executor, self._notify)
-            for i, p in enumerate(params)
+            Motor(i, p, hw.steppers[i].driver, executor, self._notify) for i, p in enumerate(params)
         ]
         self.dc = DcMotor(hw.dc) if hw.dc is not None else None
         self.driver_poll_s = driver_poll_s
@@ -142,14 +142,18 @@ class MotionEngine:
         self.dc.run(forward, duration_s, end, self.clock.now())
         self.wake.set()
 
-    def fault_stop_moving(self, reason: str, hard: bool, now: float,
-                          cause: str = "other") -> list[str]:
+    def fault_stop_moving(
+        self, reason: str, hard: bool, now: float, cause: str = "other"
+    ) -> list[str]:
         """Every motor in motion stops (``hard``: at once; else along its ramp) and latches
         ``reason`` (:meth:`Motor.fault_stop`); a running DC motor brakes (it has no fault to
         latch). What was stopped, named for a log line. (The host's silence, [link]
         timeout_ms.)"""
-        stopped = [f"motor {m.index} ({m.params.name})" for m in self.motors
-                   if m.fault_stop(reason, now, hard=hard, cause=cause)]
+        stopped = [
+            f"motor {m.index} ({m.params.name})"
+            for m in self.motors
+            if m.fault_stop(reason, now, hard=hard, cause=cause)
+        ]
         if self.dc is not None and self.dc.running:
             self.dc.stop(BridgeState.BRAKE)
             stopped.append("the DC motor (braked)")
@@ -200,8 +204,11 @@ class MotionEngine:
         def pct(q: float) -> float:
             return round(times[min(len(times) - 1, int(q * len(times)))] * 1e6, 1)
 
-        out.update(wait_p50_us=pct(0.5) if times else 0.0, wait_p99_us=pct(0.99) if times else 0.0,
-                   wait_max_us=round(self.stop_wait_max_s * 1e6, 1))
+        out.update(
+            wait_p50_us=pct(0.5) if times else 0.0,
+            wait_p99_us=pct(0.99) if times else 0.0,
+            wait_max_us=round(self.stop_wait_max_s * 1e6, 1),
+        )
         return out
 
     def _settle_check(self, motor: Motor, now: float) -> Settled | None:

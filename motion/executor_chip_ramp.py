@@ -129,8 +129,11 @@ class RampExecutor(Executor):
         with suppress(HalError):
             self.chips[motor].stop(None)
         # as for a failed STEP line: the position counts as lost if it was moving fast
-        self._emit(ExecEvent(K.FAULT, motor, ax.gen, ax.position, now,
-                             speed=abs(ax.velocity), detail=str(exc)))
+        self._emit(
+            ExecEvent(
+                K.FAULT, motor, ax.gen, ax.position, now, speed=abs(ax.velocity), detail=str(exc)
+            )
+        )
 
     # -- commands ------------------------------------------------------------------------
     def follow(
@@ -219,8 +222,17 @@ class RampExecutor(Executor):
         if chip.resets != ax.resets:  # XACTUAL restarted at 0: the position is lost
             ax.resets = chip.resets
             ax.plan, ax.blocked = "", True
-            self._emit(ExecEvent(K.FAULT, i, ax.gen, ax.position, now, speed=math.inf,
-                                 detail=f"{chip.name}: the driver was reset; position lost"))
+            self._emit(
+                ExecEvent(
+                    K.FAULT,
+                    i,
+                    ax.gen,
+                    ax.position,
+                    now,
+                    speed=math.inf,
+                    detail=f"{chip.name}: the driver was reset; position lost",
+                )
+            )
             return
         if st.stall_stopped and chip.report_stall_stop():  # the driver's stall flag: the
             self.counters["sg_stops"] += 1  # engine's driver monitor acts on it
@@ -241,8 +253,18 @@ class RampExecutor(Executor):
                     return
             self.counters["endstops"] += 1
             ax.plan, ax.blocked = "", True
-            self._emit(ExecEvent(K.ENDSTOP, i, ax.gen, where, now, direction=ax.watch,
-                                 speed=abs(ax.velocity), detail="reference switch"))
+            self._emit(
+                ExecEvent(
+                    K.ENDSTOP,
+                    i,
+                    ax.gen,
+                    where,
+                    now,
+                    direction=ax.watch,
+                    speed=abs(ax.velocity),
+                    detail="reference switch",
+                )
+            )
             return
         if ax.plan == "move" and st.velocity == 0 and ax.position == ax.target:
             ax.plan = ""
@@ -339,8 +361,11 @@ class SplitExecutor(Executor):
                     continue
                 m = self._back.get((id(ex), ev.motor))
                 if m is not None:  # events of unrouted motors concern nobody
-                    out.append(ExecEvent(ev.kind, m, ev.gen, ev.position, ev.t, ev.direction,
-                                         ev.speed, ev.detail))
+                    out.append(
+                        ExecEvent(
+                            ev.kind, m, ev.gen, ev.position, ev.t, ev.direction, ev.speed, ev.detail
+                        )
+                    )
         return out
 
     def position(self, motor: int) -> int:
@@ -372,8 +397,9 @@ class SplitExecutor(Executor):
     @property
     def pid(self) -> int | None:
         """The process of the part that runs in one (a ``process`` step executor), if any."""
-        return next((p for ex in self.parts if isinstance(p := getattr(ex, "pid", None), int)),
-                    None)
+        return next(
+            (p for ex in self.parts if isinstance(p := getattr(ex, "pid", None), int)), None
+        )
 
     def motor_time(self, motor: int, now: float) -> float:
         ex, local = self.routes[motor]

@@ -199,8 +199,10 @@ class Ring:
 
     def __init__(self, buf: memoryview, offset: int, rec: struct.Struct, capacity: int) -> None:
         if offset % 8 or rec.size % 8:
-            raise ValueError(f"ring at {offset} with {rec.size}-byte records: not 8-byte "
-                             "aligned (head/tail and slots must be)")
+            raise ValueError(
+                f"ring at {offset} with {rec.size}-byte records: not 8-byte "
+                "aligned (head/tail and slots must be)"
+            )
         self.buf = buf
         self.cells = buf[offset : offset + RING_HEADER].cast("q")  # [head, tail, retries]
         self.base = offset + RING_HEADER
@@ -274,12 +276,21 @@ class Shared:
     def ring_retries(self) -> dict[str, int]:
         """The consumers' retry counts: the child's reads of segments and stops (daemon ->
         child), the daemon's reads of the child's reports (child -> daemon)."""
-        return {"ring_retries_segments": sum(r.retries for r in (*self.segs, self.stops)),
-                "ring_retries_reports": self.events.retries}
+        return {
+            "ring_retries_segments": sum(r.retries for r in (*self.segs, self.stops)),
+            "ring_retries_reports": self.events.retries,
+        }
 
     def release(self) -> None:
-        views = (self.header, self.counters, self.positions, self.levels, self.endmap,
-                 self.latency, self.motor_cells)
+        views = (
+            self.header,
+            self.counters,
+            self.positions,
+            self.levels,
+            self.endmap,
+            self.latency,
+            self.motor_cells,
+        )
         for view in views:
             view.release()
         for ring in (*self.segs, self.stops, self.events):
@@ -313,8 +324,18 @@ class _ShmInbox(CoreInbox):
                 if rec is None:
                     break
                 first, interval, count, add, direction, gen, flags = rec
-                q.append(StepSegment(first, interval, count, add, direction, gen,
-                                     bool(flags & _LAST), bool(flags & _WATCH)))
+                q.append(
+                    StepSegment(
+                        first,
+                        interval,
+                        count,
+                        add,
+                        direction,
+                        gen,
+                        bool(flags & _LAST),
+                        bool(flags & _WATCH),
+                    )
+                )
 
 
 def _die_with_parent(parent: int) -> None:
@@ -346,8 +367,9 @@ def child_main(channel: socket.socket, parent: int) -> None:
     named = dict(zip(params.pop("fds"), fds, strict=True))
     spec = params.pop("spec")
     options = {key: named.pop(key) for key in params.pop("step_io_fds")}
-    _child_main(parent=parent, spec=replace(spec, options={**spec.options, **options}),
-                **named, **params)
+    _child_main(
+        parent=parent, spec=replace(spec, options={**spec.options, **options}), **named, **params
+    )
 
 
 def _child_main(
@@ -392,15 +414,32 @@ def _child_main(
 
     def emit(ev: ExecEvent) -> None:
         text = ev.detail.encode()[:120]
-        shared.events.put(_KINDS.index(ev.kind), ev.motor, ev.gen, ev.position,
-                          to_ticks(ev.t), ev.direction, ev.speed, text)
+        shared.events.put(
+            _KINDS.index(ev.kind),
+            ev.motor,
+            ev.gen,
+            ev.position,
+            to_ticks(ev.t),
+            ev.direction,
+            ev.speed,
+            text,
+        )
         with contextlib.suppress(BlockingIOError):
             os.write(event_fd, b"e")
 
-    core = StepCore(io, limits, inbox, emit, positions=shared.positions,
-                    levels=shared.levels, counters=shared.counters,
-                    stats=LatencyStats(late_threshold_s, shared.latency),
-                    motor_cells=shared.motor_cells, spin_s=spin_s, coalesce_s=coalesce_s)
+    core = StepCore(
+        io,
+        limits,
+        inbox,
+        emit,
+        positions=shared.positions,
+        levels=shared.levels,
+        counters=shared.counters,
+        stats=LatencyStats(late_threshold_s, shared.latency),
+        motor_cells=shared.motor_cells,
+        spin_s=spin_s,
+        coalesce_s=coalesce_s,
+    )
     header = shared.header
     header[_PID] = os.getpid()
 
@@ -459,10 +498,11 @@ class ProcessStepExecutor(StepExecutor):
         """``process``: an executor process started earlier (``daemon/launch.py``), else
         one is started here."""
         if hw.clock.is_virtual:
-            raise ValueError("the process executor runs on the real clock; tests on a virtual "
-                             "clock use the thread executor")
-        super().__init__(hw.clock, limits, ahead_s=ahead_s, lead_s=lead_s,
-                         max_error_s=max_error_s)
+            raise ValueError(
+                "the process executor runs on the real clock; tests on a virtual "
+                "clock use the thread executor"
+            )
+        super().__init__(hw.clock, limits, ahead_s=ahead_s, lead_s=lead_s, max_error_s=max_error_s)
         self.backend = backend
         self.spec = replace(spec, options={**spec.options, **hw.step_io_options})
         self.rt = rt or RealtimeOptions(priority=0, lock_memory=False)
@@ -513,18 +553,31 @@ class ProcessStepExecutor(StepExecutor):
             try:
                 process = executor_process_start.ExecutorProcess.start()
             except OSError as exc:
-                raise HalError(f"cannot start the step executor process ({sys.executable}): "
-                               f"{exc}") from exc
+                raise HalError(
+                    f"cannot start the step executor process ({sys.executable}): {exc}"
+                ) from exc
             self._spawned = time.monotonic()
         self.proc = process.proc
         assert self.shm.fd is not None
-        fds = {"shm_fd": self.shm.fd, "wake_fd": self._wake_r, "event_fd": self._event_w,
-               **self._step_io_fds}
-        params = {"fds": list(fds), "step_io_fds": list(self._step_io_fds),
-                  "motors": self.layout.motors, "lines": self.lines, "backend": self.backend,
-                  "spec": self.spec, "limits": list(self.limits), "rt": self.rt,
-                  "spin_s": self.spin_s, "late_threshold_s": self.late_threshold_s,
-                  "coalesce_s": self.coalesce_s}
+        fds = {
+            "shm_fd": self.shm.fd,
+            "wake_fd": self._wake_r,
+            "event_fd": self._event_w,
+            **self._step_io_fds,
+        }
+        params = {
+            "fds": list(fds),
+            "step_io_fds": list(self._step_io_fds),
+            "motors": self.layout.motors,
+            "lines": self.lines,
+            "backend": self.backend,
+            "spec": self.spec,
+            "limits": list(self.limits),
+            "rt": self.rt,
+            "spin_s": self.spin_s,
+            "late_threshold_s": self.late_threshold_s,
+            "coalesce_s": self.coalesce_s,
+        }
         with contextlib.suppress(OSError):  # it is gone already: start() says how it ended
             process.hand_over(params, list(fds.values()))
         self._forget_child_fds()  # the child has its own now
@@ -542,8 +595,9 @@ class ProcessStepExecutor(StepExecutor):
             if left <= 0:
                 proc.kill()
                 proc.wait(5)
-                raise HalError("the step executor process did not start within "
-                               f"{self.start_timeout_s:.0f} s")
+                raise HalError(
+                    f"the step executor process did not start within {self.start_timeout_s:.0f} s"
+                )
             if not select.select([self._event_r], [], [], left)[0]:
                 continue
             # the child's first byte on this pipe; event bytes after it are the watcher's
@@ -552,12 +606,15 @@ class ProcessStepExecutor(StepExecutor):
             except BlockingIOError:
                 continue
             if byte == b"":  # its end closed: it exited
-                raise HalError(f"the step executor process exited at start (code "
-                               f"{proc.wait()}); see the log above")
+                raise HalError(
+                    f"the step executor process exited at start (code "
+                    f"{proc.wait()}); see the log above"
+                )
             if self.shared.header[_READY]:
                 break
-        self._watcher = threading.Thread(target=self._watch, name="motorctl-exec-watch",
-                                         daemon=True)
+        self._watcher = threading.Thread(
+            target=self._watch, name="motorctl-exec-watch", daemon=True
+        )
         self._watcher.start()
 
     def _forget_child_fds(self) -> None:
@@ -635,8 +692,9 @@ class ProcessStepExecutor(StepExecutor):
         sent = 0
         for seg in pending:
             flags = (_LAST if seg.last else 0) | (_WATCH if seg.watch else 0)
-            if not ring.put(seg.first, seg.interval, seg.count, seg.add, seg.direction,
-                            seg.gen, flags):
+            if not ring.put(
+                seg.first, seg.interval, seg.count, seg.add, seg.direction, seg.gen, flags
+            ):
                 break
             sent += 1
         del pending[:sent]
@@ -645,8 +703,9 @@ class ProcessStepExecutor(StepExecutor):
     def _push_stop(self, motor: int, gen: int, cut: int = -1) -> None:
         if self._closed is not None:
             return
-        self.pending[motor] = [s for s in self.pending[motor]
-                               if s.gen > gen or (cut >= 0 and s.first < cut)]
+        self.pending[motor] = [
+            s for s in self.pending[motor] if s.gen > gen or (cut >= 0 and s.first < cut)
+        ]
         if not self.shared.stops.put(motor, gen, cut):
             raise HalError("the step executor's stop ring is full")
         self._kick()
@@ -669,12 +728,21 @@ class ProcessStepExecutor(StepExecutor):
             if rec is None:
                 break
             kind, motor, gen, position, t_ns, direction, speed, text = rec
-            out.append(ExecEvent(_KINDS[kind], motor, gen, position, from_ticks(t_ns),
-                                 direction, speed, text.rstrip(b"\0").decode(errors="replace")))
+            out.append(
+                ExecEvent(
+                    _KINDS[kind],
+                    motor,
+                    gen,
+                    position,
+                    from_ticks(t_ns),
+                    direction,
+                    speed,
+                    text.rstrip(b"\0").decode(errors="replace"),
+                )
+            )
         if self.died is not None and not self._died_reported:
             self._died_reported = True
-            out.append(ExecEvent(ExecEventKind.DIED, -1, -1, 0, self.clock.now(),
-                                 detail=self.died))
+            out.append(ExecEvent(ExecEventKind.DIED, -1, -1, 0, self.clock.now(), detail=self.died))
         return out
 
     def service(self, now: float) -> float:
@@ -704,8 +772,13 @@ class ProcessStepExecutor(StepExecutor):
 
     def health(self) -> ExecutorHealth:
         if self._closed is not None:
-            return ExecutorHealth(False, self._closed[1]["progress"], self.died,
-                                  dict(self._closed[1]), self.stats.summary())
+            return ExecutorHealth(
+                False,
+                self._closed[1]["progress"],
+                self.died,
+                dict(self._closed[1]),
+                self.stats.summary(),
+            )
         alive = self.proc is not None and self.proc.poll() is None and self.died is None
         counters = self._counters()
         return ExecutorHealth(

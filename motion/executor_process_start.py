@@ -91,8 +91,10 @@ class ExecutorProcess:
             raise RuntimeError("the executor process was handed over or dismissed already")
         message = pickle.dumps(params)
         if len(message) > MAX_MESSAGE or len(fds) > MAX_FDS:
-            raise ValueError(f"executor parameters of {len(message)} bytes with {len(fds)} "
-                             f"descriptors: at most {MAX_MESSAGE} and {MAX_FDS}")
+            raise ValueError(
+                f"executor parameters of {len(message)} bytes with {len(fds)} "
+                f"descriptors: at most {MAX_MESSAGE} and {MAX_FDS}"
+            )
         self._channel = None
         try:
             socket.send_fds(channel, [message], list(fds))

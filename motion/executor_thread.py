@@ -81,9 +81,16 @@ class ThreadStepExecutor(StepExecutor):
         self.stats = LatencyStats(late_threshold_s, [0] * CELLS)
         self._events: deque[ExecEvent] = deque()
         self.core = StepCore(
-            self.io, limits, self.inbox, self._emit,
-            positions=self.positions, levels=self.levels, counters=self.counters,
-            stats=self.stats, motor_cells=self.motor_cells, spin_s=spin_s,
+            self.io,
+            limits,
+            self.inbox,
+            self._emit,
+            positions=self.positions,
+            levels=self.levels,
+            counters=self.counters,
+            stats=self.stats,
+            motor_cells=self.motor_cells,
+            spin_s=spin_s,
             coalesce_s=0.0 if virtual else max_error_s,  # virtual: the exact planned ticks
         )
         self._wake = threading.Event()

@@ -38,9 +38,7 @@ CELLS = _BLOCKS + BLOCKS
 
 
 class LatencyStats:
-    def __init__(
-        self, threshold_s: float = 100e-6, cells: Cells | None = None
-    ) -> None:
+    def __init__(self, threshold_s: float = 100e-6, cells: Cells | None = None) -> None:
         self.threshold_s = threshold_s
         self._threshold_ns = int(threshold_s * 1e9)
         self._c: Cells = cells if cells is not None else [0] * CELLS
@@ -102,8 +100,13 @@ class LatencyStats:
         for b in itertools.compress(range(BLOCKS), blocks):
             first = b << BLOCK_SHIFT
             seg = self._span(_BINS + first, _BINS + min(first + BLOCK, BINS + 1))
-            out.update(zip(itertools.compress(range(first, first + len(seg)), seg),
-                           filter(None, seg), strict=True))
+            out.update(
+                zip(
+                    itertools.compress(range(first, first + len(seg)), seg),
+                    filter(None, seg),
+                    strict=True,
+                )
+            )
         return out
 
     def percentile_us(self, q: float) -> float:

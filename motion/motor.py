@@ -32,6 +32,8 @@ from motorctl.motion.types import (
 )
 
 K = ExecEventKind
+
+
 class Motor:
     def __init__(
         self,
@@ -157,12 +159,18 @@ class Motor:
             self.soft_stops += 1
             self.takeover_s = (c.after, max(self.takeover_s[1], c.after))
             self.takeover_steps = (steps, max(self.takeover_steps[1], steps))
-            self._follow(plan_stop(c.t, c.position, c.velocity, self._ramp.dec),
-                         MotorState.STOPPING, now)
+            self._follow(
+                plan_stop(c.t, c.position, c.velocity, self._ramp.dec), MotorState.STOPPING, now
+            )
         return True
 
     def latch_fault(
-        self, reason: str, now: float, *, lost: bool = False, stopped: bool = False,
+        self,
+        reason: str,
+        now: float,
+        *,
+        lost: bool = False,
+        stopped: bool = False,
         cause: str = "other",
     ) -> None:
         """Stop at once and latch a fault: every command but StopMove/GetAbsPos gets E4.
@@ -229,8 +237,9 @@ class Motor:
                 self._trajectory_done(ev.t)
             return
         if k is K.DIED:
-            self.latch_fault(f"step executor died: {ev.detail}", now, lost=True,
-                             cause="executor_died")
+            self.latch_fault(
+                f"step executor died: {ev.detail}", now, lost=True, cause="executor_died"
+            )
             return
         # the executor stopped the axis itself: answer (lifts its block), then decide
         if self._awaiting is not None and ev.gen < self._awaiting:
@@ -252,12 +261,14 @@ class Motor:
                 self.latch_fault("end stop hit", now, stopped=True, cause="endstop")
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(f"step timing lost ({ev.detail})", now, lost=lost, stopped=True,
-                             cause="timing_lost")
+            self.latch_fault(
+                f"step timing lost ({ev.detail})", now, lost=lost, stopped=True, cause="timing_lost"
+            )
         else:  # a line failed: a step may or may not have reached the driver
             lost = ev.speed > self.params.start_speed
-            self.latch_fault(ev.detail or "step executor fault", now, lost=lost, stopped=True,
-                             cause="io_error")
+            self.latch_fault(
+                ev.detail or "step executor fault", now, lost=lost, stopped=True, cause="io_error"
+            )
 
     def on_driver_status(self, status: DriverStatus, now: float) -> None:
         """A driver poll's result (read outside the engine lock, by the monitor)."""
@@ -329,8 +340,9 @@ class Motor:
         r = cmd.ramp
         if isinstance(cmd, MoveToCmd):
             target = c.counter + self._distance_to(cmd.target, cmd.direction, c)
-            self._follow(plan_move_to(t, s, v, target, r.speed, r.acc, r.dec),
-                         MotorState.MOVING, now)
+            self._follow(
+                plan_move_to(t, s, v, target, r.speed, r.acc, r.dec), MotorState.MOVING, now
+            )
         elif isinstance(cmd, RunCmd):
             limit = self._soft_limit_abs(cmd.direction, c)
             r = self._ramp = self._dec_to_stop_in_limits(s, v, r, c)
@@ -389,9 +401,7 @@ class Motor:
         """Already on the switch (or stalled) when homing starts."""
         if self.params.homing.source is HomingSource.STALL:
             return self.driver.status().stall
-        return self.params.debounce_s == 0 and self.executor.endstop_active(
-            self.index, direction
-        )
+        return self.params.debounce_s == 0 and self.executor.endstop_active(self.index, direction)
 
     def _homing_triggered(self, now: float) -> None:
         cmd = self._home_cmd
@@ -404,8 +414,11 @@ class Motor:
             counter = c.counter
             target = float(counter - cmd.direction * h.pull_off)
             r = cmd.ramp
-            self._follow(plan_move_to(c.t, float(counter), 0.0, target, r.speed, r.acc, r.dec),
-                         MotorState.HOMING, now)
+            self._follow(
+                plan_move_to(c.t, float(counter), 0.0, target, r.speed, r.acc, r.dec),
+                MotorState.HOMING,
+                now,
+            )
             return
         self.set_position(0)
         self.position_lost = False
@@ -421,7 +434,9 @@ class Motor:
             if self._phase is HomingPhase.BACKOFF:
                 if self._still_on_switch(cmd.direction):
                     self.latch_fault(
-                        "homing failed: end stop still active after pull-off", now, stopped=True,
+                        "homing failed: end stop still active after pull-off",
+                        now,
+                        stopped=True,
                         cause="homing",
                     )
                     return
@@ -431,13 +446,18 @@ class Motor:
                 limit = float(counter + cmd.direction * 2 * h.pull_off)
                 r = cmd.ramp
                 speed = min(h.second_speed, r.speed)
-                traj = plan_run(c.t, float(counter), 0.0, cmd.direction * speed,
-                                r.acc, r.dec, limit)
+                traj = plan_run(
+                    c.t, float(counter), 0.0, cmd.direction * speed, r.acc, r.dec, limit
+                )
                 self._follow(traj, MotorState.HOMING, now)
                 return
             travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
-            self.latch_fault(f"homing failed: no end stop within {travel} steps", now,
-                             stopped=True, cause="homing")
+            self.latch_fault(
+                f"homing failed: no end stop within {travel} steps",
+                now,
+                stopped=True,
+                cause="homing",
+            )
             return
         self._become_idle(now)
 

@@ -87,11 +87,9 @@ class SegmentCutter:
     Owner: the planner (the engine lock). Pure: no clock, no I/O.
     """
 
-    def __init__(self, pieces: Sequence[Any], counter: int, max_error: int,
-                 max_span: int) -> None:
+    def __init__(self, pieces: Sequence[Any], counter: int, max_error: int, max_span: int) -> None:
         if pieces and not abs(pieces[0].s0 - counter) < 1.0 + _SNAP:
-            raise ValueError(f"counter {counter} inconsistent with start position "
-                             f"{pieces[0].s0}")
+            raise ValueError(f"counter {counter} inconsistent with start position {pieces[0].s0}")
         self._pieces = pieces
         self._index = 0
         self.counter = int(counter)
@@ -118,8 +116,9 @@ class SegmentCutter:
     def done(self) -> bool:
         return self._next_step_distance() is None
 
-    def cut(self, horizon: float, gen: int, watch: bool,
-            bounds: MutableSequence[Boundary] | None = None) -> list[StepSegment]:
+    def cut(
+        self, horizon: float, gen: int, watch: bool, bounds: MutableSequence[Boundary] | None = None
+    ) -> list[StepSegment]:
         """Segments of every step up to ``horizon`` (seconds; at least the next step)."""
         out: list[StepSegment] = []
         while True:
@@ -133,8 +132,7 @@ class SegmentCutter:
                     return out  # a step beyond the horizon is left: not the last segment
                 if more:
                     continue
-            n, first, interval, add, t_first, t_last = self._run(seg, sigma, d, horizon,
-                                                                 not out)
+            n, first, interval, add, t_first, t_last = self._run(seg, sigma, d, horizon, not out)
             if n == 0:
                 break
             if bounds is not None:
@@ -146,8 +144,17 @@ class SegmentCutter:
             out[-1] = out[-1]._replace(last=True)
         return out
 
-    def _cruise(self, seg: Any, sigma: int, d: float, horizon: float, gen: int, watch: bool,
-                out: list[StepSegment], bounds: MutableSequence[Boundary] | None) -> bool | None:
+    def _cruise(
+        self,
+        seg: Any,
+        sigma: int,
+        d: float,
+        horizon: float,
+        gen: int,
+        watch: bool,
+        out: list[StepSegment],
+        bounds: MutableSequence[Boundary] | None,
+    ) -> bool | None:
         """The runs of a constant-speed piece up to ``horizon``, appended to ``out``: the
         arithmetic of :meth:`_run` for ``alpha == 0``, without its calls, so a long cruise
         costs about a microsecond per segment. True: the piece is used up (cut on in the
@@ -208,8 +215,9 @@ class SegmentCutter:
         finally:
             self.counter, self.last_t = counter, last_t
 
-    def _run(self, seg: Any, sigma: int, d: float, horizon: float,
-             first_one: bool) -> tuple[int, int, int, int, float, float]:
+    def _run(
+        self, seg: Any, sigma: int, d: float, horizon: float, first_one: bool
+    ) -> tuple[int, int, int, int, float, float]:
         """The next run of steps in ``seg``: (count, first, interval, add, t first, t last)."""
         _t0, length = seg.t0, _length(seg, sigma)
         w0 = max(sigma * seg.v0, 0.0)
@@ -250,14 +258,30 @@ class SegmentCutter:
                 interval = round((last - first - add * b2) / a2)
             # at constant speed the error is rounding only, within the bound by the length
             # chosen (``_length_within_error``): no check needed
-            if interval > 0 and interval + add * (k2 - 1) > 0 and (alpha == 0 or self._checks(
-                seg, sigma, w0, alpha, d, length, first, interval, add, k2
-            )):
+            if (
+                interval > 0
+                and interval + add * (k2 - 1) > 0
+                and (
+                    alpha == 0
+                    or self._checks(seg, sigma, w0, alpha, d, length, first, interval, add, k2)
+                )
+            ):
                 return n, first, interval, add, t_d, t_end
             n = max(n // 2, 1)
 
-    def _checks(self, seg: Any, sigma: int, w0: float, alpha: float, d: float,
-                length: float, first: int, interval: int, add: int, k2: int) -> bool:
+    def _checks(
+        self,
+        seg: Any,
+        sigma: int,
+        w0: float,
+        alpha: float,
+        d: float,
+        length: float,
+        first: int,
+        interval: int,
+        add: int,
+        k2: int,
+    ) -> bool:
         for j in {k2 // 4, (3 * k2) // 4, k2}:
             exact = _ticks(_time(seg, sigma, w0, alpha, d + j, length, False))
             if abs(first + j * interval + add * (j * (j - 1) // 2) - exact) > self.err:
@@ -312,8 +336,9 @@ def _stops(seg: Any, sigma: int) -> bool:
     return bool(sigma * seg.a < 0 and sigma * seg.end_velocity <= _REL_TOL * w0)
 
 
-def _time(seg: Any, sigma: int, w0: float, alpha: float, x: float, length: float,
-          snap: bool) -> float:
+def _time(
+    seg: Any, sigma: int, w0: float, alpha: float, x: float, length: float, snap: bool
+) -> float:
     """The time of the step at distance ``x`` into ``seg`` (the rules of ``Steps``)."""
     if snap and abs(x - length) <= _SNAP:
         return float(seg.t0 + seg.duration)

@@ -73,15 +73,21 @@ from motorctl.motion.segments import StepSegment
 
 # counters cells
 PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP = range(7)
-COUNTER_NAMES = ("progress", "steps", "timing_lost", "io_errors", "endstops", "dropped",
-                 "min_gap_ns")
+COUNTER_NAMES = (
+    "progress",
+    "steps",
+    "timing_lost",
+    "io_errors",
+    "endstops",
+    "dropped",
+    "min_gap_ns",
+)
 #: the smallest time between two steps of a motor (MIN_GAP) counts steps less than this apart
 _GAP_WINDOW = TICKS_PER_S // 10
 
 # per motor cells (``motor_cells``: MOTOR_CELLS per motor, motor m's at m * MOTOR_CELLS)
 SHIFT, ABSORBED, WORST_LATE, WORST_LAG, LAG_FAULTS = range(5)
-MOTOR_CELL_NAMES = ("shift_ns", "late_absorbed", "worst_late_ns", "worst_lag_ufs",
-                    "lag_faults")
+MOTOR_CELL_NAMES = ("shift_ns", "late_absorbed", "worst_late_ns", "worst_lag_ufs", "lag_faults")
 MOTOR_CELLS = len(MOTOR_CELL_NAMES)
 #: worst lag cell unit: millionths of a full step
 LAG_UNIT = 1_000_000
@@ -148,8 +154,7 @@ class StepCore:
         ]
         self.start_speed = [lim.start_speed for lim in limits]
         self.lag_faults = [lim.lag_faults for lim in limits]
-        self.mcells: Cells = motor_cells if motor_cells is not None else [0] * (
-            n * MOTOR_CELLS)
+        self.mcells: Cells = motor_cells if motor_cells is not None else [0] * (n * MOTOR_CELLS)
         if len(self.mcells) < n * MOTOR_CELLS:
             raise ValueError(f"motor cells need {n * MOTOR_CELLS} slots")
         # the lateness of a step that slid its motor's schedule, until the step is made
@@ -409,8 +414,7 @@ class StepCore:
         gen = self.gen[m]
         self._halt(m)
         self.counters[ENDSTOPS] += 1
-        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)),
-                            self.dir[m]))
+        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)), self.dir[m]))
 
     def _speed(self, m: int, planned: int) -> float:
         gap = planned - self.prev_t[m]
@@ -431,14 +435,18 @@ class StepCore:
         ulag = int(lag * LAG_UNIT)
         if ulag > cells[base + WORST_LAG]:
             cells[base + WORST_LAG] = ulag
-        if (self.lag_faults[m] and moving and gap < self.start_gap[m]
-                and late > gap * self.lag_k[m]):
+        if self.lag_faults[m] and moving and gap < self.start_gap[m] and late > gap * self.lag_k[m]:
             cells[base + LAG_FAULTS] += 1
             rate = TICKS_PER_S / gap
-            self._lost(m, now, f"step {late / 1000:.0f} us late at {rate:.0f} step/s: lag "
-                       f"{lag:.2f} full steps > max_lag_full_steps {self.max_lag[m]:g} "
-                       f"({self.microsteps[m]} microsteps, start_speed "
-                       f"{self.start_speed[m]:g} step/s)", planned)
+            self._lost(
+                m,
+                now,
+                f"step {late / 1000:.0f} us late at {rate:.0f} step/s: lag "
+                f"{lag:.2f} full steps > max_lag_full_steps {self.max_lag[m]:g} "
+                f"({self.microsteps[m]} microsteps, start_speed "
+                f"{self.start_speed[m]:g} step/s)",
+                planned,
+            )
             return False
         cells[base + SHIFT] += late
         cells[base + ABSORBED] += 1
@@ -451,8 +459,11 @@ class StepCore:
         speed = self._speed(m, self.next_t[m] if planned is None else planned)
         self._halt(m)
         self.counters[TIMING_LOST] += 1
-        self.emit(ExecEvent(K.TIMING_LOST, m, gen, self.pos[m], from_ticks(now), self.dir[m],
-                            speed, detail))
+        self.emit(
+            ExecEvent(
+                K.TIMING_LOST, m, gen, self.pos[m], from_ticks(now), self.dir[m], speed, detail
+            )
+        )
 
     def _io_fault(self, motors: Sequence[int], exc: Exception) -> None:
         self.counters[IO_ERRORS] += 1
@@ -461,8 +472,18 @@ class StepCore:
             t = self.next_t[m]
             speed = 0.0 if t == NEVER else self._speed(m, t)
             self._halt(m)
-            self.emit(ExecEvent(K.FAULT, m, gen, self.pos[m], self._now_s(), self.dir[m],
-                                speed, f"hardware error: {exc}"))
+            self.emit(
+                ExecEvent(
+                    K.FAULT,
+                    m,
+                    gen,
+                    self.pos[m],
+                    self._now_s(),
+                    self.dir[m],
+                    speed,
+                    f"hardware error: {exc}",
+                )
+            )
 
     def halt_all(self) -> None:
         for m in self.motors:
@@ -475,8 +496,9 @@ class StepCore:
         self.step(now)
         self.refill()
 
-    def run(self, running: Callable[[], bool], wait: Callable[[float], None],
-            idle_s: float = 0.05) -> None:
+    def run(
+        self, running: Callable[[], bool], wait: Callable[[float], None], idle_s: float = 0.05
+    ) -> None:
         """Real clock: the loop, until ``running()`` is False.
 
         End-stop edges are read after each step (and before each wait), not per turn.

@@ -59,7 +59,10 @@ _SELF_STOPS = (K.ENDSTOP, K.TIMING_LOST, K.FAULT)
 
 
 def axis_limits(
-    params: Sequence[MotorParams], max_error_s: float, *, slide_after_s: float = 100e-6,
+    params: Sequence[MotorParams],
+    max_error_s: float,
+    *,
+    slide_after_s: float = 100e-6,
     lag_faults: bool = True,
 ) -> list[AxisLimits]:
     """Each motor's fail-safe bounds: spacing from its maximum speed less the step error;
@@ -298,8 +301,10 @@ class StepExecutor(Executor):
         # once one motor is due, every motor that would be due before the next top-up is
         # topped up with it: one pass for all (cold caches once, one hold of the GIL against
         # the link thread), not one pass per motor a little apart
-        if any(p.cutter is not None and p.until + shift - keep <= now + 1e-9
-               for p, shift in zip(self.plans, shifts, strict=True)):
+        if any(
+            p.cutter is not None and p.until + shift - keep <= now + 1e-9
+            for p, shift in zip(self.plans, shifts, strict=True)
+        ):
             for m, p in enumerate(self.plans):
                 if p.cutter is not None and p.until + shifts[m] - keep <= now + used:
                     self._feed(m, now - shifts[m])

@@ -229,8 +229,16 @@ def integer(
     """An integer key in lo..hi (`hi` may name an earlier key in scope). `default` None with
     optional=True: the key may be left unset; REQUIRED: it must be written."""
     return _field(
-        Key("int", default, doc, lo=lo, hi=hi, optional=optional, unique=unique,
-            default_text=default_text)
+        Key(
+            "int",
+            default,
+            doc,
+            lo=lo,
+            hi=hi,
+            optional=optional,
+            unique=unique,
+            default_text=default_text,
+        )
     )
 
 
@@ -280,9 +288,19 @@ def text(
     """A string key checked by a regular expression `pattern` or a `check` function
     (value -> problem or None; `check_text` says what is accepted, `check_listing` lists it)."""
     return _field(
-        Key("str", default, doc, pattern=pattern, pattern_text=pattern_text, check=check,
-            check_text=check_text, check_listing=check_listing, unique=unique,
-            indexed_default=indexed_default, default_text=default_text)
+        Key(
+            "str",
+            default,
+            doc,
+            pattern=pattern,
+            pattern_text=pattern_text,
+            check=check,
+            check_text=check_text,
+            check_listing=check_listing,
+            unique=unique,
+            indexed_default=indexed_default,
+            default_text=default_text,
+        )
     )
 
 
@@ -291,9 +309,7 @@ def pairs(default: list[list[int]], doc: str) -> Any:
     return _field(Key("pairs", default, doc))
 
 
-def table(
-    cls: type[Any], *, absent: Any = DEFAULTS, absent_text: str = "all defaults"
-) -> Any:
+def table(cls: type[Any], *, absent: Any = DEFAULTS, absent_text: str = "all defaults") -> Any:
     """A sub-table of dataclass `cls`; `absent` None makes the field None when it is left out."""
     return dataclasses.field(
         metadata={_CHILD: Child("", table_of(cls), absent=absent, absent_text=absent_text)}
@@ -310,7 +326,12 @@ def tables(
 ) -> Any:
     """An array of tables of dataclass `cls` (a tuple in code)."""
     child = Child(
-        "", table_of(cls), array=True, min_items=min_items, max_items=max_items, absent=absent,
+        "",
+        table_of(cls),
+        array=True,
+        min_items=min_items,
+        max_items=max_items,
+        absent=absent,
         absent_text=absent_text,
     )
     return dataclasses.field(metadata={_CHILD: child})
@@ -327,12 +348,21 @@ def given(default: Any, *, compare: bool = True) -> Any:
     return dataclasses.field(default=default, compare=compare, metadata={_GIVEN: True})
 
 
-_ANNOTATION: Final = {"int": "int", "float": "float", "bool": "bool", "str": "str",
-                      "pairs": "tuple[tuple[int, int], ...]"}
+_ANNOTATION: Final = {
+    "int": "int",
+    "float": "float",
+    "bool": "bool",
+    "str": "str",
+    "pairs": "tuple[tuple[int, int], ...]",
+}
 
 
 def section(
-    doc: str, *, rules: Sequence[Rule] = (), prose: str = "", notes: str = "",
+    doc: str,
+    *,
+    rules: Sequence[Rule] = (),
+    prose: str = "",
+    notes: str = "",
     retired: Mapping[str, str] | None = None,
 ) -> Callable[[type[T]], type[T]]:
     """Make a frozen dataclass a config table (apply it above `@dataclass(frozen=True)`).
@@ -383,8 +413,9 @@ def section(
         taken = {k.name for k in keys} | {c.name for c in children}
         if clash := taken & {name for name, _ in gone}:
             raise TypeError(f"{cls.__name__}: retired keys still declared: {sorted(clash)}")
-        spec = Table(cls, doc, tuple(keys), tuple(children), tuple(rules), prose, notes,
-                     extensible, gone)
+        spec = Table(
+            cls, doc, tuple(keys), tuple(children), tuple(rules), prose, notes, extensible, gone
+        )
         setattr(cls, _TABLE_ATTR, spec)
         return cls
 
@@ -560,8 +591,10 @@ class Parser:
                 )
             why = spec.retired_why(name)
             if why is not None:
-                self.notices.append(f"{self.source}: '{_join(path, name)}' is retired and "
-                                    f"ignored: {why}; fix: remove it")
+                self.notices.append(
+                    f"{self.source}: '{_join(path, name)}' is retired and "
+                    f"ignored: {why}; fix: remove it"
+                )
         values: dict[str, Any] = {}
         inner = dict(scope)
         for key in spec.keys:

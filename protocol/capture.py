@@ -95,10 +95,12 @@ class CaptureInfo:
 
     def comment(self) -> str:
         """The section comment: ``motorctl-trace/1 key=value ...`` (no spaces in values)."""
-        return (f"{FORMAT} role={self.role} checksum={self.checksum.replace(' ', '')} "
-                f"crc_covers_ack={_flag(self.crc_covers_ack)} "
-                f"strict_padding={_flag(self.strict_padding)} "
-                f"frame_gap_ms={self.frame_gap_ms:g}")
+        return (
+            f"{FORMAT} role={self.role} checksum={self.checksum.replace(' ', '')} "
+            f"crc_covers_ack={_flag(self.crc_covers_ack)} "
+            f"strict_padding={_flag(self.strict_padding)} "
+            f"frame_gap_ms={self.frame_gap_ms:g}"
+        )
 
     @classmethod
     def from_comment(cls, text: str, port: str = "", application: str = "") -> CaptureInfo:
@@ -128,9 +130,11 @@ class CaptureInfo:
 
     def codec_options(self) -> CodecOptions:
         """The codec settings the recorded link used (ValueError: unknown checksum name)."""
-        return CodecOptions(crc=checksum_by_name(self.checksum),
-                            crc_covers_ack=self.crc_covers_ack,
-                            strict_padding=self.strict_padding)
+        return CodecOptions(
+            crc=checksum_by_name(self.checksum),
+            crc_covers_ack=self.crc_covers_ack,
+            strict_padding=self.strict_padding,
+        )
 
 
 @dataclass(frozen=True)
@@ -166,8 +170,10 @@ def header(info: CaptureInfo, os_name: str = "") -> bytes:
     shb_opts += _option(OPT_END, b"")
     shb = _block(SHB, struct.pack("<IHHq", BYTE_ORDER_MAGIC, 1, 0, -1) + shb_opts)
     idb_opts = _option(IF_NAME, (info.port or "motorctl link").encode())
-    idb_opts += _option(IF_DESCRIPTION, b"motorctl UART protocol: 10-byte commands in, "
-                        b"5-byte answers out (docs/trace.md)")
+    idb_opts += _option(
+        IF_DESCRIPTION,
+        b"motorctl UART protocol: 10-byte commands in, 5-byte answers out (docs/trace.md)",
+    )
     idb_opts += _option(IF_TSRESOL, bytes([9]))
     idb_opts += _option(OPT_END, b"")
     idb = _block(IDB, struct.pack("<HHI", LINKTYPE_USER0, 0, 0) + idb_opts)
@@ -192,8 +198,9 @@ class RecordEncoder:
         total = _EPB_HEAD.size + length + pad + len(opts) + 4
         return total, bytes(pad) + opts + struct.pack("<I", total)
 
-    def encode(self, ts_ns: int, direction: int, data: bytes | bytearray,
-               dropped: int = 0) -> bytes:
+    def encode(
+        self, ts_ns: int, direction: int, data: bytes | bytearray, dropped: int = 0
+    ) -> bytes:
         """One block for ``data`` (a run of ``direction``) recorded at ``ts_ns``."""
         length = len(data)
         if dropped:
@@ -203,23 +210,36 @@ class RecordEncoder:
         if tail is None:
             tail = self._tails[key] = self._tail(length, direction)
         total, end = tail
-        return b"".join((_EPB_HEAD.pack(EPB, total, 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF,
-                                        length, length), data, end))
+        return b"".join(
+            (
+                _EPB_HEAD.pack(EPB, total, 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF, length, length),
+                data,
+                end,
+            )
+        )
 
     @staticmethod
     def _encode_dropped(ts_ns: int, direction: int, data: bytes, dropped: int) -> bytes:
-        opts = (_option(EPB_FLAGS, struct.pack("<I", direction))
-                + _option(EPB_DROPCOUNT, struct.pack("<Q", dropped)) + _option(OPT_END, b""))
-        body = (struct.pack("<IIIII", 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF, len(data), len(data))
-                + data + bytes(-len(data) % 4) + opts)
+        opts = (
+            _option(EPB_FLAGS, struct.pack("<I", direction))
+            + _option(EPB_DROPCOUNT, struct.pack("<Q", dropped))
+            + _option(OPT_END, b"")
+        )
+        body = (
+            struct.pack("<IIIII", 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF, len(data), len(data))
+            + data
+            + bytes(-len(data) % 4)
+            + opts
+        )
         return _block(EPB, body)
 
 
 def encode(info: CaptureInfo, records: list[Record]) -> bytes:
     """A whole file: header and records (tests, tools; the recorders stream instead)."""
     enc = RecordEncoder()
-    return header(info) + b"".join(enc.encode(r.ts_ns, r.direction, r.data, r.dropped)
-                                   for r in records)
+    return header(info) + b"".join(
+        enc.encode(r.ts_ns, r.direction, r.data, r.dropped) for r in records
+    )
 
 
 # --- reading ----------------------------------------------------------------------------------
@@ -308,8 +328,9 @@ def parse(data: bytes) -> Capture:
         elif kind == EPB:
             iface, hi, lo, caplen, origlen = struct.unpack_from(order + "IIIII", body, 0)
             if iface >= len(interfaces):
-                cap.problems.append(f"packet at offset {pos} names interface {iface}, "
-                                    "which is not described")
+                cap.problems.append(
+                    f"packet at offset {pos} names interface {iface}, which is not described"
+                )
             elif interfaces[iface][0] != LINKTYPE_USER0:
                 foreign += 1
             else:
@@ -320,12 +341,14 @@ def parse(data: bytes) -> Capture:
                 drops = opts.get(EPB_DROPCOUNT)
                 dropped = struct.unpack(order + "Q", drops[0])[0] if drops else 0
                 if bits not in (1, 2):
-                    cap.problems.append(f"packet at offset {pos} has no direction "
-                                        f"(epb_flags {bits}); left out")
+                    cap.problems.append(
+                        f"packet at offset {pos} has no direction (epb_flags {bits}); left out"
+                    )
                 else:
                     if caplen != origlen:
-                        cap.problems.append(f"packet at offset {pos} was cut to {caplen} of "
-                                            f"{origlen} bytes")
+                        cap.problems.append(
+                            f"packet at offset {pos} was cut to {caplen} of {origlen} bytes"
+                        )
                     num, den = interfaces[iface][1]
                     ts = ((hi << 32) | lo) * num // den
                     cap.records.append(Record(ts, Direction(bits), payload, dropped))
@@ -334,8 +357,10 @@ def parse(data: bytes) -> Capture:
     if foreign:
         cap.problems.append(f"{foreign} packets of other link types left out")
     if cap.truncated_bytes:
-        cap.problems.append(f"the file ends inside a block: its last {cap.truncated_bytes} "
-                            "bytes left out (a writer stopped mid-write)")
+        cap.problems.append(
+            f"the file ends inside a block: its last {cap.truncated_bytes} "
+            "bytes left out (a writer stopped mid-write)"
+        )
     return cap
 
 

@@ -503,8 +503,9 @@ def describe_answer(cmd: Command | None, resp: Response) -> str:
     checks), e.g. "E3 Motor not ready", "pos=1200", "ready", "high", "waypoint=0", "ok"."""
     if not resp.ack:
         code = resp.error_code
-        return f"{code.short} {code.label}" if code is not None else \
-            f"error 0x{resp.payload[0]:02X}"
+        return (
+            f"{code.short} {code.label}" if code is not None else f"error 0x{resp.payload[0]:02X}"
+        )
     if isinstance(cmd, GetAbsPos):
         return f"pos={resp.as_position}"
     if isinstance(cmd, IsReady):

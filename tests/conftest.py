@@ -78,8 +78,13 @@ def motorctld(tmp_path: Path) -> Iterator[StartDaemon]:
 
     started: list[tuple[DaemonProcess, bool]] = []
 
-    def start(config_text: str | None = None, *, workdir: Path | None = None,
-              kill_at_end: bool = False, **kw: Any) -> DaemonProcess:
+    def start(
+        config_text: str | None = None,
+        *,
+        workdir: Path | None = None,
+        kill_at_end: bool = False,
+        **kw: Any,
+    ) -> DaemonProcess:
         d = DaemonProcess(workdir or tmp_path, config_text, **kw)
         started.append((d, kill_at_end))
         return d.start()

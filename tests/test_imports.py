@@ -44,8 +44,10 @@ _MODULE_NAME = re.compile(r"^motorctl(\.[A-Za-z_][A-Za-z0-9_]*)+$")
 
 def package_modules() -> dict[str, Path]:
     """Every module of the package by its name (the rooms as installed: motorctl.<room>)."""
-    found = {"motorctl": REPO / "motorctl" / "__init__.py",
-             "motorctl.schema": REPO / "motorctl" / "schema.py"}
+    found = {
+        "motorctl": REPO / "motorctl" / "__init__.py",
+        "motorctl.schema": REPO / "motorctl" / "schema.py",
+    }
     for room in ROOMS:
         for path in sorted((REPO / room).rglob("*.py")):
             parts = path.relative_to(REPO).with_suffix("").parts
@@ -86,8 +88,9 @@ def imports_of(source: str, known: set[str]) -> set[str]:
             for a in node.names:
                 sub = f"{node.module}.{a.name}"
                 found.add(sub if sub in known else node.module)
-        elif (isinstance(node, ast.Constant) and isinstance(node.value, str)
-              and id(node) not in prose):
+        elif (
+            isinstance(node, ast.Constant) and isinstance(node.value, str) and id(node) not in prose
+        ):
             for line in node.value.splitlines():
                 m = re.match(r"\s*(?:from|import)\s+(motorctl[\w.]*)", line)
                 if m:
@@ -108,11 +111,15 @@ def violations(modules: dict[str, str]) -> list[str]:
             if (name, target) in EXCEPTIONS:
                 continue
             if target.startswith(BACKENDS) and here != "hal":
-                out.append(f"{name} imports the backend module {target}: ask the HAL's "
-                           "registry and interfaces instead")
+                out.append(
+                    f"{name} imports the backend module {target}: ask the HAL's "
+                    "registry and interfaces instead"
+                )
             elif there != here and there not in ALLOWED[here]:
-                out.append(f"{name} ({here}) imports {target} ({there}): against the rooms' "
-                           "order client -> protocol <- daemon -> motion -> hal")
+                out.append(
+                    f"{name} ({here}) imports {target} ({there}): against the rooms' "
+                    "order client -> protocol <- daemon -> motion -> hal"
+                )
     return out
 
 
@@ -134,23 +141,46 @@ def test_the_one_exception_is_still_there() -> None:
 @pytest.mark.parametrize(
     ("name", "source", "says"),
     [
-        ("motorctl.daemon.x", "from motorctl.hal.backends.mock.backend import MockHardware\n",
-         "imports the backend module motorctl.hal.backends.mock.backend"),
-        ("motorctl.motion.x", "def f():\n    from motorctl.hal.backends.tmc import ramp\n",
-         "imports the backend module motorctl.hal.backends.tmc.ramp"),
-        ("motorctl.daemon.x", "import importlib\n"
-         "importlib.import_module('motorctl.hal.backends.gpiod.backend')\n",
-         "imports the backend module motorctl.hal.backends.gpiod.backend"),
-        ("motorctl.hal.x", "from motorctl.motion.engine import MotionEngine\n",
-         "motorctl.hal.x (hal) imports motorctl.motion.engine (motion)"),
-        ("motorctl.motion.x", "from motorctl.daemon import config\n",
-         "motorctl.motion.x (motion) imports motorctl.daemon.config (daemon)"),
-        ("motorctl.protocol.x", "import motorctl.client.client\n",
-         "motorctl.protocol.x (protocol) imports motorctl.client.client (client)"),
-        ("motorctl.client.x", "from motorctl.daemon.status import read_status\n",
-         "motorctl.client.x (client) imports motorctl.daemon.status (daemon)"),
-        ("motorctl.schema", "from motorctl.hal import spec\n",
-         "motorctl.schema (schema) imports motorctl.hal.spec (hal)"),
+        (
+            "motorctl.daemon.x",
+            "from motorctl.hal.backends.mock.backend import MockHardware\n",
+            "imports the backend module motorctl.hal.backends.mock.backend",
+        ),
+        (
+            "motorctl.motion.x",
+            "def f():\n    from motorctl.hal.backends.tmc import ramp\n",
+            "imports the backend module motorctl.hal.backends.tmc.ramp",
+        ),
+        (
+            "motorctl.daemon.x",
+            "import importlib\nimportlib.import_module('motorctl.hal.backends.gpiod.backend')\n",
+            "imports the backend module motorctl.hal.backends.gpiod.backend",
+        ),
+        (
+            "motorctl.hal.x",
+            "from motorctl.motion.engine import MotionEngine\n",
+            "motorctl.hal.x (hal) imports motorctl.motion.engine (motion)",
+        ),
+        (
+            "motorctl.motion.x",
+            "from motorctl.daemon import config\n",
+            "motorctl.motion.x (motion) imports motorctl.daemon.config (daemon)",
+        ),
+        (
+            "motorctl.protocol.x",
+            "import motorctl.client.client\n",
+            "motorctl.protocol.x (protocol) imports motorctl.client.client (client)",
+        ),
+        (
+            "motorctl.client.x",
+            "from motorctl.daemon.status import read_status\n",
+            "motorctl.client.x (client) imports motorctl.daemon.status (daemon)",
+        ),
+        (
+            "motorctl.schema",
+            "from motorctl.hal import spec\n",
+            "motorctl.schema (schema) imports motorctl.hal.spec (hal)",
+        ),
     ],
 )
 def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
@@ -163,11 +193,11 @@ def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
 def test_what_is_allowed_is_not_named() -> None:
     modules = {
         "motorctl.daemon.x": "from motorctl.hal.registry import open_hardware\n"
-                             "from motorctl.motion.engine import MotionEngine\n"
-                             "from motorctl.protocol.codec import wrap24\n"
-                             "from motorctl import __version__\n",
+        "from motorctl.motion.engine import MotionEngine\n"
+        "from motorctl.protocol.codec import wrap24\n"
+        "from motorctl import __version__\n",
         "motorctl.hal.backends.mock.backend": "from motorctl.hal.backends.mock.config import "
-                                              "MockConfig\nfrom motorctl.schema import table\n",
+        "MockConfig\nfrom motorctl.schema import table\n",
         "motorctl.hal.registry": "BACKENDS = {'mock': 'motorctl.hal.backends.mock.backend'}\n",
         "motorctl.motion.x": '"""Prose: :class:`motorctl.hal.backends.tmc.ramp.Tmc5160`."""\n',
     }

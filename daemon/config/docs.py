@@ -189,8 +189,13 @@ def render() -> str:
         table = ["| key | type | default | accepted values and meaning |", "|---|---|---|---|"]
         parts.append("\n".join(table + [_row(r) for r in rows]) + "\n")
         for name, why in child.table.retired:
-            parts.append(_fill(f"Retired: `{child.name}.{name}` (any value) still loads, with "
-                               f"a warning, and means nothing: {why}.") + "\n")
+            parts.append(
+                _fill(
+                    f"Retired: `{child.name}.{name}` (any value) still loads, with "
+                    f"a warning, and means nothing: {why}."
+                )
+                + "\n"
+            )
         if child.table.notes:
             names = _fill(checksum_names() + ".")
             aliases = ", ".join(sorted(ALIASES))
@@ -212,8 +217,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         DOCS.write_text(text, encoding="utf-8")
     elif args.check:
         if DOCS.read_text(encoding="utf-8") != text:
-            print(f"{DOCS} is out of date: run python -m motorctl.daemon.config.docs --write",
-                  file=sys.stderr)
+            print(
+                f"{DOCS} is out of date: run python -m motorctl.daemon.config.docs --write",
+                file=sys.stderr,
+            )
             return 1
     else:
         sys.stdout.write(text)

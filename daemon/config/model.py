@@ -198,9 +198,7 @@ most hosts; change them only if the step-timing statistics report late edges."""
 class StepThreadConfig:
     """[step_thread]: timing of the step-generating thread."""
 
-    dir_setup_us: float = number(
-        5.0, 0, 10000, "DIR is set this long before the next step edge."
-    )
+    dir_setup_us: float = number(5.0, 0, 10000, "DIR is set this long before the next step edge.")
     step_pulse_us: float = number(2.0, 0.1, 10000, "Minimum step pulse width.")
     late_threshold_us: float = number(
         100.0,
@@ -485,9 +483,7 @@ class PinConfig(Sectioned):
     """One [[pins]] entry: a pin the host may address by PIN_NR."""
 
     number: int = integer(REQUIRED, 0, 255, "The host's PIN_NR.", unique=True)
-    mode: str = choice(
-        "output", ("output", "input"), "Direction at start (ConfigPin changes it)."
-    )
+    mode: str = choice("output", ("output", "input"), "Direction at start (ConfigPin changes it).")
     initial: bool = boolean(False, "Output level at start (true = high).")
     safe: bool = boolean(False, "Output level set at shutdown (true = high).")
     sections: Mapping[type[Any], Any] = extension_sections()

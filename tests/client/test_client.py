@@ -377,11 +377,19 @@ def test_close_is_idempotent(peer: Peer) -> None:
 
 CLI_CASES: list[tuple[list[str], str, Response, str]] = [
     (["init", "0", "up"], "00 00 01", OK, "ok"),
-    (["init", "1", "down", "--speed", "3", "--acc", "4", "--dec", "5"], "00 01 00 03 04 05", OK,
-     "ok"),
+    (
+        ["init", "1", "down", "--speed", "3", "--acc", "4", "--dec", "5"],
+        "00 01 00 03 04 05",
+        OK,
+        "ok",
+    ),
     (["moveto", "0", "1200", "--speed", "250"], "01 00 01 00 04 b0 fa", OK, "ok"),
-    (["moveto", "1", "0x10", "--dir", "down", "--dec", "9"], "01 01 00 00 00 10 00 00 09", OK,
-     "ok"),
+    (
+        ["moveto", "1", "0x10", "--dir", "down", "--dec", "9"],
+        "01 01 00 00 00 10 00 00 09",
+        OK,
+        "ok",
+    ),
     (["moveto", "0", "-500"], "01 00 01 ff fe 0c", OK, "ok"),
     (["moveto", "0", "-500", "--speed", "3"], "01 00 01 ff fe 0c 03", OK, "ok"),
     (["moveto", "0", "-0x1f4"], "01 00 01 ff fe 0c", OK, "ok"),
@@ -405,14 +413,22 @@ CLI_CASES: list[tuple[list[str], str, Response, str]] = [
     (["pin", "config", "5", "input"], "09 05 00", OK, "ok"),
     (["home", "save", "1"], "0a 01", OK, "ok"),
     (["home", "go", "1"], "0b 01", OK, "ok"),
-    (["waypoint", "save", "0"], "0c 00", Response(True, b"\x03\x00\x00"),
-     "waypoint 3 saved on motor 0"),
+    (
+        ["waypoint", "save", "0"],
+        "0c 00",
+        Response(True, b"\x03\x00\x00"),
+        "waypoint 3 saved on motor 0",
+    ),
     (["waypoint", "go", "0", "3", "--speed", "2"], "0d 00 03 02", OK, "ok"),
     (["dc", "forward", "300"], "0e 01 01 2c 00", OK, "ok"),
     (["dc", "reverse", "300", "--hiz"], "0e 00 01 2c 01", OK, "ok"),
     (["dc", "forward", "0", "--brake"], "0e 01 00 00 00", OK, "ok"),
-    (["send", "03", "00", "00", "00", "00", "00", "00", "00", "00"], "03 00",
-     Response(True, b"\x01\x02\x03"), "ok, payload 01 02 03"),
+    (
+        ["send", "03", "00", "00", "00", "00", "00", "00", "00", "00"],
+        "03 00",
+        Response(True, b"\x01\x02\x03"),
+        "ok, payload 01 02 03",
+    ),
     (["send", "030200000000000000"], "03 02", OK, "ok, payload 00 00 00"),
 ]
 
@@ -544,9 +560,7 @@ def test_cli_without_port_is_a_usage_error(
     ],
     ids=lambda a: " ".join(a),
 )
-def test_cli_usage_errors(
-    peer: Peer, capsys: pytest.CaptureFixture[str], args: list[str]
-) -> None:
+def test_cli_usage_errors(peer: Peer, capsys: pytest.CaptureFixture[str], args: list[str]) -> None:
     with pytest.raises(SystemExit) as info:
         cli.main(["-p", peer.port, *args])
     assert info.value.code == 2

@@ -55,9 +55,13 @@ SESSION_FRAMES = 17
 
 
 def motorctl(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "motorctl.client.cli", *args],
-                          capture_output=True, text=True, timeout=timeout,
-                          cwd=REPO)
+    return subprocess.run(
+        [sys.executable, "-m", "motorctl.client.cli", *args],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+        cwd=REPO,
+    )
 
 
 def session(c: Client) -> None:
@@ -122,8 +126,9 @@ def test_the_reader_shows_the_session_decoded(recorded: Path) -> None:
     assert "E2 Invalid Address" in table.stdout and "partial frame dropped" in table.stdout
 
 
-def test_a_recorded_session_replays_clean_against_a_fresh_daemon(recorded: Path,
-                                                                 tmp_path: Path) -> None:
+def test_a_recorded_session_replays_clean_against_a_fresh_daemon(
+    recorded: Path, tmp_path: Path
+) -> None:
     d = DaemonProcess(tmp_path, CONFIG).start()
     try:
         run = motorctl("replay", str(recorded), "--port", str(d.pty), "--json")
@@ -152,9 +157,22 @@ def test_a_changed_daemon_is_caught_naming_the_frame(recorded: Path, tmp_path: P
 def test_tshark_opens_the_trace(recorded: Path) -> None:
     if shutil.which("tshark") is None:
         pytest.skip("tshark is not installed (apt-get install tshark)")
-    run = subprocess.run(["tshark", "-r", str(recorded), "-T", "fields",
-                          "-e", "frame.packet_flags_direction", "-e", "data"],
-                         capture_output=True, text=True, timeout=60)
+    run = subprocess.run(
+        [
+            "tshark",
+            "-r",
+            str(recorded),
+            "-T",
+            "fields",
+            "-e",
+            "frame.packet_flags_direction",
+            "-e",
+            "data",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert run.returncode == 0, run.stderr
     rows = [line.split("\t") for line in run.stdout.splitlines()]
     cap = load([recorded])
@@ -183,10 +201,25 @@ def pty_pair() -> tuple[int, str]:
 
 
 def start_tap(host: str, device: str, out: Path) -> subprocess.Popen[str]:
-    proc = subprocess.Popen([sys.executable, "-m", "motorctl.client.cli", "tap", "--host",
-                             host, "--device", device, "--out", str(out), "--json"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=REPO)
+    proc = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.client.cli",
+            "tap",
+            "--host",
+            host,
+            "--device",
+            device,
+            "--out",
+            str(out),
+            "--json",
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        cwd=REPO,
+    )
     assert proc.stdout is not None
     line = proc.stdout.readline()
     assert proc.stderr is not None
@@ -242,18 +275,25 @@ def test_the_tap_forwards_every_byte_unchanged_and_records_both_ways(tmp_path: P
     assert times == sorted(times)
 
 
-def test_the_tap_between_a_host_and_motorctld_records_a_replayable_session(
-        tmp_path: Path) -> None:
+def test_the_tap_between_a_host_and_motorctld_records_a_replayable_session(tmp_path: Path) -> None:
     """A host on a PTY pair, the tap, a real motorctld as the old device (with its own trace
     for comparison); the recording then replays clean against a fresh daemon."""
-    old = DaemonProcess(subdir(tmp_path, "old"), CONFIG,
-                        extra=["--trace", str(tmp_path / "device.pcapng")]).start()
+    old = DaemonProcess(
+        subdir(tmp_path, "old"), CONFIG, extra=["--trace", str(tmp_path / "device.pcapng")]
+    ).start()
     host, host_port = pty_pair()
     out = tmp_path / "tap.pcapng"
     tap = start_tap(host_port, str(old.pty), out)
-    frames = [encode_command(c, OPTS) for c in (
-        IsReady(0), MoveTo(0, True, 300, 250, 0, 0), WaitMoved(0, 5000), GetAbsPos(0),
-        MoveTo(7, True, 1, 0, 0, 0))]
+    frames = [
+        encode_command(c, OPTS)
+        for c in (
+            IsReady(0),
+            MoveTo(0, True, 300, 250, 0, 0),
+            WaitMoved(0, 5000),
+            GetAbsPos(0),
+            MoveTo(7, True, 1, 0, 0, 0),
+        )
+    ]
     answers = []
     try:
         for f in frames:
@@ -273,8 +313,9 @@ def test_the_tap_between_a_host_and_motorctld_records_a_replayable_session(
     tapped = parse(out.read_bytes())
     own = load([tmp_path / "device.pcapng"])
     for direction in Direction:  # the tap saw what the device saw, byte for byte
-        assert b"".join(r.data for r in tapped.records if r.direction is direction) == \
-            b"".join(r.data for r in own.records if r.direction is direction)
+        assert b"".join(r.data for r in tapped.records if r.direction is direction) == b"".join(
+            r.data for r in own.records if r.direction is direction
+        )
     fresh = DaemonProcess(subdir(tmp_path, "fresh"), CONFIG).start()
     try:
         run = motorctl("replay", str(out), "--port", str(fresh.pty))

@@ -29,14 +29,28 @@ class Harness(ABC):
         self.hw: Hardware | None = None
         self.io: StepIO | None = None
 
-    def spec(self, motors: int, pins: Sequence[PinSpec], dc: bool,
-             endstop_active_low: bool = False, invert_dir: bool = False) -> HardwareSpec:
-        axes = tuple(AxisSpec(invert_dir=invert_dir, endstop_active_low=endstop_active_low)
-                     for _ in range(motors))
+    def spec(
+        self,
+        motors: int,
+        pins: Sequence[PinSpec],
+        dc: bool,
+        endstop_active_low: bool = False,
+        invert_dir: bool = False,
+    ) -> HardwareSpec:
+        axes = tuple(
+            AxisSpec(invert_dir=invert_dir, endstop_active_low=endstop_active_low)
+            for _ in range(motors)
+        )
         return HardwareSpec(axes, tuple(pins), dc=dc)
 
-    def open(self, motors: int = 1, pins: Sequence[PinSpec] = (), dc: bool = False,
-             endstop_active_low: bool = False, invert_dir: bool = False) -> Hardware:
+    def open(
+        self,
+        motors: int = 1,
+        pins: Sequence[PinSpec] = (),
+        dc: bool = False,
+        endstop_active_low: bool = False,
+        invert_dir: bool = False,
+    ) -> Hardware:
         spec = self.spec(motors, pins, dc, endstop_active_low, invert_dir)
         clock = MonotonicClock()
         self.hw = open_hardware(self.backend, spec, clock)
@@ -130,7 +144,7 @@ class MockHarness(Harness):
         self.mark = len(self._w().timeline.events)
 
     def steps(self, motor: int) -> int:
-        events = list(self._w().timeline.snapshot())[self.mark:]
+        events = list(self._w().timeline.snapshot())[self.mark :]
         return sum(1 for e in events if e.kind == EventKind.STEP and e.index == motor)
 
     def bridge(self) -> BridgeState:

@@ -114,8 +114,13 @@ def test_bridge_states_show_on_its_inputs(harness: Harness) -> None:
     hw = harness.open(dc=True)
     assert hw.dc is not None
     assert harness.bridge() is BridgeState.COAST
-    for state in (BridgeState.FORWARD, BridgeState.BRAKE, BridgeState.REVERSE,
-                  BridgeState.COAST, BridgeState.FORWARD):
+    for state in (
+        BridgeState.FORWARD,
+        BridgeState.BRAKE,
+        BridgeState.REVERSE,
+        BridgeState.COAST,
+        BridgeState.FORWARD,
+    ):
         hw.dc.set(state)
         assert harness.bridge() is state
 

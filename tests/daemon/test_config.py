@@ -119,6 +119,7 @@ def test_default_config_text_loads_back_to_the_embedded_default() -> None:
     lines = text.splitlines()
     assert lines[0].startswith("# motorctl: the embedded default configuration")
     left_out = {ln[3:].split("]")[0] for ln in lines if ln.startswith("# [") and ": left out" in ln}
+
     def inside_left_out(table: str) -> bool:
         return any(table == t or table.startswith(t + ".") for t in left_out)
 
@@ -333,8 +334,11 @@ ERRORS: list[tuple[str, str, list[str]]] = [
         MOTOR + "[[pins]]\nnumber = 1\nlevel = 1\n",
         ["'pins[0].level'", "in [[pins]]: gpiod, initial, mode, number, safe"],
     ),
-    ("unknown-mock", MOTOR + "[mock]\nwire = []\n",
-     ["'mock.wire'", "in [mock]: lose_steps, wires"]),
+    (
+        "unknown-mock",
+        MOTOR + "[mock]\nwire = []\n",
+        ["'mock.wire'", "in [mock]: lose_steps, wires"],
+    ),
     # wrong types
     (
         "str-for-number",
@@ -536,8 +540,11 @@ def test_unknown_key_lists_the_schema_keys_of_its_table() -> None:
         if type_ != "table" or path.startswith(("motors", "pins", "gpiod.dc.")):  # required keys
             continue
         message = error_of(f"[{path}]\nbogus = 1\n" + MOTOR)
-        own = sorted(p.split(".")[-1] for p, *_ in describe_keys()
-                     if p.startswith(path + ".") and p.count(".") == path.count(".") + 1)
+        own = sorted(
+            p.split(".")[-1]
+            for p, *_ in describe_keys()
+            if p.startswith(path + ".") and p.count(".") == path.count(".") + 1
+        )
         assert message.endswith(f"accepted keys in [{path}]: {', '.join(own)}")
 
 
@@ -628,7 +635,7 @@ def test_backend_choices_come_from_the_registry(monkeypatch: pytest.MonkeyPatch)
     assert 'one of "mock", "gpiod", "fake" (the backends of motorctl.hal.registry)' in message
 
 
-FAKE_CONFIG = '''
+FAKE_CONFIG = """
 from __future__ import annotations
 from dataclasses import dataclass
 from motorctl.schema import Extension, integer, section, text
@@ -647,7 +654,7 @@ CONFIG_SECTIONS = (
     Extension("", "fake", FakeConfig, owner="the fake backend"),
     Extension("motors", "fake", FakeAxisConfig, owner="the fake backend"),
 )
-'''
+"""
 
 
 def test_a_backend_registers_its_sections_without_loading_its_library(
@@ -668,7 +675,9 @@ def test_a_backend_registers_its_sections_without_loading_its_library(
     monkeypatch.setattr(registry, "BACKENDS", backends)
     config = parse_config(
         '[hal]\nbackend = "fake"\n[fake]\nchip = "/dev/gpiochip4"\n'
-        + MOTOR + "[motors.fake]\nstep_line = 17\n" + MOTOR,
+        + MOTOR
+        + "[motors.fake]\nstep_line = 17\n"
+        + MOTOR,
         SOURCE,
     )
     module = sys.modules["fake_backend_config"]
@@ -754,9 +763,18 @@ def test_table_of_the_whole_file() -> None:
     spec = schema()
     assert isinstance(spec, Table)
     assert [c.name for c in spec.children] == [
-        "link", "units", "hal", "step_thread", "state", "trace", "dc", "motors", "pins",
+        "link",
+        "units",
+        "hal",
+        "step_thread",
+        "state",
+        "trace",
+        "dc",
+        "motors",
+        "pins",
         "mock",
-        "gpiod", "spidev",
+        "gpiod",
+        "spidev",
     ]
 
 
@@ -800,9 +818,7 @@ def test_motorctld_prints_and_checks_the_default_config(
     path = tmp_path / "motorctl.toml"
     path.write_text(text, encoding="utf-8")
     assert main(["--check-config", str(path)]) == 0
-    assert capsys.readouterr().out == (
-        f"{path}: OK (3 motors, 8 pins, a DC motor, backend mock)\n"
-    )
+    assert capsys.readouterr().out == (f"{path}: OK (3 motors, 8 pins, a DC motor, backend mock)\n")
     path.write_text(text.replace("max_travel = 40000", "max_travel = 0", 1), encoding="utf-8")
     assert main(["--check-config", str(path)]) == 1
     assert "motors[0].homing.max_travel = 0: out of range" in capsys.readouterr().err
@@ -863,10 +879,14 @@ def test_microsteps_come_from_the_motor_or_its_tmc_table(text: str, expected: in
     [
         (MOTOR + "microsteps = 12\n", ["motors[0].microsteps = 12", "not a power of two"]),
         (MOTOR + "microsteps = 512\n", ["motors[0].microsteps = 512", "out of range"]),
-        (MOTOR + "microsteps = 8\n[motors.tmc]\nmicrosteps = 16\n",
-         ["motors[0].microsteps = 8", "sets microsteps = 16", "write it once"]),
-        (MOTOR + "max_lag_full_steps = 0\n",
-         ["motors[0].max_lag_full_steps = 0", "a number > 0 and <= 64"]),
+        (
+            MOTOR + "microsteps = 8\n[motors.tmc]\nmicrosteps = 16\n",
+            ["motors[0].microsteps = 8", "sets microsteps = 16", "write it once"],
+        ),
+        (
+            MOTOR + "max_lag_full_steps = 0\n",
+            ["motors[0].max_lag_full_steps = 0", "a number > 0 and <= 64"],
+        ),
         ("[mock]\nlose_steps = 1\n" + MOTOR, ["mock.lose_steps = 1", "true or false"]),
     ],
 )
@@ -883,8 +903,11 @@ def test_only_the_mock_with_lose_steps_off_spares_its_motors_from_the_lag_rule()
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.registry import open_hardware
 
-    for text, lose in (("", False), ("[mock]\nwires = []\nlose_steps = false\n", False),
-                       ("[mock]\nwires = []\nlose_steps = true\n", True)):
+    for text, lose in (
+        ("", False),
+        ("[mock]\nwires = []\nlose_steps = false\n", False),
+        ("[mock]\nwires = []\nlose_steps = true\n", True),
+    ):
         spec = hardware_spec(parse_config(text + MOTOR, SOURCE))
         hw = open_hardware("mock", spec, VirtualClock())
         try:

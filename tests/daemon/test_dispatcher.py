@@ -66,8 +66,15 @@ def code(r: Response | Wait) -> ErrorCode | None:
 
 
 def test_e2_before_everything(d: Daemon) -> None:
-    for cmd in (MoveTo(2, True, 999, 0, 0, 0), IsReady(9), SaveWayPoint(2),
-                MoveToWayPoint(2, 7, 0, 0, 0), SetPin(5, True), GetPin(2), ConfigPin(9, True)):
+    for cmd in (
+        MoveTo(2, True, 999, 0, 0, 0),
+        IsReady(9),
+        SaveWayPoint(2),
+        MoveToWayPoint(2, 7, 0, 0, 0),
+        SetPin(5, True),
+        GetPin(2),
+        ConfigPin(9, True),
+    ):
         assert code(d.dispatcher.handle(cmd)) is E.INVALID_ADDRESS
     assert code(d.dispatcher.wait_begin(WaitMoved(3, 10), 0.0)) is E.INVALID_ADDRESS
 

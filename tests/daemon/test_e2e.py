@@ -232,9 +232,13 @@ def test_e1_parameters(small: DaemonProcess) -> None:
 
 
 def test_e2_addresses(client: Client) -> None:
-    for call in (lambda: client.is_ready(3), lambda: client.move_to(7, 1),
-                 lambda: client.get_pin(8), lambda: client.set_pin(200, True),
-                 lambda: client.position(255)):
+    for call in (
+        lambda: client.is_ready(3),
+        lambda: client.move_to(7, 1),
+        lambda: client.get_pin(8),
+        lambda: client.set_pin(200, True),
+        lambda: client.position(255),
+    ):
         with pytest.raises(DeviceError) as exc:
             call()
         assert code_of(exc) is E.INVALID_ADDRESS
@@ -248,8 +252,11 @@ def test_e2_no_dc_motor(small: DaemonProcess) -> None:
 
 def test_e3_busy_and_wait_timeout(client: Client) -> None:
     client.move(0, True, speed=1)
-    for call in (lambda: client.save_home(0), lambda: client.save_waypoint(0),
-                 lambda: client.wait_moved(0, 30)):
+    for call in (
+        lambda: client.save_home(0),
+        lambda: client.save_waypoint(0),
+        lambda: client.wait_moved(0, 30),
+    ):
         with pytest.raises(DeviceError) as exc:
             call()
         assert code_of(exc) is E.MOTOR_NOT_READY
@@ -262,8 +269,11 @@ def test_e4_end_stop_hit_latches_fault(client: Client) -> None:
     with pytest.raises(DeviceError) as exc:
         client.wait_moved(0, 20_000)
     assert code_of(exc) is E.MOTOR_ERROR
-    for call in (lambda: client.is_ready(0), lambda: client.move_to(0, 0),
-                 lambda: client.save_home(0)):
+    for call in (
+        lambda: client.is_ready(0),
+        lambda: client.move_to(0, 0),
+        lambda: client.save_home(0),
+    ):
         with pytest.raises(DeviceError) as exc:
             call()
         assert code_of(exc) is E.MOTOR_ERROR
@@ -354,8 +364,9 @@ def test_split_frames_within_gap(tmp_path: Path) -> None:
 def test_wait_moved_held_with_stop_behind_it(client: Client) -> None:
     client.move(0, True, speed=1)
     until("motor 0 moving", lambda: client.position(0) != 0)
-    responses = pipeline(client, [WaitMoved(0, 20_000), IsReady(1), StopMove(0, True),
-                                  GetAbsPos(0), IsReady(0)])
+    responses = pipeline(
+        client, [WaitMoved(0, 20_000), IsReady(1), StopMove(0, True), GetAbsPos(0), IsReady(0)]
+    )
     assert [r.ack for r in responses] == [True] * 5
     assert responses[1].as_bool is True
     stopped_at = responses[3].as_position
@@ -364,14 +375,12 @@ def test_wait_moved_held_with_stop_behind_it(client: Client) -> None:
     assert client.position(0) == stopped_at
 
 
-def test_held_frames_overflow_gets_e0_in_turn_but_a_stop_is_never_refused(
-        client: Client) -> None:
+def test_held_frames_overflow_gets_e0_in_turn_but_a_stop_is_never_refused(client: Client) -> None:
     client.move(0, True, speed=1)
     # 1 WaitMoved, 18 frames behind it, then a StopMove as the 20th: 16 are kept, the next
     # 2 get E0 in their turn and are not executed; the StopMove is executed on arrival
     # although the buffer is full, which ends the WaitMoved (ACK), and answered in its turn.
-    cmds: list[Command] = [WaitMoved(0, 20_000), *[IsReady(1)] * 18, StopMove(0, True),
-                           IsReady(0)]
+    cmds: list[Command] = [WaitMoved(0, 20_000), *[IsReady(1)] * 18, StopMove(0, True), IsReady(0)]
     answers = pipeline(client, cmds)
     assert answers[0].ack
     assert all(a.ack and a.as_bool for a in answers[1:17])
@@ -395,8 +404,12 @@ def test_a_bad_frame_takes_its_place_among_the_16_held_frames(client: Client) ->
     client.send_bytes(data + bytes(bad) + b"".join(encode_command(c, OPTS) for c in behind))
     answers = [client.read_response(10.0) for _ in range(18)]
     assert [a.error_code for a in answers] == (
-        [E.MOTOR_NOT_READY] + [None] * 4 + [E.INVALID_COMMAND, E.INVALID_ADDRESS] + [None] * 10
-        + [E.FULL_BUFFER])
+        [E.MOTOR_NOT_READY]
+        + [None] * 4
+        + [E.INVALID_COMMAND, E.INVALID_ADDRESS]
+        + [None] * 10
+        + [E.FULL_BUFFER]
+    )
     assert client.get_pin(2) is False
     client.stop(0, True)
 
@@ -487,7 +500,10 @@ def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
     try:
         with d2.client() as c:
             calls: list[Callable[[], None]] = [
-                lambda: c.move_to(0, 0), lambda: c.move(0, True), lambda: c.go_home(0)]
+                lambda: c.move_to(0, 0),
+                lambda: c.move(0, True),
+                lambda: c.go_home(0),
+            ]
             for call in calls:
                 with pytest.raises(DeviceError) as exc:
                     call()
@@ -586,8 +602,14 @@ def test_status_has_the_step_lateness_histogram(daemon: DaemonProcess) -> None:
     steps = daemon.status(histogram=True)["steps"]
     histogram = {int(us): n for us, n in steps["histogram_us"].items()}
     assert sum(histogram.values()) == steps["steps"] >= 300
-    cli = [sys.executable, "-m", "motorctl.daemon.main", "--state-dir", str(daemon.state_dir),
-           "--status"]
+    cli = [
+        sys.executable,
+        "-m",
+        "motorctl.daemon.main",
+        "--state-dir",
+        str(daemon.state_dir),
+        "--status",
+    ]
     run = subprocess.run([*cli, "--histogram"], capture_output=True, text=True, timeout=30)
     assert run.returncode == 0, run.stderr
     printed = json.loads(run.stdout)["steps"]

@@ -94,8 +94,11 @@ class SlowToConfirm(Executor):
     # -- the seam ----------------------------------------------------------------------
     def stop(self, motor: int, gen: int) -> int | None:
         # on the step path's ticks, as a real executor's times are (a virtual clock stops there)
-        due = (float("inf") if self.delay_s is None
-               else from_ticks(to_ticks(self.clock.now() + self.delay_s)))
+        due = (
+            float("inf")
+            if self.delay_s is None
+            else from_ticks(to_ticks(self.clock.now() + self.delay_s))
+        )
         with self._lock:
             self._asked[(motor, gen)] = due
         self.inner.stop(motor, gen)  # the motor stops for real; its confirmation waits
@@ -135,8 +138,9 @@ class SlowToConfirm(Executor):
         if any(due <= now for due, _ in self._held):
             self.on_event()
 
-    def follow(self, motor: int, traj: Trajectory, ramp: Ramp, gen: int,
-               endstops: bool = True) -> bool:
+    def follow(
+        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+    ) -> bool:
         return self.inner.follow(motor, traj, ramp, gen, endstops)
 
     def committed(self, motor: int, now: float) -> Committed:
@@ -186,8 +190,12 @@ class Rig:
         self.engine.run_until(self.clock.now() + dt)
 
 
-def rig_on(clock: Clock, delay_s: float | None, stop_confirm_s: float = STOP_CONFIRM_S,
-           config: Config | None = None) -> Rig:
+def rig_on(
+    clock: Clock,
+    delay_s: float | None,
+    stop_confirm_s: float = STOP_CONFIRM_S,
+    config: Config | None = None,
+) -> Rig:
     config = config or parse_config(IN_PROCESS_CONFIG, "test.toml")
     spec = hardware_spec(config)
     params = motor_params(config)
@@ -205,7 +213,8 @@ def moving(rig: Rig, motor: int = 0) -> None:
 
 # ------------------------------------------------------------------ a virtual clock
 def test_never_confirmed_answers_at_the_deadline_not_never(
-        caplog: pytest.LogCaptureFixture) -> None:
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     rig = rig_on(VirtualClock(), delay_s=None)
     moving(rig)
     t0 = rig.clock.now()
@@ -403,8 +412,7 @@ def test_real_clock_woken_by_the_confirmation_from_another_thread(patient: Rig) 
     assert 0.02 <= took < DEADLINE_S
 
 
-def test_link_with_a_stalled_executor_answers_a_burst_and_notices_shutdown(
-        tmp_path: Path) -> None:
+def test_link_with_a_stalled_executor_answers_a_burst_and_notices_shutdown(tmp_path: Path) -> None:
     """100 hard StopMoves in one write to a stalled executor: the first waits the deadline,
     the rest are answered at once, and a stop of the link ends it promptly (without the skip
     it would take 100 x 0.2 s)."""
@@ -437,4 +445,3 @@ def test_link_with_a_stalled_executor_answers_a_burst_and_notices_shutdown(
         link.close()
         os.close(fd)
         close_real(rig)
-

@@ -97,7 +97,8 @@ def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProce
             stop, ready, pos = send(c, [StopMove(m, True), IsReady(m), GetAbsPos(m)])
             ok(stop, f"round {r}: StopMove({m}, hard)")
             assert ok(ready, "IsReady").as_bool is True, (
-                f"round {r}: IsReady({m}) right after the hard StopMove's ACK answered 0")
+                f"round {r}: IsReady({m}) right after the hard StopMove's ACK answered 0"
+            )
             final = ok(pos, "GetAbsPos").as_position
             # the other motors keep stepping meanwhile; this one must not move any more
             other = (m + 1) % 3
@@ -105,7 +106,8 @@ def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProce
             until(f"motor {other} moving", moved(c, other, was, 0))
             again, ready2 = send(c, [GetAbsPos(m), IsReady(m)])
             assert ok(again, "GetAbsPos").as_position == final, (
-                f"round {r}: motor {m} moved after its hard stop was answered")
+                f"round {r}: motor {m} moved after its hard stop was answered"
+            )
             assert ok(ready2, "IsReady").as_bool is True
             # back towards 0 and beyond; every 4th run homes (InitMove: the end stop is far)
             if r % 4 == 3:
@@ -121,7 +123,6 @@ def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProce
     assert stops["confirmed"] == ROUNDS + 3, stops
     assert stops["timed_out"] == stops["skipped"] == stops["died"] == 0, stops
     print(f"hard stops: {stops}")
-
 
 
 @contextlib.contextmanager

@@ -20,16 +20,18 @@ from tests.support.wait import until
 REPO = REPO
 
 
-@pytest.mark.parametrize(("argv", "serves"), [
-    (["--pty", "x"], True),
-    (["--port=/dev/ttyAMA0", "--config", "c.toml"], True),
-    (["--pty", "x", "--check-config", "c.toml"], False),
-    (["--status"], False),
-    (["--pty", "x", "--version"], False),
-    (["--config", "c.toml"], False),
-])
-def test_only_a_command_line_that_serves_gets_the_head_start(argv: list[str],
-                                                              serves: bool) -> None:
+@pytest.mark.parametrize(
+    ("argv", "serves"),
+    [
+        (["--pty", "x"], True),
+        (["--port=/dev/ttyAMA0", "--config", "c.toml"], True),
+        (["--pty", "x", "--check-config", "c.toml"], False),
+        (["--status"], False),
+        (["--pty", "x", "--version"], False),
+        (["--config", "c.toml"], False),
+    ],
+)
+def test_only_a_command_line_that_serves_gets_the_head_start(argv: list[str], serves: bool) -> None:
     assert launch.serves(argv) is serves
 
 
@@ -49,7 +51,9 @@ def test_the_process_executor_takes_the_early_process_over(tmp_path: Path) -> No
 
 
 def test_a_daemon_that_fails_to_start_ends_the_early_process(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str],
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
+    capsys: pytest.CaptureFixture[str],
 ) -> None:
     started: list[ExecutorProcess] = []
     real = ExecutorProcess.start
@@ -59,8 +63,14 @@ def test_a_daemon_that_fails_to_start_ends_the_early_process(
         return started[-1]
 
     monkeypatch.setattr(ExecutorProcess, "start", spy)
-    argv = ["--pty", str(tmp_path / "pty"), "--state-dir", str(tmp_path / "state"),
-            "--config", str(tmp_path / "missing.toml")]
+    argv = [
+        "--pty",
+        str(tmp_path / "pty"),
+        "--state-dir",
+        str(tmp_path / "state"),
+        "--config",
+        str(tmp_path / "missing.toml"),
+    ]
     assert launch.main(argv) == 1
     assert "missing.toml" in capsys.readouterr().err
     (early,) = started
@@ -71,10 +81,18 @@ def test_the_early_process_ends_by_itself_when_the_daemon_is_gone() -> None:
     """A daemon that dies before handing its parameters over (kill -9 during start-up):
     the process sees its socket end and exits 0, holding nothing."""
     out = subprocess.run(
-        [sys.executable, "-c",
-         "from motorctl.motion.executor_process_start import ExecutorProcess; "
-         "print(ExecutorProcess.start().pid)"],
-        capture_output=True, text=True, timeout=60, cwd=REPO, check=True)
+        [
+            sys.executable,
+            "-c",
+            "from motorctl.motion.executor_process_start import ExecutorProcess; "
+            "print(ExecutorProcess.start().pid)",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+        check=True,
+    )
     pid = int(out.stdout)
 
     def gone() -> bool:

@@ -35,6 +35,7 @@ from tests.support.inprocess import LiveDaemon
 E = ErrorCode
 DEADLINE_S = 20.0  # generous: these tests must pass on a loaded 2-core machine
 
+
 class SlowPort:
     """The dispatcher, made slow: the daemon is busy while bytes keep arriving."""
 

@@ -46,8 +46,9 @@ def may_lock_everything() -> bool:
     return os.geteuid() == 0 or soft == resource.RLIM_INFINITY
 
 
-@pytest.mark.skipif(not may_lock_everything(),
-                    reason="mlockall needs root or an unlimited RLIMIT_MEMLOCK")
+@pytest.mark.skipif(
+    not may_lock_everything(), reason="mlockall needs root or an unlimited RLIMIT_MEMLOCK"
+)
 def test_only_the_step_executor_locks_its_memory(tmp_path: Path) -> None:
     daemon = DaemonProcess(tmp_path, CONFIG).start()
     try:
@@ -70,8 +71,9 @@ def test_only_the_step_executor_locks_its_memory(tmp_path: Path) -> None:
 def test_no_resource_tracker_and_no_block_left_after_a_kill_9_of_the_daemon(
     tmp_path: Path,
 ) -> None:
-    daemon = DaemonProcess(tmp_path, CONFIG.replace("lock_memory = true",
-                                                    "lock_memory = false")).start()
+    daemon = DaemonProcess(
+        tmp_path, CONFIG.replace("lock_memory = true", "lock_memory = false")
+    ).start()
     try:
         assert daemon.proc is not None
         pid = daemon.proc.pid
@@ -90,7 +92,8 @@ def test_no_resource_tracker_and_no_block_left_after_a_kill_9_of_the_daemon(
 
 
 def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+    tmp_path: Path,
+    monkeypatch: pytest.MonkeyPatch,
 ) -> None:
     """Daemon.build closes what it opened when a later part fails: here the [state]
     directory is a file, found after the step executor was made (its shared memory block
@@ -110,7 +113,9 @@ def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
     blocker.write_text("x")
     config = parse_config(
         CONFIG.replace("lock_memory = true", "lock_memory = false")
-        + f'[state]\ndirectory = "{blocker}"\n', "t.toml")
+        + f'[state]\ndirectory = "{blocker}"\n',
+        "t.toml",
+    )
     with pytest.raises(assemble.StartupError, match="not-a-dir"):
         assemble.Daemon.build(config, tmp_path / "state", None)
     (executor,) = made

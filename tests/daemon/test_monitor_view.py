@@ -25,12 +25,28 @@ def drawn(doc: dict[str, Any], width: int = 140, **kw: Any) -> str:
 
 
 def test_a_known_state_drawn() -> None:
-    doc = {**DOC, "link": {**DOC["link"], "recent": [
-        {"at_s": 4.0, "frame": "01 09 01 00 00 03 00 00 00 17",
-         "command": "MoveTo(motor=9, dir=up, pos=3, speed=0, acc=0, dec=0)",
-         "answer": "00 e2 00 00 a1", "result": "E2 Invalid Address"},
-        {"at_s": 4.5, "frame": "03 00 00 00 00 00 00 00 00 8b",
-         "command": "IsReady(motor=0)", "answer": None, "result": None}]}}
+    doc = {
+        **DOC,
+        "link": {
+            **DOC["link"],
+            "recent": [
+                {
+                    "at_s": 4.0,
+                    "frame": "01 09 01 00 00 03 00 00 00 17",
+                    "command": "MoveTo(motor=9, dir=up, pos=3, speed=0, acc=0, dec=0)",
+                    "answer": "00 e2 00 00 a1",
+                    "result": "E2 Invalid Address",
+                },
+                {
+                    "at_s": 4.5,
+                    "frame": "03 00 00 00 00 00 00 00 00 8b",
+                    "command": "IsReady(motor=0)",
+                    "answer": None,
+                    "result": None,
+                },
+            ],
+        },
+    }
     text = drawn(doc, rate=12.5, since_s=0.25, note="updated 0.2 s ago")
     lines = text.splitlines()
     assert "motorctld  up 0:01:40  executor process (pid 12) alive" in text
@@ -42,10 +58,19 @@ def test_a_known_state_drawn() -> None:
     # issue 15's figures: absorbed, slid, worst late, worst lag, its limit, microsteps,
     # lag faults, faults by cause
     timing = next(line for line in lines if line.split()[:2] == ["0", "40"])
-    assert timing.split()[2:] == ["12.5", "850", "1.25", "2.00", "16", "2", "endstop", "1,",
-                                  "timing_lost", "2"]
-    assert "step edges 1,000  lateness p50 7 p99 31 p99.9 63 max 90 us  late (>100 us) 3" \
-        in text
+    assert timing.split()[2:] == [
+        "12.5",
+        "850",
+        "1.25",
+        "2.00",
+        "16",
+        "2",
+        "endstop",
+        "1,",
+        "timing_lost",
+        "2",
+    ]
+    assert "step edges 1,000  lateness p50 7 p99 31 p99.9 63 max 90 us  late (>100 us) 3" in text
     assert "timing lost 2" in text
     assert "pins 3:out H  4:in ?" in text
     assert "DC motor forward, 0.2 s left" in text
@@ -59,8 +84,9 @@ def test_a_known_state_drawn() -> None:
 
 def test_a_daemon_without_timing_figures_and_an_empty_document() -> None:
     plain = {k: v for k, v in DOC.items() if k not in ("drivers", "dc", "pins")}
-    plain["motors"] = [{k: v for k, v in m.items() if k not in ("timing", "faults")}
-                       for m in DOC["motors"]]
+    plain["motors"] = [
+        {k: v for k, v in m.items() if k not in ("timing", "faults")} for m in DOC["motors"]
+    ]
     text = drawn(plain)
     assert "step timing per motor" not in text and "motors" in text
     assert "pins not reported" in text and "DC motor not reported" in text
@@ -83,13 +109,19 @@ def test_frames_per_second() -> None:
 def test_without_rich_the_monitor_says_what_to_install(tmp_path: Path) -> None:
     """The daemon never needs rich; the monitor, without it, names the packages and exits 1
     (no traceback), both as motorctld --status --watch and as motorctl monitor."""
-    for call in ("from motorctl.daemon.main import main; "
-                 f"sys.exit(main(['--status', '--watch', '--state-dir', '{tmp_path}']))",
-                 "from motorctl.client.cli import main; "
-                 f"sys.exit(main(['monitor', '--state-dir', '{tmp_path}']))"):
-        out = subprocess.run([sys.executable, "-c", "import sys; sys.modules['rich'] = None; "
-                              + call], capture_output=True, text=True, timeout=60,
-                             cwd=REPO)
+    for call in (
+        "from motorctl.daemon.main import main; "
+        f"sys.exit(main(['--status', '--watch', '--state-dir', '{tmp_path}']))",
+        "from motorctl.client.cli import main; "
+        f"sys.exit(main(['monitor', '--state-dir', '{tmp_path}']))",
+    ):
+        out = subprocess.run(
+            [sys.executable, "-c", "import sys; sys.modules['rich'] = None; " + call],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=REPO,
+        )
         assert out.returncode == 1, out.stderr
         assert "apt install python3-rich" in out.stderr and "motorctl[monitor]" in out.stderr
         assert "Traceback" not in out.stderr

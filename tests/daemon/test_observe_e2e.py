@@ -29,8 +29,9 @@ def daemon(motorctld: StartDaemon) -> DaemonProcess:
 
 
 def run(*args: str, timeout: float = 60) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", *args], capture_output=True, text=True,
-                          timeout=timeout, cwd=ROOT)
+    return subprocess.run(
+        [sys.executable, "-m", *args], capture_output=True, text=True, timeout=timeout, cwd=ROOT
+    )
 
 
 def test_the_subscribe_stream_follows_a_move(daemon: DaemonProcess) -> None:
@@ -55,8 +56,10 @@ def test_the_subscribe_stream_follows_a_move(daemon: DaemonProcess) -> None:
     assert len({p for _, p, _ in moving}) >= 3 and max(v for *_, v in moving) > 0
     assert states[-1] == ("idle", 1500, 0.0)
     recent = doc["link"]["recent"]
-    assert recent[-1]["command"] == "MoveTo(motor=0, dir=up, pos=1500, speed=250, acc=0, " \
-        "dec=0)" and recent[-1]["result"] == "ok"
+    assert (
+        recent[-1]["command"] == "MoveTo(motor=0, dir=up, pos=1500, speed=250, acc=0, dec=0)"
+        and recent[-1]["result"] == "ok"
+    )
 
 
 def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
@@ -67,19 +70,37 @@ def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
         c.dc_move(True, 5000, False)
         with pytest.raises(Exception, match="E2"):
             c.move_to(7, 1)
-    out = run("motorctl.daemon.main", "--status", "--format", "openmetrics", "--state-dir",
-              str(daemon.state_dir))
+    out = run(
+        "motorctl.daemon.main",
+        "--status",
+        "--format",
+        "openmetrics",
+        "--state-dir",
+        str(daemon.state_dir),
+    )
     assert out.returncode == 0, out.stderr
     families = {f.name: f for f in parse_om(out.stdout)}
     assert all(name.startswith("motorctl_") for name in families)
-    assert {"motorctl_up", "motorctl_motor_position_steps", "motorctl_motor_state",
-            "motorctl_steps", "motorctl_step_lateness_seconds", "motorctl_link_frames",
-            "motorctl_link_error_responses", "motorctl_pin_level", "motorctl_dc_state",
-            "motorctl_executor_alive", "motorctl_state_writes"} <= set(families)
+    assert {
+        "motorctl_up",
+        "motorctl_motor_position_steps",
+        "motorctl_motor_state",
+        "motorctl_steps",
+        "motorctl_step_lateness_seconds",
+        "motorctl_link_frames",
+        "motorctl_link_error_responses",
+        "motorctl_pin_level",
+        "motorctl_dc_state",
+        "motorctl_executor_alive",
+        "motorctl_state_writes",
+    } <= set(families)
 
     def value(metric: str, **labels: str) -> float:
-        found = [s.value for s in families[metric].samples
-                 if all(s.labels.get(k) == v for k, v in labels.items())]
+        found = [
+            s.value
+            for s in families[metric].samples
+            if all(s.labels.get(k) == v for k, v in labels.items())
+        ]
         assert len(found) == 1, (metric, labels, families[metric].samples)
         return float(found[0])
 
@@ -94,11 +115,18 @@ def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
     assert value("motorctl_steps") >= 200
     assert value("motorctl_executor_alive") == 1
     assert parse_prometheus(out.stdout)  # node_exporter's format reads it too
-    gone = run("motorctl.daemon.main", "--status", "--format", "openmetrics", "--state-dir",
-               str(daemon.workdir / "nowhere"))
+    gone = run(
+        "motorctl.daemon.main",
+        "--status",
+        "--format",
+        "openmetrics",
+        "--state-dir",
+        str(daemon.workdir / "nowhere"),
+    )
     assert gone.returncode == 1 and "no daemon status at" in gone.stderr
     assert [(s.name, s.value) for f in parse_om(gone.stdout) for s in f.samples] == [
-        ("motorctl_up", 0)]
+        ("motorctl_up", 0)
+    ]
 
 
 def test_the_monitor_draws_the_daemon(daemon: DaemonProcess) -> None:
@@ -109,9 +137,22 @@ def test_the_monitor_draws_the_daemon(daemon: DaemonProcess) -> None:
         with pytest.raises(Exception, match="E2"):
             c.move_to(9, 3)
     env = {**os.environ, "COLUMNS": "160"}
-    once = subprocess.run([sys.executable, "-m", "motorctl.client.cli", "monitor", "--once",
-                           "--state-dir", str(daemon.state_dir)], capture_output=True,
-                          text=True, timeout=60, cwd=ROOT, env=env)
+    once = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.client.cli",
+            "monitor",
+            "--once",
+            "--state-dir",
+            str(daemon.state_dir),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+        env=env,
+    )
     assert once.returncode == 0, once.stderr
     text = once.stdout
     z = next(line for line in text.splitlines() if line.split()[:2] == ["2", "z"])
@@ -122,10 +163,23 @@ def test_the_monitor_draws_the_daemon(daemon: DaemonProcess) -> None:
     assert "MoveTo(motor=9, dir=up, pos=3, speed=0, acc=0, dec=0)" in text
     assert "E2 Invalid Address" in text
     # --status --watch off a terminal: one drawing per update until interrupted
-    watch = subprocess.Popen([sys.executable, "-m", "motorctl.daemon.main", "--status",
-                              "--watch", "--period", "50", "--state-dir",
-                              str(daemon.state_dir)], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, cwd=ROOT, env=env)
+    watch = subprocess.Popen(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--status",
+            "--watch",
+            "--period",
+            "50",
+            "--state-dir",
+            str(daemon.state_dir),
+        ],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        cwd=ROOT,
+        env=env,
+    )
     assert watch.stdout is not None
     seen = b""
     sel = selectors.DefaultSelector()

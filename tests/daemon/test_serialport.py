@@ -61,8 +61,9 @@ class Adapter:
         end = time.monotonic() + DEADLINE_S
         while len(out) < 5 * n:
             left = end - time.monotonic()
-            assert left > 0 and select.select([self.master], [], [], left)[0], \
+            assert left > 0 and select.select([self.master], [], [], left)[0], (
                 f"got {len(out) // 5} of {n} responses"
+            )
             out += os.read(self.master, 5 * n - len(out))
         return answers(out)
 
@@ -97,8 +98,16 @@ class DeviceServed:
     def __init__(self, tmp: Path, device: SerialDevice, **kw: Any) -> None:
         self.daemon = build_daemon(TWO_MOTORS, tmp / "state")
         self.device = device
-        self.link = Link(device.open(), self.daemon.dispatcher, OPTS, 0.010, 16,
-                         device=device, backoff=Backoff(0.005, 0.02), **kw)
+        self.link = Link(
+            device.open(),
+            self.daemon.dispatcher,
+            OPTS,
+            0.010,
+            16,
+            device=device,
+            backoff=Backoff(0.005, 0.02),
+            **kw,
+        )
         self.thread = threading.Thread(target=self.link.serve, name="link", daemon=True)
         self.thread.start()
 
@@ -135,8 +144,8 @@ def adapter(names: tuple[Path, Path]) -> Iterator[Adapter]:
 
 
 def test_unplugged_and_plugged_back_in_it_is_served_again(
-        tmp_path: Path, names: tuple[Path, Path], adapter: Adapter,
-        caplog: pytest.LogCaptureFixture) -> None:
+    tmp_path: Path, names: tuple[Path, Path], adapter: Adapter, caplog: pytest.LogCaptureFixture
+) -> None:
     caplog.set_level(logging.INFO, "motorctl.link")
     s = DeviceServed(tmp_path, SerialDevice(str(names[1]), 115200))
     try:
@@ -146,10 +155,14 @@ def test_unplugged_and_plugged_back_in_it_is_served_again(
         until("the 4 bytes", lambda: s.counters()["bytes_in"] == 14, detail=s.counters)
         adapter.unplug()
         # the dead descriptor is closed (the link thread marks the peer gone first)
-        until("the loss", lambda: s.link.status()["peer"] == "gone" and s.link.fd == -1,
-              detail=s.counters)
-        until("attempts to reopen it", lambda: s.counters()["reopen_attempts"] >= 3,
-              detail=s.counters)
+        until(
+            "the loss",
+            lambda: s.link.status()["peer"] == "gone" and s.link.fd == -1,
+            detail=s.counters,
+        )
+        until(
+            "attempts to reopen it", lambda: s.counters()["reopen_attempts"] >= 3, detail=s.counters
+        )
         assert s.counters()["device_reopened"] == 0
         again = Adapter(names[0])  # back, as another tty behind the same names
         try:
@@ -174,8 +187,8 @@ def test_unplugged_and_plugged_back_in_it_is_served_again(
 
 
 def test_a_device_back_but_not_yet_usable_is_named_once_and_retried(
-        tmp_path: Path, names: tuple[Path, Path], adapter: Adapter,
-        caplog: pytest.LogCaptureFixture) -> None:
+    tmp_path: Path, names: tuple[Path, Path], adapter: Adapter, caplog: pytest.LogCaptureFixture
+) -> None:
     caplog.set_level(logging.INFO, "motorctl.link")
     device = FailsFirst(str(names[1]), [errno.EACCES, errno.EACCES, errno.EBUSY])
     s = DeviceServed(tmp_path, device)
@@ -225,8 +238,15 @@ def test_the_host_keeps_the_link_alive_with_any_bytes(tmp_path: Path) -> None:
 
     daemon = build_daemon(TWO_MOTORS, tmp_path / "state")
     fd, name = open_pty(tmp_path / "pty")
-    link = Link(fd, daemon.dispatcher, OPTS, 0.010, 16, clock=lambda: now[0],
-                watch=SilenceWatch(0.5, act, 0.0))
+    link = Link(
+        fd,
+        daemon.dispatcher,
+        OPTS,
+        0.010,
+        16,
+        clock=lambda: now[0],
+        watch=SilenceWatch(0.5, act, 0.0),
+    )
     thread = threading.Thread(target=link.serve, name="link", daemon=True)
     thread.start()
     host = os.open(name, os.O_RDWR | os.O_NOCTTY)
@@ -293,9 +313,11 @@ def test_something_that_is_not_a_tty_is_named(tmp_path: Path) -> None:
 
 def test_no_permission_names_the_group(monkeypatch: pytest.MonkeyPatch) -> None:
     """Tests run as root here, where no device refuses: pyserial's own exception."""
+
     def refuse(port: str, *args: Any, **kw: Any) -> None:
-        raise serial.SerialException(errno.EACCES, f"could not open port {port}: "
-                                     f"[Errno 13] Permission denied: '{port}'")
+        raise serial.SerialException(
+            errno.EACCES, f"could not open port {port}: [Errno 13] Permission denied: '{port}'"
+        )
 
     monkeypatch.setattr(serial, "Serial", refuse)
     with pytest.raises(DeviceError) as exc:
@@ -313,16 +335,27 @@ def test_a_held_device_names_its_holder(adapter: Adapter) -> None:
             SerialDevice(str(adapter.path), 115200).open()
     finally:
         os.close(holder)
-    assert f"serial device {adapter.path} is held by another process (PID {os.getpid()})" \
-        in str(exc.value)
+    assert f"serial device {adapter.path} is held by another process (PID {os.getpid()})" in str(
+        exc.value
+    )
 
 
 def test_motorctld_on_a_missing_device_says_so_and_exits_1(tmp_path: Path) -> None:
     path = str(tmp_path / "by-id" / "usb-nothing")
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--port", path,
-         "--state-dir", str(tmp_path / "state")],
-        capture_output=True, text=True, timeout=DEADLINE_S)
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--port",
+            path,
+            "--state-dir",
+            str(tmp_path / "state"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=DEADLINE_S,
+    )
     assert out.returncode == 1, out.stderr
     assert f"error: serial device {path} does not exist" in out.stderr
     assert "Traceback" not in out.stderr
@@ -337,6 +370,8 @@ def test_backoff_doubles_up_to_its_limit() -> None:
 
 def test_systemds_status_line_says_the_device_is_gone() -> None:
     link = {"counters": {"responses": 3}, "peer": "gone"}
-    assert summary_line({"motors": [], "link": link}) == \
-        "0 motors: 0 moving, none faulted; 3 frames served, 0 errors; " \
+    assert (
+        summary_line({"motors": [], "link": link})
+        == "0 motors: 0 moving, none faulted; 3 frames served, 0 errors; "
         "SERIAL DEVICE GONE, reopening it"
+    )

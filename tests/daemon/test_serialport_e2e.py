@@ -53,8 +53,9 @@ class PtyPair:
         assert SOCAT is not None
         with open(self.log, "ab") as err:
             self.proc = subprocess.Popen(
-                [SOCAT, f"pty,raw,echo=0,link={self.device}",
-                 f"pty,raw,echo=0,link={self.host}"], stderr=err)
+                [SOCAT, f"pty,raw,echo=0,link={self.device}", f"pty,raw,echo=0,link={self.host}"],
+                stderr=err,
+            )
         until("socat's PTYs", lambda: self.device.exists() and self.host.exists())
         return self
 
@@ -97,7 +98,8 @@ def motor(d: DaemonProcess, index: int) -> dict[str, Any]:
 
 @needs_socat
 def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
-        tmp_path: Path, pair: PtyPair) -> None:
+    tmp_path: Path, pair: PtyPair
+) -> None:
     pair.start()
     d = DaemonProcess(tmp_path, CONFIG, port=str(by_id(tmp_path, pair.device))).start()
     host: Client | None = None
@@ -108,8 +110,7 @@ def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
             c.save_waypoint(1)  # state that must survive: a waypoint of the idle motor
             before = c.position(0)
         pair.stop()  # unplugged, mid-move
-        until("the daemon to notice the device is gone",
-              lambda: link_status(d)["peer"] == "gone")
+        until("the daemon to notice the device is gone", lambda: link_status(d)["peer"] == "gone")
         assert motor(d, 0)["state"] == "running"  # nothing stops: no [link] timeout_ms
         pair.start()  # plugged back in, the same names
         until("the daemon to reopen the device", lambda: link_status(d)["peer"] == "open")
@@ -138,7 +139,8 @@ def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
 
 @needs_socat
 def test_the_silence_of_a_device_that_is_gone_stops_the_motors(
-        tmp_path: Path, pair: PtyPair) -> None:
+    tmp_path: Path, pair: PtyPair
+) -> None:
     """[link] timeout_ms applies while the device is gone: the motor stops and latches E4,
     which the host finds when the device is back, until its StopMove."""
     pair.start()
@@ -179,8 +181,11 @@ def test_the_hosts_silence_on_a_pty_stops_a_move_that_decelerates(tmp_path: Path
             m = motor(d, 0)
             assert m["fault"] == "link timeout: no byte from the host for 150 ms"
             assert not m["position_lost"]
-            for call in (lambda: c.is_ready(0), lambda: c.wait_moved(0, 100),
-                         lambda: c.move(0, True)):
+            for call in (
+                lambda: c.is_ready(0),
+                lambda: c.wait_moved(0, 100),
+                lambda: c.move(0, True),
+            ):
                 with pytest.raises(DeviceError) as exc:
                     call()
                 assert exc.value.code == E.MOTOR_ERROR
@@ -188,8 +193,10 @@ def test_the_hosts_silence_on_a_pty_stops_a_move_that_decelerates(tmp_path: Path
             assert c.is_ready(0)
             # moves again; the WaitMoved in the same write: the host waits, it is not silent
             target = c.position(0) + 40
-            c.send_bytes(encode_command(MoveTo(0, True, target, 0, 0, 0), OPTS)
-                         + encode_command(WaitMoved(0, 10000), OPTS))
+            c.send_bytes(
+                encode_command(MoveTo(0, True, target, 0, 0, 0), OPTS)
+                + encode_command(WaitMoved(0, 10000), OPTS)
+            )
             assert [c.read_response().ack for _ in range(2)] == [True, True]
             assert c.position(0) == target
         counters = link_status(d)["counters"]

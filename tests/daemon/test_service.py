@@ -80,8 +80,9 @@ def test_builtin_notify(fake_systemd: FakeSystemd, no_systemd_python: None) -> N
     assert fake_systemd.recv() == "READY=1"
 
 
-def test_builtin_notify_abstract_socket(monkeypatch: pytest.MonkeyPatch,
-                                        no_systemd_python: None) -> None:
+def test_builtin_notify_abstract_socket(
+    monkeypatch: pytest.MonkeyPatch, no_systemd_python: None
+) -> None:
     name = f"motorctl-test-{os.getpid()}"
     with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sock:
         sock.bind("\0" + name)
@@ -91,8 +92,9 @@ def test_builtin_notify_abstract_socket(monkeypatch: pytest.MonkeyPatch,
         assert sock.recv(100) == b"STOPPING=1"
 
 
-def test_notify_without_systemd(monkeypatch: pytest.MonkeyPatch,
-                                caplog: pytest.LogCaptureFixture) -> None:
+def test_notify_without_systemd(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
     monkeypatch.delenv("NOTIFY_SOCKET", raising=False)
     assert not service.notify_builtin("READY=1")
     monkeypatch.setenv("NOTIFY_SOCKET", "/nonexistent/notify.sock")
@@ -100,8 +102,9 @@ def test_notify_without_systemd(monkeypatch: pytest.MonkeyPatch,
     assert "cannot notify systemd" in caplog.text
 
 
-def test_notify_through_systemd_python(fake_systemd: FakeSystemd,
-                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_notify_through_systemd_python(
+    fake_systemd: FakeSystemd, monkeypatch: pytest.MonkeyPatch
+) -> None:
     calls: list[str] = []
 
     def notify(message: str) -> bool:  # systemd.daemon.notify's signature and result
@@ -118,8 +121,7 @@ def test_notify_through_systemd_python(fake_systemd: FakeSystemd,
     assert calls == ["STATUS=hello"]
 
 
-def test_status_line_sends_changes_only(fake_systemd: FakeSystemd,
-                                        no_systemd_python: None) -> None:
+def test_status_line_sends_changes_only(fake_systemd: FakeSystemd, no_systemd_python: None) -> None:
     text = ["2 motors: 0 moving"]
     line = service.StatusLine(lambda: text[0], period=60.0)
     line.start()
@@ -148,9 +150,9 @@ def test_status_line_survives_a_failing_summary(caplog: pytest.LogCaptureFixture
     assert sent == [] and "cannot build the status line" in caplog.text
 
 
-def test_watchdog_pings_only_while_healthy(fake_systemd: FakeSystemd,
-                                           no_systemd_python: None,
-                                           monkeypatch: pytest.MonkeyPatch) -> None:
+def test_watchdog_pings_only_while_healthy(
+    fake_systemd: FakeSystemd, no_systemd_python: None, monkeypatch: pytest.MonkeyPatch
+) -> None:
     monkeypatch.setenv("WATCHDOG_USEC", "20000")
     monkeypatch.setenv("WATCHDOG_PID", str(os.getpid()))
     interval = service.watchdog_interval()
@@ -191,16 +193,16 @@ def test_logging_to_the_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
         assert service.journal_stream_is_stderr(err)
         assert service.setup_logging("info", err) == "journal"
         logging.getLogger("motorctl.test").error(
-            "motor %d: E4", 2, extra={"MOTOR": 2, "COMMAND": "MoveTo", "ERROR_CODE": "E4"})
-    (message, fields), = sent
+            "motor %d: E4", 2, extra={"MOTOR": 2, "COMMAND": "MoveTo", "ERROR_CODE": "E4"}
+        )
+    ((message, fields),) = sent
     assert message == "motor 2: E4"
     assert fields["PRIORITY"] == "3" and fields["SYSLOG_IDENTIFIER"] == "motorctld"
     assert (fields["MOTOR"], fields["COMMAND"], fields["ERROR_CODE"]) == ("2", "MoveTo", "E4")
     assert fields["LOGGER"] == "motorctl.test"
 
 
-def test_journal_stream_must_be_our_stderr(tmp_path: Path,
-                                           monkeypatch: pytest.MonkeyPatch) -> None:
+def test_journal_stream_must_be_our_stderr(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     with open(tmp_path / "err", "w") as err:
         monkeypatch.setenv("JOURNAL_STREAM", "1:2")
         assert not service.journal_stream_is_stderr(err)
@@ -291,8 +293,9 @@ def test_status_server_builds_the_histogram_only_when_asked(tmp_path: Path) -> N
         server.close()
 
 
-def test_status_server_a_silent_client_holds_up_nobody(tmp_path: Path,
-                                                       monkeypatch: pytest.MonkeyPatch) -> None:
+def test_status_server_a_silent_client_holds_up_nobody(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """A client that connects and says nothing (or never reads) does not delay the others;
     it gets the plain status after REQUEST_WAIT_S, as ``socat - UNIX-CONNECT:`` users do.
     More silent clients than MAX_CLIENTS at once wait in the backlog and are all served."""
@@ -326,8 +329,9 @@ def test_status_server_a_silent_client_holds_up_nobody(tmp_path: Path,
         server.close()
 
 
-def test_status_server_survives_accept_errors(tmp_path: Path,
-                                              caplog: pytest.LogCaptureFixture) -> None:
+def test_status_server_survives_accept_errors(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     path = tmp_path / "status.sock"
     server = StatusServer(path, source({"ok": True}))
     real = server._sock
@@ -375,13 +379,17 @@ def test_status_close_leaves_a_replaced_socket_and_survives_read_only(tmp_path: 
 
 def test_summary_line() -> None:
     status = {
-        "motors": [{"index": 0, "state": "moving", "fault": None, "position_lost": False},
-                   {"index": 1, "state": "fault", "fault": "stall", "position_lost": True}],
+        "motors": [
+            {"index": 0, "state": "moving", "fault": None, "position_lost": False},
+            {"index": 1, "state": "fault", "fault": "stall", "position_lost": True},
+        ],
         "link": {"counters": {"responses": 12, "crc_errors": 1, "sent_E3": 2}},
         "state": {"ok": False, "last_error": "cannot write"},
     }
-    assert summary_line(status) == ("2 motors: 1 moving, faulted 1, 1 to home; "
-                                    "12 frames served, 3 errors; STATE NOT SAVED: cannot write")
+    assert summary_line(status) == (
+        "2 motors: 1 moving, faulted 1, 1 to home; "
+        "12 frames served, 3 errors; STATE NOT SAVED: cannot write"
+    )
     assert summary_line({"motors": []}) == "0 motors: 0 moving, none faulted"
 
 
@@ -442,8 +450,7 @@ def test_owned_removes_only_its_own(tmp_path: Path) -> None:
     assert not (tmp_path / "a.lock").exists()
 
 
-def test_owned_cleanup_on_read_only_dir(tmp_path: Path,
-                                        caplog: pytest.LogCaptureFixture) -> None:
+def test_owned_cleanup_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     owned = Owned()
     link = tmp_path / "pty"
     link.symlink_to("/dev/pts/999")
@@ -475,13 +482,17 @@ def test_motor_events_logged_off_the_step_thread(caplog: pytest.LogCaptureFixtur
     events.flush()
     assert len(caplog.records) == 2
     # a fault with its cause and a lost position: the figures are in the fault's text
-    detail = ("step timing lost (step 2900 us late at 5000 step/s: lag 0.91 full steps > "
-              "max_lag_full_steps 0.5 (16 microsteps, start_speed 100 step/s))")
+    detail = (
+        "step timing lost (step 2900 us late at 5000 step/s: lag 0.91 full steps > "
+        "max_lag_full_steps 0.5 (16 microsteps, start_speed 100 step/s))"
+    )
     assert events.record(0, "x", "fault", detail, "timing_lost", True)
     events.flush()
     lost = caplog.records[-1]
-    assert lost.getMessage() == (f"motor 0 (x): fault latched: {detail}; position lost (home it "
-                                 "again); E4 until StopMove clears it")
+    assert lost.getMessage() == (
+        f"motor 0 (x): fault latched: {detail}; position lost (home it "
+        "again); E4 until StopMove clears it"
+    )
     assert (lost.CAUSE, lost.POSITION_LOST) == ("timing_lost", 1)  # type: ignore[attr-defined]
 
 
@@ -510,8 +521,10 @@ def test_progress_watch_feeds_only_while_every_part_progresses() -> None:
     def probe(name: str) -> object:
         return lambda: None if dead.get(name) else counters[name]
 
-    watch = ProgressWatch({n: probe(n) for n in counters},  # type: ignore[misc]
-                          pokes=(lambda: pokes.append(1),))
+    watch = ProgressWatch(
+        {n: probe(n) for n in counters},  # type: ignore[misc]
+        pokes=(lambda: pokes.append(1),),
+    )
     assert watch.healthy()  # the first look has nothing to compare with
     counters["link loop"] += 1
     counters["step executor"] += 5

@@ -36,22 +36,43 @@ def no_traceback(d: DaemonProcess) -> None:
     assert "Traceback" not in d.stderr(), d.stderr()
 
 
-def test_second_daemon_exits_at_once_naming_the_first(daemon: DaemonProcess,
-                                                      tmp_path: Path) -> None:
+def test_second_daemon_exits_at_once_naming_the_first(
+    daemon: DaemonProcess, tmp_path: Path
+) -> None:
     assert daemon.proc is not None
     target = os.readlink(daemon.pty)
     second = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(daemon.pty),
-         "--state-dir", str(daemon.state_dir)],
-        capture_output=True, text=True, timeout=DEADLINE_S)
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--pty",
+            str(daemon.pty),
+            "--state-dir",
+            str(daemon.state_dir),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=DEADLINE_S,
+    )
     assert second.returncode == 1
     assert f"another motorctld (PID {daemon.proc.pid})" in second.stderr
     assert "Traceback" not in second.stderr
     # Another state dir, same PTY: refused too, by the PTY's lock.
     third = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--pty", str(daemon.pty),
-         "--state-dir", str(tmp_path / "other")],
-        capture_output=True, text=True, timeout=DEADLINE_S)
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--pty",
+            str(daemon.pty),
+            "--state-dir",
+            str(tmp_path / "other"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=DEADLINE_S,
+    )
     assert third.returncode == 1 and f"PID {daemon.proc.pid}" in third.stderr
     assert "PTY" in third.stderr
     # The first is untouched and reachable.
@@ -117,7 +138,8 @@ def test_bad_state_file_starts_with_every_motor_lost(tmp_path: Path, kind: str) 
 
 @pytest.mark.parametrize("kind", ["directory", "fifo"])
 def test_whatever_stands_at_the_state_file_is_set_aside_under_a_free_name(
-        tmp_path: Path, kind: str) -> None:
+    tmp_path: Path, kind: str
+) -> None:
     # Issue 16: a directory at state.json while a state.json.bad file already existed left
     # the daemon unable to write any state: InitMove E4 for ever, MoveToWayPoint(0, 0) E4
     # instead of E6, SIGTERM exit 4. (A FIFO there blocked the start for ever.)
@@ -155,11 +177,21 @@ def _state_file(state: Path, motors: list[dict[str, object]]) -> bytes:
     from motorctl.daemon.config import default_config_text, parse_config
 
     idents = motor_identities(parse_config(default_config_text(), "default"))
-    records = [{"name": i.name, "fingerprint": i.fingerprint, "position": 0, "home": 0,
-                "waypoints": [], "moving": False, "position_lost": False} for i in idents]
+    records = [
+        {
+            "name": i.name,
+            "fingerprint": i.fingerprint,
+            "position": 0,
+            "home": 0,
+            "waypoints": [],
+            "moving": False,
+            "position_lost": False,
+        }
+        for i in idents
+    ]
     for record, change in zip(records, motors, strict=False):
         record.update(change)
-    records += [dict(records[0], **m) for m in motors[len(idents):]]
+    records += [dict(records[0], **m) for m in motors[len(idents) :]]
     data = json.dumps({"version": 2, "motors": records}).encode()
     state.mkdir()
     (state / "state.json").write_bytes(data)
@@ -234,15 +266,17 @@ def _not_main_thread(pid: int) -> int:
 
 @pytest.mark.parametrize("state_dir", ["writable", "read-only"])
 def test_sigterm_taken_by_another_thread_stops_an_idle_daemon_with_the_port_open(
-        daemon: DaemonProcess, state_dir: str) -> None:
+    daemon: DaemonProcess, state_dir: str
+) -> None:
     """kill(2) of a thread's ID hands the signal to that thread: its C handler runs there
     and the main thread's poll() is not interrupted (as for a signal that arrives just
     before that poll()). The host keeps the port open and idle, so that poll() has no
     timeout: only the signal wake-up descriptor can end it. Without one the daemon ran on
     until the host's next byte (the once-flaky test_read_only_state_dir_while_running)."""
     assert daemon.proc is not None
-    unwritable = read_only(daemon.state_dir) if state_dir == "read-only" \
-        else contextlib.nullcontext()
+    unwritable = (
+        read_only(daemon.state_dir) if state_dir == "read-only" else contextlib.nullcontext()
+    )
     with daemon.client() as c:
         c.move_to(0, 50)
         c.wait_moved(0, 5000)
@@ -252,16 +286,18 @@ def test_sigterm_taken_by_another_thread_stops_an_idle_daemon_with_the_port_open
             try:
                 code = daemon.proc.wait(DEADLINE_S)
             except subprocess.TimeoutExpired:
-                raise AssertionError(f"motorctld still runs {DEADLINE_S} s after a SIGTERM: "
-                                     f"{daemon.stderr()}") from None
+                raise AssertionError(
+                    f"motorctld still runs {DEADLINE_S} s after a SIGTERM: {daemon.stderr()}"
+                ) from None
     assert code == (0 if state_dir == "writable" else EXIT_STATE_NOT_SAVED)
     assert "SIGTERM: stopping" in daemon.stderr()
     no_traceback(daemon)
     assert not daemon.pty.is_symlink()
 
 
-def test_kill_right_after_a_motion_ack_loses_the_position(daemon: DaemonProcess,
-                                                          tmp_path: Path) -> None:
+def test_kill_right_after_a_motion_ack_loses_the_position(
+    daemon: DaemonProcess, tmp_path: Path
+) -> None:
     with daemon.client() as c:
         c.move_to(0, 100)
         c.wait_moved(0, 5000)
@@ -288,8 +324,9 @@ def test_kill_right_after_a_move_of_no_distance_keeps_the_idle_motor(tmp_path: P
         with d.client() as c:
             c.move_to(2, 77)
             c.wait_moved(2, 5000)
-            until("motor 2 at rest on disk",
-                  lambda: (state / "state.moving").read_bytes() == b"000")
+            until(
+                "motor 2 at rest on disk", lambda: (state / "state.moving").read_bytes() == b"000"
+            )
             filler = fill(state)
             c.move_to(2, 77)  # no distance
             c.wait_moved(2, 5000)
@@ -352,14 +389,23 @@ def test_a_held_uart_names_its_holder(tmp_path: Path) -> None:
     fcntl.flock(holder, fcntl.LOCK_EX | fcntl.LOCK_NB)  # what pyserial's exclusive=True takes
     try:
         out = subprocess.run(
-            [sys.executable, "-m", "motorctl.daemon.main", "--port", device,
-             "--state-dir", str(tmp_path / "state")],
-            capture_output=True, text=True, timeout=DEADLINE_S)
+            [
+                sys.executable,
+                "-m",
+                "motorctl.daemon.main",
+                "--port",
+                device,
+                "--state-dir",
+                str(tmp_path / "state"),
+            ],
+            capture_output=True,
+            text=True,
+            timeout=DEADLINE_S,
+        )
     finally:
         for fd in (holder, slave, master):
             os.close(fd)
     assert out.returncode == 1, out.stderr
-    assert f"serial device {device} is held by another process (PID {os.getpid()})" \
-        in out.stderr
+    assert f"serial device {device} is held by another process (PID {os.getpid()})" in out.stderr
     assert "Traceback" not in out.stderr
     assert not (tmp_path / "state" / "motorctld.lock").exists()  # released on the way out

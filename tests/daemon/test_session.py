@@ -160,8 +160,9 @@ def test_unknown_code_and_bad_padding(w: World) -> None:
 
     unknown = bytes([0x0F]) + bytes(8)
     padded = bytes([0x03, 0x00, 0x01]) + bytes(6)
-    w.session.receive(unknown + bytes([SMBUS.compute(unknown)]) + padded
-                      + bytes([SMBUS.compute(padded)]), w.now)
+    w.session.receive(
+        unknown + bytes([SMBUS.compute(unknown)]) + padded + bytes([SMBUS.compute(padded)]), w.now
+    )
     assert codes(w.responses()) == [E.INVALID_COMMAND] * 2
     assert w.session.counters["unknown_errors"] == 1
     assert w.session.counters["padding_errors"] == 1
@@ -216,21 +217,57 @@ def test_a_bad_frame_is_checked_and_counted_each_time_it_comes(w: World) -> None
 
 
 _POOL: list[Command] = [
-    IsReady(0), IsReady(1), IsReady(5), GetAbsPos(0), GetAbsPos(1), GetAbsPos(7), GetPin(0),
-    GetPin(3), SetPin(0, True), SetPin(0, False), MoveTo(0, True, 40, 0, 0, 0),
-    MoveTo(0, True, -25, 0, 0, 0), MoveTo(1, True, 10, 0, 0, 0), StopMove(0, False),
-    StopMove(1, True), WaitMoved(0, 0), WaitMoved(0, 30), WaitMoved(1, 200),
+    IsReady(0),
+    IsReady(1),
+    IsReady(5),
+    GetAbsPos(0),
+    GetAbsPos(1),
+    GetAbsPos(7),
+    GetPin(0),
+    GetPin(3),
+    SetPin(0, True),
+    SetPin(0, False),
+    MoveTo(0, True, 40, 0, 0, 0),
+    MoveTo(0, True, -25, 0, 0, 0),
+    MoveTo(1, True, 10, 0, 0, 0),
+    StopMove(0, False),
+    StopMove(1, True),
+    WaitMoved(0, 0),
+    WaitMoved(0, 30),
+    WaitMoved(1, 200),
 ]
 
 
 @settings(max_examples=60, deadline=None)
 # held behind a WaitMoved (the motor is on its way), then behind a stray partial frame
-@example([(0, -1, 0.0), (10, -1, 0.0), (16, -1, 0.0), (0, -1, 0.0), (3, -1, 0.05),
-          (-1, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0), (0, 5, 0.02), (3, -1, 0.0)])
-@given(st.lists(st.tuples(st.integers(-1, len(_POOL) - 1), st.integers(-240, 79),  # 1/4 bad
-                          st.sampled_from([0.0, 0.001, 0.02])), min_size=1, max_size=80))
+@example(
+    [
+        (0, -1, 0.0),
+        (10, -1, 0.0),
+        (16, -1, 0.0),
+        (0, -1, 0.0),
+        (3, -1, 0.05),
+        (-1, -1, 0.0),
+        (0, -1, 0.0),
+        (0, -1, 0.0),
+        (0, 5, 0.02),
+        (3, -1, 0.0),
+    ]
+)
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(-1, len(_POOL) - 1),
+            st.integers(-240, 79),  # 1/4 bad
+            st.sampled_from([0.0, 0.001, 0.02]),
+        ),
+        min_size=1,
+        max_size=80,
+    )
+)
 def test_whole_frames_read_alone_answer_and_count_as_split_ones(
-        steps: list[tuple[int, int, float]]) -> None:
+    steps: list[tuple[int, int, float]],
+) -> None:
     # A whole frame read alone, one the session has seen, takes a shorter path (no frame
     # partial, nothing held). The same frames read in two halves never do. Both worlds
     # must give the same answers and counts at every step, WaitMoved holding included.
@@ -255,8 +292,9 @@ def test_whole_frames_read_alone_answer_and_count_as_split_ones(
             assert whole.session.take_output() == split.session.take_output()
             assert whole.session.counters == split.session.counters
             assert whole.session.held == split.session.held
-        assert [m.position for m in whole.engine.motors] == \
-            [m.position for m in split.engine.motors]
+        assert [m.position for m in whole.engine.motors] == [
+            m.position for m in split.engine.motors
+        ]
 
 
 # -- WaitMoved ------------------------------------------------------------------------------
@@ -338,8 +376,13 @@ def test_a_bad_frame_takes_its_place_among_the_held_frames(w: World) -> None:
     assert w.session.counters["held_overflow"] == 1
     w.run(0.7)  # the WaitMoved times out (E3) and the kept frames run
     rs = codes(w.responses()[1:])
-    assert rs == ([E.MOTOR_NOT_READY] + [None] * 4 + [E.INVALID_COMMAND, E.INVALID_ADDRESS]
-                  + [None] * 10 + [E.FULL_BUFFER])
+    assert rs == (
+        [E.MOTOR_NOT_READY]
+        + [None] * 4
+        + [E.INVALID_COMMAND, E.INVALID_ADDRESS]
+        + [None] * 10
+        + [E.FULL_BUFFER]
+    )
     assert world_of(w.daemon.hw).pins[0].read() is False  # the 17th frame never ran
     w.send(StopMove(0, True))
 
@@ -446,7 +489,9 @@ def test_a_command_that_raises_is_e4_and_the_session_goes_on() -> None:
     session.receive(frame(IsReady(0)) + frame(WaitMoved(0, 10)), 0.0)
     data = session.take_output()
     assert [decode_response(data[i : i + 5], OPTS).error_code for i in (0, 5)] == [
-        E.MOTOR_ERROR, None]
+        E.MOTOR_ERROR,
+        None,
+    ]
     assert session.counters["internal_errors"] == 1
 
 
@@ -471,8 +516,11 @@ def test_recent_frames_pair_each_frame_with_its_answer(w: World) -> None:
     recent = w.session.describe_recent()
     assert [r["command"] for r in recent[:5]] == [
         "MoveTo(motor=0, dir=up, pos=400, speed=250, acc=0, dec=0)",
-        "GetAbsPos(motor=0)", "GetAbsPos(motor=0)", "WaitMoved(motor=0, timeout_ms=10000)",
-        "IsReady(motor=0)"]
+        "GetAbsPos(motor=0)",
+        "GetAbsPos(motor=0)",
+        "WaitMoved(motor=0, timeout_ms=10000)",
+        "IsReady(motor=0)",
+    ]
     assert [r["result"] for r in recent] == ["ok", "pos=0", "pos=0", None, None, None]
     assert str(recent[5]["command"]).startswith("bad frame (checksum)")
     assert recent[0]["frame"] == frame(MoveTo(0, True, 400, 250, 0, 0)).hex(" ")

@@ -136,8 +136,12 @@ def test_silence_decelerates_the_moving_motors_and_latches_e4(line: Line) -> Non
     assert m.faults == {"link_timeout": 1} and m.fault_cause == "link_timeout"
     assert state(m) is MotorState.STOPPING  # along its ramp: decelerate is the default
     at_fault = m.position
-    for cmd in (IsReady(0), WaitMoved(0, 1000), Move(0, True, 0, 0, 0), MoveTo(0, True, 0, 0,
-                                                                             0, 0)):
+    for cmd in (
+        IsReady(0),
+        WaitMoved(0, 1000),
+        Move(0, True, 0, 0, 0),
+        MoveTo(0, True, 0, 0, 0, 0),
+    ):
         assert e4(line.call(cmd)), cmd
     line.run(1.0)
     assert state(m) is MotorState.FAULT and m.fault is not None
@@ -182,8 +186,7 @@ def test_any_bytes_keep_the_link_alive(line: Line) -> None:
     assert line.motors[0].fault is not None and line.timeouts() == 1
 
 
-def test_a_stop_move_while_it_ramps_down_clears_it_and_takes_the_stop_over(
-        line: Line) -> None:
+def test_a_stop_move_while_it_ramps_down_clears_it_and_takes_the_stop_over(line: Line) -> None:
     assert line.call(Move(0, True, 0, 0, 0)).ack
     line.poll(1.0)
     line.run(0.21)
@@ -213,8 +216,11 @@ def test_hard_stops_at_once(tmp_path: Path) -> None:
 def test_a_held_wait_moved_is_not_silence_and_its_answer_restarts_it(line: Line) -> None:
     """The host waits for the answer; from the answer on, its silence counts again, and
     a frame kept behind the WaitMoved that starts a motor is stopped after it."""
-    data = frame(MoveTo(0, True, 2000, 0, 0, 0)) + frame(WaitMoved(0, 10000)) \
+    data = (
+        frame(MoveTo(0, True, 2000, 0, 0, 0))
+        + frame(WaitMoved(0, 10000))
         + frame(Move(1, True, 0, 0, 0))
+    )
     assert [r.ack for r in line.send(data)] == [True]  # MoveTo; the rest is held
     answers = line.run(0.6)
     assert answers == [] and state(line.motors[0]) is MotorState.MOVING  # > 200 ms: held

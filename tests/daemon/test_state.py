@@ -120,8 +120,9 @@ def _mutated(tmp_path: Path, key: str, value: Any) -> bytes:
 
 
 @pytest.mark.parametrize("kind", sorted(BAD))
-def test_unreadable_file_is_set_aside(tmp_path: Path, kind: str,
-                                      caplog: pytest.LogCaptureFixture) -> None:
+def test_unreadable_file_is_set_aside(
+    tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture
+) -> None:
     (tmp_path / "state.json").write_bytes(BAD[kind])
     d = build(tmp_path)
     assert lost(d) == [True, True]
@@ -148,19 +149,23 @@ def restored_b(d: Daemon) -> None:
     assert (b.position, b.position_lost) == (-55, False)
 
 
-@pytest.mark.parametrize(("key", "value", "says"), [
-    ("position", "abc", "not an integer"),
-    ("position", True, "not an integer"),
-    ("position", 99_999_999, "outside"),
-    ("home", -(1 << 23) - 1, "outside"),
-    ("waypoints", "x", "not a list"),
-    ("waypoints", [1, "2"], "not an integer"),
-    ("waypoints", list(range(256)), "the table holds 255"),
-    ("moving", "no", "not true or false"),
-    ("name", 3, "not a string"),
-])
-def test_one_bad_record_loses_only_its_motor(tmp_path: Path, key: str, value: Any, says: str,
-                                             caplog: pytest.LogCaptureFixture) -> None:
+@pytest.mark.parametrize(
+    ("key", "value", "says"),
+    [
+        ("position", "abc", "not an integer"),
+        ("position", True, "not an integer"),
+        ("position", 99_999_999, "outside"),
+        ("home", -(1 << 23) - 1, "outside"),
+        ("waypoints", "x", "not a list"),
+        ("waypoints", [1, "2"], "not an integer"),
+        ("waypoints", list(range(256)), "the table holds 255"),
+        ("moving", "no", "not true or false"),
+        ("name", 3, "not a string"),
+    ],
+)
+def test_one_bad_record_loses_only_its_motor(
+    tmp_path: Path, key: str, value: Any, says: str, caplog: pytest.LogCaptureFixture
+) -> None:
     # PROTOCOL.md §4: an inconsistent file "restores nothing for the motors concerned".
     data = two_motors_state(tmp_path)
     data["motors"][0][key] = value
@@ -179,7 +184,8 @@ def test_one_bad_record_loses_only_its_motor(tmp_path: Path, key: str, value: An
 
 
 def test_a_motor_the_config_does_not_have_keeps_the_file_aside(
-        tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     data = two_motors_state(tmp_path)
     q = dict(data["motors"][1], name="q", position=4444)
     data["motors"].insert(1, q)
@@ -196,9 +202,9 @@ def test_a_motor_the_config_does_not_have_keeps_the_file_aside(
     assert [m["name"] for m in saved(tmp_path)["motors"]] == ["a", "b"]
 
 
-def test_records_shared_by_two_motors_or_without_a_name(tmp_path: Path,
-                                                        caplog: pytest.LogCaptureFixture
-                                                        ) -> None:
+def test_records_shared_by_two_motors_or_without_a_name(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     data = two_motors_state(tmp_path)
     data["motors"] += [dict(data["motors"][0], position=9), 3]
     (tmp_path / "state.json").write_text(json.dumps(data))
@@ -259,7 +265,8 @@ IN_THE_WAY = ["directory", "link to a directory", "link loop", "dangling link", 
 
 @pytest.mark.parametrize("kind", IN_THE_WAY)
 def test_whatever_stands_at_the_state_file_is_set_aside_and_the_daemon_runs(
-        tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture) -> None:
+    tmp_path: Path, kind: str, caplog: pytest.LogCaptureFixture
+) -> None:
     (tmp_path / "state.json.bad").write_text("an older bad file")  # kept, never replaced
     (tmp_path / "state.json.bad.1").mkdir()
     _make(tmp_path / "state.json", kind)
@@ -278,8 +285,7 @@ def test_whatever_stands_at_the_state_file_is_set_aside_and_the_daemon_runs(
     assert d.persistence.close()
 
 
-def test_directory_in_place_of_the_file(tmp_path: Path,
-                                        caplog: pytest.LogCaptureFixture) -> None:
+def test_directory_in_place_of_the_file(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     (tmp_path / "state.json").mkdir()
     (tmp_path / "state.json" / "junk").write_text("x")
     (tmp_path / "state.json.bad").mkdir()  # an older one, also a directory: kept
@@ -316,8 +322,9 @@ def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) 
     assert d.dispatcher.handle(InitMove(0, False, 0, 0, 0)).ack
 
 
-def test_no_free_name_left(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                           caplog: pytest.LogCaptureFixture) -> None:
+def test_no_free_name_left(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
     monkeypatch.setattr(st, "ASIDE_LIMIT", 3)
     for name in ("state.json", "state.json.bad", "state.json.bad.1", "state.json.bad.2"):
         (tmp_path / name).mkdir()
@@ -348,8 +355,7 @@ def test_swapped_names_restore_by_name(tmp_path: Path) -> None:
     assert b.position == 0 and not b.position_lost
 
 
-def test_renamed_or_changed_geometry(tmp_path: Path,
-                                     caplog: pytest.LogCaptureFixture) -> None:
+def test_renamed_or_changed_geometry(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     good_state(tmp_path)
     caplog.set_level(logging.WARNING)
     d = build(tmp_path, ROTARY.replace('"a"', '"x"'))
@@ -362,8 +368,9 @@ def test_renamed_or_changed_geometry(tmp_path: Path,
     assert "restored 0 of 2" in d.persistence.restored
 
 
-def test_more_waypoints_than_the_configured_table(tmp_path: Path,
-                                                  caplog: pytest.LogCaptureFixture) -> None:
+def test_more_waypoints_than_the_configured_table(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     data = good_state(tmp_path)
     data["motors"][0]["waypoints"] = [1, 2, 3, 4]
     (tmp_path / "state.json").write_text(json.dumps(data))
@@ -383,20 +390,36 @@ def test_rotary_position_outside_its_revolution(tmp_path: Path) -> None:
 
 
 def test_match_motors_unit() -> None:
-    state = parse_state(json.dumps({"version": 2, "motors": [
-        {"name": "a", "fingerprint": "f", "position": 1, "home": 0, "waypoints": [],
-         "moving": False, "position_lost": False}]}).encode())
-    out = st.match_motors(state, [MotorIdentity("a", "f"), MotorIdentity("a", "g"),
-                                  MotorIdentity("c", "f")])
+    state = parse_state(
+        json.dumps(
+            {
+                "version": 2,
+                "motors": [
+                    {
+                        "name": "a",
+                        "fingerprint": "f",
+                        "position": 1,
+                        "home": 0,
+                        "waypoints": [],
+                        "moving": False,
+                        "position_lost": False,
+                    }
+                ],
+            }
+        ).encode()
+    )
+    out = st.match_motors(
+        state, [MotorIdentity("a", "f"), MotorIdentity("a", "g"), MotorIdentity("c", "f")]
+    )
     assert out[0].saved is not None and out[0].problem is None
     assert out[1].problem is not None and "geometry" in out[1].problem
     assert out[2].problem == "not in the state file"
 
 
 # -- moving when the daemon died -----------------------------------------------------------------
-def test_saved_moving_means_lost_but_home_and_waypoints_kept(tmp_path: Path,
-                                                             caplog: pytest.LogCaptureFixture
-                                                             ) -> None:
+def test_saved_moving_means_lost_but_home_and_waypoints_kept(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     data = good_state(tmp_path)
     data["motors"][0]["moving"] = True
     (tmp_path / "state.json").write_text(json.dumps(data))
@@ -449,9 +472,11 @@ def test_a_motion_of_no_distance_leaves_no_mark(tmp_path: Path, command: str) ->
     journal = tmp_path / st.JOURNAL_NAME
     assert journal.read_bytes() == b"00"
     commands: dict[str, Command] = {
-        "MoveTo": MoveTo(1, True, 250, 0, 0, 0), "GoHome": GoHome(1),
+        "MoveTo": MoveTo(1, True, 250, 0, 0, 0),
+        "GoHome": GoHome(1),
         "MoveToWayPoint": MoveToWayPoint(1, 0, 0, 0, 0),
-        "rotary MoveTo": MoveTo(1, False, 250 + 400, 0, 0, 0)}
+        "rotary MoveTo": MoveTo(1, False, 250 + 400, 0, 0, 0),
+    }
     cmd = commands[command]
     assert d.dispatcher.handle(cmd).ack
     assert d.engine.motors[1].idle
@@ -514,8 +539,9 @@ def test_journal_token_protects_a_start_in_flight(tmp_path: Path) -> None:
     j.clear_if_unchanged(0, j.token(0))
 
 
-def test_journal_unreadable_or_missing_state(tmp_path: Path,
-                                             caplog: pytest.LogCaptureFixture) -> None:
+def test_journal_unreadable_or_missing_state(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     good_state(tmp_path)
     (tmp_path / st.JOURNAL_NAME).write_bytes(b"zz")
     d = build(tmp_path)
@@ -551,15 +577,21 @@ def test_journal_not_open_refuses_motion(tmp_path: Path) -> None:
 def test_a_motion_that_cannot_be_recorded_is_e4_in_its_place(tmp_path: Path) -> None:
     # PROTOCOL.md §5: E1 -> E2 -> E1 (parameters) -> E6 -> E4; the journal's failure is an
     # E4 and takes E4's place (it used to come before every check of the command).
-    d = build(tmp_path, CONFIG.replace('name = "b"', 'name = "b"\nsoft_limit_min = -10\n'
-                                                     'soft_limit_max = 10'))
+    d = build(
+        tmp_path,
+        CONFIG.replace('name = "b"', 'name = "b"\nsoft_limit_min = -10\nsoft_limit_max = 10'),
+    )
     d.persistence.journal.close()
     handle = d.dispatcher.handle
     assert handle(MoveToWayPoint(0, 0, 0, 0, 0)).error_code is E.INVALID_WAYPOINT
     assert handle(MoveTo(5, True, 1, 0, 0, 0)).error_code is E.INVALID_ADDRESS
     assert handle(MoveTo(1, True, 11, 0, 0, 0)).error_code is E.INVALID_COMMAND
-    for cmd in (MoveTo(1, True, 5, 0, 0, 0), InitMove(0, False, 0, 0, 0), GoHome(1),
-                Move(0, True, 1, 0, 0)):
+    for cmd in (
+        MoveTo(1, True, 5, 0, 0, 0),
+        InitMove(0, False, 0, 0, 0),
+        GoHome(1),
+        Move(0, True, 1, 0, 0),
+    ):
         assert handle(cmd).error_code is E.MOTOR_ERROR, cmd
     assert all(m.idle for m in d.engine.motors)
     assert d.persistence.status()["motion_refused"] == 6  # all but the unknown motor
@@ -598,8 +630,9 @@ def test_write_all_full_disk() -> None:
     os.close(w)
 
 
-def test_read_only_directory_save_answers_e4(tmp_path: Path,
-                                             caplog: pytest.LogCaptureFixture) -> None:
+def test_read_only_directory_save_answers_e4(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
     caplog.set_level(logging.INFO)
     d = build(tmp_path)
     move(d, 0, 40)
@@ -624,8 +657,7 @@ def test_read_only_directory_save_answers_e4(tmp_path: Path,
     assert "written again" in caplog.text
 
 
-def test_set_aside_fails_on_read_only_dir(tmp_path: Path,
-                                          caplog: pytest.LogCaptureFixture) -> None:
+def test_set_aside_fails_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     (tmp_path / "state.json").write_bytes(b"\xff")
     with read_only(tmp_path):
         assert st.set_aside(tmp_path / "state.json") is None
@@ -653,8 +685,9 @@ def test_writer_thread_and_status(tmp_path: Path) -> None:
     assert saved(tmp_path)["motors"][0]["position"] == 10
 
 
-def test_open_with_unwritable_journal(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
-                                      caplog: pytest.LogCaptureFixture) -> None:
+def test_open_with_unwritable_journal(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
     d = build(tmp_path)
     d.persistence.close()
     journal = str(tmp_path / st.JOURNAL_NAME)

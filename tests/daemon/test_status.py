@@ -22,14 +22,46 @@ from tests.support.wait import until
 
 READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
 
-MOTOR_KEYS = {"index", "name", "state", "position", "queued", "fault", "position_lost",
-              "waypoints", "faults", "timing", "soft_stops", "speed"}
+MOTOR_KEYS = {
+    "index",
+    "name",
+    "state",
+    "position",
+    "queued",
+    "fault",
+    "position_lost",
+    "waypoints",
+    "faults",
+    "timing",
+    "soft_stops",
+    "speed",
+}
 #: each motor's late-step figures and rule (docs/timing.md, "Reading the figures")
-TIMING_KEYS = {"late_absorbed", "slid_ms", "worst_late_us", "worst_lag_full_steps",
-               "lag_faults", "microsteps", "max_lag_full_steps"}
+TIMING_KEYS = {
+    "late_absorbed",
+    "slid_ms",
+    "worst_late_us",
+    "worst_lag_full_steps",
+    "lag_faults",
+    "microsteps",
+    "max_lag_full_steps",
+}
 #: what bench/steps.py, bench/latency.py, docs/timing.md and the tests read from ``steps``
-STEP_KEYS = {"steps", "p50_us", "p99_us", "p999_us", "max_us", "late", "late_threshold_us",
-             "timing_lost", "min_gap_ns", "dropped", "io_errors", "endstops", "progress"}
+STEP_KEYS = {
+    "steps",
+    "p50_us",
+    "p99_us",
+    "p999_us",
+    "max_us",
+    "late",
+    "late_threshold_us",
+    "timing_lost",
+    "min_gap_ns",
+    "dropped",
+    "io_errors",
+    "endstops",
+    "progress",
+}
 
 
 @pytest.fixture
@@ -64,8 +96,11 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
     assert [m["index"] for m in doc["motors"]] == [0, 1]
     assert all(set(m) >= MOTOR_KEYS for m in doc["motors"])
     assert all(set(m["timing"]) == TIMING_KEYS for m in doc["motors"])
-    assert doc["motors"][0]["soft_stops"] == {"count": 0, "takeover_ms": [0.0, 0.0],
-                                              "takeover_steps": [0, 0]}
+    assert doc["motors"][0]["soft_stops"] == {
+        "count": 0,
+        "takeover_ms": [0.0, 0.0],
+        "takeover_steps": [0, 0],
+    }
     assert doc["motors"][0]["state"] != "idle" and doc["motors"][0]["fault"] is None
     assert doc["motors"][0]["speed"] > 0 and doc["motors"][1]["speed"] == 0
     assert doc["pins"] == [{"number": 0, "output": True, "level": False}]
@@ -90,7 +125,8 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
     plain = read_status(path, timeout=READ_DEADLINE_S)["steps"]
     moving_on = ("histogram_us", "progress")  # progress: the core's turns, also at rest
     assert {k: v for k, v in plain.items() if k not in moving_on} == {
-        k: v for k, v in steps.items() if k not in moving_on}
+        k: v for k, v in steps.items() if k not in moving_on
+    }
 
 
 def test_a_status_read_takes_no_motion_lock(served: tuple[LiveDaemon, Path]) -> None:
@@ -98,8 +134,10 @@ def test_a_status_read_takes_no_motion_lock(served: tuple[LiveDaemon, Path]) -> 
     a read that waited for the lock would time out here."""
     live, path = served
     assert live.code(Move(1, True, 1, 0, 0)) is None
-    until("motor 1 stepping",
-          lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"] > 0)
+    until(
+        "motor 1 stepping",
+        lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"] > 0,
+    )
     with live.daemon.engine.lock:
         doc = read_status(path, timeout=READ_DEADLINE_S)
         full = read_status(path, timeout=READ_DEADLINE_S, histogram=True)
@@ -165,8 +203,9 @@ def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
     the command, and the motor's status says how soon and how many steps on."""
     live, path = served
     live.moving(1)
-    until("cruise", lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"]
-          > 500)
+    until(
+        "cruise", lambda: read_status(path, timeout=READ_DEADLINE_S)["motors"][1]["position"] > 500
+    )
     assert live.code(StopMove(1, False)) is None
     assert live.code(WaitMoved(1, 20_000)) is None
     doc = read_status(path, timeout=READ_DEADLINE_S)

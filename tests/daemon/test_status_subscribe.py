@@ -111,8 +111,9 @@ def test_updates_come_on_a_change_only(served: tuple[StatusServer, Source]) -> N
     until("the subscriber dropped once it closed", lambda: server.subscribers == 0)
 
 
-def test_a_heartbeat_without_changes(served: tuple[StatusServer, Source],
-                                     monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_heartbeat_without_changes(
+    served: tuple[StatusServer, Source], monkeypatch: pytest.MonkeyPatch
+) -> None:
     server, _ = served
     monkeypatch.setattr(status_module, "HEARTBEAT_S", 0.05)
     with raw_subscriber(server.path, b"subscribe 20\n") as sock:
@@ -141,8 +142,10 @@ def test_the_client_iterator_and_its_errors(served: tuple[StatusServer, Source])
     assert next(stream)["motors"] == [{"index": 1}]
     stream.close()
     until("the subscriber dropped", lambda: server.subscribers == 0)
-    with pytest.raises(StatusError, match="PERIOD_MS must be a whole number of milliseconds "
-                                          "from 20 to 60000, got '5'"):
+    with pytest.raises(
+        StatusError,
+        match="PERIOD_MS must be a whole number of milliseconds from 20 to 60000, got '5'",
+    ):
         next(subscribe(server.path, period_s=0.005))
     assert parse_request(b"subscribe soon\n").error is not None
     assert parse_request(b"subscribe 20 40\n").error is not None
@@ -176,8 +179,9 @@ def test_the_stream_ends_when_the_server_closes(tmp_path: Path) -> None:
     assert list(stream) == []  # ended, no error
 
 
-def test_a_subscriber_that_stops_reading_is_dropped(served: tuple[StatusServer, Source],
-                                                    monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_subscriber_that_stops_reading_is_dropped(
+    served: tuple[StatusServer, Source], monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Updates far larger than the socket's buffers: one that stays unread for
     SEND_TIMEOUT_S ends the subscription; nothing queues up meanwhile."""
     server, src = served

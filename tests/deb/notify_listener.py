@@ -25,7 +25,7 @@ DEADLINE_S = 30.0
 
 def main() -> int:
     path, user = sys.argv[1], sys.argv[2]
-    cmd = sys.argv[sys.argv.index("--") + 1:]
+    cmd = sys.argv[sys.argv.index("--") + 1 :]
     pw = pwd.getpwnam(user)
     if os.path.exists(path):
         os.unlink(path)
@@ -54,8 +54,10 @@ def main() -> int:
             for line in data.splitlines():
                 if line.startswith(prefix):
                     return line
-        raise SystemExit(f"no {prefix} within {DEADLINE_S} s; got {seen}; stderr:\n"
-                         + Path("/run/motorctl/motorctld.stderr").read_text())
+        raise SystemExit(
+            f"no {prefix} within {DEADLINE_S} s; got {seen}; stderr:\n"
+            + Path("/run/motorctl/motorctld.stderr").read_text()
+        )
 
     try:
         wait_for("READY=1")
@@ -64,9 +66,23 @@ def main() -> int:
         mode, group = stat.S_IMODE(st.st_mode), grp.getgrgid(st.st_gid).gr_name
         print(f"  {pty} -> {os.readlink(pty)}: mode {mode:o}, group {group}")
         assert mode == 0o660 and group == user, "the PTY must be 0660 with the service's group"
-        out = subprocess.run(["setpriv", f"--reuid={user}", f"--regid={user}", "--init-groups",
-                              "motorctl", "-p", pty, "pos", "0"], capture_output=True,
-                             text=True, timeout=DEADLINE_S, env=env | {"NOTIFY_SOCKET": ""})
+        out = subprocess.run(
+            [
+                "setpriv",
+                f"--reuid={user}",
+                f"--regid={user}",
+                "--init-groups",
+                "motorctl",
+                "-p",
+                pty,
+                "pos",
+                "0",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=DEADLINE_S,
+            env=env | {"NOTIFY_SOCKET": ""},
+        )
         print(f"  motorctl pos 0 -> {out.stdout.strip()} {out.stderr.strip()}")
         assert out.returncode == 0, out
         wait_for("STATUS=")

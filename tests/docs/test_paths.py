@@ -23,8 +23,22 @@ import pytest
 from tests.support import REPO
 
 #: The repository's tracked top-level folders and files a page may name.
-TOP_DIRS = ("client", "protocol", "daemon", "motion", "hal", "motorctl", "tests", "bench",
-            "docs", "hwtest", "tools", "systemd", "debian", ".ci")
+TOP_DIRS = (
+    "client",
+    "protocol",
+    "daemon",
+    "motion",
+    "hal",
+    "motorctl",
+    "tests",
+    "bench",
+    "docs",
+    "hwtest",
+    "tools",
+    "systemd",
+    "debian",
+    ".ci",
+)
 TOP_FILES = ("README.md", "Makefile", "pyproject.toml", "LICENSE")
 
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
@@ -91,7 +105,7 @@ def map_paths(block: str) -> list[tuple[str, list[str]]]:
         group = _MAP_GROUP.match(line)
         if group:
             groups.append((group.group(1), []))
-            line = line[group.end():]
+            line = line[group.end() :]
         if groups:
             groups[-1][1].extend(n for n in _MAP_NAME.findall(line) if "/" not in n.rstrip("/"))
     out: list[tuple[str, list[str]]] = []
@@ -100,8 +114,9 @@ def map_paths(block: str) -> list[tuple[str, list[str]]]:
         folders = [room]
         for name in names:
             if name.endswith("/"):
-                folders += [f"{f}/{name.rstrip('/')}" for f in list(folders)
-                            if _exists(f"{f}/{name}")]
+                folders += [
+                    f"{f}/{name.rstrip('/')}" for f in list(folders) if _exists(f"{f}/{name}")
+                ]
         out += [(name, [*folders, ""]) for name in names]
     return out
 
@@ -124,21 +139,35 @@ def test_every_name_in_the_readmes_map_exists() -> None:
     block = map_block((REPO / "README.md").read_text(encoding="utf-8"))
     entries = map_paths(block)
     assert len(entries) > 40, entries  # the map was read, not skipped
-    missing = [name for name, folders in entries
-               if not any(_exists(f"{f}/{name}" if f else name) for f in folders)]
+    missing = [
+        name
+        for name, folders in entries
+        if not any(_exists(f"{f}/{name}" if f else name) for f in folders)
+    ]
     assert not missing, f"README.md's architecture map names files that do not exist: {missing}"
 
 
-@pytest.mark.parametrize(("text", "paths"), [
-    ("see `motion/profile.py` and docs/timing.md.", ["motion/profile.py", "docs/timing.md"]),
-    ("| tests/daemon/test_link.py::test_serves_and_stops |", ["tests/daemon/test_link.py"]),
-    ("`bench/latency.py --trace` (bench/steps.py)", ["bench/latency.py", "bench/steps.py"]),
-    ("/etc/motorctl.toml, /dev/spidev0.0, /run/motorctl/x, /usr/bin/python3", []),
-    ("https://example.org/motion/profile.py and build/deb/build.log", []),
-    ("a `.venv/bin/python`, `state.json`, motorctl.pty", []),
-    ("the `Makefile`, pyproject.toml's settings", ["Makefile", "pyproject.toml"]),
-], ids=["prose and spans", "a test id", "a command", "absolute", "url and build output",
-        "not in the repository", "top-level files"])
+@pytest.mark.parametrize(
+    ("text", "paths"),
+    [
+        ("see `motion/profile.py` and docs/timing.md.", ["motion/profile.py", "docs/timing.md"]),
+        ("| tests/daemon/test_link.py::test_serves_and_stops |", ["tests/daemon/test_link.py"]),
+        ("`bench/latency.py --trace` (bench/steps.py)", ["bench/latency.py", "bench/steps.py"]),
+        ("/etc/motorctl.toml, /dev/spidev0.0, /run/motorctl/x, /usr/bin/python3", []),
+        ("https://example.org/motion/profile.py and build/deb/build.log", []),
+        ("a `.venv/bin/python`, `state.json`, motorctl.pty", []),
+        ("the `Makefile`, pyproject.toml's settings", ["Makefile", "pyproject.toml"]),
+    ],
+    ids=[
+        "prose and spans",
+        "a test id",
+        "a command",
+        "absolute",
+        "url and build output",
+        "not in the repository",
+        "top-level files",
+    ],
+)
 def test_path_extraction(text: str, paths: list[str]) -> None:
     assert named_paths(text) == paths
 
@@ -150,6 +179,7 @@ def test_a_missing_path_is_caught() -> None:
     block = "motion/   engine.py, stepthread.py\ndaemon/   config/ (model.py), gone/\n"
     entries = dict(map_paths(block))
     assert entries["model.py"] == ["daemon", "daemon/config", ""]
-    missing = [n for n, fs in map_paths(block)
-               if not any(_exists(f"{f}/{n}" if f else n) for f in fs)]
+    missing = [
+        n for n, fs in map_paths(block) if not any(_exists(f"{f}/{n}" if f else n) for f in fs)
+    ]
     assert missing == ["stepthread.py", "gone/"]

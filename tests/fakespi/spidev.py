@@ -23,8 +23,9 @@ for _key, _kind in _config["chips"].items():
     _bus, _cs = (int(x) for x in _key.split("."))
     # a TMC5160's ramp generator runs on the real clock (SD_MODE low unless "...:step_dir")
     _chip, _, _mode = _kind.partition(":")
-    _kernel.chips[(_bus, _cs)] = TmcModel(_chip, clock=MonotonicClock(),
-                                          sd_mode=int(_mode == "step_dir"))
+    _kernel.chips[(_bus, _cs)] = TmcModel(
+        _chip, clock=MonotonicClock(), sd_mode=int(_mode == "step_dir")
+    )
 _control: str | None = _config.get("control")
 _seen = [0.0]
 

@@ -77,8 +77,7 @@ def test_section_defaults() -> None:
     top, axis = make(GpiodConfig), make(GpiodAxisConfig, step="GPIO1", dir="GPIO2")
     assert (top.api, top.consumer, top.dc) == ("auto", "motorctl", None)
     assert (axis.enable, axis.enable_active_low, axis.dir_hold_us) == ("", True, 0.0)
-    assert (axis.endstop_min_bias, make(GpiodPinConfig, line="GPIO3").bias) == ("as-is",
-                                                                               "as-is")
+    assert (axis.endstop_min_bias, make(GpiodPinConfig, line="GPIO3").bias) == ("as-is", "as-is")
     dc = make(GpiodConfig, dc={"in1": "GPIO1", "in2": "GPIO2"}).dc
     assert dc is not None
     assert (dc.en, dc.dead_time_ms, dc.reverse_via, dc.pwm) == ("", 0.0, "coast", None)
@@ -87,17 +86,23 @@ def test_section_defaults() -> None:
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
-        (BASE.replace('dir = "GPIO27"', 'dir = "gpiochip0:17"'),
-         "gpiod: line gpiochip0:17 is used twice: by motors[0].step and by motors[0].dir"),
+        (
+            BASE.replace('dir = "GPIO27"', 'dir = "gpiochip0:17"'),
+            "gpiod: line gpiochip0:17 is used twice: by motors[0].step and by motors[0].dir",
+        ),
         (BASE.replace('dir = "GPIO27"', ""), "motors[0].gpiod.dir: missing"),
-        (BASE.replace('step = "gpiochip0:17"', 'step = "17"'),
-         'motors[0].gpiod.step = "17": not a GPIO line'),
-        (BASE.replace('gpiod = { line = "/dev/gpiochip1:4", bias = "pull-up" }', ""),
-         "pins[0].gpiod: missing: the gpiod backend needs the pin's line"),
+        (
+            BASE.replace('step = "gpiochip0:17"', 'step = "17"'),
+            'motors[0].gpiod.step = "17": not a GPIO line',
+        ),
+        (
+            BASE.replace('gpiod = { line = "/dev/gpiochip1:4", bias = "pull-up" }', ""),
+            "pins[0].gpiod: missing: the gpiod backend needs the pin's line",
+        ),
         (BASE + "[dc]\n", "gpiod.dc: missing: [dc] configures a DC motor; wire its bridge"),
-        (BASE.replace("bias = \"pull-up\"", "bias = \"up\""), 'pins[0].gpiod.bias = "up"'),
-        (BASE + "[gpiod]\napi = \"v3\"\n", 'gpiod.api = "v3": unknown value'),
-        (BASE + "[gpiod]\nconsumer = \"my daemon\"\n", "gpiod.consumer"),
+        (BASE.replace('bias = "pull-up"', 'bias = "up"'), 'pins[0].gpiod.bias = "up"'),
+        (BASE + '[gpiod]\napi = "v3"\n', 'gpiod.api = "v3": unknown value'),
+        (BASE + '[gpiod]\nconsumer = "my daemon"\n', "gpiod.consumer"),
     ],
 )
 def test_wiring_mistakes_are_named_before_anything_opens(text: str, expected: str) -> None:
@@ -112,31 +117,54 @@ def test_other_backends_need_no_wiring_but_a_written_section_is_still_checked() 
 
 
 def test_the_example_config_passes_check_config() -> None:
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--check-config",
-                          str(EXAMPLE)], capture_output=True, text=True, cwd=REPO, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--check-config", str(EXAMPLE)],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     assert "3 motors, 8 pins, a DC motor, backend gpiod" in out.stdout
 
 
 def test_probe_of_the_mock_says_nothing_is_opened() -> None:
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
-                          "--latency-seconds", "0"],
-                         capture_output=True, text=True, cwd=REPO, timeout=60)
+    out = subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--latency-seconds", "0"],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
     assert out.returncode == 0, out.stderr
     assert "backend mock:\n  nothing to probe" in out.stdout
 
 
-@pytest.mark.skipif(importlib.util.find_spec("gpiod") is not None,
-                    reason="libgpiod's binding is installed here")
+@pytest.mark.skipif(
+    importlib.util.find_spec("gpiod") is not None, reason="libgpiod's binding is installed here"
+)
 def test_without_libgpiod_the_backend_says_what_to_install() -> None:
     spec = hardware_spec(parse_config(EXAMPLE.read_text(), str(EXAMPLE)))
     with pytest.raises(HalError, match=r"pip install gpiod.*apt install python3-libgpiod"):
         open_hardware("gpiod", spec, MonotonicClock())
     report = probe_hardware("gpiod", spec, MonotonicClock())
     assert report.problems and "python3-libgpiod" in report.problems[0]
-    out = subprocess.run([sys.executable, "-m", "motorctl.daemon.main", "--probe",
-                          "--latency-seconds", "0", "--config",
-                          str(EXAMPLE)], capture_output=True, text=True, cwd=REPO, timeout=60)
+    out = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--probe",
+            "--latency-seconds",
+            "0",
+            "--config",
+            str(EXAMPLE),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=60,
+    )
     assert out.returncode == 1
     assert "PROBLEM: the gpiod backend needs libgpiod's Python binding" in out.stdout
     assert "Traceback" not in out.stdout + out.stderr
@@ -154,8 +182,7 @@ RAMP_TMC = """
 
 def with_motor(gpiod: str, mode: str = "ramp", name: str = "r") -> str:
     """BASE with a second motor driven by a TMC5160 over /dev/spidev0.1 in ``mode``."""
-    return (BASE + f'[[motors]]\nname = "{name}"\n' + gpiod
-            + RAMP_TMC.format(cs=1, mode=mode))
+    return BASE + f'[[motors]]\nname = "{name}"\n' + gpiod + RAMP_TMC.format(cs=1, mode=mode)
 
 
 def test_a_ramp_motor_needs_no_gpiod_section_and_gets_no_line() -> None:
@@ -168,32 +195,53 @@ def test_a_ramp_motor_needs_no_gpiod_section_and_gets_no_line() -> None:
 
 
 def test_a_ramp_motor_may_wire_only_its_enable_line() -> None:
-    w = wiring_of(hardware_spec(parse_config(
-        with_motor('  [motors.gpiod]\n  enable = "gpiochip0:9"\n'), SOURCE)))
-    assert [use for use, _ in w.lines()] == ["motors[0].step", "motors[0].dir",
-                                             "motors[1].enable", "pins.3"]
+    w = wiring_of(
+        hardware_spec(
+            parse_config(with_motor('  [motors.gpiod]\n  enable = "gpiochip0:9"\n'), SOURCE)
+        )
+    )
+    assert [use for use, _ in w.lines()] == [
+        "motors[0].step",
+        "motors[0].dir",
+        "motors[1].enable",
+        "pins.3",
+    ]
 
 
 def test_step_dir_named_for_a_ramp_motor_are_still_checked_for_clashes() -> None:
     text = with_motor('  [motors.gpiod]\n  step = "gpiochip0:17"\n  dir = "gpiochip0:18"\n')
-    assert "line gpiochip0:17 is used twice: by motors[0].step and by motors[1].step" in \
-        error_of(text)
+    assert "line gpiochip0:17 is used twice: by motors[0].step and by motors[1].step" in error_of(
+        text
+    )
 
 
 @pytest.mark.parametrize(
     ("gpiod", "mode", "expected"),
     [
-        ("", "step_dir", "motors[1].gpiod: missing: motor 1 ('r') is moved by STEP/DIR pulses; "
-         "name its step and dir lines"),
-        ('  [motors.gpiod]\n  dir = "gpiochip0:6"\n', "step_dir",
-         "motors[1].gpiod.step: missing: motor 1 ('r') is moved by STEP/DIR pulses and needs "
-         "its STEP line"),
-        ('  [motors.gpiod]\n  step = "gpiochip0:5"\n', "step_dir",
-         "motors[1].gpiod.dir: missing: motor 1 ('r') is moved by STEP/DIR pulses and needs "
-         "its DIR line"),
-        ('  [motors.gpiod]\n  endstop_max = "gpiochip0:7"\n', "ramp",
-         "motors[1].gpiod.endstop_max = \"gpiochip0:7\": motor 1 ('r')'s TMC5160 runs its own "
-         "ramp and stops at its REFL/REFR inputs"),
+        (
+            "",
+            "step_dir",
+            "motors[1].gpiod: missing: motor 1 ('r') is moved by STEP/DIR pulses; "
+            "name its step and dir lines",
+        ),
+        (
+            '  [motors.gpiod]\n  dir = "gpiochip0:6"\n',
+            "step_dir",
+            "motors[1].gpiod.step: missing: motor 1 ('r') is moved by STEP/DIR pulses and needs "
+            "its STEP line",
+        ),
+        (
+            '  [motors.gpiod]\n  step = "gpiochip0:5"\n',
+            "step_dir",
+            "motors[1].gpiod.dir: missing: motor 1 ('r') is moved by STEP/DIR pulses and needs "
+            "its DIR line",
+        ),
+        (
+            '  [motors.gpiod]\n  endstop_max = "gpiochip0:7"\n',
+            "ramp",
+            "motors[1].gpiod.endstop_max = \"gpiochip0:7\": motor 1 ('r')'s TMC5160 runs its own "
+            "ramp and stops at its REFL/REFR inputs",
+        ),
     ],
 )
 def test_only_a_ramp_motor_goes_without_step_dir(gpiod: str, mode: str, expected: str) -> None:

@@ -59,8 +59,12 @@ def test_pwm_duty_follows_the_bridge_state(tmp_path: Path) -> None:
     req = Recorder()
     wiring = DcWiring(LineRef(name="IN1"), LineRef(name="IN2"), None, pwm=w)
     bridge = GpiodBridge(req, wiring, (1, 2, None), pwm, VirtualClock())
-    for state, duty in ((BridgeState.FORWARD, "10000"), (BridgeState.BRAKE, "40000"),
-                        (BridgeState.REVERSE, "10000"), (BridgeState.COAST, "0")):
+    for state, duty in (
+        (BridgeState.FORWARD, "10000"),
+        (BridgeState.BRAKE, "40000"),
+        (BridgeState.REVERSE, "10000"),
+        (BridgeState.COAST, "0"),
+    ):
         bridge.set(state)
         assert (pwm_dir / "duty_cycle").read_text() == duty, state
     assert req.levels == {1: False, 2: False}

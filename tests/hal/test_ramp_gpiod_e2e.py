@@ -36,7 +36,9 @@ name = "r"
   hold_current = 1.0
 """
 
-STEP_DIR_WITHOUT_STEP = RAMP_ONLY + """
+STEP_DIR_WITHOUT_STEP = (
+    RAMP_ONLY
+    + """
 [[motors]]
 name = "s"
   [motors.gpiod]
@@ -45,6 +47,7 @@ name = "s"
   driver = "tmc2130"
   spi = "/dev/spidev0.1"
 """
+)
 
 
 @pytest.fixture
@@ -74,14 +77,27 @@ def test_a_ramp_motor_without_step_dir_lines_moves_end_to_end(daemon: DaemonProc
     assert "fakegpiod" not in daemon.stderr()  # no line was ever asked for
 
 
-def test_probe_of_a_ramp_motor_without_lines_opens_none(tmp_path: Path,
-                                                        env: dict[str, str]) -> None:
+def test_probe_of_a_ramp_motor_without_lines_opens_none(
+    tmp_path: Path, env: dict[str, str]
+) -> None:
     config = tmp_path / "ramp.toml"
     config.write_text(RAMP_ONLY)
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe",
-         "--latency-seconds", "0", "--config", str(config)],
-        env={**os.environ, **env}, capture_output=True, text=True, timeout=120, cwd=REPO,
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--probe",
+            "--latency-seconds",
+            "0",
+            "--config",
+            str(config),
+        ],
+        env={**os.environ, **env},
+        capture_output=True,
+        text=True,
+        timeout=120,
+        cwd=REPO,
     )
     assert out.returncode == 0, out.stdout + out.stderr
     assert "r: /dev/spidev0.0: TMC5160" in out.stdout

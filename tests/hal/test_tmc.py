@@ -63,10 +63,22 @@ def bench() -> SpiBench:
     return SpiBench()
 
 
-S2130 = TmcSettings(chip="tmc2130", run_current=0.8, hold_current=0.4, microsteps=16,
-                    stall_threshold=5, stall_min_speed=500.0)
-S5160 = TmcSettings(chip="tmc5160", run_current=2.0, hold_current=1.0, microsteps=16,
-                    stall_threshold=-3, stall_min_speed=500.0)
+S2130 = TmcSettings(
+    chip="tmc2130",
+    run_current=0.8,
+    hold_current=0.4,
+    microsteps=16,
+    stall_threshold=5,
+    stall_min_speed=500.0,
+)
+S5160 = TmcSettings(
+    chip="tmc5160",
+    run_current=2.0,
+    hold_current=1.0,
+    microsteps=16,
+    stall_threshold=-3,
+    stall_min_speed=500.0,
+)
 
 
 # ------------------------------------------------------------------ the fake is py-spidev
@@ -510,7 +522,7 @@ def test_run_and_soft_stop_in_velocity_mode(bench: SpiBench) -> None:
     drv.stop(6000.0)
     took = run_until(bench, drv, lambda s: s.vactual == 0, 5.0)
     assert took == pytest.approx(0.5, abs=0.03)  # 3000 / 6000
-    assert drv.position() - x0 == pytest.approx(-3000**2 / 12_000, abs=20)
+    assert drv.position() - x0 == pytest.approx(-(3000**2) / 12_000, abs=20)
     bench.clock.advance(0.5)
     assert drv.state().vactual == 0  # stays stopped
 
@@ -557,15 +569,18 @@ def test_homing_by_stallguard_stops_at_the_wall(bench: SpiBench) -> None:
 Tick = Callable[[], None]
 
 
-def engine_with_tmc(
-    bench: SpiBench, homing: HomingParams
-) -> tuple[MotionEngine, TmcModel, Tick]:
+def engine_with_tmc(bench: SpiBench, homing: HomingParams) -> tuple[MotionEngine, TmcModel, Tick]:
     model = bench.chip("tmc2130")
     drv = bench.driver(S2130)
     drv.start()
     # the mock's STEP/DIR, a TMC2130 for the status
-    engine = engine_rig(MotorParams(homing=homing), axes=[AxisSpec()], clock=bench.clock,
-                        driver_poll_s=0.005, drivers=[drv]).engine
+    engine = engine_rig(
+        MotorParams(homing=homing),
+        axes=[AxisSpec()],
+        clock=bench.clock,
+        driver_poll_s=0.005,
+        drivers=[drv],
+    ).engine
 
     def monitor_tick() -> None:  # what the monitor thread does, in virtual time
         moving = engine.motors[0].active
@@ -644,8 +659,9 @@ def test_open_hardware_starts_configured_drivers_and_their_monitor(
     model = bench.chip("tmc2130", cs=1)
     fake_spidev_module(monkeypatch, bench.kernel)
     settings_ = TmcSettings(poll_ms=1.0)
-    hw = open_hardware("mock", spec_with(None, TmcSpec("/dev/spidev0.1", settings_)),
-                       MonotonicClock())
+    hw = open_hardware(
+        "mock", spec_with(None, TmcSpec("/dev/spidev0.1", settings_)), MonotonicClock()
+    )
     try:
         drv = hw.steppers[1].driver
         assert isinstance(drv, TmcDriver) and drv.name == "m1"
@@ -741,7 +757,12 @@ def test_config_section_maps_to_the_driver_spec() -> None:
     assert spec.spi == "/dev/spidev1.2" and spec.ramp and spec.ref_left_active_low
     s = spec.settings
     assert (s.chip, s.run_current, s.hold_current, s.microsteps, s.stall_threshold) == (
-        "tmc5160", 1.5, 0.5, 32, -4)
+        "tmc5160",
+        1.5,
+        0.5,
+        32,
+        -4,
+    )
     axes = hardware_spec(config).axes
     assert axes[0].driver == spec and axes[0].name == "x" and axes[1].driver is None
 
@@ -754,8 +775,10 @@ def test_config_section_maps_to_the_driver_spec() -> None:
         ("run_current = 5.0\n", "above the 1.74 A a TMC2130 gives with a 0.11 ohm"),
         ('spi = "/dev/spi0"\n', "/dev/spidevB.C"),
         ("hold_current = 2.0\n", "hold_current"),
-        ('driver = "tmc5160"\nmode = "ramp"\n[motors.homing]\nsource = "stall"\n',
-         "stall_min_speed > 0"),
+        (
+            'driver = "tmc5160"\nmode = "ramp"\n[motors.homing]\nsource = "stall"\n',
+            "stall_min_speed > 0",
+        ),
     ],
 )
 def test_config_section_refuses_what_cannot_work(body: str, expected: str) -> None:

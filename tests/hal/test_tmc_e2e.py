@@ -98,16 +98,16 @@ def test_a_driver_fault_answers_e4_until_it_clears(daemon: DaemonProcess, fake_s
         c.wait_moved(0, timeout_ms=10_000)
     drivers = daemon.status()["drivers"]
     assert [(d["chip"], d["device"]) for d in drivers] == [
-        ("TMC2130", "/dev/spidev0.0"), ("TMC5160", "/dev/spidev0.1"),
-        ("TMC5160", "/dev/spidev0.2")]
+        ("TMC2130", "/dev/spidev0.0"),
+        ("TMC5160", "/dev/spidev0.1"),
+        ("TMC5160", "/dev/spidev0.2"),
+    ]
     assert drivers[0]["polls"] > 0 and drivers[0]["fault_counts"]["over-temperature (ot)"] == 1
     assert drivers[0]["spi_status_counts"]["reset_flag"] == 1  # the power-up reset, cleared
     assert daemon.terminate() == 0
 
 
-def test_a_wrong_chip_stops_the_daemon_with_a_clear_message(
-    tmp_path: Path, fake_spi: Path
-) -> None:
+def test_a_wrong_chip_stops_the_daemon_with_a_clear_message(tmp_path: Path, fake_spi: Path) -> None:
     wrong = CONFIG.replace('driver = "tmc2130"', 'driver = "tmc5160"', 1)
     with pytest.raises(RuntimeError) as e:
         DaemonProcess(tmp_path, wrong).start()

@@ -685,8 +685,9 @@ def test_rotary_moves_in_the_given_direction() -> None:
 
 
 def test_rotary_position_stays_in_range_while_moving() -> None:
-    rig = engine_rig(MotorParams(steps_per_rev=100),
-               axes=[mock_axis(endstop_min=-10**6, endstop_max=10**6)])
+    rig = engine_rig(
+        MotorParams(steps_per_rev=100), axes=[mock_axis(endstop_min=-(10**6), endstop_max=10**6)]
+    )
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
     seen = set()
@@ -901,8 +902,10 @@ def test_latency_overflow_early_and_reset() -> None:
 
 
 @settings(max_examples=60, deadline=None)
-@given(st.lists(st.one_of(st.integers(-50, 3_000), st.integers(0, 25_000)), min_size=1,
-                max_size=400), st.booleans())
+@given(
+    st.lists(st.one_of(st.integers(-50, 3_000), st.integers(0, 25_000)), min_size=1, max_size=400),
+    st.booleans(),
+)
 def test_latency_blocks_agree_with_a_full_scan(lateness_us: list[int], shared: bool) -> None:
     """The status reads the histogram and percentiles through the block counts (a cost of
     the busy blocks, not 20,001 bins): the same answers as a scan of every bin."""
@@ -979,8 +982,13 @@ def test_deadlines() -> None:
 moves = st.lists(
     st.tuples(
         st.integers(min_value=-400, max_value=400),
-        st.sampled_from([Ramp(3000.0, 30000.0, 30000.0), Ramp(1000.0, 50000.0, 8000.0),
-                         Ramp(5000.0, 8000.0, 100000.0)]),
+        st.sampled_from(
+            [
+                Ramp(3000.0, 30000.0, 30000.0),
+                Ramp(1000.0, 50000.0, 8000.0),
+                Ramp(5000.0, 8000.0, 100000.0),
+            ]
+        ),
     ),
     min_size=1,
     max_size=5,
@@ -1066,8 +1074,9 @@ def test_random_run_changes_keep_counter_and_mechanics_together(
 )
 def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
     spr = 97
-    rig = engine_rig(MotorParams(steps_per_rev=spr),
-               axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(
+        MotorParams(steps_per_rev=spr), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)]
+    )
     expected = 0
     pos = 0
     for target, direction in queue:
@@ -1128,12 +1137,17 @@ def test_run_replanned_with_a_lower_dec_still_stops_at_the_soft_limit(
         assert rig.m.position == 3000 * direction
 
 
-RAMPS = [Ramp(3000.0, 30000.0, 30000.0), Ramp(800.0, 4000.0, 1500.0),
-         Ramp(5000.0, 8000.0, 100000.0), Ramp(2000.0, 100000.0, 3000.0)]
+RAMPS = [
+    Ramp(3000.0, 30000.0, 30000.0),
+    Ramp(800.0, 4000.0, 1500.0),
+    Ramp(5000.0, 8000.0, 100000.0),
+    Ramp(2000.0, 100000.0, 3000.0),
+]
 actions = st.lists(
     st.one_of(
-        st.tuples(st.just("move"), st.integers(min_value=-1000, max_value=1000),
-                  st.sampled_from(RAMPS)),
+        st.tuples(
+            st.just("move"), st.integers(min_value=-1000, max_value=1000), st.sampled_from(RAMPS)
+        ),
         st.tuples(st.just("run"), st.sampled_from([1, -1]), st.sampled_from(RAMPS)),
         st.tuples(st.just("stop"), st.booleans(), st.just(RAMPS[0])),
     ),
@@ -1198,8 +1212,9 @@ def test_a_fault_on_one_motor_leaves_the_other_alone() -> None:
 
 
 def test_rotary_run_wraps_and_agrees_with_the_mechanics() -> None:
-    rig = engine_rig(MotorParams(steps_per_rev=50),
-               axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)])
+    rig = engine_rig(
+        MotorParams(steps_per_rev=50), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)]
+    )
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.3)
     assert rig.stop(hard=True)

@@ -43,8 +43,9 @@ from tests.support.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, T
 
 K = ExecEventKind
 RAMP = Ramp(4000.0, 40_000.0, 40_000.0)
-SETTINGS = TmcSettings(chip="tmc5160", run_current=2.0, hold_current=1.0, microsteps=16,
-                       stall_min_speed=500.0)
+SETTINGS = TmcSettings(
+    chip="tmc5160", run_current=2.0, hold_current=1.0, microsteps=16, stall_min_speed=500.0
+)
 
 
 class RampRig:
@@ -58,8 +59,7 @@ class RampRig:
         self.chips: list[Tmc5160] = []
         for i in range(n):
             model = self.bench.chip("tmc5160", cs=i)
-            chip = Tmc5160(f"m{i}", self.bench.device(i, speed=1_000_000), SETTINGS,
-                           RefSwitches())
+            chip = Tmc5160(f"m{i}", self.bench.device(i, speed=1_000_000), SETTINGS, RefSwitches())
             chip.start()
             self.models.append(model)
             self.chips.append(chip)
@@ -274,9 +274,14 @@ def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
 
 def ramp_engine(homing: HomingParams | None = None) -> tuple[RampRig, MotionEngine]:
     rig = RampRig()
-    engine = engine_rig(MotorParams(homing=homing or HomingParams()), axes=[AxisSpec()],
-                        clock=rig.clock, driver_poll_s=0.005, drivers=rig.chips,
-                        executor=lambda hw, spec, params: rig.ex).engine
+    engine = engine_rig(
+        MotorParams(homing=homing or HomingParams()),
+        axes=[AxisSpec()],
+        clock=rig.clock,
+        driver_poll_s=0.005,
+        drivers=rig.chips,
+        executor=lambda hw, spec, params: rig.ex,
+    ).engine
     return rig, engine
 
 
@@ -453,6 +458,7 @@ def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
 
 
 # ------------------------------------------ units: a protocol step is one XACTUAL microstep
+
 
 @pytest.mark.parametrize(("microsteps", "mres"), [(16, 4), (256, 0)])
 def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(

@@ -31,8 +31,10 @@ def proc(
 ) -> Iterator[tuple[MotionEngine, ProcessStepExecutor, Path]]:
     clock = MonotonicClock()
     timeline = tmp_path / "timeline.jsonl"
-    spec = HardwareSpec(axes=(FAR, FAR), options={
-        "timeline_len": None, "executor_process": True, "timeline_file": str(timeline)})
+    spec = HardwareSpec(
+        axes=(FAR, FAR),
+        options={"timeline_len": None, "executor_process": True, "timeline_file": str(timeline)},
+    )
     hw = build(spec, clock)
     params = [MotorParams(max_speed=10_000.0)] * 2
     # tests run without real-time priority on a shared machine: the simulated motors' rule
@@ -60,12 +62,17 @@ def test_the_process_executor_moves_and_reports_positions(
 ) -> None:
     engine, ex, timeline = proc
     with engine.lock:
-        engine.motors[0].submit(MoveToCmd(400, Ramp(4000.0, 40_000.0, 40_000.0)),
-                                engine.clock.now())
-        engine.motors[1].submit(MoveToCmd(-250, Ramp(3000.0, 40_000.0, 40_000.0)),
-                                engine.clock.now())
-    until("both motors idle", lambda: all(m.idle for m in engine.motors) and not any(
-        ex.planned(i) for i in range(2)), detail=faults(engine))
+        engine.motors[0].submit(
+            MoveToCmd(400, Ramp(4000.0, 40_000.0, 40_000.0)), engine.clock.now()
+        )
+        engine.motors[1].submit(
+            MoveToCmd(-250, Ramp(3000.0, 40_000.0, 40_000.0)), engine.clock.now()
+        )
+    until(
+        "both motors idle",
+        lambda: all(m.idle for m in engine.motors) and not any(ex.planned(i) for i in range(2)),
+        detail=faults(engine),
+    )
     assert [m.position for m in engine.motors] == [400, -250]
     world = world_of(engine.hw)
     assert [a.position for a in world.axes] == [400, -250]  # the shared mechanics
@@ -103,8 +110,11 @@ def test_a_stopped_executor_does_not_burst_afterwards(
     engine, ex, timeline = proc
     with engine.lock:
         engine.motors[0].submit(RunCmd(1, Ramp(5000.0, 50_000.0, 50_000.0)), engine.clock.now())
-    until("cruise", lambda: ex.position(0) > 1000 or engine.motors[0].fault is not None,
-          detail=faults(engine))
+    until(
+        "cruise",
+        lambda: ex.position(0) > 1000 or engine.motors[0].fault is not None,
+        detail=faults(engine),
+    )
     ex.kill_for_test(signal.SIGSTOP)
     time.sleep(0.05)
     ex.kill_for_test(signal.SIGCONT)
@@ -127,8 +137,9 @@ def test_a_stopped_executor_slides_a_simulated_motor(
     with every step, no fault, and the status figures of the executor process show it."""
     engine, ex, timeline = proc
     with engine.lock:
-        engine.motors[0].submit(MoveToCmd(4000, Ramp(5000.0, 50_000.0, 50_000.0)),
-                                engine.clock.now())
+        engine.motors[0].submit(
+            MoveToCmd(4000, Ramp(5000.0, 50_000.0, 50_000.0)), engine.clock.now()
+        )
     until("cruise", lambda: ex.position(0) > 1000, detail=faults(engine))
     ex.kill_for_test(signal.SIGSTOP)
     time.sleep(0.05)
@@ -153,5 +164,4 @@ def test_the_process_executor_needs_a_real_clock() -> None:
     clock = VirtualClock()
     spec = HardwareSpec(axes=(FAR,))
     with pytest.raises(ValueError, match="real clock"):
-        ProcessStepExecutor(build(spec, clock), "mock", spec,
-                            [AxisLimits(1e-5)])
+        ProcessStepExecutor(build(spec, clock), "mock", spec, [AxisLimits(1e-5)])

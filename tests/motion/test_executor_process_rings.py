@@ -369,8 +369,7 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
     b = Ring(shm.buf, ring_size(_SEG, 16), _EVENT, 8)
     ctx = multiprocessing.get_context("spawn")
     deadline = time.monotonic() + DEADLINE_S
-    child = ctx.Process(target=_echo_child, args=(shm.name, count, seed, deadline),
-                        daemon=True)
+    child = ctx.Process(target=_echo_child, args=(shm.name, count, seed, deadline), daemon=True)
     rng = random.Random(seed)
     sent = received = 0
     full = 0
@@ -378,9 +377,11 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
         child.start()
         while received < count:
             if time.monotonic() > deadline:
-                pytest.fail(f"seed {seed}: only {received} of {count} records came back "
-                            f"within {DEADLINE_S:.0f} s ({sent} sent, child alive: "
-                            f"{child.is_alive()}, exit code {child.exitcode})")
+                pytest.fail(
+                    f"seed {seed}: only {received} of {count} records came back "
+                    f"within {DEADLINE_S:.0f} s ({sent} sent, child alive: "
+                    f"{child.is_alive()}, exit code {child.exitcode})"
+                )
             for _ in range(rng.randint(1, 24)):  # bursts larger than the ring
                 if sent == count:
                     break
@@ -397,8 +398,10 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
             if rng.random() < 0.001:
                 time.sleep(rng.random() * 0.002)  # a preempted producer
             if not child.is_alive() and not b.pending():
-                pytest.fail(f"seed {seed}: the child ended (exit code {child.exitcode}) "
-                            f"with {received} of {count} records back")
+                pytest.fail(
+                    f"seed {seed}: the child ended (exit code {child.exitcode}) "
+                    f"with {received} of {count} records back"
+                )
         child.join(DEADLINE_S)
         assert child.exitcode == 0
         assert b.get() is None and not a.pending()
@@ -413,17 +416,15 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
         shm.unlink()
 
 
-
 # ---------------------------------------------------------------- the start handshake
 
 
-def _executor(
-    backend: str, start_timeout_s: float = 30.0
-) -> tuple[Hardware, ProcessStepExecutor]:
+def _executor(backend: str, start_timeout_s: float = 30.0) -> tuple[Hardware, ProcessStepExecutor]:
     spec = HardwareSpec(axes=(AxisSpec(),))
     hw = build(spec, MonotonicClock())
-    return hw, ProcessStepExecutor(hw, backend, spec, [AxisLimits(1e-4)],
-                                   start_timeout_s=start_timeout_s)
+    return hw, ProcessStepExecutor(
+        hw, backend, spec, [AxisLimits(1e-4)], start_timeout_s=start_timeout_s
+    )
 
 
 def test_start_reads_ready_after_the_childs_byte_and_sees_its_end_stop_map() -> None:
@@ -490,8 +491,7 @@ def test_the_shared_block_sums_retries_by_direction() -> None:
                 _show(ring, 0, bytes(ring.slot))  # announced, nothing written yet
                 for _ in range(torn):
                     assert ring.get() is None
-            assert shared.ring_retries() == {"ring_retries_segments": 3,
-                                             "ring_retries_reports": 4}
+            assert shared.ring_retries() == {"ring_retries_segments": 3, "ring_retries_reports": 4}
         finally:
             shared.release()
     finally:
@@ -515,8 +515,7 @@ def test_retries_of_both_directions_are_in_the_process_executors_health() -> Non
         whole = _slot_of(stops, index, (0, 5, -1))
         _show(stops, index, whole[:8] + old[8:])
         ex._kick()
-        until("the executor's retry",
-              lambda: ex.health().counters["ring_retries_segments"] >= 1)
+        until("the executor's retry", lambda: ex.health().counters["ring_retries_segments"] >= 1)
         assert stops.cells[1] == index  # not taken torn
         stops.buf[at : at + stops.slot] = whole
         ex._kick()
@@ -539,8 +538,7 @@ def test_retries_of_both_directions_are_in_the_process_executors_health() -> Non
         assert ex.events() == [] and ex.events() == []
         assert ex.health().counters["ring_retries_reports"] == 2
         events.buf[at : at + events.slot] = whole
-        assert [(e.kind, e.motor, e.gen) for e in ex.events()] == [
-            (ExecEventKind.STOPPED, 0, 9)]
+        assert [(e.kind, e.motor, e.gen) for e in ex.events()] == [(ExecEventKind.STOPPED, 0, 9)]
         assert ex.health().counters["ring_retries_reports"] == 2
     finally:
         ex.close()

@@ -39,9 +39,15 @@ FAST = Ramp(4000.0, 40000.0, 40000.0)
 def live(request: pytest.FixtureRequest) -> Iterator[EngineRig]:
     params: MotorParams = getattr(request, "param", MotorParams())
     # the mock's own rule (simulated motors: late steps slide), as the embedded default's
-    rig = engine_rig(params, axes=[mock_axis(endstop_min=-5000, endstop_max=5000)], dc=True,
-                     clock=MonotonicClock(), max_error_s=5e-6, lag_faults=None,
-                     driver_poll_s=0.005)
+    rig = engine_rig(
+        params,
+        axes=[mock_axis(endstop_min=-5000, endstop_max=5000)],
+        dc=True,
+        clock=MonotonicClock(),
+        max_error_s=5e-6,
+        lag_faults=None,
+        driver_poll_s=0.005,
+    )
     rig.start()
     try:
         yield rig
@@ -161,8 +167,13 @@ def engine_rig_1(
 ) -> tuple[VirtualClock, MotionEngine, ThreadStepExecutor]:
     """One motor on a virtual clock; ``ahead_s`` None: one step ahead (re-plans at once)."""
     clock = VirtualClock()
-    rig = engine_rig(MotorParams(max_speed=10_000.0, start_speed=start_speed), axes=[FAR],
-                     clock=clock, lag_faults=lag_faults, ahead_s=ahead_s)
+    rig = engine_rig(
+        MotorParams(max_speed=10_000.0, start_speed=start_speed),
+        axes=[FAR],
+        clock=clock,
+        lag_faults=lag_faults,
+        ahead_s=ahead_s,
+    )
     return clock, rig.engine, rig.executor
 
 
@@ -219,7 +230,8 @@ def test_a_slid_move_ends_at_its_target_later_by_the_stall(
     assert 49.7 <= timing["slid_ms"] <= 50.0
     assert timing["worst_late_us"] == pytest.approx(timing["slid_ms"] * 1000, abs=0.1)
     assert timing["worst_lag_full_steps"] == pytest.approx(
-        timing["slid_ms"] / 1000 * 5000 / 16, rel=1e-3)
+        timing["slid_ms"] / 1000 * 5000 / 16, rel=1e-3
+    )
     # the same move without the stall: the same gaps, but one longer by the slide
     _, engine2, _, t2 = _move_with_a_stall(start_speed, lag_faults, 0.0, ahead_s)
     plain = world_of(engine2.hw).timeline.step_times(0)

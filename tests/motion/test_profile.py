@@ -33,6 +33,7 @@ def limits(draw: st.DrawFn) -> tuple[float, float, float]:
     dec = vmax * vmax / (2 * draw(st.floats(min_value=0.05, max_value=300.0)))
     return vmax, acc, dec
 
+
 distances = st.integers(min_value=-600, max_value=600)
 Step = tuple[float, int, int]  # time, direction, counter after the step
 

@@ -34,8 +34,9 @@ ERR = 5000  # ticks (5 us)
 SPAN = 2_000_000  # ticks (2 ms)
 
 
-def cut_all(traj: Trajectory, counter: int, step_s: float = 0.02,
-            err: int = ERR, span: int = SPAN) -> list[StepSegment]:
+def cut_all(
+    traj: Trajectory, counter: int, step_s: float = 0.02, err: int = ERR, span: int = SPAN
+) -> list[StepSegment]:
     cutter = SegmentCutter(traj.segments, counter, err, span)
     out: list[StepSegment] = []
     h = traj.start_time
@@ -108,8 +109,14 @@ class GenericCutter(SegmentCutter):
     span=st.sampled_from([SPAN, 50_000, 10**9]),
 )
 def test_the_cruise_loop_makes_the_very_segments_of_the_generic_path(
-    distance: int, speed: float, acc: float, s0: float, v0_frac: float, run: bool,
-    step_s: float, span: int,
+    distance: int,
+    speed: float,
+    acc: float,
+    s0: float,
+    v0_frac: float,
+    run: bool,
+    step_s: float,
+    span: int,
 ) -> None:
     """Bit for bit, boundaries included: the loop is only a cheaper way to the same runs.
 
@@ -118,10 +125,15 @@ def test_the_cruise_loop_makes_the_very_segments_of_the_generic_path(
     to 200,000 step/s, took minutes of the generic path for nothing new (about two thirds
     of the moves drawn still end within the bounds)."""
     v0 = v0_frac * min(speed, braking_speed(acc))
-    traj = (plan_run(2000.5, s0, v0, math.copysign(speed, distance or 1), acc, acc) if run
-            else plan_move_to(2000.5, s0, v0, float(distance), speed, acc, acc))
-    fast, slow = SegmentCutter(traj.segments, 0, ERR, span), GenericCutter(traj.segments, 0,
-                                                                          ERR, span)
+    traj = (
+        plan_run(2000.5, s0, v0, math.copysign(speed, distance or 1), acc, acc)
+        if run
+        else plan_move_to(2000.5, s0, v0, float(distance), speed, acc, acc)
+    )
+    fast, slow = (
+        SegmentCutter(traj.segments, 0, ERR, span),
+        GenericCutter(traj.segments, 0, ERR, span),
+    )
     h = traj.start_time
     segments = 0
     for _ in range(CUTS):
@@ -148,9 +160,11 @@ def test_random_moves_runs_and_horizons_agree_with_the_profile() -> None:
         speed = rng.choice([200.0, 5000.0, 30_000.0])
         acc = rng.choice([2000.0, 100_000.0, 1e6])
         t0 = 5000.0 + rng.random()
-        traj = (plan_move_to(t0, 0.0, 0.0, float(rng.randint(-8000, 8000)), speed, acc,
-                             acc) if rng.random() < 0.7 else
-                plan_run(t0, 0.0, 0.0, speed, acc, acc, float(rng.randint(1, 8000))))
+        traj = (
+            plan_move_to(t0, 0.0, 0.0, float(rng.randint(-8000, 8000)), speed, acc, acc)
+            if rng.random() < 0.7
+            else plan_run(t0, 0.0, 0.0, speed, acc, acc, float(rng.randint(1, 8000)))
+        )
         check_against_steps(traj, 0, step_s=rng.choice([0.0, 0.003, 0.05]))
 
 
@@ -159,8 +173,15 @@ def test_a_fast_cruise_costs_a_segment_per_span_and_a_ramp_a_few_dozen() -> None
     segs = check_against_steps(traj, 0, step_s=0.05)
     steps = sum(s.count for s in segs)
     assert steps == 60_000
-    assert all(s.count == 1 or s.first + (s.count - 1) * s.interval
-               + s.add * (s.count - 1) * (s.count - 2) // 2 - s.first <= SPAN for s in segs)
+    assert all(
+        s.count == 1
+        or s.first
+        + (s.count - 1) * s.interval
+        + s.add * (s.count - 1) * (s.count - 2) // 2
+        - s.first
+        <= SPAN
+        for s in segs
+    )
     # 2 s at 30,000 step/s: about one segment per 2 ms span, plus the two ramps
     assert len(segs) < 2.0 / 0.002 + 200
     cruise = [s for s in segs if s.add == 0 and s.count > 50]
@@ -192,8 +213,14 @@ def test_a_plan_that_makes_no_step_is_done_at_once() -> None:
 def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepExecutor]:
     """A thread executor on a virtual clock that plans ``ahead_s`` ahead, as on a real clock."""
     clock = VirtualClock()
-    r = engine_rig(MotorParams(max_speed=10_000.0), axes=[FAR], clock=clock, max_error_s=5e-6,
-                   ahead_s=ahead_s, lead_s=0.002)
+    r = engine_rig(
+        MotorParams(max_speed=10_000.0),
+        axes=[FAR],
+        clock=clock,
+        max_error_s=5e-6,
+        ahead_s=ahead_s,
+        lead_s=0.002,
+    )
     return clock, r.engine, r.executor
 
 
@@ -243,8 +270,7 @@ def test_a_new_speed_while_running_takes_over_soon_and_keeps_the_step_count_exac
         m.submit(RunCmd(1, Ramp(8000.0, 1e6, 1e6)), clock.now())
     engine.run_until(clock.now() + 0.2)
     times = step_times(engine)
-    faster = next(b for a, b in itertools.pairwise(times)
-                  if b > t_cmd and b - a < 1 / 2000 - 1e-5)
+    faster = next(b for a, b in itertools.pairwise(times) if b > t_cmd and b - a < 1 / 2000 - 1e-5)
     assert faster - t_cmd <= 0.002 + 0.002 + 1 / 2000
     assert ex.position(0) == len(times)  # no step lost or made twice at the cut
     with engine.lock:
@@ -277,8 +303,12 @@ def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twi
     c = StepCoreRig()
     t0 = c.clock.now()
     first = to_ticks(t0 + 0.001)
-    c.inbox.queues[0].extend([StepSegment(first, 200_000, 5, 0, 1, 1),
-                              StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1)])
+    c.inbox.queues[0].extend(
+        [
+            StepSegment(first, 200_000, 5, 0, 1, 1),
+            StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1),
+        ]
+    )
     c.run_until(t0 + 0.0021)  # the second segment began (its first step made)
     assert len(c.times()) == 6
     c.inbox.stops.append((0, 1, first + 1_000_000))
@@ -291,8 +321,12 @@ def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows() -> No
     c = StepCoreRig()
     t0 = c.clock.now()
     first = to_ticks(t0 + 0.001)
-    c.inbox.queues[0].extend([StepSegment(first, 200_000, 5, 0, 1, 1),
-                              StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1, True)])
+    c.inbox.queues[0].extend(
+        [
+            StepSegment(first, 200_000, 5, 0, 1, 1),
+            StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1, True),
+        ]
+    )
     c.run_until(t0 + 0.0005)
     c.inbox.stops.append((0, 1, first + 1_000_000))
     c.inbox.queues[0].append(StepSegment(first + 1_000_000, 400_000, 3, 0, -1, 2, True))
@@ -313,9 +347,13 @@ def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_pla
     c.inbox.stops.append((0, 1, base + 2 * ms))  # plan 1 cut at 2 ms
     c.run_until(t0 + 0.0006)
     # still arriving: plan 1's step at 2.5 ms (cut), then plan 2 from 2 ms
-    c.inbox.queues[0].extend([StepSegment(base + 5 * ms // 2, 0, 1, 0, 1, 1),
-                              StepSegment(base + 2 * ms, 0, 1, 0, 1, 2),
-                              StepSegment(base + 3 * ms, 0, 1, 0, 1, 2, True)])
+    c.inbox.queues[0].extend(
+        [
+            StepSegment(base + 5 * ms // 2, 0, 1, 0, 1, 1),
+            StepSegment(base + 2 * ms, 0, 1, 0, 1, 2),
+            StepSegment(base + 3 * ms, 0, 1, 0, 1, 2, True),
+        ]
+    )
     c.inbox.stops.append((0, 2, base + 3 * ms))  # plan 2 cut at 3 ms, before any of them
     c.inbox.queues[0].append(StepSegment(base + 3 * ms, 0, 1, 0, -1, 3, True))
     c.run_until(t0 + 0.01)

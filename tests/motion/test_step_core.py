@@ -2,7 +2,6 @@
 rules (a lag beyond the tolerance stops the motor; within it, or at the start speed, or on a
 simulated motor, late steps slide), hard stops and shared pulses."""
 
-
 from __future__ import annotations
 
 import itertools
@@ -175,8 +174,7 @@ def test_two_motors_due_on_the_same_tick_share_one_pulse_call() -> None:
     assert calls == [[0, 1]] * 5
 
 
-def test_a_step_planned_within_the_coalesce_window_shares_the_pulse_but_never_the_spacing(
-) -> None:
+def test_a_step_planned_within_the_coalesce_window_shares_the_pulse_but_never_the_spacing() -> None:
     c = StepCoreRig(motors=2, max_speed=1000.0)  # min interval 1 ms
     c.core.coalesce = to_ticks(5e-6)
     calls = c.pulse_calls()

@@ -27,7 +27,8 @@ def test_changelog_version_is_the_package_version() -> None:
     assert m, first
     assert m.group(1) == __version__, (
         f"debian/changelog says {m.group(1)}, motorctl/__init__.py {__version__}: "
-        "add a changelog entry (dch -v VERSION-1)")
+        "add a changelog entry (dch -v VERSION-1)"
+    )
 
 
 @pytest.mark.skipif(shutil.which("patch") is None, reason="patch is not installed")
@@ -35,8 +36,13 @@ def test_setuptools_patch_applies_to_pyproject(tmp_path: Path) -> None:
     """The package build patches pyproject.toml for Debian 12's setuptools 66."""
     shutil.copy(ROOT / "pyproject.toml", tmp_path / "pyproject.toml")
     for name in (DEBIAN / "patches" / "series").read_text().split():
-        out = subprocess.run(["patch", "-p1", "--fuzz=0", "-i", str(DEBIAN / "patches" / name)],
-                             cwd=tmp_path, capture_output=True, text=True, timeout=30)
+        out = subprocess.run(
+            ["patch", "-p1", "--fuzz=0", "-i", str(DEBIAN / "patches" / name)],
+            cwd=tmp_path,
+            capture_output=True,
+            text=True,
+            timeout=30,
+        )
         assert out.returncode == 0, f"{name} no longer applies: {out.stdout}{out.stderr}"
     text = (tmp_path / "pyproject.toml").read_text()
     assert 'license = { text = "MIT" }' in text and "license-files" not in text
@@ -107,16 +113,23 @@ def test_build_depends_has_what_the_build_imports() -> None:
     deps = build_depends()
     for module, arg in BUILD_RUNS:
         assert module in rules, f"debian/rules no longer runs {module}: update BUILD_RUNS"
-        out = subprocess.run([sys.executable, "-c", IMPORTED, module, arg], capture_output=True,
-                             text=True, timeout=60, cwd=ROOT)
+        out = subprocess.run(
+            [sys.executable, "-c", IMPORTED, module, arg],
+            capture_output=True,
+            text=True,
+            timeout=60,
+            cwd=ROOT,
+        )
         imported = out.stderr.strip().splitlines()[-1].split() if out.stderr.strip() else []
         for top in imported:
             assert top in DEBIAN_PACKAGE_OF, (
                 f"{module} {arg} imports {top!r}: add its Debian package to DEBIAN_PACKAGE_OF "
-                "and to Build-Depends")
+                "and to Build-Depends"
+            )
             assert DEBIAN_PACKAGE_OF[top] in deps, (
                 f"{module} {arg} imports {top!r} at build time (debian/rules runs it): "
-                f"add {DEBIAN_PACKAGE_OF[top]} to Build-Depends in debian/control")
+                f"add {DEBIAN_PACKAGE_OF[top]} to Build-Depends in debian/control"
+            )
 
 
 def test_build_depends_parsed() -> None:
@@ -126,8 +139,10 @@ def test_build_depends_parsed() -> None:
 
 def test_the_template_is_installed_and_its_instances_are_restarted_and_stopped() -> None:
     rules = (DEBIAN / "rules").read_text()
-    assert ("install -D -m 0644 systemd/motorctld@.service "
-            "debian/motorctl/lib/systemd/system/motorctld@.service") in rules
+    assert (
+        "install -D -m 0644 systemd/motorctld@.service "
+        "debian/motorctl/lib/systemd/system/motorctld@.service"
+    ) in rules
     # dh_installsystemd --name=motorctld handles the single unit only: a template has no
     # instance to enable, so the maintainer scripts look after the ones the admin made
     assert "dh_installsystemd --name=motorctld" in rules

@@ -45,10 +45,15 @@ class Tier:
     home: Path
     log: Path
 
-    def run(self, *args: str, env: dict[str, str | None] | None = None,
-            as_nobody: bool = False) -> subprocess.CompletedProcess[str]:
-        base = {"PATH": f"{Path(sys.executable).parent}:/usr/sbin:/usr/bin:/sbin:/bin",
-                "HOME": str(self.home), "FAKE_LOG": str(self.log), "LANG": "C.UTF-8"}
+    def run(
+        self, *args: str, env: dict[str, str | None] | None = None, as_nobody: bool = False
+    ) -> subprocess.CompletedProcess[str]:
+        base = {
+            "PATH": f"{Path(sys.executable).parent}:/usr/sbin:/usr/bin:/sbin:/bin",
+            "HOME": str(self.home),
+            "FAKE_LOG": str(self.log),
+            "LANG": "C.UTF-8",
+        }
         for key, value in (env or {}).items():
             if value is None:
                 base.pop(key, None)
@@ -57,8 +62,9 @@ class Tier:
         cmd = [str(self.repo / "hwtest" / "run"), *args]
         if as_nobody:
             cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
-        return subprocess.run(cmd, env=base, capture_output=True, text=True, timeout=TIMEOUT_S,
-                              cwd="/")
+        return subprocess.run(
+            cmd, env=base, capture_output=True, text=True, timeout=TIMEOUT_S, cwd="/"
+        )
 
     def builds(self) -> int:
         return self.log.read_text().split().count("build") if self.log.exists() else 0
@@ -124,8 +130,13 @@ def test_a_relative_xdg_cache_home_is_ignored(tier: Tier) -> None:
 
 def test_motorctl_gsim_cache_wins(tier: Tier) -> None:
     mine = tier.home.parent / "mine" / "vm"
-    out = tier.run("v2", env={"MOTORCTL_GSIM_CACHE": str(mine) + "/",
-                              "XDG_CACHE_HOME": str(tier.home.parent / "xdg")})
+    out = tier.run(
+        "v2",
+        env={
+            "MOTORCTL_GSIM_CACHE": str(mine) + "/",
+            "XDG_CACHE_HOME": str(tier.home.parent / "xdg"),
+        },
+    )
     assert out.returncode == 0, out.stderr
     assert (mine / "STAMP").is_file() and (mine.parent / "vm.build.log").is_file()
     assert not (tier.home.parent / "xdg").exists()
@@ -161,8 +172,9 @@ def test_building_needs_root_and_says_how(tier: Tier) -> None:
     if os.geteuid() == 0:
         if shutil.which("setpriv") is None:
             pytest.skip("needs setpriv to become an unprivileged user")
-        out = tier.run("v2", as_nobody=True,
-                       env={"HOME": None, "MOTORCTL_GSIM_CACHE": str(tier.home / "c")})
+        out = tier.run(
+            "v2", as_nobody=True, env={"HOME": None, "MOTORCTL_GSIM_CACHE": str(tier.home / "c")}
+        )
     else:
         out = tier.run("v2", env={"MOTORCTL_GSIM_CACHE": str(tier.home / "c")})
     assert out.returncode == 2
@@ -174,8 +186,9 @@ def test_building_needs_root_and_says_how(tier: Tier) -> None:
 def test_a_guest_whose_tests_all_skip_fails(tier: Tier) -> None:
     """The guest's command, run here where there is no gpio-sim chip: every hardware test
     skips itself, and the tier must fail rather than report '0 passed, N skipped'."""
-    out = tier.run("v2", "--ignore=tests/contract", "-k", "test_backend",
-                   env={"FAKE_GUEST": str(ROOT)})
+    out = tier.run(
+        "v2", "--ignore=tests/contract", "-k", "test_backend", env={"FAKE_GUEST": str(ROOT)}
+    )
     assert out.returncode == 1, out.stdout[-3000:] + out.stderr[-3000:]
     assert f"{PREFIX}: needs gpio-sim (make test-hw)" in out.stdout
     assert " 0 passed" not in out.stdout and " passed" not in out.stdout.splitlines()[-2]

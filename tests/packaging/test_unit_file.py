@@ -26,8 +26,10 @@ UNIT = ROOT / "systemd" / "motorctld.service"
 TEMPLATE = ROOT / "systemd" / "motorctld@.service"
 MAX_EXPOSURE = 2.0
 #: each unit with the name it is checked under (a template as one of its instances)
-UNITS = [pytest.param(UNIT, "motorctld.service", id="single"),
-         pytest.param(TEMPLATE, "motorctld@left.service", id="template")]
+UNITS = [
+    pytest.param(UNIT, "motorctld.service", id="single"),
+    pytest.param(TEMPLATE, "motorctld@left.service", id="template"),
+]
 
 analyze = shutil.which("systemd-analyze")
 needs_analyze = pytest.mark.skipif(analyze is None, reason="systemd-analyze is not installed")
@@ -75,8 +77,12 @@ def test_the_template_is_exposed_no_more_than_the_single_unit(tmp_path: Path) ->
 def test_verify_clean(unit: Path, name: str, tmp_path: Path) -> None:
     root = installed_root(tmp_path, unit)
     assert analyze is not None
-    out = subprocess.run([analyze, "verify", f"--root={root}", f"lib/systemd/system/{name}"],
-                         capture_output=True, text=True, timeout=60)
+    out = subprocess.run(
+        [analyze, "verify", f"--root={root}", f"lib/systemd/system/{name}"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert out.returncode == 0 and not out.stderr.strip(), out.stderr
 
 
@@ -85,10 +91,17 @@ def test_unit_needs_no_group_that_debian_lacks(unit: Path, suffix: str) -> None:
     text = unit.read_text()
     assert "SupplementaryGroups" not in text  # groups come from sysusers.d membership
     assert "User=motorctl" in text and "/opt/" not in text
-    for line in ("NoNewPrivileges=yes", "ProtectSystem=strict", "PrivateNetwork=yes",
-                 "RestrictAddressFamilies=AF_UNIX", "DevicePolicy=closed", "CapabilityBoundingSet=",
-                 f"RuntimeDirectory=motorctl{suffix}", f"StateDirectory=motorctl{suffix}",
-                 "Type=notify"):
+    for line in (
+        "NoNewPrivileges=yes",
+        "ProtectSystem=strict",
+        "PrivateNetwork=yes",
+        "RestrictAddressFamilies=AF_UNIX",
+        "DevicePolicy=closed",
+        "CapabilityBoundingSet=",
+        f"RuntimeDirectory=motorctl{suffix}",
+        f"StateDirectory=motorctl{suffix}",
+        "Type=notify",
+    ):
         assert line in text.splitlines(), line
 
 
@@ -137,15 +150,28 @@ print(fifo, "|", lock)
 
 def probe_as_nobody(rtprio: str, memlock: str) -> tuple[int, str]:
     """Run the probe as an unprivileged user with no capabilities and these limits."""
-    cmd = ["prlimit", f"--rtprio={rtprio}", f"--memlock={memlock}", "setpriv",
-           "--reuid=65534", "--regid=65534", "--clear-groups", "--inh-caps=-all",
-           "--bounding-set=-all", sys.executable, "-c", RT_PROBE]
+    cmd = [
+        "prlimit",
+        f"--rtprio={rtprio}",
+        f"--memlock={memlock}",
+        "setpriv",
+        "--reuid=65534",
+        "--regid=65534",
+        "--clear-groups",
+        "--inh-caps=-all",
+        "--bounding-set=-all",
+        sys.executable,
+        "-c",
+        RT_PROBE,
+    ]
     out = subprocess.run(cmd, capture_output=True, text=True, timeout=60, cwd="/")
     return out.returncode, out.stdout.strip() + out.stderr.strip()
 
 
-needs_root = pytest.mark.skipif(os.geteuid() != 0 or shutil.which("setpriv") is None,
-                                reason="needs root and setpriv to become an unprivileged user")
+needs_root = pytest.mark.skipif(
+    os.geteuid() != 0 or shutil.which("setpriv") is None,
+    reason="needs root and setpriv to become an unprivileged user",
+)
 
 
 @needs_root

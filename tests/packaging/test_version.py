@@ -29,6 +29,9 @@ def test_version_is_a_release_number_and_the_installed_one() -> None:
     assert re.fullmatch(r"\d+\.\d+\.\d+", motorctl.__version__)
     out = subprocess.run(
         [sys.executable, "-c", "import importlib.metadata as m; print(m.version('motorctl'))"],
-        capture_output=True, text=True, timeout=60, check=True,
+        capture_output=True,
+        text=True,
+        timeout=60,
+        check=True,
     )
     assert out.stdout.strip() == motorctl.__version__

@@ -48,15 +48,19 @@ class Env:
     def __init__(self, tmp: Path) -> None:
         self.dir = tmp / "venv"
         self.cache = tmp / "pip-cache"
-        self.env = {**os.environ, "PIP_CACHE_DIR": str(self.cache),
-                    "PIP_DISABLE_PIP_VERSION_CHECK": "1"}
+        self.env = {
+            **os.environ,
+            "PIP_CACHE_DIR": str(self.cache),
+            "PIP_DISABLE_PIP_VERSION_CHECK": "1",
+        }
         self.env.pop("PYTHONPATH", None)
         run([sys.executable, "-m", "venv", "--without-pip", str(self.dir)], self.env, tmp)
         self.python = self.dir / "bin" / "python"
 
     def pip(self, *args: str) -> str:
-        return run([sys.executable, "-m", "pip", "--python", str(self.python), *args],
-                   self.env, self.dir)
+        return run(
+            [sys.executable, "-m", "pip", "--python", str(self.python), *args], self.env, self.dir
+        )
 
     def python_c(self, code: str) -> str:
         # Run from an empty directory so nothing of the checkout is importable by accident.
@@ -85,21 +89,40 @@ class Env:
             "reveal_type(load_config(None).motors[0].homing.source)\n",
             encoding="utf-8",
         )
-        out = run([sys.executable, "-m", "mypy", "--strict", "--python-executable",
-                   str(self.python), "--cache-dir", str(tmp / "mypy-cache"), "use.py"],
-                  self.env, user)
+        out = run(
+            [
+                sys.executable,
+                "-m",
+                "mypy",
+                "--strict",
+                "--python-executable",
+                str(self.python),
+                "--cache-dir",
+                str(tmp / "mypy-cache"),
+                "use.py",
+            ],
+            self.env,
+            user,
+        )
         assert 'Revealed type is "motorctl.motion.types.HomingSource"' in out, out
 
     def fails(self, code: str) -> str:
-        proc = subprocess.run([str(self.python), "-c", code], env=self.env, cwd=self.dir,
-                              capture_output=True, text=True, timeout=STEP_TIMEOUT_S)
+        proc = subprocess.run(
+            [str(self.python), "-c", code],
+            env=self.env,
+            cwd=self.dir,
+            capture_output=True,
+            text=True,
+            timeout=STEP_TIMEOUT_S,
+        )
         assert proc.returncode != 0, f"{code!r} should fail: {proc.stdout}"
         return proc.stderr
 
 
 def run(cmd: list[str], env: dict[str, str], cwd: Path) -> str:
-    proc = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True,
-                          timeout=STEP_TIMEOUT_S)
+    proc = subprocess.run(
+        cmd, env=env, cwd=cwd, capture_output=True, text=True, timeout=STEP_TIMEOUT_S
+    )
     assert proc.returncode == 0, f"{' '.join(cmd)} failed ({proc.returncode}):\n{proc.stderr}"
     return proc.stdout
 
@@ -107,12 +130,24 @@ def run(cmd: list[str], env: dict[str, str], cwd: Path) -> str:
 def build_wheel(tmp: Path, env: dict[str, str]) -> Path:
     """`pip wheel` of a clean copy of the checkout (an in-tree build would reuse build/)."""
     src = tmp / "src"
-    junk = shutil.ignore_patterns(".venv", ".git", "build", "*.egg-info", "__pycache__",
-                                  ".*_cache", ".hypothesis", ".run", "*.pty")
+    junk = shutil.ignore_patterns(
+        ".venv",
+        ".git",
+        "build",
+        "*.egg-info",
+        "__pycache__",
+        ".*_cache",
+        ".hypothesis",
+        ".run",
+        "*.pty",
+    )
     shutil.copytree(ROOT, src, symlinks=True, ignore=junk)
     out = tmp / "wheels"
-    run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(src)],
-        env, tmp)
+    run(
+        [sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", str(out), str(src)],
+        env,
+        tmp,
+    )
     (wheel,) = out.glob("motorctl-*.whl")
     return wheel
 

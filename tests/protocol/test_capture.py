@@ -48,10 +48,12 @@ def ans(r: Response) -> bytes:
 
 
 def test_round_trip_keeps_every_run_its_time_direction_and_drop_count() -> None:
-    records = [Record(1_700_000_000_123_456_789, IN, b"\x03" + bytes(8) + b"\x8b"),
-               Record(1_700_000_000_123_556_789, OUT, b"\x01\x01\x00\x00\x6b"),
-               Record(1_700_000_001_000_000_000, IN, b"\x07", dropped=3),
-               Record(1_700_000_001_000_000_001, OUT, b"")]
+    records = [
+        Record(1_700_000_000_123_456_789, IN, b"\x03" + bytes(8) + b"\x8b"),
+        Record(1_700_000_000_123_556_789, OUT, b"\x01\x01\x00\x00\x6b"),
+        Record(1_700_000_001_000_000_000, IN, b"\x07", dropped=3),
+        Record(1_700_000_001_000_000_001, OUT, b""),
+    ]
     cap = parse(encode(INFO, records))
     assert cap.info == INFO
     assert cap.records == records
@@ -91,8 +93,9 @@ def test_concatenated_files_read_as_one() -> None:
 
 def test_recorder_rotates_within_its_bounds_and_keeps_the_newest(tmp_path: Path) -> None:
     path = tmp_path / "t.pcapng"
-    rec = TraceRecorder(path, INFO, max_bytes=2000, files=3, clock_origin=0.0,
-                        wall_origin_ns=0, flush_s=3600)
+    rec = TraceRecorder(
+        path, INFO, max_bytes=2000, files=3, clock_origin=0.0, wall_origin_ns=0, flush_s=3600
+    )
     rec.open()
     for i in range(200):
         rec.received(bytes([i % 256]) * 10, i / 1000)
@@ -109,15 +112,25 @@ def test_recorder_rotates_within_its_bounds_and_keeps_the_newest(tmp_path: Path)
     assert times == sorted(times) and cap.problems == []
     # the newest runs are all there, up to the last one, without a hole
     assert times[-1] == round(0.199 * 1e9 + 0.0001 * 1e9)
-    expected = sorted([round(i / 1000 * 1e9) for i in range(200)]
-                      + [round((i / 1000 + 0.0001) * 1e9) for i in range(200)])
-    assert times == expected[-len(times):]
+    expected = sorted(
+        [round(i / 1000 * 1e9) for i in range(200)]
+        + [round((i / 1000 + 0.0001) * 1e9) for i in range(200)]
+    )
+    assert times == expected[-len(times) :]
 
 
 def test_recorder_memory_is_bounded_and_the_loss_is_written_down(tmp_path: Path) -> None:
     path = tmp_path / "t.pcapng"
-    rec = TraceRecorder(path, INFO, max_bytes=1 << 20, files=1, clock_origin=0.0,
-                        wall_origin_ns=0, flush_s=3600, buffer_limit=500)
+    rec = TraceRecorder(
+        path,
+        INFO,
+        max_bytes=1 << 20,
+        files=1,
+        clock_origin=0.0,
+        wall_origin_ns=0,
+        flush_s=3600,
+        buffer_limit=500,
+    )
     rec.open()
     for i in range(50):  # the writer never runs: the buffer fills
         rec.received(bytes(10), i / 1000)
@@ -156,7 +169,12 @@ def test_analysis_frames_as_the_daemon_does_and_pairs_answers_in_order() -> None
     assert kinds.count(GAP) == 1 and kinds.count(BAD_FRAME) == 1 and kinds.count(EXTRA) == 1
     assert len(conv.frames) == 5
     assert [f.answer.text if f.answer else None for f in conv.frames] == [
-        "#1 ready", "#2 ok", "#3 pos=100", "#4 pos=200", "#5 E1 Invalid Command"]
+        "#1 ready",
+        "#2 ok",
+        "#3 pos=100",
+        "#4 pos=200",
+        "#5 E1 Invalid Command",
+    ]
     assert conv.frames[3].answer is not None and conv.frames[3].answer.rtt_ns == 1 * MS
     assert conv.frames[3].t_ns == 133 * MS  # its last byte's run
 
@@ -192,11 +210,13 @@ def test_compare_tolerates_moving_positions_and_names_a_changed_answer() -> None
     rec = analyse(conversation()[:-1], INFO)
     tol = Tolerances(time_s=0.05, position=2)
     # speed around the reads: 100 steps in 103 ms, ~970 step/s: tolerance ~ 2 + 48
-    same = compare(rec, analyse(_replayed(130, 160, Response.error(ErrorCode.INVALID_COMMAND)),
-                                INFO), tol, 0)
+    same = compare(
+        rec, analyse(_replayed(130, 160, Response.error(ErrorCode.INVALID_COMMAND)), INFO), tol, 0
+    )
     assert [v.result for v in same] == ["exact", "exact", "tolerated", "tolerated", "exact"]
-    off = compare(rec, analyse(_replayed(300, 200, Response.error(ErrorCode.INVALID_ADDRESS)),
-                               INFO), tol, 0)
+    off = compare(
+        rec, analyse(_replayed(300, 200, Response.error(ErrorCode.INVALID_ADDRESS)), INFO), tol, 0
+    )
     assert [v.result for v in off] == ["exact", "exact", "differs", "exact", "differs"]
     assert "E2 Invalid Address" in off[4].replayed and "E1 Invalid Command" in off[4].recorded
     assert off[4].frame == 5
@@ -205,9 +225,11 @@ def test_compare_tolerates_moving_positions_and_names_a_changed_answer() -> None
 def test_compare_fast_accepts_any_position_the_motion_covers() -> None:
     rec = analyse(conversation()[:-1], INFO)
     tol = Tolerances(time_s=0.05, position=2, fast=True)
-    inside = compare(rec, analyse(_replayed(1000, 0, Response.error(
-        ErrorCode.INVALID_COMMAND)), INFO), tol, 0)
+    inside = compare(
+        rec, analyse(_replayed(1000, 0, Response.error(ErrorCode.INVALID_COMMAND)), INFO), tol, 0
+    )
     assert [v.result for v in inside][2:4] == ["tolerated", "tolerated"]
-    beyond = compare(rec, analyse(_replayed(1003, 0, Response.error(
-        ErrorCode.INVALID_COMMAND)), INFO), tol, 0)
+    beyond = compare(
+        rec, analyse(_replayed(1003, 0, Response.error(ErrorCode.INVALID_COMMAND)), INFO), tol, 0
+    )
     assert beyond[2].result == "differs"

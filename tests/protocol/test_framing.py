@@ -69,9 +69,7 @@ def test_split_reads_equal_whole(sc: tuple[bytes, list[int]], gap_s: float) -> N
 
 
 @given(stream_and_cuts(), st.lists(st.integers(0, 10), min_size=31, max_size=31))
-def test_silences_within_limit_equal_whole(
-    sc: tuple[bytes, list[int]], quiets: list[int]
-) -> None:
+def test_silences_within_limit_equal_whole(sc: tuple[bytes, list[int]], quiets: list[int]) -> None:
     # Integer silences are exact floats; a silence equal to gap_s is still within the limit.
     stream, cuts = sc
     expected = Framer(10.0).feed(stream)

@@ -52,13 +52,15 @@ def for_tests(text: str, force: bool = False) -> str:
     (``force``: even where it does, for the embedded default that writes every key out)."""
     lines = text.splitlines()
     try:
-        start = next(i for i, line in enumerate(lines)
-                     if line.split("#")[0].strip() == "[step_thread]")
+        start = next(
+            i for i, line in enumerate(lines) if line.split("#")[0].strip() == "[step_thread]"
+        )
     except StopIteration:
         extra = "\n".join(f"{k} = {v}" for k, v in TEST_STEP_THREAD.items())
         return f"{text}\n[step_thread]\n{extra}\n"
-    end = next((i for i in range(start + 1, len(lines)) if lines[i].lstrip().startswith("[")),
-               len(lines))
+    end = next(
+        (i for i in range(start + 1, len(lines)) if lines[i].lstrip().startswith("[")), len(lines)
+    )
     body = lines[start + 1 : end]
     if force:
         body = [line for line in body if line.split("=")[0].strip() not in TEST_STEP_THREAD]
@@ -73,10 +75,16 @@ class DaemonProcess:
     ``config_text``, the embedded default written out; ``as_user``: started as a user starts
     it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default)."""
 
-    def __init__(self, workdir: Path, config_text: str | None = None,
-                 state_dir: Path | None = None, extra: list[str] | None = None,
-                 env: dict[str, str] | None = None, port: str | None = None,
-                 as_user: bool = False) -> None:
+    def __init__(
+        self,
+        workdir: Path,
+        config_text: str | None = None,
+        state_dir: Path | None = None,
+        extra: list[str] | None = None,
+        env: dict[str, str] | None = None,
+        port: str | None = None,
+        as_user: bool = False,
+    ) -> None:
         self.workdir = workdir
         self.port = port  # serve this serial device (--port) instead of a PTY of its own
         self.pty = workdir / "motorctl.pty"
@@ -104,15 +112,23 @@ class DaemonProcess:
     def start(self) -> DaemonProcess:
         where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
         # the motorctld command's entry point (its executor process starts first)
-        cmd = [sys.executable, "-m", "motorctl.daemon.launch", *where,
-               "--state-dir", str(self.state_dir), "--log-level", "info", *self.extra]
+        cmd = [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.launch",
+            *where,
+            "--state-dir",
+            str(self.state_dir),
+            "--log-level",
+            "info",
+            *self.extra,
+        ]
         if self.config is not None:
             cmd += ["--config", str(self.config)]
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
         self._log_from = stderr.tell()
         env = {**os.environ, **self.env} if self.env is not None else None
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env,
-                                     cwd=REPO)
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env, cwd=REPO)
         stderr.close()
         assert self.proc.stdout is not None
         sel = selectors.DefaultSelector()
@@ -172,8 +188,10 @@ class DaemonProcess:
         with open(self.stderr_path, "rb") as f:
             f.seek(self._log_from)
             text = f.read().decode(errors="replace")
-        sys.stderr.write(f"---- motorctld (PID {self.proc.pid}) log, {self.stderr_path} "
-                         f"----\n{text}---- end of the motorctld log ----\n")
+        sys.stderr.write(
+            f"---- motorctld (PID {self.proc.pid}) log, {self.stderr_path} "
+            f"----\n{text}---- end of the motorctld log ----\n"
+        )
 
 
 def children_of(pid: int) -> list[int]:
@@ -194,8 +212,11 @@ def children_of(pid: int) -> list[int]:
 def memfd_labels(pid: int) -> set[str]:
     """The labels of the memfd blocks (``/memfd:LABEL``) process ``pid`` maps."""
     maps = Path(f"/proc/{pid}/maps").read_text()
-    return {line.split("/memfd:", 1)[1].split(" (deleted)")[0]
-            for line in maps.splitlines() if "/memfd:" in line}
+    return {
+        line.split("/memfd:", 1)[1].split(" (deleted)")[0]
+        for line in maps.splitlines()
+        if "/memfd:" in line
+    }
 
 
 def memfd_holders(labels: set[str]) -> list[int]:
@@ -207,9 +228,11 @@ def memfd_holders(labels: set[str]) -> list[int]:
         if not entry.name.isdigit():
             continue
         try:
-            held = any(line.split(None, 5)[-1] in wanted
-                       for line in (entry / "maps").read_text().splitlines()
-                       if "/memfd:" in line)
+            held = any(
+                line.split(None, 5)[-1] in wanted
+                for line in (entry / "maps").read_text().splitlines()
+                if "/memfd:" in line
+            )
             if not held:
                 held = any(os.readlink(fd) in wanted for fd in (entry / "fd").iterdir())
         except OSError:  # gone meanwhile, or not ours to read

@@ -65,8 +65,10 @@ def small_tmpfs(path: Path, size: str = "1m") -> Iterator[Path]:
     """A tmpfs of ``size`` mounted at ``path`` (made if missing) while inside the block; skips
     when mounting is not permitted (not root)."""
     path.mkdir(parents=True, exist_ok=True)
-    mount = subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs",
-                            str(path)], capture_output=True)
+    mount = subprocess.run(
+        ["mount", "-t", "tmpfs", "-o", f"size={size},mode=0755", "tmpfs", str(path)],
+        capture_output=True,
+    )
     if mount.returncode != 0:
         pytest.skip(f"cannot mount a tmpfs at {path}: {mount.stderr.decode().strip()}")
     try:

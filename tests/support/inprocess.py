@@ -65,7 +65,7 @@ class Host:
             assert time.monotonic() < end, "the daemon never took the host's bytes"
             if select.select([], [self.fd], [], 0.05)[1]:
                 with contextlib.suppress(BlockingIOError):
-                    view = view[os.write(self.fd, view[:4096]):]
+                    view = view[os.write(self.fd, view[:4096]) :]
 
     def read(self, n: int, timeout: float = WAIT_S) -> bytes:
         out = bytearray()
@@ -97,9 +97,18 @@ class LiveDaemon:
     ``start``: False to start the link thread yourself; the other keywords go to ``Link``.
     """
 
-    def __init__(self, tmp: Path, config: str = TWO_MOTORS, *, motion: bool = False,
-                 port: Any = None, fd: int | None = None, gap_s: float = 0.010,
-                 start: bool = True, **link_kw: Any) -> None:
+    def __init__(
+        self,
+        tmp: Path,
+        config: str = TWO_MOTORS,
+        *,
+        motion: bool = False,
+        port: Any = None,
+        fd: int | None = None,
+        gap_s: float = 0.010,
+        start: bool = True,
+        **link_kw: Any,
+    ) -> None:
         clock = MonotonicClock() if motion else VirtualClock()
         self.daemon = build_daemon(config, tmp / "state", clock)
         self.world: MockWorld = world_of(self.daemon.hw)

@@ -35,7 +35,7 @@ from motorctl.motion.types import MotionCmd, MotorParams, MotorState
 from tests.support.wait import WAIT_S
 
 #: End stops no test reaches.
-FAR = mock_axis(endstop_min=-10**9, endstop_max=10**9)
+FAR = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
 
 #: Builds a rig's executor from its hardware, spec and motors (default: the thread one).
 ExecutorFactory = Callable[[Hardware, HardwareSpec, list[MotorParams]], Executor]
@@ -51,7 +51,8 @@ class EngineRig:
     events: list[tuple[float, int, str]] = field(default_factory=list)
     #: set at each engine event of that name (``wait`` clears it)
     signals: defaultdict[str, threading.Event] = field(
-        default_factory=lambda: defaultdict(threading.Event))
+        default_factory=lambda: defaultdict(threading.Event)
+    )
 
     def state(self, i: int = 0) -> MotorState:
         """The motor's state, read afresh (a call, so type checkers do not pin it)."""
@@ -117,7 +118,8 @@ class EngineRig:
     def wait(self, name: str, timeout: float = WAIT_S) -> None:
         """Until the engine's next ``name`` event (one since the last wait counts)."""
         assert self.signals[name].wait(timeout), (
-            f"no {name!r} within {timeout} s (fault: {self.m.fault})")
+            f"no {name!r} within {timeout} s (fault: {self.m.fault})"
+        )
         self.signals[name].clear()
 
     def wait_steps(self, n: int, timeout: float = WAIT_S) -> None:
@@ -191,25 +193,43 @@ class StepCoreRig:
     """A step core on a virtual clock over the mock world, fed by hand. Lateness is judged
     by the real-hardware rule (``lag_faults``) unless a test says otherwise."""
 
-    def __init__(self, motors: int = 1, max_speed: float = 10_000.0, *,
-                 start_speed: float = 0.0, microsteps: int = 16, max_lag: float = 0.5,
-                 lag_faults: bool = True) -> None:
+    def __init__(
+        self,
+        motors: int = 1,
+        max_speed: float = 10_000.0,
+        *,
+        start_speed: float = 0.0,
+        microsteps: int = 16,
+        max_lag: float = 0.5,
+        lag_faults: bool = True,
+    ) -> None:
         self.clock = VirtualClock()
         spec = HardwareSpec(axes=(FAR,) * motors, options={"timeline_len": None})
         self.hw = build(spec, self.clock)
         self.world = world_of(self.hw)
         io = build_step_io(spec, self.clock, self.hw)
-        params = MotorParams(max_speed=max_speed, start_speed=start_speed,
-                             microsteps=microsteps, max_lag_full_steps=max_lag)
+        params = MotorParams(
+            max_speed=max_speed,
+            start_speed=start_speed,
+            microsteps=microsteps,
+            max_lag_full_steps=max_lag,
+        )
         self.limits = axis_limits([params] * motors, 0.0, lag_faults=lag_faults)
         self.inbox = CoreInbox(motors)
         self.events: list[ExecEvent] = []
         self.positions = [0] * motors
         self.cells = [0] * (motors * MOTOR_CELLS)
-        self.core = StepCore(io, self.limits, self.inbox, self.events.append,
-                             positions=self.positions, levels=[0] * (2 * motors),
-                             counters=[0] * len(COUNTER_NAMES), stats=LatencyStats(),
-                             motor_cells=self.cells)
+        self.core = StepCore(
+            io,
+            self.limits,
+            self.inbox,
+            self.events.append,
+            positions=self.positions,
+            levels=[0] * (2 * motors),
+            counters=[0] * len(COUNTER_NAMES),
+            stats=LatencyStats(),
+            motor_cells=self.cells,
+        )
 
     def cell(self, which: int, motor: int = 0) -> int:
         return self.cells[motor * MOTOR_CELLS + which]

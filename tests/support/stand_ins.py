@@ -14,8 +14,9 @@ from tests.support import REPO
 FOLDERS = {"gpiod": REPO / "tests" / "fakegpiod", "spidev": REPO / "tests" / "fakespi"}
 
 
-def stand_in_env(*modules: str, chips: dict[str, str],
-                 control: Path | None = None) -> dict[str, str]:
+def stand_in_env(
+    *modules: str, chips: dict[str, str], control: Path | None = None
+) -> dict[str, str]:
     """PYTHONPATH with the stand-ins of ``modules`` ("gpiod", "spidev") first, and the fake
     SPI's chips (``{"0.0": "tmc5160", ...}``) and control file (chip state set while the
     daemon runs)."""
@@ -23,5 +24,7 @@ def stand_in_env(*modules: str, chips: dict[str, str],
     spi: dict[str, object] = {"chips": chips}
     if control is not None:
         spi["control"] = str(control)
-    return {"PYTHONPATH": os.pathsep.join(p for p in paths if p),
-            "MOTORCTL_FAKE_SPI": json.dumps(spi)}
+    return {
+        "PYTHONPATH": os.pathsep.join(p for p in paths if p),
+        "MOTORCTL_FAKE_SPI": json.dumps(spi),
+    }

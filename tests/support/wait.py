@@ -14,8 +14,14 @@ from collections.abc import Callable
 WAIT_S = 30.0
 
 
-def until(what: str, cond: Callable[[], object], timeout: float = WAIT_S, *,
-          detail: Callable[[], object] | None = None, every_s: float = 0.001) -> None:
+def until(
+    what: str,
+    cond: Callable[[], object],
+    timeout: float = WAIT_S,
+    *,
+    detail: Callable[[], object] | None = None,
+    every_s: float = 0.001,
+) -> None:
     """Poll ``cond`` every ``every_s`` until it holds; after ``timeout`` seconds fail naming
     ``what`` (and ``detail()``, say the counters or faults that explain it)."""
     end = time.monotonic() + timeout

@@ -90,8 +90,9 @@ def wiring_of(spec: HardwareSpec) -> GpioWiring:
 class GpiodPin(Pin):
     """A user pin on its own single-line request."""
 
-    def __init__(self, number: int, req: LineRequest, offset: int, output: bool, level: bool,
-                 bias: str) -> None:
+    def __init__(
+        self, number: int, req: LineRequest, offset: int, output: bool, level: bool, bias: str
+    ) -> None:
         super().__init__(number, output, level)
         self.req = req
         self.offset = offset
@@ -112,9 +113,14 @@ class GpiodStepOutputs(StepOutputs):
     their STEP, DIR (and ENABLE) lines on it, so several STEP lines go out in one
     ``set_values`` call."""
 
-    def __init__(self, clock: Clock, motors: Sequence[tuple[MotorWiring, AxisSpec]],
-                 reqs: list[LineRequest], steps: list[tuple[int, int]],
-                 dirs: list[tuple[int, int]]) -> None:
+    def __init__(
+        self,
+        clock: Clock,
+        motors: Sequence[tuple[MotorWiring, AxisSpec]],
+        reqs: list[LineRequest],
+        steps: list[tuple[int, int]],
+        dirs: list[tuple[int, int]],
+    ) -> None:
         super().__init__(
             clock,
             [a.invert_dir for _, a in motors],
@@ -155,8 +161,13 @@ class GpiodEdgeInputs(EdgeInputs):
     request per line. ``fileno`` is the request's descriptor when there is one request.
     """
 
-    def __init__(self, names: list[str], reqs: list[LineRequest],
-                 index: dict[tuple[int, int], int], active_low: list[bool]) -> None:
+    def __init__(
+        self,
+        names: list[str],
+        reqs: list[LineRequest],
+        index: dict[tuple[int, int], int],
+        active_low: list[bool],
+    ) -> None:
         super().__init__(names)
         self.reqs = reqs
         self.index = index  # (request, offset) -> line
@@ -208,9 +219,11 @@ class PwmChannel:
             self._write(os.path.join(self.dir, "period"), str(w.period_ns))
             self._write(os.path.join(self.dir, "enable"), "1")
         except OSError as exc:
-            raise HalError(f"dc.pwm: cannot set up {self.dir}: {exc.strerror or exc}; enable the "
-                           "PWM overlay (dtoverlay=pwm on a Raspberry Pi) and give the daemon's "
-                           "user write access (group gpio)") from exc
+            raise HalError(
+                f"dc.pwm: cannot set up {self.dir}: {exc.strerror or exc}; enable the "
+                "PWM overlay (dtoverlay=pwm on a Raspberry Pi) and give the daemon's "
+                "user write access (group gpio)"
+            ) from exc
 
     @staticmethod
     def _write(path: str, value: str) -> None:
@@ -242,8 +255,14 @@ class GpiodBridge(DcBridge):
     """An H-bridge on IN1/IN2 (+EN or PWM). A reversal passes through ``reverse_via`` for the
     dead time; the bridge's timer thread applies the new direction when it is over."""
 
-    def __init__(self, req: LineRequest, w: DcWiring, offsets: tuple[int, int, int | None],
-                 pwm: PwmChannel | None, clock: Clock) -> None:
+    def __init__(
+        self,
+        req: LineRequest,
+        w: DcWiring,
+        offsets: tuple[int, int, int | None],
+        pwm: PwmChannel | None,
+        clock: Clock,
+    ) -> None:
         super().__init__()
         self.req = req
         self.w = w
@@ -277,8 +296,9 @@ class GpiodBridge(DcBridge):
                 self._drive(self.via)
                 self._pending = (self.clock.now() + self.w.dead_time_ms / 1000.0, state)
                 if self._thread is None:
-                    self._thread = threading.Thread(target=self._run, name="dc-dead-time",
-                                                    daemon=True)
+                    self._thread = threading.Thread(
+                        target=self._run, name="dc-dead-time", daemon=True
+                    )
                     self._thread.start()
                 self._cond.notify()
             else:
@@ -328,8 +348,9 @@ def _step_executor_lines(spec: HardwareSpec) -> Callable[[str], bool]:
     return lambda use: use.startswith(prefixes)
 
 
-def resolve(api: GpioApi, wiring: GpioWiring, which: Callable[[str], bool] = lambda u: True
-            ) -> dict[str, ResolvedLine]:
+def resolve(
+    api: GpioApi, wiring: GpioWiring, which: Callable[[str], bool] = lambda u: True
+) -> dict[str, ResolvedLine]:
     """Find every configured line (all of them, so any mistake shows before anything opens)
     and check that those ``which`` selects are free."""
     dup = wiring.duplicates()
@@ -361,21 +382,39 @@ def build(spec: HardwareSpec, clock: Clock, *, for_probe: bool = False) -> Hardw
     # error could only say that the process failed
     found = resolve(api, wiring)
     consumer = wiring.consumer
-    hw = GpiodHardware(clock, [StepperHardware(NoDriver()) for _ in spec.axes], {}, None,
-                       api=api, lines=list(found.values()))
+    hw = GpiodHardware(
+        clock,
+        [StepperHardware(NoDriver()) for _ in spec.axes],
+        {},
+        None,
+        api=api,
+        lines=list(found.values()),
+    )
     try:
         _open_daemon_part(hw, api, spec, wiring, found, consumer, clock)
         _hold_ramp_motor_lines(hw, api, wiring, found, consumer, enable=not for_probe)
     except BaseException:
         hw.close()
         raise
-    log.info("gpiod %s (%s): %d lines found; pins and bridge requested as %r", api.name,
-             api.version, len(found), consumer)
+    log.info(
+        "gpiod %s (%s): %d lines found; pins and bridge requested as %r",
+        api.name,
+        api.version,
+        len(found),
+        consumer,
+    )
     return hw
 
 
-def _open_daemon_part(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
-                      found: dict[str, ResolvedLine], consumer: str, clock: Clock) -> None:
+def _open_daemon_part(
+    hw: GpiodHardware,
+    api: GpioApi,
+    spec: HardwareSpec,
+    wiring: GpioWiring,
+    found: dict[str, ResolvedLine],
+    consumer: str,
+    clock: Clock,
+) -> None:
     if wiring.dc is not None:
         w = wiring.dc
         dc = [found["dc.in1"], found["dc.in2"]] + ([found["dc.en"]] if w.en else [])
@@ -384,22 +423,30 @@ def _open_daemon_part(hw: GpiodHardware, api: GpioApi, spec: HardwareSpec, wirin
         req = api.request(consumer, [(ln, LineSettings(output=True)) for ln in dc])
         hw.closers.append(req.release)
         pwm = PwmChannel(w.pwm) if w.pwm is not None else None
-        bridge = GpiodBridge(req, w, (dc[0].offset, dc[1].offset,
-                                      dc[2].offset if w.en else None), pwm, clock)
+        bridge = GpiodBridge(
+            req, w, (dc[0].offset, dc[1].offset, dc[2].offset if w.en else None), pwm, clock
+        )
         hw.closers.append(bridge.close)
         hw.dc = bridge
     wired = {p.number: p for p in wiring.pins}
     for p in spec.pins:
         line = found[f"pins.{p.number}"]
         bias = wired[p.number].bias
-        req = api.request(consumer, [(line, LineSettings(output=p.output, value=p.initial,
-                                                         bias=bias))])
+        req = api.request(
+            consumer, [(line, LineSettings(output=p.output, value=p.initial, bias=bias))]
+        )
         hw.closers.append(req.release)
         hw.pins[p.number] = GpiodPin(p.number, req, line.offset, p.output, p.initial, bias)
 
 
-def _hold_ramp_motor_lines(hw: GpiodHardware, api: GpioApi, wiring: GpioWiring,
-                           found: dict[str, ResolvedLine], consumer: str, enable: bool) -> None:
+def _hold_ramp_motor_lines(
+    hw: GpiodHardware,
+    api: GpioApi,
+    wiring: GpioWiring,
+    found: dict[str, ResolvedLine],
+    consumer: str,
+    enable: bool,
+) -> None:
     """The lines named for motors whose TMC5160 runs its own ramp: never stepped, so STEP/DIR
     (if named at all) are held low and ENABLE on while the daemon runs, off at close."""
     per_chip: dict[str, list[tuple[ResolvedLine, LineSettings]]] = {}
@@ -411,11 +458,13 @@ def _hold_ramp_motor_lines(hw: GpiodHardware, api: GpioApi, wiring: GpioWiring,
             if ref is not None:
                 line = found[f"motors[{i}].{which}"]
                 per_chip.setdefault(line.chip_path, []).append(
-                    (line, LineSettings(output=True, value=False)))
+                    (line, LineSettings(output=True, value=False))
+                )
         if m.enable is not None:
             line = found[f"motors[{i}].enable"]
             per_chip.setdefault(line.chip_path, []).append(
-                (line, LineSettings(output=True, value=enable != m.enable_active_low)))
+                (line, LineSettings(output=True, value=enable != m.enable_active_low))
+            )
             enables.append((line, m.enable_active_low))
     reqs = {}
     for path, lines in per_chip.items():
@@ -426,8 +475,9 @@ def _hold_ramp_motor_lines(hw: GpiodHardware, api: GpioApi, wiring: GpioWiring,
         hw.closers.append(_setter(reqs[line.chip_path], line.offset, off_level))
 
 
-def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None,
-                  *, enable: bool = True) -> StepIO:
+def build_step_io(
+    spec: HardwareSpec, clock: Clock, parent: Hardware | None, *, enable: bool = True
+) -> StepIO:
     """The step executor's lines: the STEP/DIR/ENABLE of every motor in ``spec.stepped()``
     (one request per chip, all motors on it together) and their end stops as edge-event
     requests. ENABLE goes on here and off at close. Opened in the executor's thread or process
@@ -445,23 +495,33 @@ def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None,
         raise
 
 
-def _open_step_io(api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
-                  found: dict[str, ResolvedLine], consumer: str, clock: Clock, enable: bool,
-                  closers: list[Callable[[], None]]) -> StepIO:
+def _open_step_io(
+    api: GpioApi,
+    spec: HardwareSpec,
+    wiring: GpioWiring,
+    found: dict[str, ResolvedLine],
+    consumer: str,
+    clock: Clock,
+    enable: bool,
+    closers: list[Callable[[], None]],
+) -> StepIO:
     stepped = spec.stepped()
     per_chip: dict[str, list[tuple[ResolvedLine, LineSettings]]] = {}
     for i in stepped:
         m = wiring.motors[i]
         step, dir_ = found[f"motors[{i}].step"], found[f"motors[{i}].dir"]
         if step.chip_path != dir_.chip_path:
-            raise HalError(f"motors[{i}]: STEP ({step.ref}) and DIR ({dir_.ref}) must be on one "
-                           "chip, so they are requested together")
+            raise HalError(
+                f"motors[{i}]: STEP ({step.ref}) and DIR ({dir_.ref}) must be on one "
+                "chip, so they are requested together"
+            )
         uses = [(step, False), (dir_, False)]
         if m.enable is not None:
             uses.append((found[f"motors[{i}].enable"], enable != m.enable_active_low))
         for line, level in uses:
             per_chip.setdefault(line.chip_path, []).append(
-                (line, LineSettings(output=True, value=level)))
+                (line, LineSettings(output=True, value=level))
+            )
     paths = list(per_chip)
     reqs: list[LineRequest] = []
     for path in paths:
@@ -472,16 +532,19 @@ def _open_step_io(api: GpioApi, spec: HardwareSpec, wiring: GpioWiring,
         m = wiring.motors[i]
         if m.enable is not None:
             en = found[f"motors[{i}].enable"]
-            closers.append(_setter(reqs[paths.index(en.chip_path)], en.offset,
-                                   m.enable_active_low))
+            closers.append(_setter(reqs[paths.index(en.chip_path)], en.offset, m.enable_active_low))
 
     def at(use: str) -> tuple[int, int]:
         line = found[use]
         return paths.index(line.chip_path), line.offset
 
-    outputs = GpiodStepOutputs(clock, [(wiring.motors[i], spec.axes[i]) for i in stepped], reqs,
-                               [at(f"motors[{i}].step") for i in stepped],
-                               [at(f"motors[{i}].dir") for i in stepped])
+    outputs = GpiodStepOutputs(
+        clock,
+        [(wiring.motors[i], spec.axes[i]) for i in stepped],
+        reqs,
+        [at(f"motors[{i}].step") for i in stepped],
+        [at(f"motors[{i}].dir") for i in stepped],
+    )
     # end stops
     names: list[str] = []
     lows: list[bool] = []
@@ -529,8 +592,10 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
     chips = api.chips()
-    report.add(f"libgpiod Python API {api.name} ({api.version})",
-               [f"{c.name} [{c.label}] {c.num_lines} lines ({c.path})" for c in chips])
+    report.add(
+        f"libgpiod Python API {api.name} ({api.version})",
+        [f"{c.name} [{c.label}] {c.num_lines} lines ({c.path})" for c in chips],
+    )
     dup = wiring.duplicates()
     if dup:
         report.problems += dup
@@ -543,12 +608,13 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
     rows = []
     for ln in lines:
         info = api.line_info(ln.chip_path, ln.offset)
-        held = (f"held by {info.consumer!r}" if info.consumer else "held") if info.used \
-            else "free"
+        held = (f"held by {info.consumer!r}" if info.consumer else "held") if info.used else "free"
         name = f" {info.name!r}" if info.name else ""
         mode = "output" if info.output else "input"
-        rows.append(f"{ln.use:<22} {ln.ref!s:<16} -> {os.path.basename(ln.chip_path)}:"
-                    f"{ln.offset}{name} ({mode}, {held})")
+        rows.append(
+            f"{ln.use:<22} {ln.ref!s:<16} -> {os.path.basename(ln.chip_path)}:"
+            f"{ln.offset}{name} ({mode}, {held})"
+        )
     report.add("configured lines (before opening)", rows or ["none"])
     try:
         api.check_free(lines)
@@ -569,14 +635,23 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
                 if line is not None:
                     active = io.inputs.level(line)
                     level = active != spec.axes[i].endstop_active_low
-                    ends.append(f"motors[{i}] {which}: level {int(level)} "
-                                f"({'TRIGGERED' if active else 'clear'})")
+                    ends.append(
+                        f"motors[{i}] {which}: level {int(level)} "
+                        f"({'TRIGGERED' if active else 'clear'})"
+                    )
         report.add("end stops", ends or ["none wired"])
-        pins = [f"pin {n}: {'output' if p.is_output else 'input'} level {int(p.read())}"
-                for n, p in sorted(hw.pins.items())]
+        pins = [
+            f"pin {n}: {'output' if p.is_output else 'input'} level {int(p.read())}"
+            for n, p in sorted(hw.pins.items())
+        ]
         report.add("pins", pins or ["none"])
-        report.add("opened", [f"all {len(lines)} lines requested as {wiring.consumer!r} "
-                              "and released; nothing moved"])
+        report.add(
+            "opened",
+            [
+                f"all {len(lines)} lines requested as {wiring.consumer!r} "
+                "and released; nothing moved"
+            ],
+        )
     finally:
         io.close()
         hw.close()

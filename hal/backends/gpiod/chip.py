@@ -118,8 +118,9 @@ class GpioApi(ABC):
     def line_info(self, path: str, offset: int) -> LineInfo: ...
 
     @abstractmethod
-    def _request(self, path: str, consumer: str, settings: dict[int, LineSettings]) -> LineRequest:
-        ...
+    def _request(
+        self, path: str, consumer: str, settings: dict[int, LineSettings]
+    ) -> LineRequest: ...
 
     # -- finding lines ---------------------------------------------------------
     def chips(self) -> list[ChipInfo]:
@@ -152,8 +153,10 @@ class GpioApi(ABC):
                     )
                 if len(found) > 1:
                     where = ", ".join(f"{c.name}:{o}" for c, o in found)
-                    raise HalError(f"{use}: line name {ref.name!r} is on several chips ({where}); "
-                                   "write chip:offset")
+                    raise HalError(
+                        f"{use}: line name {ref.name!r} is on several chips ({where}); "
+                        "write chip:offset"
+                    )
                 chip, off = found[0]
             else:
                 assert ref.chip is not None and ref.offset is not None
@@ -165,8 +168,9 @@ class GpioApi(ABC):
                     )
                 chip, off = match[0], ref.offset
                 if off >= chip.num_lines:
-                    raise HalError(f"{use}: {chip.name} has lines 0..{chip.num_lines - 1}, "
-                                   f"not {off}")
+                    raise HalError(
+                        f"{use}: {chip.name} has lines 0..{chip.num_lines - 1}, not {off}"
+                    )
             info = self.line_info(chip.path, off)
             out.append(ResolvedLine(use, ref, chip.path, off, chip.label, info.name))
         return out
@@ -177,15 +181,16 @@ class GpioApi(ABC):
         for line in lines:
             key = (line.chip_path, line.offset)
             if key in seen:
-                raise HalError(f"{line.use} and {seen[key]} are the same line "
-                               f"({_where(line)}); each line can have one use")
+                raise HalError(
+                    f"{line.use} and {seen[key]} are the same line "
+                    f"({_where(line)}); each line can have one use"
+                )
             seen[key] = line.use
             info = self.line_info(line.chip_path, line.offset)
             if info.used:
                 raise HalError(busy_message(line, info.consumer))
 
-    def request(self, consumer: str, lines: list[tuple[ResolvedLine, LineSettings]]
-                ) -> LineRequest:
+    def request(self, consumer: str, lines: list[tuple[ResolvedLine, LineSettings]]) -> LineRequest:
         """Request lines of ONE chip together; errors name the line, the holder and the fix."""
         path = lines[0][0].chip_path
         assert all(r.chip_path == path for r, _ in lines)
@@ -219,9 +224,11 @@ def _where(line: ResolvedLine) -> str:
 
 def busy_message(line: ResolvedLine, consumer: str) -> str:
     holder = repr(consumer) if consumer else "an unnamed consumer (kernel driver or a process)"
-    return (f"{line.use}: line {_where(line)} is already in use by {holder}; stop that program "
-            "(see `gpioinfo`), or remove the device-tree overlay that claims it, or wire another "
-            "line")
+    return (
+        f"{line.use}: line {_where(line)} is already in use by {holder}; stop that program "
+        "(see `gpioinfo`), or remove the device-tree overlay that claims it, or wire another "
+        "line"
+    )
 
 
 def open_error(path: str, exc: OSError, use: str = "") -> HalError:
@@ -255,9 +262,11 @@ def load_api(which: str = "auto") -> GpioApi:
         ) from exc
     have = "v2" if hasattr(gpiod, "request_lines") else "v1"
     if which != "auto" and which != have:
-        raise HalError(f"[gpiod] api = {which!r} but the installed gpiod module has the {have} "
-                       f"API ({getattr(gpiod, '__file__', '?')}); install the other one or set "
-                       "api = \"auto\"")
+        raise HalError(
+            f"[gpiod] api = {which!r} but the installed gpiod module has the {have} "
+            f"API ({getattr(gpiod, '__file__', '?')}); install the other one or set "
+            'api = "auto"'
+        )
     return _V2(gpiod) if have == "v2" else _V1(gpiod)
 
 
@@ -282,17 +291,28 @@ class _V2(GpioApi):
     def line_info(self, path: str, offset: int) -> LineInfo:
         with self.g.Chip(path) as chip:
             i = chip.get_line_info(offset)
-            return LineInfo(offset, i.name or "", i.used, i.consumer or "",
-                            i.direction == self.line.Direction.OUTPUT)
+            return LineInfo(
+                offset,
+                i.name or "",
+                i.used,
+                i.consumer or "",
+                i.direction == self.line.Direction.OUTPUT,
+            )
 
     def settings(self, s: LineSettings) -> Any:
         L = self.line
-        bias = {"as-is": L.Bias.AS_IS, "pull-up": L.Bias.PULL_UP,
-                "pull-down": L.Bias.PULL_DOWN, "disabled": L.Bias.DISABLED}[s.bias]
+        bias = {
+            "as-is": L.Bias.AS_IS,
+            "pull-up": L.Bias.PULL_UP,
+            "pull-down": L.Bias.PULL_DOWN,
+            "disabled": L.Bias.DISABLED,
+        }[s.bias]
         kw: dict[str, Any] = {"bias": bias}
         if s.output:
-            kw.update(direction=L.Direction.OUTPUT,
-                      output_value=L.Value.ACTIVE if s.value else L.Value.INACTIVE)
+            kw.update(
+                direction=L.Direction.OUTPUT,
+                output_value=L.Value.ACTIVE if s.value else L.Value.INACTIVE,
+            )
         else:
             kw["direction"] = L.Direction.INPUT
             if s.edges:
@@ -335,8 +355,10 @@ class _V2Request(LineRequest):
 
     def read_events(self) -> list[Edge]:
         rising = self.rising
-        return [Edge(e.line_offset, e.event_type == rising, e.timestamp_ns)
-                for e in self.req.read_edge_events()]
+        return [
+            Edge(e.line_offset, e.event_type == rising, e.timestamp_ns)
+            for e in self.req.read_edge_events()
+        ]
 
     def release(self) -> None:
         self.req.release()
@@ -366,24 +388,36 @@ class _V1(GpioApi):
         chip = self._chip(path)
         try:
             ln = chip.get_line(offset)
-            return LineInfo(offset, ln.name() or "", ln.is_used(), ln.consumer() or "",
-                            ln.direction() == self.g.Line.DIRECTION_OUTPUT)
+            return LineInfo(
+                offset,
+                ln.name() or "",
+                ln.is_used(),
+                ln.consumer() or "",
+                ln.direction() == self.g.Line.DIRECTION_OUTPUT,
+            )
         finally:
             chip.close()
 
     def flags(self, s: LineSettings) -> int:
         g = self.g
-        flags: dict[str, int] = {"as-is": 0, "pull-up": g.LINE_REQ_FLAG_BIAS_PULL_UP,
-                "pull-down": g.LINE_REQ_FLAG_BIAS_PULL_DOWN,
-                "disabled": g.LINE_REQ_FLAG_BIAS_DISABLE}
+        flags: dict[str, int] = {
+            "as-is": 0,
+            "pull-up": g.LINE_REQ_FLAG_BIAS_PULL_UP,
+            "pull-down": g.LINE_REQ_FLAG_BIAS_PULL_DOWN,
+            "disabled": g.LINE_REQ_FLAG_BIAS_DISABLE,
+        }
         return flags[s.bias]
 
     def request_one(self, chip: Any, consumer: str, offset: int, s: LineSettings) -> Any:
         g = self.g
         ln = chip.get_line(offset)
         if s.output:
-            ln.request(consumer=consumer, type=g.LINE_REQ_DIR_OUT, flags=self.flags(s),
-                       default_val=int(s.value))
+            ln.request(
+                consumer=consumer,
+                type=g.LINE_REQ_DIR_OUT,
+                flags=self.flags(s),
+                default_val=int(s.value),
+            )
         else:
             kind = g.LINE_REQ_EV_BOTH_EDGES if s.edges else g.LINE_REQ_DIR_IN
             ln.request(consumer=consumer, type=kind, flags=self.flags(s))
@@ -397,15 +431,24 @@ class _V1(GpioApi):
                 if len(settings) != 1:
                     raise HalError("v1: an edge-event request holds one line")
                 ((off, s),) = settings.items()
-                return _V1Request(self, path, settings, chip, {off: self.request_one(
-                    chip, consumer, off, s)}, None)
+                return _V1Request(
+                    self,
+                    path,
+                    settings,
+                    chip,
+                    {off: self.request_one(chip, consumer, off, s)},
+                    None,
+                )
             offs = list(settings)
             g = self.g
             if not all(settings[o].output for o in offs):
                 raise HalError("v1: a multi-line request is outputs only")
             bulk = chip.get_lines(offs)
-            bulk.request(consumer=consumer, type=g.LINE_REQ_DIR_OUT,
-                         default_vals=[int(settings[o].value) for o in offs])
+            bulk.request(
+                consumer=consumer,
+                type=g.LINE_REQ_DIR_OUT,
+                default_vals=[int(settings[o].value) for o in offs],
+            )
             lines = {o: ln for o, ln in zip(offs, bulk.to_list(), strict=True)}
             return _V1Request(self, path, settings, chip, lines, bulk)
         except BaseException:
@@ -417,8 +460,15 @@ class _V1Request(LineRequest):
     """v1 line handles. A multi-line handle sets all its lines at once (the v1 uAPI), so the
     driven levels of all of them are kept here and always written together."""
 
-    def __init__(self, api: _V1, path: str, settings: dict[int, LineSettings], chip: Any,
-                 lines: dict[int, Any], bulk: Any) -> None:
+    def __init__(
+        self,
+        api: _V1,
+        path: str,
+        settings: dict[int, LineSettings],
+        chip: Any,
+        lines: dict[int, Any],
+        bulk: Any,
+    ) -> None:
         super().__init__(path, settings)
         self.api = api
         self.chip = chip

@@ -96,8 +96,7 @@ class GpiodDcConfig:
     in1: str = _line_key(REQUIRED, "The bridge's IN1 line.")
     in2: str = _line_key(REQUIRED, "The bridge's IN2 line.")
     en: str = _line_key("", "The bridge's EN line; empty: not wired (EN tied high).")
-    dead_time_ms: float = number(0.0, 0, 10_000, "A reversal passes through reverse_via this "
-                                 "long.")
+    dead_time_ms: float = number(0.0, 0, 10_000, "A reversal passes through reverse_via this long.")
     reverse_via: str = choice("coast", BRIDGE_STOPS, "The state a reversal passes through.")
     pwm: GpiodPwmConfig | None = table(GpiodPwmConfig, absent=None, absent_text="no PWM")
 
@@ -115,10 +114,18 @@ permission problem (with the group to join) are errors.""",
 class GpiodConfig:
     """[gpiod]"""
 
-    api: str = choice("auto", ("auto", "v1", "v2"), "libgpiod Python API: v1 (Debian bookworm "
-                      "python3-libgpiod 1.6), v2 (gpiod >= 2), or auto: whichever imports.")
-    consumer: str = text("motorctl", "The consumer name the kernel shows for our lines.",
-                         pattern=r"[!-~]{1,31}", pattern_text="1..31 characters, no spaces")
+    api: str = choice(
+        "auto",
+        ("auto", "v1", "v2"),
+        "libgpiod Python API: v1 (Debian bookworm "
+        "python3-libgpiod 1.6), v2 (gpiod >= 2), or auto: whichever imports.",
+    )
+    consumer: str = text(
+        "motorctl",
+        "The consumer name the kernel shows for our lines.",
+        pattern=r"[!-~]{1,31}",
+        pattern_text="1..31 characters, no spaces",
+    )
     dc: GpiodDcConfig | None = table(GpiodDcConfig, absent=None, absent_text="no bridge wired")
 
 
@@ -136,15 +143,20 @@ takes no endstop_min/endstop_max.""",
 class GpiodAxisConfig:
     """[motors.gpiod]"""
 
-    step: str = _line_key("", "The driver's STEP line; empty: not wired (only for a TMC5160 "
-                          "running its own ramp).")
+    step: str = _line_key(
+        "", "The driver's STEP line; empty: not wired (only for a TMC5160 running its own ramp)."
+    )
     dir: str = _line_key("", "The driver's DIR line; empty: not wired (as step).")
-    enable: str = _line_key("", "The driver's ENABLE line (on while the daemon runs); empty: "
-                            "not wired.")
+    enable: str = _line_key(
+        "", "The driver's ENABLE line (on while the daemon runs); empty: not wired."
+    )
     enable_active_low: bool = boolean(True, "ENABLE is active low (TMC drivers: EN low = on).")
     dir_hold_us: float = number(0.0, 0, 10_000, "DIR stays this long after a STEP falls.")
-    endstop_min: str = _line_key("", "End stop below (InitMove with DIR false); empty: none. "
-                                 "Polarity: [motors.endstop] active_low.")
+    endstop_min: str = _line_key(
+        "",
+        "End stop below (InitMove with DIR false); empty: none. "
+        "Polarity: [motors.endstop] active_low.",
+    )
     endstop_min_bias: str = choice("as-is", BIASES, "Pull on the endstop_min line.")
     endstop_max: str = _line_key("", "End stop above; empty: none.")
     endstop_max_bias: str = choice("as-is", BIASES, "Pull on the endstop_max line.")
@@ -193,28 +205,39 @@ def _motor(i: int, role: AxisRole) -> str:
     return f"motor {i} ({role.name!r})" if role.name else f"motor {i}"
 
 
-_RAMP_NOTE = ('only a TMC5160 that runs its own ramp ([motors.tmc] driver = "tmc5160", '
-              'mode = "ramp") goes without')
+_RAMP_NOTE = (
+    'only a TMC5160 that runs its own ramp ([motors.tmc] driver = "tmc5160", '
+    'mode = "ramp") goes without'
+)
 
 
 def _axis_wiring(i: int, a: GpiodAxisConfig | None, role: AxisRole) -> MotorWiring:
     if a is None:
         if role.own_ramp:
             return MotorWiring(own_ramp=True)
-        raise WiringMissing(f"motors[{i}].gpiod", f"missing: {_motor(i, role)} is moved by "
-                            f"STEP/DIR pulses; name its step and dir lines ({_RAMP_NOTE})")
+        raise WiringMissing(
+            f"motors[{i}].gpiod",
+            f"missing: {_motor(i, role)} is moved by "
+            f"STEP/DIR pulses; name its step and dir lines ({_RAMP_NOTE})",
+        )
     for key in ("step", "dir"):
         if not role.own_ramp and not getattr(a, key):
-            raise WiringMissing(f"motors[{i}].gpiod.{key}", f"missing: {_motor(i, role)} is "
-                                f"moved by STEP/DIR pulses and needs its {key.upper()} line "
-                                f"({_RAMP_NOTE})")
+            raise WiringMissing(
+                f"motors[{i}].gpiod.{key}",
+                f"missing: {_motor(i, role)} is "
+                f"moved by STEP/DIR pulses and needs its {key.upper()} line "
+                f"({_RAMP_NOTE})",
+            )
     if role.own_ramp:
         for key in ("endstop_min", "endstop_max"):
             if getattr(a, key):
-                raise WiringMissing(f"motors[{i}].gpiod.{key}", f"{_motor(i, role)}'s TMC5160 "
-                                    "runs its own ramp and stops at its REFL/REFR inputs, "
-                                    "which no GPIO line can stand for: remove it",
-                                    getattr(a, key))
+                raise WiringMissing(
+                    f"motors[{i}].gpiod.{key}",
+                    f"{_motor(i, role)}'s TMC5160 "
+                    "runs its own ramp and stops at its REFL/REFR inputs, "
+                    "which no GPIO line can stand for: remove it",
+                    getattr(a, key),
+                )
 
     def end(line: str, bias: str) -> EndstopWiring | None:
         return EndstopWiring(LineRef.parse(line), bias) if line else None
@@ -223,42 +246,59 @@ def _axis_wiring(i: int, a: GpiodAxisConfig | None, role: AxisRole) -> MotorWiri
         return LineRef.parse(text_) if text_ else None
 
     return MotorWiring(
-        step=line(a.step), dir=line(a.dir), enable=line(a.enable),
+        step=line(a.step),
+        dir=line(a.dir),
+        enable=line(a.enable),
         enable_active_low=a.enable_active_low,
         endstop_min=end(a.endstop_min, a.endstop_min_bias),
         endstop_max=end(a.endstop_max, a.endstop_max_bias),
-        dir_hold_us=a.dir_hold_us, own_ramp=role.own_ramp,
+        dir_hold_us=a.dir_hold_us,
+        own_ramp=role.own_ramp,
     )
 
 
-def wiring_from(top: GpiodConfig | None, axes: Sequence[GpiodAxisConfig | None],
-                pins: Sequence[tuple[int, GpiodPinConfig | None]], dc: bool,
-                roles: Sequence[AxisRole] | None = None) -> GpioWiring:
+def wiring_from(
+    top: GpiodConfig | None,
+    axes: Sequence[GpiodAxisConfig | None],
+    pins: Sequence[tuple[int, GpiodPinConfig | None]],
+    dc: bool,
+    roles: Sequence[AxisRole] | None = None,
+) -> GpioWiring:
     """The backend's wiring from the loaded sections; ``roles`` (default: every motor moved
     by STEP/DIR) say which motors' TMC5160 runs its own ramp."""
     top = top or make(GpiodConfig)
     roles = list(roles) if roles is not None else [AxisRole() for _ in axes]
-    motors = [_axis_wiring(i, a, role) for i, (a, role) in enumerate(zip(axes, roles,
-                                                                           strict=True))]
+    motors = [_axis_wiring(i, a, role) for i, (a, role) in enumerate(zip(axes, roles, strict=True))]
     wired = []
     for i, (number_, p) in enumerate(pins):
         if p is None:
-            raise WiringMissing(f"pins[{i}].gpiod", "missing: the gpiod backend needs the "
-                                "pin's line")
+            raise WiringMissing(
+                f"pins[{i}].gpiod", "missing: the gpiod backend needs the pin's line"
+            )
         wired.append(PinWiring(number_, LineRef.parse(p.line), p.bias))
     bridge = None
     if dc:
         d = top.dc
         if d is None:
-            raise WiringMissing("gpiod.dc", "missing: [dc] configures a DC motor; wire its "
-                                "bridge in [gpiod.dc]")
-        pwm = None if d.pwm is None else PwmWiring(d.pwm.chip, d.pwm.channel, d.pwm.period_ns,
-                                                   d.pwm.duty, d.pwm.sysfs)
-        bridge = DcWiring(LineRef.parse(d.in1), LineRef.parse(d.in2),
-                          LineRef.parse(d.en) if d.en else None, d.dead_time_ms, d.reverse_via,
-                          pwm)
-    return GpioWiring(api=top.api, consumer=top.consumer, motors=tuple(motors), dc=bridge,
-                      pins=tuple(wired))
+            raise WiringMissing(
+                "gpiod.dc", "missing: [dc] configures a DC motor; wire its bridge in [gpiod.dc]"
+            )
+        pwm = (
+            None
+            if d.pwm is None
+            else PwmWiring(d.pwm.chip, d.pwm.channel, d.pwm.period_ns, d.pwm.duty, d.pwm.sysfs)
+        )
+        bridge = DcWiring(
+            LineRef.parse(d.in1),
+            LineRef.parse(d.in2),
+            LineRef.parse(d.en) if d.en else None,
+            d.dead_time_ms,
+            d.reverse_via,
+            pwm,
+        )
+    return GpioWiring(
+        api=top.api, consumer=top.consumer, motors=tuple(motors), dc=bridge, pins=tuple(wired)
+    )
 
 
 def _wired(v: Mapping[str, Any]) -> Violation | None:
@@ -289,13 +329,31 @@ CONFIG_SECTIONS = (
         owner="the gpiod backend",
         absent=None,
         absent_text="defaults (api auto, consumer motorctl, no bridge)",
-        rules=(Rule(("gpiod",), "with backend \"gpiod\": every motor (STEP/DIR; a TMC5160 "
-                    "running its own ramp: none needed), pin and the DC bridge wired, each line "
-                    "used once", _wired),),
+        rules=(
+            Rule(
+                ("gpiod",),
+                'with backend "gpiod": every motor (STEP/DIR; a TMC5160 '
+                "running its own ramp: none needed), pin and the DC bridge wired, each line "
+                "used once",
+                _wired,
+            ),
+        ),
     ),
-    Extension("motors", "gpiod", GpiodAxisConfig, owner="the gpiod backend", absent=None,
-              absent_text="not wired"),
-    Extension("pins", "gpiod", GpiodPinConfig, owner="the gpiod backend", absent=None,
-              absent_text="not wired"),
+    Extension(
+        "motors",
+        "gpiod",
+        GpiodAxisConfig,
+        owner="the gpiod backend",
+        absent=None,
+        absent_text="not wired",
+    ),
+    Extension(
+        "pins",
+        "gpiod",
+        GpiodPinConfig,
+        owner="the gpiod backend",
+        absent=None,
+        absent_text="not wired",
+    ),
 )
 """The sections the gpiod backend adds to the config file."""

@@ -39,7 +39,7 @@ class LineRef:
         if m:
             chip = m.group("chip")
             if chip.startswith("/dev/"):
-                chip = chip[len("/dev/"):]
+                chip = chip[len("/dev/") :]
             return cls(chip=chip, offset=int(m.group("offset")))
         if _NAME.match(text) and not text.isdigit():
             return cls(name=text)

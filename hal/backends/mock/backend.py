@@ -98,8 +98,9 @@ class Timeline:
             return tuple(self.events)
 
     def of(self, kind: EventKind, index: int | None = None) -> list[Event]:
-        return [e for e in self.snapshot()
-                if e.kind == kind and (index is None or e.index == index)]
+        return [
+            e for e in self.snapshot() if e.kind == kind and (index is None or e.index == index)
+        ]
 
     def step_times(self, motor: int) -> list[float]:
         return [e.t for e in self.of(EventKind.STEP, motor)]
@@ -205,8 +206,9 @@ class MockStepOutputs(StepOutputs):
     Motor ``m`` is world axis ``axes[m]`` (``spec.stepped()``); the timeline and the world
     use the world's axis numbers."""
 
-    def __init__(self, world: MockWorld, inputs: MockEdgeInputs,
-                 stepped: Sequence[int] | None = None) -> None:
+    def __init__(
+        self, world: MockWorld, inputs: MockEdgeInputs, stepped: Sequence[int] | None = None
+    ) -> None:
         self._axis_of = list(range(len(world.axes)) if stepped is None else stepped)
         self._identity = self._axis_of == list(range(len(world.axes)))
         axes = [world.axes[g].spec for g in self._axis_of]
@@ -536,8 +538,10 @@ def mock_axis(
 ) -> AxisSpec:
     """An axis for the mock built by hand (tests, benchmarks): ``axis`` as AxisSpec takes
     it, the simulated end stops where its ``[motors.mock]`` table would put them."""
-    sections = {**axis.pop("sections", {}),
-                MockAxisConfig: MockAxisConfig(endstop_min=endstop_min, endstop_max=endstop_max)}
+    sections = {
+        **axis.pop("sections", {}),
+        MockAxisConfig: MockAxisConfig(endstop_min=endstop_min, endstop_max=endstop_max),
+    }
     return AxisSpec(**axis, sections=sections)
 
 

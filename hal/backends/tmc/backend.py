@@ -39,8 +39,13 @@ from motorctl.hal.spec import HardwareSpec
 log = logging.getLogger("motorctl.tmc")
 
 
-def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory,
-                layer: SpidevConfig | None = None) -> TmcDriver:
+def open_driver(
+    name: str,
+    spec: TmcSpec,
+    buses: SpiBuses,
+    factory: SpiFactory,
+    layer: SpidevConfig | None = None,
+) -> TmcDriver:
     """A driver object for ``spec`` (not started); ValueError for an impossible setting.
     ``layer``: the ``[spidev]`` settings (a ramp chip's poll periods; None: the driver's
     defaults, the keys' defaults too)."""
@@ -53,8 +58,14 @@ def open_driver(name: str, spec: TmcSpec, buses: SpiBuses, factory: SpiFactory,
         switches = RefSwitches(spec.ref_left_active_low, spec.ref_right_active_low)
         if layer is None:
             return Tmc5160(name, device, spec.settings, switches)
-        return Tmc5160(name, device, spec.settings, switches, poll_s=layer.ramp_poll_ms / 1000,
-                       idle_poll_s=layer.ramp_idle_poll_ms / 1000)
+        return Tmc5160(
+            name,
+            device,
+            spec.settings,
+            switches,
+            poll_s=layer.ramp_poll_ms / 1000,
+            idle_poll_s=layer.ramp_idle_poll_ms / 1000,
+        )
     return TmcDriver(name, device, spec.settings)
 
 
@@ -100,8 +111,9 @@ def attach(
                 driver.device.close()
 
     hw.closers.append(close)
-    log.info("drivers: %s", ", ".join(f"{d.name} {d.chip.name} on {d.device.path}"
-                                       for d in drivers))
+    log.info(
+        "drivers: %s", ", ".join(f"{d.name} {d.chip.name} on {d.device.path}" for d in drivers)
+    )
     return drivers
 
 
@@ -119,8 +131,11 @@ def probe(
     """``--probe``: each configured driver's chip and version, DRV_STATUS decoded, SPI status;
     reads registers only (nothing is written, nothing moves). Problems go to the report."""
     del clock
-    configured = [(i, a.name or f"motor {i}", a.driver) for i, a in enumerate(spec.axes)
-                  if isinstance(a.driver, TmcSpec)]
+    configured = [
+        (i, a.name or f"motor {i}", a.driver)
+        for i, a in enumerate(spec.axes)
+        if isinstance(a.driver, TmcSpec)
+    ]
     if not configured:
         return
     try:

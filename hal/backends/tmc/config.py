@@ -63,7 +63,7 @@ class TmcAxisConfig:
     mode: str = choice(
         "step_dir",
         ("step_dir", "ramp"),
-        'step_dir: STEP/DIR lines move it; ramp: the TMC5160\'s own ramp generator does.',
+        "step_dir: STEP/DIR lines move it; ramp: the TMC5160's own ramp generator does.",
     )
     sense_resistor: float = number(
         0.0, 0.0, 1.0, "Ohm; 0 = the usual board value (TMC2130 0.11, TMC5160 0.075)."
@@ -71,8 +71,12 @@ class TmcAxisConfig:
     run_current: float = number(0.8, 0.0, 20.0, "A rms while moving.", lo_open=True)
     hold_current: float = number(0.4, 0.0, "run_current", "A rms at standstill.")
     hold_delay: int = integer(6, 0, 15, "IHOLDDELAY: how gradually run falls to hold current.")
-    microsteps: int = integer(16, 1, 256, "Microsteps per full step (a power of two); one "
-                              "step of the protocol is one microstep.")
+    microsteps: int = integer(
+        16,
+        1,
+        256,
+        "Microsteps per full step (a power of two); one step of the protocol is one microstep.",
+    )
     interpolate: bool = boolean(True, "intpol: interpolate to 256 microsteps.")
     toff: int = integer(3, 1, 15, "CHOPCONF.TOFF (off time); the driver is off only at exit.")
     hstrt: int = integer(4, 0, 7, "CHOPCONF.HSTRT (hysteresis start).")
@@ -160,8 +164,12 @@ def _microsteps(v: Mapping[str, Any]) -> Violation | None:
 def _microsteps_agree(v: Mapping[str, Any]) -> Violation | None:
     t, own = v["tmc"], v["microsteps"]
     if t is not None and own is not None and own != t.microsteps:
-        return ("microsteps", own, f"the motor's [motors.tmc] table sets microsteps = "
-                f"{t.microsteps}: write it once, in [motors.tmc]")
+        return (
+            "microsteps",
+            own,
+            f"the motor's [motors.tmc] table sets microsteps = "
+            f"{t.microsteps}: write it once, in [motors.tmc]",
+        )
     return None
 
 
@@ -171,8 +179,9 @@ def _current(v: Mapping[str, Any]) -> Violation | None:
         return None
     chip = CHIPS[t.driver]
     try:
-        current_setting(chip, t.sense_resistor or chip.default_sense_ohm, t.run_current,
-                        t.hold_current)
+        current_setting(
+            chip, t.sense_resistor or chip.default_sense_ohm, t.run_current, t.hold_current
+        )
     except ValueError as exc:
         return ("tmc.run_current", t.run_current, str(exc))
     return None
@@ -183,9 +192,12 @@ def _ramp_stall_speed(v: Mapping[str, Any]) -> Violation | None:
     if t is None or t.mode != "ramp" or str(v["homing"].source) != "stall":
         return None
     if t.stall_min_speed <= 0:
-        return ("tmc.stall_min_speed", t.stall_min_speed,
-                "stall homing in ramp mode needs the chip's stallGuard stop, which works only "
-                "above TCOOLTHRS: set stall_min_speed > 0")
+        return (
+            "tmc.stall_min_speed",
+            t.stall_min_speed,
+            "stall homing in ramp mode needs the chip's stallGuard stop, which works only "
+            "above TCOOLTHRS: set stall_min_speed > 0",
+        )
     return None
 
 
@@ -209,8 +221,11 @@ def _devices_unique(v: Mapping[str, Any]) -> Violation | None:
         if t is None:
             continue
         if t.spi in seen:
-            return (f"motors[{i}].tmc.spi", t.spi,
-                    f"also the device of motors[{seen[t.spi]}]: one chip per chip select")
+            return (
+                f"motors[{i}].tmc.spi",
+                t.spi,
+                f"also the device of motors[{seen[t.spi]}]: one chip per chip select",
+            )
         seen[t.spi] = i
     return None
 
@@ -224,15 +239,23 @@ CONFIG_SECTIONS = (
         absent=None,
         absent_text="no driver chip on SPI",
         rules=(
-            Rule(("tmc.mode", "tmc.driver"), "mode = \"ramp\" needs driver = \"tmc5160\"",
-                 _ramp_needs_tmc5160),
+            Rule(
+                ("tmc.mode", "tmc.driver"),
+                'mode = "ramp" needs driver = "tmc5160"',
+                _ramp_needs_tmc5160,
+            ),
             Rule(("tmc.microsteps",), "a power of two: 1, 2, 4, ..., 256", _microsteps),
-            Rule(("microsteps", "tmc.microsteps"), "the same where both are written",
-                 _microsteps_agree),
-            Rule(("tmc.run_current", "tmc.sense_resistor"),
-                 "a current the chip can drive through this sense resistor", _current),
-            Rule(("tmc.stall_min_speed",), "> 0 for stall homing in ramp mode",
-                 _ramp_stall_speed),
+            Rule(
+                ("microsteps", "tmc.microsteps"),
+                "the same where both are written",
+                _microsteps_agree,
+            ),
+            Rule(
+                ("tmc.run_current", "tmc.sense_resistor"),
+                "a current the chip can drive through this sense resistor",
+                _current,
+            ),
+            Rule(("tmc.stall_min_speed",), "> 0 for stall homing in ramp mode", _ramp_stall_speed),
         ),
     ),
     Extension(

@@ -54,13 +54,17 @@ class DrvStatus:
         out = []
         if self.flag(F.OT):
             out.append("over-temperature (ot)")
-        for f, text in ((F.S2GA, "short to ground on phase A (s2ga)"),
-                        (F.S2GB, "short to ground on phase B (s2gb)")):
+        for f, text in (
+            (F.S2GA, "short to ground on phase A (s2ga)"),
+            (F.S2GB, "short to ground on phase B (s2gb)"),
+        ):
             if self.flag(f):
                 out.append(text)
         if self.chip.has_s2vs:
-            for f, text in ((tmc5160.F.S2VSA, "short to supply on phase A (s2vsa)"),
-                            (tmc5160.F.S2VSB, "short to supply on phase B (s2vsb)")):
+            for f, text in (
+                (tmc5160.F.S2VSA, "short to supply on phase A (s2vsa)"),
+                (tmc5160.F.S2VSB, "short to supply on phase B (s2vsb)"),
+            ):
                 if self.flag(f):
                     out.append(text)
         return out
@@ -74,8 +78,14 @@ class DrvStatus:
 
     def open_load(self) -> list[str]:
         """Open-load flags; the datasheet says they are valid only in slow motion."""
-        return [t for f, t in ((F.OLA, "open load on phase A (ola)"),
-                               (F.OLB, "open load on phase B (olb)")) if self.flag(f)]
+        return [
+            t
+            for f, t in (
+                (F.OLA, "open load on phase A (ola)"),
+                (F.OLB, "open load on phase B (olb)"),
+            )
+            if self.flag(f)
+        ]
 
     def describe(self) -> str:
         """All flags and values, as ``--probe`` prints them."""
@@ -138,7 +148,7 @@ class TmcDriver(StepperDriver):
             raise TmcError(
                 f"{self.device.path} ({self.name}): configured as {self.chip.name} "
                 f"(IOIN version 0x{self.chip.version:02x}) but found {found}; set "
-                f"driver = \"{other.name.lower() if other else '...'}\" or check which "
+                f'driver = "{other.name.lower() if other else "..."}" or check which '
                 "chip select this driver is wired to"
             )
         self.configure()
@@ -210,8 +220,9 @@ class TmcDriver(StepperDriver):
         self.drv = drv
         self.tstep = tstep
         if drv.shorted and self._disabled is None:
-            self._disabled = ", ".join(drv.faults()) + " - driver disabled; fix the wiring " \
-                "and restart motorctld"
+            self._disabled = (
+                ", ".join(drv.faults()) + " - driver disabled; fix the wiring and restart motorctld"
+            )
             try:
                 self.link.write(Reg.CHOPCONF, F.TOFF.put(self.regs[Reg.CHOPCONF], 0))
             except (SpiError, TmcError) as exc:
@@ -303,8 +314,7 @@ class TmcDriver(StepperDriver):
         lines = [
             f"{self.name}: {self.device.path}: {found} (IOIN=0x{ioin:08x}) {verdict}",
             f"  {DrvStatus(drv_raw, chip).describe()}",
-            f"  SPI status: "
-            f"{' '.join(decode_spi_status(self.link.last_status, chip)) or 'none'}",
+            f"  SPI status: {' '.join(decode_spi_status(self.link.last_status, chip)) or 'none'}",
         ]
         if chip is TMC5160:
             sd_mode = tmc5160.F.SD_MODE.get(ioin)

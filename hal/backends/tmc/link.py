@@ -28,9 +28,7 @@ from motorctl.hal.interfaces import HalError
 WRITE: Final = 0x80
 
 #: register address -> name, for messages (every register of both chips)
-REG_NAMES: Final = {
-    getattr(tmc5160.Reg, k): k for k in dir(tmc5160.Reg) if not k.startswith("_")
-}
+REG_NAMES: Final = {getattr(tmc5160.Reg, k): k for k in dir(tmc5160.Reg) if not k.startswith("_")}
 
 
 class TmcError(HalError):

@@ -91,7 +91,7 @@ class Tmc5160(TmcDriver, RampDriver):
             raise TmcError(
                 f"{self.device.path} ({self.name}): the TMC5160's SD_MODE pin is high, so "
                 "it takes STEP/DIR and its ramp generator is off; tie SD_MODE to GND or "
-                "configure the motor with mode = \"step_dir\""
+                'configure the motor with mode = "step_dir"'
             )
         self.ramp_init()
 

@@ -202,7 +202,5 @@ class SpiDevice:
             self.transfers += 1
             if len(rx) != len(data):
                 self.errors += 1
-                raise SpiError(
-                    f"{self.path}: {len(data)} bytes sent but {len(rx)} received"
-                )
+                raise SpiError(f"{self.path}: {len(data)} bytes sent but {len(rx)} received")
             return bytes(rx)

@@ -72,8 +72,11 @@ class F(fields.F):
 
 #: RAMP_STAT flags that are cleared by writing 1 (datasheet: R+WC)
 RAMP_STAT_WC: Final = (
-    F.STATUS_LATCH_L.mask | F.STATUS_LATCH_R.mask | F.EVENT_STOP_SG.mask
-    | F.EVENT_POS_REACHED.mask | (1 << 12)
+    F.STATUS_LATCH_L.mask
+    | F.STATUS_LATCH_R.mask
+    | F.EVENT_STOP_SG.mask
+    | F.EVENT_POS_REACHED.mask
+    | (1 << 12)
 )
 
 
@@ -88,8 +91,19 @@ TMC5160: Final = Chip(
     version=0x30,
     readable=frozenset(
         {
-            Reg.GCONF, Reg.GSTAT, Reg.IOIN, Reg.TSTEP, Reg.RAMPMODE, Reg.XACTUAL, Reg.VACTUAL,
-            Reg.XTARGET, Reg.SW_MODE, Reg.RAMP_STAT, Reg.XLATCH, Reg.MSCNT, Reg.CHOPCONF,
+            Reg.GCONF,
+            Reg.GSTAT,
+            Reg.IOIN,
+            Reg.TSTEP,
+            Reg.RAMPMODE,
+            Reg.XACTUAL,
+            Reg.VACTUAL,
+            Reg.XTARGET,
+            Reg.SW_MODE,
+            Reg.RAMP_STAT,
+            Reg.XLATCH,
+            Reg.MSCNT,
+            Reg.CHOPCONF,
             Reg.DRV_STATUS,
         }
     ),

@@ -57,5 +57,7 @@ class LineSettings:
 
 
 def request_lines(path: str, consumer: str = "", config: Any = None) -> Any:
-    raise OSError(f"fakegpiod: {consumer!r} requested lines {sorted(config or {})} of {path}; "
-                  "this test allows no GPIO line")
+    raise OSError(
+        f"fakegpiod: {consumer!r} requested lines {sorted(config or {})} of {path}; "
+        "this test allows no GPIO line"
+    )
