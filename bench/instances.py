@@ -49,12 +49,12 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench import rt_runtime, rt_throttling_off  # noqa: E402
 from bench.steps import percentiles  # noqa: E402
 from motorctl.client.client import Client, DeviceError  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
-RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 SPEED_FACTOR = 100.0  # MoveTo's SPEED byte n = n * 100 step/s here (the default is 4)
 ENDS = (-9000, 9000)  # inside the mock's end stops at -10,000 and 10,000
 
@@ -219,7 +219,7 @@ def main() -> int:
     layouts: dict[str, tuple[int, ...]] = {"alone": (b,), "apart": (a, b), "same": (b, b)}
     if os.geteuid() != 0:
         print("note: not root: SCHED_FIFO will be refused, figures are best effort")
-    old_rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
+    old_rt = rt_runtime() or "?"
     figures: dict[str, Any] = {
         "speed": args.speed,
         "seconds": args.seconds,
@@ -229,22 +229,16 @@ def main() -> int:
         "sched_rt_runtime_us": "-1" if args.unlimited_rt else old_rt,
         "load_average_1m": round(os.getloadavg()[0], 2),
     }
-    if args.unlimited_rt and RT_RUNTIME.exists():
-        RT_RUNTIME.write_text("-1\n")
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            for name in args.scenarios.split(","):
-                figures[name] = scenario(
-                    Path(tmp) / name,
-                    layouts[name],
-                    args.priority,
-                    args.seconds,
-                    args.speed,
-                    args.lose_steps,
-                )
-    finally:
-        if args.unlimited_rt and RT_RUNTIME.exists():
-            RT_RUNTIME.write_text(old_rt + "\n")
+    with rt_throttling_off(args.unlimited_rt), tempfile.TemporaryDirectory() as tmp:
+        for name in args.scenarios.split(","):
+            figures[name] = scenario(
+                Path(tmp) / name,
+                layouts[name],
+                args.priority,
+                args.seconds,
+                args.speed,
+                args.lose_steps,
+            )
     print(
         f"two instances, 3 motors each at {args.speed} step/s, {args.seconds:.0f} s windows, "
         f"SCHED_FIFO {args.priority}, {n} CPUs, sched_rt_runtime_us "

@@ -48,6 +48,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench import rt_throttling_off  # noqa: E402
 from motorctl.client.client import Client, DeviceError, error_text  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
 from motorctl.daemon.status import read_status  # noqa: E402
@@ -55,7 +56,6 @@ from motorctl.protocol.codec import ErrorCode  # noqa: E402
 from tests.docs.test_readme import walkthrough  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
-RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 #: "step N us late at R step/s: lag L full steps > max_lag_full_steps M"
 LAG_FAULT = re.compile(
     r"step (\d+) us late at (\d+) step/s: lag ([\d.]+) full steps > "
@@ -443,11 +443,8 @@ def main() -> int:
     args = ap.parse_args()
     if os.geteuid() != 0:
         print("note: not root: motorctld runs without SCHED_FIFO, figures are best effort")
-    old_rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else None
-    if not args.keep_rt_throttling and old_rt is not None and os.geteuid() == 0:
-        RT_RUNTIME.write_text("-1\n")
-    out: dict[str, Any] = {"sched_rt_runtime_us_before": old_rt, "conditions": []}
-    try:
+    with rt_throttling_off(not args.keep_rt_throttling) as old_rt:
+        out: dict[str, Any] = {"sched_rt_runtime_us_before": old_rt, "conditions": []}
         with tempfile.TemporaryDirectory(
             dir=ROOT / "build" if (ROOT / "build").is_dir() else None
         ) as tmp:
@@ -463,9 +460,6 @@ def main() -> int:
                             args.cyclictest_seconds,
                         )
                     )
-    finally:
-        if not args.keep_rt_throttling and old_rt is not None and os.geteuid() == 0:
-            RT_RUNTIME.write_text(old_rt + "\n")
     print(
         "\nlateness judged as the motor would feel it "
         f"(sched_rt_runtime_us -1 during the run, {old_rt} before):"

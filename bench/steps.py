@@ -38,9 +38,8 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench import rt_runtime, rt_throttling_off  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
-
-RT_RUNTIME = Path("/proc/sys/kernel/sched_rt_runtime_us")
 
 CONFIG = """
 [units]
@@ -318,22 +317,16 @@ def main() -> int:
     args = ap.parse_args()
     if os.geteuid() != 0:
         print("note: not root: SCHED_FIFO will be refused, figures are best effort")
-    old_rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
-    if args.unlimited_rt and RT_RUNTIME.exists():
-        RT_RUNTIME.write_text("-1\n")
-    try:
+    with rt_throttling_off(args.unlimited_rt) as old_rt:
         figures = measure(args)
-    finally:
-        if args.unlimited_rt and RT_RUNTIME.exists():
-            RT_RUNTIME.write_text(old_rt + "\n")
-    figures["sched_rt_runtime_us_before"] = old_rt
+    figures["sched_rt_runtime_us_before"] = old_rt or "?"
     if args.json:
         Path(args.json).write_text(json.dumps(figures, indent=1))
     return 0
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
-    rt = RT_RUNTIME.read_text().strip() if RT_RUNTIME.exists() else "?"
+    rt = rt_runtime() or "?"
     kind = args.executor
     fig: dict[str, Any] = {
         "executor": kind,

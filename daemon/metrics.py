@@ -354,6 +354,22 @@ def _motors(w: _Writer, doc: Mapping[str, Any]) -> None:
             w.add(name, kind, help_text, scaled, who, unit=unit)
 
 
+#: steps.* keys that are times, as gauges in seconds: name, help, scale
+_STEP_SECONDS = {
+    "max_us": ("motorctl_step_lateness_max_seconds", "The latest step edge since start.", 1e-6),
+    "late_threshold_us": (
+        "motorctl_step_late_threshold_seconds",
+        "A step edge later than this counts as late.",
+        1e-6,
+    ),
+    "min_gap_ns": (
+        "motorctl_step_min_gap_seconds",
+        "The shortest gap between two step edges of one motor (0: none yet).",
+        1e-9,
+    ),
+}
+
+
 def _steps(w: _Writer, steps: Mapping[str, Any]) -> None:
     w.summary(
         "motorctl_step_lateness_seconds",
@@ -362,30 +378,10 @@ def _steps(w: _Writer, steps: Mapping[str, Any]) -> None:
         steps.get("steps"),
         1e-6,
     )
-    max_us = _number(steps.get("max_us"))
-    if max_us is not None:
-        w.gauge(
-            "motorctl_step_lateness_max_seconds",
-            "The latest step edge since start.",
-            max_us * 1e-6,
-            unit="seconds",
-        )
-    threshold = _number(steps.get("late_threshold_us"))
-    if threshold is not None:
-        w.gauge(
-            "motorctl_step_late_threshold_seconds",
-            "A step edge later than this counts as late.",
-            threshold * 1e-6,
-            unit="seconds",
-        )
-    gap = _number(steps.get("min_gap_ns"))
-    if gap is not None:
-        w.gauge(
-            "motorctl_step_min_gap_seconds",
-            "The shortest gap between two step edges of one motor (0: none yet).",
-            gap * 1e-9,
-            unit="seconds",
-        )
+    for key, (name, help_text, scale) in _STEP_SECONDS.items():
+        value = _number(steps.get(key))
+        if value is not None:
+            w.gauge(name, help_text, value * scale, unit="seconds")
     for key, (name, help_text) in _STEP_COUNTERS.items():
         w.counter(name, help_text, steps.get(key))
 

@@ -21,7 +21,7 @@ import pytest
 from hwtest import gsim
 from hwtest.layout import DC, MOTORS, PINS, in_the_guest, where
 from motorctl.client.client import Client
-from tests.support.daemon_proc import DaemonProcess
+from tests.support.daemon_proc import DaemonProcess, run_probe
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 
@@ -213,46 +213,12 @@ def test_probe_shows_lines_consumers_and_end_stops(daemon: DaemonProcess) -> Non
     # the running daemon holds every line: --probe must say by whom and fail
     cfg = daemon.config
     assert cfg is not None
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "motorctl.daemon.main",
-            "--probe",
-            "--latency-seconds",
-            "0",
-            "--config",
-            str(cfg),
-        ],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=60,
-    )
+    out = run_probe(cfg)
     assert out.returncode == 1, out.stdout + out.stderr
     assert "held by 'motorctl'" in out.stdout
     assert (
         "PROBLEM: motors[0].step: line gpiochip0:17 'GPIO17' is already in use by 'motorctl'"
         in out.stdout
-    )
-
-
-def run_probe(config: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "motorctl.daemon.main",
-            "--probe",
-            "--latency-seconds",
-            "0",
-            "--config",
-            str(config),
-        ],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=60,
     )
 
 

@@ -12,8 +12,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import subprocess
-import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -24,7 +22,7 @@ from hwtest import gsim
 from hwtest.layout import MOTORS, in_the_guest, where
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
-from tests.support.daemon_proc import DaemonProcess
+from tests.support.daemon_proc import DaemonProcess, run_probe
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 
@@ -54,23 +52,7 @@ def test_probe_lists_the_three_drivers(tmp_path: Path) -> None:
     """Runs first, before the daemon below holds the lines."""
     config = tmp_path / "pi.toml"
     config.write_text(example_config())
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "motorctl.daemon.main",
-            "--probe",
-            "--latency-seconds",
-            "0",
-            "--config",
-            str(config),
-        ],
-        env={**os.environ, **shim_env(tmp_path / "control.json")},
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=REPO,
-    )
+    out = run_probe(config, env=shim_env(tmp_path / "control.json"))
     assert out.returncode == 0, out.stdout + out.stderr
     for i, name in enumerate(("x", "y", "z")):
         assert f"{name}: /dev/spidev0.{i}: TMC5160 (IOIN=0x30000040) ok" in out.stdout

@@ -18,6 +18,7 @@ from motorctl.hal.backends.gpiod.wiring import LineRef
 from motorctl.hal.interfaces import HalError, MonotonicClock
 from motorctl.hal.registry import open_hardware, probe_hardware
 from tests.support import REPO
+from tests.support.daemon_proc import run_probe
 
 REPO = REPO
 EXAMPLE = REPO / "docs" / "examples" / "raspberry-pi.toml"
@@ -149,22 +150,7 @@ def test_without_libgpiod_the_backend_says_what_to_install() -> None:
         open_hardware("gpiod", spec, MonotonicClock())
     report = probe_hardware("gpiod", spec, MonotonicClock())
     assert report.problems and "python3-libgpiod" in report.problems[0]
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "motorctl.daemon.main",
-            "--probe",
-            "--latency-seconds",
-            "0",
-            "--config",
-            str(EXAMPLE),
-        ],
-        capture_output=True,
-        text=True,
-        cwd=REPO,
-        timeout=60,
-    )
+    out = run_probe(EXAMPLE)
     assert out.returncode == 1
     assert "PROBLEM: the gpiod backend needs libgpiod's Python binding" in out.stdout
     assert "Traceback" not in out.stdout + out.stderr

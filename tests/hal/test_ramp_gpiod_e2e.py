@@ -9,15 +9,11 @@ model of tests/support/tmc_model.py behind it.
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
-from tests.support import REPO
-from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
+from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready, run_probe
 from tests.support.stand_ins import stand_in_env
 
 RAMP_ONLY = """\
@@ -82,23 +78,7 @@ def test_probe_of_a_ramp_motor_without_lines_opens_none(
 ) -> None:
     config = tmp_path / "ramp.toml"
     config.write_text(RAMP_ONLY)
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "motorctl.daemon.main",
-            "--probe",
-            "--latency-seconds",
-            "0",
-            "--config",
-            str(config),
-        ],
-        env={**os.environ, **env},
-        capture_output=True,
-        text=True,
-        timeout=120,
-        cwd=REPO,
-    )
+    out = run_probe(config, env=env)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "r: /dev/spidev0.0: TMC5160" in out.stdout
     assert "all 0 lines requested" in out.stdout and "PROBLEM" not in out.stdout

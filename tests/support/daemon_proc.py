@@ -24,6 +24,31 @@ from tests.support import REPO
 
 READY_TIMEOUT_S = 30.0
 
+
+def run_probe(
+    config: Path | str, env: dict[str, str] | None = None, timeout: float = 120.0
+) -> subprocess.CompletedProcess[str]:
+    """``motorctld --probe --config CONFIG`` as a user runs it, without the platform's
+    latency measurement; ``env``: added to this process's environment."""
+    return subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--probe",
+            "--latency-seconds",
+            "0",
+            "--config",
+            str(config),
+        ],
+        env={**os.environ, **env} if env is not None else None,
+        capture_output=True,
+        text=True,
+        cwd=REPO,
+        timeout=timeout,
+    )
+
+
 #: The ``motorctld`` fixture (tests/conftest.py): ``start(config_text, **kw)``.
 StartDaemon = Callable[..., "DaemonProcess"]
 
