@@ -109,7 +109,7 @@ class Instance:
     def __init__(self, name: str, work: Path, cpu: int, priority: int, lose_steps: bool) -> None:
         self.name = name
         work.mkdir(parents=True)
-        self.daemon = DaemonProcess(work, config(cpu, priority, lose_steps))
+        self.daemon = DaemonProcess(work, config(cpu, priority, lose_steps), as_user=True)
         self.client: Client | None = None
         self.target = [ENDS[1]] * 3
         self.moves = 0

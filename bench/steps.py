@@ -186,7 +186,7 @@ def run_daemon(
     kind: str = "process",
     status_per_s: int = 0,
 ) -> dict[str, Any]:
-    d = DaemonProcess(work, config_text(prio, cpu, kind))  # the daemon pins its executor
+    d = DaemonProcess(work, config_text(prio, cpu, kind), as_user=True)  # it pins its executor
     d.start()
     try:
         with d.client() as c:
@@ -233,7 +233,7 @@ def run_daemon(
 def stall(work: Path, prio: int, cpu: int, kind: str) -> dict[str, Any]:
     """50 ms without the executor while a motor runs at 5,000 step/s, judged as for a real
     motor (16 microsteps, 0.5 full steps of lag: 1.6 ms late at most)."""
-    d = DaemonProcess(work, config_text(prio, cpu, kind, lose_steps=True))
+    d = DaemonProcess(work, config_text(prio, cpu, kind, lose_steps=True), as_user=True)
     d.start()
     try:
         with d.client() as c:

@@ -442,7 +442,7 @@ class StepCore:
                 m,
                 now,
                 f"step {late / 1000:.0f} us late at {rate:.0f} step/s: lag "
-                f"{lag:.2f} full steps > max_lag_full_steps {self.max_lag[m]:g} "
+                f"{lag:.3f} full steps > max_lag_full_steps {self.max_lag[m]:g} "
                 f"({self.microsteps[m]} microsteps, start_speed "
                 f"{self.start_speed[m]:g} step/s)",
                 planned,

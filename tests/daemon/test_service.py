@@ -483,7 +483,7 @@ def test_motor_events_logged_off_the_step_thread(caplog: pytest.LogCaptureFixtur
     assert len(caplog.records) == 2
     # a fault with its cause and a lost position: the figures are in the fault's text
     detail = (
-        "step timing lost (step 2900 us late at 5000 step/s: lag 0.91 full steps > "
+        "step timing lost (step 2900 us late at 5000 step/s: lag 0.906 full steps > "
         "max_lag_full_steps 0.5 (16 microsteps, start_speed 100 step/s))"
     )
     assert events.record(0, "x", "fault", detail, "timing_lost", True)

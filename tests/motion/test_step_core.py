@@ -55,7 +55,7 @@ def test_a_stall_beyond_the_lag_tolerance_stops_the_motor_instead_of_bursting() 
     assert kinds == [K.TIMING_LOST]
     ev = c.events[0]
     assert ev.speed == pytest.approx(5000.0) and ev.position == made
-    assert "lag 15.56 full steps" in ev.detail and "max_lag_full_steps 0.5" in ev.detail
+    assert "lag 15.562 full steps" in ev.detail and "max_lag_full_steps 0.5" in ev.detail
     assert c.core.counters[COUNTER_NAMES.index("timing_lost")] == 1
     assert c.cell(LAG_FAULTS) == 1 and c.cell(ABSORBED) == 0 and c.cell(SHIFT) == 0
     assert c.cell(WORST_LAG) / LAG_UNIT == pytest.approx(0.0498 * 5000 / 16, rel=1e-6)
