@@ -64,6 +64,7 @@ robustness: venv
 bench: venv
 	$(BIN)/python bench/latency.py
 	$(BIN)/python bench/steps.py
+	$(BIN)/python bench/noisy.py
 	$(BIN)/python bench/rings.py
 	$(BIN)/python bench/instances.py
 	$(BIN)/python bench/startup.py
