@@ -437,7 +437,7 @@ class StepCore:
             cells[base + WORST_LAG] = ulag
         if self.lag_faults[m] and moving and gap < self.start_gap[m] and late > gap * self.lag_k[m]:
             cells[base + LAG_FAULTS] += 1
-            rate = TICKS_PER_S / gap
+            rate = self._speed(m, planned)
             self._lost(
                 m,
                 now,

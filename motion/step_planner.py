@@ -181,7 +181,7 @@ class StepExecutor(Executor):
 
     # -- the seam ------------------------------------------------------------------------
     def committed(self, motor: int, now: float) -> Committed:
-        own = now - self.shift(motor)
+        own = self.motor_time(motor, now)
         c = self._committed(motor, own)
         return replace(c, after=c.t - own)
 
@@ -243,7 +243,7 @@ class StepExecutor(Executor):
             return False
         p.busy = True
         p.watch = endstops
-        self._feed(motor, self.clock.now() - self.shift(motor))
+        self._feed(motor, self.motor_time(motor, self.clock.now()))
         return True
 
     def stop(self, motor: int, gen: int) -> int | None:
@@ -255,7 +255,7 @@ class StepExecutor(Executor):
         if self._sync():
             pos = self.position(motor)
             p.counter = pos
-            p.until = p.last_t = self.clock.now() - self.shift(motor)
+            p.until = p.last_t = self.motor_time(motor, self.clock.now())
             return pos
         return None
 
@@ -323,7 +323,7 @@ class StepExecutor(Executor):
                 p.forget()
                 p.busy = False
                 p.counter = ev.position
-                p.until = p.last_t = max(ev.t, self.clock.now()) - self.shift(ev.motor)
+                p.until = p.last_t = self.motor_time(ev.motor, max(ev.t, self.clock.now()))
             elif ev.kind is K.DONE and ev.gen == p.gen:
                 p.forget()
                 p.busy = False
