@@ -28,6 +28,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from motorctl.daemon.paths import clear_the_way, open_for_writing
 from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
 
 log = logging.getLogger("motorctl.trace")
@@ -36,6 +37,19 @@ FLUSH_S = 0.2
 BUFFER_LIMIT = 4 << 20
 
 _IN, _OUT = int(Direction.TO_DEVICE), int(Direction.TO_HOST)
+
+
+def _create(path: Path) -> Any:
+    """A new, empty trace file at ``path`` (0640 less the umask, like the state), opened
+    as the daemon opens every file it writes (daemon/paths.py: never through a link, never
+    a FIFO or a device; what stands there is set aside). OSError when it cannot."""
+    fd = open_for_writing(path, 0o640, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, 0)
+    except OSError:
+        os.close(fd)
+        raise
+    return open(fd, "wb", buffering=0)  # the recorder closes it
 
 
 def rotated(path: Path, index: int) -> Path:
@@ -89,8 +103,9 @@ class TraceRecorder:
     def open(self) -> None:
         """Start a new file (the previous ones rotate away) and the writer thread; OSError
         if the file cannot be created (the caller names it to the user)."""
+        clear_the_way(self.path)  # not a trace of ours: set aside, not rotated
         self._rotate_files()
-        self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115 (closed in close())
+        self._file = _create(self.path)  # closed in close()
         self._file.write(self._header)
         self._size = len(self._header)
         self._thread = threading.Thread(target=self._run, name="motorctl-trace", daemon=True)
@@ -191,8 +206,9 @@ class TraceRecorder:
         return pos
 
     def _start_file(self) -> None:
+        clear_the_way(self.path)
         self._rotate_files()
-        self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115
+        self._file = _create(self.path)
         self._file.write(self._header)
         self._size = len(self._header)
 

@@ -14,6 +14,7 @@ from typing import Any
 
 import pytest
 
+from motorctl.daemon import paths
 from motorctl.daemon import state as st
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
@@ -325,10 +326,10 @@ def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) 
 def test_no_free_name_left(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    monkeypatch.setattr(st, "ASIDE_LIMIT", 3)
+    monkeypatch.setattr(paths, "ASIDE_LIMIT", 3)
     for name in ("state.json", "state.json.bad", "state.json.bad.1", "state.json.bad.2"):
         (tmp_path / name).mkdir()
-    assert st.set_aside(tmp_path / "state.json") is None
+    assert paths.set_aside(tmp_path / "state.json") is None
     assert "are all taken; remove old ones" in caplog.text
 
 
@@ -553,7 +554,8 @@ def test_journal_unreadable_or_missing_state(
     assert lost(d) == [True, True]
     assert MotionJournal.read(tmp_path / "nothing") == []
     (tmp_path / "dir").mkdir()
-    assert MotionJournal.read(tmp_path / "dir") is None
+    with pytest.raises(StateError, match="is a directory"):
+        MotionJournal.read(tmp_path / "dir")
 
 
 def test_journal_directory_in_its_place(tmp_path: Path) -> None:
@@ -660,7 +662,7 @@ def test_read_only_directory_save_answers_e4(
 def test_set_aside_fails_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     (tmp_path / "state.json").write_bytes(b"\xff")
     with read_only(tmp_path):
-        assert st.set_aside(tmp_path / "state.json") is None
+        assert paths.set_aside(tmp_path / "state.json") is None
     assert "cannot move" in caplog.text
 
 
