@@ -88,7 +88,7 @@ JOURNAL_NAME = "state.moving"
 POS_MIN = -(1 << 23)
 POS_MAX = (1 << 23) - 1
 MAX_WAYPOINTS = 255  # the protocol's table size; a motor's configured table may be smaller
-#: The largest state or journal file read: 64 motors with full tables write about 230 KiB
+#: The largest state or journal file read: 64 motors with full tables write about 240 KiB
 #: (tests/daemon/test_state.py checks it); anything larger is not this daemon's and is set
 #: aside unread.
 MAX_FILE_BYTES = 4 << 20
