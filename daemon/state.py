@@ -222,7 +222,8 @@ def parse_state(raw: bytes) -> SavedState:
     except RecursionError:
         raise StateError("JSON nested too deeply to be read") from None
     except ValueError as exc:  # e.g. an integer of more digits than Python converts
-        raise StateError(f"JSON that cannot be read ({exc})") from None
+        why = str(exc).split(":")[0]  # without the advice to raise Python's own limit
+        raise StateError(f"JSON that cannot be read ({why})") from None
     if not isinstance(data, dict):
         raise StateError("not a JSON object")
     if data.get("version") != STATE_VERSION:
