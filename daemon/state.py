@@ -69,9 +69,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from motorctl.daemon.paths import (
+    clear_the_way,
     describe,
     folder_owner,
-    move_aside,
     open_for_writing,
     ours,
     set_aside,
@@ -411,7 +411,7 @@ def write_atomic(path: Path, data: bytes, mode: int = 0o640) -> None:
         try:
             os.replace(tmp, path)  # replaces a link or a FIFO there, never follows it
         except IsADirectoryError:  # a directory made there since the start
-            move_aside(path)
+            clear_the_way(path)
             os.replace(tmp, path)
     except OSError:
         with contextlib.suppress(OSError):

@@ -322,6 +322,19 @@ def test_whatever_stands_at_the_temporary_file_is_set_aside(tmp_path: Path, kind
     assert not (tmp_path / "missing").exists()  # a link was not written through
 
 
+def test_a_directory_made_at_the_state_file_while_running(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    d = build(tmp_path)
+    move(d, 0, 12)
+    (tmp_path / "state.json").unlink()
+    (tmp_path / "state.json").mkdir()
+    assert d.writer.write_now()
+    assert saved(tmp_path)["motors"][0]["position"] == 12
+    assert (tmp_path / "state.json.bad").is_dir()
+    assert f"{tmp_path / 'state.json'} was a directory" in caplog.text
+
+
 @pytest.mark.parametrize("kind", IN_THE_WAY)
 def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) -> None:
     good_state(tmp_path)
