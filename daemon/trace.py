@@ -20,15 +20,17 @@ next flush: it never stops the link.
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import platform
+import stat
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
-from motorctl.daemon.paths import clear_the_way, open_for_writing
+from motorctl.daemon.paths import clear_the_way, kind, open_for_writing
 from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
 
 log = logging.getLogger("motorctl.trace")
@@ -37,6 +39,21 @@ FLUSH_S = 0.2
 BUFFER_LIMIT = 4 << 20
 
 _IN, _OUT = int(Direction.TO_DEVICE), int(Direction.TO_HOST)
+
+
+def _not_a_device(path: Path) -> None:
+    """OSError when ``path`` is a device, or a link to one (``--trace /dev/null``,
+    ``/dev/stdout``): only root makes those, so it is no one's trap to set aside, and
+    neither renaming it (set aside, rotated) nor writing to it is what anyone wants."""
+    try:
+        mode = os.stat(path).st_mode  # through a link: never opened
+    except OSError:
+        return
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        through = " (through a symbolic link)" if os.path.islink(path) else ""
+        raise OSError(
+            errno.ENODEV, f"{path} is {kind(mode)}{through}, not a file; a trace is a file"
+        )
 
 
 def _create(path: Path) -> Any:
@@ -103,6 +120,7 @@ class TraceRecorder:
     def open(self) -> None:
         """Start a new file (the previous ones rotate away) and the writer thread; OSError
         if the file cannot be created (the caller names it to the user)."""
+        _not_a_device(self.path)
         clear_the_way(self.path)  # not a trace of ours: set aside, not rotated
         self._rotate_files()
         self._file = _create(self.path)  # closed in close()

@@ -124,6 +124,12 @@ def test_a_trap_at_a_path_the_daemon_writes_is_set_aside_once(
     name, write = WRITERS[writer]
     path = shared / name
     trap = place(path, kind)
+    if writer == "trace file" and kind == "device":
+        with pytest.raises(OSError, match=f"{path} is a character device, not a file"):
+            write(path)  # only root makes a device: refused, left where it is
+        trap.check(set_aside=False)
+        assert stat.S_ISCHR(os.lstat(path).st_mode)
+        return
     write(path)
     if writer == "status socket" and kind == "socket":
         # a socket at status.sock is a stale one (the caller holds the instance lock)
@@ -159,6 +165,19 @@ def _umask() -> int:
     old = os.umask(0)
     os.umask(old)
     return old
+
+
+def test_a_trace_to_a_device_is_refused_and_the_device_left_alone(shared: Path) -> None:
+    """``--trace /dev/null`` or ``/dev/stdout`` as root: the device (or the link to it) is
+    neither written, nor set aside, nor rotated away (renaming /dev/null breaks a system)."""
+    device = shared / "null"
+    os.mknod(device, 0o666 | stat.S_IFCHR, os.makedev(1, 3))
+    link = shared / "stdout"
+    link.symlink_to(device)
+    for path, through in ((device, ""), (link, r" \(through a symbolic link\)")):
+        with pytest.raises(OSError, match=f"{path} is a character device{through}, not a file"):
+            write_trace(path)
+    assert sorted(p.name for p in shared.iterdir()) == ["null", "stdout"]
 
 
 # -- the daemon's own files are taken as they are -----------------------------------------------

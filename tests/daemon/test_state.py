@@ -901,7 +901,7 @@ POISON = [
 ]
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(raw=hst.binary(max_size=500) | JSON.map(lambda v: json.dumps(v).encode()))
 @example(raw=POISON[0])
 @example(raw=POISON[2])
@@ -937,7 +937,7 @@ def test_the_fuzzers_document_restores_when_unspoilt(
     restored_b(d)
 
 
-@settings(max_examples=120, deadline=None)
+@settings(max_examples=60, deadline=None)
 @given(
     state=hst.one_of(
         hst.none(),
