@@ -41,34 +41,6 @@ BUFFER_LIMIT = 4 << 20
 _IN, _OUT = int(Direction.TO_DEVICE), int(Direction.TO_HOST)
 
 
-def _not_a_device(path: Path) -> None:
-    """OSError when ``path`` is a device, or a link to one (``--trace /dev/null``,
-    ``/dev/stdout``): only root makes those, so it is no one's trap to set aside, and
-    neither renaming it (set aside, rotated) nor writing to it is what anyone wants."""
-    try:
-        mode = os.stat(path).st_mode  # through a link: never opened
-    except OSError:
-        return
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        through = " (through a symbolic link)" if os.path.islink(path) else ""
-        raise OSError(
-            errno.ENODEV, f"{path} is {kind(mode)}{through}, not a file; a trace is a file"
-        )
-
-
-def _create(path: Path) -> Any:
-    """A new, empty trace file at ``path`` (0640 less the umask, like the state), opened
-    as the daemon opens every file it writes (daemon/paths.py: never through a link, never
-    a FIFO or a device; what stands there is set aside). OSError when it cannot."""
-    fd = open_for_writing(path, 0o640, os.O_WRONLY)
-    try:
-        os.ftruncate(fd, 0)
-    except OSError:
-        os.close(fd)
-        raise
-    return open(fd, "wb", buffering=0)  # the recorder closes it
-
-
 def rotated(path: Path, index: int) -> Path:
     """``path`` for index 0, else ``path.N``."""
     return path if index == 0 else path.with_name(f"{path.name}.{index}")
@@ -249,3 +221,31 @@ class TraceRecorder:
             "max_file_bytes": self.max_bytes,
             "files": self.files,
         }
+
+
+def _not_a_device(path: Path) -> None:
+    """OSError when ``path`` is a device, or a link to one (``--trace /dev/null``,
+    ``/dev/stdout``): only root makes those, so it is no one's trap to set aside, and
+    neither renaming it (set aside, rotated) nor writing to it is what anyone wants."""
+    try:
+        mode = os.stat(path).st_mode  # through a link: never opened
+    except OSError:
+        return
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        through = " (through a symbolic link)" if os.path.islink(path) else ""
+        raise OSError(
+            errno.ENODEV, f"{path} is {kind(mode)}{through}, not a file; a trace is a file"
+        )
+
+
+def _create(path: Path) -> Any:
+    """A new, empty trace file at ``path`` (0640 less the umask, like the state), opened
+    as the daemon opens every file it writes (daemon/paths.py: never through a link, never
+    a FIFO or a device; what stands there is set aside). OSError when it cannot."""
+    fd = open_for_writing(path, 0o640, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, 0)
+    except OSError:
+        os.close(fd)
+        raise
+    return open(fd, "wb", buffering=0)  # the recorder closes it
