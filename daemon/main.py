@@ -381,7 +381,17 @@ def _serve(
     )
     daemon.link = link
     daemon.trace = recorder
-    status = StatusServer(args.state_dir / "status.sock", daemon.status)
+    try:
+        status = StatusServer(args.state_dir / "status.sock", daemon.status)
+    except OSError as exc:
+        if recorder is not None:
+            recorder.close()
+        daemon.engine.executor.close()
+        daemon.hw.close()
+        raise StartupError(
+            f"cannot serve the status socket {args.state_dir / 'status.sock'}: "
+            f"{exc.strerror or exc}"
+        ) from exc
     events = MotorEventLog()
     line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
 

@@ -42,6 +42,8 @@ from collections.abc import Generator
 from pathlib import Path
 from typing import Any, Protocol
 
+from motorctl.daemon.paths import bind_socket
+
 log = logging.getLogger("motorctl.status")
 
 SEND_TIMEOUT_S = 2.0
@@ -138,16 +140,14 @@ def stable_view(doc: dict[str, Any]) -> dict[str, Any]:
 
 class StatusServer:
     def __init__(self, path: Path, status: StatusSource) -> None:
-        """Bind ``path`` (the caller holds the instance lock: a socket there is stale)."""
+        """Bind ``path`` (the caller holds the instance lock: a socket there is stale;
+        anything else there is set aside, daemon/paths.py). OSError when it cannot."""
         self.path = path
         self.status = status
         self.errors = 0
         self.served = 0
-        if path.is_socket():
-            path.unlink()
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        self._sock.bind(str(path))
-        os.chmod(path, 0o660)  # the service's group may ask (connecting needs write)
+        # 0660: the service's group may ask (connecting needs write)
+        self._sock = bind_socket(path, 0o660)
         st = os.lstat(path)
         self.identity = (st.st_dev, st.st_ino, st.st_ctime_ns)
         self._sock.listen(MAX_CLIENTS)

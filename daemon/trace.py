@@ -20,14 +20,17 @@ next flush: it never stops the link.
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import platform
+import stat
 import threading
 import time
 from pathlib import Path
 from typing import Any
 
+from motorctl.daemon.paths import clear_the_way, kind, open_for_writing
 from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
 
 log = logging.getLogger("motorctl.trace")
@@ -89,8 +92,10 @@ class TraceRecorder:
     def open(self) -> None:
         """Start a new file (the previous ones rotate away) and the writer thread; OSError
         if the file cannot be created (the caller names it to the user)."""
+        _not_a_device(self.path)
+        clear_the_way(self.path)  # not a trace of ours: set aside, not rotated
         self._rotate_files()
-        self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115 (closed in close())
+        self._file = _create(self.path)  # closed in close()
         self._file.write(self._header)
         self._size = len(self._header)
         self._thread = threading.Thread(target=self._run, name="motorctl-trace", daemon=True)
@@ -191,8 +196,9 @@ class TraceRecorder:
         return pos
 
     def _start_file(self) -> None:
+        clear_the_way(self.path)
         self._rotate_files()
-        self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115
+        self._file = _create(self.path)
         self._file.write(self._header)
         self._size = len(self._header)
 
@@ -215,3 +221,31 @@ class TraceRecorder:
             "max_file_bytes": self.max_bytes,
             "files": self.files,
         }
+
+
+def _not_a_device(path: Path) -> None:
+    """OSError when ``path`` is a device, or a link to one (``--trace /dev/null``,
+    ``/dev/stdout``): only root makes those, so it is no one's trap to set aside, and
+    neither renaming it (set aside, rotated) nor writing to it is what anyone wants."""
+    try:
+        mode = os.stat(path).st_mode  # through a link: never opened
+    except OSError:
+        return
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        through = " (through a symbolic link)" if os.path.islink(path) else ""
+        raise OSError(
+            errno.ENODEV, f"{path} is {kind(mode)}{through}, not a file; a trace is a file"
+        )
+
+
+def _create(path: Path) -> Any:
+    """A new, empty trace file at ``path`` (0640 less the umask, like the state), opened
+    as the daemon opens every file it writes (daemon/paths.py: never through a link, never
+    a FIFO or a device; what stands there is set aside). OSError when it cannot."""
+    fd = open_for_writing(path, 0o640, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, 0)
+    except OSError:
+        os.close(fd)
+        raise
+    return open(fd, "wb", buffering=0)  # the recorder closes it

@@ -448,9 +448,13 @@ class MockWorld:
         return {"axes": [a.position for a in self.axes]}
 
     def restore(self, data: dict[str, Any]) -> None:
+        """Axis positions from a state file: what is not a list of integers an axis can
+        hold is left out (the file may hold anything)."""
         positions = data.get("axes", [])
+        if not isinstance(positions, list):
+            return
         for axis, pos in zip(self.axes, positions, strict=False):
-            if isinstance(pos, int):
+            if isinstance(pos, int) and not isinstance(pos, bool) and abs(pos) < 1 << 62:
                 axis.position = pos
 
     def hardware(self) -> Hardware:
