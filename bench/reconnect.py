@@ -16,12 +16,12 @@ first command's p99 <= 1.5x the ordinary round trip's p99, for every kind of lef
 The new host opens the port the moment the old one has closed it (a reconnect; ``--gap-ms``
 waits that long first, as a restarting program does), sends IsReady(1) and reads; the
 answer must be exactly IsReady's and nothing else may follow (anything else is counted as
-a wrong answer, by kind, and fails the run). On a PTY, answers the old host left *unread in
-the kernel* are flushed when the daemon sees its close; a new host that opens the port and
-reads before that (within the daemon's reaction time, microseconds on a quiet machine) can
-still read them: ``unread`` with no gap counts how often (docs/protocol.md). Time is from
-the new host's write to its last byte read; its open is not included (the ordinary host's
-is not either).
+a wrong answer, by kind, and fails the run, but for ``unread``). On a PTY, answers the old
+host left *unread in the kernel* are flushed when the daemon sees its close; a new host
+that opens the port and reads before that (within the daemon's reaction time) can still
+read them: ``unread`` counts how often, and it is reported, not failed (docs/protocol.md,
+"When a host goes away"). Time is from the new host's write to its last byte read; its
+open is not included (the ordinary host's is not either).
 
 ``--port``: the same over a serial device, a socat PTY pair (``socat`` must be installed):
 there the old session ends because the device goes away (the pair is torn down and made
@@ -301,10 +301,16 @@ def main() -> int:
             f"p99 {f['p99_us']:8.1f} us  max {f['max_us']:.0f}  p99 ratio {f['p99_ratio']}"
         )
     print(f"  worst p99 ratio {worst} (target <= 1.5); wrong answers: {wrong_by_kind}")
+    if wrong_by_kind["unread"]:
+        print(
+            f"  ('unread': {wrong_by_kind['unread']} of {len(first['unread'])} new hosts read "
+            "answers the old host had left unread in the kernel, before the daemon saw the "
+            "close and flushed them: the race docs/protocol.md names; not counted as a failure)"
+        )
     print(f"  daemon: {result['counters']}")
     if args.json:
         Path(args.json).write_text(json.dumps(result, indent=1))
-    return 1 if wrong else 0
+    return 1 if any(n for kind, n in wrong_by_kind.items() if kind != "unread") else 0
 
 
 if __name__ == "__main__":
