@@ -1,6 +1,7 @@
-"""inotify for the link: a serial device's return noticed at once (:class:`PathWatch`), and
-the primitives the PTY's slave watch uses (:func:`inotify`, :func:`read_events`;
-daemon/ports.py).
+"""A serial device that is away, for the link: its return noticed at once (:class:`PathWatch`:
+inotify on the folders of its path) and its path tried again (:class:`DeviceReturn`: on
+the watch's news, and on a bounded backoff besides); and the inotify primitives the PTY's
+slave watch uses too (:func:`inotify`, :func:`read_events`; daemon/ports.py).
 
 A USB adapter plugged back in (or in for the first time) makes udev create its node in
 ``/dev`` and its names in ``/dev/serial/by-id/`` (a link, made in place or renamed into
@@ -30,6 +31,10 @@ import errno
 import logging
 import os
 import struct
+from collections import Counter
+from typing import Protocol
+
+from motorctl.daemon.serialport import Backoff, DeviceError
 
 log = logging.getLogger("motorctl.link")
 
@@ -212,3 +217,139 @@ class PathWatch:
             extra={"DEVICE": self.path},
         )
         return False
+
+
+# -- trying the path again ------------------------------------------------------------------
+#: errors of an open that only say the device is not back yet (logged at debug level); any
+#: other (no permission, busy) is logged once as a warning: the user must act
+NOT_BACK = frozenset({errno.ENOENT, errno.ENXIO, errno.ENODEV, errno.EIO})
+
+
+class Device(Protocol):
+    """A serial device that can be opened again by its path (daemon.serialport)."""
+
+    path: str
+
+    def open(self) -> int: ...  # a fresh non-blocking descriptor, or DeviceError
+
+    def close(self) -> None: ...
+
+
+class Notice(Protocol):
+    """Tells when something changed on a device's path (:class:`PathWatch`)."""
+
+    @property
+    def fd(self) -> int | None: ...  # readable when there is news; None: none to wait on
+
+    def arm(self) -> bool: ...
+
+    def changed(self) -> bool: ...
+
+    def disarm(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class DeviceReturn:
+    """When to open an absent device's path again, and the opening: at once when ``notice``
+    has news of the path, and on ``backoff``'s schedule besides (the fallback, bounded by its
+    longest pause). ``counters`` (the link's) count ``reopen_attempts`` and
+    ``device_reopened``; the log says once why a device that is there cannot be opened, and
+    when it is back (or there at last, for one that was not there at start)."""
+
+    def __init__(
+        self,
+        device: Device,
+        notice: Notice | None,
+        backoff: Backoff,
+        counters: Counter[str],
+    ) -> None:
+        self.device = device
+        self.notice = notice
+        self.backoff = backoff
+        self.counters = counters
+        self.ever_open = True  # False until a device not there at start appears
+        self._since = 0.0  # when it went away
+        self._next = 0.0  # when the schedule tries next
+        self._attempts = 0  # since it went away
+        self._reported: set[int | None] = set()  # the errors logged since then
+
+    def away(self, now: float) -> None:
+        """It is away from ``now`` on: watch its path, start the schedule from its first
+        pause."""
+        self._since = now
+        self._attempts = 0
+        self._reported = set()
+        self.backoff.reset()
+        self._next = now + self.backoff.delay()
+        if self.notice is not None:
+            self.notice.arm()
+
+    def wait_s(self, now: float) -> float:
+        """How long until the schedule's next attempt."""
+        return self._next - now
+
+    @property
+    def fds(self) -> list[int]:
+        """What to wait on besides the time: the watch's descriptor, if any."""
+        fd = None if self.notice is None else self.notice.fd
+        return [] if fd is None else [fd]
+
+    def look(self, ready: list[int], now: float) -> int | None:
+        """After a wait: the new descriptor if it is time (or the path changed) and the open
+        worked, else None."""
+        news = bool(set(ready) & set(self.fds))
+        noticed = news and self.notice is not None and self.notice.changed()
+        if now < self._next and not noticed:
+            return None
+        return self._try(now, noticed)
+
+    def _try(self, now: float, noticed: bool) -> int | None:
+        """Open the path; ``noticed``: because something changed there (such an attempt
+        does not move the schedule)."""
+        device = self.device
+        self._attempts += 1
+        self.counters["reopen_attempts"] += 1
+        try:
+            fd = device.open()
+        except DeviceError as exc:
+            if not noticed:
+                self._next = now + self.backoff.delay()
+            # A node that just appeared may not have its group and mode yet (udev gives
+            # them a moment later): only a scheduled attempt says so, once per reason.
+            if exc.errno in NOT_BACK or exc.errno in self._reported or noticed:
+                log.debug("%s; trying again in %.0f ms", exc, (self._next - now) * 1000)
+            else:  # there, but not usable: the user must act (it is retried all the same)
+                self._reported.add(exc.errno)
+                log.warning(
+                    "%s; trying again (every %.0f ms at most)",
+                    exc,
+                    self.backoff.max_s * 1000,
+                    extra={"DEVICE": device.path},
+                )
+            return None
+        if self.notice is not None:
+            self.notice.disarm()
+        if not self.ever_open:
+            self.ever_open = True
+            log.info(
+                "serial device %s is there after %.1f s (%d attempts): serving it",
+                device.path,
+                now - self._since,
+                self._attempts,
+                extra={"DEVICE": device.path, "EVENT": "device_appeared"},
+            )
+        else:
+            self.counters["device_reopened"] += 1
+            log.info(
+                "serial device %s is back after %.1f s (%d attempts): serving again",
+                device.path,
+                now - self._since,
+                self._attempts,
+                extra={"DEVICE": device.path, "EVENT": "device_back"},
+            )
+        return fd
+
+    def close(self) -> None:
+        if self.notice is not None:
+            self.notice.close()

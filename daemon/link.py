@@ -23,14 +23,16 @@ What the shell does, and why:
   them. While more than ``out_limit`` bytes or ``backlog_limit`` responses are owed, the
   shell stops reading: the host's writes then wait in the kernel (back pressure), nothing is
   lost and memory stays bounded. Reads resume as soon as the host reads again.
-- **A host's session ends** when it closes the PTY (POLLHUP, EIO) or its serial device goes
-  away. Everything owed to it is dropped and counted by cause (``responses_dropped_*``):
-  the partial frame, the answers not yet written (``unsent``; on a PTY also those the
-  kernel still holds for it, counted and flushed by ``pty``, a
-  :class:`~motorctl.daemon.ports.PtySlave`), a held WaitMoved's answer (``wait``) and the
-  answers of the frames kept behind it (``held``; their commands are never executed:
-  :meth:`LinkSession.end`). The next host reads only its own answers, and its first
-  command is answered as fast as any: nothing of the old session is left to wait for.
+- **A host's session ends** when it closes the PTY (POLLHUP, EIO; or the slave's close
+  and a new open reported by ``pty``'s inotify watch, when a host closed the port and
+  another opened it before the link looked) or its serial device goes away. Everything
+  owed to it is dropped and counted by cause (``responses_dropped_*``): the partial frame,
+  the answers not yet written (``unsent``; on a PTY also those the kernel still holds for
+  it, counted and flushed by ``pty``, a :class:`~motorctl.daemon.ports.PtySlave`), a held
+  WaitMoved's answer (``wait``) and the answers of the frames kept behind it (``held``;
+  their commands are never executed: :meth:`LinkSession.end`). The next host reads only
+  its own answers, and its first command is answered as fast as any: nothing of the old
+  session is left to wait for.
 - **No host on the PTY**: ``pty`` holds the slave side open, so that the master does not
   report POLLHUP over and over; ``poll()`` sleeps until a host writes, and its first bytes
   are read like any others. Any other read or write error (or a PTY whose slave cannot be
@@ -39,11 +41,12 @@ What the shell does, and why:
 - **A serial device may go away** (``device``: ``--port``; a USB adapter unplugged, a
   socat PTY torn down), or not be there yet at start. Its descriptor is hung up for good
   (POLLHUP, an empty read, EIO), so the shell closes it, logs the loss once and opens the
-  device's *path* again the moment ``notice`` (a :class:`~motorctl.daemon.devwatch.PathWatch`:
-  inotify on the folders of the path) sees it come back, and on a
-  :class:`~motorctl.daemon.serialport.Backoff` schedule meanwhile (50 ms after the loss,
-  doubling up to every second) as the fallback; it opens it without flushing what the new
-  session sent. Motors and positions are kept; the session ends as above.
+  device's *path* again (:class:`~motorctl.daemon.devwatch.DeviceReturn`) the moment
+  ``notice`` (a :class:`~motorctl.daemon.devwatch.PathWatch`: inotify on the folders of the
+  path) sees it come back, and on a :class:`~motorctl.daemon.serialport.Backoff` schedule
+  meanwhile (50 ms after the loss, doubling up to every second) as the fallback; it opens
+  it without flushing what the new session sent. Motors and positions are kept; the
+  session ends as above.
 - **The host's silence** (``watch``: ``[link] timeout_ms``, off by default): every byte
   read tells the :class:`~motorctl.daemon.silence.SilenceWatch`; its deadline bounds the
   waits; while the shell does not read (back pressure) the silence does not count, and it
@@ -71,7 +74,8 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
-from motorctl.daemon.serialport import Backoff, DeviceError
+from motorctl.daemon.devwatch import Device, DeviceReturn, Notice
+from motorctl.daemon.serialport import Backoff
 from motorctl.daemon.session import CommandPort, Ended, LinkSession
 from motorctl.daemon.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
@@ -99,34 +103,6 @@ SHELL_COUNTERS = (
     "device_reopened",
     "reopen_attempts",
 )
-#: errors of a reopen that only say the device is not back yet (logged at debug level);
-#: any other (no permission, busy) is logged once as a warning: the user must act
-NOT_BACK = frozenset({errno.ENOENT, errno.ENXIO, errno.ENODEV, errno.EIO})
-
-
-class Device(Protocol):
-    """A serial device that can be opened again by its path (daemon.serialport)."""
-
-    path: str
-
-    def open(self) -> int: ...  # a fresh non-blocking descriptor, or DeviceError
-
-    def close(self) -> None: ...
-
-
-class Notice(Protocol):
-    """Tells when something changed on a device's path (daemon.devwatch.PathWatch)."""
-
-    @property
-    def fd(self) -> int | None: ...  # readable when there is news; None: none to wait on
-
-    def arm(self) -> bool: ...
-
-    def changed(self) -> bool: ...
-
-    def disarm(self) -> None: ...
-
-    def close(self) -> None: ...
 
 
 class Slave(Protocol):
@@ -190,19 +166,17 @@ class Link:
         self.drain_s = drain_s
         self.pty = pty
         self.device = device
-        self.notice = notice
-        self.backoff = backoff or Backoff()
         self.watch = watch or SilenceWatch(0.0)
         self._watching = self.watch.enabled
-        self._lost_at = 0.0  # when the device went away
-        self._next_try = 0.0  # when to try to open it again
-        self._attempts = 0  # reopen attempts since it went away
-        self._reported: set[int | None] = set()  # reopen errors logged since then
         self.recorder = recorder
         self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
+        self.away = (  # a device gone (or not there yet): when and how to open it again
+            None
+            if device is None
+            else DeviceReturn(device, notice, backoff or Backoff(), self.counters)
+        )
         self.processing = LatencyStats(threshold_s=108e-6)
         self.peer_gone = False
-        self._ever_open = True  # False while a device not there at start has not appeared
         self._out = bytearray()
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
@@ -213,16 +187,16 @@ class Link:
         os.set_blocking(self._wake_w, False)
         self._stopped = False
         self.turns = 0
-        if device is not None and fd < 0:  # not there at start: served when it appears
+        if self.away is not None and fd < 0:  # not there at start: served when it appears
             self.peer_gone = True
-            self._ever_open = False
-            self._await_device()
+            self.away.ever_open = False
+            self.away.away(self.clock())
             log.warning(
                 "serial device %s is not there: serving it as soon as it appears (watching "
                 "its folder, and trying every %.0f ms at most)",
-                device.path,
-                self.backoff.max_s * 1000,
-                extra={"DEVICE": device.path, "EVENT": "device_awaited"},
+                self.away.device.path,
+                self.away.backoff.max_s * 1000,
+                extra={"DEVICE": self.away.device.path, "EVENT": "device_awaited"},
             )
         elif pty is not None:  # no host yet: hold the slave until one writes
             self.peer_gone = True
@@ -320,14 +294,9 @@ class Link:
         # and closed within the moment the new one opened and wrote: that cannot be told
         # apart). The port's own events are looked at from the next turn on (holding the
         # slave has changed them).
-        if opened and self.pty is not None:
-            reopened = self.pty.reopened()
-            if self.pty.events_fd is None and self._opens is not None:  # no longer watched
-                poller.unregister(self._opens)  # before its number can be reused
-                self._opens = None
-            if reopened and not self.peer_gone:
-                self._hangup("closed")
-                return
+        if opened and self._reopened():
+            self._hangup("closed")
+            return
         if events & POLLIN:
             self._read(None)
         elif events & POLLGONE:
@@ -377,7 +346,21 @@ class Link:
         if not data:  # end of file: nobody is on the other side
             self._hangup("closed")
             return
+        if self._reopened():  # these bytes came after a host closed the port and another
+            self._hangup("closed")  # opened it: the next session's (see turn())
         self._take(data, now)
+
+    def _reopened(self) -> bool:
+        """Whether, during the open session, the PTY was closed by a host and opened again
+        (its events are taken in any case). Asked before the bytes read are taken: a host's
+        open is reported before anything it writes can be read, so no new host's byte
+        joins the old session, however the poll and the read fell."""
+        pty = self.pty
+        reopened = pty is not None and pty.events_fd is not None and pty.reopened()
+        if self._opens is not None and (pty is None or pty.events_fd is None):
+            self._poller.unregister(self._opens)  # no longer watched: before its number
+            self._opens = None  # can be reused
+        return reopened and not self.peer_gone
 
     def _take(self, data: bytes, now: float) -> None:
         """Bytes read at ``now``: to the session, and their answers to the port; the
@@ -524,7 +507,8 @@ class Link:
         self._mask = -1
         self.device.close()
         self.fd = -1
-        self._await_device()
+        assert self.away is not None
+        self.away.away(self.clock())
         self.counters["device_lost"] += 1  # once its path is watched (the tests wait on it)
         log.warning(
             "serial device %s is gone (%s); motors and positions are kept; opening %s "
@@ -533,91 +517,33 @@ class Link:
             path,
             why,
             path,
-            self.backoff.first_s * 1000,
-            self.backoff.max_s * 1000,
+            self.away.backoff.first_s * 1000,
+            self.away.backoff.max_s * 1000,
             extra={"DEVICE": path, "EVENT": "device_lost"},
         )
-
-    def _await_device(self) -> None:
-        """From now on, look for the device: its path watched, the backoff from the start."""
-        self._lost_at = now = self.clock()
-        self._attempts = 0
-        self._reported = set()
-        self.backoff.reset()
-        self._next_try = now + self.backoff.delay()
-        if self.notice is not None:
-            self.notice.arm()
 
     def _look_for_device(self) -> None:
         """Device gone: wait for news on its path, the next attempt, a deadline or a
         wake-up; then try, if it is time or something changed."""
-        assert self.device is not None
+        away = self.away
+        assert away is not None
         now = self.clock()
-        wait = self._next_try - now
+        wait = away.wait_s(now)
         deadline = self._deadline()
         if deadline is not None:
             wait = min(wait, deadline - now)
-        news = self.notice.fd if self.notice is not None else None
         ready: list[int] = []
         with contextlib.suppress(InterruptedError):
-            waits = [self._wake_r] if news is None else [self._wake_r, news]
-            ready = select.select(waits, [], [], max(0.0, wait))[0]
+            ready = select.select([self._wake_r, *away.fds], [], [], max(0.0, wait))[0]
         with contextlib.suppress(BlockingIOError):
             os.read(self._wake_r, 4096)
-        noticed = news in ready and self.notice is not None and self.notice.changed()
-        now = self.clock()
-        if self._stopped or (now < self._next_try and not noticed):
+        if self._stopped:
             return
-        self._try_device(now, noticed)
-
-    def _try_device(self, now: float, noticed: bool) -> None:
-        """Open the device's path; ``noticed``: because something changed there (the
-        backoff's schedule is not moved by such an attempt)."""
-        assert self.device is not None
-        self._attempts += 1
-        self.counters["reopen_attempts"] += 1
-        try:
-            fd = self.device.open()
-        except DeviceError as exc:
-            if not noticed:
-                self._next_try = now + self.backoff.delay()
-            # A node that just appeared may not have its group and mode yet (udev gives
-            # them a moment later): only a scheduled attempt says so, once per reason.
-            if exc.errno in NOT_BACK or exc.errno in self._reported or noticed:
-                log.debug("%s; trying again in %.0f ms", exc, (self._next_try - now) * 1000)
-            else:  # there, but not usable: the user must act (it is retried all the same)
-                self._reported.add(exc.errno)
-                log.warning(
-                    "%s; trying again (every %.0f ms at most)",
-                    exc,
-                    self.backoff.max_s * 1000,
-                    extra={"DEVICE": self.device.path},
-                )
-            return
-        self.fd = fd
-        self._mask = -1
-        self.peer_gone = False
-        if self.notice is not None:
-            self.notice.disarm()
-        path = self.device.path
-        if not self._ever_open:
-            self._ever_open = True
-            log.info(
-                "serial device %s is there after %.1f s (%d attempts): serving it",
-                path,
-                now - self._lost_at,
-                self._attempts,
-                extra={"DEVICE": path, "EVENT": "device_appeared"},
-            )
-            return
-        self.counters["device_reopened"] += 1
-        log.info(
-            "serial device %s is back after %.1f s (%d attempts): serving again",
-            path,
-            now - self._lost_at,
-            self._attempts,
-            extra={"DEVICE": path, "EVENT": "device_back"},
-        )
+        fd = away.look(ready, self.clock())
+        if fd is not None:
+            self.fd = fd
+            self._mask = -1
+            self.peer_gone = False
 
     def _drain(self) -> None:
         """After stop(): give unsent responses at most ``drain_s`` to leave."""
@@ -644,7 +570,7 @@ class Link:
         counts.update(self.watch.counters)
         peer = "open"
         if self.peer_gone:
-            peer = "closed" if self.device is None else "gone" if self._ever_open else "waiting"
+            peer = "closed" if self.away is None else "gone" if self.away.ever_open else "waiting"
         out: dict[str, object] = {
             "counters": counts,
             "processing": self.processing.summary(),
@@ -663,8 +589,8 @@ class Link:
         os.close(self._wake_w)
         if self.pty is not None:
             self.pty.close()
-        if self.notice is not None:
-            self.notice.close()
+        if self.away is not None:
+            self.away.close()
 
 
 def describe_ended(ended: Ended, unsent: int) -> str:

@@ -38,9 +38,9 @@ from motorctl.daemon.assemble import (
     state_files_dir,
 )
 from motorctl.daemon.config import Config, ConfigError, load_config
-from motorctl.daemon.devwatch import PathWatch
+from motorctl.daemon.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
-from motorctl.daemon.link import NOT_BACK, Link
+from motorctl.daemon.link import Link
 from motorctl.daemon.ports import PtySlave, open_pty
 from motorctl.daemon.serialport import DeviceError, SerialDevice
 from motorctl.daemon.service import (
