@@ -1,5 +1,10 @@
 """The link: the poll/read/write loop around a pure :class:`~motorctl.daemon.session.LinkSession`.
 
+Over 500 lines on purpose: one loop that every byte crosses, whose states (reading, holding
+back, no host, a host's session ending, a device away) decide together what each turn
+waits for; what could stand apart does (the session, the silence watch, the device's
+return in daemon/devwatch.py, the PTY's slave in daemon/ports.py).
+
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
 on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
 after a hard StopMove in the wait for the executor's confirmation (bounded by
@@ -87,6 +92,7 @@ POLLIN, POLLOUT = select.POLLIN, select.POLLOUT
 POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 WRITE_MAX = 65536  # bytes handed to one write()
+SAY_AFTER_S = 0.02  # a session's end is logged this long after it (see _end_session)
 
 SHELL_COUNTERS = (
     "reads",
@@ -181,6 +187,8 @@ class Link:
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
         self._opens: int | None = None  # the PTY slave's opens and closes, registered there
+        self._later: list[tuple[str, str, str]] = []  # session ends to log, a moment later
+        self._later_at = 0.0
         self._poller = select.poll()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -240,12 +248,13 @@ class Link:
         poller = self._poller = select.poll()
         poller.register(self._wake_r, POLLIN)
         self._opens = self.pty.events_fd if self.pty is not None else None
-        if self._opens is not None:
-            poller.register(self._opens, POLLIN)
+        if self._opens is not None:  # watched while a session is open
+            poller.register(self._opens, 0 if self.peer_gone else POLLIN)
         self._mask = -1
         while not self._stopped:
             self.turn(poller)
             self.turns += 1  # the watchdog's evidence that the loop is not hung
+        self._say_later()
         self._drain()
 
     def turn(self, poller: select.poll) -> None:
@@ -279,7 +288,14 @@ class Link:
         t_enter = self.clock()
         events = 0
         opened = False
-        for ready, what in poller.poll(self._timeout_ms(t_enter, reading)):
+        timeout = self._timeout_ms(t_enter, reading)
+        if self._later:  # said once the line has been quiet a moment, not before a new
+            left = (self._later_at + SAY_AFTER_S - t_enter) * 1000.0  # host's first command
+            if left <= 0:
+                self._say_later()
+            elif timeout is None or left < timeout:
+                timeout = left
+        for ready, what in poller.poll(timeout):
             if ready == fd:
                 events = what
             elif ready == self._wake_r:
@@ -365,11 +381,14 @@ class Link:
     def _take(self, data: bytes, now: float) -> None:
         """Bytes read at ``now``: to the session, and their answers to the port; the
         processing time of every read that produced answers is recorded."""
-        if self.peer_gone:  # a new host's first bytes (found by a poll or a look)
+        opening = self.peer_gone
+        if opening:  # a new host's first bytes (found by a poll or a look)
             self._open_session()
         self._received(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
+        if opening and self.pty is not None:  # after its first answers: they come first
+            self.pty.release()
 
     def _flush(self) -> bool:
         """Write what the descriptor takes without blocking; True if anything new was queued."""
@@ -429,15 +448,26 @@ class Link:
         self._drop("unsent", unsent)
         self._drop("wait", ended.wait)
         self._drop("held", ended.held)
+        if self._opens is not None:  # no session: a host's open need not wake the loop
+            self._poller.modify(self._opens, 0)
         if unsent or ended.wait or ended.held or ended.partial_bytes:
-            log.info(
-                "%s: dropped what its host did not read (%s); serving the next host",
-                how,
-                describe_ended(ended, unsent),
-                extra={"EVENT": "session_ended"},
+            # said a moment later (the log costs more than a command): a new host's first
+            # command, maybe on its way, is answered first
+            self._later_at = self.clock()
+            self._later.append(
+                (
+                    "%s: dropped what its host did not read (%s); serving the next host",
+                    how,
+                    describe_ended(ended, unsent),
+                )
             )
         else:
             log.debug("%s; serving the next host", how)
+
+    def _say_later(self) -> None:
+        for message, how, what in self._later:
+            log.info(message, how, what, extra={"EVENT": "session_ended"})
+        self._later.clear()
 
     def _drop(self, cause: str, answers: int) -> None:
         if answers:
@@ -445,10 +475,11 @@ class Link:
             self.counters[f"responses_dropped_{cause}"] += answers
 
     def _open_session(self) -> None:
-        """A host is there again (a new session): the slave held meanwhile is let go."""
+        """A host is there again (a new session): its opens and closes are watched again;
+        the slave held meanwhile is let go once its first bytes are answered (:meth:`_take`)."""
         self.peer_gone = False
-        if self.pty is not None:
-            self.pty.release()
+        if self._opens is not None:
+            self._poller.modify(self._opens, POLLIN)
         self.counters["peer_reopened"] += 1
         log.debug("a host opened the port")
 
