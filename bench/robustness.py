@@ -1056,8 +1056,9 @@ def part_reconnect(workdir: Path, cycles: int, seed: int, report: Report) -> Non
     expected = {"wait": 0, "held": 0, "discarded": 0}
     t0 = time.monotonic()
     try:
+        motion = [0]  # motor 0's target: where it is at start
         for cycle in range(cycles):
-            reconnect_cycle(d, rng, cycle, report, first_s, expected)
+            reconnect_cycle(d, rng, cycle, report, first_s, expected, motion)
         counters = d.status()["link"]["counters"]
     finally:
         if d.alive():
@@ -1100,7 +1101,10 @@ def reconnect_cycle(
     report: Report,
     first_s: list[float],
     expected: dict[str, int],
+    motion: list[int],
 ) -> None:
+    """One host restarted during a WaitMoved (``motion``: motor 0's target, kept across
+    cycles)."""
     what = f"reconnect cycle {cycle}"
     old = Port(d.pty)
     try:
@@ -1109,11 +1113,14 @@ def reconnect_cycle(
         wait_idle(old, 1, report)
         levels = [ask(old, cmd(GET_PIN, pin), report, what) for pin in range(4)]
         pos1 = ask(old, cmd(GET_POS, 1), report, what)
-        # motor 0 moving for seconds (1000 step/s); motor 2 running, to be stopped
-        if ask(old, cmd(IS_READY, 0), report, what) == ok(b"\x01\0\0"):
-            here = pos_of(ask(old, cmd(GET_POS, 0), report, what))
-            target = here + 5000 if here < 100_000 else 0
-            exchange(old, [cmd(MOVE_TO, 0, 1, target, 10, 0, 0)], report, [ok()], what)
+        # motor 0 moving for a second at least (1000 step/s, between 1000 and 6000, clear
+        # of the end stops; a new move once the last one is near its end); motor 2
+        # running, to be stopped
+        here = pos_of(ask(old, cmd(GET_POS, 0), report, what))
+        if abs(motion[0] - here) < 1000:
+            wait_idle(old, 0, report)
+            motion[0] = 1000 if motion[0] > 1000 else 6000
+            exchange(old, [cmd(MOVE_TO, 0, 1, motion[0], 10, 0, 0)], report, [ok()], what)
         stop2 = rng.random() < 0.5
         if stop2:
             exchange(old, [cmd(MOVE, 2, 1, 1, 0, 0)], report, [ok()], what)
@@ -1164,9 +1171,11 @@ def reconnect_cycle(
     try:
         queries = [cmd(IS_READY, 1)] + [cmd(GET_PIN, pin) for pin in range(4)] + [cmd(GET_POS, 1)]
         want = [ok(b"\x01\0\0"), *levels, pos1]
-        if stop2:
-            queries.append(cmd(IS_READY, 2))
-            want.append(ok(b"\x01\0\0"))  # the kept StopMove stopped it on arrival
+        if stop2:  # the kept StopMove stopped it on arrival (a Move runs until stopped);
+            # its stop is confirmed a moment later on a loaded machine: a WaitMoved, not
+            # IsReady, asks whether it stopped
+            queries.append(cmd(WAIT, 2, 5000))
+            want.append(ok())
         t = time.monotonic()
         new.write(b"".join(queries))
         got = new.take(5, timeout=2.0)
