@@ -187,7 +187,7 @@ class Link:
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
         self._opens: int | None = None  # the PTY slave's opens and closes, registered there
-        self._later: list[tuple[str, str, str]] = []  # session ends to log, a moment later
+        self._later: list[tuple[str, Ended, int]] = []  # session ends to log, a moment later
         self._later_at = 0.0
         self._poller = select.poll()
         self._wake_r, self._wake_w = os.pipe()
@@ -312,6 +312,7 @@ class Link:
         # slave has changed them).
         if opened and self._reopened():
             self._hangup("closed")
+            self._read(None)  # the new host's first bytes, often there already
             return
         if events & POLLIN:
             self._read(None)
@@ -454,19 +455,18 @@ class Link:
             # said a moment later (the log costs more than a command): a new host's first
             # command, maybe on its way, is answered first
             self._later_at = self.clock()
-            self._later.append(
-                (
-                    "%s: dropped what its host did not read (%s); serving the next host",
-                    how,
-                    describe_ended(ended, unsent),
-                )
-            )
+            self._later.append((how, ended, unsent))
         else:
             log.debug("%s; serving the next host", how)
 
     def _say_later(self) -> None:
-        for message, how, what in self._later:
-            log.info(message, how, what, extra={"EVENT": "session_ended"})
+        for how, ended, unsent in self._later:
+            log.info(
+                "%s: dropped what its host did not read (%s); serving the next host",
+                how,
+                describe_ended(ended, unsent),
+                extra={"EVENT": "session_ended"},
+            )
         self._later.clear()
 
     def _drop(self, cause: str, answers: int) -> None:
