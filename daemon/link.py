@@ -36,8 +36,8 @@ What the shell does, and why:
   it, counted and flushed by ``pty``, a :class:`~motorctl.daemon.ports.PtySlave`), a held
   WaitMoved's answer (``wait``) and the answers of the frames kept behind it (``held``;
   their commands are never executed: :meth:`LinkSession.end`). The next host reads only
-  its own answers, and its first command is answered as fast as any: nothing of the old
-  session is left to wait for.
+  its own answers, and its first command is answered at once: nothing of the old session
+  is left to wait for.
 - **No host on the PTY**: ``pty`` holds the slave side open, so that the master does not
   report POLLHUP over and over; ``poll()`` sleeps until a host writes, and its first bytes
   are read like any others. Any other read or write error (or a PTY whose slave cannot be
