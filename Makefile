@@ -56,7 +56,8 @@ coverage: venv test-deps
 	$(BIN)/pytest -q -n $(JOBS) --cov=motorctl.daemon --cov=motorctl.protocol.framing \
 	  --cov-report=term-missing
 
-# The robustness harness (docs/robustness.md): 10^6 frames, kill -9 cycles, HAL faults, soak.
+# The robustness harness (docs/robustness.md): 10^6 frames, kill -9 cycles, reconnects during a
+# WaitMoved, HAL faults, soak.
 # ARGS="--quick" for a short run; the full run takes about 20 minutes.
 robustness: venv
 	$(BIN)/python -m bench.robustness $(ARGS)
@@ -66,6 +67,7 @@ bench: venv
 	$(BIN)/python bench/steps.py
 	$(BIN)/python bench/noisy.py
 	$(BIN)/python bench/rings.py
+	$(BIN)/python bench/reconnect.py
 	$(BIN)/python bench/instances.py
 	$(BIN)/python bench/startup.py
 

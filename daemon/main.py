@@ -22,7 +22,6 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from functools import partial
 from pathlib import Path
 
 from motorctl import __version__
@@ -39,10 +38,11 @@ from motorctl.daemon.assemble import (
     state_files_dir,
 )
 from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
-from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.ports import open_pty, open_uart
-from motorctl.daemon.serialport import SerialDevice
+from motorctl.daemon.link import Link
+from motorctl.daemon.ports import PtySlave, open_pty
+from motorctl.daemon.serialport import DeviceError, SerialDevice
 from motorctl.daemon.service import (
     MotorEventLog,
     StatusLine,
@@ -53,6 +53,7 @@ from motorctl.daemon.service import (
     watchdog_interval,
 )
 from motorctl.daemon.signals import StopSignals
+from motorctl.daemon.silence import check_timeout
 from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
@@ -95,10 +96,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--port",
         metavar="DEVICE",
         help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
-        "/dev/serial/by-id/usb-... name; a device that goes away is opened "
-        "again by this path when it is back (state kept)",
+        "/dev/serial/by-id/usb-... name; a device not there yet at start is served "
+        "as soon as it appears, one that goes away is opened again by this path "
+        "when it is back (state kept); one that is there but cannot be used (not a "
+        "tty, no permission, busy) stops the start",
     )
-    p.add_argument("--baud", type=int, default=115200, help="UART baud rate (default 115200)")
+    p.add_argument(
+        "--baud",
+        type=int,
+        default=115200,
+        help="UART baud rate (default 115200); [link] timeout_ms must be at least one "
+        "frame's time at it (also checked by --check-config)",
+    )
     p.add_argument(
         "--config",
         metavar="FILE",
@@ -204,6 +213,10 @@ def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) 
             cfg = load_config(args.check_config)
         except ConfigError as exc:
             print(f"error: {exc}", file=sys.stderr)
+            return 1
+        why = check_timeout(cfg.link.timeout_ms, args.baud)
+        if why is not None:
+            print(f"error: {args.check_config}: {why}", file=sys.stderr)
             return 1
         for notice in cfg.notices:
             print(f"warning: {notice}", file=sys.stderr)
@@ -347,16 +360,38 @@ def _serve(
             owned.lock(args.pty.with_name(f".{args.pty.name}.lock"), f"PTY {args.pty}")
     except InstanceError as exc:
         raise StartupError(str(exc)) from exc
-    daemon = Daemon.build(config, args.state_dir, executor_process=executor_process)
+    why = check_timeout(config.link.timeout_ms, args.baud)
+    if why is not None:
+        raise ConfigError(f"{config.source}: {why}")
+    # The serial device before the state: one that is there but cannot be used stops the
+    # start before the state is restored and written again; one that is not there yet is
+    # served when it appears (the link waits for it as for one that went away).
     uart: SerialDevice | None = None
+    fd = -1
+    if args.port is not None:
+        uart = SerialDevice(args.port, args.baud)
+        try:
+            fd = uart.open()
+        except DeviceError as exc:
+            if exc.errno not in NOT_BACK:
+                raise StartupError(str(exc)) from exc
+    try:
+        daemon = Daemon.build(config, args.state_dir, executor_process=executor_process)
+    except BaseException:
+        if uart is not None:
+            uart.close()
+        raise
+    pty: PtySlave | None = None
     try:
         if args.pty is not None:
             fd, name = open_pty(args.pty)
             owned.symlink(args.pty, name)
+            pty = PtySlave(fd, name)
             where = f"{args.pty} -> {name}"
         else:
-            uart, fd = open_uart(args.port, args.baud)
             where = f"{args.port} at {args.baud} baud"
+            if fd < 0:
+                where += " (not there yet: served when it appears)"
     except BaseException:
         daemon.engine.executor.close()  # the process executor's shared memory
         daemon.hw.close()  # e.g. the mock's shared memory
@@ -367,6 +402,8 @@ def _serve(
     except BaseException:
         daemon.engine.executor.close()
         daemon.hw.close()
+        if uart is not None:
+            uart.close()
         raise
     link = Link(
         fd,
@@ -374,8 +411,9 @@ def _serve(
         c.codec_options(),
         c.frame_gap_ms / 1000.0,
         c.held_frames,
-        on_hangup=None if uart else partial(flush_pty_input, name),
+        pty=pty,
         device=uart,
+        notice=None if uart is None else PathWatch(uart.path),
         watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
         recorder=recorder,
     )

@@ -406,6 +406,15 @@ def _link(w: _Writer, link: object) -> None:
                 count,
                 {"reason": _FRAME_ERRORS[key]},
             )
+        elif key.startswith("responses_dropped"):  # by cause; the total is their sum
+            if key != "responses_dropped":
+                w.counter(
+                    "motorctl_link_responses_dropped",
+                    "Answers never sent, by cause (unsent, wait, held: owed to a host whose "
+                    "session ended; shutdown).",
+                    count,
+                    {"cause": key.removeprefix("responses_dropped_")},
+                )
         elif key.startswith("sent_E"):
             w.counter(
                 "motorctl_link_error_responses",

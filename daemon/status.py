@@ -524,8 +524,11 @@ def summary_line(status: dict[str, Any]) -> str:
             if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_"))
         )
         parts.append(f"{counters.get('responses', 0)} frames served, {errors} errors")
+        device = link.get("device") or "?"
         if link.get("peer") == "gone":
-            parts.append("SERIAL DEVICE GONE, reopening it")
+            parts.append(f"SERIAL DEVICE {device} GONE, reopening it when it is back")
+        elif link.get("peer") == "waiting":
+            parts.append(f"WAITING FOR SERIAL DEVICE {device} (not there yet)")
     state = status.get("state")
     if isinstance(state, dict) and not state.get("ok", True):
         parts.append("STATE NOT SAVED: " + str(state.get("last_error")))

@@ -110,8 +110,10 @@ class LinkConfig:
         "0 = off (as the original microcontroller). > 0: when the host sends no byte for "
         "this long (while a WaitMoved's answer is held the host is waiting, not silent), "
         "every motor in motion stops (timeout_action) and answers E4 until a StopMove "
-        "clears it; motors at rest are not touched; the DC motor brakes. An extension: "
-        "docs/protocol.md, 'When the host falls silent'.",
+        "clears it; motors at rest are not touched; the DC motor brakes. Above 0 it must "
+        "be at least one frame's time at --baud (0.868 ms at 115200; the daemon and "
+        "--check-config refuse less). An extension: docs/protocol.md, 'When the host "
+        "falls silent'.",
     )
     timeout_action: str = choice(
         "decelerate",

@@ -77,6 +77,9 @@ DOC: dict[str, Any] = {
             "held_max": 3,
             "link_errors": 0,
             "responses": 10,
+            "responses_dropped": 3,
+            "responses_dropped_wait": 1,
+            "responses_dropped_held": 2,
         },
         "processing": {"steps": 9, "p50_us": 20.0, "p99_us": 40.0, "p999_us": 41.0, "max_us": 44.0},
         "held": 0,
@@ -175,6 +178,9 @@ def test_a_full_document_is_valid_openmetrics_with_base_units() -> None:
     assert got[("motorctl_link_received_bytes_total", frozenset())] == 100
     assert got[("motorctl_link_held_frames_max", frozenset())] == 3
     assert got[("motorctl_link_peer_open", frozenset())] == 1
+    dropped = "motorctl_link_responses_dropped_total"
+    assert got[(dropped, frozenset({("cause", "held")}))] == 2
+    assert (dropped, frozenset()) not in got  # the total: the sum of the causes
     assert got[("motorctl_state_ok", frozenset())] == 0
     assert got[("motorctl_start_time_seconds", frozenset())] == 1_700_000_000.0
     assert got[("motorctl_pin_level", frozenset({("pin", "3"), ("mode", "output")}))] == 1

@@ -13,7 +13,8 @@
 #   the installed unit scored by `systemd-analyze security --offline=true` (<= 2.0) and
 #   `systemd-analyze verify` clean, both against this root; the root booted with
 #   systemd-nspawn, so the service runs under a real systemd with its whole sandbox
-#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop); and a clean purge.
+#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop), a --port device that
+#   appears 30 s after its service started served with no manual step; and a clean purge.
 set -euo pipefail
 deb=$(realpath "${1:?usage: tests/deb/check-install.sh PACKAGE.deb}")
 here=$(cd "$(dirname "$0")/../.." && pwd)
@@ -97,12 +98,15 @@ in_root python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
   || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
 
 step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
+# socat plays a USB serial adapter that appears late (report.sh)
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat \
+  > "$build/deb-socat.log" 2>&1 || { tail -20 "$build/deb-socat.log"; fail "install socat"; }
 debroot_umount "$root"
 cp "$here/tests/deb/report.service" "$root/etc/systemd/system/"
 cp "$here/tests/deb/report.sh" "$root/root/"
 ln -sf /etc/systemd/system/report.service "$root/etc/systemd/system/multi-user.target.wants/"
 rm -f "$root/run/motorctl/"* "$root/root/report.txt"
-timeout 180 systemd-nspawn -D "$root" --boot --register=no --keep-unit --console=pipe \
+timeout 240 systemd-nspawn -D "$root" --boot --register=no --keep-unit --console=pipe \
   </dev/null > "$build/deb-nspawn.log" 2>&1 || { tail -20 "$build/deb-nspawn.log"; fail "nspawn boot"; }
 report=$root/root/report.txt
 [ -f "$report" ] || { tail -20 "$build/deb-nspawn.log"; fail "no report from the booted root"; }
@@ -132,6 +136,11 @@ expect "instance left executor cpus: 0"
 expect "instance right executor cpus: $([ "$(nproc)" -gt 1 ] && echo 1 || echo 0)"
 expect "instances after stop: inactive inactive"
 expect "var-lib: running motorctld.lock state.json state.moving "
+# a --port device that appears 30 s after the service started: served, no restart
+expect "late before: running WAITING FOR SERIAL DEVICE /dev/serial/by-id/usb-motorctl_late_test-if00-port0"
+expect "late client: motor 0 at 0"
+expect "late after: running NRestarts=0"
+expect "late journal: 1 1"
 grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STATUS= line"
 grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"
 debroot_mount "$root"
