@@ -120,8 +120,9 @@ def set_aside(path: Path) -> Path | None:
         return None
 
 
-def _aside_in_the_way(path: Path, what: str) -> Path:
-    """Move what stands at ``path`` aside (OSError if it cannot) and log it, once."""
+def aside_in_the_way(path: Path, what: str) -> Path:
+    """Move what stands at ``path`` (``what``: "a FIFO", ...) aside (OSError if it cannot) and
+    log it, once."""
     bad = move_aside(path)
     log.warning(
         "%s was %s, in the way of a file of this daemon: moved aside to %s",
@@ -143,7 +144,7 @@ def clear_the_way(path: Path) -> Path | None:
     owner = folder_owner(path)
     if ours(st, owner):
         return None
-    return _aside_in_the_way(path, describe(st, owner))
+    return aside_in_the_way(path, describe(st, owner))
 
 
 def open_for_writing(path: Path, mode: int = 0o640, flags: int = os.O_RDWR) -> int:
@@ -163,7 +164,7 @@ def open_for_writing(path: Path, mode: int = 0o640, flags: int = os.O_RDWR) -> i
                 continue  # someone was quicker: look again
         owner = folder_owner(path)
         if not ours(st, owner):
-            _aside_in_the_way(path, describe(st, owner))
+            aside_in_the_way(path, describe(st, owner))
             continue
         try:
             fd = os.open(path, flags | _OPEN)
@@ -193,7 +194,7 @@ def bind_socket(path: Path, mode: int) -> socket.socket:
         pass
     else:
         if not stat.S_ISSOCK(st.st_mode):
-            _aside_in_the_way(path, describe(st, folder_owner(path)))
+            aside_in_the_way(path, describe(st, folder_owner(path)))
     private = Path(tempfile.mkdtemp(prefix=".s", dir=path.parent))
     tmp = private / "s"
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
@@ -207,7 +208,7 @@ def bind_socket(path: Path, mode: int) -> socket.socket:
             except OSError as exc:
                 if exc.errno not in (errno.EISDIR, errno.ENOTEMPTY, errno.EEXIST):
                     raise
-                _aside_in_the_way(path, "a directory")  # made there since the lstat
+                aside_in_the_way(path, "a directory")  # made there since the lstat
         else:
             raise OSError(errno.EAGAIN, f"{path} keeps being replaced; cannot bind there")
     except BaseException:

@@ -12,12 +12,13 @@ import contextlib
 import fcntl
 import logging
 import os
+import stat
 import struct
 import termios
 import tty
 from pathlib import Path
 
-from motorctl.daemon import devwatch
+from motorctl.daemon import devwatch, paths
 from motorctl.daemon.assemble import StartupError
 
 
@@ -30,11 +31,13 @@ def open_pty(path: Path) -> tuple[int, str]:
     The raw mode stays set while the master is open.
 
     The slave is mode 0660 with the daemon's group (the ``motorctl`` group under systemd):
-    only that group's members may drive the motors."""
-    if (path.exists() or path.is_symlink()) and not path.is_symlink():
-        raise StartupError(
-            f"{path} exists and is not a symlink; remove it or choose another --pty path"
-        )
+    only that group's members may drive the motors.
+
+    What stands at ``path`` is never opened or followed: a link (the one an earlier run left,
+    or anyone's) is replaced; a device is refused (``--pty /dev/ttyS0`` is a mistake, and
+    renaming a device node breaks a system); anything else (a FIFO, a folder, a file) is set
+    aside under ``NAME.bad`` with one log line (daemon/paths.py), and the start goes on."""
+    _clear_pty_path(path)
     master, slave = os.openpty()
     tty.setraw(slave, termios.TCSANOW)
     name = os.ttyname(slave)
@@ -49,6 +52,29 @@ def open_pty(path: Path) -> tuple[int, str]:
     except OSError as exc:
         raise StartupError(f"cannot create symlink {path}: {exc.strerror}") from exc
     return master, name
+
+
+def _clear_pty_path(path: Path) -> None:
+    """Make way for the PTY's link at ``path`` (see :func:`open_pty`); StartupError when it
+    cannot be made."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    except OSError as exc:
+        raise StartupError(f"cannot look at --pty path {path}: {exc.strerror}") from exc
+    if stat.S_ISLNK(st.st_mode):
+        return
+    what = paths.kind(st.st_mode)
+    if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode):
+        raise StartupError(
+            f"{path} is {what}: --pty names the link the daemon makes to its own PTY; "
+            "choose another path (a UART is served with --port)"
+        )
+    try:
+        paths.aside_in_the_way(path, what)
+    except OSError as exc:
+        raise StartupError(f"{exc.strerror}; remove it or choose another --pty path") from exc
 
 
 log = logging.getLogger("motorctl.link")

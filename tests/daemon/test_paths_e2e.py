@@ -143,16 +143,36 @@ def test_a_config_with_a_byte_order_mark_is_accepted(tmp_path: Path) -> None:
     assert check.stderr.startswith(f"error: {config}: motors[0].max_speed = ")
 
 
-@pytest.mark.parametrize("kind", ["fifo", "directory"])
-def test_a_fifo_or_folder_at_the_pty_path_is_not_opened(tmp_path: Path, kind: str) -> None:
-    """The PTY path (daemon/ports.py): a link there is replaced (above); anything else is
-    refused with a clear error, never opened or waited for."""
+@pytest.mark.parametrize("kind", [k for k in KINDS if "link" not in k and k != "device"])
+def test_what_stands_at_the_pty_path_is_set_aside(tmp_path: Path, kind: str) -> None:
+    """The PTY path (daemon/ports.py): a link there is replaced, never followed (above);
+    anything else but a device is set aside with one line, never opened or waited for,
+    and the daemon serves."""
     shared = shared_folder(tmp_path)
-    pty = shared / "x"
-    trap = _fifo_or_folder(pty, kind)
-    serve = _motorctld("--pty", str(pty), "--state-dir", str(shared / "s"))
+    trap = place(shared / "motorctl.pty", kind)
+    d = DaemonProcess(shared, state_dir=shared / "s")
+    try:
+        d.start()
+        with d.client() as c:
+            assert c.position(0) == 0
+        lines = [line for line in d.stderr().splitlines() if f"{trap.path} was " in line]
+        assert len(lines) == 1, lines
+        trap.check(set_aside=True)
+        assert os.path.islink(trap.path)
+        assert d.terminate() == 0
+    finally:
+        d.close()
+    assert "Traceback" not in d.stderr(), d.stderr()
+
+
+def test_a_device_at_the_pty_path_is_refused_and_left_alone(tmp_path: Path) -> None:
+    """``--pty /dev/ttyS0`` is a mistake: a device node is never opened, nor renamed (as
+    root that would break a system); the start stops with a clear error."""
+    shared = shared_folder(tmp_path)
+    trap = place(shared / "x", "device")
+    serve = _motorctld("--pty", str(trap.path), "--state-dir", str(shared / "s"))
     assert serve.returncode == 1, serve.stderr
-    assert f"{pty} exists and is not a symlink" in serve.stderr
+    assert f"error: {trap.path} is a character device: --pty names the link" in serve.stderr
     assert "Traceback" not in serve.stderr
-    if trap is not None:
-        trap.check(set_aside=False)
+    trap.check(set_aside=False)
+    assert os.lstat(trap.path).st_ino == trap.identity[1]
