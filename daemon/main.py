@@ -414,6 +414,7 @@ def _serve(
     print(
         f"motorctld ready: serving {where}; config {config.source}; "
         f"{len(config.motors)} motors; {config.hal.backend} hardware; "
+        f"step core {daemon.engine.executor.step_core() or 'none'}; "
         f"state in {args.state_dir}",
         flush=True,
     )
