@@ -383,6 +383,19 @@ class StepIO:
         self.outputs.close()
         self.inputs.close()
 
+    def compiled_text(self) -> str:
+        """What the StepIO offers a compiled core, in words (``motorctld --probe``)."""
+        lines = self.compiled
+        if isinstance(lines, ChardevLines):
+            apis = sorted({f"v{r.uapi}" for r in (*lines.outputs, *lines.inputs)})
+            return (
+                f"GPIO character-device requests (uAPI {', '.join(apis)}): "
+                f"{len(lines.outputs)} for STEP/DIR, {len(lines.inputs)} for end stops"
+            )
+        if isinstance(lines, SimulatedLines):
+            return "the simulated mechanics of the mock"
+        return f"none ({self.compiled_missing})"
+
 
 @dataclass(frozen=True)
 class DriverStatus:
@@ -573,6 +586,9 @@ class ProbeReport:
 
     sections: list[tuple[str, list[str]]] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    #: what the step IO offers a compiled step core (StepIO.compiled_text), when the probe
+    #: opened it
+    compiled_lines: str | None = None
 
     def add(self, title: str, lines: list[str]) -> None:
         self.sections.append((title, lines))

@@ -671,6 +671,7 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         hw.close()
         report.problems.append(str(exc))
         return
+    report.compiled_lines = io.compiled_text()
     try:
         ends = []
         for i, pair in zip(spec.stepped(), io.endstops, strict=True):
