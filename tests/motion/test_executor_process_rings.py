@@ -561,13 +561,18 @@ def test_a_bad_record_from_the_daemon_faults_its_motor_in_the_executor_process(
         assert ex.shared.segs[1].put(10**9, 1000, 3, 0, 5, 1, 0)
         ex._kick()
         got: list[ExecEvent] = []
-        until("the segment's fault", lambda: got.extend(ex.events()) or got)
+
+        def events(n: int) -> bool:
+            got.extend(ex.events())
+            return len(got) >= n
+
+        until("the segment's fault", lambda: events(1))
         assert [(e.kind, e.motor) for e in got] == [(ExecEventKind.FAULT, 1)]
         assert got[0].detail == "bad step segment record in the executor's ring: direction 5"
         assert ex.shared.stops.put(7, 1, -1)
         ex._kick()
         got.clear()
-        until("the stop's faults", lambda: got.extend(ex.events()) or len(got) >= 2)
+        until("the stop's faults", lambda: events(2))
         assert sorted((e.kind, e.motor) for e in got) == [
             (ExecEventKind.FAULT, 0),
             (ExecEventKind.FAULT, 1),
