@@ -90,7 +90,7 @@ test: venv stepcore test-deps
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
 
-test-hw:
+test-hw: stepcore
 	hwtest/run all
 
 # Unit coverage of the daemon's modules (the link, its session, state, service, status).

@@ -69,8 +69,10 @@ grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorc
 in_root motorctld --check-config /etc/motorctl/motorctl.toml
 in_root dpkg -L motorctl | grep -q '/motorctl/motion/_stepcore\.cpython-.*\.so$' \
   || fail "the compiled step core is not in the package"
-in_root motorctld --probe --latency-seconds 0 | grep -qx '  runs: compiled' \
-  || fail "motorctld --probe: the compiled step core would not run"
+in_root motorctld --probe --latency-seconds 0 > "$build/deb-probe.txt" \
+  || { cat "$build/deb-probe.txt"; fail "motorctld --probe"; }
+grep -qx '  runs: compiled' "$build/deb-probe.txt" \
+  || { cat "$build/deb-probe.txt"; fail "motorctld --probe: the compiled step core would not run"; }
 echo "the compiled step core: installed, and --probe says it runs"
 in_root motorctl --help >/dev/null
 
