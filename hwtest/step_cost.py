@@ -20,16 +20,16 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from hwtest.gpiod_harness import GpiodHarness  # noqa: E402
-from motorctl.hal.interfaces import VirtualClock  # noqa: E402
-from motorctl.hal.registry import open_hardware, open_step_io  # noqa: E402
-from motorctl.hal.shm import SharedBlock  # noqa: E402
-from motorctl.motion.compiled_core import CompiledStepCore  # noqa: E402
-from motorctl.motion.executor_process import Layout, Shared  # noqa: E402
-from motorctl.motion.executor_seam import AxisLimits  # noqa: E402
-from motorctl.motion.latency import LatencyStats  # noqa: E402
-from motorctl.motion.segments import StepSegment  # noqa: E402
-from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore  # noqa: E402
+from hwtest.gpiod_harness import GpiodHarness
+from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.registry import open_hardware, open_step_io
+from motorctl.hal.shm import SharedBlock
+from motorctl.motion.compiled_core import CompiledStepCore
+from motorctl.motion.executor_process import Layout, Shared
+from motorctl.motion.executor_seam import AxisLimits
+from motorctl.motion.latency import LatencyStats
+from motorctl.motion.segments import StepSegment
+from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
 
 API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 

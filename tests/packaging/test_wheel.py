@@ -171,9 +171,11 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
     assert "motorctl/daemon/config/model.py" in names and "motorctl/schema.py" in names
     assert not any(name.endswith((".pyc", "/tests/__init__.py")) for name in names)
     # the compiled step core, built by the wheel's build; its sources stay out
-    assert [n for n in names if n.startswith("motorctl/motion/_stepcore")] == [
-        n for n in names if n.startswith("motorctl/motion/_stepcore.") and n.endswith(".so")
-    ] != []
+    assert (
+        [n for n in names if n.startswith("motorctl/motion/_stepcore")]
+        == [n for n in names if n.startswith("motorctl/motion/_stepcore.") and n.endswith(".so")]
+        != []
+    )
     assert not any(name.endswith((".c", ".h")) for name in names)
 
     # python-daemon first, then motorctl; uninstall motorctl.

@@ -125,11 +125,13 @@ def chardev_request(
     return ChardevRequest(fd, uapi, offsets, levels)
 
 
-def _open_fds() -> set[int]:
+def _open_fds() -> dict[int, str]:
+    """Open descriptors and what each is (the listing's own descriptor shows as gone: a
+    later descriptor of that number is new)."""
     try:
-        return {int(n) for n in os.listdir("/proc/self/fd")}
+        return {int(n): _fd_kind(int(n)) for n in os.listdir("/proc/self/fd")}
     except OSError:
-        return set()
+        return {}
 
 
 class GpioApi(ABC):
@@ -496,9 +498,8 @@ class _V1(GpioApi):
             req = _V1Request(self, path, settings, chip, lines, bulk)
             # libgpiod 1.6's binding does not give an output handle's descriptor: it is the
             # one GPIO line handle this request opened (a compiled core writes it)
-            new = [
-                fd for fd in _open_fds() - before if _fd_kind(fd) == "anon_inode:gpio-linehandle"
-            ]
+            handle = "anon_inode:gpio-linehandle"
+            new = [fd for fd, kind in _open_fds().items() if kind == handle != before.get(fd)]
             req.handle_fd = new[0] if len(new) == 1 else None
             return req
         except BaseException:
