@@ -271,15 +271,17 @@ def test_probe_says_which_step_core_would_run(tmp_path: Path) -> None:
         "  compiled core: built\n  lines for it: the simulated mechanics of the mock\n"
         "  runs: compiled\n"
     ) in out.stdout
-    out = _probe(tmp_path, 'executor = "thread"')
-    assert "  runs: python (the thread executor runs the Python core)\n" in out.stdout
 
 
 def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_error(
     tmp_path: Path, motorctld: StartDaemon
 ) -> None:
     out = _probe(tmp_path, 'core = "compiled"\nexecutor = "thread"')
-    assert out.returncode == 1 and "runs: python (the thread executor" in out.stdout
+    assert out.returncode == 1
+    assert "  runs: python (the thread executor runs the Python core)\n" in out.stdout
+    assert 'PROBLEM: [step_thread] core = "compiled" runs in the process executor only' in (
+        out.stdout
+    )
     config = 'core = "compiled"\nexecutor = "thread"'
     text = for_tests(f'[step_thread]\n{config}\n[[motors]]\nname = "a"\n', force=True)
     with pytest.raises(RuntimeError, match="motorctld exited") as err:
