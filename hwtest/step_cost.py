@@ -51,7 +51,7 @@ def cost(core: str, per_motor: int, shared_ticks: bool) -> float:
             shared = Shared(shm, layout)
             compiled = CompiledStepCore(io, limits, shared)
             try:
-                for m in range(3):
+                for m in range(3):  # flags 0: not watching the end stops, as below
                     assert shared.segs[m].put(start, ivs[m], per_motor, 0, 1, 0, 0)
                 compiled.refill()
                 t = time.process_time()
@@ -76,7 +76,7 @@ def cost(core: str, per_motor: int, shared_ticks: bool) -> float:
                 stats=LatencyStats(),
             )
             for m in range(3):
-                inbox.queues[m].append(StepSegment(start, ivs[m], per_motor, 0, 1, 0))
+                inbox.queues[m].append(StepSegment(start, ivs[m], per_motor, 0, 1, 0, watch=False))
             python.refill()
             t = time.process_time()
             while (d := python.deadline()) is not None:
