@@ -29,8 +29,9 @@ changing anything here, and keep to them in what it calls:
 - What may block: only ``wait`` (the caller's, when nothing is due within ``spin_s``);
   the core spins only for the last ``spin_s`` before an edge and for the STEP pulse
   width (``StepOutputs.fall``). Nothing here sleeps, joins or waits for the planner.
-- Its cost is measured: ``bench/steps.py`` prints ``core_cost_us``, the CPU time per step
-  on mock lines. A change here quotes it before and after and must not make it worse.
+- Its cost is measured: ``bench/steps.py`` prints ``core_cost_us_python`` (and its twin's
+  ``core_cost_us_compiled``), the CPU time per step on mock lines. A change here quotes it
+  before and after and must not make it worse.
 - A twin: the compiled core (``motion/csrc/core.c``, driven by ``motion/compiled_core.py``)
   keeps every rule here in C, function by function; the executor process runs it where it
   is built. A change to a rule is made in both, and the core's tests run on both
