@@ -154,4 +154,4 @@ test-deb: deb
 	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_ARCH).deb
 
 clean:
-	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info
+	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info motion/_stepcore*.so
