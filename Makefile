@@ -6,6 +6,11 @@
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
 #               is made when missing; in the guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
+# The venv's install builds the compiled step core (setup.py: motion/csrc/ ->
+# motion/_stepcore*.so, in place); that needs gcc and the Python headers, installed via apt
+# (gcc, python3-dev) when root and missing. make stepcore rebuilds it after a change to its
+# sources (make test and make run do); make test-asan runs the core's tests on a build with
+# the address and undefined-behaviour sanitizers.
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
 # tear a socat PTY pair down and make it again; without socat they skip, saying so loudly).
 # The editable install filters setuptools' informational "Editable installation" note only: the
@@ -18,20 +23,57 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps
+.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
+  stepcore test-asan
 
 venv: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+# What building the compiled step core needs: a C compiler and $(PYTHON)'s headers.
+HAVE_CC = command -v gcc >/dev/null && $(PYTHON) -c 'import os, sysconfig; \
+  raise SystemExit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))'
+
+$(VENV)/.installed: pyproject.toml setup.py
 	@$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q python3-venv; \
 	  else echo "python3-venv is missing: run 'sudo apt-get install python3-venv'" >&2; exit 1; fi; }
+	@$(HAVE_CC) 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+	    apt-get install -y -q -o DPkg::Lock::Timeout=600 --no-install-recommends gcc libc6-dev python3-dev; \
+	  else echo "the compiled step core needs gcc and the Python headers: run" \
+	    "'sudo apt-get install gcc python3-dev'" >&2; exit 1; fi; \
+	  $(HAVE_CC) || { echo "gcc or Python.h of $(PYTHON) still missing: install gcc and" \
+	    "the -dev package of that Python" >&2; exit 1; }; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/pip install -q -e '.[dev]'
+	touch $@ $(VENV)/.stepcore
+
+# The compiled step core again, in place, after a change to its sources (-Wall -Wextra -Werror).
+stepcore: $(VENV)/.stepcore
+
+$(VENV)/.stepcore: $(VENV)/.installed setup.py $(wildcard motion/csrc/*.c motion/csrc/*.h)
+	$(BIN)/python setup.py -q build_ext --inplace
 	touch $@
 
-run: venv
+# The step core's tests on the compiled core built with -fsanitize=address,undefined (into
+# build/asan; MOTORCTL_STEPCORE makes every process load that build, the sanitizers' runtime
+# preloaded): any error the sanitizers find fails the run.
+ASAN_FLAGS = -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined \
+  -fno-sanitize-recover=all -fno-wrapv
+ASAN_TESTS = tests/motion/test_step_core.py tests/motion/test_segments.py \
+  tests/motion/test_executor_process.py tests/motion/test_executor_process_rings.py
+test-asan: venv
+	rm -rf build/asan
+	CFLAGS="$(ASAN_FLAGS)" LDFLAGS="-fsanitize=address,undefined" \
+	  $(BIN)/python setup.py -q build_ext --build-lib build/asan/lib --build-temp build/asan/tmp
+	cp build/asan/lib/motorctl/motion/_stepcore*.so build/asan/_stepcore.so
+	MOTORCTL_STEPCORE=$(CURDIR)/build/asan/_stepcore.so LD_PRELOAD="$$(gcc -print-file-name=libasan.so)" \
+	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+	  PYTHONMALLOC=malloc sh -c '$(BIN)/python -c "from motorctl.motion import compiled_core as c; \
+	    assert c.load().__file__ == \"$$MOTORCTL_STEPCORE\""; \
+	    $(BIN)/pytest -q -n $(JOBS) -p no:cacheprovider -k "compiled or both_cores" $(ASAN_TESTS)'
+
+run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
 # What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py).
@@ -42,13 +84,13 @@ test-deps:
 	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
 	    "device reconnect tests are SKIPPED" >&2; fi; }
 
-test: venv test-deps
+test: venv stepcore test-deps
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
 
-test-hw:
+test-hw: stepcore
 	hwtest/run all
 
 # Unit coverage of the daemon's modules (the link, its session, state, service, status).
@@ -78,11 +120,13 @@ bench: venv
 # (a debootstrap cached in build/, see tools/debroot.sh), as an unprivileged user, without
 # network; so a Build-Depends missing from debian/control fails for everyone, whatever this
 # machine has installed. Then lintian. Needs root. Result:
-# build/deb/motorctl_<version>-1_all.deb (log: build/deb/build.log).
+# build/deb/motorctl_<version>-1_<arch>.deb (log: build/deb/build.log; <arch>: this machine's
+# Debian architecture, the package holds the compiled step core).
 # DEB_DEPS: what the host needs for make deb and make test-deb (not for building the package).
 DEB_DEPS = debootstrap lintian systemd-container
 DEB_VERSION = $(shell awk 'NR == 1 { v = $$2; gsub(/[()]/, "", v); sub(/-[^-]*$$/, "", v); print v }' debian/changelog)
 DEB_DIR = build/deb
+DEB_ARCH = $(shell dpkg --print-architecture)
 SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's tools, not a venv's or pyenv's
 
 deb-deps:
@@ -103,13 +147,13 @@ deb: deb-deps
 	tar -C $(DEB_DIR) -xzf $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	cp -a debian $(DEB_DIR)/motorctl-$(DEB_VERSION)/
 	PATH=$(SYSPATH) bash tools/build-deb.sh $(DEB_DIR)/motorctl-$(DEB_VERSION)
-	PATH=$(SYSPATH) lintian --fail-on error --display-info $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_all.deb
+	PATH=$(SYSPATH) lintian --fail-on error --display-info $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_ARCH).deb
 	@ls -l $(DEB_DIR)/*.deb
 
 # Install the package on a fresh Debian 12 root (the same cached debootstrap) and check it
 # there: see tests/deb/check-install.sh.
 test-deb: deb
-	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_all.deb
+	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_ARCH).deb
 
 clean:
-	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info
+	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info motion/_stepcore*.so

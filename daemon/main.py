@@ -37,7 +37,7 @@ from motorctl.daemon.assemble import (
     silence_watch,
     state_files_dir,
 )
-from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.config import Config, ConfigError, StepThreadConfig, load_config
 from motorctl.daemon.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.link import Link
@@ -55,8 +55,9 @@ from motorctl.daemon.service import (
 from motorctl.daemon.signals import StopSignals
 from motorctl.daemon.silence import check_timeout
 from motorctl.daemon.status import StatusServer, read_status, summary_line
-from motorctl.hal.interfaces import MonotonicClock
+from motorctl.hal.interfaces import MonotonicClock, ProbeReport
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
+from motorctl.motion import compiled_core
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_process_start import ExecutorProcess
 from motorctl.motion.motor import Motor
@@ -300,10 +301,11 @@ def probe(
         return 1
     spec = hardware_spec(config)
     report = probe_hardware(config.hal.backend, spec, MonotonicClock())
+    st = config.step_thread
+    report.add("step core", step_core_probe(st, report))
     print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
     sys.stdout.write(report.text())
     sys.stdout.flush()
-    st = config.step_thread
     timing = platform_check.TimingConfig(
         cpu=st.cpu, priority=st.priority, spin_us=st.spin_us, executor=st.executor
     )
@@ -323,6 +325,37 @@ def probe(
         latency, skipped = None, "not measured (--latency-seconds 0)"
     sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
     return 1 if report.problems else 0
+
+
+def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
+    """``--probe``'s lines on the step core: what is built, what the backend's lines offer,
+    which core the daemon would run (``[step_thread] core``); a core = "compiled" that
+    could not run is one of the report's problems."""
+    built = compiled_core.unavailable()
+    lines = report.compiled_lines
+    out = [
+        f'[step_thread] core = "{st.core}", executor = "{st.executor}"',
+        f"compiled core: {'built' if built is None else built}",
+        f"lines for it: {lines if lines is not None else 'not known (the lines did not open)'}",
+    ]
+    if st.executor == "thread":
+        runs = "python (the thread executor runs the Python core)"
+        if st.core == "compiled":
+            report.problems.append(
+                '[step_thread] core = "compiled" runs in the process executor only'
+            )
+    elif st.core == "python":
+        runs = "python (as asked)"
+    elif built is None and lines is not None and not lines.startswith("none"):
+        runs = "compiled"
+    else:
+        why = built or f"the backend's lines: {lines or 'not known'}"
+        runs = f"python ({why})"
+        if st.core == "compiled":
+            runs = "none: motorctld would not start"
+            report.problems.append(f'[step_thread] core = "compiled", but {why}')
+    out.append(f"runs: {runs}")
+    return out
 
 
 def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = None) -> int:
@@ -462,6 +495,7 @@ def _serve(
     print(
         f"motorctld ready: serving {where}; config {config.source}; "
         f"{len(config.motors)} motors; {config.hal.backend} hardware; "
+        f"step core {daemon.engine.executor.step_core() or 'none'}; "
         f"state in {args.state_dir}",
         flush=True,
     )

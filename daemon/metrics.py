@@ -56,6 +56,10 @@ _STEP_COUNTERS = {
     "dropped": ("motorctl_steps_dropped", "Steps the executor dropped."),
     "io_errors": ("motorctl_step_io_errors", "STEP/DIR line errors in the executor."),
     "endstops": ("motorctl_step_endstops", "End-stop triggers the executor acted on."),
+    "bad_records": (
+        "motorctl_step_bad_records",
+        "Records from the daemon the executor found bad (each a fault of its motor).",
+    ),
     "ring_retries_reports": (
         "motorctl_step_ring_retries_reports",
         "Retries reading the executor's report ring.",

@@ -111,6 +111,8 @@ def _header(doc: Mapping[str, Any]) -> Text:
     alive = ex.get("alive")
     text.append("  executor ")
     text.append(f"{ex.get('kind', '?')}", style="bold")
+    if ex.get("core"):  # the step core (a daemon before issue 24 does not say)
+        text.append(f", {ex.get('core')} core")
     if ex.get("pid"):
         text.append(f" (pid {ex.get('pid')})")
     if alive is False:

@@ -255,6 +255,14 @@ class StepThreadConfig:
         "well under 1 ms), so IsReady right after it answers 1; at most this long, then it "
         "is answered all the same (a stalled executor; docs/protocol.md, StopMove).",
     )
+    core: str = choice(
+        "auto",
+        ("auto", "compiled", "python"),
+        "The step core of the process executor: 'auto' = the compiled one where it is built "
+        "and the backend hands its lines over (GPIO character devices, the mock), else the "
+        "Python one with a warning; 'compiled' = that one, or a start error that says why "
+        "not; 'python' = the Python reference. The thread executor runs the Python core.",
+    )
 
 
 @section(

@@ -67,7 +67,7 @@ DOC: dict[str, Any] = {
         "endstops": 1,
         "progress": 55,
     },
-    "executor": {"alive": True, "kind": "process", "pid": 12, "reason": None},
+    "executor": {"alive": True, "kind": "process", "core": "compiled", "pid": 12, "reason": None},
     "link": {
         "counters": {
             "bytes_in": 100,

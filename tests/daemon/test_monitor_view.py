@@ -49,7 +49,7 @@ def test_a_known_state_drawn() -> None:
     }
     text = drawn(doc, rate=12.5, since_s=0.25, note="updated 0.2 s ago")
     lines = text.splitlines()
-    assert "motorctld  up 0:01:40  executor process (pid 12) alive" in text
+    assert "motorctld  up 0:01:40  executor process, compiled core (pid 12) alive" in text
     assert "STATE NOT SAVED" in text
     row0 = next(line for line in lines if 'we"ird\\name' in line and "fault" in line)
     assert row0.split()[:7] == ["0", 'we"ird\\name', "fault", "-12", "-250", "1", "2"]

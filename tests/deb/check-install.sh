@@ -7,7 +7,8 @@
 # holds no package that make deb's Build-Depends brought in. apt installs the package
 # with its dependencies from Debian's archive, then this script checks:
 #   the user and groups (sysusers.d), the conffiles, the udev rules, --check-config on the
-#   example config; the daemon started as the unit starts it (user motorctl, the unit's
+#   example config, the compiled step core installed and chosen (--probe; the booted
+#   service's status and journal say it runs); the daemon started as the unit starts it (user motorctl, the unit's
 #   ExecStart, a fake NOTIFY_SOCKET) reaching READY=1 via systemd-python, answering a
 #   command on its PTY (mode 0660, group motorctl), sending STATUS= and STOPPING=1;
 #   the installed unit scored by `systemd-analyze security --offline=true` (<= 2.0) and
@@ -67,6 +68,13 @@ grep -q 'KERNEL=="gpiochip\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-moto
 grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorctl.rules" \
   || fail "udev rule for spidev"
 in_root motorctld --check-config /etc/motorctl/motorctl.toml
+in_root dpkg -L motorctl | grep -q '/motorctl/motion/_stepcore\.cpython-.*\.so$' \
+  || fail "the compiled step core is not in the package"
+in_root motorctld --probe --latency-seconds 0 > "$build/deb-probe.txt" \
+  || { cat "$build/deb-probe.txt"; fail "motorctld --probe"; }
+grep -qx '  runs: compiled' "$build/deb-probe.txt" \
+  || { cat "$build/deb-probe.txt"; fail "motorctld --probe: the compiled step core would not run"; }
+echo "the compiled step core: installed, and --probe says it runs"
 in_root motorctl --help >/dev/null
 
 step "the installed units: systemd-analyze security --offline=true and verify"
@@ -119,6 +127,8 @@ expect "User=motorctl"
 expect "pty: crw-rw---- motorctl motorctl"
 expect "client: motor 0 at 0"
 expect "status-socket: 1"
+expect "step-core: compiled"
+grep -q 'step core: compiled' "$report" || fail "the journal does not say the compiled core runs"
 expect "after-stop: inactive success"
 expect "left-in-run: state.json state.moving "
 expect "journal-fields: 2"

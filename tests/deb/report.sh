@@ -10,6 +10,8 @@ echo "pty: $(stat -L -c '%A %U %G' /run/motorctl/motorctl.pty)"
 echo "client: $(su -s /bin/sh -c 'motorctl -p /run/motorctl/motorctl.pty pos 0' motorctl 2>&1)"
 echo "status-socket: $(su -s /bin/sh -c 'motorctld --status --state-dir /run/motorctl' motorctl \
   | grep -c '"motors"')"
+echo "step-core: $(su -s /bin/sh -c 'motorctld --status --state-dir /run/motorctl' motorctl \
+  | python3 -c 'import json, sys; print(json.load(sys.stdin)["executor"]["core"])')"
 systemctl stop motorctld
 echo "after-stop: $(systemctl show -P ActiveState motorctld) $(systemctl show -P Result motorctld)"
 echo "left-in-run: $(ls -A /run/motorctl | tr '\n' ' ')"
