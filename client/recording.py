@@ -117,11 +117,13 @@ class _Unit:
         return (self.records[0].ts_ns, self.records[-1].ts_ns) if self.records else None
 
 
-def _read(path: Path) -> Capture:
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise TraceFileError(f"cannot read {path}: {exc.strerror or exc}") from None
+def read(path: Path, data: bytes | None = None) -> Capture:
+    """One file (``data``: its bytes, already read), as :func:`load` reads each."""
+    if data is None:
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise TraceFileError(f"cannot read {path}: {exc.strerror or exc}") from None
     try:
         cap = parse(data)
     except CaptureError as exc:
@@ -153,18 +155,31 @@ def load(paths: Sequence[Path], interface: int | None = None) -> Recording:
     missing, a session whose start is missing, files that overlap in time (not parts of one
     recording: TraceFileError). ``interface``: keep that link only (TraceFileError when
     there is none of that number)."""
+    return links_of([(path, read(path)) for path in paths], interface)
+
+
+def links_of(files: Sequence[tuple[Path, Capture]], interface: int | None = None) -> Recording:
+    """:func:`load`'s work on files already read (:func:`read`)."""
+    paths = [path for path, _ in files]
     units: list[_Unit] = []
     problems: list[str] = []
     formats: list[str] = []
     described: dict[int, Interface] = {}
-    for path in paths:
-        cap = _read(path)
+    ends = 0
+    for path, cap in files:
+        ends = cap.size
         formats.append(cap.format)
         problems += [f"{path}: {p}" for p in cap.problems]
         units += _units(path, cap)
         for iface in cap.interfaces:
             described.setdefault(iface.number, iface)
     interfaces = [described[n] for n in sorted(described)]
+    if not interfaces:
+        raise TraceFileError(
+            f"{', '.join(map(str, paths))}: no interface is described"
+            + (f" ({'; '.join(problems)})" if problems else f" before the end at offset {ends}")
+            + ": nothing to read"
+        )
     if not units:
         raise TraceFileError(
             f"{', '.join(map(str, paths))}: no motorctl link in "

@@ -343,6 +343,7 @@ class Capture:
     sections: list[Section] = field(default_factory=list)
     damaged_at: int | None = None
     packets: int = 0  # packet blocks seen, of any interface (Wireshark numbers them all)
+    size: int = 0  # the file's length in bytes
 
     @property
     def interfaces(self) -> list[Interface]:
@@ -434,6 +435,9 @@ def _answer_ok(chunk: bytes, opts: CodecOptions) -> bool:
     return opts.crc.compute(covered) == chunk[4]
 
 
+_DIRECTIONS = (None, Direction.TO_DEVICE, Direction.TO_HOST, None)  # by epb_flags bits 0-1
+
+
 def direction_of(data: bytes, opts: CodecOptions) -> Direction | None:
     """A run's direction told from its bytes, where they tell it: whole command frames with
     known codes and good checksums are host -> device, whole answers (R0 0 or 1, an error's
@@ -478,13 +482,20 @@ class _Reader:
 
     def __init__(self, data: bytes) -> None:
         self.data = data
-        self.cap = Capture(info=None)
+        self.cap = Capture(info=None, size=len(data))
         self.tally = _Tally()
-        self.order = "<"
+        self._byte_order("<")
         self.section: Section | None = None
         self.resolutions: list[tuple[int, int]] = []
         self.untold = 0
         self.first_untold = -1
+
+    def _byte_order(self, order: str) -> None:
+        self.order = order
+        self.epb_head = struct.Struct(order + "IIIII")
+        self.flags_only = struct.Struct(order + "HHIHH")
+        self.u32 = struct.Struct(order + "I")
+        self.u64 = struct.Struct(order + "Q")
 
     def read(self) -> Capture:
         data, cap = self.data, self.cap
@@ -498,9 +509,9 @@ class _Reader:
             if kind == SHB:
                 magic = bytes(data[pos + 8 : pos + 12])
                 if magic == struct.pack("<I", BYTE_ORDER_MAGIC):
-                    self.order = "<"
+                    self._byte_order("<")
                 elif magic == struct.pack(">I", BYTE_ORDER_MAGIC):
-                    self.order = ">"
+                    self._byte_order(">")
                 else:
                     self._damage(
                         pos,
@@ -632,7 +643,7 @@ class _Reader:
         self.cap.packets += 1
         if len(body) < 20:
             raise _Bad(f"a packet block at offset {pos} is too short")
-        iface, hi, lo, caplen, origlen = struct.unpack_from(self.order + "IIIII", body, 0)
+        iface, hi, lo, caplen, origlen = self.epb_head.unpack_from(body, 0)
         if caplen > len(body) - 20:
             raise _Bad(f"the packet at offset {pos} claims {caplen} bytes, more than its block")
         if iface >= len(self.section.interfaces):
@@ -651,20 +662,21 @@ class _Reader:
             )
             return
         payload = body[20 : 20 + caplen]
-        opts = _options(body[20 + caplen + (-caplen % 4) :], self.order, pos + 28 + caplen)
-        flags = opts.get(EPB_FLAGS)
-        bits = (
-            struct.unpack(self.order + "I", flags[0])[0] & 3 if flags and len(flags[0]) == 4 else 0
-        )
-        drops = opts.get(EPB_DROPCOUNT)
-        dropped = (
-            struct.unpack(self.order + "Q", drops[0])[0] if drops and len(drops[0]) == 8 else 0
-        )
+        at = 20 + caplen + (-caplen % 4)
+        head = self.flags_only.unpack_from(body, at) if len(body) - at == 12 else None
+        if head is not None and head[:2] == (EPB_FLAGS, 4) and head[3:] == (OPT_END, 0):
+            bits, dropped = head[2] & 3, 0  # what motorctl writes: the flags alone, fast
+        else:
+            opts = _options(body[at:], self.order, pos + 8 + at)
+            flags = opts.get(EPB_FLAGS)
+            bits = self.u32.unpack(flags[0])[0] & 3 if flags and len(flags[0]) == 4 else 0
+            drops = opts.get(EPB_DROPCOUNT)
+            dropped = self.u64.unpack(drops[0])[0] if drops and len(drops[0]) == 8 else 0
         if caplen != origlen:
             self.tally.add(
                 "cut", f"the packet at offset {pos} was cut to {caplen} of {origlen} bytes"
             )
-        direction: Direction | None = Direction(bits) if bits in (1, 2) else None
+        direction = _DIRECTIONS[bits]
         if direction is None:
             opts_info = interface.info or CaptureInfo()
             direction = direction_of(payload, opts_info.codec_options())
@@ -693,7 +705,7 @@ def _parse_pcap(data: bytes, order: str, nanos: bool) -> Capture:
             f"a pcap file of {linktype_name(network)} (its header's link type, offset 20), "
             f"not motorctl's {linktype_name(LINKTYPE_USER0)}"
         )
-    cap = Capture(info=None, format="pcap")
+    cap = Capture(info=None, format="pcap", size=len(data))
     cap.sections.append(Section(0, None, [Interface(0, network, "", None)]))
     opts = CaptureInfo().codec_options()
     untold, first_untold = 0, -1
