@@ -105,6 +105,9 @@ def render(
     parts.append(_steps(doc))
     parts.append(_io(doc))
     parts.append(_link(doc, None if stale else rate))
+    trace = _trace(doc)
+    if trace is not None:
+        parts.append(trace)
     parts.append(_recent(doc, since_s))
     drivers = _drivers(doc)
     if drivers is not None:
@@ -324,6 +327,27 @@ def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
     for key in ("link_errors", "internal_errors", "responses_dropped"):
         if c.get(key):
             text.append(f"  {key.replace('_', ' ')} {c[key]}", style="bold red")
+    return text
+
+
+def _trace(doc: Mapping[str, Any]) -> Text | None:
+    """The link's trace (motorctld --trace), when it records one."""
+    t = _d(doc.get("trace"))
+    if not t:
+        return None
+    text = Text("trace ", style="bold")
+    text.append(f"{t.get('file', '?')}")
+    if t.get("part"):
+        text.append(f" (part {t.get('part')} of session {t.get('session', '?')})")
+    text.append(f"  runs {_num(t.get('runs'))}  written {_num(t.get('bytes_written'))} bytes")
+    for key, label in (
+        ("dropped_runs", "runs left out"),
+        ("write_errors", "write errors"),
+        ("lost_bytes", "bytes lost"),
+    ):
+        value = t.get(key)
+        text.append(f"  {label} ")
+        text.append(_num(value), style="bold red" if value else "")
     return text
 
 

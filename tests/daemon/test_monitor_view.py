@@ -136,6 +136,26 @@ def test_without_rich_the_monitor_says_what_to_install(tmp_path: Path) -> None:
         assert "Traceback" not in out.stderr
 
 
+def test_the_trace_when_the_daemon_records_one() -> None:
+    trace = {
+        "file": "/run/motorctl/link.pcapng",
+        "runs": 1234,
+        "dropped_runs": 0,
+        "bytes_written": 56789,
+        "rotations": 2,
+        "write_errors": 1,
+        "lost_bytes": 300,
+        "session": "3f2a9c01d4e5",
+        "part": 3,
+    }
+    text = drawn({**DOC, "trace": trace}, width=250)
+    assert (
+        "trace /run/motorctl/link.pcapng (part 3 of session 3f2a9c01d4e5)  runs 1,234  written "
+        "56,789 bytes  runs left out 0  write errors 1  bytes lost 300"
+    ) in text
+    assert "trace " not in drawn(DOC)
+
+
 def test_a_stale_view_is_marked_as_such_throughout() -> None:
     text = drawn(DOC, rate=12.5, since_s=12.0, stale="motorctld at /run/x stopped")
     lines = [line for line in text.splitlines() if line.strip()]
