@@ -187,6 +187,22 @@ def test_the_dissector_knows_the_checksums_protocol_crc_knows() -> None:
     assert smbus is not None and names.index("CRC-8/SMBUS") + 1 == int(smbus[1])  # "crc8"
 
 
+def test_the_debian_package_installs_the_dissector_where_its_scripts_link_it() -> None:
+    """debian/motorctl.install puts it in /usr/share/motorctl/wireshark, postinst links it
+    into the Lua plugin folder of the machine's architecture, prerm removes that link (make
+    test-deb checks both on a fresh Debian root; pyproject.toml ships it in the wheel)."""
+    debian = REPO / "debian"
+    install = (debian / "motorctl.install").read_text().split()
+    assert install[:2] == ["client/wireshark/motorctl.lua", "usr/share/motorctl/wireshark/"]
+    target = "/usr/share/motorctl/wireshark/motorctl.lua"
+    postinst = (debian / "motorctl.postinst").read_text()
+    assert f"motorctl_lua={target}" in postinst and 'get_config_var("MULTIARCH")' in postinst
+    assert '"/usr/lib/$triplet/wireshark/plugins/motorctl.lua"' in postinst
+    prerm = (debian / "motorctl.prerm").read_text()
+    assert "/usr/lib/*/wireshark/plugins/motorctl.lua" in prerm and target in prerm
+    assert '"motorctl.client" = ["wireshark/*.lua"]' in (REPO / "pyproject.toml").read_text()
+
+
 @needs_tshark
 def test_tshark_shows_what_motorctl_trace_json_shows_for_every_frame(recorded: Path) -> None:
     doc = trace_json(str(recorded))
