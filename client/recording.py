@@ -84,7 +84,7 @@ class Recording:
         return self.links[0].info if self.links else None
 
     def describe_interfaces(self) -> str:
-        """ "0: /dev/ttyS0 (daemon, 120 runs), 1: ... (tap, 118 runs)"."""
+        """The interfaces in words: "0: /dev/ttyS0 (daemon, 120 runs), 1: ... (tap, ...)"."""
         counts = {link.interface: len(link.records) for link in self.links}
         return ", ".join(_interface_text(i, counts.get(i.number)) for i in self.interfaces)
 
