@@ -7,7 +7,8 @@
 #               is made when missing; in the guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
-# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly).
+# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly), and
+# Debian's prometheus package for its promtool (the metrics' lint; skipped loudly without it).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
@@ -41,6 +42,17 @@ test-deps:
 	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat; \
 	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
 	    "device reconnect tests are SKIPPED" >&2; fi; }
+# ... and promtool, from Debian's prometheus package (tests/daemon/test_metrics.py lints the
+# metrics with `promtool check metrics`; installing it starts no server where systemd does
+# not run, and where it does the package's prometheus.service is stopped and disabled again)
+	@command -v promtool >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q -o DPkg::Lock::Timeout=600 \
+	      --no-install-recommends prometheus && \
+	    { ! command -v systemctl >/dev/null || systemctl disable --now prometheus 2>/dev/null \
+	      || true; }; \
+	  else echo "promtool is missing: run 'sudo apt-get install prometheus'; until then the" \
+	    "metrics' promtool check is SKIPPED" >&2; fi; }
 
 test: venv test-deps
 	$(BIN)/ruff check .
