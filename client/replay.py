@@ -34,8 +34,8 @@ from motorctl.client.judge import (
     Tolerances,
     Verdict,
     compare,
-    windows,
 )
+from motorctl.client.motions import windows
 from motorctl.client.trace import (
     Conversation,
     TraceFileError,
