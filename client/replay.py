@@ -287,13 +287,17 @@ def report_text(args: argparse.Namespace, tol: Tolerances, out: Outcome) -> None
     if out.aborted:
         print(f"DIFF  replay stopped: {out.aborted}")
     pace = out.pacing()
-    paced = "--fast, pauses not kept" if args.fast else "paced"
+    due = "as soon as its answers came (--fast)" if args.fast else "at its recorded time"
+    late = not args.fast and pace["max_ms"] > tol.time_s * 1000
     print(
-        f"pacing ({paced}): each run sent p50 {pace['p50_ms']:.2f} ms, p99 "
-        f"{pace['p99_ms']:.2f} ms, at most {pace['max_ms']:.2f} ms after it was due "
-        f"({pace['runs']} runs); the tolerances allow {tol.time_s * 1000:.0f} ms of "
-        "device timing"
-        + (": the replay was later than that" if pace["max_ms"] > tol.time_s * 1000 else "")
+        f"pacing: {pace['runs']} runs, each due {due}, sent p50 {pace['p50_ms']:.3f} ms, "
+        f"p99 {pace['p99_ms']:.3f} ms, at most {pace['max_ms']:.3f} ms late"
+        + (
+            f": later than the {tol.time_s * 1000:.0f} ms of device timing the tolerances "
+            "assume (a busy machine?)"
+            if late
+            else ""
+        )
     )
     differ = out.count("differs") + len(out.extra) + (1 if out.aborted else 0)
     print(
