@@ -210,7 +210,8 @@ def _intersect(a: Span, b: Span) -> Span:
 class _Builder:
     """Reads the recording's answers in order into episodes (:func:`recording`)."""
 
-    def __init__(self, spans: dict[int, Span], j: float) -> None:
+    def __init__(self, frames: list[Frame], spans: dict[int, Span], j: float) -> None:
+        self.frames = frames
         self.spans = spans
         self.j = j
         self.rec = Recording()
@@ -299,9 +300,27 @@ class _Builder:
         ep.end = _intersect(ep.end, seen)
         ep.end_seen = True
         if seen.hi < INF:  # it had ended
+            overtaking = self._stop_behind(f, ep.motor) if ep.stop is None else None
+            if overtaking is not None:
+                stop = overtaking.command
+                assert isinstance(stop, StopMove)
+                self._stop(overtaking, stop, ep, self.spans[overtaking.number])
             self._finish(ep, "stopped" if ep.stop is not None else "done")
         if isinstance(cmd, SaveWayPoint | SaveHome) and resp.ack:
             self._at_rest(cmd, resp, ep.motor)
+
+    def _stop_behind(self, f: Frame, motor: int) -> Frame | None:
+        """A StopMove of ``motor`` held behind ``f`` (a WaitMoved) but executed on arrival,
+        before ``f`` was answered (PROTOCOL.md 4): it, not the motion's end, stopped it."""
+        assert f.answer is not None
+        for g in self.frames[f.number :]:  # the frames after f (numbers count from 1)
+            if g.t_ns > f.answer.t_ns:
+                return None
+            answer = g.answer.response if g.answer is not None else None
+            stop = g.command
+            if isinstance(stop, StopMove) and stop.motor == motor and answer and answer.ack:
+                return g
+        return None
 
     def _finish(self, ep: Episode, how: str) -> None:
         ep.ended = how
@@ -324,9 +343,10 @@ def recording(conv: Conversation, spans: dict[int, Span], j: float) -> Recording
     """The recording's motions: episodes from rest to rest and what each frame is to them.
 
     A motion command's ACK starts one (or joins the running one: queued); IsReady TRUE, a
-    WaitMoved's ACK, a SaveHome/SaveWayPoint's ACK, a hard StopMove's ACK or an E4 end it. At
+    WaitMoved's ACK, a SaveHome/SaveWayPoint's ACK, a hard StopMove's ACK or an E4 end it (a
+    StopMove that arrived while a WaitMoved was held stopped it, though answered after). At
     the start of the recording motors are taken to be at rest."""
-    b = _Builder(spans, j)
+    b = _Builder(conv.frames, spans, j)
     for f in conv.frames:
         b.frame(f)
     return b.rec

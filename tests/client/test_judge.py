@@ -255,6 +255,26 @@ def test_a_changed_answer_is_named_with_its_frame() -> None:
     assert "E2 Invalid Address" in got[1].replayed
 
 
+def test_a_stop_sent_behind_a_held_wait_moved_is_the_stop_of_that_motion() -> None:
+    """The host waits, then stops the motor while the WaitMoved is held (executed on arrival,
+    answered after the WaitMoved): where it stands is judged as after a hard stop."""
+
+    def run(stop_at: float, final: int) -> list[Step]:
+        return [
+            (0.000, GetAbsPos(0), pos(0), 0.0002),
+            (0.010, MoveTo(0, True, 8000, 250, 0, 0), OK, 0.011),
+            (0.100, WaitMoved(0, 20_000), OK, stop_at + 0.0005),
+            (stop_at, StopMove(0, True), OK, stop_at + 0.001),
+            (stop_at + 0.1, GetAbsPos(0), pos(final), stop_at + 0.1002),
+        ]
+
+    rec = run(1.000, 950)
+    near = judged(rec, run(1.010, 965))
+    assert [v.result for v in near] == ["exact", "exact", "tolerated", "exact", "tolerated"]
+    assert "after the hard stop at frame #4" in near[4].why
+    assert judged(rec, run(1.010, 1100))[4].result == "differs"
+
+
 def test_queued_motions_are_judged_within_all_they_can_reach() -> None:
     def queued(read: int) -> list[Step]:
         return [
