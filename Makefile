@@ -80,6 +80,7 @@ bench: venv
 	$(BIN)/python bench/rings.py
 	$(BIN)/python bench/instances.py
 	$(BIN)/python bench/startup.py
+	$(BIN)/python bench/replay.py
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
 # ignored), in build/deb: an orig tarball from git, debian/ beside it, patches applied

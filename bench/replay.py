@@ -59,6 +59,9 @@ STOPS: list[tuple[list[str], float]] = [
 ]
 
 
+RECORDED: dict[str, Any] = {}  # the recording daemon's figures
+
+
 def pct(values: list[float], q: float) -> float:
     ordered = sorted(values)
     return ordered[min(len(ordered) - 1, int(q / 100 * len(ordered)))] if ordered else 0.0
@@ -89,6 +92,7 @@ def record(work: Path) -> Path:
             if run.returncode != 0:
                 raise RuntimeError(f"motorctl {' '.join(args)}: {run.stdout}{run.stderr}")
             time.sleep(pause)  # the host's own pause: what a replay must keep
+        RECORDED["slid_ms"] = d.status()["motors"][0].get("timing", {}).get("slid_ms")
     finally:
         d.close()
     return trace
@@ -169,13 +173,16 @@ def summarise(runs: list[dict[str, Any]]) -> dict[str, Any]:
             }
             for frame, xs in sorted(timed.items())
         },
+        "slid_ms_per_run": [r["slid_ms"] for r in runs],
         "failures": [
             {
+                "run": i,
                 "exit": r["exit"],
+                "slid_ms": r["slid_ms"],
                 "stderr": r["stderr"],
                 "diffs": [v for v in r.get("verdicts", []) if v["result"] != "tolerated"],
             }
-            for r in runs
+            for i, r in enumerate(runs)
             if r["exit"] != 0
         ],
     }
@@ -239,6 +246,7 @@ def main() -> int:
             trace = record(work)
             frames = frames_of_interest(trace)
             figures["frames_of_interest"] = frames
+            figures["recording_slid_ms"] = RECORDED.get("slid_ms")
             figures["load_before"] = round(os.getloadavg()[0], 2)
             paced = [replay(work / f"paced-{i}", trace, False) for i in range(args.n)]
             fast = [replay(work / f"fast-{i}", trace, True) for i in range(args.n)]
@@ -263,7 +271,10 @@ def main() -> int:
 
 
 def report(fig: dict[str, Any]) -> None:
-    print(f"load average {fig['load_before']} before, {fig['load_after']} after")
+    print(
+        f"load average {fig['load_before']} before, {fig['load_after']} after; the recording "
+        f"daemon's motor slid {fig['recording_slid_ms']} ms"
+    )
     for kind in ("paced", "fast"):
         s = fig[kind]
         print(
@@ -277,8 +288,13 @@ def report(fig: dict[str, Any]) -> None:
                 f"  frame #{frame}: at most {p['max_off']} steps from the recording; allowed "
                 f"range {p['narrowest_range']}..{p['widest_range']} steps wide"
             )
+        slid = sorted(x or 0 for x in s["slid_ms_per_run"])
+        print(f"  replay daemons' slide per run, ms: {', '.join(f'{x:.0f}' for x in slid)}")
         for f in s["failures"]:
-            print(f"  FAILED exit {f['exit']}: {f['stderr']}")
+            print(
+                f"  FAILED run {f['run']} exit {f['exit']} (its daemon slid {f['slid_ms']} ms)"
+                f"{': ' + f['stderr'] if f['stderr'] else ''}"
+            )
             for v in f["diffs"]:
                 print(f"    {v['result']}: frame #{v['frame']} {v['command']}: {v['why']}")
     for t in fig["tampered"]:
