@@ -4,15 +4,17 @@ position within what its motion allows (and the report says how far and why); be
 forwarder that changes one answer (tests/support/tamper.py: an error code, a position
 further off than the motion allows) it fails naming that frame.
 
-The daemons here run as every test daemon does, without real-time priority on a shared
-machine: each step may wake a few ms late, and a late step slides the rest of its motion
-(``motors[].timing.slid_ms`` in ``motorctld --status``), so their motions fall behind by
-up to a few ms per step, far more than a board's. So the motions here are short and slow
-(SPEED 10: 40 step/s, the bound the replay takes from the byte; about 20 steps each) and the
-replays allow 500 ms of device timing (``--time-tolerance-ms``) instead of the default 50:
-what that allows (about 40 steps) stays far below the changed position (1000 steps). The
-20-fold acceptance with the default tolerance, at the daemon's default speed, against
-daemons started as a user starts them: bench/replay.py."""
+The daemons here run as every test daemon does, without real-time priority, beside a
+parallel test run on a shared machine: a late step slides the rest of its motion
+(``motors[].timing.slid_ms`` in ``motorctld --status``), and their motions fall behind
+their plan by up to half a second and more, far more than a board's. So the motions here are
+short and slow (SPEED 10: 40 step/s, the bound the replay takes from the byte; about 20
+steps each) and the replays allow 2 s of device timing (``--time-tolerance-ms``) instead of
+the default 50 ms: what that allows (under 200 steps) stays far below the changed position
+(1000 steps). What is tested here is that stops are judged from their motion and that a
+changed answer is named; how closely: tests/client/test_judge.py, and the 20-fold
+acceptance with the default tolerance, at the daemon's default speed, against daemons
+started as a user starts them: bench/replay.py."""
 
 from __future__ import annotations
 
@@ -32,7 +34,7 @@ from tests.support.daemon_proc import DaemonProcess
 from tests.support.tamper import Tamper, other_error, position_off
 from tests.support.wait import until
 
-DEVICE_TIMING_MS = "500"
+DEVICE_TIMING_MS = "2000"
 SPEED = 10  # x 4 = 40 step/s
 
 
@@ -130,7 +132,7 @@ def test_a_replay_with_mid_move_stops_passes_saying_how_far_each_was(
     unjudged = [v for v in doc["verdicts"] if v["result"] == "pacing"]
     assert doc["exit"] in (0, 3) and doc["differs"] == 0, json.dumps(doc["verdicts"], indent=1)
     assert (doc["exit"] == 3) == bool(unjudged)
-    assert all("more than the 500 ms of device timing" in v["why"] for v in unjudged)
+    assert all("more than the 2000 ms of device timing" in v["why"] for v in unjudged)
     verdicts = {v["frame"]: v for v in doc["verdicts"]}
     hard = verdicts.get(frames["hard_stop_position"])
     if hard is not None:  # (byte-exact when it stopped at the same step)
