@@ -1,8 +1,8 @@
 """End to end: a session that stops a motor midway, hard and then softly, recorded by
 motorctld's own trace and replayed against a fresh daemon: it passes, each stopped
 position within what its motion allows (and the report says how far and why); behind a
-forwarder that changes one answer (tests/support/tamper.py: an error code, a position
-further off than the motion allows) it fails naming that frame.
+forwarder that changes one answer (tests/support/tamper.py: a position further off than the
+motion allows) it fails naming that frame.
 
 The daemons here run as every test daemon does, without real-time priority, beside a
 parallel test run on a shared machine: a late step slides the rest of its motion
@@ -28,10 +28,9 @@ from typing import Any
 import pytest
 
 from motorctl.client.client import Client, DeviceError
-from motorctl.protocol.codec import ErrorCode
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess
-from tests.support.tamper import Tamper, other_error, position_off
+from tests.support.tamper import Tamper, position_off
 from tests.support.wait import until
 
 DEVICE_TIMING_MS = "2000"
@@ -144,15 +143,16 @@ def test_a_replay_with_mid_move_stops_passes_saying_how_far_each_was(
     assert doc["pacing"]["runs"] == doc["frames"]
 
 
-@pytest.mark.parametrize("case", ["error_code", "hard_stop_position", "soft_stop_position"])
-def test_one_changed_answer_fails_naming_its_frame(
-    recorded: tuple[Path, dict[str, int]], tmp_path: Path, case: str
+def test_a_changed_position_fails_naming_its_frame(
+    recorded: tuple[Path, dict[str, int]], tmp_path: Path
 ) -> None:
-    """The error code E2 answered E1; a position moved by 1000 steps: more than a motion of
-    at most 40 step/s and a second of uncertainty allows."""
+    """The position after the hard stop moved by 1000 steps: more than a motion of at most
+    40 step/s and a few seconds of uncertainty allows. (A changed error code:
+    tests/client/test_trace_e2e.py; both, and the soft stop's position, with the default
+    tolerance: bench/replay.py.)"""
     trace, frames = recorded
-    n = frames[case]
-    rewrite = other_error(ErrorCode.INVALID_COMMAND) if case == "error_code" else position_off(1000)
+    n = frames["hard_stop_position"]
+    rewrite = position_off(1000)
     d = DaemonProcess(tmp_path).start()
     try:
         with Tamper(d.pty, n, rewrite) as t:
@@ -164,8 +164,4 @@ def test_one_changed_answer_fails_naming_its_frame(
     assert doc["exit"] == 1 and [v["frame"] for v in diffs] == [n], [
         (v["frame"], v["replayed"], v["why"]) for v in doc["verdicts"]
     ]
-    if case == "error_code":
-        assert "E2 Invalid Address" in diffs[0]["recorded"]
-        assert "E1 Invalid Command" in diffs[0]["replayed"]
-    else:
-        assert "outside" in diffs[0]["why"]
+    assert "after the hard stop at frame" in diffs[0]["why"] and "outside" in diffs[0]["why"]

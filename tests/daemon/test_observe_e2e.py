@@ -63,8 +63,7 @@ def test_the_subscribe_stream_follows_a_move(daemon: DaemonProcess) -> None:
     )
 
 
-@pytest.mark.parametrize("fmt", ["prometheus", "openmetrics"])
-def test_metrics_of_a_live_daemon(daemon: DaemonProcess, fmt: str) -> None:
+def test_metrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
     """Each format of a live daemon's metrics, parsed by prometheus_client's parser of that
     format: the expected names, values, types; ``motorctl_up 0`` without a daemon."""
     with daemon.client() as c:
@@ -74,6 +73,11 @@ def test_metrics_of_a_live_daemon(daemon: DaemonProcess, fmt: str) -> None:
         c.dc_move(True, 5000, False)
         with pytest.raises(Exception, match="E2"):
             c.move_to(7, 1)
+    for fmt in ("prometheus", "openmetrics"):
+        check_metrics(daemon, fmt)
+
+
+def check_metrics(daemon: DaemonProcess, fmt: str) -> None:
     parse = parse_prometheus if fmt == "prometheus" else parse_om
     out = run(
         "motorctl.daemon.main", "--status", "--format", fmt, "--state-dir", str(daemon.state_dir)
@@ -94,11 +98,11 @@ def test_metrics_of_a_live_daemon(daemon: DaemonProcess, fmt: str) -> None:
         "motorctl_executor_alive",
         "motorctl_state_writes",
         "motorctl_link_processing_seconds",
-    } <= set(families)
+    } <= set(families), fmt
     for name in ("motorctl_steps", "motorctl_link_frames", "motorctl_link_error_responses"):
-        assert families[name].type == "counter", name
+        assert families[name].type == "counter", (fmt, name)
     for name in ("motorctl_step_lateness_seconds", "motorctl_link_processing_seconds"):
-        assert families[name].type == "summary", name
+        assert families[name].type == "summary", (fmt, name)
         assert {s.name for s in families[name].samples} >= {name + "_count", name + "_sum"}
 
     def value(metric: str, sample: str | None = None, **labels: str) -> float:
@@ -108,7 +112,7 @@ def test_metrics_of_a_live_daemon(daemon: DaemonProcess, fmt: str) -> None:
             if (sample is None or s.name == sample)
             and all(s.labels.get(k) == v for k, v in labels.items())
         ]
-        assert len(found) == 1, (metric, labels, families[metric].samples)
+        assert len(found) == 1, (fmt, metric, labels, families[metric].samples)
         return float(found[0])
 
     build = "motorctl_build" if fmt == "openmetrics" else "motorctl_build_info"
