@@ -60,6 +60,7 @@ from motorctl.protocol.codec import (
 
 TIME_TOLERANCE_S = 0.05
 POSITION_TOLERANCE = 2
+
 # --- verdicts --------------------------------------------------------------------------------
 
 
@@ -132,7 +133,7 @@ def judge_position(f: Frame, role: str, ep: Episode, b: Row, ctx: Context, j: fl
             f"{gap(ep.stop_tau, tau)} from the recorded one in the motion's time"
         )
     if check.allowed is None:
-        return Check(True, f"{what}; {check.why}", off=pb - pa)
+        return Check(True, f"{what}; {check.why}", off=wrapped(pb - pa))
     lo, hi = check.allowed
     fits = lo <= pb <= hi
     return Check(

@@ -72,9 +72,6 @@ class Span:
     def meets(self, other: Span) -> bool:
         return self.lo <= other.hi and other.lo <= self.hi
 
-    def widened(self, by: float) -> Span:
-        return Span(self.lo - by, self.hi + by)
-
     def text(self) -> str:
         if self.lo == -INF:
             return "any time" if self.hi == INF else f"by {self.hi:.3f} s"
@@ -135,7 +132,6 @@ class Episode:
     stop_tau: Span | None = None
     rest: Point | None = None  # where a stop left it (at the stop's time)
     end: Span = field(default_factory=lambda: Span(-INF, INF))  # when it ended (its time)
-    end_seen: bool = False
     ended: str = ""  # "done", "stopped", "fault"
     target: int | None = None  # where it ends when it completes
     targets: list[int | None] = field(default_factory=list)  # each command's
@@ -198,8 +194,6 @@ def ends(cmd: Command, resp: Response, span: Span, start: Span, j: float) -> Spa
         if resp.payload[0] == 0xE3:  # timed out: still moving TIMEOUT after it was taken up
             return Span(lo + cmd.timeout_ms / 1000.0, INF)
         return None
-    if isinstance(cmd, StopMove) and cmd.hard and resp.ack:
-        return Span(lo, hi)
     return None
 
 
@@ -298,7 +292,6 @@ class _Builder:
             return
         self.rec.roles[f.number] = ("ended?", ep)
         ep.end = _intersect(ep.end, seen)
-        ep.end_seen = True
         if seen.hi < INF:  # it had ended
             overtaking = self._stop_behind(f, ep.motor) if ep.stop is None else None
             if overtaking is not None:
