@@ -11,7 +11,8 @@ tests (``_e2e``: against motorctld as a process on a real PTY):
                 frames, rigs (the engine or the step core on a virtual clock), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
-                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
+                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
+                tamper (a forwarder that changes one answer: the replay's tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports
