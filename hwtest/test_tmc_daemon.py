@@ -32,6 +32,15 @@ API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 CHIPS = {"0.0": "tmc5160:step_dir", "0.1": "tmc5160:step_dir", "0.2": "tmc5160:step_dir"}
 
 
+def set_chips(control: Path, state: dict[str, dict[str, object]]) -> None:
+    """Tell the chip models their new state: written beside and renamed into place, since the
+    daemon's poll reads the file whenever it changes (a write in place could be read half
+    done, as an empty file: a JSON error in the stand-in library, not the fault asked for)."""
+    part = control.with_suffix(".part")
+    part.write_text(json.dumps(state))
+    os.replace(part, control)
+
+
 def example_config() -> str:
     """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`)."""
     text = EXAMPLE.read_text()
@@ -91,7 +100,7 @@ def test_a_driver_fault_on_spi_answers_e4_while_gpio_steps_the_others(
         c.move_to(1, 200, speed=250)
         c.wait_moved(1, timeout_ms=20_000)
         assert c.position(1) == 200
-        control.write_text(json.dumps({"0.0": {"faults": [25]}}))  # x: over-temperature
+        set_chips(control, {"0.0": {"faults": [25]}})  # x: over-temperature
         deadline = time.monotonic() + 10.0
         while True:
             try:
@@ -101,7 +110,7 @@ def test_a_driver_fault_on_spi_answers_e4_while_gpio_steps_the_others(
                 assert exc.code is ErrorCode.MOTOR_ERROR
                 break
             assert time.monotonic() < deadline, "no E4 within 10 s of the fault"
-        control.write_text(json.dumps({"0.0": {"faults": []}}))
+        set_chips(control, {"0.0": {"faults": []}})
         deadline = time.monotonic() + 10.0
         while True:
             try:
