@@ -334,7 +334,7 @@ class ChardevLines:
 class SimulatedLines:
     """Lines a compiled core may drive, of a simulated machine (the mock backend): its
     mechanics' cells (six int64 per axis: position, heading, forced min end stop, forced max,
-    forced stall, generation; :class:`~motorctl.hal.backends.mock.backend.MockAxis`), where
+    forced stall, generation; :class:`~motorctl.hal.backends.mock.world.MockAxis`), where
     each axis' end stops sit, the axis of each motor, and where the edges go: ``record`` takes
     them as (t ns, kind 0 step / 1 dir, axis, value, rise call) into the machine's timeline;
     ``line_errors`` gives the writes that fail now, (``"step"``/``"dir"``, axis) -> the

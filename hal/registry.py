@@ -76,7 +76,7 @@ class Backend:
 
 BACKENDS: dict[str, Backend] = {
     "mock": Backend(
-        "motorctl.hal.backends.mock.backend",
+        "motorctl.hal.backends.mock.world",
         "build",
         "nothing: it is part of motorctl",
         "motorctl.hal.backends.mock.config",
@@ -114,7 +114,7 @@ def _has_drivers(spec: HardwareSpec) -> bool:
 #: "spidev": TMC2130/TMC5160 drivers over /dev/spidevB.C
 LAYERS: dict[str, Layer] = {
     "spidev": Layer(
-        "motorctl.hal.backends.tmc.backend", "motorctl.hal.backends.tmc.config", _has_drivers
+        "motorctl.hal.layers.tmc.layer", "motorctl.hal.layers.tmc.config", _has_drivers
     ),
 }
 

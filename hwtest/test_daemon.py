@@ -33,7 +33,7 @@ API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 def example_config() -> str:
     """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`),
     without its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
-    hwtest/spi_wire.py and tests/hal/test_tmc*.py)."""
+    hwtest/spi_wire.py and tests/hal/layers/tmc/test_*.py)."""
     text = re.sub(r"  \[motors\.tmc\][^\n]*\n(  \w+ = [^\n]*\n)*", "", EXAMPLE.read_text())
     assert not re.search(r"^\s*\[motors\.tmc\]|^\s*driver = ", text, re.M)
     return in_the_guest(text, API)

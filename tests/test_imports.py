@@ -6,9 +6,10 @@ functions, and module names written as strings for ``importlib``), not by import
 - the rooms depend one way: client -> protocol <- daemon -> motion -> hal, with
   ``motorctl.schema`` and the namespace root (``__version__``) at the bottom, importing
   nothing of motorctl themselves (README.md, "Architecture");
-- nothing outside ``hal/`` imports a backend (``motorctl.hal.backends``): the daemon names a
-  backend in its config, the registry builds it, and what only some hardware can do is asked
-  for through ``motorctl.hal.interfaces`` (hal/__init__.py).
+- nothing outside ``hal/`` imports a backend or a layer (``motorctl.hal.backends``,
+  ``motorctl.hal.layers``): the daemon names a backend in its config, the registry alone
+  names them and builds them, and what only some hardware can do is asked for through
+  ``motorctl.hal.interfaces`` (hal/__init__.py).
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ ALLOWED = {
 #: socket's format is the daemon's own. The CLI imports it lazily, only for that command, so
 #: the client library and every other command load nothing of the daemon.
 EXCEPTIONS = {("motorctl.client.cli", "motorctl.daemon.monitor")}
-BACKENDS = "motorctl.hal.backends"
+#: what only hal/ imports: the backends and the layers (hal/registry.py names them)
+HIDDEN = ("motorctl.hal.backends", "motorctl.hal.layers")
 _MODULE_NAME = re.compile(r"^motorctl(\.[A-Za-z_][A-Za-z0-9_]*)+$")
 
 
@@ -110,9 +112,9 @@ def violations(modules: dict[str, str]) -> list[str]:
             there = room_of(target)
             if (name, target) in EXCEPTIONS:
                 continue
-            if target.startswith(BACKENDS) and here != "hal":
+            if target.startswith(HIDDEN) and here != "hal":
                 out.append(
-                    f"{name} imports the backend module {target}: ask the HAL's "
+                    f"{name} imports the backend or layer module {target}: ask the HAL's "
                     "registry and interfaces instead"
                 )
             elif there != here and there not in ALLOWED[here]:
@@ -126,7 +128,7 @@ def violations(modules: dict[str, str]) -> list[str]:
 def test_the_package_keeps_the_rooms_order_and_the_hal_boundary() -> None:
     modules = {name: path.read_text(encoding="utf-8") for name, path in package_modules().items()}
     assert {room_of(m) for m in modules} == {*ROOMS, "root", "schema"}  # the whole package
-    assert {"motorctl.daemon.assemble", "motorctl.hal.backends.tmc.ramp"} <= set(modules)
+    assert {"motorctl.daemon.assemble", "motorctl.hal.layers.tmc.ramp"} <= set(modules)
     assert violations(modules) == []
 
 
@@ -143,18 +145,18 @@ def test_the_one_exception_is_still_there() -> None:
     [
         (
             "motorctl.daemon.x",
-            "from motorctl.hal.backends.mock.backend import MockHardware\n",
-            "imports the backend module motorctl.hal.backends.mock.backend",
+            "from motorctl.hal.backends.mock.world import MockHardware\n",
+            "imports the backend or layer module motorctl.hal.backends.mock.world",
         ),
         (
             "motorctl.motion.x",
-            "def f():\n    from motorctl.hal.backends.tmc import ramp\n",
-            "imports the backend module motorctl.hal.backends.tmc.ramp",
+            "def f():\n    from motorctl.hal.layers.tmc import ramp\n",
+            "imports the backend or layer module motorctl.hal.layers.tmc.ramp",
         ),
         (
             "motorctl.daemon.x",
             "import importlib\nimportlib.import_module('motorctl.hal.backends.gpiod.backend')\n",
-            "imports the backend module motorctl.hal.backends.gpiod.backend",
+            "imports the backend or layer module motorctl.hal.backends.gpiod.backend",
         ),
         (
             "motorctl.hal.x",
@@ -184,7 +186,7 @@ def test_the_one_exception_is_still_there() -> None:
     ],
 )
 def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
-    known = {"motorctl.hal.spec", "motorctl.daemon.config", "motorctl.hal.backends.tmc.ramp"}
+    known = {"motorctl.hal.spec", "motorctl.daemon.config", "motorctl.hal.layers.tmc.ramp"}
     modules = {name: source, **{k: "" for k in known}}
     found = violations(modules)
     assert len(found) == 1 and says in found[0], found
@@ -196,9 +198,9 @@ def test_what_is_allowed_is_not_named() -> None:
         "from motorctl.motion.engine import MotionEngine\n"
         "from motorctl.protocol.codec import wrap24\n"
         "from motorctl import __version__\n",
-        "motorctl.hal.backends.mock.backend": "from motorctl.hal.backends.mock.config import "
+        "motorctl.hal.backends.mock.world": "from motorctl.hal.backends.mock.config import "
         "MockConfig\nfrom motorctl.schema import table\n",
-        "motorctl.hal.registry": "BACKENDS = {'mock': 'motorctl.hal.backends.mock.backend'}\n",
-        "motorctl.motion.x": '"""Prose: :class:`motorctl.hal.backends.tmc.ramp.Tmc5160`."""\n',
+        "motorctl.hal.registry": "BACKENDS = {'mock': 'motorctl.hal.backends.mock.world'}\n",
+        "motorctl.motion.x": '"""Prose: :class:`motorctl.hal.layers.tmc.ramp.Tmc5160`."""\n',
     }
     assert violations(modules) == []

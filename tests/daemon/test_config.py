@@ -40,7 +40,7 @@ from motorctl.hal.backends.gpiod.config import (
     GpiodPwmConfig,
 )
 from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
-from motorctl.hal.backends.tmc.config import SpidevConfig, TmcAxisConfig
+from motorctl.hal.layers.tmc.config import SpidevConfig, TmcAxisConfig
 from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import CodecOptions
 from motorctl.protocol.crc import SMBUS, crc8_by_name
@@ -178,7 +178,8 @@ def test_defaults_agree_with_describe_keys() -> None:
         if path in ("motors[].name", "mock.wires", "motors[].microsteps"):
             continue  # (microsteps: test_microsteps_come_from_the_motor_or_its_tmc_table)
         if path.split(".")[0] == "gpiod" or ".gpiod" in path:
-            continue  # not in this config; tests/hal/test_gpiod_config.py checks those defaults
+            # not in this config; tests/hal/backends/gpiod/test_config.py checks those defaults
+            continue
         expected = tomllib.loads(f"v = {default}")["v"]
         actual = lookup(config, path)
         assert actual == expected, path
@@ -704,7 +705,7 @@ def test_checking_a_config_imports_no_backend_module() -> None:
         "import sys\n"
         "from motorctl.daemon.config import load_config, default_config_text\n"
         "load_config(None); default_config_text()\n"
-        "print(sorted(m for m in sys.modules if m == 'motorctl.hal.backends.mock.backend' or "
+        "print(sorted(m for m in sys.modules if m == 'motorctl.hal.backends.mock.world' or "
         "m.split('.')[0] in ('gpiod', 'spidev', 'systemd')))\n"
     )
     out = subprocess.run(

@@ -10,11 +10,11 @@ import pytest
 
 from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import parse_config
-from motorctl.hal.backends.mock.backend import EventKind, build, world_of
-from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
-from motorctl.hal.backends.tmc.settings import TmcSettings, TmcSpec
-from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice
+from motorctl.hal.backends.mock.world import EventKind, build, world_of
 from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.layers.tmc.ramp import RefSwitches, Tmc5160
+from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
+from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine

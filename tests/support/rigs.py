@@ -12,7 +12,7 @@ from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from motorctl.hal.backends.mock.backend import (
+from motorctl.hal.backends.mock.world import (
     Event,
     EventKind,
     MockWorld,

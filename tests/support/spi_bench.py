@@ -4,10 +4,10 @@ virtual clock."""
 
 from __future__ import annotations
 
-from motorctl.hal.backends.tmc.driver import TmcDriver
-from motorctl.hal.backends.tmc.settings import TmcSettings
-from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.layers.tmc.driver import TmcDriver
+from motorctl.hal.layers.tmc.settings import TmcSettings
+from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from tests.support.tmc_model import FakeKernel, TmcModel
 
 #: The SPI clock the drivers are opened with (Hz).

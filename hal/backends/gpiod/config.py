@@ -30,7 +30,7 @@ from motorctl.hal.backends.gpiod.wiring import (
     PinWiring,
     PwmWiring,
 )
-from motorctl.hal.backends.tmc.config import TmcAxisConfig
+from motorctl.hal.layers.tmc.config import TmcAxisConfig
 from motorctl.schema import (
     REQUIRED,
     Extension,

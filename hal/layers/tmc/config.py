@@ -14,8 +14,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.hal.backends.tmc.fields import mres_of
-from motorctl.hal.backends.tmc.settings import CHIPS, TmcSettings, TmcSpec, current_setting
+from motorctl.hal.layers.tmc.fields import mres_of
+from motorctl.hal.layers.tmc.settings import CHIPS, TmcSettings, TmcSpec, current_setting
 from motorctl.schema import (
     Extension,
     Rule,

@@ -20,13 +20,13 @@ import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from motorctl.hal.backends.tmc import tmc5160
-from motorctl.hal.backends.tmc.fields import Chip, F, Field, Reg, decode_spi_status
-from motorctl.hal.backends.tmc.link import REG_NAMES, TmcError, TmcLink, identify
-from motorctl.hal.backends.tmc.settings import CHIP_BY_VERSION, TmcSettings, register_values
-from motorctl.hal.backends.tmc.spi import SpiDevice, SpiError
-from motorctl.hal.backends.tmc.tmc5160 import TMC5160
 from motorctl.hal.interfaces import DriverStatus, StepperDriver
+from motorctl.hal.layers.tmc import tmc5160
+from motorctl.hal.layers.tmc.fields import Chip, F, Field, Reg, decode_spi_status
+from motorctl.hal.layers.tmc.link import REG_NAMES, TmcError, TmcLink, identify
+from motorctl.hal.layers.tmc.settings import CHIP_BY_VERSION, TmcSettings, register_values
+from motorctl.hal.layers.tmc.spi import SpiDevice, SpiError
+from motorctl.hal.layers.tmc.tmc5160 import TMC5160
 
 log = logging.getLogger("motorctl.tmc")
 

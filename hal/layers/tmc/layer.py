@@ -5,7 +5,7 @@ A motor's STEP/DIR lines, end stops and pins come from the hardware backend (``m
 ``gpiod``); its driver chip, when the config names one, is opened here: each chip is
 identified, configured and verified before anything moves, and one :class:`DriverMonitor`
 thread polls their DRV_STATUS from then on. py-spidev is imported only when a driver is
-configured (through :func:`motorctl.hal.backends.tmc.spi.spidev_factory`). The registry
+configured (through :func:`motorctl.hal.layers.tmc.spi.spidev_factory`). The registry
 (``hal/registry.py``, ``LAYERS``) calls :func:`attach` and :func:`probe` when the config
 gives a motor a driver.
 
@@ -20,20 +20,20 @@ from __future__ import annotations
 import logging
 from typing import Protocol
 
-from motorctl.hal.backends.tmc.config import SpidevConfig
-from motorctl.hal.backends.tmc.driver import TmcDriver
-from motorctl.hal.backends.tmc.link import TmcError
-from motorctl.hal.backends.tmc.monitor import DriverMonitor
-from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
-from motorctl.hal.backends.tmc.settings import TmcSpec
-from motorctl.hal.backends.tmc.spi import (
+from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.layers.tmc.config import SpidevConfig
+from motorctl.hal.layers.tmc.driver import TmcDriver
+from motorctl.hal.layers.tmc.link import TmcError
+from motorctl.hal.layers.tmc.monitor import DriverMonitor
+from motorctl.hal.layers.tmc.ramp import RefSwitches, Tmc5160
+from motorctl.hal.layers.tmc.settings import TmcSpec
+from motorctl.hal.layers.tmc.spi import (
     SpiAddress,
     SpiBuses,
     SpiDevice,
     SpiFactory,
     spidev_factory,
 )
-from motorctl.hal.interfaces import Clock, HalError, Hardware
 from motorctl.hal.spec import HardwareSpec
 
 log = logging.getLogger("motorctl.tmc")

@@ -11,7 +11,7 @@ The datasheets' SPI protocol (both chips):
 
 Threads: a link belongs to its driver and is used by whichever thread the driver's caller
 is (see ``driver.py``); all SPI traffic of one bus is serialised by its bus lock
-(:class:`~motorctl.hal.backends.tmc.spi.SpiBuses`), and a pipelined read holds it for all its
+(:class:`~motorctl.hal.layers.tmc.spi.SpiBuses`), and a pipelined read holds it for all its
 datagrams.
 """
 
@@ -20,10 +20,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Final
 
-from motorctl.hal.backends.tmc import tmc5160
-from motorctl.hal.backends.tmc.fields import SPI_STATUS_BITS, Chip, F, Reg
-from motorctl.hal.backends.tmc.spi import SpiDevice
 from motorctl.hal.interfaces import HalError
+from motorctl.hal.layers.tmc import tmc5160
+from motorctl.hal.layers.tmc.fields import SPI_STATUS_BITS, Chip, F, Reg
+from motorctl.hal.layers.tmc.spi import SpiDevice
 
 WRITE: Final = 0x80
 

@@ -1,6 +1,6 @@
 """A TMC5160 whose own ramp generator moves the motor (motion-controller mode, SD_MODE low).
 
-:class:`Tmc5160` is a :class:`~motorctl.hal.backends.tmc.driver.TmcDriver` that also sets up
+:class:`Tmc5160` is a :class:`~motorctl.hal.layers.tmc.driver.TmcDriver` that also sets up
 and drives the chip's ramp generator: positioning and velocity mode, hard and soft stops,
 the reference switches REFL/REFR (stop and latch XACTUAL into XLATCH), stallGuard stops,
 and homing on them. Units: ``tmc5160.RampUnits``.
@@ -15,12 +15,13 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from motorctl.hal.backends.tmc.driver import TmcDriver
-from motorctl.hal.backends.tmc.fields import Field, signed32
-from motorctl.hal.backends.tmc.link import TmcError
-from motorctl.hal.backends.tmc.settings import TmcSettings
-from motorctl.hal.backends.tmc.spi import SpiDevice
-from motorctl.hal.backends.tmc.tmc5160 import (
+from motorctl.hal.interfaces import DriverStatus, RampDriver, RampStatus
+from motorctl.hal.layers.tmc.driver import TmcDriver
+from motorctl.hal.layers.tmc.fields import Field, signed32
+from motorctl.hal.layers.tmc.link import TmcError
+from motorctl.hal.layers.tmc.settings import TmcSettings
+from motorctl.hal.layers.tmc.spi import SpiDevice
+from motorctl.hal.layers.tmc.tmc5160 import (
     RAMP_STAT_WC,
     TMC5160,
     VSTOP_MIN,
@@ -29,7 +30,6 @@ from motorctl.hal.backends.tmc.tmc5160 import (
     RampUnits,
     Reg,
 )
-from motorctl.hal.interfaces import DriverStatus, RampDriver, RampStatus
 
 
 @dataclass(frozen=True)

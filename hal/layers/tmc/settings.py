@@ -11,10 +11,10 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
-from motorctl.hal.backends.tmc import tmc2130, tmc5160
-from motorctl.hal.backends.tmc.fields import Chip, F, Reg, mres_of, tstep_for
-from motorctl.hal.backends.tmc.tmc2130 import TMC2130
-from motorctl.hal.backends.tmc.tmc5160 import TMC5160
+from motorctl.hal.layers.tmc import tmc2130, tmc5160
+from motorctl.hal.layers.tmc.fields import Chip, F, Reg, mres_of, tstep_for
+from motorctl.hal.layers.tmc.tmc2130 import TMC2130
+from motorctl.hal.layers.tmc.tmc5160 import TMC5160
 from motorctl.hal.spec import DriverSpec
 
 CHIPS: Final = {"tmc2130": TMC2130, "tmc5160": TMC5160}

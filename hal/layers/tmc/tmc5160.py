@@ -12,8 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import Final
 
-from motorctl.hal.backends.tmc import fields
-from motorctl.hal.backends.tmc.fields import Chip, Field
+from motorctl.hal.layers.tmc import fields
+from motorctl.hal.layers.tmc.fields import Chip, Field
 
 
 class Reg(fields.Reg):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from motorctl.hal.backends.mock.backend import build_step_io, read_timeline
+from motorctl.hal.backends.mock.world import build_step_io, read_timeline
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from tests.support.rigs import FAR

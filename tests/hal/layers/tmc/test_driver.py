@@ -22,24 +22,24 @@ from hypothesis import strategies as st
 
 from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.hal.backends.mock.backend import world_of
-from motorctl.hal.backends.tmc.backend import probe
-from motorctl.hal.backends.tmc.config import driver_spec
-from motorctl.hal.backends.tmc.driver import TmcDriver
-from motorctl.hal.backends.tmc.fields import Chip, mres_of
-from motorctl.hal.backends.tmc.link import TmcError, TmcLink
-from motorctl.hal.backends.tmc.monitor import DriverMonitor
-from motorctl.hal.backends.tmc.ramp import RampState, RefSwitches, Tmc5160
-from motorctl.hal.backends.tmc.settings import (
+from motorctl.hal.backends.mock.world import world_of
+from motorctl.hal.interfaces import HalError, MonotonicClock
+from motorctl.hal.layers.tmc.config import driver_spec
+from motorctl.hal.layers.tmc.driver import TmcDriver
+from motorctl.hal.layers.tmc.fields import Chip, mres_of
+from motorctl.hal.layers.tmc.layer import probe
+from motorctl.hal.layers.tmc.link import TmcError, TmcLink
+from motorctl.hal.layers.tmc.monitor import DriverMonitor
+from motorctl.hal.layers.tmc.ramp import RampState, RefSwitches, Tmc5160
+from motorctl.hal.layers.tmc.settings import (
     TmcSettings,
     TmcSpec,
     current_setting,
     register_values,
 )
-from motorctl.hal.backends.tmc.spi import SpiAddress, SpiError
-from motorctl.hal.backends.tmc.tmc2130 import TMC2130
-from motorctl.hal.backends.tmc.tmc5160 import TMC5160, F, RampUnits, Reg
-from motorctl.hal.interfaces import HalError, MonotonicClock
+from motorctl.hal.layers.tmc.spi import SpiAddress, SpiError
+from motorctl.hal.layers.tmc.tmc2130 import TMC2130
+from motorctl.hal.layers.tmc.tmc5160 import TMC5160, F, RampUnits, Reg
 from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
@@ -264,8 +264,8 @@ def test_spidev_missing_is_a_hal_error_saying_how_to_install(
 ) -> None:
     import builtins
 
-    from motorctl.hal.backends.tmc.spi import spidev_factory
     from motorctl.hal.interfaces import HalError
+    from motorctl.hal.layers.tmc.spi import spidev_factory
 
     real_import = builtins.__import__
 
