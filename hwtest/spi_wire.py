@@ -120,7 +120,7 @@ def main() -> int:
 
     # 1. start-up against a bus with no chip: MISO pulled high reads 0xffffffff
     pull_miso("pull-up")
-    driver = TmcDriver("x", dev, TmcSettings(chip="tmc2130"))
+    driver = TmcDriver("x", dev, TmcSettings(chip=TMC2130))
     events, result = traced(driver.start)
     frames, clocks, idle = datagrams(events)
     good &= check(

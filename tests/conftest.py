@@ -45,7 +45,9 @@ import pytest
 
 if TYPE_CHECKING:
     from tests.support.daemon_proc import DaemonProcess, StartDaemon
+    from tests.support.mock_factory import MockFactory
     from tests.support.rigs import StepCoreRig
+    from tests.support.spi_bench import SpiBench
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -129,3 +131,22 @@ def motorctld(tmp_path: Path) -> Iterator[StartDaemon]:
             d.kill()
         else:
             d.close()
+
+
+@pytest.fixture
+def mock_factory() -> Iterator[MockFactory]:
+    """The mock backend as gpiozero's mock factory (tests/support/mock_factory.py): simulated
+    machines built through the registry, all closed after the test."""
+    from tests.support.mock_factory import MockFactory
+
+    factory = MockFactory()
+    yield factory
+    factory.close()
+
+
+@pytest.fixture
+def spi_bench() -> SpiBench:
+    """TMC chip models on a fake SPI bus and a virtual clock (tests/support/spi_bench.py)."""
+    from tests.support.spi_bench import SpiBench
+
+    return SpiBench()

@@ -24,7 +24,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.world import build
+from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec

@@ -17,7 +17,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.world import build
+from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine

@@ -1,4 +1,5 @@
-"""Simulated hardware: a world of axes with end stops, wired pins, a DC bridge.
+"""The simulated machine of the mock backend: a world of axes with end stops, wired pins, a
+DC bridge.
 
 Over 500 lines on purpose: one simulated machine whose parts (axes, step outputs, edge
 inputs, pins, bridge) share its cells and timeline, as the real parts share one board.
@@ -7,7 +8,7 @@ Every mock part subclasses the real interface and records each change with its
 timestamp in a shared timeline (gpiozero's MockFactory does the same). Tests can
 inject end-stop levels, driver faults and stalls. The simulated end stops and the wires
 come from the mock's own config sections in the spec (``[motors.mock]``, ``[mock]``:
-``config.py``); :func:`mock_axis` builds an axis with them by hand.
+``config.py``). The backend's entry (``backend.py``) builds a world from a spec.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ from motorctl.hal.backends.mock.config import (
     MockConfig,
     motors_lose_steps,
 )
+from motorctl.hal.compiled_lines import SimulatedLines
 from motorctl.hal.interfaces import (
     BridgeState,
     Clock,
@@ -37,7 +39,6 @@ from motorctl.hal.interfaces import (
     HalIOError,
     Hardware,
     Pin,
-    SimulatedLines,
     StepIO,
     StepOutputs,
     StepperDriver,
@@ -219,24 +220,29 @@ class MockStepOutputs(StepOutputs):
             [a.dir_setup_s for a in axes],
             [a.dir_hold_s for a in axes],
         )
-        self._world = world
+        self.world = world
         self._inputs = inputs
+
+    @property
+    def axes(self) -> tuple[int, ...]:
+        """The world's axis of each motor."""
+        return tuple(self._axis_of)
 
     def _write_dir(self, motor: int, level: bool) -> None:
         axis = self._axis_of[motor]
-        self._world.raise_injected("dir", axis)
-        self._world.axes[axis].heading = level != self.invert_dir[motor]
-        self._world.timeline.record(self.clock.now(), EventKind.DIR, axis, level)
+        self.world.raise_injected("dir", axis)
+        self.world.axes[axis].heading = level != self.invert_dir[motor]
+        self.world.timeline.record(self.clock.now(), EventKind.DIR, axis, level)
 
     def _write_steps(self, motors: Sequence[int], level: bool) -> None:
         direction: Sequence[bool | None] = self.direction
         if not self._identity:  # some axes are not stepped (a TMC5160 runs its own ramp)
             axis_of = self._axis_of
-            ups: list[bool | None] = [None] * len(self._world.axes)
+            ups: list[bool | None] = [None] * len(self.world.axes)
             for m in motors:
                 ups[axis_of[m]] = direction[m]
             motors, direction = [axis_of[m] for m in motors], ups  # world axis numbers
-        world = self._world
+        world = self.world
         if world.line_errors:
             for m in motors:
                 world.raise_injected("step", m)
@@ -469,21 +475,25 @@ class MockWorld:
 
     def step_io(self) -> StepIO:
         """The step executor's part: the axes ``spec.stepped()`` names (the end-stop inputs
-        cover every axis; line 2*i is axis i's min). Its compiled lines: these mechanics and
-        this timeline, for the compiled step core's counterpart of the parts here."""
+        cover every axis; line 2*i is axis i's min)."""
         stepped = self.spec.stepped()
         inputs = MockEdgeInputs(self)
         outputs = MockStepOutputs(self, inputs, stepped)
         ends = tuple((2 * i, 2 * i + 1) for i in stepped)
-        lines = SimulatedLines(
+        return StepIO(self.clock, outputs, inputs, ends)
+
+    def simulated_lines(self, stepped: tuple[int, ...]) -> SimulatedLines:
+        """The lines a compiled core may drive for the motors of axes ``stepped``: these
+        mechanics and this timeline, for the compiled step core's counterpart of the parts
+        here."""
+        return SimulatedLines(
             self._cells,
             tuple((a.endstop_min, a.endstop_max) for a in self.axes),
-            tuple(stepped),
+            stepped,
             self.timeline.events.maxlen,
             self._record_compiled,
             self._compiled_line_errors,
         )
-        return StepIO(self.clock, outputs, inputs, ends, compiled=lines)
 
     def _record_compiled(self, edges: list[tuple[int, int, int, int, int]]) -> None:
         """The compiled core's simulated edges into the timeline: (t ns, 0 step or 1 dir,
@@ -517,40 +527,6 @@ class MockHardware(Hardware):
         mock = saved.get("mock")
         if self.world is not None and isinstance(mock, dict):
             self.world.restore(mock)
-
-
-def _timeline_len(spec: HardwareSpec) -> int | None:
-    timeline_len = spec.options.get("timeline_len", 100_000)
-    if timeline_len is not None and not isinstance(timeline_len, int):
-        raise ValueError("timeline_len must be an int or None")
-    return timeline_len
-
-
-def build(spec: HardwareSpec, clock: Clock) -> Hardware:
-    """The mock backend's entry point for :mod:`hal.registry`.
-
-    ``options["executor_process"]``: the step executor runs in another process, so the
-    axes' mechanics go to shared memory (its descriptor in ``Hardware.step_io_fds``: the
-    executor's process gets a copy as its ``mechanics`` option).
-    """
-    share = bool(spec.options.get("executor_process", False))
-    return MockWorld(spec, clock, _timeline_len(spec), share=share).hardware()
-
-
-def build_step_io(spec: HardwareSpec, clock: Clock, parent: Hardware | None) -> StepIO:
-    """STEP/DIR and end stops: on the parent's world in-process, else on shared mechanics."""
-    if parent is not None:
-        return world_of(parent).step_io()
-    mechanics = spec.options.get("mechanics")
-    if mechanics is not None and not isinstance(mechanics, int):
-        raise ValueError("mechanics must be the descriptor of the shared mechanics")
-    world = MockWorld(spec, clock, _timeline_len(spec), mechanics=mechanics)
-    io = world.step_io()
-    path = spec.options.get("timeline_file")
-    if isinstance(path, str):
-        io.closers.append(lambda: world.dump_timeline(path))
-    io.closers.append(world.close)
-    return io
 
 
 def read_timeline(path: str) -> Timeline:

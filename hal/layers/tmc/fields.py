@@ -1,11 +1,12 @@
-"""The TMC chips' shared helpers: bit fields, what a chip is, the registers both chips have.
+"""What the TMC chips share: bit fields keyed by their register, what a chip is, the
+registers and fields both chips have, the SPI status byte and a few formulas of both
+datasheets (TMC2130 rev. 1.15, TMC5160 rev. 1.14).
 
-As Klipper keeps one module per chip over its tmc.py, the chip modules (``tmc2130.py``,
-``tmc5160.py``) hold each chip's own registers, fields and constants as data; this module
-holds what they share: :class:`Field` (a register's bit field), :class:`Chip` (what differs
-between the chips), the register addresses (:class:`Reg`) and fields (:class:`F`) that both
-chips have at the same place, the SPI status byte and a few formulas of both datasheets
-(TMC2130 rev. 1.15, TMC5160 rev. 1.14).
+As Klipper keeps its tmc.py under one module per chip, the chip modules (``tmc2130.py``,
+``tmc5160.py``) each hold one chip's whole driver: its own registers and fields, its
+:class:`Chip` (what the shared driver asks of it: its current scaling, its status flags, its
+registers by name) and, for the TMC5160, the driver class of its ramp generator. This module
+imports none of them: what differs between the chips is asked of the :class:`Chip`.
 
 Pure data and functions: no state, no I/O; any thread.
 """
@@ -13,14 +14,18 @@ Pure data and functions: no state, no I/O; any thread.
 from __future__ import annotations
 
 import math
+from abc import ABC, abstractmethod
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Final
 
 
 @dataclass(frozen=True)
 class Field:
-    """A bit field of a register: ``width`` bits from ``shift``; ``signed`` = two's complement."""
+    """A bit field of register ``reg``: ``width`` bits from ``shift``; ``signed`` = two's
+    complement."""
 
+    reg: int
     shift: int
     width: int = 1
     signed: bool = False
@@ -29,31 +34,88 @@ class Field:
     def mask(self) -> int:
         return ((1 << self.width) - 1) << self.shift
 
-    def get(self, reg: int) -> int:
-        v = (reg >> self.shift) & ((1 << self.width) - 1)
+    def get(self, value: int) -> int:
+        """The field's value in ``value``, a word of its register."""
+        v = (value >> self.shift) & ((1 << self.width) - 1)
         if self.signed and v >> (self.width - 1):
             v -= 1 << self.width
         return v
 
-    def put(self, reg: int, value: int) -> int:
+    def put(self, value: int, field: int) -> int:
+        """``value`` (a word of its register) with this field set to ``field``."""
         lo = -(1 << (self.width - 1)) if self.signed else 0
         hi = (1 << (self.width - 1)) - 1 if self.signed else (1 << self.width) - 1
-        if not lo <= value <= hi:
-            raise ValueError(f"{value} does not fit a {self.width}-bit field")
-        return (reg & ~self.mask) | ((value << self.shift) & self.mask)
+        if not lo <= field <= hi:
+            raise ValueError(f"{field} does not fit a {self.width}-bit field")
+        return (value & ~self.mask) | ((field << self.shift) & self.mask)
 
 
 @dataclass(frozen=True)
-class Chip:
-    """What differs between the chips: version, readable registers, current scaling."""
+class CurrentSetting:
+    """IRUN/IHOLD current scales and the range they are in (a chip's own: the TMC2130's
+    CHOPCONF.vsense, the TMC5160's GLOBALSCALER)."""
+
+    irun: int
+    ihold: int
+    vsense: int = 0  # TMC2130
+    globalscaler: int = 0  # TMC5160: register value, 0 means 256
+
+
+@dataclass(frozen=True, eq=False)
+class Chip(ABC):
+    """One kind of chip: what the shared driver (``driver.py``), the SPI link and the
+    settings ask of it. One instance per chip module (``tmc2130.TMC2130``,
+    ``tmc5160.TMC5160``), compared by identity and pickled as that module's constant.
+
+    ``shorts``: its DRV_STATUS flags of a shorted bridge (they disable the driver), with
+    their words; ``flags``: every DRV_STATUS flag ``--probe`` names, in its order;
+    ``registers``: address -> name of every register it has (messages); ``sd_mode``:
+    IOIN's SD_MODE pin where it has one (1: external STEP/DIR); ``gstat_write_clears``:
+    GSTAT's flags clear by writing 1s back (else by reading); ``uv_cp``: GSTAT.uv_cp
+    (charge pump undervoltage) is one of its flags.
+    """
 
     name: str
-    version: int
+    version: int  # IOIN.VERSION
     readable: frozenset[int]
     status_bits: int  # how many SPI status bits it defines
     has_ramp: bool
-    has_s2vs: bool
     default_sense_ohm: float
+    registers: Mapping[int, str]
+    shorts: tuple[tuple[Field, str], ...]
+    flags: tuple[tuple[str, Field], ...]
+    sd_mode: Field | None = None
+    gstat_write_clears: bool = False
+    uv_cp: bool = False
+
+    @abstractmethod
+    def current_setting(self, sense_ohm: float, run_a: float, hold_a: float) -> CurrentSetting:
+        """IRUN/IHOLD and the chip's range for RMS currents; ValueError when impossible."""
+
+    @abstractmethod
+    def rms(self, setting: CurrentSetting, sense_ohm: float, cs: int) -> float:
+        """The RMS coil current [A] that current scale ``cs`` gives (datasheet formula)."""
+
+    @abstractmethod
+    def scale_registers(self, setting: CurrentSetting, chopconf: int) -> dict[int, int]:
+        """Where the chip keeps its current range: CHOPCONF (``chopconf`` with it set) and
+        any register of its own, in the order they are written after GCONF."""
+
+    def register_name(self, addr: int) -> str:
+        return self.registers.get(addr, f"register 0x{addr:02x}")
+
+
+def check_currents(sense_ohm: float, run_a: float, hold_a: float) -> None:
+    """What every chip's current scaling needs; ValueError naming what is wrong."""
+    if sense_ohm <= 0:
+        raise ValueError("sense_resistor must be > 0")
+    if run_a <= 0 or hold_a < 0 or hold_a > run_a:
+        raise ValueError("currents must satisfy 0 <= hold_current <= run_current, run > 0")
+
+
+def current_scale(current: float, full_scale: float) -> int:
+    """The 5-bit current scale (IRUN, IHOLD) nearest to ``current`` of ``full_scale``."""
+    return max(0, min(31, round(32 * current / full_scale) - 1))
 
 
 class Reg:
@@ -75,47 +137,67 @@ class Reg:
     PWMCONF: Final = 0x70
 
 
+def register_names(regs: type) -> dict[int, str]:
+    """Address -> name of a ``Reg`` class's registers (its own and inherited)."""
+    return {
+        getattr(regs, name): name
+        for name in dir(regs)
+        if not name.startswith("_") and isinstance(getattr(regs, name), int)
+    }
+
+
 class F:
-    """The fields motorctl sets or reads that both chips have (a chip module's ``F`` adds
-    its own)."""
+    """The fields motorctl sets or reads that both chips have, each keyed by its register
+    (a chip module's ``F`` adds its own)."""
 
-    # GCONF
-    EN_PWM_MODE: Final = Field(2)
-    SHAFT: Final = Field(4)
-    DIAG1_STALL: Final = Field(8)  # TMC2130 diag1_stall / TMC5160 diag1_stall_dir
-    # GSTAT
-    RESET: Final = Field(0)
-    DRV_ERR: Final = Field(1)
-    UV_CP: Final = Field(2)
-    # IOIN
-    VERSION: Final = Field(24, 8)
-    # IHOLD_IRUN
-    IHOLD: Final = Field(0, 5)
-    IRUN: Final = Field(8, 5)
-    IHOLDDELAY: Final = Field(16, 4)
-    # CHOPCONF
-    TOFF: Final = Field(0, 4)
-    HSTRT: Final = Field(4, 3)
-    HEND: Final = Field(7, 4)
-    TBL: Final = Field(15, 2)
-    MRES: Final = Field(24, 4)
-    INTPOL: Final = Field(28)
-    # COOLCONF
-    SGT: Final = Field(16, 7, signed=True)
-    SFILT: Final = Field(24)
-    # DRV_STATUS
-    SG_RESULT: Final = Field(0, 10)
-    FSACTIVE: Final = Field(15)
-    CS_ACTUAL: Final = Field(16, 5)
-    STALLGUARD: Final = Field(24)
-    OT: Final = Field(25)
-    OTPW: Final = Field(26)
-    S2GA: Final = Field(27)
-    S2GB: Final = Field(28)
-    OLA: Final = Field(29)
-    OLB: Final = Field(30)
-    STST: Final = Field(31)
+    EN_PWM_MODE: Final = Field(Reg.GCONF, 2)
+    SHAFT: Final = Field(Reg.GCONF, 4)
+    DIAG1_STALL: Final = Field(Reg.GCONF, 8)  # TMC2130 diag1_stall / TMC5160 diag1_stall_dir
+    RESET: Final = Field(Reg.GSTAT, 0)
+    DRV_ERR: Final = Field(Reg.GSTAT, 1)
+    UV_CP: Final = Field(Reg.GSTAT, 2)
+    VERSION: Final = Field(Reg.IOIN, 24, 8)
+    IHOLD: Final = Field(Reg.IHOLD_IRUN, 0, 5)
+    IRUN: Final = Field(Reg.IHOLD_IRUN, 8, 5)
+    IHOLDDELAY: Final = Field(Reg.IHOLD_IRUN, 16, 4)
+    TOFF: Final = Field(Reg.CHOPCONF, 0, 4)
+    HSTRT: Final = Field(Reg.CHOPCONF, 4, 3)
+    HEND: Final = Field(Reg.CHOPCONF, 7, 4)
+    TBL: Final = Field(Reg.CHOPCONF, 15, 2)
+    MRES: Final = Field(Reg.CHOPCONF, 24, 4)
+    INTPOL: Final = Field(Reg.CHOPCONF, 28)
+    SGT: Final = Field(Reg.COOLCONF, 16, 7, signed=True)
+    SFILT: Final = Field(Reg.COOLCONF, 24)
+    SG_RESULT: Final = Field(Reg.DRV_STATUS, 0, 10)
+    FSACTIVE: Final = Field(Reg.DRV_STATUS, 15)
+    CS_ACTUAL: Final = Field(Reg.DRV_STATUS, 16, 5)
+    STALLGUARD: Final = Field(Reg.DRV_STATUS, 24)
+    OT: Final = Field(Reg.DRV_STATUS, 25)
+    OTPW: Final = Field(Reg.DRV_STATUS, 26)
+    S2GA: Final = Field(Reg.DRV_STATUS, 27)
+    S2GB: Final = Field(Reg.DRV_STATUS, 28)
+    OLA: Final = Field(Reg.DRV_STATUS, 29)
+    OLB: Final = Field(Reg.DRV_STATUS, 30)
+    STST: Final = Field(Reg.DRV_STATUS, 31)
 
+
+#: DRV_STATUS: the shorts to ground both chips flag, and the flags both have, as --probe
+#: names them
+SHORTS_TO_GROUND: Final = (
+    (F.S2GA, "short to ground on phase A (s2ga)"),
+    (F.S2GB, "short to ground on phase B (s2gb)"),
+)
+DRV_FLAGS: Final = (
+    ("stst", F.STST),
+    ("olb", F.OLB),
+    ("ola", F.OLA),
+    ("s2gb", F.S2GB),
+    ("s2ga", F.S2GA),
+    ("otpw", F.OTPW),
+    ("ot", F.OT),
+    ("stallGuard", F.STALLGUARD),
+    ("fsactive", F.FSACTIVE),
+)
 
 #: SPI status byte, bit -> name (bits 4..7 exist on the TMC5160 only)
 SPI_STATUS_BITS: Final = (

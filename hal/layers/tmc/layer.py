@@ -1,31 +1,30 @@
-"""The SPI driver layer's entry points: attach TMC2130/TMC5160 drivers over spidev to
-hardware that another backend built, and probe them.
+"""The TMC layer (:class:`TmcLayer`, hal/contract.py): TMC2130/TMC5160 drivers over spidev,
+attached to hardware that any backend built, and probed.
 
 A motor's STEP/DIR lines, end stops and pins come from the hardware backend (``mock``,
 ``gpiod``); its driver chip, when the config names one, is opened here: each chip is
 identified, configured and verified before anything moves, and one :class:`DriverMonitor`
 thread polls their DRV_STATUS from then on. py-spidev is imported only when a driver is
 configured (through :func:`motorctl.hal.layers.tmc.spi.spidev_factory`). The registry
-(``hal/registry.py``, ``LAYERS``) calls :func:`attach` and :func:`probe` when the config
-gives a motor a driver.
+(``hal/registry.py``, ``LAYERS``) attaches and probes it when its declaration
+(``config.py``) says the config gives a motor a driver.
 
-Threads: :func:`attach` runs on the thread that opens the hardware; afterwards the
+Threads: :meth:`TmcLayer.attach` runs on the thread that opens the hardware; afterwards the
 drivers belong to the monitor thread (polls) and are read lock-free by the step path. The
 closer registered in ``Hardware.closers`` stops the monitor (bounded join) and leaves each
-driver disabled (TOFF = 0) when so configured.
+driver disabled (TOFF = 0) when so configured. ``--probe`` reads on the probing thread.
 """
 
 from __future__ import annotations
 
 import logging
-from typing import Protocol
 
+from motorctl.hal.contract import Layer, ProbeReport, ProblemKind
 from motorctl.hal.interfaces import Clock, HalError, Hardware
-from motorctl.hal.layers.tmc.config import SpidevConfig
+from motorctl.hal.layers.tmc.config import CHIPS, SpidevConfig
 from motorctl.hal.layers.tmc.driver import TmcDriver
 from motorctl.hal.layers.tmc.link import TmcError
 from motorctl.hal.layers.tmc.monitor import DriverMonitor
-from motorctl.hal.layers.tmc.ramp import RefSwitches, Tmc5160
 from motorctl.hal.layers.tmc.settings import TmcSpec
 from motorctl.hal.layers.tmc.spi import (
     SpiAddress,
@@ -34,6 +33,7 @@ from motorctl.hal.layers.tmc.spi import (
     SpiFactory,
     spidev_factory,
 )
+from motorctl.hal.layers.tmc.tmc5160 import RefSwitches, Tmc5160
 from motorctl.hal.spec import HardwareSpec
 
 log = logging.getLogger("motorctl.tmc")
@@ -54,10 +54,11 @@ def open_driver(
     except ValueError as exc:
         raise TmcError(f"{name}: {exc}") from exc
     device = SpiDevice(address, buses, factory, spec.spi_speed_hz)
+    known = CHIPS.values()
     if spec.ramp:
         switches = RefSwitches(spec.ref_left_active_low, spec.ref_right_active_low)
         if layer is None:
-            return Tmc5160(name, device, spec.settings, switches)
+            return Tmc5160(name, device, spec.settings, switches, known=known)
         return Tmc5160(
             name,
             device,
@@ -65,11 +66,12 @@ def open_driver(
             switches,
             poll_s=layer.ramp_poll_ms / 1000,
             idle_poll_s=layer.ramp_idle_poll_ms / 1000,
+            known=known,
         )
-    return TmcDriver(name, device, spec.settings)
+    return TmcDriver(name, device, spec.settings, known)
 
 
-def attach(
+def attach_drivers(
     hw: Hardware, spec: HardwareSpec, clock: Clock, factory: SpiFactory | None = None
 ) -> list[TmcDriver]:
     """Open, check and configure every driver the spec's axes name, put each in place of its
@@ -117,53 +119,67 @@ def attach(
     return drivers
 
 
-class Report(Protocol):
-    """What ``motorctld --probe`` collects (:class:`motorctl.hal.interfaces.ProbeReport`)."""
-
-    problems: list[str]
-
-    def add(self, title: str, lines: list[str]) -> None: ...
-
-
-def probe(
-    spec: HardwareSpec, clock: Clock, report: Report, factory: SpiFactory | None = None
-) -> None:
-    """``--probe``: each configured driver's chip and version, DRV_STATUS decoded, SPI status;
-    reads registers only (nothing is written, nothing moves). Problems go to the report."""
-    del clock
-    configured = [
-        (i, a.name or f"motor {i}", a.driver)
-        for i, a in enumerate(spec.axes)
-        if isinstance(a.driver, TmcSpec)
-    ]
-    if not configured:
-        return
+def _probe_one(
+    report: ProbeReport, name: str, tmc: TmcSpec, buses: SpiBuses, factory: SpiFactory
+) -> list[str]:
+    """One configured driver's lines for ``--probe``; its problems go to ``report``."""
     try:
-        factory = factory or spidev_factory()
-    except HalError as exc:
-        report.problems.append(str(exc))
-        return
-    buses = SpiBuses()
-    lines: list[str] = []
-    for _, name, tmc in configured:
+        driver = open_driver(name, tmc, buses, factory)
+        driver.device.open()
+    except (HalError, ValueError) as exc:
+        report.problem(f"{name}: {exc}")
+        return []
+    try:
+        reading = driver.probe()
+    except HalError as exc:  # nothing answers, or a transfer failed
+        report.problem(f"{name}: {exc}")
+        return [f"{name}: {exc}"]
+    finally:
+        driver.device.close()
+    lines = reading.lines()
+    if not reading.matches:
+        report.problem(lines[0], ProblemKind.MISMATCH)
+    elif tmc.ramp and reading.sd_mode:
+        report.problem(
+            f"{name}: configured for the TMC5160's ramp generator but its SD_MODE pin is "
+            "high (STEP/DIR); tie SD_MODE to GND",
+            ProblemKind.MISMATCH,
+        )
+    return lines
+
+
+class TmcLayer(Layer):
+    """TMC2130/TMC5160 driver chips over SPI. ``factory``: py-spidev's ``SpiDev`` or a
+    stand-in with its API (tests); None: py-spidev, imported when a driver is opened."""
+
+    name = "tmc"
+
+    def __init__(self, factory: SpiFactory | None = None) -> None:
+        self.factory = factory
+
+    def attach(self, hw: Hardware, spec: HardwareSpec, clock: Clock) -> None:
+        attach_drivers(hw, spec, clock, self.factory)
+
+    def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
+        """Each configured driver's chip and version, DRV_STATUS decoded, SPI status; reads
+        registers only (nothing is written, nothing moves). Problems go to the report: a
+        device that is missing or does not answer, another chip than configured, a ramp
+        chip whose SD_MODE is high."""
+        del clock
+        configured = [
+            (a.name or f"motor {i}", a.driver)
+            for i, a in enumerate(spec.axes)
+            if isinstance(a.driver, TmcSpec)
+        ]
+        if not configured:
+            return
         try:
-            driver = open_driver(name, tmc, buses, factory)
-        except (HalError, ValueError) as exc:
-            report.problems.append(f"{name}: {exc}")
-            continue
-        try:
-            found = driver.probe()
+            factory = self.factory or spidev_factory()
         except HalError as exc:
-            report.problems.append(f"{name}: {exc}")
-            continue
-        finally:
-            driver.device.close()
-        lines += found
-        if any("MISMATCH" in line or "no driver chip answers" in line for line in found):
-            report.problems.append(found[0])
-        elif tmc.ramp and any("SD_MODE=1" in line for line in found):
-            report.problems.append(
-                f"{name}: configured for the TMC5160's ramp generator but its SD_MODE pin is "
-                "high (STEP/DIR); tie SD_MODE to GND"
-            )
-    report.add("SPI stepper drivers", lines)
+            report.problem(str(exc))
+            return
+        buses = SpiBuses()
+        lines: list[str] = []
+        for name, tmc in configured:
+            lines += _probe_one(report, name, tmc, buses, factory)
+        report.add("SPI stepper drivers", lines)

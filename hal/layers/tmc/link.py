@@ -21,14 +21,10 @@ from collections.abc import Sequence
 from typing import Final
 
 from motorctl.hal.interfaces import HalError
-from motorctl.hal.layers.tmc import tmc5160
 from motorctl.hal.layers.tmc.fields import SPI_STATUS_BITS, Chip, F, Reg
 from motorctl.hal.layers.tmc.spi import SpiDevice
 
 WRITE: Final = 0x80
-
-#: register address -> name, for messages (every register of both chips)
-REG_NAMES: Final = {getattr(tmc5160.Reg, k): k for k in dir(tmc5160.Reg) if not k.startswith("_")}
 
 
 class TmcError(HalError):
@@ -80,8 +76,9 @@ class TmcLink:
             self._datagram(addr, value, write=True)
             echo = self._datagram(Reg.IOIN, 0, write=False)[1]
         if echo != value:
+            name = self.chip.register_name(addr)
             raise TmcError(
-                f"{self.device.path}: {self.chip.name} did not receive {REG_NAMES[addr]} "
+                f"{self.device.path}: {self.chip.name} did not receive {name} "
                 f"= 0x{value:08x} intact (it echoed 0x{echo:08x}); check the SPI wiring "
                 "(MOSI/MISO/SCK, a common ground) and lower spi_speed_hz"
             )
