@@ -1,7 +1,9 @@
 """What every test shares.
 
 The tests mirror the package, one folder a room, each test file named after the module it
-tests (``_e2e``: against motorctld as a process on a real PTY):
+tests (``_e2e``: against motorctld as a process on a real PTY); where a room has folders,
+its tests have the same (tests/hal/backends/gpiod/test_config.py tests
+hal/backends/gpiod/config.py):
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
@@ -11,13 +13,17 @@ tests (``_e2e``: against motorctld as a process on a real PTY):
                 frames, rigs (the engine or the step core on a virtual clock), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
-                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
+                mock_factory (the mock backend as gpiozero's mock factory), line_requests
+                (a recording GPIO request, a PWM sysfs tree), stand_ins (the environment
+                for tests/fakegpiod/ and tests/fakespi/), fsutil
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports
 nothing beyond pytest at module level. Here: the ``motorctld`` fixture (daemons as
 processes, stopped after their test), ``step_core`` and ``core_rig`` (a test run on each
-step core, Python and compiled), and for every test:
+step core, Python and compiled), ``mock_factory`` (simulated machines through the registry,
+closed after the test, as gpiozero hands its mock factory to every test) and ``spi_bench``
+(TMC chip models on a fake SPI bus), and for every test:
 
 - The root logger is put back after each test. A test that runs motorctld's ``main()`` in
   this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
