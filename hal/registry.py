@@ -79,7 +79,7 @@ LAYERS: dict[str, Entry] = {
     "tmc": Entry(
         "motorctl.hal.layers.tmc.config:TmcDeclaration",
         "motorctl.hal.layers.tmc.layer:TmcLayer",
-        "py-spidev: pip install spidev or apt install python3-spidev",
+        "a complete motorctl install (py-spidev is imported only when a driver opens)",
     ),
 }
 
@@ -138,9 +138,13 @@ def backend(name: str) -> Backend:
 
 
 def layer(name: str) -> Layer:
-    """Layer ``name``'s implementation, imported now (ImportError when it cannot be)."""
+    """Layer ``name``'s implementation, imported now; HalError saying why and how to fix it
+    when it cannot be."""
     entry = LAYERS[name]
-    found = _load(name, entry.implementation)
+    try:
+        found = _load(name, entry.implementation)
+    except ImportError as exc:
+        raise HalError(f"layer {name!r} failed to load: {exc}; needs {entry.fix}") from exc
     if not isinstance(found, Layer):
         raise HalError(f"layer {name!r}: {entry.implementation} is no Layer")
     return found
@@ -200,7 +204,7 @@ def probe_hardware(name: str, spec: HardwareSpec, clock: Clock) -> ProbeReport:
     for layer_name in _applying(spec):
         try:
             layer(layer_name).probe(spec, clock, report)
-        except (HalError, ImportError) as exc:
+        except HalError as exc:
             report.problem(f"{layer_name}: {exc}", ProblemKind.DEVICE)
     return report
 

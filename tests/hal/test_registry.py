@@ -133,3 +133,13 @@ def test_open_hardware_and_step_io_by_name() -> None:
     finally:
         io.close()
         hw.close()
+
+
+def test_a_layer_that_does_not_load_says_so(monkeypatch: pytest.MonkeyPatch) -> None:
+    entry = registry.Entry(registry.LAYERS["tmc"].declaration, "no_such_layer:L", "reinstall")
+    monkeypatch.setitem(registry.LAYERS, "tmc", entry)
+    spec = HardwareSpec((mock_axis(driver=TmcSpec("/dev/spidev0.0", TmcSettings())),))
+    with pytest.raises(HalError, match=r"layer 'tmc' failed to load: .*no_such_layer.*reinstall"):
+        registry.open_hardware("mock", spec, VirtualClock())
+    (problem,) = registry.probe_hardware("mock", spec, VirtualClock()).problems
+    assert problem.text.startswith("tmc: layer 'tmc' failed to load")

@@ -28,7 +28,6 @@ import logging
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from motorctl.hal.backends.gpiod import probe
 from motorctl.hal.backends.gpiod.bridge import GpiodBridge, PwmChannel
 from motorctl.hal.backends.gpiod.chip import GpioApi, LineRequest, LineSettings, load_api
 from motorctl.hal.backends.gpiod.config import wiring_of
@@ -38,6 +37,7 @@ from motorctl.hal.backends.gpiod.parts import (
     GpiodStepOutputs,
     NoDriver,
 )
+from motorctl.hal.backends.gpiod.probe import probe_gpio
 from motorctl.hal.backends.gpiod.wiring import GpioWiring, ResolvedLine
 from motorctl.hal.compiled_lines import ChardevLines, ChardevRequest, CompiledLines
 from motorctl.hal.contract import Backend, ProbeReport
@@ -347,4 +347,4 @@ class GpiodBackend(Backend):
     def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         """What ``motorctld --probe`` shows for the GPIO side (``probe.py``); opens lines,
         moves nothing."""
-        probe.probe(self, spec, clock, report)
+        probe_gpio(self, spec, clock, report)

@@ -21,7 +21,9 @@ if TYPE_CHECKING:
     from motorctl.hal.backends.gpiod.backend import GpiodBackend
 
 
-def probe(backend: GpiodBackend, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
+def probe_gpio(
+    backend: GpiodBackend, spec: HardwareSpec, clock: Clock, report: ProbeReport
+) -> None:
     """What ``motorctld --probe`` shows for the GPIO side; opens lines, moves nothing.
 
     Outputs are requested at their resting levels: STEP low, ENABLE off, the bridge
