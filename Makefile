@@ -13,7 +13,8 @@
 # the address and undefined-behaviour sanitizers.
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
 # tear a socat PTY pair down and make it again; without socat they skip, saying so loudly), and
-# tshark the same way (the Wireshark dissector's tests; without it they skip, saying so loudly).
+# tshark the same way (the Wireshark dissector's tests; without it they skip, saying so loudly),
+# and Debian's prometheus package for its promtool (the metrics' lint; skipped loudly without it).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
@@ -94,6 +95,17 @@ test-deps:
 	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
 	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
 	    "dissector's tests are SKIPPED" >&2; fi; }
+# ... and promtool, from Debian's prometheus package (tests/daemon/test_metrics.py lints the
+# metrics with `promtool check metrics`; installing it starts no server where systemd does
+# not run, and where it does the package's prometheus.service is stopped and disabled again)
+	@command -v promtool >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q -o DPkg::Lock::Timeout=600 \
+	      --no-install-recommends prometheus && \
+	    { ! command -v systemctl >/dev/null || systemctl disable --now prometheus 2>/dev/null \
+	      || true; }; \
+	  else echo "promtool is missing: run 'sudo apt-get install prometheus'; until then the" \
+	    "metrics' promtool check is SKIPPED" >&2; fi; }
 
 test: venv stepcore test-deps
 	$(BIN)/ruff check .
@@ -123,6 +135,7 @@ bench: venv
 	$(BIN)/python bench/reconnect.py
 	$(BIN)/python bench/instances.py
 	$(BIN)/python bench/startup.py
+	$(BIN)/python bench/replay.py
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
 # ignored), in build/deb: an orig tarball from git, debian/ beside it, patches applied

@@ -282,6 +282,7 @@ class Daemon:
         if histogram and stats is not None:  # the step executor's, with or without ramps
             steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {
+            "version": __version__,
             "motors": motors,
             "steps": steps,
             "executor": {

@@ -23,6 +23,7 @@ import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from types import ModuleType
 
 from motorctl import __version__
 from motorctl.daemon import platform_check
@@ -166,11 +167,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument(
         "--format",
-        choices=["json", "openmetrics"],
+        choices=["json", "prometheus", "openmetrics"],
         default="json",
-        help="with --status: json (the document, docs/status.md) or openmetrics "
-        "(the OpenMetrics text format, names motorctl_*, for node_exporter's "
-        "textfile collector; motorctl_up 0 and exit 1 when no daemon answers)",
+        help="with --status: json (the document, docs/status.md), prometheus (the "
+        "Prometheus text format 0.0.4, names motorctl_*: what node_exporter's textfile "
+        "collector reads) or openmetrics (the same metrics as OpenMetrics, for scrapers "
+        "that ask for it); both need python3-prometheus-client; motorctl_up 0 and exit 1 "
+        "when no daemon answers",
     )
     p.add_argument(
         "--watch",
@@ -253,6 +256,16 @@ def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) 
         return 1
 
 
+#: what ``--status --format prometheus|openmetrics`` says without prometheus_client (an
+#: optional dependency, like rich for the monitor: daemon/metrics.py alone imports it)
+METRICS_MISSING = (
+    "the metrics formats need the Python package 'prometheus_client', which is not "
+    "installed: 'apt install python3-prometheus-client' (Debian, Raspberry Pi OS) or "
+    "'pip install motorctl[metrics]'; the daemon itself does not need it, and "
+    "'motorctld --status' prints the same figures as JSON"
+)
+
+
 def status_command(args: argparse.Namespace) -> int:
     """``--status``: the running daemon's status once (JSON or OpenMetrics), or watched."""
     path = args.state_dir / "status.sock"
@@ -272,19 +285,26 @@ def status_command(args: argparse.Namespace) -> int:
         return 2
     import json
 
-    from motorctl.daemon import metrics
-
+    metrics: ModuleType | None = None
+    if args.format != "json":
+        try:
+            from motorctl.daemon import metrics
+        except ModuleNotFoundError as exc:
+            if exc.name is None or exc.name.split(".")[0] != "prometheus_client":
+                raise
+            print(f"error: {METRICS_MISSING}", file=sys.stderr)
+            return 2
     try:
         doc = read_status(path, histogram=args.histogram)
         if set(doc) == {"error"}:
             raise ValueError(doc["error"])
     except (OSError, ValueError) as exc:
         print(f"error: no daemon status at {path}: {exc}", file=sys.stderr)
-        if args.format == "openmetrics":
-            sys.stdout.write(metrics.down(str(exc)))
+        if metrics is not None:
+            sys.stdout.write(metrics.down(args.format))
         return 1
-    if args.format == "openmetrics":
-        sys.stdout.write(metrics.openmetrics(doc))
+    if metrics is not None:
+        sys.stdout.write(metrics.metrics(doc, args.format))
     else:
         print(json.dumps(doc, indent=1))
     return 0

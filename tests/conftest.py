@@ -15,7 +15,8 @@ hal/backends/gpiod/config.py):
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
                 mock_factory (the mock backend as gpiozero's mock factory), line_requests
                 (a recording GPIO request, a PWM sysfs tree), stand_ins (the environment
-                for tests/fakegpiod/ and tests/fakespi/), fsutil
+                for tests/fakegpiod/ and tests/fakespi/), fsutil, tamper (a forwarder that
+                changes one answer: the replay's tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports

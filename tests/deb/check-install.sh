@@ -162,6 +162,57 @@ grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STA
 grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"
 debroot_mount "$root"
 
+# ---- metrics through Debian's node_exporter (issue 26: this block and
+# tests/deb/metrics-report.*) ----------------------------------------------------------------
+# docs/service.md's motorctl-metrics units, taken from the page as written, write the
+# textfile (--format prometheus); Debian's prometheus-node-exporter, installed with
+# python3-prometheus-client (which the package suggests), serves it. A second boot of the
+# root, on a network of its own, reports what node_exporter's /metrics says of motorctl.
+step "metrics: docs/service.md's timer feeds Debian's prometheus-node-exporter"
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+  prometheus-node-exporter python3-prometheus-client > "$build/deb-metrics.log" 2>&1 \
+  || { tail -30 "$build/deb-metrics.log"; fail "apt-get install prometheus-node-exporter"; }
+python3 - "$here/docs/service.md" "$root/etc/systemd/system" <<'PY' || fail "units from docs/service.md"
+import re, sys
+from pathlib import Path
+page, units = Path(sys.argv[1]).read_text(), Path(sys.argv[2])
+for name in ("motorctl-metrics.service", "motorctl-metrics.timer"):
+    m = re.search(rf"`/etc/systemd/system/{re.escape(name)}`:\n\n```ini\n(.*?)```", page, re.S)
+    if m is None:
+        raise SystemExit(f"docs/service.md shows no {name}")
+    (units / name).write_text(m.group(1))
+    print(f"{name}: from docs/service.md")
+PY
+version=$(in_root dpkg-query -W -f='${Version}' motorctl)
+debroot_umount "$root"
+rm -f "$root/etc/systemd/system/multi-user.target.wants/report.service"
+cp "$here/tests/deb/metrics-report.service" "$root/etc/systemd/system/"
+cp "$here/tests/deb/metrics-report.sh" "$root/root/"
+ln -sf /etc/systemd/system/metrics-report.service "$root/etc/systemd/system/multi-user.target.wants/"
+rm -f "$root/root/metrics-report.txt"
+timeout 180 systemd-nspawn -D "$root" --boot --register=no --keep-unit --console=pipe \
+  --private-network </dev/null > "$build/deb-nspawn-metrics.log" 2>&1 \
+  || { tail -20 "$build/deb-nspawn-metrics.log"; fail "nspawn boot (metrics)"; }
+report=$root/root/metrics-report.txt
+[ -f "$report" ] || { tail -20 "$build/deb-nspawn-metrics.log"; fail "no metrics report"; }
+cat "$report"
+expect "timer: active"
+expect "metrics-service: success"
+expect "node_textfile_scrape_error 0"
+expect "untyped: 0"
+expect "motorctl_up 1"
+expect "motorctl_build_info{version=\"${version%-*}\"} 1"
+for typed in "motorctl_link_frames_total counter" "motorctl_steps_total counter" \
+  "motorctl_state_writes_total counter" "motorctl_step_lateness_seconds summary" \
+  "motorctl_motor_position_steps gauge"; do
+  expect "type $typed"
+done
+rm -f "$root/etc/systemd/system/metrics-report.service" \
+  "$root/etc/systemd/system/multi-user.target.wants/metrics-report.service" \
+  "$root/etc/systemd/system/motorctl-metrics."* "$root/root/metrics-report."*
+debroot_mount "$root"
+# ---- end of the metrics block ---------------------------------------------------------------
+
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
   || { tail -20 "$build/deb-purge.log"; fail "purge"; }
