@@ -16,9 +16,9 @@ from motorctl.hal.layers.tmc.driver import TmcDriver
 from motorctl.hal.layers.tmc.layer import TmcLayer
 from motorctl.hal.layers.tmc.link import TmcError
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
-from motorctl.hal.registry import open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from tests.support import tmc_model as tm
+from tests.support.mock_factory import MockFactory
 from tests.support.spi_bench import S2130, S5160, SpiBench
 
 
@@ -27,14 +27,13 @@ def spec_with(*drivers: TmcSpec | None) -> HardwareSpec:
 
 
 def test_open_hardware_starts_configured_drivers_and_their_monitor(
-    spi_bench: SpiBench, monkeypatch: pytest.MonkeyPatch
+    spi_bench: SpiBench, mock_factory: MockFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     model = spi_bench.chip("tmc2130", cs=1)
     spi_bench.as_spidev_module(monkeypatch)
     settings_ = TmcSettings(poll_ms=1.0)
-    hw = open_hardware(
-        "mock", spec_with(None, TmcSpec("/dev/spidev0.1", settings_)), MonotonicClock()
-    )
+    spec = spec_with(None, TmcSpec("/dev/spidev0.1", settings_))
+    hw = mock_factory.hardware(spec, MonotonicClock())
     try:
         drv = hw.steppers[1].driver
         assert isinstance(drv, TmcDriver) and drv.name == "m1"
@@ -53,25 +52,24 @@ def test_open_hardware_starts_configured_drivers_and_their_monitor(
 
 
 def test_a_failing_driver_closes_the_ones_already_opened(
-    spi_bench: SpiBench, monkeypatch: pytest.MonkeyPatch
+    spi_bench: SpiBench, mock_factory: MockFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     spi_bench.chip("tmc2130", cs=0)
     spi_bench.chip("tmc5160", cs=1)
     spi_bench.as_spidev_module(monkeypatch)
     good, wrong = TmcSpec("/dev/spidev0.0", S2130), TmcSpec("/dev/spidev0.1", S2130)
     with pytest.raises(TmcError, match=r"m1.*found a TMC5160"):
-        open_hardware("mock", spec_with(good, wrong), MonotonicClock())
+        mock_factory.hardware(spec_with(good, wrong))
     assert all(dev._fd == -1 for dev in spi_bench.kernel.opened)  # nothing left open
 
 
 def test_without_py_spidev_a_configured_driver_says_how_to_install_it(
-    monkeypatch: pytest.MonkeyPatch,
+    mock_factory: MockFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.setitem(sys.modules, "spidev", None)  # import spidev -> ImportError
     with pytest.raises(HalError, match=r"pip install spidev"):
-        open_hardware("mock", spec_with(TmcSpec("/dev/spidev0.0", S2130)), MonotonicClock())
-    hw = open_hardware("mock", spec_with(None), MonotonicClock())  # no driver: no spidev needed
-    hw.close()
+        mock_factory.hardware(spec_with(TmcSpec("/dev/spidev0.0", S2130)))
+    mock_factory.hardware(spec_with(None))  # no driver: no spidev needed
 
 
 def test_probe_reports_chip_versions_and_drv_status_without_writing(spi_bench: SpiBench) -> None:
