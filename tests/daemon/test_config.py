@@ -232,7 +232,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
     expected |= {f.name for f in dataclasses.fields(Config) if f.name not in given}
     expected |= {"mock", "motors[].mock"}  # the mock backend's tables, in `sections`
     expected |= {"gpiod", "motors[].gpiod", "pins[].gpiod"}  # the gpiod backend's
-    expected |= {"spidev", "motors[].tmc"}  # the SPI driver layer's tables
+    expected |= {"spidev", "motors[].tmc"}  # the TMC layer's tables
     assert expected == paths
 
 

@@ -210,7 +210,7 @@ def _ramp_stall_speed(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
-@section("Settings of the SPI driver layer shared by every driver (used only with drivers).")
+@section("Settings of the TMC layer shared by every driver (used only with drivers).")
 @dataclass(frozen=True)
 class SpidevConfig:
     """[spidev]: how the TMC5160 ramp executor watches its chips."""
@@ -248,7 +248,7 @@ class TmcDeclaration(LayerDeclaration):
                 "motors",
                 "tmc",
                 TmcAxisConfig,
-                owner="the SPI driver layer (spidev)",
+                owner="the TMC layer (TMC drivers over SPI)",
                 absent=None,
                 absent_text="no driver chip on SPI",
                 rules=(
@@ -279,7 +279,7 @@ class TmcDeclaration(LayerDeclaration):
                 "",
                 "spidev",
                 SpidevConfig,
-                owner="the SPI driver layer (spidev)",
+                owner="the TMC layer (TMC drivers over SPI)",
                 rules=(Rule(("spidev",), "each SPI device belongs to one motor", _devices_unique),),
             ),
         )

@@ -76,7 +76,7 @@ def register_values(s: TmcSettings) -> dict[int, int]:
 
 @dataclass(frozen=True)
 class TmcSpec(DriverSpec):
-    """What the SPI layer needs to open one motor's driver: where, how fast, how configured."""
+    """What the TMC layer needs to open one motor's driver: where, how fast, how configured."""
 
     spi: str  # "/dev/spidevB.C"
     settings: TmcSettings
