@@ -283,7 +283,8 @@ def core_cost_us(core: str = "python", steps: int = 30_000) -> float:
     virtual clock: the Python core's ``step()`` per edge (the loop's other work not
     counted), the compiled core's whole loop per edge (``run_until``: refill, end stops,
     due times, the step; its rings and cells in a shared block)."""
-    from motorctl.hal.backends.mock.backend import build, build_step_io, mock_axis
+    from motorctl.hal.backends.mock.backend import build, build_step_io
+    from motorctl.hal.backends.mock.world import mock_axis
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.shm import SharedBlock
     from motorctl.hal.spec import HardwareSpec

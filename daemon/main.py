@@ -56,7 +56,8 @@ from motorctl.daemon.service import (
 from motorctl.daemon.signals import StopSignals
 from motorctl.daemon.silence import check_timeout
 from motorctl.daemon.status import StatusServer, read_status, summary_line
-from motorctl.hal.interfaces import MonotonicClock, ProbeReport
+from motorctl.hal.contract import ProbeReport, ProblemKind
+from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion import compiled_core
 from motorctl.motion.engine import MotionEngine
@@ -361,8 +362,9 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
     if st.executor == "thread":
         runs = "python (the thread executor runs the Python core)"
         if st.core == "compiled":
-            report.problems.append(
-                '[step_thread] core = "compiled" runs in the process executor only'
+            report.problem(
+                '[step_thread] core = "compiled" runs in the process executor only',
+                ProblemKind.CONFIG,
             )
     elif st.core == "python":
         runs = "python (as asked)"
@@ -373,7 +375,7 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
         runs = f"python ({why})"
         if st.core == "compiled":
             runs = "none: motorctld would not start"
-            report.problems.append(f'[step_thread] core = "compiled", but {why}')
+            report.problem(f'[step_thread] core = "compiled", but {why}', ProblemKind.CONFIG)
     out.append(f"runs: {runs}")
     return out
 

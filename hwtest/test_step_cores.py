@@ -23,7 +23,8 @@ from hwtest.gpiod_harness import GpiodHarness
 from hwtest.layout import MOTORS, where
 from hwtest.test_daemon import example_config
 from motorctl.hal.backends.gpiod.chip import load_api
-from motorctl.hal.interfaces import ChardevLines, Hardware, StepIO, VirtualClock
+from motorctl.hal.compiled_lines import ChardevLines
+from motorctl.hal.interfaces import Hardware, StepIO, VirtualClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.motion.compiled_core import CompiledStepCore

@@ -36,12 +36,8 @@ from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import Any
 
-from motorctl.hal.interfaces import (
-    ChardevLines,
-    SimulatedLines,
-    StepIO,
-    VirtualClock,
-)
+from motorctl.hal.compiled_lines import ChardevLines, SimulatedLines
+from motorctl.hal.interfaces import StepIO, VirtualClock
 from motorctl.motion.executor_process import (
     BAD_RECORD_S,
     EVENT_RING,

@@ -96,8 +96,8 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
+from motorctl.hal.compiled_lines import ChardevLines
 from motorctl.hal.interfaces import (
-    ChardevLines,
     Clock,
     HalError,
     Hardware,

@@ -1,7 +1,9 @@
 """What every test shares.
 
 The tests mirror the package, one folder a room, each test file named after the module it
-tests (``_e2e``: against motorctld as a process on a real PTY):
+tests (``_e2e``: against motorctld as a process on a real PTY); where a room has folders,
+its tests have the same (tests/hal/backends/gpiod/test_config.py tests
+hal/backends/gpiod/config.py):
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
@@ -11,14 +13,18 @@ tests (``_e2e``: against motorctld as a process on a real PTY):
                 frames, rigs (the engine or the step core on a virtual clock), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
-                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
-                tamper (a forwarder that changes one answer: the replay's tests)
+                mock_factory (the mock backend as gpiozero's mock factory), line_requests
+                (a recording GPIO request, a PWM sysfs tree), stand_ins (the environment
+                for tests/fakegpiod/ and tests/fakespi/), fsutil, tamper (a forwarder that
+                changes one answer: the replay's tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports
 nothing beyond pytest at module level. Here: the ``motorctld`` fixture (daemons as
 processes, stopped after their test), ``step_core`` and ``core_rig`` (a test run on each
-step core, Python and compiled), and for every test:
+step core, Python and compiled), ``mock_factory`` (simulated machines through the registry,
+closed after the test, as gpiozero hands its mock factory to every test) and ``spi_bench``
+(TMC chip models on a fake SPI bus), and for every test:
 
 - The root logger is put back after each test. A test that runs motorctld's ``main()`` in
   this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
@@ -46,7 +52,9 @@ import pytest
 
 if TYPE_CHECKING:
     from tests.support.daemon_proc import DaemonProcess, StartDaemon
+    from tests.support.mock_factory import MockFactory
     from tests.support.rigs import StepCoreRig
+    from tests.support.spi_bench import SpiBench
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -130,3 +138,22 @@ def motorctld(tmp_path: Path) -> Iterator[StartDaemon]:
             d.kill()
         else:
             d.close()
+
+
+@pytest.fixture
+def mock_factory() -> Iterator[MockFactory]:
+    """The mock backend as gpiozero's mock factory (tests/support/mock_factory.py): simulated
+    machines built through the registry, all closed after the test."""
+    from tests.support.mock_factory import MockFactory
+
+    factory = MockFactory()
+    yield factory
+    factory.close()
+
+
+@pytest.fixture
+def spi_bench() -> SpiBench:
+    """TMC chip models on a fake SPI bus and a virtual clock (tests/support/spi_bench.py)."""
+    from tests.support.spi_bench import SpiBench
+
+    return SpiBench()

@@ -6,9 +6,13 @@ functions, and module names written as strings for ``importlib``), not by import
 - the rooms depend one way: client -> protocol <- daemon -> motion -> hal, with
   ``motorctl.schema`` and the namespace root (``__version__``) at the bottom, importing
   nothing of motorctl themselves (README.md, "Architecture");
-- nothing outside ``hal/`` imports a backend (``motorctl.hal.backends``): the daemon names a
-  backend in its config, the registry builds it, and what only some hardware can do is asked
-  for through ``motorctl.hal.interfaces`` (hal/__init__.py).
+- nothing outside ``hal/`` imports a backend or a layer (``motorctl.hal.backends``,
+  ``motorctl.hal.layers``): the daemon names a backend in its config, the registry alone
+  names them and builds them, and what only some hardware can do is asked for through
+  ``motorctl.hal.interfaces`` (hal/__init__.py);
+- inside ``hal/`` too the registry alone names them: no backend or layer imports another
+  (the gpiod backend learns a motor's driver chip through the contract, not from the TMC
+  layer), and the public modules (interfaces, contract, spec, ...) import none of them.
 """
 
 from __future__ import annotations
@@ -38,8 +42,11 @@ ALLOWED = {
 #: socket's format is the daemon's own. The CLI imports it lazily, only for that command, so
 #: the client library and every other command load nothing of the daemon.
 EXCEPTIONS = {("motorctl.client.cli", "motorctl.daemon.monitor")}
-BACKENDS = "motorctl.hal.backends"
-_MODULE_NAME = re.compile(r"^motorctl(\.[A-Za-z_][A-Za-z0-9_]*)+$")
+#: what only hal/ imports: the backends and the layers (hal/registry.py names them)
+HIDDEN = ("motorctl.hal.backends.", "motorctl.hal.layers.")
+REGISTRY = "motorctl.hal.registry"
+#: a module's name written as a string: "motorctl.a.b", or "motorctl.a.b:Class" (the registry)
+_MODULE_NAME = re.compile(r"^(motorctl(?:\.[A-Za-z_][A-Za-z0-9_]*)+)(?::[A-Za-z_]\w*)?$")
 
 
 def package_modules() -> dict[str, Path]:
@@ -95,9 +102,18 @@ def imports_of(source: str, known: set[str]) -> set[str]:
                 m = re.match(r"\s*(?:from|import)\s+(motorctl[\w.]*)", line)
                 if m:
                     found.add(m.group(1))
-            if _MODULE_NAME.match(node.value):
-                found.add(node.value)
+            named = _MODULE_NAME.match(node.value)
+            if named:
+                found.add(named.group(1))
     return {m for m in found if m == "motorctl" or m.startswith("motorctl.")}
+
+
+def package_of(module: str) -> str | None:
+    """The backend or layer a module belongs to (``motorctl.hal.backends.gpiod``), if any."""
+    parts = module.split(".")
+    if module.startswith(HIDDEN) and len(parts) >= 4:
+        return ".".join(parts[:4])
+    return None
 
 
 def violations(modules: dict[str, str]) -> list[str]:
@@ -110,10 +126,20 @@ def violations(modules: dict[str, str]) -> list[str]:
             there = room_of(target)
             if (name, target) in EXCEPTIONS:
                 continue
-            if target.startswith(BACKENDS) and here != "hal":
+            if target.startswith(HIDDEN) and here != "hal":
                 out.append(
-                    f"{name} imports the backend module {target}: ask the HAL's "
+                    f"{name} imports the backend or layer module {target}: ask the HAL's "
                     "registry and interfaces instead"
+                )
+            elif (
+                target.startswith(HIDDEN)
+                and package_of(name) != package_of(target)
+                and name != REGISTRY
+            ):
+                out.append(
+                    f"{name} imports {target}, of another backend or layer: only "
+                    f"{REGISTRY} names them; what one needs of another goes through "
+                    "motorctl.hal.contract"
                 )
             elif there != here and there not in ALLOWED[here]:
                 out.append(
@@ -126,7 +152,7 @@ def violations(modules: dict[str, str]) -> list[str]:
 def test_the_package_keeps_the_rooms_order_and_the_hal_boundary() -> None:
     modules = {name: path.read_text(encoding="utf-8") for name, path in package_modules().items()}
     assert {room_of(m) for m in modules} == {*ROOMS, "root", "schema"}  # the whole package
-    assert {"motorctl.daemon.assemble", "motorctl.hal.backends.tmc.ramp"} <= set(modules)
+    assert {"motorctl.daemon.assemble", "motorctl.hal.layers.tmc.tmc5160"} <= set(modules)
     assert violations(modules) == []
 
 
@@ -143,18 +169,18 @@ def test_the_one_exception_is_still_there() -> None:
     [
         (
             "motorctl.daemon.x",
-            "from motorctl.hal.backends.mock.backend import MockHardware\n",
-            "imports the backend module motorctl.hal.backends.mock.backend",
+            "from motorctl.hal.backends.mock.world import MockHardware\n",
+            "imports the backend or layer module motorctl.hal.backends.mock.world",
         ),
         (
             "motorctl.motion.x",
-            "def f():\n    from motorctl.hal.backends.tmc import ramp\n",
-            "imports the backend module motorctl.hal.backends.tmc.ramp",
+            "def f():\n    from motorctl.hal.layers.tmc import tmc5160\n",
+            "imports the backend or layer module motorctl.hal.layers.tmc.tmc5160",
         ),
         (
             "motorctl.daemon.x",
             "import importlib\nimportlib.import_module('motorctl.hal.backends.gpiod.backend')\n",
-            "imports the backend module motorctl.hal.backends.gpiod.backend",
+            "imports the backend or layer module motorctl.hal.backends.gpiod.backend",
         ),
         (
             "motorctl.hal.x",
@@ -181,10 +207,20 @@ def test_the_one_exception_is_still_there() -> None:
             "from motorctl.hal import spec\n",
             "motorctl.schema (schema) imports motorctl.hal.spec (hal)",
         ),
+        (
+            "motorctl.hal.backends.gpiod.config",
+            "from motorctl.hal.layers.tmc.config import TmcAxisConfig\n",
+            "imports motorctl.hal.layers.tmc.config, of another backend or layer",
+        ),
+        (
+            "motorctl.hal.interfaces",
+            "X = 'motorctl.hal.backends.mock.backend:MockBackend'\n",
+            "imports motorctl.hal.backends.mock.backend, of another backend or layer",
+        ),
     ],
 )
 def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
-    known = {"motorctl.hal.spec", "motorctl.daemon.config", "motorctl.hal.backends.tmc.ramp"}
+    known = {"motorctl.hal.spec", "motorctl.daemon.config", "motorctl.hal.layers.tmc.tmc5160"}
     modules = {name: source, **{k: "" for k in known}}
     found = violations(modules)
     assert len(found) == 1 and says in found[0], found
@@ -196,9 +232,10 @@ def test_what_is_allowed_is_not_named() -> None:
         "from motorctl.motion.engine import MotionEngine\n"
         "from motorctl.protocol.codec import wrap24\n"
         "from motorctl import __version__\n",
-        "motorctl.hal.backends.mock.backend": "from motorctl.hal.backends.mock.config import "
+        "motorctl.hal.backends.mock.world": "from motorctl.hal.backends.mock.config import "
         "MockConfig\nfrom motorctl.schema import table\n",
-        "motorctl.hal.registry": "BACKENDS = {'mock': 'motorctl.hal.backends.mock.backend'}\n",
-        "motorctl.motion.x": '"""Prose: :class:`motorctl.hal.backends.tmc.ramp.Tmc5160`."""\n',
+        "motorctl.hal.registry": "BACKENDS = {'mock': 'motorctl.hal.backends.mock.world:W'}\n",
+        "motorctl.hal.layers.tmc.layer": "from motorctl.hal.layers.tmc import config\n",
+        "motorctl.motion.x": '"""Prose: :class:`motorctl.hal.layers.tmc.tmc5160.Tmc5160`."""\n',
     }
     assert violations(modules) == []

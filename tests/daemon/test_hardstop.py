@@ -25,7 +25,7 @@ from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link import Link
 from motorctl.daemon.ports import open_pty
-from motorctl.hal.backends.mock.backend import world_of
+from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
 from motorctl.hal.registry import open_hardware
 from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 
 from motorctl.daemon.dispatcher import Wait
 from motorctl.daemon.session import Ended, LinkSession
-from motorctl.hal.backends.mock.backend import world_of
+from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
     Command,

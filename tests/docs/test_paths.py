@@ -175,7 +175,7 @@ def test_path_extraction(text: str, paths: list[str]) -> None:
 def test_a_missing_path_is_caught() -> None:
     assert not _exists("motion/stepthread.py")
     assert not _exists("tests/test_nothing*.py")
-    assert _exists("tests/hal/test_tmc*.py") and _exists("motorctl_<version>-1_all.deb")
+    assert _exists("tests/hal/layers/tmc/test_*.py") and _exists("motorctl_<version>-1_all.deb")
     block = "motion/   engine.py, stepthread.py\ndaemon/   config/ (model.py), gone/\n"
     entries = dict(map_paths(block))
     assert entries["model.py"] == ["daemon", "daemon/config", ""]

@@ -10,7 +10,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.backend import EventKind, build, build_step_io, mock_axis, world_of
+from motorctl.hal.backends.mock.backend import build, build_step_io
+from motorctl.hal.backends.mock.world import EventKind, mock_axis, world_of
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine

@@ -10,11 +10,12 @@ import pytest
 
 from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import parse_config
-from motorctl.hal.backends.mock.backend import EventKind, build, world_of
-from motorctl.hal.backends.tmc.ramp import RefSwitches, Tmc5160
-from motorctl.hal.backends.tmc.settings import TmcSettings, TmcSpec
-from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice
+from motorctl.hal.backends.mock.backend import build
+from motorctl.hal.backends.mock.world import EventKind, world_of
 from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
+from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
+from motorctl.hal.layers.tmc.tmc5160 import TMC5160, RefSwitches, Tmc5160
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
@@ -44,7 +45,7 @@ from tests.support.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, T
 K = ExecEventKind
 RAMP = Ramp(4000.0, 40_000.0, 40_000.0)
 SETTINGS = TmcSettings(
-    chip="tmc5160", run_current=2.0, hold_current=1.0, microsteps=16, stall_min_speed=500.0
+    chip=TMC5160, run_current=2.0, hold_current=1.0, microsteps=16, stall_min_speed=500.0
 )
 
 

@@ -14,7 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.hal.backends.mock.backend import EventKind, build, read_timeline, world_of
+from motorctl.hal.backends.mock.backend import build
+from motorctl.hal.backends.mock.world import EventKind, read_timeline, world_of
 from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine

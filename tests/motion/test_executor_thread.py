@@ -13,7 +13,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from motorctl.hal.backends.mock.backend import EventKind, build, mock_axis, world_of
+from motorctl.hal.backends.mock.backend import build
+from motorctl.hal.backends.mock.world import EventKind, mock_axis, world_of
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine

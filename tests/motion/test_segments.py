@@ -226,7 +226,7 @@ def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepEx
 
 
 def step_times(engine: MotionEngine) -> list[float]:
-    from motorctl.hal.backends.mock.backend import world_of
+    from motorctl.hal.backends.mock.world import world_of
 
     return world_of(engine.hw).timeline.step_times(0)
 

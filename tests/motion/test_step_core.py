@@ -17,7 +17,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.backend import EventKind, mock_axis
+from motorctl.hal.backends.mock.world import EventKind, mock_axis
 from motorctl.motion.executor_process import (
     BAD_RECORD_S,
     segment_problem,

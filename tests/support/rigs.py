@@ -12,15 +12,8 @@ from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from motorctl.hal.backends.mock.backend import (
-    Event,
-    EventKind,
-    MockWorld,
-    build,
-    build_step_io,
-    mock_axis,
-    world_of,
-)
+from motorctl.hal.backends.mock.backend import build, build_step_io
+from motorctl.hal.backends.mock.world import Event, EventKind, MockWorld, mock_axis, world_of
 from motorctl.hal.interfaces import Clock, Hardware, StepperDriver, VirtualClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec

@@ -1,8 +1,11 @@
-"""Config sections of the SPI driver layer: [motors.tmc] per motor and [spidev] globally.
+"""The TMC layer's declaration (:class:`TmcDeclaration`, hal/contract.py): its config
+sections, [motors.tmc] per motor and [spidev] globally, the chips by the names
+``[motors.tmc] driver`` takes (:data:`CHIPS`), and the driver spec a motor's [motors.tmc]
+gives it.
 
 The layer works with every hardware backend (it replaces a motor's driver status with a
-TMC2130/TMC5160 read over /dev/spidevB.C), so it is registered in
-`motorctl.hal.registry.LAYERS`, not as a backend. Like every config module it imports no
+TMC2130/TMC5160 read over /dev/spidevB.C), so it is named in
+`motorctl.hal.registry.LAYERS`, not as a backend. Like every declaration it imports no
 hardware library: a config is checked without py-spidev.
 
 Pure declarations and conversions: no state, no I/O.
@@ -12,10 +15,14 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Final
 
-from motorctl.hal.backends.tmc.fields import mres_of
-from motorctl.hal.backends.tmc.settings import CHIPS, TmcSettings, TmcSpec, current_setting
+from motorctl.hal.contract import LayerDeclaration, MotorEntry
+from motorctl.hal.layers.tmc.fields import Chip, mres_of
+from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
+from motorctl.hal.layers.tmc.tmc2130 import TMC2130
+from motorctl.hal.layers.tmc.tmc5160 import TMC5160
+from motorctl.hal.spec import HardwareSpec
 from motorctl.schema import (
     Extension,
     Rule,
@@ -29,6 +36,9 @@ from motorctl.schema import (
 )
 
 _SPI_PATTERN = r"/dev/spidev[0-9]+\.[0-9]+"
+
+#: the chips the layer knows, by the name ``[motors.tmc] driver`` takes
+CHIPS: Final[Mapping[str, Chip]] = {"tmc2130": TMC2130, "tmc5160": TMC5160}
 
 
 @section(
@@ -103,7 +113,7 @@ class TmcAxisConfig:
 
 def _settings(v: TmcAxisConfig, invert_dir: bool) -> TmcSettings:
     return TmcSettings(
-        chip=v.driver,
+        chip=CHIPS[v.driver],
         sense_resistor=v.sense_resistor,
         run_current=v.run_current,
         hold_current=v.hold_current,
@@ -126,12 +136,11 @@ def _settings(v: TmcAxisConfig, invert_dir: bool) -> TmcSettings:
     )
 
 
-def driver_spec(motor: Any) -> TmcSpec | None:
+def driver_spec(motor: MotorEntry) -> TmcSpec | None:
     """The TmcSpec of a [[motors]] entry (a MotorConfig), None without [motors.tmc]."""
-    v = motor.section(TmcAxisConfig)
+    v: TmcAxisConfig | None = motor.section(TmcAxisConfig)
     if v is None:
         return None
-    assert isinstance(v, TmcAxisConfig)
     return TmcSpec(
         spi=v.spi,
         settings=_settings(v, bool(motor.invert_dir)),
@@ -179,8 +188,8 @@ def _current(v: Mapping[str, Any]) -> Violation | None:
         return None
     chip = CHIPS[t.driver]
     try:
-        current_setting(
-            chip, t.sense_resistor or chip.default_sense_ohm, t.run_current, t.hold_current
+        chip.current_setting(
+            t.sense_resistor or chip.default_sense_ohm, t.run_current, t.hold_current
         )
     except ValueError as exc:
         return ("tmc.run_current", t.run_current, str(exc))
@@ -201,7 +210,7 @@ def _ramp_stall_speed(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
-@section("Settings of the SPI driver layer shared by every driver (used only with drivers).")
+@section("Settings of the TMC layer shared by every driver (used only with drivers).")
 @dataclass(frozen=True)
 class SpidevConfig:
     """[spidev]: how the TMC5160 ramp executor watches its chips."""
@@ -230,40 +239,53 @@ def _devices_unique(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
-CONFIG_SECTIONS = (
-    Extension(
-        "motors",
-        "tmc",
-        TmcAxisConfig,
-        owner="the SPI driver layer (spidev)",
-        absent=None,
-        absent_text="no driver chip on SPI",
-        rules=(
-            Rule(
-                ("tmc.mode", "tmc.driver"),
-                'mode = "ramp" needs driver = "tmc5160"',
-                _ramp_needs_tmc5160,
+class TmcDeclaration(LayerDeclaration):
+    """The TMC layer: its sections; it applies to a spec with a TMC chip on any motor."""
+
+    def sections(self) -> tuple[Extension, ...]:
+        return (
+            Extension(
+                "motors",
+                "tmc",
+                TmcAxisConfig,
+                owner="the TMC layer (TMC drivers over SPI)",
+                absent=None,
+                absent_text="no driver chip on SPI",
+                rules=(
+                    Rule(
+                        ("tmc.mode", "tmc.driver"),
+                        'mode = "ramp" needs driver = "tmc5160"',
+                        _ramp_needs_tmc5160,
+                    ),
+                    Rule(("tmc.microsteps",), "a power of two: 1, 2, 4, ..., 256", _microsteps),
+                    Rule(
+                        ("microsteps", "tmc.microsteps"),
+                        "the same where both are written",
+                        _microsteps_agree,
+                    ),
+                    Rule(
+                        ("tmc.run_current", "tmc.sense_resistor"),
+                        "a current the chip can drive through this sense resistor",
+                        _current,
+                    ),
+                    Rule(
+                        ("tmc.stall_min_speed",),
+                        "> 0 for stall homing in ramp mode",
+                        _ramp_stall_speed,
+                    ),
+                ),
             ),
-            Rule(("tmc.microsteps",), "a power of two: 1, 2, 4, ..., 256", _microsteps),
-            Rule(
-                ("microsteps", "tmc.microsteps"),
-                "the same where both are written",
-                _microsteps_agree,
+            Extension(
+                "",
+                "spidev",
+                SpidevConfig,
+                owner="the TMC layer (TMC drivers over SPI)",
+                rules=(Rule(("spidev",), "each SPI device belongs to one motor", _devices_unique),),
             ),
-            Rule(
-                ("tmc.run_current", "tmc.sense_resistor"),
-                "a current the chip can drive through this sense resistor",
-                _current,
-            ),
-            Rule(("tmc.stall_min_speed",), "> 0 for stall homing in ramp mode", _ramp_stall_speed),
-        ),
-    ),
-    Extension(
-        "",
-        "spidev",
-        SpidevConfig,
-        owner="the SPI driver layer (spidev)",
-        rules=(Rule(("spidev",), "each SPI device belongs to one motor", _devices_unique),),
-    ),
-)
-"""The sections the SPI driver layer adds to the config file."""
+        )
+
+    def applies(self, spec: HardwareSpec) -> bool:
+        return any(isinstance(a.driver, TmcSpec) for a in spec.axes)
+
+    def driver_spec(self, motor: MotorEntry) -> TmcSpec | None:
+        return driver_spec(motor)

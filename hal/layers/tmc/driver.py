@@ -1,11 +1,14 @@
-"""A TMC2130 or TMC5160 as a stepper driver: started, configured and verified, then watched.
+"""The shared driver of the TMC chips: started, configured and verified, then watched.
 
 :class:`TmcDriver` opens its SPI device, checks the chip's version, writes and verifies its
 configuration (``settings.py``), and from then on reads DRV_STATUS for the HAL's
 :class:`~motorctl.hal.interfaces.StepperDriver` contract: over-temperature and shorts (and,
 while moving, open load) are faults; the stallGuard flag is the motor's stall. It also
-answers ``--probe`` and the status's driver figures (:meth:`TmcDriver.stats`). A TMC5160
-that runs its own ramp is the subclass in ``ramp.py``.
+reads what ``--probe`` shows (:meth:`TmcDriver.probe`, a :class:`ChipReading`) and the
+status's driver figures (:meth:`TmcDriver.stats`). It is a whole TMC2130, or a TMC5160 moved
+by STEP/DIR; what differs between the chips is asked of their
+:class:`~motorctl.hal.layers.tmc.fields.Chip`. A TMC5160 that runs its own ramp is the
+subclass in ``tmc5160.py``. (As Klipper's tmc.py, this module names no chip.)
 
 Threads: a :class:`TmcDriver` is started by the thread that builds the hardware; from then on
 :meth:`TmcDriver.poll` runs in the monitor thread only (``monitor.py``), and the step thread
@@ -20,13 +23,11 @@ import threading
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from motorctl.hal.backends.tmc import tmc5160
-from motorctl.hal.backends.tmc.fields import Chip, F, Field, Reg, decode_spi_status
-from motorctl.hal.backends.tmc.link import REG_NAMES, TmcError, TmcLink, identify
-from motorctl.hal.backends.tmc.settings import CHIP_BY_VERSION, TmcSettings, register_values
-from motorctl.hal.backends.tmc.spi import SpiDevice, SpiError
-from motorctl.hal.backends.tmc.tmc5160 import TMC5160
 from motorctl.hal.interfaces import DriverStatus, StepperDriver
+from motorctl.hal.layers.tmc.fields import Chip, F, Field, Reg, decode_spi_status
+from motorctl.hal.layers.tmc.link import TmcError, TmcLink, identify
+from motorctl.hal.layers.tmc.settings import TmcSettings, register_values
+from motorctl.hal.layers.tmc.spi import SpiDevice, SpiError
 
 log = logging.getLogger("motorctl.tmc")
 
@@ -51,30 +52,12 @@ class DrvStatus:
 
     def faults(self) -> list[str]:
         """Conditions that disable the driver: over-temperature and shorts."""
-        out = []
-        if self.flag(F.OT):
-            out.append("over-temperature (ot)")
-        for f, text in (
-            (F.S2GA, "short to ground on phase A (s2ga)"),
-            (F.S2GB, "short to ground on phase B (s2gb)"),
-        ):
-            if self.flag(f):
-                out.append(text)
-        if self.chip.has_s2vs:
-            for f, text in (
-                (tmc5160.F.S2VSA, "short to supply on phase A (s2vsa)"),
-                (tmc5160.F.S2VSB, "short to supply on phase B (s2vsb)"),
-            ):
-                if self.flag(f):
-                    out.append(text)
-        return out
+        out = ["over-temperature (ot)"] if self.flag(F.OT) else []
+        return out + [text for f, text in self.chip.shorts if self.flag(f)]
 
     @property
     def shorted(self) -> bool:
-        flags = [F.S2GA, F.S2GB]
-        if self.chip.has_s2vs:
-            flags += [tmc5160.F.S2VSA, tmc5160.F.S2VSB]
-        return any(self.flag(f) for f in flags)
+        return any(self.flag(f) for f, _ in self.chip.shorts)
 
     def open_load(self) -> list[str]:
         """Open-load flags; the datasheet says they are valid only in slow motion."""
@@ -89,25 +72,69 @@ class DrvStatus:
 
     def describe(self) -> str:
         """All flags and values, as ``--probe`` prints them."""
-        names = ["stst", "olb", "ola", "s2gb", "s2ga", "otpw", "ot", "stallGuard", "fsactive"]
-        fields = [F.STST, F.OLB, F.OLA, F.S2GB, F.S2GA, F.OTPW, F.OT, F.STALLGUARD, F.FSACTIVE]
-        if self.chip.has_s2vs:
-            names += ["stealth", "s2vsb", "s2vsa"]
-            fields += [tmc5160.F.STEALTH, tmc5160.F.S2VSB, tmc5160.F.S2VSA]
-        on = [n for n, f in zip(names, fields, strict=True) if self.flag(f)]
+        on = [name for name, f in self.chip.flags if self.flag(f)]
         return (
             f"DRV_STATUS=0x{self.raw:08x} SG_RESULT={F.SG_RESULT.get(self.raw)} "
             f"CS_ACTUAL={F.CS_ACTUAL.get(self.raw)} flags: {' '.join(on) or 'none'}"
         )
 
 
-class TmcDriver(StepperDriver):
-    """One TMC2130 or TMC5160: started once, polled by the monitor, read by the step path."""
+@dataclass(frozen=True)
+class ChipReading:
+    """What ``--probe`` read of one chip, writing nothing: IOIN, DRV_STATUS and the SPI
+    status byte, the chip it was configured as and the one whose version IOIN holds
+    (``found``; None: a chip the layer does not know)."""
 
-    def __init__(self, name: str, device: SpiDevice, settings: TmcSettings) -> None:
+    name: str
+    path: str
+    configured: Chip
+    found: Chip | None
+    version: int
+    ioin: int
+    drv_status: int
+    spi_status: int
+
+    @property
+    def matches(self) -> bool:
+        """The chip that answers is the one configured."""
+        return self.found is self.configured
+
+    @property
+    def sd_mode(self) -> int | None:
+        """IOIN's SD_MODE pin (1: STEP/DIR) on a chip that has one, else None."""
+        chip = self.found or self.configured
+        return None if chip.sd_mode is None else chip.sd_mode.get(self.ioin)
+
+    def lines(self) -> list[str]:
+        """The reading in words, decoded as the chip that answers (``--probe``)."""
+        found = self.found.name if self.found else f"unknown chip (version 0x{self.version:02x})"
+        verdict = "ok" if self.matches else f"MISMATCH: configured {self.configured.name}"
+        chip = self.found or self.configured
+        spi = " ".join(decode_spi_status(self.spi_status, chip)) or "none"
+        out = [
+            f"{self.name}: {self.path}: {found} (IOIN=0x{self.ioin:08x}) {verdict}",
+            f"  {DrvStatus(self.drv_status, chip).describe()}",
+            f"  SPI status: {spi}",
+        ]
+        if self.sd_mode is not None:
+            what = "external STEP/DIR" if self.sd_mode else "internal ramp generator"
+            out.append(f"  SD_MODE={self.sd_mode} ({what})")
+        return out
+
+
+class TmcDriver(StepperDriver):
+    """One TMC2130 or TMC5160: started once, polled by the monitor, read by the step path.
+
+    ``known``: the other chips to name when one of them answers where ``settings.chip`` was
+    configured (the layer passes every chip it knows: ``chips.CHIPS``)."""
+
+    def __init__(
+        self, name: str, device: SpiDevice, settings: TmcSettings, known: Iterable[Chip] = ()
+    ) -> None:
         self.name = name
         self.settings = settings
-        self.chip = settings.kind
+        self.chip = settings.chip
+        self.known = {c.version: c for c in (*known, self.chip)}
         self.device = device
         self.link = TmcLink(device, self.chip)
         self.regs = register_values(settings)  # ValueError for an impossible configuration
@@ -143,7 +170,7 @@ class TmcDriver(StepperDriver):
         """Check the chip's version and configure it (the device is open)."""
         version = identify(self.link)
         if version != self.chip.version:
-            other = CHIP_BY_VERSION.get(version)
+            other = self.known.get(version)
             found = f"a {other.name}" if other else f"an unknown chip (version 0x{version:02x})"
             raise TmcError(
                 f"{self.device.path} ({self.name}): configured as {self.chip.name} "
@@ -173,7 +200,7 @@ class TmcDriver(StepperDriver):
         for addr, value in zip(readable, got, strict=True):
             if value != self.regs[addr]:
                 raise TmcError(
-                    f"{self.device.path} ({self.name}): {REG_NAMES[addr]} reads back "
+                    f"{self.device.path} ({self.name}): {self.chip.register_name(addr)} reads back "
                     f"0x{value:08x}, 0x{self.regs[addr]:08x} was written; the chip may have "
                     "been reset (check VM) or the SPI wiring is unreliable"
                 )
@@ -181,7 +208,7 @@ class TmcDriver(StepperDriver):
     def clear_gstat(self) -> int:
         """Read GSTAT (clears it on the TMC2130) and write 1s back (clears it on the TMC5160)."""
         gstat = self.link.read(Reg.GSTAT)
-        if self.chip is TMC5160:
+        if self.chip.gstat_write_clears:
             self.link.write(Reg.GSTAT, 0x7)
         self.gstat = gstat
         return gstat
@@ -240,7 +267,7 @@ class TmcDriver(StepperDriver):
                 )
             except (SpiError, TmcError) as exc:
                 self._set_transient(f"driver was reset and could not be reconfigured: {exc}")
-        if self.chip is TMC5160 and F.UV_CP.get(gstat):
+        if self.chip.uv_cp and F.UV_CP.get(gstat):
             self._set_transient("charge pump undervoltage (GSTAT.uv_cp); check VM")
 
     def _set_transient(self, text: str) -> None:
@@ -297,29 +324,19 @@ class TmcDriver(StepperDriver):
             "drv_status": None if self.drv is None else f"0x{self.drv.raw:08x}",
         }
 
-    def probe(self) -> list[str]:
-        """Read-only report for ``motorctld --probe``: chip, version, DRV_STATUS decoded.
-
-        Reads IOIN and DRV_STATUS only (not GSTAT, which a TMC2130 clears on reading)."""
-        self.device.open()
-        try:
-            version = identify(self.link)
-            ioin, drv_raw = self.link.read_many([Reg.IOIN, Reg.DRV_STATUS])
-        except (SpiError, TmcError) as exc:
-            return [f"{self.name}: {exc}"]
-        other = CHIP_BY_VERSION.get(version)
-        found = other.name if other else f"unknown chip (version 0x{version:02x})"
-        verdict = "ok" if other is self.chip else f"MISMATCH: configured {self.chip.name}"
-        chip = other or self.chip
-        lines = [
-            f"{self.name}: {self.device.path}: {found} (IOIN=0x{ioin:08x}) {verdict}",
-            f"  {DrvStatus(drv_raw, chip).describe()}",
-            f"  SPI status: {' '.join(decode_spi_status(self.link.last_status, chip)) or 'none'}",
-        ]
-        if chip is TMC5160:
-            sd_mode = tmc5160.F.SD_MODE.get(ioin)
-            lines.append(
-                f"  SD_MODE={sd_mode} "
-                f"({'external STEP/DIR' if sd_mode else 'internal ramp generator'})"
-            )
-        return lines
+    def probe(self) -> ChipReading:
+        """What ``--probe`` shows of the chip: its version, IOIN and DRV_STATUS, read only
+        (not GSTAT, which a TMC2130 clears on reading). The device must be open; a chip
+        that does not answer raises TmcError, a failed transfer SpiError."""
+        version = identify(self.link)
+        ioin, drv_raw = self.link.read_many([Reg.IOIN, Reg.DRV_STATUS])
+        return ChipReading(
+            self.name,
+            self.device.path,
+            self.chip,
+            self.known.get(version),
+            version,
+            ioin,
+            drv_raw,
+            self.link.last_status,
+        )

@@ -11,7 +11,7 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from motorctl.hal.backends.tmc.driver import TmcDriver
+from motorctl.hal.layers.tmc.driver import TmcDriver
 
 log = logging.getLogger("motorctl.tmc")
 

@@ -11,7 +11,7 @@ The datasheets' SPI protocol (both chips):
 
 Threads: a link belongs to its driver and is used by whichever thread the driver's caller
 is (see ``driver.py``); all SPI traffic of one bus is serialised by its bus lock
-(:class:`~motorctl.hal.backends.tmc.spi.SpiBuses`), and a pipelined read holds it for all its
+(:class:`~motorctl.hal.layers.tmc.spi.SpiBuses`), and a pipelined read holds it for all its
 datagrams.
 """
 
@@ -20,15 +20,11 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Final
 
-from motorctl.hal.backends.tmc import tmc5160
-from motorctl.hal.backends.tmc.fields import SPI_STATUS_BITS, Chip, F, Reg
-from motorctl.hal.backends.tmc.spi import SpiDevice
 from motorctl.hal.interfaces import HalError
+from motorctl.hal.layers.tmc.fields import SPI_STATUS_BITS, Chip, F, Reg
+from motorctl.hal.layers.tmc.spi import SpiDevice
 
 WRITE: Final = 0x80
-
-#: register address -> name, for messages (every register of both chips)
-REG_NAMES: Final = {getattr(tmc5160.Reg, k): k for k in dir(tmc5160.Reg) if not k.startswith("_")}
 
 
 class TmcError(HalError):
@@ -80,8 +76,9 @@ class TmcLink:
             self._datagram(addr, value, write=True)
             echo = self._datagram(Reg.IOIN, 0, write=False)[1]
         if echo != value:
+            name = self.chip.register_name(addr)
             raise TmcError(
-                f"{self.device.path}: {self.chip.name} did not receive {REG_NAMES[addr]} "
+                f"{self.device.path}: {self.chip.name} did not receive {name} "
                 f"= 0x{value:08x} intact (it echoed 0x{echo:08x}); check the SPI wiring "
                 "(MOSI/MISO/SCK, a common ground) and lower spi_speed_hz"
             )

@@ -1,35 +1,228 @@
-"""A TMC5160 whose own ramp generator moves the motor (motion-controller mode, SD_MODE low).
+"""The TMC5160 (datasheet rev. 1.14): its registers and fields, its :class:`Chip`, and the
+driver of its own ramp generator (:class:`Tmc5160`).
 
-:class:`Tmc5160` is a :class:`~motorctl.hal.backends.tmc.driver.TmcDriver` that also sets up
-and drives the chip's ramp generator: positioning and velocity mode, hard and soft stops,
-the reference switches REFL/REFR (stop and latch XACTUAL into XLATCH), stallGuard stops,
-and homing on them. Units: ``tmc5160.RampUnits``.
+Besides what it shares with the TMC2130 (``fields.py``): GLOBALSCALER, the short-to-supply
+flags, SD_MODE, the ramp generator's registers (motion-controller mode, SD_MODE low), the
+reference switch configuration (SW_MODE) and status (RAMP_STAT), and the conversions
+between steps/s, steps/s^2 and the ramp generator's units.
 
-Threads: started like every driver (``driver.py``; its DRV_STATUS is polled by the monitor
-thread); the ramp calls come from the thread of the executor that owns the motor (the
-planner, with the motion engine's lock held). Each is a few SPI datagrams in one bus
-session.
+:class:`Tmc5160` is the shared driver (``driver.py``; started, configured and verified like
+every driver, its DRV_STATUS polled by the monitor thread) that also sets up and drives the
+chip's ramp generator: positioning and velocity mode, hard and soft stops, the reference
+switches REFL/REFR (stop and latch XACTUAL into XLATCH), stallGuard stops, and homing on
+them: the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability. A TMC5160 moved by
+STEP/DIR is the shared driver alone.
+
+Threads: the data and formulas, any thread. A :class:`Tmc5160`'s ramp calls come from the
+thread of the executor that owns the motor (the planner, with the motion engine's lock
+held); each is a few SPI datagrams in one bus session.
 """
 
 from __future__ import annotations
 
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Final
 
-from motorctl.hal.backends.tmc.driver import TmcDriver
-from motorctl.hal.backends.tmc.fields import Field, signed32
-from motorctl.hal.backends.tmc.link import TmcError
-from motorctl.hal.backends.tmc.settings import TmcSettings
-from motorctl.hal.backends.tmc.spi import SpiDevice
-from motorctl.hal.backends.tmc.tmc5160 import (
-    RAMP_STAT_WC,
-    TMC5160,
-    VSTOP_MIN,
-    F,
-    RampMode,
-    RampUnits,
-    Reg,
-)
 from motorctl.hal.interfaces import DriverStatus, RampDriver, RampStatus
+from motorctl.hal.layers.tmc import fields
+from motorctl.hal.layers.tmc.driver import TmcDriver
+from motorctl.hal.layers.tmc.fields import (
+    DRV_FLAGS,
+    SHORTS_TO_GROUND,
+    Chip,
+    CurrentSetting,
+    Field,
+    check_currents,
+    current_scale,
+    register_names,
+    signed32,
+)
+from motorctl.hal.layers.tmc.link import TmcError
+from motorctl.hal.layers.tmc.settings import TmcSettings
+from motorctl.hal.layers.tmc.spi import SpiDevice
+
+
+class Reg(fields.Reg):
+    """The shared registers and the TMC5160's own."""
+
+    GLOBALSCALER: Final = 0x0B
+    RAMPMODE: Final = 0x20
+    XACTUAL: Final = 0x21
+    VACTUAL: Final = 0x22
+    VSTART: Final = 0x23
+    A1: Final = 0x24
+    V1: Final = 0x25
+    AMAX: Final = 0x26
+    VMAX: Final = 0x27
+    DMAX: Final = 0x28
+    D1: Final = 0x2A
+    VSTOP: Final = 0x2B
+    TZEROWAIT: Final = 0x2C
+    XTARGET: Final = 0x2D
+    SW_MODE: Final = 0x34
+    RAMP_STAT: Final = 0x35
+    XLATCH: Final = 0x36
+
+
+class F(fields.F):
+    """The shared fields and the TMC5160's own, each keyed by its register."""
+
+    SD_MODE: Final = Field(Reg.IOIN, 6)  # 1 = external STEP/DIR, 0 = internal ramp generator
+    S2VSA: Final = Field(Reg.DRV_STATUS, 12)
+    S2VSB: Final = Field(Reg.DRV_STATUS, 13)
+    STEALTH: Final = Field(Reg.DRV_STATUS, 14)
+    STOP_L_ENABLE: Final = Field(Reg.SW_MODE, 0)
+    STOP_R_ENABLE: Final = Field(Reg.SW_MODE, 1)
+    POL_STOP_L: Final = Field(Reg.SW_MODE, 2)
+    POL_STOP_R: Final = Field(Reg.SW_MODE, 3)
+    LATCH_L_ACTIVE: Final = Field(Reg.SW_MODE, 5)
+    LATCH_R_ACTIVE: Final = Field(Reg.SW_MODE, 7)
+    SG_STOP: Final = Field(Reg.SW_MODE, 10)
+    EN_SOFTSTOP: Final = Field(Reg.SW_MODE, 11)
+    STATUS_STOP_L: Final = Field(Reg.RAMP_STAT, 0)
+    STATUS_STOP_R: Final = Field(Reg.RAMP_STAT, 1)
+    STATUS_LATCH_L: Final = Field(Reg.RAMP_STAT, 2)
+    STATUS_LATCH_R: Final = Field(Reg.RAMP_STAT, 3)
+    EVENT_STOP_L: Final = Field(Reg.RAMP_STAT, 4)
+    EVENT_STOP_R: Final = Field(Reg.RAMP_STAT, 5)
+    EVENT_STOP_SG: Final = Field(Reg.RAMP_STAT, 6)
+    EVENT_POS_REACHED: Final = Field(Reg.RAMP_STAT, 7)
+    VELOCITY_REACHED: Final = Field(Reg.RAMP_STAT, 8)
+    POSITION_REACHED: Final = Field(Reg.RAMP_STAT, 9)
+    VZERO: Final = Field(Reg.RAMP_STAT, 10)
+    VACTUAL: Final = Field(Reg.VACTUAL, 0, 24, signed=True)
+
+
+#: RAMP_STAT flags that are cleared by writing 1 (datasheet: R+WC)
+RAMP_STAT_WC: Final = (
+    F.STATUS_LATCH_L.mask
+    | F.STATUS_LATCH_R.mask
+    | F.EVENT_STOP_SG.mask
+    | F.EVENT_POS_REACHED.mask
+    | (1 << 12)
+)
+
+
+#: full-scale sense voltage [V] (fixed; GLOBALSCALER scales the current)
+VFS: Final = 0.325
+
+VSTOP_MIN: Final = 10  # datasheet: VSTOP >= VSTART, at least 10 recommended in positioning mode
+
+
+class Tmc5160Chip(Chip):
+    """The TMC5160's current scaling: IRUN/IHOLD under GLOBALSCALER, the sense voltage
+    fixed."""
+
+    def __reduce__(self) -> str:
+        return "TMC5160"  # the module's constant: one chip, the same object everywhere
+
+    @staticmethod
+    def full_scale(sense_ohm: float) -> float:
+        """The RMS current [A] of current scale 31 at GLOBALSCALER 256."""
+        return VFS / sense_ohm / math.sqrt(2)
+
+    def current_setting(self, sense_ohm: float, run_a: float, hold_a: float) -> CurrentSetting:
+        check_currents(sense_ohm, run_a, hold_a)
+        fs256 = self.full_scale(sense_ohm)
+        if run_a > fs256 * 1.0001:
+            raise ValueError(
+                f"run_current {run_a} A is above the {fs256:.2f} A a TMC5160 gives with a "
+                f"{sense_ohm} ohm sense resistor"
+            )
+        gs = max(32, min(256, math.ceil(256 * run_a / fs256)))
+        fs = fs256 * gs / 256
+        return CurrentSetting(
+            current_scale(run_a, fs), current_scale(hold_a, fs), globalscaler=gs % 256
+        )
+
+    def rms(self, setting: CurrentSetting, sense_ohm: float, cs: int) -> float:
+        gs = setting.globalscaler or 256
+        return gs / 256 * (cs + 1) / 32 * self.full_scale(sense_ohm)
+
+    def scale_registers(self, setting: CurrentSetting, chopconf: int) -> dict[int, int]:
+        return {Reg.GLOBALSCALER: setting.globalscaler, Reg.CHOPCONF: chopconf}
+
+
+TMC5160: Final = Tmc5160Chip(
+    name="TMC5160",
+    version=0x30,
+    readable=frozenset(
+        {
+            Reg.GCONF,
+            Reg.GSTAT,
+            Reg.IOIN,
+            Reg.TSTEP,
+            Reg.RAMPMODE,
+            Reg.XACTUAL,
+            Reg.VACTUAL,
+            Reg.XTARGET,
+            Reg.SW_MODE,
+            Reg.RAMP_STAT,
+            Reg.XLATCH,
+            Reg.MSCNT,
+            Reg.CHOPCONF,
+            Reg.DRV_STATUS,
+        }
+    ),
+    status_bits=8,
+    has_ramp=True,
+    default_sense_ohm=0.075,
+    registers=register_names(Reg),
+    shorts=(
+        *SHORTS_TO_GROUND,
+        (F.S2VSA, "short to supply on phase A (s2vsa)"),
+        (F.S2VSB, "short to supply on phase B (s2vsb)"),
+    ),
+    flags=(*DRV_FLAGS, ("stealth", F.STEALTH), ("s2vsb", F.S2VSB), ("s2vsa", F.S2VSA)),
+    sd_mode=F.SD_MODE,
+    gstat_write_clears=True,
+    uv_cp=True,
+)
+
+
+@dataclass(frozen=True)
+class RampUnits:
+    """Conversions between steps/s, steps/s^2 and the TMC5160's ramp-generator units.
+
+    Datasheet ("real world units"): v[steps/s] = VMAX * fCLK / 2^24 and
+    a[steps/s^2] = AMAX * fCLK^2 / 2^41, in the steps of the configured microstep
+    resolution (one step = what one STEP pulse would move).
+    """
+
+    clock_hz: float = 12e6
+
+    VMAX_MAX: Final = (1 << 23) - 512
+    AMAX_MAX: Final = (1 << 16) - 1
+
+    def velocity(self, steps_s: float) -> int:
+        return max(0, min(self.VMAX_MAX, round(abs(steps_s) * (1 << 24) / self.clock_hz)))
+
+    def accel(self, steps_s2: float) -> int:
+        v = round(abs(steps_s2) * (1 << 41) / (self.clock_hz * self.clock_hz))
+        return max(1, min(self.AMAX_MAX, v))
+
+    def decel(self, steps_s2: float) -> int:
+        """As :meth:`accel`, rounded up: the chip brakes at least as hard as planned, so a
+        stop planned by the engine never overshoots its target for rounding."""
+        v = math.ceil(abs(steps_s2) * (1 << 41) / (self.clock_hz * self.clock_hz) - 1e-9)
+        return max(1, min(self.AMAX_MAX, v))
+
+    def steps_s(self, vreg: int) -> float:
+        return vreg * self.clock_hz / (1 << 24)
+
+    def steps_s2(self, areg: int) -> float:
+        return areg * self.clock_hz * self.clock_hz / (1 << 41)
+
+
+class RampMode:
+    """RAMPMODE's values."""
+
+    POSITION: Final = 0
+    VELOCITY_POS: Final = 1
+    VELOCITY_NEG: Final = 2
+    HOLD: Final = 3
 
 
 @dataclass(frozen=True)
@@ -59,7 +252,8 @@ class RefSwitches:
 class Tmc5160(TmcDriver, RampDriver):
     """A TMC5160 whose own ramp generator moves the motor (SD_MODE low): the HAL's
     :class:`~motorctl.hal.interfaces.RampDriver` capability. ``poll_s``/``idle_poll_s``:
-    how often its executor reads it (``[spidev] ramp_poll_ms``/``ramp_idle_poll_ms``)."""
+    how often its executor reads it (``[spidev] ramp_poll_ms``/``ramp_idle_poll_ms``);
+    ``known``: as :class:`~motorctl.hal.layers.tmc.driver.TmcDriver`'s."""
 
     def __init__(
         self,
@@ -70,10 +264,11 @@ class Tmc5160(TmcDriver, RampDriver):
         *,
         poll_s: float = 0.005,
         idle_poll_s: float = 0.05,
+        known: Iterable[Chip] = (),
     ) -> None:
-        if settings.kind is not TMC5160:
+        if settings.chip is not TMC5160:
             raise ValueError("the ramp generator needs a TMC5160")
-        super().__init__(name, device, settings)
+        super().__init__(name, device, settings, known)
         self.units = RampUnits(settings.clock_hz)
         self.switches = switches or RefSwitches()
         self.sw_mode = self._sw_mode_base()
@@ -184,7 +379,7 @@ class Tmc5160(TmcDriver, RampDriver):
 
     def state(self) -> RampState:
         x, v, rs = self.link.read_many([Reg.XACTUAL, Reg.VACTUAL, Reg.RAMP_STAT])
-        return RampState(signed32(x), Field(0, 24, signed=True).get(v), rs)
+        return RampState(signed32(x), F.VACTUAL.get(v), rs)
 
     def ramp_status(self) -> RampStatus:
         """:meth:`state` in the HAL's terms: REFL is the min side, REFR the max side."""
