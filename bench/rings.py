@@ -21,7 +21,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from motorctl.hal.shm import SharedBlock  # noqa: E402
-from motorctl.motion.executor_process import (  # noqa: E402
+from motorctl.motion.executors.process.rings import (  # noqa: E402
     _EVENT,
     _SEG,
     _STOP,

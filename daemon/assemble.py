@@ -40,15 +40,15 @@ from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_chip_ramp import RampExecutor, with_ramp_motors
-from motorctl.motion.executor_process import ProcessStepExecutor
-from motorctl.motion.executor_process_start import ExecutorProcess
-from motorctl.motion.executor_seam import Executor
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import Executor
+from motorctl.motion.executors.chip_ramp import RampExecutor, with_ramp_motors
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.rings import ProcessStepExecutor
+from motorctl.motion.executors.process.start import ExecutorProcess
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
-from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
 from motorctl.protocol.capture import CaptureInfo
 from motorctl.protocol.codec import wrap24

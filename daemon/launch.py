@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executors.process.start import ExecutorProcess
 
 #: Options after which motorctld prints something and exits instead of serving.
 ONE_SHOT = frozenset(

@@ -57,9 +57,9 @@ from motorctl.daemon.silence import check_timeout
 from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import MonotonicClock, ProbeReport
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
-from motorctl.motion import compiled_core
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executors import compiled_core
+from motorctl.motion.executors.process.start import ExecutorProcess
 from motorctl.motion.motor import Motor
 
 log = logging.getLogger("motorctl")

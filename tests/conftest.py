@@ -77,7 +77,7 @@ def step_core(request: pytest.FixtureRequest) -> str:
     built by make venv; not built is a failure, not a skip)."""
     core = str(request.param)
     if core == "compiled":
-        from motorctl.motion.compiled_core import unavailable
+        from motorctl.motion.executors.compiled_core import unavailable
 
         why = unavailable()
         if why is not None:

@@ -13,7 +13,7 @@ stops) lets stallGuard stop the motor, and that stop is reported as the driver's
 :class:`SplitExecutor` gives each motor to one of several executors (STEP/DIR motors to the
 step executor, ramp motors to a RampExecutor) behind the one seam the engine uses.
 
-Threads: as every :class:`~motorctl.motion.executor_seam.Executor`: commands and
+Threads: as every :class:`~motorctl.motion.executors.base.Executor`: commands and
 :meth:`service` come with the engine's lock held (the planner thread); the drivers' bus
 transfers happen there (a few SPI datagrams, tens of microseconds each) and never on a step
 path. :meth:`position`, :meth:`endstop_active` and :meth:`health` read snapshots that
@@ -32,7 +32,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from motorctl.hal.interfaces import Clock, HalError, RampDriver, RampStatus
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     Committed,
     ExecEvent,
     ExecEventKind,

@@ -2,14 +2,15 @@
 
 :class:`StepExecutor` is the planner half of the STEP/DIR executors: it walks each motor's
 trajectory a little ahead of time (``ahead_s``), cuts the steps into segments in closed
-form (:class:`~motorctl.motion.segments.SegmentCutter`) and hands them to a step core
-(:mod:`motorctl.motion.step_core`) through a :class:`~motorctl.motion.step_core.CoreInbox`.
+form (:class:`~motorctl.motion.executors.segments.SegmentCutter`) and hands them to a step
+core (:mod:`motorctl.motion.executors.step_core`) through a
+:class:`~motorctl.motion.executors.step_core.CoreInbox`.
 Subclasses say where the core runs and how the inbox reaches it:
 
-- ``motion/executor_thread.py``, :class:`~motorctl.motion.executor_thread.ThreadStepExecutor`
+- ``motion/executor_thread.py``, :class:`~motorctl.motion.executors.thread.ThreadStepExecutor`
   (kind ``thread``): a thread of the daemon, or, on a virtual clock, no thread at all;
 - ``motion/executor_process.py``,
-  :class:`~motorctl.motion.executor_process.ProcessStepExecutor` (kind ``process``): a
+  :class:`~motorctl.motion.executors.process.rings.ProcessStepExecutor` (kind ``process``): a
   process of its own, over shared memory.
 
 Threads: the daemon's planner side only (the engine's lock held: commands and
@@ -25,7 +26,7 @@ from dataclasses import replace
 from typing import Any
 
 from motorctl.hal.interfaces import Clock
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     AxisLimits,
     Committed,
     ExecEvent,
@@ -34,10 +35,8 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.latency import Cells
-from motorctl.motion.profile import Trajectory
-from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.step_core import (
+from motorctl.motion.executors.segments import Boundary, SegmentCutter, StepSegment
+from motorctl.motion.executors.step_core import (
     ABSORBED,
     LAG_FAULTS,
     LAG_UNIT,
@@ -47,6 +46,8 @@ from motorctl.motion.step_core import (
     WORST_LATE,
     CoreInbox,
 )
+from motorctl.motion.latency import Cells
+from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import MotorParams, Ramp
 
 K = ExecEventKind

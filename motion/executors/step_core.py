@@ -17,7 +17,7 @@ changing anything here, and keep to them in what it calls:
 - No allocation per step. Per-motor state lives in lists made at start, indexed by
   motor; the motors due and done at an edge go into the core's own two lists, cleared
   and refilled. New objects are made only for what ends or stops a motion (an
-  :class:`~motorctl.motion.executor_seam.ExecEvent`), never per step; the ints of the
+  :class:`~motorctl.motion.executors.base.ExecEvent`), never per step; the ints of the
   tick arithmetic are CPython's own. The executor's process runs with the garbage
   collector off, the daemon while anything moves (``rt.GcPolicy``): garbage made here
   would pile up, or cost a collection pause in the thread kind.
@@ -42,7 +42,7 @@ changing anything here, and keep to them in what it calls:
 Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
 the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
 plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
-motor may not survive (:class:`~motorctl.motion.executor_seam.AxisLimits`): then it stops
+motor may not survive (:class:`~motorctl.motion.executors.base.AxisLimits`): then it stops
 (TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
 DIR has settled, raise the STEP lines of every due motor in one call, account while they
 are high, lower them, then look at the end stop ahead of each
@@ -65,7 +65,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from motorctl.hal.interfaces import HalError, StepIO
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     TICKS_PER_S,
     AxisLimits,
     ExecEvent,
@@ -73,8 +73,8 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.latency import Cells, LatencyStats
-from motorctl.motion.segments import StepSegment
 
 # counters cells
 PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP, BAD_RECORDS = range(8)

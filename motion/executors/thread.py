@@ -1,8 +1,8 @@
 """The ``thread`` step executor: the step core in a thread of the daemon, or on a virtual clock.
 
-:class:`ThreadStepExecutor` is a :class:`~motorctl.motion.step_planner.StepExecutor` (the
+:class:`ThreadStepExecutor` is a :class:`~motorctl.motion.executors.planner.StepExecutor` (the
 planner half, which cuts the plans into step segments) whose step core
-(:class:`~motorctl.motion.step_core.StepCore`) runs in a thread of this process,
+(:class:`~motorctl.motion.executors.step_core.StepCore`) runs in a thread of this process,
 ``motorctl-steps`` (``[step_thread] executor = "thread"``: single-core boards), at the
 real-time priority the config gives it. On a virtual clock (tests, bench/steps.py) there is
 no thread at all: the engine's caller drives the core through ``next_deadline`` and
@@ -23,7 +23,7 @@ from collections.abc import Sequence
 from motorctl.hal.interfaces import Hardware
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import HardwareSpec
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     AxisLimits,
     ExecEvent,
     ExecEventKind,
@@ -31,10 +31,10 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.planner import StepExecutor
+from motorctl.motion.executors.step_core import COUNTER_NAMES, StepCore
 from motorctl.motion.latency import CELLS, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
-from motorctl.motion.step_core import COUNTER_NAMES, StepCore
-from motorctl.motion.step_planner import StepExecutor
 
 log = logging.getLogger("motorctl.executor")
 

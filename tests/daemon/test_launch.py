@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon import launch
-from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executors.process.start import ExecutorProcess
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, children_of
 from tests.support.wait import until
@@ -84,7 +84,7 @@ def test_the_early_process_ends_by_itself_when_the_daemon_is_gone() -> None:
         [
             sys.executable,
             "-c",
-            "from motorctl.motion.executor_process_start import ExecutorProcess; "
+            "from motorctl.motion.executors.process.start import ExecutorProcess; "
             "print(ExecutorProcess.start().pid)",
         ],
         capture_output=True,

@@ -14,11 +14,11 @@ from motorctl.hal.backends.mock.backend import EventKind, build, build_step_io, 
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_seam import from_ticks, to_ticks
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import from_ticks, to_ticks
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Steps, plan_move_to
-from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import (
     HomeCmd,
     HomingParams,

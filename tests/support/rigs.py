@@ -24,16 +24,16 @@ from motorctl.hal.backends.mock.backend import (
 from motorctl.hal.interfaces import Clock, Hardware, StepperDriver, VirtualClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.compiled_core import CompiledStepCore
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process import _LAST, _WATCH, Layout, Shared, _ShmInbox
-from motorctl.motion.executor_seam import ExecEvent, Executor, to_ticks
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import ExecEvent, Executor, to_ticks
+from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.rings import _LAST, _WATCH, Layout, Shared, _ShmInbox
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
-from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import MotionCmd, MotorParams, MotorState
 from tests.support.wait import WAIT_S
 

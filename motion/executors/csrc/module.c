@@ -1,4 +1,4 @@
-/* motorctl.motion._stepcore: the compiled step core as a Python type.
+/* motorctl.motion.executors._stepcore: the compiled step core as a Python type.
  *
  * motion/compiled_core.py builds one (Core(...), then motor(), the lines: gpio() or sim(),
  * then start()) over the shared block of motion/executor_process.py and drives it: run()
@@ -573,7 +573,7 @@ static PyMethodDef Core_methods[] = {
 };
 
 static PyTypeObject CoreType = {
-    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "motorctl.motion._stepcore.Core",
+    PyVarObject_HEAD_INIT(NULL, 0).tp_name = "motorctl.motion.executors._stepcore.Core",
     .tp_doc = "The compiled step core over a shared block (motion/compiled_core.py).",
     .tp_basicsize = sizeof(CoreObject),
     .tp_flags = Py_TPFLAGS_DEFAULT,
@@ -585,7 +585,7 @@ static PyTypeObject CoreType = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_stepcore",
-    "The compiled step core (motion/csrc); driven by motorctl.motion.compiled_core.", -1,
+    "The compiled step core (motion/csrc); driven by motorctl.motion.executors.compiled_core.", -1,
     NULL, NULL, NULL, NULL, NULL,
 };
 

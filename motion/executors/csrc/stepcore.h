@@ -1,4 +1,4 @@
-/* The compiled step core (motorctl.motion._stepcore): declarations shared by its files.
+/* The compiled step core (motorctl.motion.executors._stepcore): declarations shared by its files.
  *
  * The same contract as motion/step_core.py, the Python reference: step segments in (from
  * the shared block's rings), edges on lines, events, positions, levels, counters and the

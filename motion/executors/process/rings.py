@@ -9,7 +9,7 @@ interpreter with its own GIL, which imports this module and what the step core n
 nothing of the daemon; ``motorctld`` starts it before the daemon's own imports) receives its
 parameters and descriptors over a Unix socket, enters SCHED_FIFO, mlockall and its CPU
 (``RealtimeOptions``), opens its OWN step/dir and end-stop lines from the picklable spec
-(``hal.registry.open_step_io``), and runs :class:`~motorctl.motion.step_core.StepCore`.
+(``hal.registry.open_step_io``), and runs :class:`~motorctl.motion.executors.step_core.StepCore`.
 
 The two processes share one block of anonymous shared memory (:mod:`motorctl.hal.shm`, a
 memfd the child receives as a descriptor): it has no name to remove, the kernel frees it
@@ -107,8 +107,7 @@ from motorctl.hal.interfaces import (
 from motorctl.hal.registry import config_sections, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
-from motorctl.motion import executor_process_start
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     AxisLimits,
     ExecEvent,
     ExecEventKind,
@@ -116,11 +115,12 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.planner import StepExecutor
+from motorctl.motion.executors.process import start as process_start
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, CoreInbox, StepCore
 from motorctl.motion.latency import CELLS, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS, CoreInbox, StepCore
-from motorctl.motion.step_planner import StepExecutor
 
 log = logging.getLogger("motorctl.executor")
 
@@ -505,7 +505,7 @@ def child_main(channel: socket.socket, parent: int) -> None:
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
     config_sections()
-    got = executor_process_start.receive(channel)
+    got = process_start.receive(channel)
     if got is None:
         return
     params, fds = got
@@ -570,7 +570,7 @@ def _child_main(
     os.set_blocking(event_fd, False)
     os.set_blocking(wake_fd, False)
     if chosen == "compiled":
-        from motorctl.motion.compiled_core import CompiledStepCore
+        from motorctl.motion.executors.compiled_core import CompiledStepCore
 
         compiled = CompiledStepCore(
             io,
@@ -667,7 +667,7 @@ def choose_core(wanted: str, io: StepIO) -> tuple[str | None, str]:
         return "python", 'as [step_thread] core = "python" asks'
     if wanted not in ("auto", "compiled"):
         return None, f"[step_thread] core = {wanted!r}: no such step core"
-    from motorctl.motion import compiled_core
+    from motorctl.motion.executors import compiled_core
 
     why = compiled_core.unavailable(io)
     if why is None:
@@ -699,7 +699,7 @@ class ProcessStepExecutor(StepExecutor):
         late_threshold_s: float = 100e-6,
         rt: RealtimeOptions | None = None,
         start_timeout_s: float = 30.0,
-        process: executor_process_start.ExecutorProcess | None = None,
+        process: process_start.ExecutorProcess | None = None,
         core: str = "auto",
     ) -> None:
         """``process``: an executor process started earlier (``daemon/launch.py``), else
@@ -761,11 +761,11 @@ class ProcessStepExecutor(StepExecutor):
             raise
 
     # -- lifecycle -----------------------------------------------------------------------
-    def _hand_over(self, process: executor_process_start.ExecutorProcess | None) -> None:
+    def _hand_over(self, process: process_start.ExecutorProcess | None) -> None:
         """The process its parameters and descriptors (our copies are closed then)."""
         if process is None:
             try:
-                process = executor_process_start.ExecutorProcess.start()
+                process = process_start.ExecutorProcess.start()
             except OSError as exc:
                 raise HalError(
                     f"cannot start the step executor process ({sys.executable}): {exc}"

@@ -4,7 +4,7 @@ That process takes longer to start than anything else in motorctld's start-up: a
 Python interpreter, then the step core's modules. So ``motorctld`` (``daemon/launch.py``)
 starts it first thing, before the daemon's own imports, and both interpreters start side by
 side; the daemon hands it its parameters once it has read its config and made the shared
-memory (:class:`~motorctl.motion.executor_process.ProcessStepExecutor`). This module imports
+memory (:class:`~motorctl.motion.executors.process.rings.ProcessStepExecutor`). This module imports
 nothing of motorctl, so the early start costs no import of its own.
 
 The process runs ``python -c`` :data:`BOOTSTRAP` with one end of a Unix ``SOCK_SEQPACKET``
@@ -43,7 +43,7 @@ first = channel.recv(1 << 20)
 if not first:
     sys.exit()  # the daemon is gone already
 daemon, sys.path[:] = pickle.loads(first)
-from motorctl.motion.executor_process import child_main
+from motorctl.motion.executors.process.rings import child_main
 child_main(channel, daemon)
 """
 

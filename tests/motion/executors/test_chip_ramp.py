@@ -18,14 +18,14 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_chip_ramp import (
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, Executor
+from motorctl.motion.executors.chip_ramp import (
     RampExecutor,
     SplitExecutor,
     peak_speed,
     with_ramp_motors,
 )
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, Executor
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.profile import plan_move_to, plan_run
 from motorctl.motion.types import (
     HomeCmd,
@@ -204,7 +204,7 @@ class Recorder(Executor):
         return False
 
     def health(self):  # type: ignore[no-untyped-def]
-        from motorctl.motion.executor_seam import ExecutorHealth
+        from motorctl.motion.executors.base import ExecutorHealth
 
         return ExecutorHealth(True, 1)
 
@@ -250,7 +250,7 @@ def test_split_executor_shows_the_step_executors_lateness_and_process() -> None:
 
 
 def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
-    from motorctl.motion.executor_seam import ExecutorHealth
+    from motorctl.motion.executors.base import ExecutorHealth
 
     class Counting(Recorder):
         def __init__(self, counters: dict[str, int]) -> None:

@@ -21,12 +21,12 @@ from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executors.planner import REFILL_S, axis_limits
+from motorctl.motion.executors.segments import Boundary, SegmentCutter, StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
-from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES
-from motorctl.motion.step_planner import REFILL_S, axis_limits
 from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
 from tests.support.rigs import FAR, StepCoreRig, engine_rig
 

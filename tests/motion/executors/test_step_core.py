@@ -18,14 +18,14 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from motorctl.hal.backends.mock.backend import EventKind, mock_axis
-from motorctl.motion.executor_process import (
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executors.process.rings import (
     BAD_RECORD_S,
     segment_problem,
     stop_problem,
 )
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import (
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import (
     ABSORBED,
     LAG_FAULTS,
     LAG_UNIT,

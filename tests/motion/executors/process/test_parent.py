@@ -18,9 +18,9 @@ from motorctl.hal.backends.mock.backend import EventKind, build, read_timeline, 
 from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process import ProcessStepExecutor
-from motorctl.motion.executor_seam import AxisLimits
-from motorctl.motion.step_planner import axis_limits
+from motorctl.motion.executors.base import AxisLimits
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.rings import ProcessStepExecutor
 from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 from tests.support.rigs import FAR
 from tests.support.wait import until

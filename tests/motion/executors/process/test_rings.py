@@ -28,7 +28,8 @@ from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.executor_process import (
+from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind
+from motorctl.motion.executors.process.rings import (
     _CHECK,
     _EVENT,
     _KINDS,
@@ -41,7 +42,6 @@ from motorctl.motion.executor_process import (
     Shared,
     ring_size,
 )
-from motorctl.motion.executor_seam import AxisLimits, ExecEvent, ExecEventKind
 from tests.support.wait import until
 
 DEADLINE_S = 60.0

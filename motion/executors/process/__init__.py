@@ -1,0 +1,1 @@
+"""The ``process`` step executor: the step core in a process of its own."""
