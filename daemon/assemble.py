@@ -41,10 +41,11 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import Executor
-from motorctl.motion.executors.chip_ramp import RampExecutor, with_ramp_motors
+from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.executors.planner import axis_limits
-from motorctl.motion.executors.process.rings import ProcessStepExecutor
-from motorctl.motion.executors.process.start import ExecutorProcess
+from motorctl.motion.executors.process.parent import ProcessStepExecutor
+from motorctl.motion.executors.process.start import WaitingInterpreter
+from motorctl.motion.executors.split import with_ramp_motors
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Trajectory
@@ -176,7 +177,7 @@ class Daemon:
         config: Config,
         state_dir: Path,
         clock: Clock | None = None,
-        executor_process: ExecutorProcess | None = None,
+        executor_process: WaitingInterpreter | None = None,
     ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
         :func:`motorctl.daemon.main.main`."""
@@ -370,7 +371,7 @@ def build_executor(
     hw: Hardware,
     spec: HardwareSpec,
     params: list[MotorParams],
-    process: ExecutorProcess | None = None,
+    process: WaitingInterpreter | None = None,
 ) -> Executor:
     """The step executor the config asks for (only it runs real-time and locks memory), for
     the motors ``spec.stepped()`` names; the motors whose driver runs its own ramp (the

@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from motorctl.motion.executors.process.start import ExecutorProcess
+from motorctl.motion.executors.process.start import WaitingInterpreter
 
 #: Options after which motorctld prints something and exits instead of serving.
 ONE_SHOT = frozenset(
@@ -46,7 +46,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     early = None
     if serves(args) and len(os.sched_getaffinity(0)) > 1:
         try:
-            early = ExecutorProcess.start()
+            early = WaitingInterpreter.start()
         except OSError:
             early = None  # the daemon starts it itself, and reports what is wrong then
     from motorctl.daemon.main import main as daemon_main

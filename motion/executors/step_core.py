@@ -5,12 +5,12 @@ place that runs per step, in real time, and it keeps rules of its own. Read them
 changing anything here, and keep to them in what it calls:
 
 - One owner. Exactly one thread runs it: a thread of the daemon for the ``thread`` kind
-  (``executor_thread.py``), the main thread of the executor's own process for ``process``
-  (``executor_process.py``), or the engine's caller on a virtual clock. Nothing else
+  (``thread.py``), the main thread of the executor's own process for ``process``
+  (``process/child.py``), or the engine's caller on a virtual clock. Nothing else
   touches its state.
 - No locks. The planner reaches it only through :class:`CoreInbox` (deques that the GIL
   makes safe for one producer and one consumer, or the shared-memory rings of
-  ``executor_process.py``); it answers through ``emit`` and cells (``positions``,
+  ``process/rings.py``); it answers through ``emit`` and cells (``positions``,
   ``levels``, ``counters``, ``motor_cells``, the latency histogram): one store per
   value, read by others as snapshots. ``emit`` must be cheap and never block (a deque
   append, a ring record and a wake-up byte).
@@ -32,10 +32,11 @@ changing anything here, and keep to them in what it calls:
 - Its cost is measured: ``bench/steps.py`` prints ``core_cost_us_python`` (and its twin's
   ``core_cost_us_compiled``), the CPU time per step on mock lines. A change here quotes it
   before and after and must not make it worse.
-- A twin: the compiled core (``motion/csrc/core.c``, driven by ``motion/compiled_core.py``)
-  keeps every rule here in C, function by function; the executor process runs it where it
-  is built. A change to a rule is made in both, and the core's tests run on both
-  (tests/motion/test_step_core.py). This one stays the readable reference and the fallback.
+- A twin: the compiled core (``csrc/core.c``, driven by ``compiled_core.py``) keeps every
+  rule here in C, function by function; the executor process runs it where it is built. A
+  change to a rule is made in both, and the core's tests run on both
+  (tests/motion/executors/test_step_core.py). This one stays the readable reference and
+  the fallback.
 - One module, a little over 500 lines with this fence, on purpose: the loop's state and
   every path that touches it are read together.
 
@@ -111,7 +112,7 @@ _CELL_MAX = (1 << 63) - 1
 class CoreInbox:
     """What the planner hands the core: per-motor segment queues and hard stops; and the
     records the transport found bad (``faults``: (motor or -1 for every motor, detail);
-    the shared-memory rings' only, executor_process.py)."""
+    the shared-memory rings' only, process/child.py)."""
 
     def __init__(self, motors: int) -> None:
         self.queues: list[deque[StepSegment]] = [deque() for _ in range(motors)]

@@ -28,7 +28,8 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import ExecEvent, Executor, to_ticks
 from motorctl.motion.executors.compiled_core import CompiledStepCore
 from motorctl.motion.executors.planner import axis_limits
-from motorctl.motion.executors.process.rings import _LAST, _WATCH, Layout, Shared, _ShmInbox
+from motorctl.motion.executors.process.child import RingInbox
+from motorctl.motion.executors.process.rings import Layout, Shared, segment_fields
 from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
 from motorctl.motion.executors.thread import ThreadStepExecutor
@@ -195,7 +196,7 @@ def engine_rig(
 class StepCoreRig:
     """A step core on a virtual clock over the mock world, fed by hand through the process
     executor's shared-memory rings (the same records, checked the same way, for both
-    cores): ``core`` "python" (motion/step_core.py over ``_ShmInbox``) or "compiled"
+    cores): ``core`` "python" (motion/step_core.py over ``RingInbox``) or "compiled"
     (motion/compiled_core.py). Lateness is judged by the real-hardware rule
     (``lag_faults``) unless a test says otherwise. ``close()`` releases the block."""
 
@@ -242,7 +243,7 @@ class StepCoreRig:
         self.cells = self.shared.motor_cells
         self.core: StepCore | CompiledStepCore
         if core == "python":
-            self.inbox = _ShmInbox(self.shared, self.clock)
+            self.inbox = RingInbox(self.shared, self.clock)
             self.core = StepCore(
                 io,
                 self.limits,
@@ -288,10 +289,7 @@ class StepCoreRig:
         """Segments into the motor's ring, as the daemon's planner hands them over."""
         ring = self.shared.segs[motor]
         for seg in segments:
-            flags = (_LAST if seg.last else 0) | (_WATCH if seg.watch else 0)
-            assert ring.put(
-                seg.first, seg.interval, seg.count, seg.add, seg.direction, seg.gen, flags
-            ), "segment ring full"
+            assert ring.put(*segment_fields(seg)), "segment ring full"
 
     def stop(self, motor: int, gen: int, cut: int = -1) -> None:
         """A stop record (``cut`` -1: a hard stop; else a re-plan from that tick)."""

@@ -1,12 +1,12 @@
 /* motorctl.motion.executors._stepcore: the compiled step core as a Python type.
  *
- * motion/compiled_core.py builds one (Core(...), then motor(), the lines: gpio() or sim(),
- * then start()) over the shared block of motion/executor_process.py and drives it: run()
- * is the executor process's whole loop, with the GIL released, until the block's run cell
- * is 0 or the daemon is gone; refill(), deadline(), advance() and run_until() are the
- * virtual-clock entry (tests, the benchmark's cost). Everything is checked when given
- * (offsets inside the block, lines inside their requests): the loop itself checks
- * nothing twice. Owner: the thread that made it. */
+ * motion/executors/compiled_core.py builds one (Core(...), then motor(), the lines: gpio() or
+ * sim(), then start()) over the shared block of motion/executors/process/rings.py and drives
+ * it: run() is the executor process's whole loop, with the GIL released, until the block's run
+ * cell is 0 or the daemon is gone; refill(), deadline(), advance() and run_until() are the
+ * virtual-clock entry (tests, the benchmark's cost). Everything is checked when given (offsets
+ * inside the block, lines inside their requests): the loop itself checks nothing twice. Owner:
+ * the thread that made it. */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 #include <poll.h>
@@ -574,7 +574,7 @@ static PyMethodDef Core_methods[] = {
 
 static PyTypeObject CoreType = {
     PyVarObject_HEAD_INIT(NULL, 0).tp_name = "motorctl.motion.executors._stepcore.Core",
-    .tp_doc = "The compiled step core over a shared block (motion/compiled_core.py).",
+    .tp_doc = "The compiled step core over a shared block (its compiled_core module).",
     .tp_basicsize = sizeof(CoreObject),
     .tp_flags = Py_TPFLAGS_DEFAULT,
     .tp_new = PyType_GenericNew,
@@ -585,7 +585,7 @@ static PyTypeObject CoreType = {
 
 static struct PyModuleDef module = {
     PyModuleDef_HEAD_INIT, "_stepcore",
-    "The compiled step core (motion/csrc); driven by motorctl.motion.executors.compiled_core.", -1,
+    "The compiled step core (motion/executors/csrc); driven by its compiled_core module.", -1,
     NULL, NULL, NULL, NULL, NULL,
 };
 

@@ -19,12 +19,8 @@ from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, Executor
-from motorctl.motion.executors.chip_ramp import (
-    RampExecutor,
-    SplitExecutor,
-    peak_speed,
-    with_ramp_motors,
-)
+from motorctl.motion.executors.chip_ramp import RampExecutor, peak_speed
+from motorctl.motion.executors.split import SplitExecutor, with_ramp_motors
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.profile import plan_move_to, plan_run
 from motorctl.motion.types import (

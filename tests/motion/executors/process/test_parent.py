@@ -20,7 +20,7 @@ from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import AxisLimits
 from motorctl.motion.executors.planner import axis_limits
-from motorctl.motion.executors.process.rings import ProcessStepExecutor
+from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 from tests.support.rigs import FAR
 from tests.support.wait import until

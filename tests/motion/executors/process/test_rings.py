@@ -29,15 +29,16 @@ from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind
+from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.executors.process.rings import (
-    _CHECK,
-    _EVENT,
-    _KINDS,
-    _RESIDUE,
-    _SEG,
-    _STOP,
+    EVENT_KINDS,
+    EVENT_RECORD,
+    READY_CELL,
+    SEG_RECORD,
+    SLOT_CHECK,
+    SLOT_RESIDUE,
+    STOP_RECORD,
     Layout,
-    ProcessStepExecutor,
     Ring,
     Shared,
     ring_size,
@@ -112,13 +113,13 @@ def _drain_lap(ring: Ring, make: Any) -> None:
 @settings(max_examples=200, deadline=None)
 @given(body=st.binary(min_size=8, max_size=200))
 def test_a_slot_whose_check_matches_its_record_has_the_constant_crc(body: bytes) -> None:
-    slot = body + _CHECK.pack(zlib.crc32(body))
-    assert zlib.crc32(slot) == _RESIDUE
+    slot = body + SLOT_CHECK.pack(zlib.crc32(body))
+    assert zlib.crc32(slot) == SLOT_RESIDUE
     # and one flipped bit anywhere (record or check) breaks it
     for bit in (0, 8 * len(body) - 1, 8 * len(body) + 5):
         bad = bytearray(slot)
         bad[bit // 8] ^= 1 << (bit % 8)
-        assert zlib.crc32(bytes(bad)) != _RESIDUE
+        assert zlib.crc32(bytes(bad)) != SLOT_RESIDUE
 
 
 def test_slots_are_8_byte_aligned_in_the_real_shared_block() -> None:
@@ -134,25 +135,25 @@ def test_slots_are_8_byte_aligned_in_the_real_shared_block() -> None:
             for ring in (*shared.segs, shared.stops, shared.events):
                 assert (address + ring.base - 16) % 8 == 0
                 assert (address + ring.base) % 8 == 0 and ring.slot % 8 == 0
-            assert layout.size >= layout.event_ring + ring_size(_EVENT, shared.events.cap)
+            assert layout.size >= layout.event_ring + ring_size(EVENT_RECORD, shared.events.cap)
         finally:
             shared.release()
     finally:
         shm.close()
     with pytest.raises(ValueError, match="not 8-byte aligned"):
-        Ring(memoryview(bytearray(4096)), 4, _STOP, 4)
+        Ring(memoryview(bytearray(4096)), 4, STOP_RECORD, 4)
 
 
 # ---------------------------------------------------------------- what a reordering CPU shows
 
 
 def test_new_head_and_sequence_over_an_old_payload_is_not_taken_until_complete() -> None:
-    ring = _ring(_SEG, 4)
+    ring = _ring(SEG_RECORD, 4)
     _drain_lap(ring, _seg)  # the slots now hold lap 0; the next record (4) reuses slot 0
     at = _at(ring, 4)
     old = bytes(ring.buf[at : at + ring.slot])
     new = _slot_of(ring, 4, _seg(41))
-    seq_end, check_at = 8, _SEG.size
+    seq_end, check_at = 8, SEG_RECORD.size
 
     _show(ring, 4, old)  # only the head is new
     assert ring.pending() and ring.get() is None
@@ -171,7 +172,7 @@ def test_new_head_and_sequence_over_an_old_payload_is_not_taken_until_complete()
 def test_every_word_mix_of_the_old_and_the_new_segment_is_taken_only_when_whole() -> None:
     """All 2^9 mixes of the 9 eight-byte words of a segment slot (aligned 8-byte stores
     become visible in any order): only the complete new record is taken."""
-    ring = _ring(_SEG, 4)
+    ring = _ring(SEG_RECORD, 4)
     _drain_lap(ring, _seg)
     at = _at(ring, 4)
     old = bytes(ring.buf[at : at + ring.slot])
@@ -201,7 +202,7 @@ def test_any_byte_mix_of_an_event_slot_with_its_text_is_taken_only_when_whole(
     ordered CPU may show any byte mix of the previous lap's record and the new one (``bits``:
     one bit a byte of the slot, set: the byte is already the new record's)."""
     mask = [bool(bits[k // 8] >> (k % 8) & 1) for k in range(192)]
-    ring = _ring(_EVENT, 2)
+    ring = _ring(EVENT_RECORD, 2)
     assert ring.slot == 192
     for i in range(2 * lap):
         assert ring.put(*_event(i))
@@ -225,7 +226,7 @@ def test_a_slot_overwritten_by_the_next_lap_while_being_read_is_not_taken() -> N
     """If the producer overwrote the slot during the consumer's copy (what the tail's
     control dependency prevents), the copy mixes record k and record k + capacity: it is
     taken only if it is record k, whole."""
-    ring = _ring(_STOP, 2)
+    ring = _ring(STOP_RECORD, 2)
     assert ring.put(1, 11, -1) and ring.put(2, 22, 7)  # records 0 and 1: full
     at = _at(ring, 0)
     current = bytes(ring.buf[at : at + ring.slot])
@@ -242,7 +243,7 @@ def test_a_slot_overwritten_by_the_next_lap_while_being_read_is_not_taken() -> N
 
 
 def test_a_rejected_record_keeps_its_slot_from_the_producer() -> None:
-    ring = _ring(_SEG, 4)
+    ring = _ring(SEG_RECORD, 4)
     for i in range(4):
         assert ring.put(*_seg(i))
     at = _at(ring, 0)
@@ -258,7 +259,7 @@ def test_a_rejected_record_keeps_its_slot_from_the_producer() -> None:
 @settings(max_examples=100, deadline=None)
 @given(garbage=st.binary(min_size=72, max_size=72))
 def test_garbage_in_a_slot_is_never_taken_and_never_raises(garbage: bytes) -> None:
-    ring = _ring(_SEG, 4)
+    ring = _ring(SEG_RECORD, 4)
     _show(ring, 0, garbage)
     assert ring.get() is None and ring.cells[1] == 0
 
@@ -267,7 +268,7 @@ def test_garbage_in_a_slot_is_never_taken_and_never_raises(garbage: bytes) -> No
 
 
 def test_a_full_ring_refuses_and_takes_again_after_a_get() -> None:
-    ring = _ring(_SEG, 8)
+    ring = _ring(SEG_RECORD, 8)
     assert ring.free() == 8 and not ring.pending() and ring.get() is None
     for i in range(8):
         assert ring.put(*_seg(i)), i
@@ -297,7 +298,7 @@ def test_a_full_ring_refuses_and_takes_again_after_a_get() -> None:
 
 
 def test_the_event_record_carries_its_text() -> None:
-    ring = _ring(_EVENT, 4)
+    ring = _ring(EVENT_RECORD, 4)
     long = bytes(range(32, 127)) + b"x" * 25
     assert len(long) == TEXT
     for text in (b"", b"step timing lost (step 2417 us late)", long):
@@ -310,7 +311,7 @@ def test_the_event_record_carries_its_text() -> None:
     at = _at(ring, index)
     old = bytes(ring.buf[at : at + ring.slot])
     new = _slot_of(ring, index, _event(4, long))
-    text_at = _EVENT.size - TEXT
+    text_at = EVENT_RECORD.size - TEXT
     _show(ring, index, new[: text_at + 60] + old[text_at + 60 :])
     assert ring.get() is None
     _show(ring, index, new)
@@ -331,8 +332,8 @@ def _echo_child(name: str, count: int, seed: int, deadline: float) -> None:
     """Take segment records from ring A, give each back as an event record on ring B."""
     shm = shared_memory.SharedMemory(name=name)
     assert shm.buf is not None
-    a = Ring(shm.buf, 0, _SEG, 16)
-    b = Ring(shm.buf, ring_size(_SEG, 16), _EVENT, 8)
+    a = Ring(shm.buf, 0, SEG_RECORD, 16)
+    b = Ring(shm.buf, ring_size(SEG_RECORD, 16), EVENT_RECORD, 8)
     rng = random.Random(seed + 1)
     held: tuple[Any, ...] | None = None
     done = 0
@@ -361,12 +362,12 @@ def _echo_child(name: str, count: int, seed: int, deadline: float) -> None:
 
 def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
     count, seed = 30_000, int.from_bytes(os.urandom(4), "little")
-    size = ring_size(_SEG, 16) + ring_size(_EVENT, 8)
+    size = ring_size(SEG_RECORD, 16) + ring_size(EVENT_RECORD, 8)
     shm = shared_memory.SharedMemory(create=True, size=size)
     assert shm.buf is not None
     shm.buf[:size] = bytes(size)
-    a = Ring(shm.buf, 0, _SEG, 16)
-    b = Ring(shm.buf, ring_size(_SEG, 16), _EVENT, 8)
+    a = Ring(shm.buf, 0, SEG_RECORD, 16)
+    b = Ring(shm.buf, ring_size(SEG_RECORD, 16), EVENT_RECORD, 8)
     ctx = multiprocessing.get_context("spawn")
     deadline = time.monotonic() + DEADLINE_S
     child = ctx.Process(target=_echo_child, args=(shm.name, count, seed, deadline), daemon=True)
@@ -435,7 +436,7 @@ def test_start_reads_ready_after_the_childs_byte_and_sees_its_end_stop_map() -> 
         ex.start()
         # the child wrote the map before READY and its byte; -1/-1 or lines of its own
         lo, hi = ex.shared.endmap[0], ex.shared.endmap[1]
-        assert ex.health().alive and ex.shared.header[1] == 1
+        assert ex.health().alive and ex.shared.header[READY_CELL] == 1
         assert (lo, hi) != (0, 0), "start returned before the child's end-stop map"
     finally:
         ex.close()
@@ -467,7 +468,7 @@ def test_start_gives_up_after_its_timeout() -> None:
 
 
 def test_a_consumer_counts_each_read_of_a_torn_or_stale_record_as_a_retry() -> None:
-    ring = _ring(_SEG, 4)
+    ring = _ring(SEG_RECORD, 4)
     _drain_lap(ring, _seg)  # slot 0 holds record 0 of the previous lap
     assert ring.retries == 0
     at = _at(ring, 4)
@@ -534,9 +535,9 @@ def test_retries_of_both_directions_are_in_the_process_executors_health(step_cor
         index = events.cells[0]
         at = _at(events, index)
         old = bytes(events.buf[at : at + events.slot])
-        fields = (_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0.0, b"torn")
+        fields = (EVENT_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0.0, b"torn")
         whole = _slot_of(events, index, fields)
-        _show(events, index, whole[: _EVENT.size] + old[_EVENT.size :])
+        _show(events, index, whole[: EVENT_RECORD.size] + old[EVENT_RECORD.size :])
         assert ex.events() == [] and ex.events() == []
         assert ex.health().counters["ring_retries_reports"] == 2
         events.buf[at : at + events.slot] = whole
