@@ -11,14 +11,14 @@ with the address and undefined-behaviour sanitizers).
 
 from setuptools import Extension, setup
 
-SOURCES = ["core.c", "rings.c", "lines_gpio.c", "lines_sim.c", "module.c"]
+SOURCES = ["core.c", "rings.c", "lines_gpio.c", "lines_sim.c", "module.c", "module_lines.c"]
 
 setup(
     ext_modules=[
         Extension(
             "motorctl.motion.executors._stepcore",
             sources=[f"motion/executors/csrc/{name}" for name in SOURCES],
-            depends=["motion/executors/csrc/stepcore.h"],
+            depends=[f"motion/executors/csrc/{name}" for name in ("stepcore.h", "module.h")],
             extra_compile_args=["-std=gnu11", "-Wall", "-Wextra", "-Werror", "-O2"],
         )
     ]

@@ -10,7 +10,8 @@
  *   lines_gpio.c STEP/DIR writes and end-stop edge reads as GPIO character-device ioctls
  *   lines_sim.c  the mock backend's counterpart: the same timeline of edges, the same
  *                simulated mechanics (positions, end stops) in the same shared cells
- *   module.c     the Python type that builds a core and drives it
+ *   module.c     the Python type that builds a core and drives it (module.h: its object)
+ *   module_lines.c  its methods that hand the core its lines (gpio(), sim())
  *
  * Owners: one thread runs a core (the executor process's main thread, or a test's on a
  * virtual clock); nothing here is shared between threads but the block's cells, which
