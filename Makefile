@@ -61,7 +61,7 @@ $(VENV)/.stepcore: $(VENV)/.installed setup.py $(STEPCORE_SRC)
 # preloaded): any error the sanitizers find fails the run.
 ASAN_FLAGS = -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined \
   -fno-sanitize-recover=all -fno-wrapv
-ASAN_TESTS = tests/motion/executors/test_step_core.py tests/motion/executors/test_segments.py \
+ASAN_TESTS = tests/motion/executors/test_step_core.py tests/motion/executors/test_compiled_core.py \
   tests/motion/executors/process/
 test-asan: venv
 	rm -rf build/asan

@@ -1,14 +1,18 @@
 """What every test shares.
 
-The tests mirror the package, one folder a room, each test file named after the module it
-tests (``_e2e``: against motorctld as a process on a real PTY):
+The tests mirror the package, one folder a room and a sub-folder a wing (motion/executors/
+and its process/), each test file named after the module it tests (``_e2e``: against
+motorctld as a process on a real PTY); at the top, the package's own rules: test_imports.py
+(the import graph) and test_sizes.py (modules' and functions' sizes):
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
     docs/       the README's walkthrough run as written; every path the pages name exists
     packaging/  debian/, the wheel, the systemd units, --version, hwtest/run
     support/    the shared rigs, one module each: wait (``until``, the deadline wait),
-                frames, rigs (the engine or the step core on a virtual clock), inprocess
+                frames, rigs (the engine or the step core on a virtual clock), executors (a
+                stand-in executor that records, the ramp executor over TMC5160 models, the
+                process executor, the rings' slots written by hand), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
                 stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
@@ -73,8 +77,8 @@ def keep_root_logger() -> Iterator[None]:
 
 @pytest.fixture(params=["python", "compiled"])
 def step_core(request: pytest.FixtureRequest) -> str:
-    """Each step core in turn: "python" (motion/step_core.py) and "compiled" (motion/csrc,
-    built by make venv; not built is a failure, not a skip)."""
+    """Each step core in turn: "python" (motion/executors/step_core.py) and "compiled"
+    (motion/executors/csrc/, built by make venv; not built is a failure, not a skip)."""
     core = str(request.param)
     if core == "compiled":
         from motorctl.motion.executors.compiled_core import unavailable

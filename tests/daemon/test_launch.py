@@ -1,5 +1,5 @@
 """The motorctld command (daemon/launch.py) starts the step executor's interpreter before
-the daemon's imports (motion/executor_process_start.py): the process executor takes it over;
+the daemon's imports (motion/executors/process/start.py): the process executor takes it over;
 any other outcome ends it, also when the daemon fails to start or is gone before handing it its
 parameters. Real processes throughout."""
 

@@ -25,7 +25,7 @@ from motorctl.hal.interfaces import Clock, Hardware, StepperDriver, VirtualClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executors.base import ExecEvent, Executor, to_ticks
+from motorctl.motion.executors.base import ExecEvent, Executor, from_ticks, to_ticks
 from motorctl.motion.executors.compiled_core import CompiledStepCore
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.process.child import RingInbox
@@ -35,8 +35,17 @@ from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, Step
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
-from motorctl.motion.types import MotionCmd, MotorParams, MotorState
+from motorctl.motion.profile import Steps, plan_move_to
+from motorctl.motion.types import MotionCmd, MotorParams, MotorState, Ramp
 from tests.support.wait import WAIT_S
+
+
+def planned_times(t0: float, start: int, target: int, r: Ramp) -> list[float]:
+    """The step times of a MoveTo from rest at ``t0``, planned by the profile, on the step
+    path's 1 ns ticks."""
+    traj = plan_move_to(t0, float(start), 0.0, float(target), r.speed, r.acc, r.dec)
+    return [from_ticks(to_ticks(t)) for t, _ in Steps(traj, start)]
+
 
 #: End stops no test reaches.
 FAR = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
@@ -196,8 +205,8 @@ def engine_rig(
 class StepCoreRig:
     """A step core on a virtual clock over the mock world, fed by hand through the process
     executor's shared-memory rings (the same records, checked the same way, for both
-    cores): ``core`` "python" (motion/step_core.py over ``RingInbox``) or "compiled"
-    (motion/compiled_core.py). Lateness is judged by the real-hardware rule
+    cores): ``core`` "python" (motion/executors/step_core.py over ``RingInbox``) or
+    "compiled" (motion/executors/compiled_core.py). Lateness is judged by the real-hardware rule
     (``lag_faults``) unless a test says otherwise. ``close()`` releases the block."""
 
     def __init__(

@@ -1,34 +1,23 @@
-"""Planning in closed form (``SegmentCutter``) and re-plans that cut a running plan.
+"""Planning in closed form (motion/executors/segments.py, ``SegmentCutter``).
 
 The cutter must make exactly the steps of ``profile.Steps`` (the reference: one square root
-per step), each within the error bound, with segments bounded in length; a re-plan (soft
-stop, new speed) takes over within ``lead + span`` of the command, not after everything
-handed over; the core drops the cut part silently, or faults when the cut came too late.
+per step), each within the error bound, with segments bounded in length, up to the horizon
+and always the next one. (Re-plans that cut a running plan: test_planner.py, and what the
+core does with the cut: test_step_core.py.)
 """
 
 from __future__ import annotations
 
-import itertools
 import math
 import random
-from collections.abc import Callable
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.backend import build
-from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.spec import HardwareSpec
-from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.executors.planner import REFILL_S, axis_limits
+from motorctl.motion.executors.base import ExecEventKind, to_ticks
 from motorctl.motion.executors.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES
-from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.profile import Segment, Steps, Trajectory, plan_move_to, plan_run
-from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
-from tests.support.rigs import FAR, StepCoreRig, engine_rig
 
 K = ExecEventKind
 ERR = 5000  # ticks (5 us)
@@ -206,199 +195,3 @@ def test_a_plan_that_makes_no_step_is_done_at_once() -> None:
     assert cutter.done and cutter.cut(6.0, 1, True) == []
     with pytest.raises(ValueError, match="inconsistent"):
         SegmentCutter(still.segments, 5, ERR, SPAN)
-
-
-# ---------------------------------------------------------------- re-plans
-
-
-def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepExecutor]:
-    """A thread executor on a virtual clock that plans ``ahead_s`` ahead, as on a real clock."""
-    clock = VirtualClock()
-    r = engine_rig(
-        MotorParams(max_speed=10_000.0),
-        axes=[FAR],
-        clock=clock,
-        max_error_s=5e-6,
-        ahead_s=ahead_s,
-        lead_s=0.002,
-    )
-    return clock, r.engine, r.executor
-
-
-def step_times(engine: MotionEngine) -> list[float]:
-    from motorctl.hal.backends.mock.backend import world_of
-
-    return world_of(engine.hw).timeline.step_times(0)
-
-
-@pytest.mark.parametrize("ahead_s", [0.05, 0.2])
-def test_a_soft_stop_takes_over_within_lead_and_span_not_after_the_horizon(
-    ahead_s: float,
-) -> None:
-    clock, engine, ex = rig(ahead_s)
-    m = engine.motors[0]
-    with engine.lock:
-        m.submit(RunCmd(1, Ramp(5000.0, 1e6, 50_000.0)), clock.now())
-    engine.run_until(clock.now() + 0.5)  # cruising at 5,000 step/s, ahead_s handed over
-    handed = ex.plans[0].counter - ex.position(0)
-    assert handed >= 5000 * ahead_s * 0.5
-    t_cmd = clock.now()
-    with engine.lock:
-        assert m.stop(hard=False, now=t_cmd)
-    engine.run_until_idle()
-    times = step_times(engine)
-    gaps = [(b - a, b) for a, b in itertools.pairwise(times) if b > t_cmd]
-    # the deceleration (50,000 step/s^2: the gaps grow) starts within lead + span
-    slowing = next(t for g, t in gaps if g > 1 / 5000 + 2e-6)
-    assert slowing - t_cmd <= 0.002 + 0.002 + 1 / 5000
-    # and it stops where a ramp from 5,000 step/s at 50,000 step/s^2 ends: 250 steps on
-    after = sum(1 for t in times if t > t_cmd)
-    assert 250 <= after <= 250 + 5000 * 0.0045
-    assert m.state is MotorState.IDLE and ex.position(0) == len(times)
-    assert ex.core.counters[COUNTER_NAMES.index("dropped")] >= 1
-    assert ex.health().counters["timing_lost"] == 0
-    assert min(g for g, _ in gaps) >= 1 / 10_000 - 5e-6
-
-
-def test_a_new_speed_while_running_takes_over_soon_and_keeps_the_step_count_exact() -> None:
-    clock, engine, ex = rig(0.1)
-    m = engine.motors[0]
-    with engine.lock:
-        m.submit(RunCmd(1, Ramp(2000.0, 1e6, 1e6)), clock.now())
-    engine.run_until(clock.now() + 0.3)
-    t_cmd = clock.now()
-    with engine.lock:
-        m.submit(RunCmd(1, Ramp(8000.0, 1e6, 1e6)), clock.now())
-    engine.run_until(clock.now() + 0.2)
-    times = step_times(engine)
-    faster = next(b for a, b in itertools.pairwise(times) if b > t_cmd and b - a < 1 / 2000 - 1e-5)
-    assert faster - t_cmd <= 0.002 + 0.002 + 1 / 2000
-    assert ex.position(0) == len(times)  # no step lost or made twice at the cut
-    with engine.lock:
-        m.stop(hard=True, now=clock.now())
-    engine.run_until_idle()
-
-
-def test_an_empty_re_plan_behind_handed_over_steps_reports_done_after_them() -> None:
-    clock, engine, ex = rig(0.05)
-    traj = plan_move_to(clock.now() + 0.002, 0.0, 0.0, 100.0, 5000.0, 1e6, 1e6)
-    with engine.lock:
-        assert ex.follow(0, traj, Ramp(5000.0, 1e6, 1e6), 1)
-        # a plan with no step, started after everything handed over (no cut asked for)
-        end = ex.plans[0].until
-        still = Trajectory((Segment(end, 0.0, 100.0, 0.0, 0.0),))
-        assert ex.follow(0, still, Ramp(5000.0, 1e6, 1e6), 2)  # True: DONE will follow
-    events: list[ExecEvent] = []
-    deadline = clock.now() + 1.0
-    while clock.now() < deadline and not any(e.kind is K.DONE for e in events):
-        engine.executor.advance(clock.now())
-        events += ex.events()
-        clock.advance(0.0001)
-    done = [e for e in events if e.kind is K.DONE]
-    assert [e.gen for e in done] == [1, 2]  # the old plan's end, then the empty one's
-    assert done[-1].position == 100 == ex.position(0)
-    assert not ex.planned(0)
-
-
-def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twice(
-    core_rig: Callable[..., StepCoreRig],
-) -> None:
-    c = core_rig()
-    t0 = c.clock.now()
-    first = to_ticks(t0 + 0.001)
-    c.push(
-        0,
-        StepSegment(first, 200_000, 5, 0, 1, 1),
-        StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1),
-    )
-    c.run_until(t0 + 0.0021)  # the second segment began (its first step made)
-    assert len(c.times()) == 6
-    c.stop(0, 1, first + 1_000_000)
-    c.run_until(t0 + 0.1)
-    assert [e.kind for e in c.events] == [K.TIMING_LOST]
-    assert "re-plan came" in c.events[0].detail and len(c.times()) == 6
-
-
-def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows(
-    core_rig: Callable[..., StepCoreRig],
-) -> None:
-    c = core_rig()
-    t0 = c.clock.now()
-    first = to_ticks(t0 + 0.001)
-    c.push(
-        0,
-        StepSegment(first, 200_000, 5, 0, 1, 1),
-        StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1, True),
-    )
-    c.run_until(t0 + 0.0005)
-    c.stop(0, 1, first + 1_000_000)
-    c.push(0, StepSegment(first + 1_000_000, 400_000, 3, 0, -1, 2, True))
-    c.run_until(t0 + 0.1)
-    assert [e.kind for e in c.events] == [K.DONE] and c.events[0].gen == 2
-    assert c.positions[0] == 5 - 3 and len(c.times()) == 8
-
-
-def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_plan(
-    core_rig: Callable[..., StepCoreRig],
-) -> None:
-    """Two re-plans in quick succession: a segment of the first plan that reaches the core
-    only after the second cut (it was still in the ring) is judged by the first cut too."""
-    c = core_rig()
-    t0 = c.clock.now()
-    ms = to_ticks(0.001)
-    base = to_ticks(t0)
-    c.push(0, StepSegment(base + ms, 0, 1, 0, 1, 1))
-    c.run_until(t0 + 0.0005)
-    c.stop(0, 1, base + 2 * ms)  # plan 1 cut at 2 ms
-    c.run_until(t0 + 0.0006)
-    # still arriving: plan 1's step at 2.5 ms (cut), then plan 2 from 2 ms
-    c.push(
-        0,
-        StepSegment(base + 5 * ms // 2, 0, 1, 0, 1, 1),
-        StepSegment(base + 2 * ms, 0, 1, 0, 1, 2),
-        StepSegment(base + 3 * ms, 0, 1, 0, 1, 2, True),
-    )
-    c.stop(0, 2, base + 3 * ms)  # plan 2 cut at 3 ms, before any of them
-    c.push(0, StepSegment(base + 3 * ms, 0, 1, 0, -1, 3, True))
-    c.run_until(t0 + 0.01)
-    assert c.times() == [(base + ms) / 1e9, (base + 2 * ms) / 1e9, (base + 3 * ms) / 1e9]
-    assert c.positions[0] == 1 + 1 - 1  # plan 1's 2.5 ms step was never made
-    assert [e.kind for e in c.events] == [K.DONE] and c.events[0].gen == 3
-
-
-def test_motors_started_apart_are_topped_up_in_one_pass_not_one_pass_each() -> None:
-    """Three motors started 1 ms apart: after their first top-ups every later one takes
-    all three in the same planner pass (one hold of the GIL against the link thread, every
-    ``REFILL_S``), and each motor still has at least ``ahead_s - REFILL_S`` handed over."""
-    clock = VirtualClock()
-    spec = HardwareSpec(axes=(FAR, FAR, FAR), options={"timeline_len": None})
-    hw = build(spec, clock)
-    params = [MotorParams(max_speed=10_000.0)] * 3
-    fed: list[tuple[float, int]] = []
-
-    class Spy(ThreadStepExecutor):
-        def _feed(self, motor: int, now: float) -> None:
-            fed.append((now, motor))
-            super()._feed(motor, now)
-
-    ex = Spy(hw, "mock", spec, axis_limits(params, 5e-6), ahead_s=0.05, lead_s=0.002)
-    engine = MotionEngine(hw, params, ex)
-    for m in engine.motors:
-        with engine.lock:
-            m.submit(RunCmd(1, Ramp(5000.0, 1e6, 1e6)), clock.now())
-        engine.run_until(clock.now() + 0.001)
-    start = clock.now()
-    while clock.now() < start + 1.0:
-        engine.run_until(clock.now() + 0.001)
-        for p in ex.plans:  # never less than the horizon minus one top-up ahead
-            assert p.until - clock.now() >= 0.05 - REFILL_S - 1e-6
-    passes: dict[float, set[int]] = {}
-    for t, motor in fed:
-        if t > start + 0.06:
-            passes.setdefault(t, set()).add(motor)
-    assert len(passes) >= 0.9 / REFILL_S - 3  # one every REFILL_S
-    assert all(motors == {0, 1, 2} for motors in passes.values()), passes
-    for m in engine.motors:
-        with engine.lock:
-            m.stop(hard=True, now=clock.now())
-    engine.run_until_idle()

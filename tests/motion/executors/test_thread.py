@@ -21,14 +21,7 @@ from motorctl.motion.executors.base import to_ticks
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.rt import GcPolicy
-from motorctl.motion.types import (
-    HomeCmd,
-    MotorParams,
-    MotorState,
-    MoveToCmd,
-    Ramp,
-    RunCmd,
-)
+from motorctl.motion.types import HomeCmd, MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 from tests.support.rigs import FAR, EngineRig, engine_rig
 from tests.support.wait import until
 
