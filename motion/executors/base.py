@@ -9,9 +9,9 @@ so); the implementations are the rest of this folder, each in its own module:
   each trajectory into Klipper-style step segments (``segments.py``) a few milliseconds
   ahead and feeds them to a step core (``step_core.py``, the hot loop, or its compiled twin
   ``compiled_core.py`` over ``csrc/``), which owns the STEP/DIR and end-stop lines and runs
-  in a thread (``thread.py``, kind ``thread``) or a process of its own (``process/``, kind
-  ``process``: ``parent.py`` in the daemon, ``child.py`` in the process started by
-  ``start.py``, the shared block's ``rings.py`` between them);
+  in a thread (``thread.py``, kind ``thread``) or a process of its own (kind ``process``:
+  ``process/parent.py`` in the daemon, ``process/child.py`` in the process that
+  ``process/start.py`` starts, the shared block's ``process/rings.py`` between them);
 - a driver chip that runs its own ramp (``chip_ramp.py``: TMC5160 motion-controller mode,
   through the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability): ``follow``
   maps to the chip's target, speed and ramps, ``position`` is its step counter;
