@@ -6,7 +6,8 @@ whose transport to the core is the shared block: it makes the block, hands it wi
 parameters and descriptors to an interpreter started for it (``start.py``: started early by
 ``motorctld``, or here), writes the segment and stop rings, drains the event ring and reads
 the child's cells as snapshots. Segments that do not fit a full ring wait in ``pending``
-and go at the next top-up; a full stop ring is a fault (stops are few).
+and go at the next top-up; a full stop ring raises :class:`~motorctl.hal.interfaces.HalError`
+(stops are few: the child is not taking them).
 
 Two pipes carry only wake-up bytes, never messages: the daemon's wake-up pipe (a byte after
 new work: one per planner pass) and the child's event pipe, which the event thread waits
