@@ -288,12 +288,12 @@ def core_cost_us(core: str = "python", steps: int = 30_000) -> float:
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.shm import SharedBlock
     from motorctl.hal.spec import HardwareSpec
-    from motorctl.motion.compiled_core import CompiledStepCore
-    from motorctl.motion.executor_process import Layout, Shared
-    from motorctl.motion.executor_seam import AxisLimits
+    from motorctl.motion.executors.base import AxisLimits
+    from motorctl.motion.executors.compiled_core import CompiledStepCore
+    from motorctl.motion.executors.process.rings import Layout, Shared
+    from motorctl.motion.executors.segments import StepSegment
+    from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
     from motorctl.motion.latency import LatencyStats
-    from motorctl.motion.segments import StepSegment
-    from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
 
     clock = VirtualClock()
     far = mock_axis(endstop_min=-(10**9), endstop_max=10**9)

@@ -40,15 +40,16 @@ from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_chip_ramp import RampExecutor, with_ramp_motors
-from motorctl.motion.executor_process import ProcessStepExecutor
-from motorctl.motion.executor_process_start import ExecutorProcess
-from motorctl.motion.executor_seam import Executor
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import Executor
+from motorctl.motion.executors.chip_ramp import RampExecutor
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.parent import ProcessStepExecutor
+from motorctl.motion.executors.process.start import WaitingInterpreter
+from motorctl.motion.executors.split import with_ramp_motors
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
-from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
 from motorctl.protocol.capture import CaptureInfo
 from motorctl.protocol.codec import wrap24
@@ -176,7 +177,7 @@ class Daemon:
         config: Config,
         state_dir: Path,
         clock: Clock | None = None,
-        executor_process: ExecutorProcess | None = None,
+        executor_process: WaitingInterpreter | None = None,
     ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
         :func:`motorctl.daemon.main.main`."""
@@ -371,7 +372,7 @@ def build_executor(
     hw: Hardware,
     spec: HardwareSpec,
     params: list[MotorParams],
-    process: ExecutorProcess | None = None,
+    process: WaitingInterpreter | None = None,
 ) -> Executor:
     """The step executor the config asks for (only it runs real-time and locks memory), for
     the motors ``spec.stepped()`` names; the motors whose driver runs its own ramp (the

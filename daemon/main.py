@@ -59,9 +59,9 @@ from motorctl.daemon.status import StatusServer, read_status, summary_line
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
-from motorctl.motion import compiled_core
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executors import compiled_core
+from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.motor import Motor
 
 log = logging.getLogger("motorctl")
@@ -193,7 +193,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None, executor_process: ExecutorProcess | None = None) -> int:
+def main(
+    argv: Sequence[str] | None = None, executor_process: WaitingInterpreter | None = None
+) -> int:
     """motorctld. ``executor_process``: the step executor's process, started before this
     module was imported (``daemon/launch.py``, the ``motorctld`` command): the process
     executor takes it over; ended unused otherwise (another executor, another command, an
@@ -205,7 +207,7 @@ def main(argv: Sequence[str] | None = None, executor_process: ExecutorProcess | 
             executor_process.dismiss()  # a no-op once taken over
 
 
-def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) -> int:
+def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | None) -> int:
     args = parse_args(argv)
     logs_to = setup_logging(args.log_level)
     if args.print_default_config:
@@ -380,7 +382,7 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
     return out
 
 
-def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = None) -> int:
+def serve(args: argparse.Namespace, executor_process: WaitingInterpreter | None = None) -> int:
     config = load_config(args.config)
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
     with contextlib.ExitStack() as cleanup:
@@ -394,7 +396,7 @@ def _serve(
     config: Config,
     stop: StopSignals,
     owned: Owned,
-    executor_process: ExecutorProcess | None = None,
+    executor_process: WaitingInterpreter | None = None,
 ) -> int:
     st = config.step_thread
     for notice in config.notices:

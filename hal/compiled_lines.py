@@ -1,7 +1,7 @@
 """The capability "lines a compiled core may drive": a :class:`~motorctl.hal.interfaces.StepIO`'s
-STEP/DIR and end-stop lines as a compiled step core (motion/csrc) drives them, with no Python
-per step: raw kernel GPIO requests (:class:`ChardevLines`) or a simulated machine's cells and
-timeline (:class:`SimulatedLines`).
+STEP/DIR and end-stop lines as a compiled step core (motion/executors/csrc) drives them, with
+no Python per step: raw kernel GPIO requests (:class:`ChardevLines`) or a simulated machine's
+cells and timeline (:class:`SimulatedLines`).
 
 An optional part of the backend contract (hal/contract.py, ``Backend.compiled_lines``: a
 backend that has none says why, the default); the registry puts what a backend gives into

@@ -420,7 +420,7 @@ class RampStatus:
 class RampDriver(ABC):
     """The capability of a driver chip that runs its own ramp (a TMC5160 in
     motion-controller mode): it moves its motor itself, with no STEP/DIR lines; an executor
-    (``motion/executor_chip_ramp.py``) hands it targets, speeds and ramps, and reads back
+    (``motion/executors/chip_ramp.py``) hands it targets, speeds and ramps, and reads back
     where it is. Asked for with ``isinstance(stepper.driver, RampDriver)``.
 
     Positions are the driver's step counter (steps of the configured microstep resolution),

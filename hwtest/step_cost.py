@@ -24,12 +24,12 @@ from hwtest.gpiod_harness import GpiodHarness
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.shm import SharedBlock
-from motorctl.motion.compiled_core import CompiledStepCore
-from motorctl.motion.executor_process import Layout, Shared
-from motorctl.motion.executor_seam import AxisLimits
+from motorctl.motion.executors.base import AxisLimits
+from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.process.rings import Layout, Shared
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
 from motorctl.motion.latency import LatencyStats
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
 
 API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 

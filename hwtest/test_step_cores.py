@@ -27,11 +27,11 @@ from motorctl.hal.compiled_lines import ChardevLines
 from motorctl.hal.interfaces import Hardware, StepIO, VirtualClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.shm import SharedBlock
-from motorctl.motion.compiled_core import CompiledStepCore
-from motorctl.motion.executor_process import Layout, Shared
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_planner import axis_limits
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.rings import Layout, Shared
+from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.types import MotorParams
 from tests.support.daemon_proc import DaemonProcess
 

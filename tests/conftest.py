@@ -1,16 +1,20 @@
 """What every test shares.
 
-The tests mirror the package, one folder a room, each test file named after the module it
-tests (``_e2e``: against motorctld as a process on a real PTY); where a room has folders,
-its tests have the same (tests/hal/backends/gpiod/test_config.py tests
-hal/backends/gpiod/config.py):
+The tests mirror the package, one folder a room and a sub-folder a wing (hal/backends/gpiod/,
+motion/executors/ and its process/, ...), each test file named after the module it tests
+(``_e2e``: against motorctld as a process on a real PTY); where a room has folders, its tests
+have the same (tests/hal/backends/gpiod/test_config.py tests hal/backends/gpiod/config.py); at
+the top, the package's own rules: test_imports.py (the import graph) and test_layout.py (the
+tests' mirror, modules' and functions' sizes):
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
     docs/       the README's walkthrough run as written; every path the pages name exists
     packaging/  debian/, the wheel, the systemd units, --version, hwtest/run
     support/    the shared rigs, one module each: wait (``until``, the deadline wait),
-                frames, rigs (the engine or the step core on a virtual clock), inprocess
+                frames, rigs (the engine or the step core on a virtual clock), executors (a
+                stand-in executor that records, the ramp executor over TMC5160 models, the
+                process executor, the rings' slots written by hand), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
                 mock_factory (the mock backend as gpiozero's mock factory), line_requests
@@ -82,11 +86,11 @@ def keep_root_logger() -> Iterator[None]:
 
 @pytest.fixture(params=["python", "compiled"])
 def step_core(request: pytest.FixtureRequest) -> str:
-    """Each step core in turn: "python" (motion/step_core.py) and "compiled" (motion/csrc,
-    built by make venv; not built is a failure, not a skip)."""
+    """Each step core in turn: "python" (motion/executors/step_core.py) and "compiled"
+    (motion/executors/csrc/, built by make venv; not built is a failure, not a skip)."""
     core = str(request.param)
     if core == "compiled":
-        from motorctl.motion.compiled_core import unavailable
+        from motorctl.motion.executors.compiled_core import unavailable
 
         why = unavailable()
         if why is not None:

@@ -13,6 +13,8 @@ functions, and module names written as strings for ``importlib``), not by import
 - inside ``hal/`` too the registry alone names them: no backend or layer imports another
   (the gpiod backend learns a motor's driver chip through the contract, not from the TMC
   layer), and the public modules (interfaces, contract, spec, ...) import none of them.
+- inside ``motion/``, the executors' wing (``motion/executors/``) is entered through its base
+  only, and looks no higher than the modules it is handed (see ``EXECUTORS``).
 """
 
 from __future__ import annotations
@@ -47,6 +49,17 @@ HIDDEN = ("motorctl.hal.backends.", "motorctl.hal.layers.")
 REGISTRY = "motorctl.hal.registry"
 #: a module's name written as a string: "motorctl.a.b", or "motorctl.a.b:Class" (the registry)
 _MODULE_NAME = re.compile(r"^(motorctl(?:\.[A-Za-z_][A-Za-z0-9_]*)+)(?::[A-Za-z_]\w*)?$")
+#: The executors' wing and its one door. The motor state machines (motion/motor.py) and the
+#: engine (motion/engine.py), and whatever else of motion/ is outside the wing, know an
+#: executor only by its contract, motion/executors/base.py (``Executor``, its events and
+#: records): which executor runs (a thread, a process, a driver chip's ramp, a split) is the
+#: assembler's choice (daemon/assemble.py), and what changes behind the seam (the planner,
+#: the step cores, the shared block's rings) never reaches the state machines. The wing in
+#: turn imports nothing of the state machines: it carries out plans, it does not make them.
+EXECUTORS = "motorctl.motion.executors"
+EXECUTORS_BASE = "motorctl.motion.executors.base"
+#: what of motion/ the wing must not import (it is handed plans, not the state machines)
+ABOVE_EXECUTORS = ("motorctl.motion.motor", "motorctl.motion.engine")
 
 
 def package_modules() -> dict[str, Path]:
@@ -62,6 +75,23 @@ def package_modules() -> dict[str, Path]:
                 parts = parts[:-1]
             found[".".join(("motorctl", *parts))] = path
     return found
+
+
+def in_package(module: str, package: str) -> bool:
+    return module == package or module.startswith(package + ".")
+
+
+def wing_problem(name: str, target: str) -> str | None:
+    """What breaks the executors' wing's boundary (``EXECUTORS``), None when nothing."""
+    inside, there = in_package(name, EXECUTORS), in_package(target, EXECUTORS)
+    if room_of(name) == "motion" and not inside and there and target != EXECUTORS_BASE:
+        return (
+            f"{name} imports {target}: outside motion/executors/, an executor is known by "
+            f"its contract only ({EXECUTORS_BASE})"
+        )
+    if inside and any(in_package(target, above) for above in ABOVE_EXECUTORS):
+        return f"{name} imports {target}: the executors carry out plans, they do not make them"
+    return None
 
 
 def room_of(module: str) -> str:
@@ -146,13 +176,22 @@ def violations(modules: dict[str, str]) -> list[str]:
                     f"{name} ({here}) imports {target} ({there}): against the rooms' "
                     "order client -> protocol <- daemon -> motion -> hal"
                 )
+            elif (problem := wing_problem(name, target)) is not None:
+                out.append(problem)
     return out
 
 
 def test_the_package_keeps_the_rooms_order_and_the_hal_boundary() -> None:
     modules = {name: path.read_text(encoding="utf-8") for name, path in package_modules().items()}
     assert {room_of(m) for m in modules} == {*ROOMS, "root", "schema"}  # the whole package
-    assert {"motorctl.daemon.assemble", "motorctl.hal.layers.tmc.tmc5160"} <= set(modules)
+    assert {
+        "motorctl.daemon.assemble",
+        "motorctl.hal.layers.tmc.tmc5160",
+        "motorctl.motion.motor",
+        "motorctl.motion.engine",
+        EXECUTORS_BASE,
+        "motorctl.motion.executors.process.parent",
+    } <= set(modules)
     assert violations(modules) == []
 
 
@@ -217,10 +256,38 @@ def test_the_one_exception_is_still_there() -> None:
             "X = 'motorctl.hal.backends.mock.backend:MockBackend'\n",
             "imports motorctl.hal.backends.mock.backend, of another backend or layer",
         ),
+        (
+            "motorctl.motion.motor",
+            "from motorctl.motion.executors.thread import ThreadStepExecutor\n",
+            "motorctl.motion.motor imports motorctl.motion.executors.thread: outside",
+        ),
+        (
+            "motorctl.motion.engine",
+            "def f():\n    from motorctl.motion.executors.process import parent\n",
+            "motorctl.motion.engine imports motorctl.motion.executors.process.parent",
+        ),
+        (
+            "motorctl.motion.engine",
+            "from motorctl.motion import executors\n",
+            "motorctl.motion.engine imports motorctl.motion.executors: outside",
+        ),
+        (
+            "motorctl.motion.executors.planner",
+            "from motorctl.motion.motor import Motor\n",
+            "the executors carry out plans, they do not make them",
+        ),
     ],
 )
 def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
-    known = {"motorctl.hal.spec", "motorctl.daemon.config", "motorctl.hal.layers.tmc.tmc5160"}
+    known = {
+        "motorctl.hal.spec",
+        "motorctl.daemon.config",
+        "motorctl.hal.layers.tmc.tmc5160",
+        "motorctl.motion.executors",
+        "motorctl.motion.executors.thread",
+        "motorctl.motion.executors.process",
+        "motorctl.motion.executors.process.parent",
+    }
     modules = {name: source, **{k: "" for k in known}}
     found = violations(modules)
     assert len(found) == 1 and says in found[0], found
@@ -237,5 +304,10 @@ def test_what_is_allowed_is_not_named() -> None:
         "motorctl.hal.registry": "BACKENDS = {'mock': 'motorctl.hal.backends.mock.world:W'}\n",
         "motorctl.hal.layers.tmc.layer": "from motorctl.hal.layers.tmc import config\n",
         "motorctl.motion.x": '"""Prose: :class:`motorctl.hal.layers.tmc.tmc5160.Tmc5160`."""\n',
+        "motorctl.motion.motor": "from motorctl.motion.executors.base import Executor\n",
+        "motorctl.motion.executors.thread": "from motorctl.motion.executors.planner import "
+        "StepExecutor\nfrom motorctl.motion.profile import Trajectory\n",
+        "motorctl.daemon.assemble": "from motorctl.motion.executors.thread import "
+        "ThreadStepExecutor\n",
     }
     assert violations(modules) == []

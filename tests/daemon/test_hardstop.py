@@ -29,7 +29,7 @@ from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
 from motorctl.hal.registry import open_hardware
 from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     Committed,
     ExecEvent,
     ExecEventKind,

@@ -39,7 +39,7 @@ MOTORCTL_WORKS = (
     "import motorctl.client.cli\n"
     "from motorctl.daemon.config import load_config\n"
     "assert len(load_config(None).motors) == 3\n"
-    "from motorctl.motion import compiled_core\n"
+    "from motorctl.motion.executors import compiled_core\n"
     "assert compiled_core.unavailable() is None, compiled_core.unavailable()\n"
     "print('motorctl ok', motorctl.__version__)"
 )
@@ -180,8 +180,12 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
     assert not any(name.endswith((".pyc", "/tests/__init__.py")) for name in names)
     # the compiled step core, built by the wheel's build; its sources stay out
     assert (
-        [n for n in names if n.startswith("motorctl/motion/_stepcore")]
-        == [n for n in names if n.startswith("motorctl/motion/_stepcore.") and n.endswith(".so")]
+        [n for n in names if n.startswith("motorctl/motion/executors/_stepcore")]
+        == [
+            n
+            for n in names
+            if n.startswith("motorctl/motion/executors/_stepcore.") and n.endswith(".so")
+        ]
         != []
     )
     assert not any(name.endswith((".c", ".h")) for name in names)

@@ -1,11 +1,12 @@
-"""Starting the step executor's process (``motion/executor_process.py``); light to import.
+"""Starting the step executor's process (``child.py``); light to import.
 
 That process takes longer to start than anything else in motorctld's start-up: a second
 Python interpreter, then the step core's modules. So ``motorctld`` (``daemon/launch.py``)
 starts it first thing, before the daemon's own imports, and both interpreters start side by
 side; the daemon hands it its parameters once it has read its config and made the shared
-memory (:class:`~motorctl.motion.executor_process.ProcessStepExecutor`). This module imports
-nothing of motorctl, so the early start costs no import of its own.
+memory (:class:`~motorctl.motion.executors.process.parent.ProcessStepExecutor`). This
+module imports nothing of motorctl (its packages' ``__init__`` modules hold docstrings
+only), so the early start costs no import of its own.
 
 The process runs ``python -c`` :data:`BOOTSTRAP` with one end of a Unix ``SOCK_SEQPACKET``
 socket pair as its stdin. The first message is the daemon's PID (the child dies with it)
@@ -43,7 +44,7 @@ first = channel.recv(1 << 20)
 if not first:
     sys.exit()  # the daemon is gone already
 daemon, sys.path[:] = pickle.loads(first)
-from motorctl.motion.executor_process import child_main
+from motorctl.motion.executors.process.child import child_main
 child_main(channel, daemon)
 """
 
@@ -52,7 +53,7 @@ MAX_MESSAGE = 1 << 20
 MAX_FDS = 16
 
 
-class ExecutorProcess:
+class WaitingInterpreter:
     """The step executor's interpreter, started and waiting for its parameters."""
 
     def __init__(self, proc: subprocess.Popen[bytes], channel: socket.socket) -> None:
@@ -60,7 +61,7 @@ class ExecutorProcess:
         self._channel: socket.socket | None = channel
 
     @classmethod
-    def start(cls) -> ExecutorProcess:
+    def start(cls) -> WaitingInterpreter:
         """Start the interpreter; OSError when it cannot be (``sys.executable`` missing)."""
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:

@@ -1,32 +1,21 @@
-"""The TMC5160 ramp executor and the split executor, on register-level chip models and a
-virtual clock: the seam alone, then the motion engine driving motors through it."""
+"""The TMC5160 ramp executor (motion/executors/chip_ramp.py) on register-level chip models
+and a virtual clock (tests/support/executors.py's RampRig): the seam alone, then the motion
+engine driving a motor through it, and a protocol step as one XACTUAL microstep."""
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import replace
 
 import pytest
 
-from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
-from motorctl.daemon.config import parse_config
 from motorctl.hal.backends.mock.backend import build
-from motorctl.hal.backends.mock.world import EventKind, world_of
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
-from motorctl.hal.layers.tmc.tmc5160 import TMC5160, RefSwitches, Tmc5160
-from motorctl.hal.registry import open_step_io
+from motorctl.hal.layers.tmc.tmc5160 import RefSwitches, Tmc5160
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_chip_ramp import (
-    RampExecutor,
-    SplitExecutor,
-    peak_speed,
-    with_ramp_motors,
-)
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, Executor
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import ExecEventKind
+from motorctl.motion.executors.chip_ramp import RampExecutor, peak_speed
 from motorctl.motion.profile import plan_move_to, plan_run
 from motorctl.motion.types import (
     HomeCmd,
@@ -38,49 +27,12 @@ from motorctl.motion.types import (
     Ramp,
     RunCmd,
 )
+from tests.support.executors import RAMP_SETTINGS, RampRig
 from tests.support.rigs import engine_rig
-from tests.support.spi_bench import SpiBench
 from tests.support.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
 
 K = ExecEventKind
 RAMP = Ramp(4000.0, 40_000.0, 40_000.0)
-SETTINGS = TmcSettings(
-    chip=TMC5160, run_current=2.0, hold_current=1.0, microsteps=16, stall_min_speed=500.0
-)
-
-
-class RampRig:
-    """n TMC5160 models on /dev/spidev0.x, started as ramp chips, and a RampExecutor."""
-
-    def __init__(self, n: int = 1) -> None:
-        self.bench = SpiBench()
-        self.clock = self.bench.clock
-        self.kernel = self.bench.kernel
-        self.models: list[TmcModel] = []
-        self.chips: list[Tmc5160] = []
-        for i in range(n):
-            model = self.bench.chip("tmc5160", cs=i)
-            chip = Tmc5160(f"m{i}", self.bench.device(i, speed=1_000_000), SETTINGS, RefSwitches())
-            chip.start()
-            self.models.append(model)
-            self.chips.append(chip)
-        self.ex = RampExecutor(self.chips, self.clock, poll_s=0.002, idle_poll_s=0.02)
-        self.ex.start()
-        self.seen: list[ExecEvent] = []
-
-    def run(self, until: Callable[[], bool], limit_s: float) -> float:
-        """Service the executor on the virtual clock until ``until()``; the time it took."""
-        t0 = self.clock.now()
-        while True:
-            self.seen += self.ex.events()
-            if until():
-                return self.clock.now() - t0
-            assert self.clock.now() - t0 < limit_s, f"not done within {limit_s} s"
-            nxt = self.ex.service(self.clock.now())
-            self.clock.advance_to(max(nxt, self.clock.now() + 1e-4))
-
-    def kinds(self) -> list[ExecEventKind]:
-        return [e.kind for e in self.seen]
 
 
 def test_a_move_runs_on_the_chip_and_reports_done() -> None:
@@ -169,107 +121,6 @@ def test_spi_errors_become_fault_events_never_exceptions() -> None:
     assert rig.ex.health().alive and rig.ex.counters["spi_errors"] >= 2
 
 
-class Recorder(Executor):
-    """A stand-in executor that records what it is asked to do."""
-
-    def __init__(self, motors: int) -> None:
-        super().__init__(motors)
-        self.calls: list[tuple[str, int]] = []
-        self.pending: list[ExecEvent] = []
-
-    def follow(self, motor, traj, ramp, gen, endstops=True):  # type: ignore[no-untyped-def]
-        self.calls.append(("follow", motor))
-        return True
-
-    def stop(self, motor: int, gen: int) -> int | None:
-        self.calls.append(("stop", motor))
-        return 0
-
-    def committed(self, motor, now):  # type: ignore[no-untyped-def]
-        raise AssertionError
-
-    def service(self, now: float) -> float:
-        return now + 1.0
-
-    def events(self) -> list[ExecEvent]:
-        out, self.pending = self.pending, []
-        return out
-
-    def planned(self, motor: int) -> bool:
-        return False
-
-    def position(self, motor: int) -> int:
-        return 100 + motor
-
-    def endstop_active(self, motor: int, direction: int) -> bool:
-        return False
-
-    def health(self):  # type: ignore[no-untyped-def]
-        from motorctl.motion.executor_seam import ExecutorHealth
-
-        return ExecutorHealth(True, 1)
-
-
-def test_split_executor_routes_motors_and_maps_events_back() -> None:
-    steps, ramp = Recorder(3), Recorder(1)
-    split = SplitExecutor([(steps, 0), (ramp, 0), (steps, 2)])
-    assert split.motors == 3
-    traj = plan_move_to(0.0, 0.0, 0.0, 10.0, 100.0, 1e3, 1e3)
-    split.follow(1, traj, RAMP, 1)
-    split.follow(2, traj, RAMP, 1)
-    assert ramp.calls == [("follow", 0)] and steps.calls == [("follow", 2)]
-    assert split.position(2) == 102
-    steps.pending = [
-        ExecEvent(K.DONE, 2, 1, 10, 0.0),
-        ExecEvent(K.DONE, 1, 1, 10, 0.0),  # motor 1 of the step executor is not routed
-        ExecEvent(K.DIED, -1, 0, 0, 0.0, detail="gone"),
-    ]
-    evs = split.events()
-    # a part's death is the executor's: DIED for every motor (the engine faults them all
-    # and the daemon exits 3), not faults of a few motors that leave the daemon running
-    assert [(e.kind, e.motor) for e in evs] == [(K.DONE, 2), (K.DIED, -1)]
-    assert evs[-1].detail == "gone"
-    with pytest.raises(ValueError, match="taken"):
-        SplitExecutor([(steps, 0), (steps, 0)])
-
-
-def test_split_executor_shows_the_step_executors_lateness_and_process() -> None:
-    from motorctl.motion.latency import LatencyStats
-
-    class Steps(Recorder):
-        pid = 4242
-        stats = LatencyStats()
-
-        def step_lateness(self) -> LatencyStats:
-            return self.stats
-
-    ramp, steps = Recorder(1), Steps(1)
-    assert SplitExecutor([(ramp, 0)]).step_lateness() is None
-    assert SplitExecutor([(ramp, 0)]).pid is None
-    split = SplitExecutor([(ramp, 0), (steps, 0)])
-    assert split.step_lateness() is steps.stats and split.pid == 4242
-
-
-def test_split_executor_adds_counts_but_keeps_the_smallest_gap() -> None:
-    from motorctl.motion.executor_seam import ExecutorHealth
-
-    class Counting(Recorder):
-        def __init__(self, counters: dict[str, int]) -> None:
-            super().__init__(1)
-            self.counters = counters
-
-        def health(self) -> ExecutorHealth:
-            return ExecutorHealth(True, 1, counters=dict(self.counters))
-
-    a = Counting({"steps": 10, "endstops": 1, "min_gap_ns": 90_000})
-    b = Counting({"steps": 5, "endstops": 2, "min_gap_ns": 40_000})
-    none = Counting({"steps": 0, "min_gap_ns": 0})  # no gap seen yet
-    c = SplitExecutor([(a, 0), (none, 0), (b, 0)]).health().counters
-    assert c == {"steps": 15, "endstops": 3, "min_gap_ns": 40_000}
-    assert SplitExecutor([(none, 0), (a, 0)]).health().counters["min_gap_ns"] == 90_000
-    assert SplitExecutor([(none, 0)]).health().counters["min_gap_ns"] == 0
-
-
 # ------------------------------------------------------------------ through the engine
 
 
@@ -354,17 +205,6 @@ def test_engine_faults_on_spi_failure_without_raising() -> None:
     assert m.fault is not None and "/dev/spidev0.0" in m.fault
 
 
-def test_with_ramp_motors_splits_only_when_a_ramp_chip_is_configured() -> None:
-    rig = RampRig()
-    steps = Recorder(2)
-    assert with_ramp_motors(steps, [object(), object()], rig.clock) is steps
-    split = with_ramp_motors(steps, [object(), rig.chips[0]], rig.clock)
-    assert isinstance(split, SplitExecutor)
-    assert split.routes[0] == (steps, 0)
-    ramp_ex, local = split.routes[1]
-    assert isinstance(ramp_ex, RampExecutor) and local == 0 and ramp_ex.chips == rig.chips
-
-
 def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
     rig, engine = ramp_engine()
     m = engine.motors[0]
@@ -386,78 +226,6 @@ def test_positions_are_xactual_from_construction_for_a_restore_before_start() ->
     assert ex.position(0) == 12_345  # before start(): the daemon restores offsets now
 
 
-# ------------------------------------- the step executor never gets a motor the chip moves itself
-
-MIXED = """
-[[motors]]
-name = "x"
-
-[[motors]]
-name = "z"
-  [motors.tmc]
-  driver = "tmc5160"
-  spi = "/dev/spidev0.0"
-  mode = "ramp"
-"""
-
-
-def test_the_mock_step_io_leaves_out_a_ramp_axis() -> None:
-    ramp = TmcSpec("/dev/spidev0.0", SETTINGS, ramp=True)
-    spec = HardwareSpec((AxisSpec(driver=ramp), AxisSpec()))
-    assert spec.stepped() == (1,)
-    clock = VirtualClock()
-    hw = build(spec, clock)
-    io = open_step_io("mock", spec, clock, parent=hw)
-    assert io.outputs.motors == 1 and io.endstops == ((2, 3),)  # axis 1's end stops
-    io.outputs.set_direction(0, True)
-    clock.advance_to(clock.now() + 1e-3)
-    io.outputs.pulse([0], 2e-6)
-    world = world_of(hw)
-    assert [a.position for a in world.axes] == [0, 1]
-    assert [e.index for e in world.timeline.of(EventKind.STEP)] == [1]
-    io.close()
-    hw.close()
-
-
-def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
-    rig = RampRig()
-    config = parse_config(MIXED, "mixed.toml")
-    spec = hardware_spec(config)
-    hw = build(spec, rig.clock)
-    hw.steppers[1].driver = rig.chips[0]  # what attach_drivers does with the real chip
-    params = motor_params(config)
-    ex = build_executor(config, hw, spec, params)
-    assert isinstance(ex, SplitExecutor)
-    steps, local = ex.routes[0]
-    assert isinstance(steps, ThreadStepExecutor) and local == 0
-    assert steps.io.outputs.motors == 1 and len(steps.positions) == 1  # no slot for z
-    ramp_ex, local = ex.routes[1]
-    assert isinstance(ramp_ex, RampExecutor) and local == 0
-    engine = MotionEngine(hw, params, ex, driver_poll_s=0.005)
-    x, z = engine.motors
-    with engine.lock:
-        x.submit(MoveToCmd(300, RAMP), rig.clock.now())
-        z.submit(MoveToCmd(-2000, RAMP), rig.clock.now())
-    engine.run_until_idle(10.0)
-    assert (x.position, z.position) == (300, -2000)
-    world = world_of(hw)
-    assert [a.position for a in world.axes] == [300, 0]  # z was never stepped
-    assert {e.index for e in world.timeline.of(EventKind.STEP)} == {0}
-    assert rig.models[0].physical == pytest.approx(-2000, abs=0.5)
-    ex.close()
-    hw.close()
-
-
-def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
-    rig = RampRig(2)
-    assert with_ramp_motors(None, rig.chips, rig.clock) is not None
-    assert isinstance(with_ramp_motors(None, rig.chips, rig.clock), RampExecutor)
-    with pytest.raises(ValueError, match=r"motors \[1\] need a step executor"):
-        with_ramp_motors(None, [rig.chips[0], object()], rig.clock)
-    split = with_ramp_motors(Recorder(1), [rig.chips[0], object()], rig.clock)
-    assert isinstance(split, SplitExecutor) and split.routes[1][1] == 0  # its own numbering
-
-
 # ------------------------------------------ units: a protocol step is one XACTUAL microstep
 
 
@@ -474,7 +242,7 @@ def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(
     model = TmcModel("tmc5160", clock=clock)
     kernel.chips[(0, 0)] = model
     dev = SpiDevice(SpiAddress(0, 0), SpiBuses(), kernel.factory(), 1_000_000)
-    chip = Tmc5160("m", dev, replace(SETTINGS, microsteps=microsteps), RefSwitches())
+    chip = Tmc5160("m", dev, replace(RAMP_SETTINGS, microsteps=microsteps), RefSwitches())
     chip.start()
     assert model.reg(A_CHOPCONF) >> 24 & 0xF == mres
     hw = build(HardwareSpec((AxisSpec(),)), clock)

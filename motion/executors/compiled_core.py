@@ -1,14 +1,14 @@
 """The compiled step core: loading the extension and driving it over the shared block.
 
-``motorctl.motion._stepcore`` (built from ``motion/csrc/`` by the project's build, never at
-run time: setup.py) is ``motion/step_core.py`` in C, with the same contract: step segments
-in from the process executor's shared-memory rings (each record checked by its CRC-32 and
-its fields), edges on the lines, and out the same events, positions, levels, counters,
-per-motor figures and lateness histogram in the same cells. Its lines come from the
-backend's StepIO as the capability "lines a compiled core may drive"
-(:data:`~motorctl.hal.interfaces.CompiledLines`): GPIO character-device requests, written
-and read with ioctls, or the mock's simulated mechanics, whose compiled counterpart records
-the same timeline of edges with times as the Python mock.
+``motorctl.motion.executors._stepcore`` (built from ``motion/executors/csrc/`` by the
+project's build, never at run time: setup.py) is ``motion/executors/step_core.py`` in C,
+with the same contract: step segments in from the process executor's shared-memory rings
+(each record checked by its CRC-32 and its fields), edges on the lines, and out the same
+events, positions, levels, counters, per-motor figures and lateness histogram in the same
+cells. Its lines come from the backend's StepIO as the capability "lines a compiled core may
+drive" (:data:`~motorctl.hal.interfaces.CompiledLines`): GPIO character-device requests,
+written and read with ioctls, or the mock's simulated mechanics, whose compiled counterpart
+records the same timeline of edges with times as the Python mock.
 
 Two ways to drive it:
 
@@ -38,7 +38,8 @@ from typing import Any
 
 from motorctl.hal.compiled_lines import ChardevLines, SimulatedLines
 from motorctl.hal.interfaces import StepIO, VirtualClock
-from motorctl.motion.executor_process import (
+from motorctl.motion.executors.base import TICKS_PER_S, AxisLimits, ExecEvent, to_ticks
+from motorctl.motion.executors.process.rings import (
     BAD_RECORD_S,
     EVENT_RING,
     SEG_RING,
@@ -46,13 +47,12 @@ from motorctl.motion.executor_process import (
     Shared,
     decode_event,
 )
-from motorctl.motion.executor_seam import TICKS_PER_S, AxisLimits, ExecEvent, to_ticks
+from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.latency import CELLS, LatencyStats
-from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS
 
 NAME = "compiled"
 ENV = "MOTORCTL_STEPCORE"
-_MODULE = "motorctl.motion._stepcore"
+_MODULE = "motorctl.motion.executors._stepcore"
 
 
 def load() -> ModuleType:
@@ -89,7 +89,7 @@ def unavailable(io: StepIO | None = None) -> str | None:
 
 
 class CompiledStepCore:
-    """The compiled core over ``shared`` (a :class:`~motorctl.motion.executor_process.Shared`
+    """The compiled core over ``shared`` (a :class:`~motorctl.motion.executors.process.rings.Shared`
     block: its rings are the inbox, its cells the output), driving ``io``'s compiled lines
     for ``limits``' motors. ``emit`` (virtual clock) receives the events; on the real clock
     the daemon reads them from the event ring."""

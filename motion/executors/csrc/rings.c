@@ -1,16 +1,16 @@
 /* The shared block's rings as the compiled core reads and writes them.
  *
- * The layout and the rules are motion/executor_process.py's (class Ring): a ring is three
- * cells (head, tail, retries) and its slots; a slot is the record (its first field the
+ * The layout and the rules are motion/executors/process/rings.py's (class Ring): a ring is
+ * three cells (head, tail, retries) and its slots; a slot is the record (its first field the
  * sequence number) followed by the CRC-32 (zlib's) of the record and 4 zero bytes, so the
- * CRC-32 of a whole slot whose check matches is one constant. The consumer copies a slot
- * once and takes it only when that copy's CRC and sequence number are right; anything else
- * is "not written yet", counted as a retry and read again later. A record still not whole
- * after ``bad_after`` ns and two reads or more is bad (a store takes nanoseconds to show,
- * never that long): it is taken, so the ring moves on, and the caller faults its motor.
- * Fields of a whole record are checked before use (segment_problem, stop_problem, the
- * same rules as executor_process.segment_problem and stop_problem): no record, however
- * made, can make the core overflow, run away or step without its spacing. */
+ * CRC-32 of a whole slot whose check matches is one constant. The consumer copies a slot once
+ * and takes it only when that copy's CRC and sequence number are right; anything else is "not
+ * written yet", counted as a retry and read again later. A record still not whole after
+ * ``bad_after`` ns and two reads or more is bad (a store takes nanoseconds to show, never that
+ * long): it is taken, so the ring moves on, and the caller faults its motor. Fields of a whole
+ * record are checked before use (segment_problem, stop_problem: the rules of the functions
+ * of those names in motion/executors/process/rings.py): no record, however made, can make the
+ * core overflow, run away or step without its spacing. */
 #include <stdio.h>
 #include <string.h>
 

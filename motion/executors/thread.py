@@ -1,10 +1,12 @@
 """The ``thread`` step executor: the step core in a thread of the daemon, or on a virtual clock.
 
-:class:`ThreadStepExecutor` is a :class:`~motorctl.motion.step_planner.StepExecutor` (the
+:class:`ThreadStepExecutor` is a :class:`~motorctl.motion.executors.planner.StepExecutor` (the
 planner half, which cuts the plans into step segments) whose step core
-(:class:`~motorctl.motion.step_core.StepCore`) runs in a thread of this process,
+(:class:`~motorctl.motion.executors.step_core.StepCore`) runs in a thread of this process,
 ``motorctl-steps`` (``[step_thread] executor = "thread"``: single-core boards), at the
-real-time priority the config gives it. On a virtual clock (tests, bench/steps.py) there is
+real-time priority the config gives it; the planner hands it segments and stops through
+the core's inbox deques (:class:`~motorctl.motion.executors.step_core.CoreInbox`). On a
+virtual clock (tests, bench/steps.py) there is
 no thread at all: the engine's caller drives the core through ``next_deadline`` and
 ``advance``.
 
@@ -23,7 +25,7 @@ from collections.abc import Sequence
 from motorctl.hal.interfaces import Hardware
 from motorctl.hal.registry import open_step_io
 from motorctl.hal.spec import HardwareSpec
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     AxisLimits,
     ExecEvent,
     ExecEventKind,
@@ -31,10 +33,11 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.planner import StepExecutor
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES, CoreInbox, StepCore
 from motorctl.motion.latency import CELLS, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
-from motorctl.motion.step_core import COUNTER_NAMES, StepCore
-from motorctl.motion.step_planner import StepExecutor
 
 log = logging.getLogger("motorctl.executor")
 
@@ -80,6 +83,8 @@ class ThreadStepExecutor(StepExecutor):
         self.counters = [0] * len(COUNTER_NAMES)
         self.stats = LatencyStats(late_threshold_s, [0] * CELLS)
         self._events: deque[ExecEvent] = deque()
+        #: what the planner hands the core: deques, one producer and one consumer each
+        self.inbox = CoreInbox(n)
         self.core = StepCore(
             self.io,
             limits,
@@ -114,7 +119,17 @@ class ThreadStepExecutor(StepExecutor):
             out.append(events.popleft())
         return out
 
+    # -- the transport: the core's inbox deques ------------------------------------------
+    def _push(self, motor: int, segments: list[StepSegment]) -> None:
+        self.inbox.queues[motor].extend(segments)
+        self._kick()
+
+    def _push_stop(self, motor: int, gen: int, cut: int = -1) -> None:
+        self.inbox.stops.append((motor, gen, cut))
+        self._kick()
+
     def _kick(self) -> None:
+        """Wake the core's thread: new work."""
         if not self.virtual:
             self._wake.set()
 

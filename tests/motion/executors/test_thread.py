@@ -18,18 +18,11 @@ from motorctl.hal.backends.mock.world import EventKind, mock_axis, world_of
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_seam import to_ticks
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import to_ticks
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.rt import GcPolicy
-from motorctl.motion.step_planner import axis_limits
-from motorctl.motion.types import (
-    HomeCmd,
-    MotorParams,
-    MotorState,
-    MoveToCmd,
-    Ramp,
-    RunCmd,
-)
+from motorctl.motion.types import HomeCmd, MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
 from tests.support.rigs import FAR, EngineRig, engine_rig
 from tests.support.wait import until
 

@@ -1,18 +1,21 @@
-"""The executor seam: what carries out the motion the motor state machines plan.
+"""The executors' contract: what carries out the motion the motor state machines plan.
 
 An :class:`Executor` turns each motor's planned :class:`~motorctl.motion.profile.Trajectory`
-into motion and reports what really happened. Implementations, each in its own module:
+into motion and reports what really happened. The motor state machines (``motion/motor.py``)
+and the engine (``motion/engine.py``) know this module only (tests/test_imports.py keeps it
+so); the implementations are the rest of this folder, each in its own module:
 
-- timed STEP/DIR edges: ``step_planner.py`` (the planner half, in the daemon's process)
-  cuts each trajectory into Klipper-style step segments a few milliseconds ahead and
-  feeds them to the step core (``step_core.py``, the hot loop), which owns the STEP/DIR
-  and end-stop lines and runs in a thread (``executor_thread.py``, kind ``thread``) or a
-  process of its own (``executor_process.py`` and ``executor_process_start.py``, kind
-  ``process``);
-- a driver chip that runs its own ramp (``executor_chip_ramp.py``: TMC5160
-  motion-controller mode, through the HAL's :class:`~motorctl.hal.interfaces.RampDriver`
-  capability): ``follow`` maps to the chip's target, speed and ramps, ``position`` is its
-  step counter; ``SplitExecutor`` there mixes it with a step executor.
+- timed STEP/DIR edges: ``planner.py`` (the planner half, in the daemon's process) cuts
+  each trajectory into Klipper-style step segments (``segments.py``) a few milliseconds
+  ahead and feeds them to a step core (``step_core.py``, the hot loop, or its compiled twin
+  ``compiled_core.py`` over ``csrc/``), which owns the STEP/DIR and end-stop lines and runs
+  in a thread (``thread.py``, kind ``thread``) or a process of its own (kind ``process``:
+  ``process/parent.py`` in the daemon, ``process/child.py`` in the process that
+  ``process/start.py`` starts, the shared block's ``process/rings.py`` between them);
+- a driver chip that runs its own ramp (``chip_ramp.py``: TMC5160 motion-controller mode,
+  through the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability): ``follow``
+  maps to the chip's target, speed and ramps, ``position`` is its step counter;
+- ``split.py``: one seam over both, each motor to the executor that moves it.
 
 Threads: the methods are called by the motion engine with its lock held (the command and
 planner side), except :meth:`Executor.position`, :meth:`Executor.health`,

@@ -1,4 +1,4 @@
-/* The compiled step core's loop: motion/step_core.py in C, function by function.
+/* The compiled step core's loop: motion/executors/step_core.py in C, function by function.
  *
  * THE HOT LOOP, as step_core.py is: read that module's rules at its top; they hold here.
  * One owner (the thread that runs it), no locks, no allocation per step (a re-plan's cut

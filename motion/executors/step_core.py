@@ -5,19 +5,19 @@ place that runs per step, in real time, and it keeps rules of its own. Read them
 changing anything here, and keep to them in what it calls:
 
 - One owner. Exactly one thread runs it: a thread of the daemon for the ``thread`` kind
-  (``executor_thread.py``), the main thread of the executor's own process for ``process``
-  (``executor_process.py``), or the engine's caller on a virtual clock. Nothing else
+  (``thread.py``), the main thread of the executor's own process for ``process``
+  (``process/child.py``), or the engine's caller on a virtual clock. Nothing else
   touches its state.
 - No locks. The planner reaches it only through :class:`CoreInbox` (deques that the GIL
   makes safe for one producer and one consumer, or the shared-memory rings of
-  ``executor_process.py``); it answers through ``emit`` and cells (``positions``,
+  ``process/rings.py``); it answers through ``emit`` and cells (``positions``,
   ``levels``, ``counters``, ``motor_cells``, the latency histogram): one store per
   value, read by others as snapshots. ``emit`` must be cheap and never block (a deque
   append, a ring record and a wake-up byte).
 - No allocation per step. Per-motor state lives in lists made at start, indexed by
   motor; the motors due and done at an edge go into the core's own two lists, cleared
   and refilled. New objects are made only for what ends or stops a motion (an
-  :class:`~motorctl.motion.executor_seam.ExecEvent`), never per step; the ints of the
+  :class:`~motorctl.motion.executors.base.ExecEvent`), never per step; the ints of the
   tick arithmetic are CPython's own. The executor's process runs with the garbage
   collector off, the daemon while anything moves (``rt.GcPolicy``): garbage made here
   would pile up, or cost a collection pause in the thread kind.
@@ -32,17 +32,18 @@ changing anything here, and keep to them in what it calls:
 - Its cost is measured: ``bench/steps.py`` prints ``core_cost_us_python`` (and its twin's
   ``core_cost_us_compiled``), the CPU time per step on mock lines. A change here quotes it
   before and after and must not make it worse.
-- A twin: the compiled core (``motion/csrc/core.c``, driven by ``motion/compiled_core.py``)
-  keeps every rule here in C, function by function; the executor process runs it where it
-  is built. A change to a rule is made in both, and the core's tests run on both
-  (tests/motion/test_step_core.py). This one stays the readable reference and the fallback.
+- A twin: the compiled core (``csrc/core.c``, driven by ``compiled_core.py``) keeps every
+  rule here in C, function by function; the executor process runs it where it is built. A
+  change to a rule is made in both, and the core's tests run on both
+  (tests/motion/executors/test_step_core.py). This one stays the readable reference and
+  the fallback.
 - One module, a little over 500 lines with this fence, on purpose: the loop's state and
   every path that touches it are read together.
 
 Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
 the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
 plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
-motor may not survive (:class:`~motorctl.motion.executor_seam.AxisLimits`): then it stops
+motor may not survive (:class:`~motorctl.motion.executors.base.AxisLimits`): then it stops
 (TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
 DIR has settled, raise the STEP lines of every due motor in one call, account while they
 are high, lower them, then look at the end stop ahead of each
@@ -65,7 +66,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 
 from motorctl.hal.interfaces import HalError, StepIO
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     TICKS_PER_S,
     AxisLimits,
     ExecEvent,
@@ -73,8 +74,8 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.latency import Cells, LatencyStats
-from motorctl.motion.segments import StepSegment
 
 # counters cells
 PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP, BAD_RECORDS = range(8)
@@ -111,7 +112,7 @@ _CELL_MAX = (1 << 63) - 1
 class CoreInbox:
     """What the planner hands the core: per-motor segment queues and hard stops; and the
     records the transport found bad (``faults``: (motor or -1 for every motor, detail);
-    the shared-memory rings' only, executor_process.py)."""
+    the shared-memory rings' only, process/child.py)."""
 
     def __init__(self, motors: int) -> None:
         self.queues: list[deque[StepSegment]] = [deque() for _ in range(motors)]

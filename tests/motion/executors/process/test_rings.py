@@ -1,4 +1,5 @@
-"""The shared-memory rings of the process step executor (motion/executor_process.py ``Ring``).
+"""The shared block's rings of the process step executor (motion/executors/process/rings.py
+``Ring``).
 
 A weakly ordered CPU (ARM64) may show the consumer a slot in any mix of old and new bytes,
 with the head and the sequence number already new; the consumer must take a record only
@@ -24,53 +25,22 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from motorctl.hal.backends.mock.backend import build
-from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
 from motorctl.hal.shm import SharedBlock
-from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.executor_process import (
-    _CHECK,
-    _EVENT,
-    _KINDS,
-    _RESIDUE,
-    _SEG,
-    _STOP,
+from motorctl.motion.executors.process.rings import (
+    EVENT_RECORD,
+    SEG_RECORD,
+    SLOT_CHECK,
+    SLOT_RESIDUE,
+    STOP_RECORD,
     Layout,
-    ProcessStepExecutor,
     Ring,
     Shared,
     ring_size,
 )
-from motorctl.motion.executor_seam import AxisLimits, ExecEvent, ExecEventKind
-from tests.support.wait import until
+from tests.support.executors import scratch_ring, show_slot, slot_bytes, slot_offset
 
 DEADLINE_S = 60.0
 TEXT = 120  # the event record's text field
-
-
-def _ring(rec: struct.Struct, cap: int) -> Ring:
-    return Ring(memoryview(bytearray(ring_size(rec, cap))), 0, rec, cap)
-
-
-def _at(ring: Ring, index: int) -> int:
-    """Offset of the slot that record number ``index`` (0-based) uses."""
-    return ring.base + (index % ring.cap) * ring.slot
-
-
-def _slot_of(ring: Ring, index: int, fields: tuple[Any, ...]) -> bytes:
-    """The bytes a complete put of ``fields`` as record ``index`` leaves in its slot."""
-    scratch = _ring(ring.rec, ring.cap)
-    scratch.cells[0] = scratch.cells[1] = index
-    assert scratch.put(*fields)
-    at = _at(scratch, index)
-    return bytes(scratch.buf[at : at + scratch.slot])
-
-
-def _show(ring: Ring, index: int, content: bytes) -> None:
-    """Make the consumer see ``content`` in record ``index``'s slot and the head past it."""
-    at = _at(ring, index)
-    ring.buf[at : at + ring.slot] = content
-    ring.cells[0] = max(ring.cells[0], index + 1)
 
 
 def _seg(i: int) -> tuple[int, ...]:
@@ -112,13 +82,13 @@ def _drain_lap(ring: Ring, make: Any) -> None:
 @settings(max_examples=200, deadline=None)
 @given(body=st.binary(min_size=8, max_size=200))
 def test_a_slot_whose_check_matches_its_record_has_the_constant_crc(body: bytes) -> None:
-    slot = body + _CHECK.pack(zlib.crc32(body))
-    assert zlib.crc32(slot) == _RESIDUE
+    slot = body + SLOT_CHECK.pack(zlib.crc32(body))
+    assert zlib.crc32(slot) == SLOT_RESIDUE
     # and one flipped bit anywhere (record or check) breaks it
     for bit in (0, 8 * len(body) - 1, 8 * len(body) + 5):
         bad = bytearray(slot)
         bad[bit // 8] ^= 1 << (bit % 8)
-        assert zlib.crc32(bytes(bad)) != _RESIDUE
+        assert zlib.crc32(bytes(bad)) != SLOT_RESIDUE
 
 
 def test_slots_are_8_byte_aligned_in_the_real_shared_block() -> None:
@@ -134,36 +104,36 @@ def test_slots_are_8_byte_aligned_in_the_real_shared_block() -> None:
             for ring in (*shared.segs, shared.stops, shared.events):
                 assert (address + ring.base - 16) % 8 == 0
                 assert (address + ring.base) % 8 == 0 and ring.slot % 8 == 0
-            assert layout.size >= layout.event_ring + ring_size(_EVENT, shared.events.cap)
+            assert layout.size >= layout.event_ring + ring_size(EVENT_RECORD, shared.events.cap)
         finally:
             shared.release()
     finally:
         shm.close()
     with pytest.raises(ValueError, match="not 8-byte aligned"):
-        Ring(memoryview(bytearray(4096)), 4, _STOP, 4)
+        Ring(memoryview(bytearray(4096)), 4, STOP_RECORD, 4)
 
 
 # ---------------------------------------------------------------- what a reordering CPU shows
 
 
 def test_new_head_and_sequence_over_an_old_payload_is_not_taken_until_complete() -> None:
-    ring = _ring(_SEG, 4)
+    ring = scratch_ring(SEG_RECORD, 4)
     _drain_lap(ring, _seg)  # the slots now hold lap 0; the next record (4) reuses slot 0
-    at = _at(ring, 4)
+    at = slot_offset(ring, 4)
     old = bytes(ring.buf[at : at + ring.slot])
-    new = _slot_of(ring, 4, _seg(41))
-    seq_end, check_at = 8, _SEG.size
+    new = slot_bytes(ring, 4, _seg(41))
+    seq_end, check_at = 8, SEG_RECORD.size
 
-    _show(ring, 4, old)  # only the head is new
+    show_slot(ring, 4, old)  # only the head is new
     assert ring.pending() and ring.get() is None
-    _show(ring, 4, new[:seq_end] + old[seq_end:])  # head and sequence number new
+    show_slot(ring, 4, new[:seq_end] + old[seq_end:])  # head and sequence number new
     assert ring.get() is None
-    _show(ring, 4, new[:check_at] + old[check_at:])  # the whole record new, the check old
+    show_slot(ring, 4, new[:check_at] + old[check_at:])  # the whole record new, the check old
     assert ring.get() is None
-    _show(ring, 4, old[:check_at] + new[check_at:])  # the check new, the payload old
+    show_slot(ring, 4, old[:check_at] + new[check_at:])  # the check new, the payload old
     assert ring.get() is None
     assert ring.cells[1] == 4 and ring.retries == 4  # nothing taken, nothing dropped
-    _show(ring, 4, new)
+    show_slot(ring, 4, new)
     assert ring.get() == _seg(41)
     assert ring.cells[1] == 5 and not ring.pending()
 
@@ -171,16 +141,16 @@ def test_new_head_and_sequence_over_an_old_payload_is_not_taken_until_complete()
 def test_every_word_mix_of_the_old_and_the_new_segment_is_taken_only_when_whole() -> None:
     """All 2^9 mixes of the 9 eight-byte words of a segment slot (aligned 8-byte stores
     become visible in any order): only the complete new record is taken."""
-    ring = _ring(_SEG, 4)
+    ring = scratch_ring(SEG_RECORD, 4)
     _drain_lap(ring, _seg)
-    at = _at(ring, 4)
+    at = slot_offset(ring, 4)
     old = bytes(ring.buf[at : at + ring.slot])
-    new = _slot_of(ring, 4, _seg(41))
+    new = slot_bytes(ring, 4, _seg(41))
     words = ring.slot // 8
     taken = 0
     for mask in range(1 << words):
         seen = _mix(old, new, [bool(mask >> k & 1) for k in range(words)], 8)
-        _show(ring, 4, seen)
+        show_slot(ring, 4, seen)
         got = ring.get()
         if seen == new:
             assert got == _seg(41), f"mask {mask:#x}"
@@ -201,23 +171,23 @@ def test_any_byte_mix_of_an_event_slot_with_its_text_is_taken_only_when_whole(
     ordered CPU may show any byte mix of the previous lap's record and the new one (``bits``:
     one bit a byte of the slot, set: the byte is already the new record's)."""
     mask = [bool(bits[k // 8] >> (k % 8) & 1) for k in range(192)]
-    ring = _ring(_EVENT, 2)
+    ring = scratch_ring(EVENT_RECORD, 2)
     assert ring.slot == 192
     for i in range(2 * lap):
         assert ring.put(*_event(i))
         assert ring.get() == _expect(_event(i))
     index = 2 * lap
-    at = _at(ring, index)
+    at = slot_offset(ring, index)
     old = bytes(ring.buf[at : at + ring.slot])
-    new = _slot_of(ring, index, _event(index, b"step timing lost (step 2417 us late)"))
+    new = slot_bytes(ring, index, _event(index, b"step timing lost (step 2417 us late)"))
     seen = _mix(old, new, mask, 1)
-    _show(ring, index, seen)
+    show_slot(ring, index, seen)
     got = ring.get()
     if seen == new:
         assert got == _expect(_event(index, b"step timing lost (step 2417 us late)"))
     else:
         assert got is None and ring.cells[1] == index
-        _show(ring, index, new)
+        show_slot(ring, index, new)
         assert ring.get() == _expect(_event(index, b"step timing lost (step 2417 us late)"))
 
 
@@ -225,11 +195,11 @@ def test_a_slot_overwritten_by_the_next_lap_while_being_read_is_not_taken() -> N
     """If the producer overwrote the slot during the consumer's copy (what the tail's
     control dependency prevents), the copy mixes record k and record k + capacity: it is
     taken only if it is record k, whole."""
-    ring = _ring(_STOP, 2)
+    ring = scratch_ring(STOP_RECORD, 2)
     assert ring.put(1, 11, -1) and ring.put(2, 22, 7)  # records 0 and 1: full
-    at = _at(ring, 0)
+    at = slot_offset(ring, 0)
     current = bytes(ring.buf[at : at + ring.slot])
-    next_lap = _slot_of(ring, 2, (3, 33, 5))
+    next_lap = slot_bytes(ring, 2, (3, 33, 5))
     words = ring.slot // 8
     for mask in range(1, 1 << words):
         seen = _mix(current, next_lap, [bool(mask >> k & 1) for k in range(words)], 8)
@@ -242,10 +212,10 @@ def test_a_slot_overwritten_by_the_next_lap_while_being_read_is_not_taken() -> N
 
 
 def test_a_rejected_record_keeps_its_slot_from_the_producer() -> None:
-    ring = _ring(_SEG, 4)
+    ring = scratch_ring(SEG_RECORD, 4)
     for i in range(4):
         assert ring.put(*_seg(i))
-    at = _at(ring, 0)
+    at = slot_offset(ring, 0)
     whole = bytes(ring.buf[at : at + ring.slot])
     ring.buf[at + 8 : at + 16] = bytes(8)  # record 0 not visible yet beyond its seq
     for _ in range(3):
@@ -258,8 +228,8 @@ def test_a_rejected_record_keeps_its_slot_from_the_producer() -> None:
 @settings(max_examples=100, deadline=None)
 @given(garbage=st.binary(min_size=72, max_size=72))
 def test_garbage_in_a_slot_is_never_taken_and_never_raises(garbage: bytes) -> None:
-    ring = _ring(_SEG, 4)
-    _show(ring, 0, garbage)
+    ring = scratch_ring(SEG_RECORD, 4)
+    show_slot(ring, 0, garbage)
     assert ring.get() is None and ring.cells[1] == 0
 
 
@@ -267,7 +237,7 @@ def test_garbage_in_a_slot_is_never_taken_and_never_raises(garbage: bytes) -> No
 
 
 def test_a_full_ring_refuses_and_takes_again_after_a_get() -> None:
-    ring = _ring(_SEG, 8)
+    ring = scratch_ring(SEG_RECORD, 8)
     assert ring.free() == 8 and not ring.pending() and ring.get() is None
     for i in range(8):
         assert ring.put(*_seg(i)), i
@@ -297,7 +267,7 @@ def test_a_full_ring_refuses_and_takes_again_after_a_get() -> None:
 
 
 def test_the_event_record_carries_its_text() -> None:
-    ring = _ring(_EVENT, 4)
+    ring = scratch_ring(EVENT_RECORD, 4)
     long = bytes(range(32, 127)) + b"x" * 25
     assert len(long) == TEXT
     for text in (b"", b"step timing lost (step 2417 us late)", long):
@@ -307,20 +277,20 @@ def test_the_event_record_carries_its_text() -> None:
         assert got[-1].rstrip(b"\0") == text
     # a text half written is not taken
     index = ring.cells[0]
-    at = _at(ring, index)
+    at = slot_offset(ring, index)
     old = bytes(ring.buf[at : at + ring.slot])
-    new = _slot_of(ring, index, _event(4, long))
-    text_at = _EVENT.size - TEXT
-    _show(ring, index, new[: text_at + 60] + old[text_at + 60 :])
+    new = slot_bytes(ring, index, _event(4, long))
+    text_at = EVENT_RECORD.size - TEXT
+    show_slot(ring, index, new[: text_at + 60] + old[text_at + 60 :])
     assert ring.get() is None
-    _show(ring, index, new)
+    show_slot(ring, index, new)
     assert ring.get() == _expect(_event(4, long))
 
 
 def test_a_stop_record_with_another_field_needs_no_ring_change() -> None:
     """The check is generic over the record's struct (the stop record may grow)."""
     grown = struct.Struct("<qqqq")
-    ring = _ring(grown, 4)
+    ring = scratch_ring(grown, 4)
     assert ring.put(1, 2, 3) and ring.get() == (1, 2, 3)
 
 
@@ -331,8 +301,8 @@ def _echo_child(name: str, count: int, seed: int, deadline: float) -> None:
     """Take segment records from ring A, give each back as an event record on ring B."""
     shm = shared_memory.SharedMemory(name=name)
     assert shm.buf is not None
-    a = Ring(shm.buf, 0, _SEG, 16)
-    b = Ring(shm.buf, ring_size(_SEG, 16), _EVENT, 8)
+    a = Ring(shm.buf, 0, SEG_RECORD, 16)
+    b = Ring(shm.buf, ring_size(SEG_RECORD, 16), EVENT_RECORD, 8)
     rng = random.Random(seed + 1)
     held: tuple[Any, ...] | None = None
     done = 0
@@ -361,12 +331,12 @@ def _echo_child(name: str, count: int, seed: int, deadline: float) -> None:
 
 def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
     count, seed = 30_000, int.from_bytes(os.urandom(4), "little")
-    size = ring_size(_SEG, 16) + ring_size(_EVENT, 8)
+    size = ring_size(SEG_RECORD, 16) + ring_size(EVENT_RECORD, 8)
     shm = shared_memory.SharedMemory(create=True, size=size)
     assert shm.buf is not None
     shm.buf[:size] = bytes(size)
-    a = Ring(shm.buf, 0, _SEG, 16)
-    b = Ring(shm.buf, ring_size(_SEG, 16), _EVENT, 8)
+    a = Ring(shm.buf, 0, SEG_RECORD, 16)
+    b = Ring(shm.buf, ring_size(SEG_RECORD, 16), EVENT_RECORD, 8)
     ctx = multiprocessing.get_context("spawn")
     deadline = time.monotonic() + DEADLINE_S
     child = ctx.Process(target=_echo_child, args=(shm.name, count, seed, deadline), daemon=True)
@@ -416,68 +386,21 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
         shm.unlink()
 
 
-# ---------------------------------------------------------------- the start handshake
-
-
-def _executor(
-    backend: str, start_timeout_s: float = 30.0, core: str = "auto", motors: int = 1
-) -> tuple[Hardware, ProcessStepExecutor]:
-    spec = HardwareSpec(axes=(AxisSpec(),) * motors)
-    hw = build(spec, MonotonicClock())
-    return hw, ProcessStepExecutor(
-        hw, backend, spec, [AxisLimits(1e-4)] * motors, start_timeout_s=start_timeout_s, core=core
-    )
-
-
-def test_start_reads_ready_after_the_childs_byte_and_sees_its_end_stop_map() -> None:
-    hw, ex = _executor("mock")
-    try:
-        ex.start()
-        # the child wrote the map before READY and its byte; -1/-1 or lines of its own
-        lo, hi = ex.shared.endmap[0], ex.shared.endmap[1]
-        assert ex.health().alive and ex.shared.header[1] == 1
-        assert (lo, hi) != (0, 0), "start returned before the child's end-stop map"
-    finally:
-        ex.close()
-        hw.close()
-
-
-def test_start_names_a_child_that_exits_before_it_is_ready() -> None:
-    hw, ex = _executor("no-such-backend")
-    try:
-        with pytest.raises(HalError, match="exited at start"):
-            ex.start()
-    finally:
-        ex.close()
-        hw.close()
-
-
-def test_start_gives_up_after_its_timeout() -> None:
-    hw, ex = _executor("mock", start_timeout_s=0.001)
-    try:
-        with pytest.raises(HalError, match="did not start within"):
-            ex.start()
-        assert ex.proc is not None and ex.proc.poll() is not None
-    finally:
-        ex.close()
-        hw.close()
-
-
 # ---------------------------------------------------------------- retries, counted and reported
 
 
 def test_a_consumer_counts_each_read_of_a_torn_or_stale_record_as_a_retry() -> None:
-    ring = _ring(_SEG, 4)
+    ring = scratch_ring(SEG_RECORD, 4)
     _drain_lap(ring, _seg)  # slot 0 holds record 0 of the previous lap
     assert ring.retries == 0
-    at = _at(ring, 4)
+    at = slot_offset(ring, 4)
     old = bytes(ring.buf[at : at + ring.slot])
-    new = _slot_of(ring, 4, _seg(41))
-    _show(ring, 4, old)  # announced, the slot still the previous lap's: stale
+    new = slot_bytes(ring, 4, _seg(41))
+    show_slot(ring, 4, old)  # announced, the slot still the previous lap's: stale
     assert ring.get() is None and ring.retries == 1
-    _show(ring, 4, new[:8] + old[8:])  # its sequence number new, the rest old: torn
+    show_slot(ring, 4, new[:8] + old[8:])  # its sequence number new, the rest old: torn
     assert ring.get() is None and ring.get() is None and ring.retries == 3
-    _show(ring, 4, new)
+    show_slot(ring, 4, new)
     assert ring.get() == _seg(41) and ring.retries == 3  # taken whole, once: no retry
     assert ring.get() is None and ring.retries == 3  # an empty ring is not a retry
     assert ring.cells[2] == 3  # a cell of the shared block: the other process reads it
@@ -490,7 +413,7 @@ def test_the_shared_block_sums_retries_by_direction() -> None:
         shared = Shared(shm, layout)
         try:
             for ring, torn in ((shared.segs[1], 2), (shared.stops, 1), (shared.events, 4)):
-                _show(ring, 0, bytes(ring.slot))  # announced, nothing written yet
+                show_slot(ring, 0, bytes(ring.slot))  # announced, nothing written yet
                 for _ in range(torn):
                     assert ring.get() is None
             assert shared.ring_retries() == {"ring_retries_segments": 3, "ring_retries_reports": 4}
@@ -498,89 +421,3 @@ def test_the_shared_block_sums_retries_by_direction() -> None:
             shared.release()
     finally:
         shm.close()
-
-
-def test_retries_of_both_directions_are_in_the_process_executors_health(step_core: str) -> None:
-    """A torn record each way between the daemon and a real executor process (on each step
-    core): the child retries a stop, the daemon a report; health() (the status's ``steps``)
-    counts both, and each record is taken once it is whole."""
-    hw, ex = _executor("mock", core=step_core)
-    try:
-        ex.start()
-        counters = ex.health().counters
-        assert (counters["ring_retries_segments"], counters["ring_retries_reports"]) == (0, 0)
-        # daemon -> child: a hard stop of motor 0 announced, only its sequence number there
-        stops = ex.shared.stops
-        index = stops.cells[0]
-        at = _at(stops, index)
-        old = bytes(stops.buf[at : at + stops.slot])
-        whole = _slot_of(stops, index, (0, 5, -1))
-        _show(stops, index, whole[:8] + old[8:])
-        ex._kick()
-        until("the executor's retry", lambda: ex.health().counters["ring_retries_segments"] >= 1)
-        assert stops.cells[1] == index  # not taken torn
-        stops.buf[at : at + stops.slot] = whole
-        ex._kick()
-        seen: list[ExecEvent] = []
-        end = time.monotonic() + DEADLINE_S
-        while not seen:  # the stop taken whole: its STOPPED report
-            assert time.monotonic() < end, f"no report of the stop in {DEADLINE_S:.0f} s"
-            seen = ex.events()
-            time.sleep(0.001)
-        assert [(e.kind, e.motor, e.gen) for e in seen] == [(ExecEventKind.STOPPED, 0, 5)]
-        assert ex.health().counters["ring_retries_reports"] == 0
-        # child -> daemon: a report whose record is new and its check still the old one
-        events = ex.shared.events
-        index = events.cells[0]
-        at = _at(events, index)
-        old = bytes(events.buf[at : at + events.slot])
-        fields = (_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0.0, b"torn")
-        whole = _slot_of(events, index, fields)
-        _show(events, index, whole[: _EVENT.size] + old[_EVENT.size :])
-        assert ex.events() == [] and ex.events() == []
-        assert ex.health().counters["ring_retries_reports"] == 2
-        events.buf[at : at + events.slot] = whole
-        assert [(e.kind, e.motor, e.gen) for e in ex.events()] == [(ExecEventKind.STOPPED, 0, 9)]
-        assert ex.health().counters["ring_retries_reports"] == 2
-    finally:
-        ex.close()
-        hw.close()
-    after = ex.health().counters  # plain copies once closed
-    assert after["ring_retries_segments"] >= 1 and after["ring_retries_reports"] == 2
-
-
-def test_a_bad_record_from_the_daemon_faults_its_motor_in_the_executor_process(
-    step_core: str,
-) -> None:
-    """Records whose CRC is right but whose fields no planner makes, into a real executor
-    process (on each step core): a segment with direction 5 faults its motor, a stop for
-    motor 7 (there are 2) faults every motor; the process lives on and counts them."""
-    hw, ex = _executor("mock", core=step_core, motors=2)
-    try:
-        ex.start()
-        assert ex.shared.segs[1].put(10**9, 1000, 3, 0, 5, 1, 0)
-        ex._kick()
-        got: list[ExecEvent] = []
-
-        def events(n: int) -> bool:
-            got.extend(ex.events())
-            return len(got) >= n
-
-        until("the segment's fault", lambda: events(1))
-        assert [(e.kind, e.motor) for e in got] == [(ExecEventKind.FAULT, 1)]
-        assert got[0].detail == "bad step segment record in the executor's ring: direction 5"
-        assert ex.shared.stops.put(7, 1, -1)
-        ex._kick()
-        got.clear()
-        until("the stop's faults", lambda: events(2))
-        assert sorted((e.kind, e.motor) for e in got) == [
-            (ExecEventKind.FAULT, 0),
-            (ExecEventKind.FAULT, 1),
-        ]
-        assert all(e.detail.endswith("stop record in the executor's ring: motor 7") for e in got)
-        health = ex.health()
-        assert health.alive and health.counters["bad_records"] == 2
-        assert health.counters["steps"] == 0
-    finally:
-        ex.close()
-        hw.close()

@@ -1,16 +1,17 @@
-/* The compiled step core (motorctl.motion._stepcore): declarations shared by its files.
+/* The compiled step core (motorctl.motion.executors._stepcore): what its files share.
  *
- * The same contract as motion/step_core.py, the Python reference: step segments in (from
- * the shared block's rings), edges on lines, events, positions, levels, counters and the
+ * The same contract as motion/executors/step_core.py, the Python reference: step segments in
+ * (from the shared block's rings), edges on lines, events, positions, levels, counters and the
  * lateness histogram out (the block's cells), the same slide, lag, spacing, DIR settle,
  * shared-pulse and end-stop rules. What each file holds:
  *
  *   core.c       the loop and its rules (mirrors step_core.py function by function)
- *   rings.c      CRC-32, the rings' records (motion/executor_process.py Ring), checks
+ *   rings.c      CRC-32, the rings' records (motion/executors/process/rings.py Ring), checks
  *   lines_gpio.c STEP/DIR writes and end-stop edge reads as GPIO character-device ioctls
  *   lines_sim.c  the mock backend's counterpart: the same timeline of edges, the same
  *                simulated mechanics (positions, end stops) in the same shared cells
- *   module.c     the Python type that builds a core and drives it
+ *   module.c     the Python type that builds a core and drives it (module.h: its object)
+ *   module_lines.c  its methods that hand the core its lines (gpio(), sim())
  *
  * Owners: one thread runs a core (the executor process's main thread, or a test's on a
  * virtual clock); nothing here is shared between threads but the block's cells, which
@@ -88,7 +89,8 @@ void ring_take(struct ring *r);
 int ring_pending(const struct ring *r); /* a record announced that is not known torn */
 int ring_put(struct ring *r, uint8_t *rec);  /* fills the sequence number; 0: full */
 int64_t rec_field(const uint8_t *rec, int i);
-/* what is wrong with a whole record's fields (NULL: nothing); checks.py's rules */
+/* what is wrong with a whole record's fields (NULL: nothing): the rules of
+ * motion/executors/process/rings.py */
 const char *segment_problem(const int64_t *f, char *buf, size_t n);
 const char *stop_problem(const int64_t *f, int64_t motors, char *buf, size_t n);
 

@@ -2,15 +2,18 @@
 
 :class:`StepExecutor` is the planner half of the STEP/DIR executors: it walks each motor's
 trajectory a little ahead of time (``ahead_s``), cuts the steps into segments in closed
-form (:class:`~motorctl.motion.segments.SegmentCutter`) and hands them to a step core
-(:mod:`motorctl.motion.step_core`) through a :class:`~motorctl.motion.step_core.CoreInbox`.
-Subclasses say where the core runs and how the inbox reaches it:
+form (:class:`~motorctl.motion.executors.segments.SegmentCutter`) and hands them to a step
+core (``step_core.py``, or its compiled twin). How they reach the core is the transport,
+the one thing each kind implements (three abstract methods, :meth:`StepExecutor._push`,
+:meth:`StepExecutor._push_stop` and :meth:`StepExecutor._raw_events`, and one optional,
+:meth:`StepExecutor._sync`):
 
-- ``motion/executor_thread.py``, :class:`~motorctl.motion.executor_thread.ThreadStepExecutor`
-  (kind ``thread``): a thread of the daemon, or, on a virtual clock, no thread at all;
-- ``motion/executor_process.py``,
-  :class:`~motorctl.motion.executor_process.ProcessStepExecutor` (kind ``process``): a
-  process of its own, over shared memory.
+- ``thread.py``, :class:`~motorctl.motion.executors.thread.ThreadStepExecutor` (kind
+  ``thread``): the core's inbox deques, in a thread of the daemon or, on a virtual clock,
+  no thread at all;
+- ``process/parent.py``,
+  :class:`~motorctl.motion.executors.process.parent.ProcessStepExecutor` (kind
+  ``process``): the rings of a block of shared memory, to a process of its own.
 
 Threads: the daemon's planner side only (the engine's lock held: commands and
 :meth:`StepExecutor.service`); it reads the core's per-motor cells (``motor_cells``) as
@@ -19,13 +22,14 @@ snapshots and never waits for the core.
 
 from __future__ import annotations
 
+from abc import abstractmethod
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
 from motorctl.hal.interfaces import Clock
-from motorctl.motion.executor_seam import (
+from motorctl.motion.executors.base import (
     AxisLimits,
     Committed,
     ExecEvent,
@@ -34,10 +38,8 @@ from motorctl.motion.executor_seam import (
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.latency import Cells
-from motorctl.motion.profile import Trajectory
-from motorctl.motion.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.step_core import (
+from motorctl.motion.executors.segments import Boundary, SegmentCutter, StepSegment
+from motorctl.motion.executors.step_core import (
     ABSORBED,
     LAG_FAULTS,
     LAG_UNIT,
@@ -45,8 +47,9 @@ from motorctl.motion.step_core import (
     SHIFT,
     WORST_LAG,
     WORST_LATE,
-    CoreInbox,
 )
+from motorctl.motion.latency import Cells
+from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import MotorParams, Ramp
 
 K = ExecEventKind
@@ -105,7 +108,8 @@ class _Plan:
 
 
 class StepExecutor(Executor):
-    """Plans into segments; the core it feeds is the subclass's business.
+    """Plans into segments; the transport to the core it feeds is the subclass's (the
+    ``_push``, ``_push_stop`` and ``_raw_events`` hooks; ``_sync`` where it can).
 
     ``ahead_s``: how far ahead steps are handed over. 0: exactly one step ahead, and a
     re-plan flushes that step (only where the core can be synchronised at once, i.e. on a
@@ -134,8 +138,8 @@ class StepExecutor(Executor):
         self.max_error = to_ticks(max_error_s)
         self.span = to_ticks(span_s)
         self.plans = [_Plan() for _ in limits]
-        self.inbox = CoreInbox(len(limits))
-        #: the core's per-motor cells (its shift, late-step figures); subclasses may share
+        #: the core's per-motor cells (its shift, late-step figures): a subclass hands these
+        #: to its core, or puts the core's own (shared memory) in their place
         self.motor_cells: Cells = [0] * (len(limits) * MOTOR_CELLS)
 
     def shift(self, motor: int) -> float:
@@ -157,27 +161,26 @@ class StepExecutor(Executor):
             "lag_faults": int(c[b + LAG_FAULTS]),
         }
 
-    # -- the transport (subclasses) --------------------------------------------------
+    # -- the transport (each kind's own) ----------------------------------------------
+    @abstractmethod
     def _push(self, motor: int, segments: list[StepSegment]) -> None:
-        q = self.inbox.queues[motor]
-        q.extend(segments)
-        self._kick()
+        """Hand ``segments`` (the motor's next, in order) to the core and wake it; never
+        blocks (what does not fit yet goes later, in order)."""
 
+    @abstractmethod
     def _push_stop(self, motor: int, gen: int, cut: int = -1) -> None:
-        """Drop the motor's segments of ``gen`` and older; with ``cut`` >= 0 only those
-        that start at or after tick ``cut`` (a re-plan takes over there, silently)."""
-        self.inbox.stops.append((motor, gen, cut))
-        self._kick()
+        """Have the core drop the motor's segments of ``gen`` and older and report STOPPED
+        (a hard stop); with ``cut`` >= 0 only those that start at or after tick ``cut``,
+        silently (a re-plan takes over there). Never blocks."""
 
-    def _kick(self) -> None:
-        """Wake the core: new work."""
+    @abstractmethod
+    def _raw_events(self) -> list[ExecEvent]:
+        """The core's events since the last call (and DIED once, if the core is gone)."""
 
     def _sync(self) -> bool:
-        """Let the core apply pending stops now if it can (virtual clock); True if done."""
+        """Let the core apply pending stops now if it can (a virtual clock): True if done,
+        False where the core runs on its own (the stop's STOPPED event follows)."""
         return False
-
-    def _raw_events(self) -> list[ExecEvent]:
-        raise NotImplementedError
 
     # -- the seam ------------------------------------------------------------------------
     def committed(self, motor: int, now: float) -> Committed:

@@ -1,8 +1,11 @@
-"""The ``process`` step executor on the real clock, on each step core (Python, compiled): it
-moves and reports positions, its process dying faults every motor, a stopped process never
-bursts afterwards (the real motors' rule) or slides a simulated motor (the mock's), and it
-needs a real clock; which core it runs, and a clear start error when the compiled one is
-asked for and cannot run. (Its shared-memory rings: test_executor_process_rings.py.)"""
+"""The ``process`` step executor (motion/executors/process/parent.py) on the real clock, on
+each step core (Python, compiled): it moves and reports positions, its process dying faults
+every motor, a stopped process never bursts afterwards (the real motors' rule) or slides a
+simulated motor (the mock's), and it needs a real clock; which core it runs, and a clear
+start error when the compiled one is asked for and cannot run; the start handshake (READY
+after the child's byte, a child that exits before it, a start that times out) and the rings'
+retries counted in its health. (The shared block's rings: test_rings.py; the child's own
+checks: test_child.py.)"""
 
 from __future__ import annotations
 
@@ -19,10 +22,12 @@ from motorctl.hal.backends.mock.world import EventKind, read_timeline, world_of
 from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process import ProcessStepExecutor
-from motorctl.motion.executor_seam import AxisLimits
-from motorctl.motion.step_planner import axis_limits
+from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.parent import ProcessStepExecutor
+from motorctl.motion.executors.process.rings import EVENT_KINDS, EVENT_RECORD, READY_CELL
 from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from tests.support.executors import process_executor, show_slot, slot_bytes, slot_offset
 from tests.support.rigs import FAR
 from tests.support.wait import until
 
@@ -216,3 +221,90 @@ def test_the_compiled_core_asked_for_where_it_cannot_run_is_a_clear_start_error(
             ex.close()
     finally:
         hw.close()
+
+
+# ---------------------------------------------------------------- the start handshake
+
+
+def test_start_reads_ready_after_the_childs_byte_and_sees_its_end_stop_map() -> None:
+    hw, ex = process_executor("mock")
+    try:
+        ex.start()
+        # the child wrote the map before READY and its byte; -1/-1 or lines of its own
+        lo, hi = ex.shared.endmap[0], ex.shared.endmap[1]
+        assert ex.health().alive and ex.shared.header[READY_CELL] == 1
+        assert (lo, hi) != (0, 0), "start returned before the child's end-stop map"
+    finally:
+        ex.close()
+        hw.close()
+
+
+def test_start_names_a_child_that_exits_before_it_is_ready() -> None:
+    hw, ex = process_executor("no-such-backend")
+    try:
+        with pytest.raises(HalError, match="exited at start"):
+            ex.start()
+    finally:
+        ex.close()
+        hw.close()
+
+
+def test_start_gives_up_after_its_timeout() -> None:
+    hw, ex = process_executor("mock", start_timeout_s=0.001)
+    try:
+        with pytest.raises(HalError, match="did not start within"):
+            ex.start()
+        assert ex.proc is not None and ex.proc.poll() is not None
+    finally:
+        ex.close()
+        hw.close()
+
+
+def test_retries_of_both_directions_are_in_the_process_executors_health(step_core: str) -> None:
+    """A torn record each way between the daemon and a real executor process (on each step
+    core): the child retries a stop, the daemon a report; health() (the status's ``steps``)
+    counts both, and each record is taken once it is whole."""
+    hw, ex = process_executor("mock", core=step_core)
+    try:
+        ex.start()
+        counters = ex.health().counters
+        assert (counters["ring_retries_segments"], counters["ring_retries_reports"]) == (0, 0)
+        # daemon -> child: a hard stop of motor 0 announced, only its sequence number there
+        stops = ex.shared.stops
+        index = stops.cells[0]
+        at = slot_offset(stops, index)
+        old = bytes(stops.buf[at : at + stops.slot])
+        whole = slot_bytes(stops, index, (0, 5, -1))
+        show_slot(stops, index, whole[:8] + old[8:])
+        ex._kick()
+        until("the executor's retry", lambda: ex.health().counters["ring_retries_segments"] >= 1)
+        assert stops.cells[1] == index  # not taken torn
+        stops.buf[at : at + stops.slot] = whole
+        ex._kick()
+        seen: list[ExecEvent] = []
+
+        def reported() -> bool:  # the stop taken whole: its STOPPED report
+            seen.extend(ex.events())
+            return bool(seen)
+
+        until("the report of the stop", reported, timeout=60.0)
+        assert [(e.kind, e.motor, e.gen) for e in seen] == [(ExecEventKind.STOPPED, 0, 5)]
+        assert ex.health().counters["ring_retries_reports"] == 0
+        # child -> daemon: a report whose record is new and its check still the old one
+        events = ex.shared.events
+        index = events.cells[0]
+        at = slot_offset(events, index)
+        old = bytes(events.buf[at : at + events.slot])
+        fields = (EVENT_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0.0, b"torn")
+        whole = slot_bytes(events, index, fields)
+        show_slot(events, index, whole[: EVENT_RECORD.size] + old[EVENT_RECORD.size :])
+        assert ex.events() == [] and ex.events() == []
+        assert ex.health().counters["ring_retries_reports"] == 2
+        events.buf[at : at + events.slot] = whole
+        assert [(e.kind, e.motor, e.gen) for e in ex.events()] == [(ExecEventKind.STOPPED, 0, 9)]
+        assert ex.health().counters["ring_retries_reports"] == 2
+    finally:
+        ex.close()
+        hw.close()
+    after = ex.health().counters  # plain copies once closed
+    assert after["ring_retries_segments"] >= 1 and after["ring_retries_reports"] == 2

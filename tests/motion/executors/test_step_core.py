@@ -1,10 +1,11 @@
 """The step cores on a virtual clock, fed by hand through the process executor's rings, each
-test on both (motion/step_core.py, the Python reference, and the compiled core of
-motion/csrc through motion/compiled_core.py): the planned steps exactly, the fail-safe
-rules (a lag beyond the tolerance stops the motor; within it, or at the start speed, or on a
-simulated motor, late steps slide), hard stops, shared pulses, DIR settle and hold, end
-stops, line errors, and bad ring records (never a crash, a hang or a stray step). Then both
-cores on the same random programs: the same timeline, events and figures."""
+test on both (motion/executors/step_core.py, the Python reference, and the compiled core of
+motion/executors/csrc through motion/executors/compiled_core.py): the planned steps exactly,
+the fail-safe rules (a lag beyond the tolerance stops the motor; within it, or at the start
+speed, or on a simulated motor, late steps slide), hard stops, shared pulses, DIR settle and
+hold, end stops, line errors, bad ring records (never a crash, a hang or a stray step), and
+the cuts of a re-plan. Then both cores on the same random programs: the same timeline,
+events and figures."""
 
 from __future__ import annotations
 
@@ -18,14 +19,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from motorctl.hal.backends.mock.world import EventKind, mock_axis
-from motorctl.motion.executor_process import (
-    BAD_RECORD_S,
-    segment_problem,
-    stop_problem,
-)
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import (
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executors.process.rings import BAD_RECORD_S, segment_problem, stop_problem
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import (
     ABSORBED,
     LAG_FAULTS,
     LAG_UNIT,
@@ -511,3 +508,72 @@ def test_both_cores_make_the_same_steps_events_and_figures_from_one_program(seed
     for name, a, b in zip(names, py, cc, strict=True):
         assert a == b, f"seed {seed}: the cores' {name} differ"
     assert py[0] and py[1], "the program made steps and events"
+
+
+# ---------------------------------------------------------------- re-plan cuts
+
+
+def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twice(
+    core_rig: Callable[..., StepCoreRig],
+) -> None:
+    c = core_rig()
+    t0 = c.clock.now()
+    first = to_ticks(t0 + 0.001)
+    c.push(
+        0,
+        StepSegment(first, 200_000, 5, 0, 1, 1),
+        StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1),
+    )
+    c.run_until(t0 + 0.0021)  # the second segment began (its first step made)
+    assert len(c.times()) == 6
+    c.stop(0, 1, first + 1_000_000)
+    c.run_until(t0 + 0.1)
+    assert [e.kind for e in c.events] == [K.TIMING_LOST]
+    assert "re-plan came" in c.events[0].detail and len(c.times()) == 6
+
+
+def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows(
+    core_rig: Callable[..., StepCoreRig],
+) -> None:
+    c = core_rig()
+    t0 = c.clock.now()
+    first = to_ticks(t0 + 0.001)
+    c.push(
+        0,
+        StepSegment(first, 200_000, 5, 0, 1, 1),
+        StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1, True),
+    )
+    c.run_until(t0 + 0.0005)
+    c.stop(0, 1, first + 1_000_000)
+    c.push(0, StepSegment(first + 1_000_000, 400_000, 3, 0, -1, 2, True))
+    c.run_until(t0 + 0.1)
+    assert [e.kind for e in c.events] == [K.DONE] and c.events[0].gen == 2
+    assert c.positions[0] == 5 - 3 and len(c.times()) == 8
+
+
+def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_plan(
+    core_rig: Callable[..., StepCoreRig],
+) -> None:
+    """Two re-plans in quick succession: a segment of the first plan that reaches the core
+    only after the second cut (it was still in the ring) is judged by the first cut too."""
+    c = core_rig()
+    t0 = c.clock.now()
+    ms = to_ticks(0.001)
+    base = to_ticks(t0)
+    c.push(0, StepSegment(base + ms, 0, 1, 0, 1, 1))
+    c.run_until(t0 + 0.0005)
+    c.stop(0, 1, base + 2 * ms)  # plan 1 cut at 2 ms
+    c.run_until(t0 + 0.0006)
+    # still arriving: plan 1's step at 2.5 ms (cut), then plan 2 from 2 ms
+    c.push(
+        0,
+        StepSegment(base + 5 * ms // 2, 0, 1, 0, 1, 1),
+        StepSegment(base + 2 * ms, 0, 1, 0, 1, 2),
+        StepSegment(base + 3 * ms, 0, 1, 0, 1, 2, True),
+    )
+    c.stop(0, 2, base + 3 * ms)  # plan 2 cut at 3 ms, before any of them
+    c.push(0, StepSegment(base + 3 * ms, 0, 1, 0, -1, 3, True))
+    c.run_until(t0 + 0.01)
+    assert c.times() == [(base + ms) / 1e9, (base + 2 * ms) / 1e9, (base + 3 * ms) / 1e9]
+    assert c.positions[0] == 1 + 1 - 1  # plan 1's 2.5 ms step was never made
+    assert [e.kind for e in c.events] == [K.DONE] and c.events[0].gen == 3

@@ -9,8 +9,8 @@
  * onto or off a simulated end stop is an edge at the step's time; an end stop forced by a
  * test, or a position set by hand, is seen at the next read, with that read's time. The
  * timeline is kept here (bounded as the world's) and handed to the world's Timeline by
- * the Python side (motion/compiled_core.py), with the number of the rise call of each step
- * (which motors shared a pulse). Errors injected into the world's lines (inject_line_error)
+ * the Python side (motion/executors/compiled_core.py), with the number of the rise call of
+ * each step (which motors shared a pulse). Errors injected into the world's lines (inject_line_error)
  * come as texts per axis: a write to such a line fails as the mock's does. */
 #include <stdio.h>
 #include <stdlib.h>
