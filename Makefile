@@ -76,7 +76,7 @@ test-asan: venv
 run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-# What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py).
+# What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py).
 test-deps:
 	@command -v socat >/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \

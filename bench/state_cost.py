@@ -25,7 +25,7 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from motorctl.daemon.state import (  # noqa: E402
+from motorctl.daemon.state.persistence import (  # noqa: E402
     MotionJournal,
     SavedMotor,
     SavedState,

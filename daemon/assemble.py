@@ -30,11 +30,16 @@ from typing import Any
 from motorctl import __version__
 from motorctl.daemon.config import Config, MotorConfig
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.link import Link
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.recorder import TraceRecorder
+from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.daemon.service import ProgressWatch
-from motorctl.daemon.silence import SilenceWatch
-from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
-from motorctl.daemon.trace import TraceRecorder
+from motorctl.daemon.state.persistence import (
+    MotorIdentity,
+    Persistence,
+    StateWriter,
+    geometry_fingerprint,
+)
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec

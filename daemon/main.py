@@ -3,7 +3,7 @@
 The command line only: its options (:func:`parse_args`), the commands that print and exit
 (``--check-config``, ``--print-default-config``, ``--probe``, ``--status``), and serving:
 lock the state directory and port, assemble the daemon (daemon/assemble.py), open the port
-(daemon/ports.py), serve until a stop signal (daemon/signals.py) or the executor's death,
+(daemon/link/ports.py), serve until a stop signal (daemon/signals.py) or the executor's death,
 then shut down (motors ramp down, state written) and say why it stopped in the exit status.
 
 Threads: the main thread runs all of it, and the link loop (``Link.serve``) while serving;
@@ -38,11 +38,12 @@ from motorctl.daemon.assemble import (
     state_files_dir,
 )
 from motorctl.daemon.config import Config, ConfigError, StepThreadConfig, load_config
-from motorctl.daemon.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
-from motorctl.daemon.link import Link
-from motorctl.daemon.ports import PtySlave, open_pty
-from motorctl.daemon.serialport import DeviceError, SerialDevice
+from motorctl.daemon.link.devwatch import NOT_BACK, PathWatch
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.ports import PtySlave, open_pty
+from motorctl.daemon.link.serialport import DeviceError, SerialDevice
+from motorctl.daemon.link.silence import check_timeout
 from motorctl.daemon.service import (
     MotorEventLog,
     StatusLine,
@@ -53,8 +54,7 @@ from motorctl.daemon.service import (
     watchdog_interval,
 )
 from motorctl.daemon.signals import StopSignals
-from motorctl.daemon.silence import check_timeout
-from motorctl.daemon.status import StatusServer, read_status, summary_line
+from motorctl.daemon.status.server import StatusServer, read_status, summary_line
 from motorctl.hal.interfaces import MonotonicClock, ProbeReport
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion import compiled_core
@@ -263,7 +263,7 @@ def status_command(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 2
-        from motorctl.daemon import monitor
+        from motorctl.daemon.status import monitor
 
         return monitor.run(path, args.period)
     if args.histogram and args.format != "json":
@@ -271,7 +271,7 @@ def status_command(args: argparse.Namespace) -> int:
         return 2
     import json
 
-    from motorctl.daemon import metrics
+    from motorctl.daemon.status import metrics
 
     try:
         doc = read_status(path, histogram=args.histogram)

@@ -1,7 +1,7 @@
 """A serial device that is away, for the link: its return noticed at once (:class:`PathWatch`:
 inotify on the folders of its path) and its path tried again (:class:`DeviceReturn`: on
 the watch's news, and on a bounded backoff besides); and the inotify primitives the PTY's
-slave watch uses too (:func:`inotify`, :func:`read_events`; daemon/ports.py).
+slave watch uses too (:func:`inotify`, :func:`read_events`; daemon/link/ports.py).
 
 A USB adapter plugged back in (or in for the first time) makes udev create its node in
 ``/dev`` and its names in ``/dev/serial/by-id/`` (a link, made in place or renamed into
@@ -11,7 +11,7 @@ name the daemon was given, of every link it leads through (``by-id/usb-...`` ->
 ``../../ttyUSB0``), and, where a folder itself is missing (``/dev/serial`` goes with the
 last adapter), of the nearest one that exists, for the missing folder's name.
 :class:`PathWatch` watches exactly those folders, for those names only, so that the link
-(daemon/link.py) tries to open the device the moment something there changes, instead of
+(daemon/link/loop.py) tries to open the device the moment something there changes, instead of
 only on its backoff schedule (which goes on, bounded, as the fallback: an event inotify
 cannot see, such as a change on another machine's file system, or no inotify at all).
 
@@ -34,7 +34,7 @@ import struct
 from collections import Counter
 from typing import Protocol
 
-from motorctl.daemon.serialport import Backoff, DeviceError
+from motorctl.daemon.link.serialport import Backoff, DeviceError
 
 log = logging.getLogger("motorctl.link")
 

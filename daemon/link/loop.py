@@ -1,9 +1,9 @@
-"""The link: the poll/read/write loop around a pure :class:`~motorctl.daemon.session.LinkSession`.
+"""The link's loop: poll, read, write, around the pure session (daemon/link/session.py).
 
 Over 500 lines on purpose: one loop that every byte crosses, whose states (reading, holding
 back, no host, a host's session ending, a device away) decide together what each turn
 waits for; what could stand apart does (the session, the silence watch, the device's
-return in daemon/devwatch.py, the PTY's slave in daemon/ports.py).
+return in daemon/link/devwatch.py, the PTY's slave in daemon/link/ports.py).
 
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
 on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
@@ -33,7 +33,7 @@ What the shell does, and why:
   another opened it before the link looked) or its serial device goes away. Everything
   owed to it is dropped and counted by cause (``responses_dropped_*``): the partial frame,
   the answers not yet written (``unsent``; on a PTY also those the kernel still holds for
-  it, counted and flushed by ``pty``, a :class:`~motorctl.daemon.ports.PtySlave`), a held
+  it, counted and flushed by ``pty``, a :class:`~motorctl.daemon.link.ports.PtySlave`), a held
   WaitMoved's answer (``wait``) and the answers of the frames kept behind it (``held``;
   their commands are never executed: :meth:`LinkSession.end`). The next host reads only
   its own answers, and its first command is answered at once: nothing of the old session
@@ -46,14 +46,14 @@ What the shell does, and why:
 - **A serial device may go away** (``device``: ``--port``; a USB adapter unplugged, a
   socat PTY torn down), or not be there yet at start. Its descriptor is hung up for good
   (POLLHUP, an empty read, EIO), so the shell closes it, logs the loss once and opens the
-  device's *path* again (:class:`~motorctl.daemon.devwatch.DeviceReturn`) the moment
-  ``notice`` (a :class:`~motorctl.daemon.devwatch.PathWatch`: inotify on the folders of the
-  path) sees it come back, and on a :class:`~motorctl.daemon.serialport.Backoff` schedule
+  device's *path* again (:class:`~motorctl.daemon.link.devwatch.DeviceReturn`) the moment
+  ``notice`` (a :class:`~motorctl.daemon.link.devwatch.PathWatch`: inotify on the folders of the
+  path) sees it come back, and on a :class:`~motorctl.daemon.link.serialport.Backoff` schedule
   meanwhile (50 ms after the loss, doubling up to every second) as the fallback; it opens
   it without flushing what the new session sent. Motors and positions are kept; the
   session ends as above.
 - **The host's silence** (``watch``: ``[link] timeout_ms``, off by default): every byte
-  read tells the :class:`~motorctl.daemon.silence.SilenceWatch`; its deadline bounds the
+  read tells the :class:`~motorctl.daemon.link.silence.SilenceWatch`; its deadline bounds the
   waits; while the shell does not read (back pressure) the silence does not count, and it
   is checked only after a read found nothing waiting (the gap's rule); when it passes the
   watch stops the motors in motion.
@@ -61,7 +61,7 @@ What the shell does, and why:
   at most ``drain_s`` to leave.
 - **A recorder may listen.** Given one (``motorctld --trace``), every byte run read from the
   host and every run written to it is handed to it with this loop's own clock reading, on
-  this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.trace`).
+  this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.link.recorder`).
 - **Processing time** (``processing``): from a read to its answers written, for every read
   that produced answers, whichever way its frames were taken (the session's one-frame path
   or its framer) and whether or not the read began a session.
@@ -79,10 +79,10 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
-from motorctl.daemon.devwatch import Device, DeviceReturn, Notice
-from motorctl.daemon.serialport import Backoff
-from motorctl.daemon.session import CommandPort, Ended, LinkSession
-from motorctl.daemon.silence import SilenceWatch
+from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
+from motorctl.daemon.link.serialport import Backoff
+from motorctl.daemon.link.session import CommandPort, Ended, LinkSession
+from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
 

@@ -1,9 +1,9 @@
 """Where the daemon serves: a new PTY (``--pty``), and its slave side held while no host has it.
 
-A UART (``--port``) is opened by daemon/serialport.py.
+A UART (``--port``) is opened by daemon/link/serialport.py.
 
 Threads: the main thread, at start-up (daemon/main.py); the descriptors it returns, and the
-:class:`PtySlave`, then belong to the link (daemon/link.py).
+:class:`PtySlave`, then belong to the link (daemon/link/loop.py).
 """
 
 from __future__ import annotations
@@ -18,8 +18,9 @@ import termios
 import tty
 from pathlib import Path
 
-from motorctl.daemon import devwatch, paths
 from motorctl.daemon.assemble import StartupError
+from motorctl.daemon.link import devwatch
+from motorctl.daemon.state import files
 
 
 def open_pty(path: Path) -> tuple[int, str]:
@@ -36,7 +37,7 @@ def open_pty(path: Path) -> tuple[int, str]:
     What stands at ``path`` is never opened or followed: a link (the one an earlier run left,
     or anyone's) is replaced; a device is refused (``--pty /dev/ttyS0`` is a mistake, and
     renaming a device node breaks a system); anything else (a FIFO, a folder, a file) is set
-    aside under ``NAME.bad`` with one log line (daemon/paths.py), and the start goes on."""
+    aside under ``NAME.bad`` with one log line (daemon/state/files.py), and the start goes on."""
     _clear_pty_path(path)
     master, slave = os.openpty()
     tty.setraw(slave, termios.TCSANOW)
@@ -65,14 +66,14 @@ def _clear_pty_path(path: Path) -> None:
         raise StartupError(f"cannot look at --pty path {path}: {exc.strerror}") from exc
     if stat.S_ISLNK(st.st_mode):
         return
-    what = paths.kind(st.st_mode)
+    what = files.kind(st.st_mode)
     if stat.S_ISCHR(st.st_mode) or stat.S_ISBLK(st.st_mode):
         raise StartupError(
             f"{path} is {what}: --pty names the link the daemon makes to its own PTY; "
             "choose another path (a UART is served with --port)"
         )
     try:
-        paths.aside_in_the_way(path, what)
+        files.aside_in_the_way(path, what)
     except OSError as exc:
         raise StartupError(f"{exc.strerror}; remove it or choose another --pty path") from exc
 

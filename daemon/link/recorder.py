@@ -30,7 +30,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from motorctl.daemon.paths import clear_the_way, kind, open_for_writing
+from motorctl.daemon.state.files import clear_the_way, kind, open_for_writing
 from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
 
 log = logging.getLogger("motorctl.trace")
@@ -240,7 +240,7 @@ def _not_a_device(path: Path) -> None:
 
 def _create(path: Path) -> Any:
     """A new, empty trace file at ``path`` (0640 less the umask, like the state), opened
-    as the daemon opens every file it writes (daemon/paths.py: never through a link, never
+    as the daemon opens every file it writes (daemon/state/files.py: never through a link, never
     a FIFO or a device; what stands there is set aside). OSError when it cannot."""
     fd = open_for_writing(path, 0o640, os.O_WRONLY)
     try:

@@ -5,7 +5,7 @@ holds is hung up for good (POLLHUP, reads of nothing, EIO), and the adapter plug
 is a new device that must be opened anew. :class:`SerialDevice` keeps the *path* it was given
 (``/dev/ttyUSB0``, or better udev's ``/dev/serial/by-id/usb-...`` name, which follows the
 adapter whichever ``ttyUSBn`` it becomes) and opens it again on request; the link
-(:mod:`motorctl.daemon.link`) decides when, on a :class:`Backoff` schedule.
+(:mod:`motorctl.daemon.link.loop`) decides when, on a :class:`Backoff` schedule.
 
 Every failure a user can cause (no such device, no permission, held by another program, not
 a serial device) is a :class:`DeviceError` whose message names the path and the fix.
@@ -110,7 +110,7 @@ def keep_input_serial() -> Any:
     pyserial's ``open()`` ends with a ``tcflush(TCIFLUSH)``: the bytes a host sent between
     its device's return and the daemon's reopen would be lost. Only the flush inside
     ``open()`` is skipped; an explicit ``reset_input_buffer()`` afterwards still flushes.
-    (tests/daemon/test_serialport.py holds pyserial to this.)"""
+    (tests/daemon/link/test_serialport.py holds pyserial to this.)"""
     import serial
 
     class KeepInput(serial.Serial):

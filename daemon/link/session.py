@@ -4,7 +4,7 @@ Bytes and timestamps go in (:meth:`LinkSession.receive`, :meth:`LinkSession.idle
 :meth:`LinkSession.poll`); response bytes come out (:meth:`LinkSession.take_output`) in the
 order their frames arrived, exactly one per complete frame. Commands are executed through a
 narrow port (the dispatcher's ``handle``/``wait_begin``/``wait_poll``). The select loop in
-:mod:`motorctl.daemon.link` is a thin shell around it.
+:mod:`motorctl.daemon.link.loop` is a thin shell around it.
 
 Owned by the link thread; nothing here blocks except the port's calls (the engine lock, and
 a hard StopMove's bounded wait for the executor's confirmation).

@@ -26,7 +26,7 @@ older one), and the log names it.
 How it is written: complete or absent. A temporary file is written in full (looping on
 short writes), fsynced, renamed over the state file, and the directory is fsynced. The
 temporary file and the motion journal are opened as every file the daemon writes
-(daemon/paths.py: never through a link, never a FIFO or a device, never someone else's
+(daemon/state/files.py: never through a link, never a FIFO or a device, never someone else's
 file): whatever stands in their way (a directory, a symbolic link, ...) is set aside the
 same way, so the daemon can always write while its directory is writable. A motion journal
 that cannot be read is set aside once the state file written after it is durable.
@@ -68,7 +68,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from motorctl.daemon.paths import (
+from motorctl.daemon.state.files import (
     clear_the_way,
     describe,
     folder_owner,
@@ -89,8 +89,8 @@ POS_MIN = -(1 << 23)
 POS_MAX = (1 << 23) - 1
 MAX_WAYPOINTS = 255  # the protocol's table size; a motor's configured table may be smaller
 #: The largest state or journal file read: 64 motors with full tables write about 240 KiB
-#: (tests/daemon/test_state.py checks it); anything larger is not this daemon's and is set
-#: aside unread.
+#: (tests/daemon/state/test_persistence.py checks it); anything larger is not this daemon's
+#: and is set aside unread.
 MAX_FILE_BYTES = 4 << 20
 
 _show = reprlib.Repr()
@@ -272,7 +272,7 @@ def read_state(path: Path) -> SavedState | None:
 
 
 def read_regular(path: Path, limit: int = MAX_FILE_BYTES) -> bytes:
-    """The bytes of the regular file at ``path`` that is the daemon's own (daemon/paths.py:
+    """The bytes of the regular file at ``path`` that is the daemon's own (daemon/state/files.py:
     not another user's, not a hard link to a file elsewhere): never through a symbolic
     link, never opening a FIFO or a device, never more than ``limit`` bytes (a larger file
     is refused unread). FileNotFoundError when nothing is there; StateError naming what is

@@ -1,13 +1,13 @@
 """The live monitor's entry point (``motorctl monitor``, ``motorctld --status --watch``),
 free of the terminal library: it finds out whether ``rich`` is there and says what to
-install when it is not; the view itself is :mod:`motorctl.daemon.monitor_view`.
+install when it is not; the view itself is :mod:`motorctl.daemon.status.monitor_view`.
 
 ``rich`` is an optional dependency (the ``monitor`` extra; Debian: python3-rich): the
 daemon never imports it. The monitor reads only the status socket (docs/status.md), so it
 runs beside the daemon, e.g. in an SSH session on the board.
 
 Threads: the caller's thread draws; one reader thread per connection follows the
-subscription (:mod:`motorctl.daemon.monitor_view`).
+subscription (:mod:`motorctl.daemon.status.monitor_view`).
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ RICH_MISSING = (
 def run(path: Path, period_ms: int, once: bool = False) -> int:
     """Show the daemon's status at ``path``: refreshing until Ctrl-C, or ``once``."""
     try:
-        from motorctl.daemon import monitor_view
+        from motorctl.daemon.status import monitor_view
     except ModuleNotFoundError as exc:
         if exc.name is None or exc.name.split(".")[0] != "rich":
             raise

@@ -1,5 +1,5 @@
 """The live monitor's view: a status document drawn with ``rich`` (only this module imports
-it; :mod:`motorctl.daemon.monitor` is the entry point and says what to install without it).
+it; :mod:`motorctl.daemon.status.monitor` is the entry point and says what to install without it).
 
 :func:`render` is pure: a document (and the one before it, for rates) in, a renderable out,
 so tests draw a known state into a string. :func:`watch` follows the subscription
@@ -26,7 +26,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from motorctl.daemon.status import StatusError, read_status, subscribe
+from motorctl.daemon.status.server import StatusError, read_status, subscribe
 
 RECENT_SHOWN = 8
 RETRY_S = 1.0

@@ -42,7 +42,7 @@ from collections.abc import Generator
 from pathlib import Path
 from typing import Any, Protocol
 
-from motorctl.daemon.paths import bind_socket
+from motorctl.daemon.state.files import bind_socket
 
 log = logging.getLogger("motorctl.status")
 
@@ -141,7 +141,7 @@ def stable_view(doc: dict[str, Any]) -> dict[str, Any]:
 class StatusServer:
     def __init__(self, path: Path, status: StatusSource) -> None:
         """Bind ``path`` (the caller holds the instance lock: a socket there is stale;
-        anything else there is set aside, daemon/paths.py). OSError when it cannot."""
+        anything else there is set aside, daemon/state/files.py). OSError when it cannot."""
         self.path = path
         self.status = status
         self.errors = 0

@@ -23,8 +23,8 @@ import pytest
 from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.link import Link
-from motorctl.daemon.ports import open_pty
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.ports import open_pty
 from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
 from motorctl.hal.registry import open_hardware

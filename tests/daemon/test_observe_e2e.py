@@ -14,8 +14,8 @@ import time
 
 import pytest
 
-from motorctl.daemon.status import subscribe
-from tests.daemon.test_metrics import parse_om, parse_prometheus
+from motorctl.daemon.status.server import subscribe
+from tests.daemon.status.test_metrics import parse_om, parse_prometheus
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.wait import WAIT_S

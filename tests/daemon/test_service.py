@@ -20,10 +20,10 @@ from typing import Any
 import pytest
 
 from motorctl.daemon import service
-from motorctl.daemon import status as status_module
 from motorctl.daemon.instance import InstanceError, InstanceLock, Owned, flock_holder
 from motorctl.daemon.service import ProgressWatch
-from motorctl.daemon.status import StatusServer, StatusSource, read_status, summary_line
+from motorctl.daemon.status import server as status_module
+from motorctl.daemon.status.server import StatusServer, StatusSource, read_status, summary_line
 from tests.support.fsutil import read_only
 
 DEADLINE_S = 5.0

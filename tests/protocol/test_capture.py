@@ -10,7 +10,7 @@ import pytest
 
 from motorctl.client.replay import Tolerances, compare, plan
 from motorctl.client.trace import BAD_FRAME, EXTRA, GAP, LOST, analyse, load
-from motorctl.daemon.trace import TraceRecorder, rotated
+from motorctl.daemon.link.recorder import TraceRecorder, rotated
 from motorctl.protocol.capture import (
     LINKTYPE_USER0,
     CaptureError,

@@ -18,8 +18,8 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.dispatcher import Dispatcher, Wait
+from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.daemon.signals import StopSignals
-from motorctl.daemon.silence import SilenceWatch
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,

@@ -28,13 +28,13 @@ from typing import Any
 import pytest
 import serial
 
-from motorctl.daemon import serialport
-from motorctl.daemon.devwatch import PathWatch, watched_names
-from motorctl.daemon.link import Link
-from motorctl.daemon.ports import open_pty
-from motorctl.daemon.serialport import Backoff, DeviceError, SerialDevice
-from motorctl.daemon.silence import SilenceWatch
-from motorctl.daemon.status import summary_line
+from motorctl.daemon.link import serialport
+from motorctl.daemon.link.devwatch import PathWatch, watched_names
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.ports import open_pty
+from motorctl.daemon.link.serialport import Backoff, DeviceError, SerialDevice
+from motorctl.daemon.link.silence import SilenceWatch
+from motorctl.daemon.status.server import summary_line
 from motorctl.protocol.codec import (
     GetAbsPos,
     IsReady,

@@ -16,7 +16,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from motorctl.daemon.dispatcher import Wait
-from motorctl.daemon.session import Ended, LinkSession
+from motorctl.daemon.link.session import Ended, LinkSession
 from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
@@ -187,7 +187,7 @@ def test_a_repeated_frame_is_answered_from_the_state_of_the_moment(w: World) -> 
 
 
 def test_remembered_frames_and_answers_stay_bounded(w: World) -> None:
-    from motorctl.daemon.session import CACHE_LIMIT
+    from motorctl.daemon.link.session import CACHE_LIMIT
 
     queries: list[IsReady | GetAbsPos | GetPin] = [IsReady(m) for m in range(256)]
     queries += [GetAbsPos(m) for m in range(256)] + [GetPin(p) for p in range(256)]

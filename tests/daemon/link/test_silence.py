@@ -15,8 +15,8 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.assemble import silence_watch
-from motorctl.daemon.session import LinkSession
-from motorctl.daemon.silence import SilenceWatch, check_timeout, min_timeout_ms
+from motorctl.daemon.link.session import LinkSession
+from motorctl.daemon.link.silence import SilenceWatch, check_timeout, min_timeout_ms
 from motorctl.hal.interfaces import BridgeState, DcBridge
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorState

@@ -1,9 +1,9 @@
-"""Whatever stands at a path the daemon writes (daemon/paths.py), in-process: every kind of
+"""Whatever stands at a path the daemon writes (daemon/state/files.py), in-process: every kind of
 trap (tests/support/traps.py) that another user can place in a shared sticky folder, at
 each of the daemon's files (the lock files, state.json and its temporary file, the motion
 journal, the status socket, a trace file). Nothing is followed, opened, written through or
 waited for; the trap is set aside as it was, logged once, and the daemon's file is made
-anew. The same as a process among traps: tests/daemon/test_paths_e2e.py."""
+anew. The same as a process among traps: tests/daemon/state/test_files_e2e.py."""
 
 from __future__ import annotations
 
@@ -17,9 +17,10 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon import paths
 from motorctl.daemon.instance import InstanceError, InstanceLock
-from motorctl.daemon.state import (
+from motorctl.daemon.link.recorder import TraceRecorder
+from motorctl.daemon.state import files
+from motorctl.daemon.state.persistence import (
     JOURNAL_NAME,
     STATE_NAME,
     MotionJournal,
@@ -27,8 +28,7 @@ from motorctl.daemon.state import (
     read_state,
     write_atomic,
 )
-from motorctl.daemon.status import StatusServer, read_status
-from motorctl.daemon.trace import TraceRecorder
+from motorctl.daemon.status.server import StatusServer, read_status
 from motorctl.protocol.capture import CaptureInfo
 from tests.support.inprocess import TWO_MOTORS, build_daemon
 from tests.support.traps import KINDS, OTHER, VICTIM_TEXT, Trap, place, shared_folder
@@ -197,7 +197,7 @@ def test_a_file_of_its_own_is_reused_not_set_aside(
     os.chown(folder, OTHER, OTHER)
     (folder / JOURNAL_NAME).write_bytes(b"1")
     os.chown(folder / JOURNAL_NAME, OTHER, OTHER)
-    fd = paths.open_for_writing(folder / JOURNAL_NAME)
+    fd = files.open_for_writing(folder / JOURNAL_NAME)
     os.close(fd)
     assert not os.path.lexists(folder / (JOURNAL_NAME + ".bad"))
     assert "was " not in caplog.text
@@ -240,7 +240,7 @@ def test_a_file_swapped_after_the_look_is_never_used(
         return real_open(p, flags, mode, **kw)  # type: ignore[arg-type]
 
     monkeypatch.setattr(os, "open", swap_then_open)
-    fd = paths.open_for_writing(path)
+    fd = files.open_for_writing(path)
     monkeypatch.undo()
     os.close(fd)
     traps[0].check()
@@ -260,7 +260,7 @@ def test_a_path_that_keeps_being_replaced_gives_up(
 
     monkeypatch.setattr(os, "open", always_taken)
     with pytest.raises(OSError, match="keeps being replaced"):
-        paths.open_for_writing(path)
+        files.open_for_writing(path)
     with pytest.raises(InstanceError, match=r"cannot create lock file .*keeps being replaced"):
         InstanceLock(path, "X").acquire()
 
@@ -268,9 +268,9 @@ def test_a_path_that_keeps_being_replaced_gives_up(
 def test_nothing_can_be_set_aside(shared: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     path = shared / JOURNAL_NAME
     place(path, "fifo").check(set_aside=False)
-    monkeypatch.setattr(paths, "ASIDE_LIMIT", 0)
+    monkeypatch.setattr(files, "ASIDE_LIMIT", 0)
     with pytest.raises(OSError, match=r"cannot move .* aside: .*are all taken"):
-        paths.open_for_writing(path)
+        files.open_for_writing(path)
     assert stat.S_ISFIFO(os.lstat(path).st_mode)  # left as it was, never opened
 
 
@@ -280,7 +280,7 @@ def test_the_status_socket_mode_is_exact_whatever_the_umask(shared: Path) -> Non
     for mask in (0o077, 0o027, 0o000):
         old = os.umask(mask)
         try:
-            sock = paths.bind_socket(path, 0o660)
+            sock = files.bind_socket(path, 0o660)
         finally:
             os.umask(old)
         assert stat.S_IMODE(os.lstat(path).st_mode) == 0o660

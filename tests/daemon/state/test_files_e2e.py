@@ -4,7 +4,7 @@ root, with its state directory, its PTY and its trace file in a shared sticky fo
 a state file the JSON parser cannot take; a config that is a FIFO, a folder, or starts
 with a UTF-8 byte order mark. Nothing is followed, opened or written through, nothing
 hangs, nothing crashes: the daemon starts, serves and stops cleanly. Every kind of trap at
-every path, in-process: tests/daemon/test_paths.py."""
+every path, in-process: tests/daemon/state/test_files.py."""
 
 from __future__ import annotations
 
@@ -145,7 +145,7 @@ def test_a_config_with_a_byte_order_mark_is_accepted(tmp_path: Path) -> None:
 
 @pytest.mark.parametrize("kind", [k for k in KINDS if "link" not in k and k != "device"])
 def test_what_stands_at_the_pty_path_is_set_aside(tmp_path: Path, kind: str) -> None:
-    """The PTY path (daemon/ports.py): a link there is replaced, never followed (above);
+    """The PTY path (daemon/link/ports.py): a link there is replaced, never followed (above);
     anything else but a device is set aside with one line, never opened or waited for,
     and the daemon serves."""
     shared = shared_folder(tmp_path)

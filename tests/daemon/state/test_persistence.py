@@ -18,11 +18,11 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as hst
 
-from motorctl.daemon import paths
-from motorctl.daemon import state as st
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.state import (
+from motorctl.daemon.state import files
+from motorctl.daemon.state import persistence as st
+from motorctl.daemon.state.persistence import (
     MotionJournal,
     MotorIdentity,
     StateError,
@@ -350,10 +350,10 @@ def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) 
 def test_no_free_name_left(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    monkeypatch.setattr(paths, "ASIDE_LIMIT", 3)
+    monkeypatch.setattr(files, "ASIDE_LIMIT", 3)
     for name in ("state.json", "state.json.bad", "state.json.bad.1", "state.json.bad.2"):
         (tmp_path / name).mkdir()
-    assert paths.set_aside(tmp_path / "state.json") is None
+    assert files.set_aside(tmp_path / "state.json") is None
     assert "are all taken; remove old ones" in caplog.text
 
 
@@ -686,7 +686,7 @@ def test_read_only_directory_save_answers_e4(
 def test_set_aside_fails_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     (tmp_path / "state.json").write_bytes(b"\xff")
     with read_only(tmp_path):
-        assert paths.set_aside(tmp_path / "state.json") is None
+        assert files.set_aside(tmp_path / "state.json") is None
     assert "cannot move" in caplog.text
 
 

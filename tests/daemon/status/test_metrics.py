@@ -12,7 +12,7 @@ from prometheus_client.metrics_core import Metric
 from prometheus_client.openmetrics.parser import text_string_to_metric_families as _om
 from prometheus_client.parser import text_string_to_metric_families as _prometheus
 
-from motorctl.daemon.metrics import down, openmetrics
+from motorctl.daemon.status.metrics import down, openmetrics
 
 DOC: dict[str, Any] = {
     "uptime_s": 100.0,

@@ -13,8 +13,8 @@ from typing import Any
 
 from rich.console import Console
 
-from motorctl.daemon.monitor_view import Seen, frames_per_second, render
-from tests.daemon.test_metrics import DOC
+from motorctl.daemon.status.monitor_view import Seen, frames_per_second, render
+from tests.daemon.status.test_metrics import DOC
 from tests.support import REPO
 
 

@@ -14,8 +14,8 @@ from typing import Any
 
 import pytest
 
-from motorctl.daemon import status as status_module
-from motorctl.daemon.status import (
+from motorctl.daemon.status import server as status_module
+from motorctl.daemon.status.server import (
     StatusError,
     StatusServer,
     parse_request,
