@@ -34,12 +34,9 @@ from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.daemon.service import ProgressWatch
-from motorctl.daemon.state.persistence import (
-    MotorIdentity,
-    Persistence,
-    StateWriter,
-    geometry_fingerprint,
-)
+from motorctl.daemon.state.persistence import Persistence
+from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
+from motorctl.daemon.state.writer import StateWriter
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec

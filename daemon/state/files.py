@@ -1,4 +1,9 @@
-"""What the daemon finds at the paths it writes, and how it makes its files there.
+"""Safe files: what the daemon finds at the paths it writes, and how it makes its files there.
+
+The one rule of every path the daemon creates or writes, kept in the state wing (whose files
+are most of them) and used by every other part that writes a file: the lock files
+(daemon/instance.py), the status socket (daemon/status/server.py), the trace
+(daemon/link/recorder.py), the PTY's link (daemon/link/ports.py).
 
 The daemon often runs as root with its files in folders that others can write: ``--pty
 /tmp/x`` puts a lock file in /tmp, a ``--state-dir`` or a ``--trace`` file may be in a
@@ -16,6 +21,10 @@ never written through, opened or waited for:
 - everything else is set aside under the first free name of ``NAME.bad``, ``NAME.bad.1``,
   ... ``NAME.bad.999`` (never replacing an older one, :func:`set_aside`), logged once, and
   the file is made anew with ``O_CREAT | O_EXCL``.
+
+Complete or absent (:func:`write_atomic`, the state file): a temporary file is written in
+full (looping on short writes, :func:`write_all`), fsynced, renamed over the file, and the
+directory is fsynced (:func:`fsync_dir`).
 
 The status socket is bound in a folder of its own making (mode 0700, so nobody can swap a
 link in before its ``chmod``) and renamed into place (:func:`bind_socket`).
@@ -219,3 +228,45 @@ def bind_socket(path: Path, mode: int) -> socket.socket:
             os.unlink(tmp)  # still there when the rename did not happen
         os.rmdir(private)
     return sock
+
+
+# -- complete or absent ---------------------------------------------------------------------
+def write_all(fd: int, data: bytes) -> None:
+    """Write every byte, looping on short writes (a full disk raises OSError)."""
+    view = memoryview(data)
+    while view:
+        n = os.write(fd, view)
+        if n <= 0:
+            raise OSError(errno.EIO, "write returned 0")
+        view = view[n:]
+
+
+def fsync_dir(path: Path) -> None:
+    dfd = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        os.fsync(dfd)
+    finally:
+        os.close(dfd)
+
+
+def write_atomic(path: Path, data: bytes, mode: int = 0o640) -> None:
+    """Replace ``path`` with ``data``, complete or not at all; OSError when it cannot."""
+    tmp = path.with_name(path.name + ".tmp")
+    fd = open_for_writing(tmp, mode, os.O_WRONLY)  # what else is there is set aside
+    try:
+        try:
+            os.ftruncate(fd, 0)
+            write_all(fd, data)
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+        try:
+            os.replace(tmp, path)  # replaces a link or a FIFO there, never follows it
+        except IsADirectoryError:  # a directory made there since the start
+            clear_the_way(path)
+            os.replace(tmp, path)
+    except OSError:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+    fsync_dir(path.parent)

@@ -20,14 +20,9 @@ import pytest
 from motorctl.daemon.instance import InstanceError, InstanceLock
 from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.state import files
-from motorctl.daemon.state.persistence import (
-    JOURNAL_NAME,
-    STATE_NAME,
-    MotionJournal,
-    StateError,
-    read_state,
-    write_atomic,
-)
+from motorctl.daemon.state.files import write_atomic
+from motorctl.daemon.state.journal import MotionJournal
+from motorctl.daemon.state.records import JOURNAL_NAME, STATE_NAME, StateError, read_state
 from motorctl.daemon.status.server import StatusServer, read_status
 from motorctl.protocol.capture import CaptureInfo
 from tests.support.inprocess import TWO_MOTORS, build_daemon

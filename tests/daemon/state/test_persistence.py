@@ -20,17 +20,12 @@ from hypothesis import strategies as hst
 
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
-from motorctl.daemon.state import files
-from motorctl.daemon.state import persistence as st
-from motorctl.daemon.state.persistence import (
-    MotionJournal,
-    MotorIdentity,
-    StateError,
-    parse_state,
-    read_state,
-    write_all,
-    write_atomic,
-)
+from motorctl.daemon.state import files, writer
+from motorctl.daemon.state import records as st
+from motorctl.daemon.state.files import write_all, write_atomic
+from motorctl.daemon.state.journal import MotionJournal
+from motorctl.daemon.state.persistence import Persistence
+from motorctl.daemon.state.records import MotorIdentity, StateError, parse_state, read_state
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,
@@ -733,7 +728,7 @@ def test_open_with_unwritable_journal(
 def test_identities_must_match_motors(tmp_path: Path) -> None:
     d = build(tmp_path)
     with pytest.raises(ValueError):
-        st.Persistence(tmp_path, [], d.engine)
+        Persistence(tmp_path, [], d.engine)
 
 
 def test_state_directory_option(tmp_path: Path) -> None:
@@ -852,7 +847,7 @@ def test_an_unreadable_journal_stays_while_the_state_cannot_be_written(
     def cannot(path: Path, data: bytes, mode: int = 0o640) -> None:
         raise OSError(errno.EROFS, "Read-only file system")
 
-    monkeypatch.setattr(st, "write_atomic", cannot)
+    monkeypatch.setattr(writer, "write_atomic", cannot)
     d = build(tmp_path)
     assert lost(d) == [True, True]
     assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"zz"
