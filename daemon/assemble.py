@@ -30,6 +30,7 @@ from typing import Any
 from motorctl import __version__
 from motorctl.daemon.config import Config, MotorConfig
 from motorctl.daemon.dispatcher import Dispatcher
+from motorctl.daemon.errors import StartupError
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.link.silence import SilenceWatch
@@ -59,10 +60,6 @@ log = logging.getLogger("motorctl")
 
 #: the planner's step-time error bound (segments' reproduction of exact step times)
 STEP_ERROR_S = 5e-6
-
-
-class StartupError(Exception):
-    """Something the user must fix before the daemon can start; the message says what."""
 
 
 def hardware_spec(config: Config) -> HardwareSpec:

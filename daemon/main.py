@@ -28,7 +28,6 @@ from motorctl import __version__
 from motorctl.daemon import platform_check
 from motorctl.daemon.assemble import (
     Daemon,
-    StartupError,
     hardware_spec,
     known_microsteps,
     make_state_dir,
@@ -38,6 +37,7 @@ from motorctl.daemon.assemble import (
     state_files_dir,
 )
 from motorctl.daemon.config import Config, ConfigError, StepThreadConfig, load_config
+from motorctl.daemon.errors import StartupError
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.link.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.link.loop import Link

@@ -18,7 +18,7 @@ import termios
 import tty
 from pathlib import Path
 
-from motorctl.daemon.assemble import StartupError
+from motorctl.daemon.errors import StartupError
 from motorctl.daemon.link import devwatch
 from motorctl.daemon.state import files
 

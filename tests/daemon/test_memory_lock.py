@@ -100,6 +100,7 @@ def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
     would stay in /dev/shm until the next reboot)."""
     from motorctl.daemon import assemble
     from motorctl.daemon.config import parse_config
+    from motorctl.daemon.errors import StartupError
 
     made: list[object] = []
     real = assemble.build_executor
@@ -116,7 +117,7 @@ def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
         + f'[state]\ndirectory = "{blocker}"\n',
         "t.toml",
     )
-    with pytest.raises(assemble.StartupError, match="not-a-dir"):
+    with pytest.raises(StartupError, match="not-a-dir"):
         assemble.Daemon.build(config, tmp_path / "state", None)
     (executor,) = made
     label = executor.shm.name  # type: ignore[attr-defined]
