@@ -51,7 +51,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from motorctl.daemon.status.server import read_status
+from motorctl.daemon.status.reader import read_status
 
 ROOT = Path(__file__).resolve().parent.parent
 # The harness's daemon uses a 100 ms gap: this host is a Python process on a shared machine

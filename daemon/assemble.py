@@ -38,18 +38,17 @@ from motorctl.daemon.service import ProgressWatch
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
 from motorctl.daemon.state.writer import StateWriter
-from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin, RampDriver
+from motorctl.daemon.status.document import status_document
+from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_chip_ramp import RampExecutor, with_ramp_motors
+from motorctl.motion.executor_chip_ramp import with_ramp_motors
 from motorctl.motion.executor_process import ProcessStepExecutor
 from motorctl.motion.executor_process_start import ExecutorProcess
 from motorctl.motion.executor_seam import Executor
 from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
-from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
@@ -228,6 +227,10 @@ class Daemon:
     def writer(self) -> StateWriter:
         return self.persistence.writer
 
+    def status(self, histogram: bool = False) -> dict[str, Any]:
+        """The status document (daemon/status/document.py)."""
+        return status_document(self, histogram)
+
     def _on_motor_event(self, motor: Motor, event: str) -> None:
         # Runs with the engine lock held, often on the step thread: no I/O here.
         self.writer.request()
@@ -237,108 +240,6 @@ class Daemon:
             self.gc_policy.motion(False)
         if self.link is not None:
             self.link.wake()
-
-    # -- status --------------------------------------------------------------------
-    def status(self, histogram: bool = False) -> dict[str, Any]:
-        """A snapshot for the status socket, taken WITHOUT the motion lock: each field is
-        read whole (the executor's counters and histogram are its own snapshots), so a
-        status read never delays planning, let alone a step. Its cost is bounded (the
-        lateness percentiles come from the histogram's blocks), except ``histogram``: the
-        step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
-        up to 20,001), for the benchmarks that ask for it."""
-        executor = self.engine.executor
-        motors: list[dict[str, Any]] = [
-            {
-                "index": m.index,
-                "name": m.params.name,
-                "state": m.state.value,
-                "position": m.position,
-                "queued": len(m.queue),
-                "fault": m.fault,
-                "position_lost": m.position_lost,
-                "waypoints": len(m.waypoints),
-                "faults": dict(m.faults),
-                "timing": {
-                    **executor.motor_timing(m.index),
-                    "microsteps": m.params.microsteps,
-                    "max_lag_full_steps": m.params.max_lag_full_steps,
-                },
-                "soft_stops": {
-                    "count": m.soft_stops,
-                    "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
-                    "takeover_steps": list(m.takeover_steps),
-                },
-            }
-            for m in list(self.engine.motors)
-        ]
-        now = self.engine.clock.now()
-        for doc, m in zip(motors, self.engine.motors, strict=True):
-            doc["speed"] = motor_speed(m.traj, executor.motor_time(m.index, now))
-        health = executor.health()
-        steps = dict(health.latency)
-        steps.update(health.counters)
-        stats = executor.step_lateness()
-        if histogram and stats is not None:  # the step executor's, with or without ramps
-            steps["histogram_us"] = stats.histogram()
-        out: dict[str, Any] = {
-            "motors": motors,
-            "steps": steps,
-            "executor": {
-                "alive": health.alive,
-                "reason": health.reason,
-                "kind": step_executor_kind(self.config, executor),
-                "core": executor.step_core(),
-                "pid": getattr(executor, "pid", None),
-            },
-            "clamped": dict(self.dispatcher.clamped),
-            "hard_stops": self.engine.stop_wait_status(),
-            "state": self.persistence.status(),
-            "pins": pin_status(self.hw.pins),
-            "dc": dc_status(self.engine.dc, now),
-        }
-        mono = time.monotonic()
-        out.update(
-            monotonic_s=mono, uptime_s=round(mono - self.started, 3), unix_s=round(time.time(), 3)
-        )
-        if self.link is not None:
-            out["link"] = self.link.status()
-        if self.trace is not None:
-            out["trace"] = self.trace.status()
-        drivers = [d for s in self.hw.steppers if (d := s.driver.stats()) is not None]
-        if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
-            out["drivers"] = drivers
-        return out
-
-
-def motor_speed(traj: Trajectory | None, now: float) -> float:
-    """The planned speed at ``now`` in step/s, signed (0 without a trajectory)."""
-    return 0.0 if traj is None else round(traj.velocity(now), 1)
-
-
-def pin_status(pins: dict[int, Pin]) -> list[dict[str, Any]]:
-    """Each IO pin: number, output or not, level (an input is read now; None if that
-    failed, ``error`` says why)."""
-    out: list[dict[str, Any]] = []
-    for number, pin in sorted(pins.items()):
-        entry: dict[str, Any] = {"number": number, "output": pin.is_output}
-        try:
-            entry["level"] = pin.read()
-        except (HalError, OSError) as exc:
-            entry.update(level=None, error=str(exc))
-        out.append(entry)
-    return out
-
-
-def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
-    """The DC motor's bridge state and the time left of its run; None: no DC motor."""
-    if dc is None:
-        return None
-    deadline = dc.deadline
-    return {
-        "state": dc.bridge.state.value,
-        "running": deadline is not None,
-        "left_s": None if deadline is None else round(max(0.0, deadline - now), 3),
-    }
 
 
 def state_files_dir(config: Config, state_dir: Path) -> Path:
@@ -356,12 +257,6 @@ def make_state_dir(state_dir: Path) -> None:
         ) from exc
     if not os.access(state_dir, os.W_OK):
         raise StartupError(f"state directory {state_dir} is not writable; pass --state-dir")
-
-
-def step_executor_kind(config: Config, executor: Executor) -> str:
-    """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
-    TMC5160's own ramp (no step executor at all)."""
-    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
 
 
 def build_executor(

@@ -54,7 +54,9 @@ from motorctl.daemon.service import (
     watchdog_interval,
 )
 from motorctl.daemon.signals import StopSignals
-from motorctl.daemon.status.server import StatusServer, read_status, summary_line
+from motorctl.daemon.status.document import summary_line
+from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.status.server import StatusServer
 from motorctl.hal.interfaces import MonotonicClock, ProbeReport
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion import compiled_core

@@ -26,7 +26,7 @@ from rich.live import Live
 from rich.table import Table
 from rich.text import Text
 
-from motorctl.daemon.status.server import StatusError, read_status, subscribe
+from motorctl.daemon.status.reader import StatusError, read_status, subscribe
 
 RECENT_SHOWN = 8
 RETRY_S = 1.0

@@ -1,10 +1,9 @@
-"""A read-only status socket: connect, send a request line, receive one JSON document, done;
-or subscribe and receive one JSON document per line for as long as you stay; and the summary
-line.
+"""The status socket's server: connect, send a request line, receive one JSON document,
+done; or subscribe and receive one JSON document per line for as long as you stay.
 
-Over 500 lines on purpose: the socket's server and its two clients (:func:`read_status`,
-:func:`subscribe`) are one protocol (request words, one JSON document per line), kept in one
-place so that they cannot drift apart; each part is small.
+Its clients are daemon/status/reader.py (the same protocol: request words, one JSON
+document per line; the constants here are theirs too); the document itself is built by
+daemon/status/document.py.
 
 The request is one line of words, ``\n``-terminated: empty for the status, ``histogram`` for
 the status with the full step-lateness histogram (``steps.histogram_us``, up to 20,001 bins:
@@ -38,7 +37,6 @@ import selectors
 import socket
 import threading
 import time
-from collections.abc import Generator
 from pathlib import Path
 from typing import Any, Protocol
 
@@ -427,109 +425,3 @@ class StatusServer:
             pass
         except OSError as exc:
             log.warning("cannot remove status socket %s: %s", self.path, exc.strerror)
-
-
-def _connect(sock: socket.socket, path: Path, timeout: float) -> None:
-    deadline = time.monotonic() + timeout
-    while True:
-        try:
-            sock.connect(str(path))
-            return
-        except BlockingIOError:  # the server's backlog is full: a slot frees soon
-            if time.monotonic() >= deadline:
-                raise TimeoutError(
-                    f"{path}: every status slot stayed busy for {timeout:.0f} s"
-                ) from None
-            time.sleep(0.005)
-
-
-def read_status(path: Path, timeout: float = 5.0, histogram: bool = False) -> dict[str, Any]:
-    """The daemon's status; ``histogram``: with ``steps.histogram_us`` (costlier: ask only
-    when needed)."""
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-        sock.settimeout(timeout)
-        _connect(sock, path, timeout)
-        sock.sendall(b"histogram\n" if histogram else b"\n")
-        chunks = []
-        while chunk := sock.recv(65536):
-            chunks.append(chunk)
-    data = json.loads(b"".join(chunks))
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: the status is not a JSON object")
-    return data
-
-
-class StatusError(Exception):
-    """The status socket answered with an error document (its text is the message)."""
-
-
-def subscribe(
-    path: Path, period_s: float | None = None, timeout: float = 5.0
-) -> Generator[dict[str, Any], None, None]:
-    """The daemon's status updates as they come (docs/status.md), until the daemon closes
-    the stream (it stopped: the iterator ends). ``period_s``: how often the daemon looks
-    for a change (None: its default). OSError when it cannot connect; TimeoutError when no
-    update came for three heartbeats; StatusError for an error document."""
-    request = (
-        b"subscribe\n" if period_s is None else f"subscribe {round(period_s * 1000)}\n".encode()
-    )
-    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
-        sock.settimeout(timeout)
-        _connect(sock, path, timeout)
-        sock.sendall(request)
-        sock.settimeout(3 * HEARTBEAT_S + timeout)
-        buffered = b""
-        while True:
-            try:
-                chunk = sock.recv(65536)
-            except TimeoutError:
-                raise TimeoutError(
-                    f"{path}: no status update for {3 * HEARTBEAT_S + timeout:.0f} s"
-                ) from None
-            if not chunk:
-                if buffered.strip():  # an answer without a line end: an error document
-                    yield _update_of(buffered, path)
-                return
-            buffered += chunk
-            *lines, buffered = buffered.split(b"\n")
-            for line in lines:
-                yield _update_of(line, path)
-
-
-def _update_of(line: bytes, path: Path) -> dict[str, Any]:
-    data = json.loads(line)
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: a status update is not a JSON object")
-    if set(data) == {"error"}:
-        raise StatusError(str(data["error"]))
-    return data
-
-
-def summary_line(status: dict[str, Any]) -> str:
-    """systemd's STATUS=: motors moving/faulted/lost, frames served, errors, state file."""
-    motors = status.get("motors", [])
-    moving = sum(1 for m in motors if m.get("state") not in ("idle", "fault"))
-    faulted = [str(m.get("index")) for m in motors if m.get("fault")]
-    lost = sum(1 for m in motors if m.get("position_lost"))
-    parts = [f"{len(motors)} motors: {moving} moving"]
-    parts[0] += f", faulted {','.join(faulted)}" if faulted else ", none faulted"
-    if lost:
-        parts[0] += f", {lost} to home"
-    link = status.get("link")
-    if isinstance(link, dict):
-        counters = link.get("counters", {})
-        errors = sum(
-            v
-            for k, v in counters.items()
-            if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_"))
-        )
-        parts.append(f"{counters.get('responses', 0)} frames served, {errors} errors")
-        device = link.get("device") or "?"
-        if link.get("peer") == "gone":
-            parts.append(f"SERIAL DEVICE {device} GONE, reopening it when it is back")
-        elif link.get("peer") == "waiting":
-            parts.append(f"WAITING FOR SERIAL DEVICE {device} (not there yet)")
-    state = status.get("state")
-    if isinstance(state, dict) and not state.get("ok", True):
-        parts.append("STATE NOT SAVED: " + str(state.get("last_error")))
-    return "; ".join(parts)

@@ -14,7 +14,7 @@ import time
 
 import pytest
 
-from motorctl.daemon.status.server import subscribe
+from motorctl.daemon.status.reader import subscribe
 from tests.daemon.status.test_metrics import parse_om, parse_prometheus
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, StartDaemon

@@ -23,7 +23,9 @@ from motorctl.daemon import service
 from motorctl.daemon.instance import InstanceError, InstanceLock, Owned, flock_holder
 from motorctl.daemon.service import ProgressWatch
 from motorctl.daemon.status import server as status_module
-from motorctl.daemon.status.server import StatusServer, StatusSource, read_status, summary_line
+from motorctl.daemon.status.document import summary_line
+from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.status.server import StatusServer, StatusSource
 from tests.support.fsutil import read_only
 
 DEADLINE_S = 5.0

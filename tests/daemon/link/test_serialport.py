@@ -34,7 +34,7 @@ from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import open_pty
 from motorctl.daemon.link.serialport import Backoff, DeviceError, SerialDevice
 from motorctl.daemon.link.silence import SilenceWatch
-from motorctl.daemon.status.server import summary_line
+from motorctl.daemon.status.document import summary_line
 from motorctl.protocol.codec import (
     GetAbsPos,
     IsReady,

@@ -14,7 +14,8 @@ from typing import Any
 
 import pytest
 
-from motorctl.daemon.status.server import StatusServer, read_status
+from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.status.server import StatusServer
 from motorctl.motion.latency import BINS
 from motorctl.protocol.codec import Move, StopMove, WaitMoved
 from tests.support.inprocess import LIVE_CONFIG, LiveDaemon

@@ -15,14 +15,8 @@ from typing import Any
 import pytest
 
 from motorctl.daemon.status import server as status_module
-from motorctl.daemon.status.server import (
-    StatusError,
-    StatusServer,
-    parse_request,
-    read_status,
-    stable_view,
-    subscribe,
-)
+from motorctl.daemon.status.reader import StatusError, read_status, subscribe
+from motorctl.daemon.status.server import StatusServer, parse_request, stable_view
 from tests.support.wait import until
 
 DEADLINE_S = 30.0
