@@ -274,6 +274,37 @@ class DeviceReturn:
         self._attempts = 0  # since it went away
         self._reported: set[int | None] = set()  # the errors logged since then
 
+    def awaited(self, now: float) -> None:
+        """Not there at start (from ``now`` on): served as soon as it appears."""
+        self.ever_open = False
+        self.away(now)
+        log.warning(
+            "serial device %s is not there: serving it as soon as it appears (watching "
+            "its folder, and trying every %.0f ms at most)",
+            self.device.path,
+            self.backoff.max_s * 1000,
+            extra={"DEVICE": self.device.path, "EVENT": "device_awaited"},
+        )
+
+    def lost(self, why: str, now: float) -> None:
+        """It went away at ``now`` (``why``, for the log): its dead descriptor is closed;
+        it is opened again when it is back. Motors and positions are kept."""
+        path = self.device.path
+        self.device.close()
+        self.away(now)
+        self.counters["device_lost"] += 1  # once its path is watched (the tests wait on it)
+        log.warning(
+            "serial device %s is gone (%s); motors and positions are kept; opening %s "
+            "again as soon as it is back (watching its folder, and trying %.0f ms after "
+            "the loss, then doubling up to every %.0f ms)",
+            path,
+            why,
+            path,
+            self.backoff.first_s * 1000,
+            self.backoff.max_s * 1000,
+            extra={"DEVICE": path, "EVENT": "device_lost"},
+        )
+
     def away(self, now: float) -> None:
         """It is away from ``now`` on: watch its path, start the schedule from its first
         pause."""

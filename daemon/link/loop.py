@@ -1,9 +1,10 @@
 """The link's loop: poll, read, write, around the pure session (daemon/link/session.py).
 
-Over 500 lines on purpose: one loop that every byte crosses, whose states (reading, holding
-back, no host, a host's session ending, a device away) decide together what each turn
-waits for; what could stand apart does (the session, the silence watch, the device's
-return in daemon/link/devwatch.py, the PTY's slave in daemon/link/ports.py).
+One loop that every byte crosses, whose states (reading, holding back, no host, a host's
+session ending, a device away) decide together what each turn waits for; what could stand
+apart does: the session, the silence watch (silence.py), the device's return (devwatch.py),
+the PTY's slave (ports.py), the ends of sessions in the counters and the log
+(session_end.py), all in daemon/link/.
 
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
 on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
@@ -31,13 +32,13 @@ What the shell does, and why:
 - **A host's session ends** when it closes the PTY (POLLHUP, EIO; or the slave's close
   and a new open reported by ``pty``'s inotify watch, when a host closed the port and
   another opened it before the link looked) or its serial device goes away. Everything
-  owed to it is dropped and counted by cause (``responses_dropped_*``): the partial frame,
-  the answers not yet written (``unsent``; on a PTY also those the kernel still holds for
-  it, counted and flushed by ``pty``, a :class:`~motorctl.daemon.link.ports.PtySlave`), a held
-  WaitMoved's answer (``wait``) and the answers of the frames kept behind it (``held``;
-  their commands are never executed: :meth:`LinkSession.end`). The next host reads only
-  its own answers, and its first command is answered at once: nothing of the old session
-  is left to wait for.
+  owed to it is dropped and counted by cause (``responses_dropped_*``; logged a moment
+  later, session_end.py): the partial frame, the answers not yet written (``unsent``; on a
+  PTY also those the kernel still holds for it, counted and flushed by ``pty``, a
+  :class:`~motorctl.daemon.link.ports.PtySlave`), a held WaitMoved's answer (``wait``) and
+  the answers of the frames kept behind it (``held``; their commands are never executed:
+  :meth:`LinkSession.end`). The next host reads only its own answers, and its first
+  command is answered at once: nothing of the old session is left to wait for.
 - **No host on the PTY**: ``pty`` holds the slave side open, so that the master does not
   report POLLHUP over and over; ``poll()`` sleeps until a host writes, and its first bytes
   are read like any others. Any other read or write error (or a PTY whose slave cannot be
@@ -81,7 +82,8 @@ from typing import Protocol
 
 from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
 from motorctl.daemon.link.serialport import Backoff
-from motorctl.daemon.link.session import CommandPort, Ended, LinkSession
+from motorctl.daemon.link.session import CommandPort, LinkSession
+from motorctl.daemon.link.session_end import CAUSES, SessionEnds
 from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
@@ -92,7 +94,6 @@ POLLIN, POLLOUT = select.POLLIN, select.POLLOUT
 POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 WRITE_MAX = 65536  # bytes handed to one write()
-SAY_AFTER_S = 0.02  # a session's end is logged this long after it (see _end_session)
 
 SHELL_COUNTERS = (
     "reads",
@@ -103,7 +104,7 @@ SHELL_COUNTERS = (
     "peer_reopened",
     "hangup_partial_bytes",
     "responses_dropped",
-    *(f"responses_dropped_{cause}" for cause in ("unsent", "wait", "held", "shutdown")),
+    *(f"responses_dropped_{cause}" for cause in CAUSES),
     "backpressure",
     "device_lost",
     "device_reopened",
@@ -187,8 +188,7 @@ class Link:
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
         self._opens: int | None = None  # the PTY slave's opens and closes, registered there
-        self._later: list[tuple[str, Ended, int]] = []  # session ends to log, a moment later
-        self._later_at = 0.0
+        self.ends = SessionEnds(self.counters, self.clock)
         self._poller = select.poll()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
@@ -197,15 +197,7 @@ class Link:
         self.turns = 0
         if self.away is not None and fd < 0:  # not there at start: served when it appears
             self.peer_gone = True
-            self.away.ever_open = False
-            self.away.away(self.clock())
-            log.warning(
-                "serial device %s is not there: serving it as soon as it appears (watching "
-                "its folder, and trying every %.0f ms at most)",
-                self.away.device.path,
-                self.away.backoff.max_s * 1000,
-                extra={"DEVICE": self.away.device.path, "EVENT": "device_awaited"},
-            )
+            self.away.awaited(self.clock())
         elif pty is not None:  # no host yet: hold the slave until one writes
             self.peer_gone = True
             pty.hold()
@@ -254,7 +246,7 @@ class Link:
         while not self._stopped:
             self.turn(poller)
             self.turns += 1  # the watchdog's evidence that the loop is not hung
-        self._say_later()
+        self.ends.say()
         self._drain()
 
     def turn(self, poller: select.poll) -> None:
@@ -273,36 +265,10 @@ class Link:
             if self._watching:
                 self.watch.check(self.clock())
             return
-        fd = self.fd
-        reading = session.wants_input() and len(self._out) < self.out_limit
-        if reading != self._reading:
-            self._reading = reading
-            if not reading:
-                self.counters["backpressure"] += 1
-            if self._watching:
-                self.watch.listening(reading, self.clock())
-        mask = (POLLIN if reading else 0) | (POLLOUT if self._out else 0)
-        if mask != self._mask:  # a new mask makes poll() rebuild its descriptor array
-            self._mask = mask
-            poller.register(fd, mask)
+        reading = self._listen(poller)
         t_enter = self.clock()
-        events = 0
-        opened = False
-        timeout = self._timeout_ms(t_enter, reading)
-        if self._later:  # said once the line has been quiet a moment, not before a new
-            left = (self._later_at + SAY_AFTER_S - t_enter) * 1000.0  # host's first command
-            if left <= 0:
-                self._say_later()
-            elif timeout is None or left < timeout:
-                timeout = left
-        for ready, what in poller.poll(timeout):
-            if ready == fd:
-                events = what
-            elif ready == self._wake_r:
-                with contextlib.suppress(BlockingIOError):
-                    os.read(self._wake_r, 4096)
-            else:  # the slave was opened or closed
-                opened = True
+        timeout = self.ends.bound(t_enter, self._timeout_ms(t_enter, reading))
+        events, opened = self._wait(poller, timeout)
         # The slave's opens and closes first: a host that closed the port and opened it
         # again before this poll (no POLLHUP seen) has ended its session all the same, and
         # the bytes it sends since are the next session's. What is there to read now is
@@ -325,6 +291,38 @@ class Link:
             self._read(t_enter)
         if self._watching:  # after the read: bytes that waited in the kernel were heard
             self.watch.check(self.clock())
+
+    def _listen(self, poller: select.poll) -> bool:
+        """Whether to read this turn: not while the host has too much to read back (back
+        pressure; the silence does not count meanwhile). The port's events are registered
+        with ``poller`` accordingly."""
+        reading = self.session.wants_input() and len(self._out) < self.out_limit
+        if reading != self._reading:
+            self._reading = reading
+            if not reading:
+                self.counters["backpressure"] += 1
+            if self._watching:
+                self.watch.listening(reading, self.clock())
+        mask = (POLLIN if reading else 0) | (POLLOUT if self._out else 0)
+        if mask != self._mask:  # a new mask makes poll() rebuild its descriptor array
+            self._mask = mask
+            poller.register(self.fd, mask)
+        return reading
+
+    def _wait(self, poller: select.poll, timeout: float | None) -> tuple[int, bool]:
+        """``poll()``: the port's events, and whether the PTY's slave was opened or closed
+        (a wake-up's bytes are taken)."""
+        events = 0
+        opened = False
+        for ready, what in poller.poll(timeout):
+            if ready == self.fd:
+                events = what
+            elif ready == self._wake_r:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._wake_r, 4096)
+            else:  # the slave was opened or closed
+                opened = True
+        return events, opened
 
     def _deadline(self) -> float | None:
         """When the loop must turn at the latest: a held WaitMoved's timeout, the silence."""
@@ -396,7 +394,7 @@ class Link:
         data = self.session.take_output()
         if data:
             if self.peer_gone:  # nothing is owed to nobody; kept for safety
-                self._drop("unsent", len(data) // RESPONSE_LEN)
+                self.ends.drop("unsent", len(data) // RESPONSE_LEN)
                 return False
             self._out += data
         out = self._out
@@ -445,34 +443,9 @@ class Link:
         self._out.clear()
         if self.pty is not None and self.device is None:
             unsent += -(-self.pty.hold() // RESPONSE_LEN)  # left unread in the kernel
-        self.counters["hangup_partial_bytes"] += ended.partial_bytes
-        self._drop("unsent", unsent)
-        self._drop("wait", ended.wait)
-        self._drop("held", ended.held)
+        self.ends.ended(how, ended, unsent)
         if self._opens is not None:  # no session: a host's open need not wake the loop
             self._poller.modify(self._opens, 0)
-        if unsent or ended.wait or ended.held or ended.partial_bytes:
-            # said a moment later (the log costs more than a command): a new host's first
-            # command, maybe on its way, is answered first
-            self._later_at = self.clock()
-            self._later.append((how, ended, unsent))
-        else:
-            log.debug("%s; serving the next host", how)
-
-    def _say_later(self) -> None:
-        for how, ended, unsent in self._later:
-            log.info(
-                "%s: dropped what its host did not read (%s); serving the next host",
-                how,
-                describe_ended(ended, unsent),
-                extra={"EVENT": "session_ended"},
-            )
-        self._later.clear()
-
-    def _drop(self, cause: str, answers: int) -> None:
-        if answers:
-            self.counters["responses_dropped"] += answers
-            self.counters[f"responses_dropped_{cause}"] += answers
 
     def _open_session(self) -> None:
         """A host is there again (a new session): its opens and closes are watched again;
@@ -497,7 +470,7 @@ class Link:
         if self._stopped:
             return
         if self.pty is not None:
-            self._drop("unsent", -(-self.pty.hold() // RESPONSE_LEN))
+            self.ends.drop("unsent", -(-self.pty.hold() // RESPONSE_LEN))
             if self.pty.held:
                 return  # held again: the next turns wait for the host's first byte
         probe = select.poll()
@@ -531,27 +504,12 @@ class Link:
     # -- a serial device that went away (or is not there yet) ------------------------------
     def _lose_device(self, why: str) -> None:
         """Close the dead descriptor; open the path again when it is back."""
-        assert self.device is not None
-        path = self.device.path
         with contextlib.suppress(KeyError, ValueError):
             self._poller.unregister(self.fd)
         self._mask = -1
-        self.device.close()
-        self.fd = -1
         assert self.away is not None
-        self.away.away(self.clock())
-        self.counters["device_lost"] += 1  # once its path is watched (the tests wait on it)
-        log.warning(
-            "serial device %s is gone (%s); motors and positions are kept; opening %s "
-            "again as soon as it is back (watching its folder, and trying %.0f ms after "
-            "the loss, then doubling up to every %.0f ms)",
-            path,
-            why,
-            path,
-            self.away.backoff.first_s * 1000,
-            self.away.backoff.max_s * 1000,
-            extra={"DEVICE": path, "EVENT": "device_lost"},
-        )
+        self.away.lost(why, self.clock())  # closes the device
+        self.fd = -1
 
     def _look_for_device(self) -> None:
         """Device gone: wait for news on its path, the next attempt, a deadline or a
@@ -587,7 +545,7 @@ class Link:
         while self._out and not self.peer_gone:
             left = end - self.clock()
             if left <= 0:
-                self._drop("shutdown", -(-len(self._out) // RESPONSE_LEN))
+                self.ends.drop("shutdown", -(-len(self._out) // RESPONSE_LEN))
                 log.warning("shutdown: %d unsent response bytes dropped", len(self._out))
                 self._out.clear()
                 break
@@ -622,20 +580,3 @@ class Link:
             self.pty.close()
         if self.away is not None:
             self.away.close()
-
-
-def describe_ended(ended: Ended, unsent: int) -> str:
-    """What an ended session left, in words, for the log."""
-    parts = []
-    if unsent:
-        parts.append(f"{unsent} answers written or due")
-    if ended.wait:
-        parts.append("a held WaitMoved's answer")
-    if ended.held:
-        kept = f"{ended.held} frames kept behind it"
-        if ended.discarded:
-            kept += f" ({ended.discarded} commands not executed)"
-        parts.append(kept)
-    if ended.partial_bytes:
-        parts.append(f"{ended.partial_bytes} bytes of an incomplete frame")
-    return ", ".join(parts)
