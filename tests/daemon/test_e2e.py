@@ -14,7 +14,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import Client, DeviceError
-from motorctl.daemon.main import EXECUTOR_DEATH_GRACE_S, SHUTDOWN_LIMIT_S
+from motorctl.daemon.serve import EXECUTOR_DEATH_GRACE_S, SHUTDOWN_LIMIT_S
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,
