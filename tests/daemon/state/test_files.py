@@ -3,7 +3,8 @@ trap (tests/support/traps.py) that another user can place in a shared sticky fol
 each of the daemon's files (the lock files, state.json and its temporary file, the motion
 journal, the status socket, a trace file). Nothing is followed, opened, written through or
 waited for; the trap is set aside as it was, logged once, and the daemon's file is made
-anew. The same as a process among traps: tests/daemon/state/test_files_e2e.py."""
+anew. The same as a process among traps: tests/daemon/state/test_files_e2e.py. And
+writes complete or absent: short writes, a write of nothing, a full disk."""
 
 from __future__ import annotations
 
@@ -14,18 +15,20 @@ import os
 import stat
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
 from motorctl.daemon.instance import InstanceError, InstanceLock
 from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.state import files
-from motorctl.daemon.state.files import write_atomic
+from motorctl.daemon.state.files import write_all, write_atomic
 from motorctl.daemon.state.journal import MotionJournal
 from motorctl.daemon.state.records import JOURNAL_NAME, STATE_NAME, StateError, read_state
 from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.server import StatusServer
 from motorctl.protocol.capture import CaptureInfo
+from tests.support.fsutil import read_only
 from tests.support.inprocess import TWO_MOTORS, build_daemon
 from tests.support.traps import KINDS, OTHER, VICTIM_TEXT, Trap, place, shared_folder
 
@@ -305,3 +308,43 @@ def test_each_trap_is_logged_once_at_warning(
     assert len(lines) == 1
     assert [r.levelname for r in caplog.records if r.getMessage() == lines[0]] == ["WARNING"]
     assert (shared / "victim-of-trace.pcapng").read_bytes() == VICTIM_TEXT
+
+
+# -- writes: complete or absent ------------------------------------------------------------------
+def test_short_writes_are_completed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    real = os.write
+    sizes: list[int] = []
+
+    def short(fd: int, data: Any) -> int:
+        sizes.append(len(data))
+        return real(fd, bytes(data)[:7])  # the kernel may write less than asked
+
+    monkeypatch.setattr(os, "write", short)
+    payload = b"x" * 100
+    write_atomic(tmp_path / "f", payload)
+    assert (tmp_path / "f").read_bytes() == payload
+    assert len(sizes) == 15
+
+
+def test_a_write_that_returns_zero_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (tmp_path / "f").write_bytes(b"good")
+    monkeypatch.setattr(os, "write", lambda fd, data: 0)
+    with pytest.raises(OSError):
+        write_atomic(tmp_path / "f", b"new state")
+    assert (tmp_path / "f").read_bytes() == b"good"  # never a truncated file in its place
+    assert not (tmp_path / "f.tmp").exists()
+
+
+def test_write_all_full_disk() -> None:
+    r, w = os.pipe()
+    os.close(r)
+    with pytest.raises(OSError):
+        write_all(w, b"x")  # EPIPE: any OSError propagates
+    os.close(w)
+
+
+def test_set_aside_fails_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
+    (tmp_path / "state.json").write_bytes(b"\xff")
+    with read_only(tmp_path):
+        assert files.set_aside(tmp_path / "state.json") is None
+    assert "cannot move" in caplog.text

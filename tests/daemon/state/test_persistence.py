@@ -1,5 +1,8 @@
-"""Persistence in-process: bad state files of every kind, config changes, complete-or-absent
-writes (short writes, read-only directory), the motion journal, ACK-after-write of saves."""
+"""Persistence in a daemon built in-process (daemon/state/persistence.py): bad state files
+of every kind, config changes, whatever stands in a file's way, the motion journal from a
+command's ACK to a restart, a read-only directory, ACK-after-write of saves, fuzzed files.
+The state wing's modules on their own: test_records.py, test_files.py, test_journal.py,
+test_writer.py beside this file."""
 
 from __future__ import annotations
 
@@ -22,10 +25,9 @@ from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
 from motorctl.daemon.state import files, writer
 from motorctl.daemon.state import records as st
-from motorctl.daemon.state.files import write_all, write_atomic
 from motorctl.daemon.state.journal import MotionJournal
 from motorctl.daemon.state.persistence import Persistence
-from motorctl.daemon.state.records import MotorIdentity, StateError, parse_state, read_state
+from motorctl.daemon.state.records import StateError, parse_state, read_state
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,
@@ -223,14 +225,6 @@ def test_records_shared_by_two_motors_or_without_a_name(
     assert (tmp_path / "state.json.bad").exists()
 
 
-def test_parse_state_lists_the_bad_records() -> None:
-    state = parse_state(b'{"version": 2, "motors": [3, {"name": "z"}]}')
-    assert state.motors == [] and state.slots == {}
-    assert [(b.index, b.name) for b in state.bad] == [(0, None), (1, "z")]
-    assert state.bad[0].problem == "motors[0] is not an object"
-    assert state.bad[1].problem == "motors[1].waypoints is not a list"
-
-
 # -- whatever stands in the way is set aside under a free name ----------------------------------
 def _make(path: Path, kind: str) -> None:
     """Put a ``kind`` of thing at ``path``. A FIFO's other ends are opened and closed once
@@ -409,33 +403,6 @@ def test_rotary_position_outside_its_revolution(tmp_path: Path) -> None:
     assert lost(d) == [False, True]
 
 
-def test_match_motors_unit() -> None:
-    state = parse_state(
-        json.dumps(
-            {
-                "version": 2,
-                "motors": [
-                    {
-                        "name": "a",
-                        "fingerprint": "f",
-                        "position": 1,
-                        "home": 0,
-                        "waypoints": [],
-                        "moving": False,
-                        "position_lost": False,
-                    }
-                ],
-            }
-        ).encode()
-    )
-    out = st.match_motors(
-        state, [MotorIdentity("a", "f"), MotorIdentity("a", "g"), MotorIdentity("c", "f")]
-    )
-    assert out[0].saved is not None and out[0].problem is None
-    assert out[1].problem is not None and "geometry" in out[1].problem
-    assert out[2].problem == "not in the state file"
-
-
 # -- moving when the daemon died -----------------------------------------------------------------
 def test_saved_moving_means_lost_but_home_and_waypoints_kept(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
@@ -519,46 +486,6 @@ def test_a_motion_that_moves_keeps_its_mark(tmp_path: Path) -> None:
     assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
 
 
-def test_withdraw_only_the_start_it_was_given(tmp_path: Path) -> None:
-    j = MotionJournal(tmp_path / "j", 1)
-    j.reset()
-    token = j.begin(0)
-    assert token is not None
-    assert not j.withdraw(0, token)  # still in flight
-    j.end(0)
-    assert j.begin(0) is None  # already marked: nothing to withdraw for this one
-    j.end(0)
-    assert not j.withdraw(0, token)  # another start came since
-    assert j.flagged() == [True]
-    j.clear_if_unchanged(0, j.token(0))
-    token = j.begin(0)
-    j.end(0)
-    assert token is not None and j.withdraw(0, token)
-    assert (tmp_path / "j").read_bytes() == b"0" and j.flagged() == [False]
-    assert not j.withdraw(0, token)  # once
-    j.close()
-
-
-def test_journal_token_protects_a_start_in_flight(tmp_path: Path) -> None:
-    j = MotionJournal(tmp_path / "j", 1)
-    j.reset()
-    j.begin(0)
-    assert j.token(0) is None  # a snapshot now must not clear
-    j.clear_if_unchanged(0, None)
-    assert j.flagged() == [True]
-    j.end(0)
-    token = j.token(0)
-    j.begin(0)  # restarted after the snapshot: the old token no longer clears
-    j.end(0)
-    j.clear_if_unchanged(0, token)
-    assert j.flagged() == [True]
-    j.clear_if_unchanged(0, j.token(0))
-    assert j.flagged() == [False]
-    assert j.marks == 1  # the second begin found the flag already durable
-    j.close()
-    j.clear_if_unchanged(0, j.token(0))
-
-
 def test_journal_unreadable_or_missing_state(
     tmp_path: Path, caplog: pytest.LogCaptureFixture
 ) -> None:
@@ -575,15 +502,6 @@ def test_journal_unreadable_or_missing_state(
     (tmp_path / "dir").mkdir()
     with pytest.raises(StateError, match="is a directory"):
         MotionJournal.read(tmp_path / "dir")
-
-
-def test_journal_directory_in_its_place(tmp_path: Path) -> None:
-    (tmp_path / st.JOURNAL_NAME).mkdir()
-    j = MotionJournal(tmp_path / st.JOURNAL_NAME, 2)
-    j.reset()
-    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
-    assert (tmp_path / (st.JOURNAL_NAME + ".bad")).is_dir()
-    j.close()
 
 
 def test_journal_not_open_refuses_motion(tmp_path: Path) -> None:
@@ -619,36 +537,6 @@ def test_a_motion_that_cannot_be_recorded_is_e4_in_its_place(tmp_path: Path) -> 
 
 
 # -- writes: complete or absent ------------------------------------------------------------------
-def test_short_writes_are_completed(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    real = os.write
-    sizes: list[int] = []
-
-    def short(fd: int, data: Any) -> int:
-        sizes.append(len(data))
-        return real(fd, bytes(data)[:7])  # the kernel may write less than asked
-
-    monkeypatch.setattr(os, "write", short)
-    payload = b"x" * 100
-    write_atomic(tmp_path / "f", payload)
-    assert (tmp_path / "f").read_bytes() == payload
-    assert len(sizes) == 15
-
-
-def test_a_write_that_returns_zero_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
-    (tmp_path / "f").write_bytes(b"good")
-    monkeypatch.setattr(os, "write", lambda fd, data: 0)
-    with pytest.raises(OSError):
-        write_atomic(tmp_path / "f", b"new state")
-    assert (tmp_path / "f").read_bytes() == b"good"  # never a truncated file in its place
-    assert not (tmp_path / "f.tmp").exists()
-
-
-def test_write_all_full_disk() -> None:
-    r, w = os.pipe()
-    os.close(r)
-    with pytest.raises(OSError):
-        write_all(w, b"x")  # EPIPE: any OSError propagates
-    os.close(w)
 
 
 def test_read_only_directory_save_answers_e4(
@@ -676,13 +564,6 @@ def test_read_only_directory_save_answers_e4(
     assert d.writer.write_now()
     assert d.persistence.status()["ok"] is True
     assert "written again" in caplog.text
-
-
-def test_set_aside_fails_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
-    (tmp_path / "state.json").write_bytes(b"\xff")
-    with read_only(tmp_path):
-        assert files.set_aside(tmp_path / "state.json") is None
-    assert "cannot move" in caplog.text
 
 
 def test_save_acks_only_after_the_write(tmp_path: Path) -> None:
@@ -759,15 +640,6 @@ def test_geometry_fingerprint_covers_microsteps_and_backend() -> None:
 
 
 # -- a bounded read (issue 22) -------------------------------------------------------------------
-def test_the_size_bound_is_far_above_any_real_state() -> None:
-    """64 motors (the most a config has), 64-character names, full tables of 255
-    waypoints of the widest value, the mock's axes: the bound is 16 times that."""
-    biggest = [
-        st.SavedMotor(f"{i:064d}", "f" * 16, st.POS_MIN, st.POS_MIN, [st.POS_MIN] * 255, True, True)
-        for i in range(64)
-    ]
-    size = len(st.SavedState(biggest, {"mock": {"axes": [-(1 << 62) + 1] * 64}}).to_bytes())
-    assert size * 16 <= st.MAX_FILE_BYTES
 
 
 def test_a_state_file_over_the_bound_is_set_aside_unread(
@@ -799,21 +671,6 @@ def test_a_state_file_at_the_bound_is_read(tmp_path: Path) -> None:
     d = build(tmp_path)
     restored_b(d)
     assert d.persistence.restored == "restored 2 motors"
-
-
-def test_a_file_that_grows_past_the_bound_while_read(
-    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
-) -> None:
-    path = tmp_path / "state.json"
-    path.write_bytes(b" " * 100)
-    real_read = os.read
-
-    def growing(fd: int, n: int) -> bytes:
-        return b" " * n if n > 1 else real_read(fd, n) or b" "  # never ends
-
-    monkeypatch.setattr(os, "read", growing)
-    with pytest.raises(StateError, match="more than the 4 MiB"):
-        read_state(path)
 
 
 # -- a journal that cannot be read: set aside once the state file is durable --------------------
