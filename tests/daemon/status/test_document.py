@@ -6,14 +6,12 @@ from __future__ import annotations
 
 import itertools
 import math
-import socket
-import threading
 from collections.abc import Iterator
 from pathlib import Path
-from typing import Any
 
 import pytest
 
+from motorctl.daemon.status.document import summary_line
 from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.server import StatusServer
 from motorctl.motion.latency import BINS
@@ -153,56 +151,6 @@ def test_a_status_read_takes_no_motion_lock(served: tuple[LiveDaemon, Path]) -> 
     assert sum(full["steps"]["histogram_us"].values()) > 0
 
 
-def _full_backlog(path: Path) -> tuple[socket.socket, socket.socket]:
-    """A listening socket that accepts nothing yet, its one backlog place taken."""
-    srv = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    srv.bind(str(path))
-    srv.listen(0)
-    filler = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    filler.setblocking(False)
-    filler.connect(str(path))
-    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-    probe.setblocking(False)
-    with pytest.raises(BlockingIOError), probe:  # the backlog is full indeed
-        probe.connect(str(path))
-    return srv, filler
-
-
-def test_read_status_waits_for_room_in_a_full_backlog(tmp_path: Path) -> None:
-    """A full backlog makes a connect with a timeout fail at once (EAGAIN on AF_UNIX):
-    the reader waits for room instead, within its timeout."""
-    path = tmp_path / "status.sock"
-    srv, filler = _full_backlog(path)
-    got: dict[str, Any] = {}
-
-    def reader() -> None:
-        try:
-            got["doc"] = read_status(path, timeout=READ_DEADLINE_S)
-        except Exception as exc:  # reported by the assertion below
-            got["error"] = exc
-
-    t = threading.Thread(target=reader)
-    with srv, filler:
-        t.start()
-        srv.settimeout(READ_DEADLINE_S)
-        first, _ = srv.accept()  # the filler's place: room for the reader
-        first.close()
-        conn, _ = srv.accept()
-        with conn:
-            conn.settimeout(READ_DEADLINE_S)
-            assert conn.recv(64) == b"\n"
-            conn.sendall(b'{"ok": true}')
-        t.join(READ_DEADLINE_S)
-    assert got == {"doc": {"ok": True}}
-
-
-def test_read_status_gives_up_on_a_backlog_that_stays_full(tmp_path: Path) -> None:
-    path = tmp_path / "status.sock"
-    srv, filler = _full_backlog(path)
-    with srv, filler, pytest.raises(TimeoutError, match="status slot stayed busy"):
-        read_status(path, timeout=0.2)
-
-
 def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
     served: tuple[LiveDaemon, Path],
 ) -> None:
@@ -227,3 +175,19 @@ def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
     speed = live.daemon.config.units.run_speed_factor * 1  # Move SPEED 1, in step/s
     behind_ms = doc["steps"]["max_us"] / 1000
     assert 0 < soft["takeover_steps"][0] <= (bound_ms + behind_ms) / 1000 * speed + 1
+
+
+def test_summary_line() -> None:
+    status = {
+        "motors": [
+            {"index": 0, "state": "moving", "fault": None, "position_lost": False},
+            {"index": 1, "state": "fault", "fault": "stall", "position_lost": True},
+        ],
+        "link": {"counters": {"responses": 12, "crc_errors": 1, "sent_E3": 2}},
+        "state": {"ok": False, "last_error": "cannot write"},
+    }
+    assert summary_line(status) == (
+        "2 motors: 1 moving, faulted 1, 1 to home; "
+        "12 frames served, 3 errors; STATE NOT SAVED: cannot write"
+    )
+    assert summary_line({"motors": []}) == "0 motors: 0 moving, none faulted"
