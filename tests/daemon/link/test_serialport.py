@@ -29,7 +29,7 @@ import pytest
 import serial
 
 from motorctl.daemon.link import serialport
-from motorctl.daemon.link.devwatch import PathWatch, watched_names
+from motorctl.daemon.link.devwatch import PathWatch
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import open_pty
 from motorctl.daemon.link.serialport import Backoff, DeviceError, SerialDevice
@@ -381,19 +381,6 @@ def test_a_device_whose_folder_went_too_is_noticed_when_both_are_back(tmp_path: 
             second.close()
 
 
-def test_the_folders_watched_follow_the_links(tmp_path: Path) -> None:
-    (tmp_path / "by-id").mkdir()
-    (tmp_path / "dev").mkdir()
-    link = tmp_path / "by-id" / "usb-x"
-    link.symlink_to("../dev/ttyUSB0")  # relative, as udev's; its target not there yet
-    assert watched_names(str(link)) == {
-        str(tmp_path / "by-id"): {"usb-x"},
-        str(tmp_path / "dev"): {"ttyUSB0"},
-    }
-    missing = tmp_path / "serial" / "by-id" / "usb-y"  # two folders missing
-    assert watched_names(str(missing)) == {str(tmp_path): {"serial"}}
-
-
 def test_motorctld_waits_for_a_device_not_there_at_start(tmp_path: Path) -> None:
     """Ready at once, saying what it waits for; served as soon as the device appears; the
     log says each once."""
@@ -536,16 +523,3 @@ def test_backoff_doubles_up_to_its_limit() -> None:
     assert [b.delay() for _ in range(8)] == [0.05, 0.1, 0.2, 0.4, 0.8, 1.0, 1.0, 1.0]
     b.reset()
     assert b.delay() == 0.05
-
-
-def test_systemds_status_line_says_the_device_is_gone() -> None:
-    link = {"counters": {"responses": 3}, "peer": "gone", "device": "/dev/ttyUSB0"}
-    assert (
-        summary_line({"motors": [], "link": link})
-        == "0 motors: 0 moving, none faulted; 3 frames served, 0 errors; "
-        "SERIAL DEVICE /dev/ttyUSB0 GONE, reopening it when it is back"
-    )
-    link["peer"] = "waiting"
-    assert summary_line({"motors": [], "link": link}).endswith(
-        "; WAITING FOR SERIAL DEVICE /dev/ttyUSB0 (not there yet)"
-    )

@@ -191,3 +191,16 @@ def test_summary_line() -> None:
         "12 frames served, 3 errors; STATE NOT SAVED: cannot write"
     )
     assert summary_line({"motors": []}) == "0 motors: 0 moving, none faulted"
+
+
+def test_systemds_status_line_says_the_device_is_gone() -> None:
+    link = {"counters": {"responses": 3}, "peer": "gone", "device": "/dev/ttyUSB0"}
+    assert (
+        summary_line({"motors": [], "link": link})
+        == "0 motors: 0 moving, none faulted; 3 frames served, 0 errors; "
+        "SERIAL DEVICE /dev/ttyUSB0 GONE, reopening it when it is back"
+    )
+    link["peer"] = "waiting"
+    assert summary_line({"motors": [], "link": link}).endswith(
+        "; WAITING FOR SERIAL DEVICE /dev/ttyUSB0 (not there yet)"
+    )
