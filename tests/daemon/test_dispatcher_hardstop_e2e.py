@@ -55,7 +55,7 @@ ROUNDS = 60  # 20 hard stops per motor
 #: Test daemons run without real-time priority on a shared 2-core machine, where the
 #: executor's confirmation was seen to take up to ~50 ms (p50 ~1 ms): a deadline that a
 #: loaded machine does not reach, so that a failure here means a wrong answer, not a slow
-#: machine. The deadline itself is tested in test_hardstop.py and below with SIGSTOP.
+#: machine. The deadline itself is tested in test_dispatcher_hardstop.py and below with SIGSTOP.
 PATIENT = "\n[step_thread]\nstop_confirm_ms = 5000.0\n"
 
 

@@ -1,4 +1,4 @@
-"""Memory the daemon holds.
+"""Memory a serving motorctld holds (daemon/serve.py runs it; a real process here).
 
 Only the step executor locks its memory (issue 7): mlockall in the daemon would lock every
 thread's stack and the whole interpreter, which a 512 MB board feels. A real daemon with
@@ -8,8 +8,8 @@ the executor process has locked pages (``VmLck``), the daemon none.
 The shared memory of the daemon and its executor (the executor's block, the mock's shared
 mechanics) is anonymous (memfd): no resource-tracker process runs beside them, nothing is
 ever in /dev/shm, and the blocks are gone once both processes are, whichever was killed
-(``kill -9`` of the daemon here, of the executor in test_e2e.py); a start that fails after
-the executor was made leaves no block behind either.
+(``kill -9`` of the daemon here, of the executor in test_serve_e2e.py); a start that fails
+after the executor was made leaves no block behind either (test_assemble.py).
 """
 
 from __future__ import annotations
@@ -89,39 +89,3 @@ def test_no_resource_tracker_and_no_block_left_after_a_kill_9_of_the_daemon(
         until("no process holding the shared blocks", lambda: not memfd_holders(labels))
     finally:
         daemon.close()
-
-
-def test_a_start_that_fails_after_the_executor_was_made_leaves_nothing_behind(
-    tmp_path: Path,
-    monkeypatch: pytest.MonkeyPatch,
-) -> None:
-    """Daemon.build closes what it opened when a later part fails: here the [state]
-    directory is a file, found after the step executor was made (its shared memory block
-    would stay in /dev/shm until the next reboot)."""
-    from motorctl.daemon import assemble
-    from motorctl.daemon.config import parse_config
-    from motorctl.daemon.errors import StartupError
-
-    made: list[object] = []
-    real = assemble.build_executor
-
-    def spy(*args: object) -> object:
-        made.append(real(*args))  # type: ignore[arg-type]
-        return made[-1]
-
-    monkeypatch.setattr(assemble, "build_executor", spy)
-    blocker = tmp_path / "not-a-dir"
-    blocker.write_text("x")
-    config = parse_config(
-        CONFIG.replace("lock_memory = true", "lock_memory = false")
-        + f'[state]\ndirectory = "{blocker}"\n',
-        "t.toml",
-    )
-    with pytest.raises(StartupError, match="not-a-dir"):
-        assemble.Daemon.build(config, tmp_path / "state", None)
-    (executor,) = made
-    label = executor.shm.name  # type: ignore[attr-defined]
-    proc = executor.proc  # type: ignore[attr-defined]
-    assert proc.poll() is not None  # its process (started when it was made) is gone
-    assert label.startswith("motorctl-executor-")
-    assert memfd_holders({label}) == []  # unmapped and closed here, gone with the child

@@ -624,21 +624,6 @@ def test_state_directory_option(tmp_path: Path) -> None:
         parse_config('[state]\ndirectory = "relative"\n' + CONFIG, "t.toml")
 
 
-def test_geometry_fingerprint_covers_microsteps_and_backend() -> None:
-    from motorctl.daemon.assemble import motor_identities
-
-    tmc = CONFIG + "  [motors.tmc]\n  microsteps = 16\n"
-
-    def prints(text: str) -> list[str]:
-        return [i.fingerprint for i in motor_identities(parse_config(text, "t.toml"))]
-
-    base = prints(tmc)
-    assert base == prints(tmc.replace("max_speed = 3000.0\n", "max_speed = 2000.0\n"))
-    assert prints(tmc.replace("microsteps = 16", "microsteps = 32"))[1] != base[1]
-    assert prints(tmc.replace('name = "b"', 'name = "b"\ninvert_dir = true'))[1] != base[1]
-    assert prints(tmc.replace('name = "b"', 'name = "b"\nsteps_per_rev = 200'))[1] != base[1]
-
-
 # -- a bounded read (issue 22) -------------------------------------------------------------------
 
 

@@ -2,7 +2,7 @@
 (prometheus_client's strict parser) that node_exporter's Prometheus text parser also reads
 (only counter, gauge and summary types), names and units, the per-motor timing figures of
 issue 15 when present, nothing but ``motorctl_up`` from an empty document. Against a live
-daemon: tests/daemon/test_observe_e2e.py."""
+daemon: tests/daemon/status/test_document_e2e.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The live monitor's view drawn from known documents into a string (rich's recording
 console): what a user reads for a known state, with and without the per-motor timing
 figures of issue 15; frames/s; the message when rich is missing. Against a live daemon:
-tests/daemon/test_observe_e2e.py."""
+tests/daemon/status/test_document_e2e.py."""
 
 from __future__ import annotations
 

@@ -1,7 +1,7 @@
 """The status socket's subscribe mode (docs/status.md), against a StatusServer with a scripted
 source: the first update at once, updates only on a change (the clock and the executor's
 turns are no change), a heartbeat, a poke, the subscriber limit, a subscriber that stops
-reading. Against a real daemon: tests/daemon/test_observe_e2e.py."""
+reading. Against a real daemon: tests/daemon/status/test_document_e2e.py."""
 
 from __future__ import annotations
 
