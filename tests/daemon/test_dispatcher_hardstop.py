@@ -2,7 +2,8 @@
 StopMove): the deadline, the skip after a timeout, executor death, and that the thread
 executor on a virtual clock (which confirms at once) is unchanged.
 
-The executor here is the real thread step executor behind :class:`SlowToConfirm`, which
+The executor here is the real thread step executor behind ``SlowToConfirm``
+(tests/support/stalls.py), which
 holds back its STOPPED confirmations (a stalled executor) or dies on cue: the motor really
 stops, only the confirmation is late or never comes.
 """
@@ -15,43 +16,31 @@ import select
 import threading
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
 from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
-from motorctl.daemon.config import Config, parse_config
-from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import open_pty
 from motorctl.hal.backends.mock.backend import world_of
-from motorctl.hal.interfaces import Clock, Hardware, MonotonicClock, VirtualClock
-from motorctl.hal.registry import open_hardware
-from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine
+from motorctl.hal.interfaces import MonotonicClock, VirtualClock
+from motorctl.motion.engine import STOP_CONFIRM_S
 from motorctl.motion.executor_seam import (
-    Committed,
-    ExecEvent,
     ExecEventKind,
-    Executor,
-    ExecutorHealth,
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.profile import Trajectory
-from motorctl.motion.types import MotorState, Ramp
+from motorctl.motion.types import MotorState
 from motorctl.protocol.codec import (
-    Command,
     ErrorCode,
-    GetAbsPos,
     InitMove,
     IsReady,
     Move,
-    Response,
     StopMove,
 )
 from tests.support.frames import OPTS, answers, frame
 from tests.support.inprocess import IN_PROCESS_CONFIG, build_daemon
+from tests.support.stalls import StallRig, stall_rig
 from tests.support.wait import until
 
 E = ErrorCode
@@ -59,153 +48,7 @@ K = ExecEventKind
 DEADLINE_S = 20.0  # for conditions that take milliseconds, on a loaded 2-core machine
 
 
-class SlowToConfirm(Executor):
-    """``inner`` with its stop confirmations held back ``delay_s`` (None: until
-    :meth:`release`), and a death on cue (:meth:`die`, or at ``dies_at`` on a virtual
-    clock)."""
-
-    def __init__(self, inner: Executor, clock: Clock, delay_s: float | None = None) -> None:
-        super().__init__(inner.motors)
-        self.inner = inner
-        self.clock = clock
-        self.delay_s = delay_s
-        self.dies_at: float | None = None
-        self.dead = False
-        self._died_reported = False
-        self._asked: dict[tuple[int, int], float] = {}  # (motor, gen) -> confirm from
-        self._held: list[tuple[float, ExecEvent]] = []
-        self._lock = threading.Lock()
-        inner.on_event = self._forward
-
-    def _forward(self) -> None:
-        self.on_event()
-
-    def release(self) -> None:
-        """The stalled executor runs again: every confirmation held so far comes."""
-        with self._lock:
-            self._held = [(float("-inf"), ev) for _, ev in self._held]
-            self._asked = dict.fromkeys(self._asked, float("-inf"))
-        self.on_event()
-
-    def die(self) -> None:
-        self.dead = True
-        self.on_event()
-
-    # -- the seam ----------------------------------------------------------------------
-    def stop(self, motor: int, gen: int) -> int | None:
-        # on the step path's ticks, as a real executor's times are (a virtual clock stops there)
-        due = (
-            float("inf")
-            if self.delay_s is None
-            else from_ticks(to_ticks(self.clock.now() + self.delay_s))
-        )
-        with self._lock:
-            self._asked[(motor, gen)] = due
-        self.inner.stop(motor, gen)  # the motor stops for real; its confirmation waits
-        return None
-
-    def events(self) -> list[ExecEvent]:
-        out: list[ExecEvent] = []
-        now = self.clock.now()
-        with self._lock:
-            for ev in self.inner.events():
-                due = self._asked.pop((ev.motor, ev.gen), None) if ev.kind is K.STOPPED else None
-                if due is not None:
-                    self._held.append((due, ev))
-                else:
-                    out.append(ev)
-            out += [ev for due, ev in self._held if due <= now]
-            self._held = [(due, ev) for due, ev in self._held if due > now]
-        if self.dead and not self._died_reported:
-            self._died_reported = True
-            out.append(ExecEvent(K.DIED, -1, -1, 0, now, detail="test: executor died"))
-        return out
-
-    def next_deadline(self) -> float | None:
-        times = [due for due, _ in self._held]
-        if self.dies_at is not None and not self.dead:
-            times.append(self.dies_at)
-        inner = self.inner.next_deadline()
-        if inner is not None:
-            times.append(inner)
-        times = [t for t in times if t != float("inf")]
-        return min(times) if times else None
-
-    def advance(self, now: float) -> None:
-        self.inner.advance(now)
-        if self.dies_at is not None and now >= self.dies_at and not self.dead:
-            self.die()
-        if any(due <= now for due, _ in self._held):
-            self.on_event()
-
-    def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
-    ) -> bool:
-        return self.inner.follow(motor, traj, ramp, gen, endstops)
-
-    def committed(self, motor: int, now: float) -> Committed:
-        return self.inner.committed(motor, now)
-
-    def service(self, now: float) -> float:
-        return self.inner.service(now)
-
-    def planned(self, motor: int) -> bool:
-        return self.inner.planned(motor)
-
-    def position(self, motor: int) -> int:
-        return self.inner.position(motor)
-
-    def endstop_active(self, motor: int, direction: int) -> bool:
-        return self.inner.endstop_active(motor, direction)
-
-    def health(self) -> ExecutorHealth:
-        return self.inner.health()
-
-    def start(self) -> None:
-        self.inner.start()
-
-    def close(self) -> None:
-        self.inner.close()
-
-
-@dataclass
-class Rig:
-    clock: Clock
-    hw: Hardware
-    ex: SlowToConfirm
-    engine: MotionEngine
-    dispatcher: Dispatcher
-
-    def send(self, cmd: Command) -> Response:
-        return self.dispatcher.handle(cmd)
-
-    def ready(self, motor: int = 0) -> bool:
-        return self.send(IsReady(motor)).as_bool
-
-    def position(self, motor: int = 0) -> int:
-        return self.send(GetAbsPos(motor)).as_position
-
-    def run(self, dt: float) -> None:
-        assert isinstance(self.clock, VirtualClock)
-        self.engine.run_until(self.clock.now() + dt)
-
-
-def rig_on(
-    clock: Clock,
-    delay_s: float | None,
-    stop_confirm_s: float = STOP_CONFIRM_S,
-    config: Config | None = None,
-) -> Rig:
-    config = config or parse_config(IN_PROCESS_CONFIG, "test.toml")
-    spec = hardware_spec(config)
-    params = motor_params(config)
-    hw = open_hardware(config.hal.backend, spec, clock)
-    ex = SlowToConfirm(build_executor(config, hw, spec, params), clock, delay_s)
-    engine = MotionEngine(hw, params, ex, stop_confirm_s=stop_confirm_s)
-    return Rig(clock, hw, ex, engine, Dispatcher(config, engine, hw.pins))
-
-
-def moving(rig: Rig, motor: int = 0) -> None:
+def moving(rig: StallRig, motor: int = 0) -> None:
     assert rig.send(Move(motor, True, 1, 0, 0)).ack
     rig.run(0.2)
     assert rig.position(motor) > 0 and not rig.ready(motor)
@@ -215,7 +58,7 @@ def moving(rig: Rig, motor: int = 0) -> None:
 def test_never_confirmed_answers_at_the_deadline_not_never(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
-    rig = rig_on(VirtualClock(), delay_s=None)
+    rig = stall_rig(VirtualClock(), delay_s=None)
     moving(rig)
     t0 = rig.clock.now()
     with caplog.at_level(logging.WARNING, "motorctl.dispatcher"):
@@ -244,7 +87,7 @@ def test_never_confirmed_answers_at_the_deadline_not_never(
 
 
 def test_confirmed_late_answers_at_the_confirmation_and_ready_at_once() -> None:
-    rig = rig_on(VirtualClock(), delay_s=0.003)
+    rig = stall_rig(VirtualClock(), delay_s=0.003)
     moving(rig)
     t0 = rig.clock.now()
     assert rig.send(StopMove(0, True)).ack
@@ -257,7 +100,7 @@ def test_confirmed_late_answers_at_the_confirmation_and_ready_at_once() -> None:
 
 
 def test_the_other_motor_goes_on_while_the_answer_waits() -> None:
-    rig = rig_on(VirtualClock(), delay_s=0.02)
+    rig = stall_rig(VirtualClock(), delay_s=0.02)
     moving(rig, 1)
     moving(rig, 0)
     before = rig.position(1)
@@ -267,7 +110,7 @@ def test_the_other_motor_goes_on_while_the_answer_waits() -> None:
 
 
 def test_executor_dying_while_the_answer_waits_gives_e4() -> None:
-    rig = rig_on(VirtualClock(), delay_s=None)
+    rig = stall_rig(VirtualClock(), delay_s=None)
     moving(rig)
     rig.ex.dies_at = from_ticks(to_ticks(rig.clock.now() + 0.01))
     t0 = rig.clock.now()
@@ -282,7 +125,7 @@ def test_executor_dying_while_the_answer_waits_gives_e4() -> None:
 
 
 def test_hard_stop_of_a_homing_motor_waits_too() -> None:
-    rig = rig_on(VirtualClock(), delay_s=0.004)
+    rig = stall_rig(VirtualClock(), delay_s=0.004)
     assert rig.send(InitMove(0, False, 1, 0, 0)).ack  # towards the end stop far below
     rig.run(0.1)
     assert rig.engine.motors[0].state is MotorState.HOMING
@@ -298,7 +141,7 @@ def test_hard_stop_of_a_homing_motor_waits_too() -> None:
 def test_stop_move_clearing_a_fault_whose_stop_is_unconfirmed_waits_for_it() -> None:
     """A driver fault stops the motor hard; a StopMove that clears the fault before that
     stop was confirmed answers once it is, so IsReady right after answers 1."""
-    rig = rig_on(VirtualClock(), delay_s=0.04)
+    rig = stall_rig(VirtualClock(), delay_s=0.04)
     moving(rig)
     world = world_of(rig.hw)
     world.inject_fault(0, "over-temperature")
@@ -315,7 +158,7 @@ def test_stop_move_clearing_a_fault_whose_stop_is_unconfirmed_waits_for_it() -> 
 
 
 def test_a_fault_latched_while_the_stop_is_confirmed_answers_e4() -> None:
-    rig = rig_on(VirtualClock(), delay_s=0.03)
+    rig = stall_rig(VirtualClock(), delay_s=0.03)
     moving(rig)
     world_of(rig.hw).inject_fault(0, "over-temperature")  # the next poll (10 ms) latches it
     assert rig.send(StopMove(0, True)).error_code is E.MOTOR_ERROR
@@ -324,7 +167,7 @@ def test_a_fault_latched_while_the_stop_is_confirmed_answers_e4() -> None:
 
 
 def test_soft_stop_and_idle_stop_do_not_wait() -> None:
-    rig = rig_on(VirtualClock(), delay_s=None)
+    rig = stall_rig(VirtualClock(), delay_s=None)
     t0 = rig.clock.now()
     assert rig.send(StopMove(0, True)).ack and rig.clock.now() == t0  # idle: just ACK
     moving(rig)
@@ -351,41 +194,41 @@ def test_thread_executor_on_a_virtual_clock_confirms_at_once(tmp_path: Path) -> 
 
 
 # ------------------------------------------------------------------ a real clock
-def start_real(stop_confirm_s: float = STOP_CONFIRM_S) -> Rig:
+def start_real(stop_confirm_s: float = STOP_CONFIRM_S) -> StallRig:
     """A real clock, the thread executor's thread and the engine's threads running."""
-    rig = rig_on(MonotonicClock(), delay_s=None, stop_confirm_s=stop_confirm_s)
+    rig = stall_rig(MonotonicClock(), delay_s=None, stop_confirm_s=stop_confirm_s)
     rig.ex.start()
     rig.engine.start()
     return rig
 
 
-def close_real(rig: Rig) -> None:
+def close_real(rig: StallRig) -> None:
     rig.engine.stop_threads()
     rig.ex.close()
     rig.hw.close()
 
 
 @pytest.fixture
-def real() -> Iterator[Rig]:
+def real() -> Iterator[StallRig]:
     rig = start_real()
     yield rig
     close_real(rig)
 
 
 @pytest.fixture
-def patient() -> Iterator[Rig]:
+def patient() -> Iterator[StallRig]:
     """A deadline that a 20 ms confirmation meets however loaded the machine is."""
     rig = start_real(DEADLINE_S)
     yield rig
     close_real(rig)
 
 
-def real_moving(rig: Rig, motor: int = 0) -> None:
+def real_moving(rig: StallRig, motor: int = 0) -> None:
     assert rig.send(Move(motor, True, 1, 0, 0)).ack
     until(f"motor {motor} moving", lambda: rig.position(motor) > 20)
 
 
-def test_real_clock_never_confirmed_answers_after_the_deadline(real: Rig) -> None:
+def test_real_clock_never_confirmed_answers_after_the_deadline(real: StallRig) -> None:
     real_moving(real)
     t0 = time.monotonic()
     assert real.send(StopMove(0, True)).ack
@@ -396,7 +239,7 @@ def test_real_clock_never_confirmed_answers_after_the_deadline(real: Rig) -> Non
     until("the late confirmation", real.ready)
 
 
-def test_real_clock_woken_by_the_confirmation_from_another_thread(patient: Rig) -> None:
+def test_real_clock_woken_by_the_confirmation_from_another_thread(patient: StallRig) -> None:
     real = patient
     real_moving(real)
     timer = threading.Timer(0.02, real.ex.release)  # the executor's event thread, as it were

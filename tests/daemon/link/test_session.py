@@ -18,7 +18,6 @@ from hypothesis import strategies as st
 from motorctl.daemon.dispatcher import Wait
 from motorctl.daemon.link.session import Ended, LinkSession
 from motorctl.hal.backends.mock.backend import world_of
-from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,
@@ -34,11 +33,11 @@ from motorctl.protocol.codec import (
     WaitMoved,
     decode_response,
 )
-from tests.support.frames import OPTS, answers, frame
-from tests.support.inprocess import build_daemon
+from tests.support.frames import OPTS, frame
+from tests.support.sessions import GAP_S as GAP
+from tests.support.sessions import SessionRig
 
 E = ErrorCode
-GAP = 0.010
 
 CONFIG = """
 [[motors]]
@@ -50,34 +49,9 @@ number = 0
 """
 
 
-class World:
-    """A daemon on a virtual clock with a session in front of it."""
-
-    def __init__(self, tmp: Path, held: int = 16, backlog: int = 4096) -> None:
-        self.clock = VirtualClock()
-        self.daemon = build_daemon(CONFIG, tmp, self.clock)
-        self.session = LinkSession(self.daemon.dispatcher, OPTS, GAP, held, backlog)
-        self.engine = self.daemon.engine
-
-    @property
-    def now(self) -> float:
-        return self.clock.now()
-
-    def send(self, *cmds: Command) -> None:
-        self.session.receive(frame(*cmds), self.now)
-
-    def run(self, dt: float) -> None:
-        """Let the motors move for ``dt`` seconds, then let the session look at its wait."""
-        self.engine.run_until(self.now + dt)
-        self.session.poll(self.now)
-
-    def responses(self) -> list[Response]:
-        return answers(self.session.take_output())
-
-
 @pytest.fixture
-def w(tmp_path: Path) -> World:
-    return World(tmp_path)
+def w(tmp_path: Path) -> SessionRig:
+    return SessionRig(tmp_path, CONFIG)
 
 
 def codes(rs: Sequence[Response]) -> list[ErrorCode | None]:
@@ -91,7 +65,7 @@ def corrupt(data: bytes, bit: int) -> bytes:
 
 
 # -- framing ---------------------------------------------------------------------------
-def test_burst_of_5000_frames_in_one_read(w: World) -> None:
+def test_burst_of_5000_frames_in_one_read(w: SessionRig) -> None:
     cmds: list[Command] = [GetAbsPos(i % 2) if i % 3 else IsReady(i % 2) for i in range(5000)]
     w.send(*cmds)
     rs = w.responses()
@@ -106,10 +80,10 @@ def test_any_split_without_watched_silence_is_contiguous(sizes: list[int], seed:
     # However the stream is cut into reads, and however late each is read (the timestamps
     # jump by seconds), frames come out whole: only watched silence is a gap.
     with tempfile.TemporaryDirectory() as tmp:
-        check_split(sizes, seed, World(Path(tmp)))
+        check_split(sizes, seed, SessionRig(Path(tmp), CONFIG))
 
 
-def check_split(sizes: list[int], seed: int, w: World) -> None:
+def check_split(sizes: list[int], seed: int, w: SessionRig) -> None:
     rng = random.Random(seed)
     cmds = [GetAbsPos(rng.randrange(2)) for _ in range(300)]
     stream = b"".join(frame(c) for c in cmds)
@@ -128,7 +102,7 @@ def check_split(sizes: list[int], seed: int, w: World) -> None:
     assert w.session.counters["gap_discards"] == 0
 
 
-def test_watched_silence_discards_partial_and_resyncs(w: World) -> None:
+def test_watched_silence_discards_partial_and_resyncs(w: SessionRig) -> None:
     good = frame(IsReady(0))
     w.session.receive(frame(MoveTo(0, True, 500, 0, 0, 0))[:6], w.now)
     w.session.idle(GAP / 2)
@@ -141,7 +115,7 @@ def test_watched_silence_discards_partial_and_resyncs(w: World) -> None:
     assert w.engine.motors[0].idle  # the MoveTo fragment was not executed
 
 
-def test_bad_frames_answered_e1_and_not_executed(w: World) -> None:
+def test_bad_frames_answered_e1_and_not_executed(w: SessionRig) -> None:
     move = frame(MoveTo(0, True, 500, 0, 0, 0))
     pin = frame(SetPin(0, True))
     bad = [corrupt(move, b) for b in range(80)] + [corrupt(pin, b) for b in range(80)]
@@ -155,7 +129,7 @@ def test_bad_frames_answered_e1_and_not_executed(w: World) -> None:
     assert c["checksum_errors"] == 160 and c["sent_E1"] == 160 and c["frames_good"] == 0
 
 
-def test_unknown_code_and_bad_padding(w: World) -> None:
+def test_unknown_code_and_bad_padding(w: SessionRig) -> None:
     from motorctl.protocol.crc import SMBUS
 
     unknown = bytes([0x0F]) + bytes(8)
@@ -169,7 +143,7 @@ def test_unknown_code_and_bad_padding(w: World) -> None:
 
 
 # -- remembered frames and answers ----------------------------------------------------------
-def test_a_repeated_frame_is_answered_from_the_state_of_the_moment(w: World) -> None:
+def test_a_repeated_frame_is_answered_from_the_state_of_the_moment(w: SessionRig) -> None:
     # The session remembers what a frame decodes to and how an answer encodes, never the
     # answer itself: the same IsReady/GetAbsPos bytes answer differently as the motor moves.
     ready, where = frame(IsReady(0)), frame(GetAbsPos(0))
@@ -186,7 +160,7 @@ def test_a_repeated_frame_is_answered_from_the_state_of_the_moment(w: World) -> 
     assert after[0].as_bool is True and after[1].as_position == 300
 
 
-def test_remembered_frames_and_answers_stay_bounded(w: World) -> None:
+def test_remembered_frames_and_answers_stay_bounded(w: SessionRig) -> None:
     from motorctl.daemon.link.session import CACHE_LIMIT
 
     queries: list[IsReady | GetAbsPos | GetPin] = [IsReady(m) for m in range(256)]
@@ -207,7 +181,7 @@ def test_remembered_frames_and_answers_stay_bounded(w: World) -> None:
     assert 0 < len(w.session._encoded) <= CACHE_LIMIT
 
 
-def test_a_bad_frame_is_checked_and_counted_each_time_it_comes(w: World) -> None:
+def test_a_bad_frame_is_checked_and_counted_each_time_it_comes(w: SessionRig) -> None:
     bad = corrupt(frame(IsReady(0)), 3)
     for n in range(1, 4):
         w.session.receive(bad, w.now)
@@ -272,7 +246,7 @@ def test_whole_frames_read_alone_answer_and_count_as_split_ones(
     # partial, nothing held). The same frames read in two halves never do. Both worlds
     # must give the same answers and counts at every step, WaitMoved holding included.
     with tempfile.TemporaryDirectory() as ta, tempfile.TemporaryDirectory() as tb:
-        whole, split = World(Path(ta)), World(Path(tb))
+        whole, split = SessionRig(Path(ta), CONFIG), SessionRig(Path(tb), CONFIG)
         for index, bad_bit, dt in steps:
             if index < 0:  # a stray partial frame: what follows is misaligned in both
                 whole.session.receive(b"\x01\x02\x03", whole.now)
@@ -298,13 +272,13 @@ def test_whole_frames_read_alone_answer_and_count_as_split_ones(
 
 
 # -- WaitMoved ------------------------------------------------------------------------------
-def test_wait_idle_motor_answers_at_once(w: World) -> None:
+def test_wait_idle_motor_answers_at_once(w: SessionRig) -> None:
     w.send(WaitMoved(0, 100))
     assert codes(w.responses()) == [None]
     assert not w.session.waiting
 
 
-def test_wait_held_frames_answered_after_in_order(w: World) -> None:
+def test_wait_held_frames_answered_after_in_order(w: SessionRig) -> None:
     w.send(MoveTo(0, True, 200, 0, 0, 0))
     w.send(WaitMoved(0, 5000), IsReady(1), GetAbsPos(0), MoveTo(1, True, 50, 0, 0, 0))
     assert codes(w.responses()) == [None]  # only the MoveTo before the wait
@@ -317,7 +291,7 @@ def test_wait_held_frames_answered_after_in_order(w: World) -> None:
     assert not w.engine.motors[1].idle  # the MoveTo ran after the wait
 
 
-def test_bad_frame_while_wait_held_keeps_its_turn(w: World) -> None:
+def test_bad_frame_while_wait_held_keeps_its_turn(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 5000))
     w.session.receive(corrupt(frame(StopMove(0, True)), 3) + frame(IsReady(1)), w.now)
@@ -328,7 +302,7 @@ def test_bad_frame_while_wait_held_keeps_its_turn(w: World) -> None:
     assert codes(w.responses())[1:] == [None, E.INVALID_COMMAND, None, None]
 
 
-def test_wait_behind_wait_timeout_counts_from_take_up(w: World) -> None:
+def test_wait_behind_wait_timeout_counts_from_take_up(w: SessionRig) -> None:
     w.send(MoveTo(0, True, 2000, 0, 0, 0))  # about 1.2 s at the defaults
     w.send(Move(1, True, 1, 0, 0))  # runs until stopped
     t0 = w.now
@@ -350,7 +324,7 @@ def test_wait_behind_wait_timeout_counts_from_take_up(w: World) -> None:
     w.send(StopMove(1, True))
 
 
-def test_held_overflow_e0_and_stop_never_refused(w: World) -> None:
+def test_held_overflow_e0_and_stop_never_refused(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), *[GetAbsPos(1)] * 18)
     assert w.session.counters["held_overflow"] == 2
@@ -364,7 +338,7 @@ def test_held_overflow_e0_and_stop_never_refused(w: World) -> None:
     assert c["stops_while_held"] == 1 and c["sent_E0"] == 2
 
 
-def test_a_bad_frame_takes_its_place_among_the_held_frames(w: World) -> None:
+def test_a_bad_frame_takes_its_place_among_the_held_frames(w: SessionRig) -> None:
     # PROTOCOL.md §4: later frames are kept "up to 16; beyond that each gets E0"; only a
     # StopMove is exempt. A frame with a bad checksum is one of the 16: the SetPin behind
     # 4 + 1 bad + 1 + 10 frames is the 17th and is refused, not executed.
@@ -387,7 +361,7 @@ def test_a_bad_frame_takes_its_place_among_the_held_frames(w: World) -> None:
     w.send(StopMove(0, True))
 
 
-def test_a_bad_frame_beyond_the_held_frames_is_e1_and_frees_no_place(w: World) -> None:
+def test_a_bad_frame_beyond_the_held_frames_is_e1_and_frees_no_place(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), *[GetAbsPos(1)] * 15)
     bad = corrupt(frame(SetPin(0, True)), 5)
@@ -401,7 +375,7 @@ def test_a_bad_frame_beyond_the_held_frames_is_e1_and_frees_no_place(w: World) -
     assert c["checksum_errors"] == 2 and w.session._held_places == 0
 
 
-def test_stop_for_unknown_motor_while_held_is_e2_in_turn(w: World) -> None:
+def test_stop_for_unknown_motor_while_held_is_e2_in_turn(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), StopMove(7, True), IsReady(1))
     assert w.session.waiting
@@ -410,7 +384,7 @@ def test_stop_for_unknown_motor_while_held_is_e2_in_turn(w: World) -> None:
     assert codes(w.responses()[1:]) == [None, E.INVALID_ADDRESS, None, None]
 
 
-def test_stop_of_other_motor_while_held_keeps_wait(w: World) -> None:
+def test_stop_of_other_motor_while_held_keeps_wait(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0), Move(1, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), StopMove(1, True))
     assert w.session.waiting and not w.engine.motors[1].active  # executed on arrival
@@ -418,7 +392,7 @@ def test_stop_of_other_motor_while_held_keeps_wait(w: World) -> None:
     assert codes(w.responses()[2:]) == [None, None, None]
 
 
-def test_wait_reports_fault_then_held_frames(w: World) -> None:
+def test_wait_reports_fault_then_held_frames(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), IsReady(0), GetAbsPos(0))
     world_of(w.daemon.hw).inject_fault(0, "overtemperature")
@@ -427,7 +401,7 @@ def test_wait_reports_fault_then_held_frames(w: World) -> None:
     assert codes(rs) == [E.MOTOR_ERROR, E.MOTOR_ERROR, None]
 
 
-def test_wait_timeout_then_wait_zero(w: World) -> None:
+def test_wait_timeout_then_wait_zero(w: SessionRig) -> None:
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 100))
     w.run(0.099)
@@ -439,13 +413,13 @@ def test_wait_timeout_then_wait_zero(w: World) -> None:
     assert w.session.deadline() is None
 
 
-def test_wait_for_unknown_motor_is_e2_at_once(w: World) -> None:
+def test_wait_for_unknown_motor_is_e2_at_once(w: SessionRig) -> None:
     w.send(WaitMoved(9, 100))
     assert codes(w.responses()) == [E.INVALID_ADDRESS]
 
 
 def test_backlog_limit_asks_for_back_pressure(tmp_path: Path) -> None:
-    w = World(tmp_path, held=2, backlog=10)
+    w = SessionRig(tmp_path, CONFIG, held=2, backlog=10)
     w.send(Move(0, True, 1, 0, 0))
     w.send(WaitMoved(0, 20_000), *[IsReady(1)] * 8)
     assert w.session.wants_input()
@@ -457,14 +431,14 @@ def test_backlog_limit_asks_for_back_pressure(tmp_path: Path) -> None:
     assert w.session.wants_input()
 
 
-def test_the_end_of_a_session_drops_the_partial_frame(w: World) -> None:
+def test_the_end_of_a_session_drops_the_partial_frame(w: SessionRig) -> None:
     w.session.receive(frame(IsReady(0))[:4], w.now)
     assert w.session.end().partial_bytes == 4
     w.send(IsReady(0))
     assert codes(w.responses()) == [None]
 
 
-def test_save_waypoint_on_lost_position_is_e4(w: World) -> None:
+def test_save_waypoint_on_lost_position_is_e4(w: SessionRig) -> None:
     w.engine.motors[0].position_lost = True
     w.send(SaveWayPoint(0), IsReady(0))
     assert codes(w.responses()) == [E.MOTOR_ERROR, None]
@@ -504,7 +478,7 @@ def test_a_command_that_raises_in_a_read_of_its_own_is_e4_each_time() -> None:
         assert session.counters["internal_errors"] == n
 
 
-def test_recent_frames_pair_each_frame_with_its_answer(w: World) -> None:
+def test_recent_frames_pair_each_frame_with_its_answer(w: SessionRig) -> None:
     """The status's last frames: each with its own answer in words, a held one owed (None)
     until its WaitMoved is answered, a frame that failed its checks described as such; the
     fast path (a frame seen before, nothing held) records like the framer's path."""
@@ -535,7 +509,7 @@ def test_recent_frames_pair_each_frame_with_its_answer(w: World) -> None:
     assert len(recent) == 16 and {r["result"] for r in recent} == {"ready"}
 
 
-def test_the_end_of_a_session_drops_what_was_owed_and_runs_nothing_kept(w: World) -> None:
+def test_the_end_of_a_session_drops_what_was_owed_and_runs_nothing_kept(w: SessionRig) -> None:
     """A host's session ends behind a held WaitMoved: the wait, the kept frames and the
     partial frame go; the kept MoveTo never runs (its host is gone), the StopMove among
     them was carried out on arrival; the motor waited for goes on; the next host starts
@@ -567,7 +541,7 @@ def test_the_end_of_a_session_drops_what_was_owed_and_runs_nothing_kept(w: World
     ]
 
 
-def test_answers_not_yet_taken_go_with_the_session(w: World) -> None:
+def test_answers_not_yet_taken_go_with_the_session(w: SessionRig) -> None:
     w.send(IsReady(0), GetAbsPos(0))
     assert w.session.end() == Ended(partial_bytes=0, unsent=2, wait=0, held=0, discarded=0)
     assert w.session.take_output() == b""

@@ -2,8 +2,9 @@
 falls silent"), on a virtual clock.
 
 The daemon's parts are the real ones (dispatcher, engine, the thread step executor on a
-virtual clock, the link session, the watch as the daemon builds it); :class:`Line` plays the
-link shell's part: bytes in at a time, and the time passing in small steps.
+virtual clock, the link session, the watch as the daemon builds it); a
+``SessionRig`` (tests/support/sessions.py) plays the link loop's part: bytes in at a
+time, and the time passing in small steps.
 """
 
 from __future__ import annotations
@@ -14,14 +15,11 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.assemble import silence_watch
-from motorctl.daemon.link.session import LinkSession
 from motorctl.daemon.link.silence import SilenceWatch, check_timeout, min_timeout_ms
 from motorctl.hal.interfaces import BridgeState, DcBridge
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorState
 from motorctl.protocol.codec import (
-    Command,
     DcMove,
     ErrorCode,
     GetAbsPos,
@@ -33,69 +31,16 @@ from motorctl.protocol.codec import (
     WaitMoved,
 )
 from motorctl.protocol.crc import SMBUS
-from tests.support.frames import OPTS, answers, frame
-from tests.support.inprocess import IN_PROCESS_CONFIG, build_daemon
+from tests.support.frames import frame
+from tests.support.inprocess import IN_PROCESS_CONFIG
+from tests.support.sessions import SessionRig
 
 E = ErrorCode
-STEP_S = 0.005  # how finely Line.run lets time pass (the shell's turns)
 
 
-class Line:
-    """The link shell's part on a virtual clock: what it tells the session and the watch."""
-
-    def __init__(self, tmp: Path, link: str = "") -> None:
-        self.d = build_daemon(IN_PROCESS_CONFIG + "[dc]\n" + link, tmp)
-        config = self.d.config
-        self.clock = self.d.clock
-        self.session = LinkSession(self.d.dispatcher, OPTS, 0.010)
-        self.watch = silence_watch(config, self.d.dispatcher, self.clock.now())
-        self.motors = self.d.engine.motors
-
-    def send(self, data: bytes) -> list[Response]:
-        """Bytes from the host now; the answers they got at once."""
-        now = self.clock.now()
-        self.watch.heard(now)
-        self.session.receive(data, now)
-        return answers(self.session.take_output())
-
-    def call(self, cmd: Command) -> Response:
-        (resp,) = self.send(frame(cmd))
-        return resp
-
-    def run(self, seconds: float) -> list[Response]:
-        """Let ``seconds`` pass with no byte from the host; the answers that came."""
-        end = self.clock.now() + seconds
-        out = bytearray()
-        while self.clock.now() < end - 1e-9:
-            t = min(end, self.clock.now() + STEP_S)
-            self.d.engine.run_until(t)
-            if self.session.waiting:
-                self.session.poll(t)
-            self.session.idle(STEP_S)
-            self.watch.hold(self.session.waiting, t)
-            self.watch.check(t)
-            out += self.session.take_output()
-        return answers(out)
-
-    def poll(self, seconds: float, every_s: float = 0.1) -> None:
-        """Let ``seconds`` pass with the host asking GetAbsPos(0) every ``every_s``."""
-        end = self.clock.now() + seconds
-        while self.clock.now() < end - 1e-9:
-            self.run(min(every_s, end - self.clock.now()))
-            self.call(GetAbsPos(0))
-
-    def run_until_answered(self, limit_s: float = 10.0) -> list[Response]:
-        """Let time pass with no byte from the host until an answer comes (at most
-        ``limit_s``); the answers."""
-        end = self.clock.now() + limit_s
-        while self.clock.now() < end:
-            answers = self.run(STEP_S)
-            if answers:
-                return answers
-        raise AssertionError(f"no answer within {limit_s} s")
-
-    def timeouts(self) -> int:
-        return self.watch.counters["link_timeouts"]
+def line_rig(tmp: Path, link: str = "") -> SessionRig:
+    """Two motors, a DC motor and the ``[link]`` table ``link``."""
+    return SessionRig(tmp, IN_PROCESS_CONFIG + "[dc]\n" + link)
 
 
 def state(m: Motor) -> MotorState:
@@ -112,29 +57,29 @@ def e4(resp: Response) -> bool:
 
 
 @pytest.fixture
-def line(tmp_path: Path) -> Line:
-    return Line(tmp_path, "[link]\ntimeout_ms = 200\n")
+def line(tmp_path: Path) -> SessionRig:
+    return line_rig(tmp_path, "[link]\ntimeout_ms = 200\n")
 
 
 def test_off_by_default(tmp_path: Path) -> None:
-    line = Line(tmp_path)
-    link = line.d.config.link
+    line = line_rig(tmp_path)
+    link = line.daemon.config.link
     assert (link.timeout_ms, link.timeout_action) == (0.0, "decelerate")
     assert not line.watch.enabled
     assert line.call(Move(0, True, 0, 0, 0)).ack
-    line.run(3.0)
+    line.quiet(3.0)
     assert state(line.motors[0]) is MotorState.RUNNING and line.motors[0].fault is None
     assert line.watch.deadline() is None and line.timeouts() == 0
 
 
-def test_silence_decelerates_the_moving_motors_and_latches_e4(line: Line) -> None:
+def test_silence_decelerates_the_moving_motors_and_latches_e4(line: SessionRig) -> None:
     assert line.call(Move(0, True, 0, 0, 0)).ack
-    line.poll(1.0)  # the host polls, then falls silent
+    line.poll_host(1.0)  # the host polls, then falls silent
     assert line.call(IsReady(0)) == Response.boolean(False)
-    line.run(0.195)
+    line.quiet(0.195)
     m, idle = line.motors
     assert state(m) is MotorState.RUNNING and m.fault is None
-    line.run(0.010)
+    line.quiet(0.010)
     assert m.fault == "link timeout: no byte from the host for 200 ms"
     assert m.faults == {"link_timeout": 1} and m.fault_cause == "link_timeout"
     assert state(m) is MotorState.STOPPING  # along its ramp: decelerate is the default
@@ -146,7 +91,7 @@ def test_silence_decelerates_the_moving_motors_and_latches_e4(line: Line) -> Non
         MoveTo(0, True, 0, 0, 0, 0),
     ):
         assert e4(line.call(cmd)), cmd
-    line.run(1.0)
+    line.quiet(1.0)
     assert state(m) is MotorState.FAULT and m.fault is not None
     assert m.position > at_fault + 50  # it ramped down (2000 step/s at 8000 step/s^2)
     assert not m.position_lost
@@ -154,25 +99,25 @@ def test_silence_decelerates_the_moving_motors_and_latches_e4(line: Line) -> Non
     # the motor at rest was not touched; the silence acted once
     assert state(idle) is MotorState.IDLE and idle.fault is None
     assert line.call(IsReady(1)) == Response.boolean(True)
-    line.run(2.0)
+    line.quiet(2.0)
     assert line.timeouts() == 1 and line.watch.counters["link_timeout_stops"] == 1
 
 
-def test_stop_move_clears_it_and_the_next_silence_acts_again(line: Line) -> None:
+def test_stop_move_clears_it_and_the_next_silence_acts_again(line: SessionRig) -> None:
     assert line.call(Move(0, True, 0, 0, 0)).ack
-    line.run(2.0)
+    line.quiet(2.0)
     m = line.motors[0]
     assert state(m) is MotorState.FAULT
     assert line.call(StopMove(0, False)).ack
     assert m.fault is None and line.call(IsReady(0)) == Response.boolean(True)
     assert line.call(Move(0, False, 0, 0, 0)).ack  # moves again
-    line.run(0.15)
+    line.quiet(0.15)
     assert state(m) is MotorState.RUNNING
-    line.run(1.0)
+    line.quiet(1.0)
     assert state(m) is MotorState.FAULT and line.timeouts() == 2
 
 
-def test_any_bytes_keep_the_link_alive(line: Line) -> None:
+def test_any_bytes_keep_the_link_alive(line: SessionRig) -> None:
     """Good frames, frames that fail their checks, partial frames: all are signs of life."""
     assert line.call(Move(0, True, 0, 0, 0)).ack
     good = frame(GetAbsPos(0))
@@ -180,19 +125,21 @@ def test_any_bytes_keep_the_link_alive(line: Line) -> None:
     unknown = bytes([0x7F]) + bytes(8)
     unknown += bytes([SMBUS.compute(unknown)])
     for data in [bad_crc, unknown, good[:3], bad_crc, good[:7], unknown] * 3:
-        line.run(0.15)
-        line.send(data)
+        line.quiet(0.15)
+        line.ask(data)
     assert state(line.motors[0]) is MotorState.RUNNING and line.timeouts() == 0
     c = line.session.counters
     assert (c["checksum_errors"], c["unknown_errors"], c["gap_discards"]) == (6, 6, 6)
-    line.run(0.21)
+    line.quiet(0.21)
     assert line.motors[0].fault is not None and line.timeouts() == 1
 
 
-def test_a_stop_move_while_it_ramps_down_clears_it_and_takes_the_stop_over(line: Line) -> None:
+def test_a_stop_move_while_it_ramps_down_clears_it_and_takes_the_stop_over(
+    line: SessionRig,
+) -> None:
     assert line.call(Move(0, True, 0, 0, 0)).ack
-    line.poll(1.0)
-    line.run(0.21)
+    line.poll_host(1.0)
+    line.quiet(0.21)
     m = line.motors[0]
     assert state(m) is MotorState.STOPPING and m.fault is not None
     assert line.call(StopMove(0, True)).ack  # hard: answered once it has stopped
@@ -201,22 +148,22 @@ def test_a_stop_move_while_it_ramps_down_clears_it_and_takes_the_stop_over(line:
 
 
 def test_hard_stops_at_once(tmp_path: Path) -> None:
-    line = Line(tmp_path, '[link]\ntimeout_ms = 200\ntimeout_action = "hard"\n')
+    line = line_rig(tmp_path, '[link]\ntimeout_ms = 200\ntimeout_action = "hard"\n')
     assert line.call(Move(0, True, 0, 0, 0)).ack
-    line.poll(1.0)
-    line.run(0.21)
+    line.poll_host(1.0)
+    line.quiet(0.21)
     m = line.motors[0]
     assert state(m) is MotorState.FAULT and m.fault is not None
     assert m.faults == {"link_timeout": 1}
-    line.run(0.005)
+    line.quiet(0.005)
     stopped_at = m.position
-    line.run(1.0)
+    line.quiet(1.0)
     assert m.position == stopped_at
     assert e4(line.call(IsReady(0)))
     assert line.call(StopMove(0, False)).ack and line.call(IsReady(0)).as_bool
 
 
-def test_a_held_wait_moved_is_not_silence_and_its_answer_restarts_it(line: Line) -> None:
+def test_a_held_wait_moved_is_not_silence_and_its_answer_restarts_it(line: SessionRig) -> None:
     """The host waits for the answer; from the answer on, its silence counts again, and
     a frame kept behind the WaitMoved that starts a motor is stopped after it."""
     data = (
@@ -224,26 +171,26 @@ def test_a_held_wait_moved_is_not_silence_and_its_answer_restarts_it(line: Line)
         + frame(WaitMoved(0, 10000))
         + frame(Move(1, True, 0, 0, 0))
     )
-    assert [r.ack for r in line.send(data)] == [True]  # MoveTo; the rest is held
-    answers = line.run(0.6)
+    assert [r.ack for r in line.ask(data)] == [True]  # MoveTo; the rest is held
+    answers = line.quiet(0.6)
     assert answers == [] and state(line.motors[0]) is MotorState.MOVING  # > 200 ms: held
-    answers = line.run_until_answered()  # 2000 steps at 2000 step/s: ~1.25 s in all
+    answers = line.quiet_until_answered()  # 2000 steps at 2000 step/s: ~1.25 s in all
     assert [r.ack for r in answers] == [True, True]  # WaitMoved, then the kept Move
     assert state(line.motors[0]) is MotorState.IDLE and line.motors[0].fault is None
     assert state(line.motors[1]) is MotorState.RUNNING
-    line.run(0.25)
+    line.quiet(0.25)
     assert line.motors[1].fault is not None  # the silence since the answer
     assert line.motors[0].fault is None  # at rest: untouched
     assert line.timeouts() == 1
 
 
-def test_the_dc_motor_brakes_and_idle_silence_does_nothing(line: Line) -> None:
-    line.run(5.0)  # nothing moves: silence does nothing
+def test_the_dc_motor_brakes_and_idle_silence_does_nothing(line: SessionRig) -> None:
+    line.quiet(5.0)  # nothing moves: silence does nothing
     assert line.timeouts() == 0
     assert line.call(DcMove(True, 5000, True)).ack
-    bridge = line.d.hw.dc
+    bridge = line.daemon.hw.dc
     assert bridge is not None and bridge_state(bridge) is BridgeState.FORWARD
-    line.run(0.25)
+    line.quiet(0.25)
     assert bridge_state(bridge) is BridgeState.BRAKE and line.timeouts() == 1
     assert line.call(DcMove(True, 100, True)).ack  # no fault to clear for the DC motor
 
