@@ -1,5 +1,6 @@
-"""Faults injected at the HAL of a live daemon (thread executor, link on a real PTY, in-process):
-each must end in a latched fault or a clear error code, never a dead thread or a wrong ACK."""
+"""What the dispatcher answers when the HAL fails (daemon/dispatcher.py): faults injected at
+the HAL of a live daemon (thread executor, link on a real PTY, in-process) each end in a
+latched fault or a clear error code, never a dead thread or a wrong ACK."""
 
 from __future__ import annotations
 

@@ -1,5 +1,6 @@
-"""End to end: a hard StopMove answers once the motor has stopped (the microcontroller's
-behaviour), with the real step executors, whose stops are confirmed asynchronously.
+"""The dispatcher's hard StopMove end to end: it answers once the motor has stopped (the
+microcontroller's behaviour), with the real step executors, whose stops are confirmed
+asynchronously.
 
 A host written for the microcontroller sends StopMove(hard) and, in the same write, IsReady
 and GetAbsPos: it must read 1 (ready) and the final position, which does not change after.

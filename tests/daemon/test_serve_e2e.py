@@ -1,4 +1,7 @@
-"""End to end: motorctld as a subprocess on a real PTY, driven through the client library."""
+"""motorctld serving end to end (daemon/serve.py and everything it runs): a subprocess on a
+real PTY, driven through the client library: every command and error code, framing, held
+frames, persistence across restarts, stop signals, both step executors and the executor's
+death."""
 
 from __future__ import annotations
 

@@ -1,6 +1,8 @@
-"""The status socket of a live daemon (in-process, thread executor, link on a real PTY): the
-document is complete, a read takes no motion lock, the whole histogram comes only when asked.
-(How fast reads are is a figure, not a test: bench/status_rate.py.)"""
+"""The status document (daemon/status/document.py) of a live daemon (in-process, thread
+executor, link on a real PTY), read through its socket: it is complete, a read takes no
+motion lock, the whole histogram comes only when asked, a soft stop says how soon its
+deceleration took over; and systemd's one-line summary of documents. (How fast reads are
+is a figure, not a test: bench/status_rate.py.)"""
 
 from __future__ import annotations
 

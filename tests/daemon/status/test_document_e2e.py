@@ -1,4 +1,5 @@
-"""Watching a real motorctld (a process on a real PTY): the subscribe stream follows a move as
+"""The status document of a real motorctld (a process on a real PTY), as its readers see
+it: the subscribe stream follows a move as
 it happens, --status --format openmetrics parses and carries the expected names and values,
 the monitor draws the daemon's state (motorctl monitor --once, motorctld --status --watch
 off a terminal)."""
