@@ -1,7 +1,9 @@
 """What every test shares.
 
-The tests mirror the package, one folder a room, each test file named after the module it
-tests (``_e2e``: against motorctld as a process on a real PTY):
+The tests mirror the package, one folder a room and a sub-folder a wing (daemon/link/,
+state/, status/), each test file named after the module it tests: test_<module>.py, or
+test_<module>_<part>.py for one part of a module's tests (``_e2e``: against motorctld as a
+process on a real PTY); tests/test_layout.py checks it, tests/test_imports.py the imports:
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
@@ -10,8 +12,11 @@ tests (``_e2e``: against motorctld as a process on a real PTY):
     support/    the shared rigs, one module each: wait (``until``, the deadline wait),
                 frames, rigs (the engine or the step core on a virtual clock), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
-                (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
-                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
+                (``DaemonProcess``), sessions (``SessionRig``: the link's session and
+                silence watch in front of a daemon on a virtual clock), stalls (a step
+                executor whose stop confirmations stall), spi_bench and tmc_model (TMC
+                chips on a fake SPI bus), stand_ins (the environment for tests/fakegpiod/
+                and tests/fakespi/), fsutil
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports
