@@ -2,8 +2,8 @@
 
 A UART (``--port``) is opened by daemon/link/serialport.py.
 
-Threads: the main thread, at start-up (daemon/main.py); the descriptors it returns, and the
-:class:`PtySlave`, then belong to the link (daemon/link/loop.py).
+Threads: the main thread, at start-up (the assembler, daemon/assemble.py); the descriptors
+it returns, and the :class:`PtySlave`, then belong to the link (daemon/link/loop.py).
 """
 
 from __future__ import annotations
