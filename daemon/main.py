@@ -33,6 +33,7 @@ from motorctl.motion.executor_process_start import ExecutorProcess
 
 log = logging.getLogger("motorctl")
 
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="motorctld",
