@@ -12,7 +12,8 @@
 # sources (make test and make run do); make test-asan runs the core's tests on a build with
 # the address and undefined-behaviour sanitizers.
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
-# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly).
+# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly), and
+# tshark the same way (the Wireshark dissector's tests; without it they skip, saying so loudly).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
@@ -76,13 +77,23 @@ test-asan: venv
 run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-# What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py).
+# What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
+# tshark and mergecap (tests/client/test_wireshark.py: the Lua dissector, merged files), with
+# wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
 test-deps:
 	@command -v socat >/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
 	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat; \
 	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
 	    "device reconnect tests are SKIPPED" >&2; fi; }
+	@command -v tshark >/dev/null && command -v mergecap >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    { echo 'wireshark-common wireshark-common/install-setuid boolean false' \
+	      | debconf-set-selections && apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+	      apt-get install -y -q -o DPkg::Lock::Timeout=600 --no-install-recommends tshark; } \
+	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
+	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
+	    "dissector's tests are SKIPPED" >&2; fi; }
 
 test: venv stepcore test-deps
 	$(BIN)/ruff check .

@@ -48,17 +48,17 @@ from typing import Any
 
 import serial
 
+from motorctl.client.recording import TraceFileError
 from motorctl.client.trace import (
     ANSWER,
     Conversation,
     Frame,
     Row,
-    TraceFileError,
     add_settings_options,
     analyse,
     answer_text,
-    load,
-    settings,
+    one_link,
+    warn,
 )
 from motorctl.protocol.capture import CaptureInfo, Direction, Record
 from motorctl.protocol.codec import (
@@ -560,14 +560,25 @@ def run(args: argparse.Namespace) -> int:
     if not args.port:
         print("error: no device port: pass --port PATH or set MOTORCTL_PORT", file=sys.stderr)
         return 2
-    try:
-        cap = load(args.files)
-        info = settings(cap, args.trace_checksum, args.frame_gap_ms, False)
+    try:  # the reader motorctl trace uses: the same files accepted, the same problems named
+        recording, link, info = one_link(
+            args.files, args.interface, args.trace_checksum, args.frame_gap_ms
+        )
     except (TraceFileError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    recorded = analyse(cap.records, info)
-    sends = plan(cap.records, info)
+    warn(recording.problems)
+    records = link.records
+    if not any(r.direction is Direction.TO_DEVICE for r in records):
+        named = ", ".join(map(str, args.files))
+        print(
+            f"error: nothing to replay: {named} hold{'s' if len(args.files) == 1 else ''} no "
+            "host -> device bytes" + (" (see the warnings above)" if recording.problems else ""),
+            file=sys.stderr,
+        )
+        return 2
+    recorded = analyse(records, info)
+    sends = plan(records, info)
     rtts: list[float | None] = [
         None if f.answer is None or f.answer.rtt_ns is None else f.answer.rtt_ns / 1e9
         for f in recorded.frames
@@ -586,7 +597,7 @@ def run(args: argparse.Namespace) -> int:
         port.close()
     replayed = analyse(player.records, info)
     tol = Tolerances(args.time_tolerance_ms / 1000.0, args.position_tolerance, args.fast)
-    t0 = cap.records[0].ts_ns if cap.records else 0
+    t0 = records[0].ts_ns
     verdicts = compare(recorded, replayed, tol, t0)
     extra = [r for r in replayed.rows if r.kind == "extra_answer"]
     differs = [v for v in verdicts if v.result == "differs"]
@@ -610,6 +621,7 @@ def run(args: argparse.Namespace) -> int:
             "extra_answers": len(extra),
             "aborted": aborted,
             "verdicts": [v.__dict__ for v in verdicts if v.result != "exact"],
+            "problems": recording.problems,
             "ok": not failed,
         }
         print(json.dumps(doc, indent=1))

@@ -119,30 +119,38 @@ def _cmdline_value(cmdline: str, key: str) -> str | None:
     return None
 
 
-def read_platform(roots: Roots = Roots()) -> Platform:
+def _debugfs_mounted(roots: Roots) -> bool:
+    """Whether debugfs is mounted (``/proc/mounts``) where the preemption mode is read."""
+    where = str(roots.sys / "kernel" / "debug")
+    for line in (_read(roots.proc / "mounts") or "").splitlines():
+        fields = line.split()
+        if len(fields) >= 3 and fields[2] == "debugfs" and fields[1] == where:
+            return True
+    return False
+
+
+def _preempt_unreadable(roots: Roots, euid: int) -> str:
+    """Why ``/sys/kernel/debug/sched/preempt`` could not be read, and the fix."""
+    if euid != 0:
+        return "needs root and debugfs: run --probe as root"
+    if not _debugfs_mounted(roots):
+        return (
+            "debugfs is not mounted: 'mount -t debugfs none /sys/kernel/debug', then run "
+            "--probe again"
+        )
+    return "missing: a kernel without CONFIG_SCHED_DEBUG"
+
+
+def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
+    """What the kernel and the board say (``euid``: whose eyes read it; default: this
+    process's, which decides what a missing debugfs file means)."""
+    euid = os.geteuid() if euid is None else euid
     p = Platform()
     kernel = roots.proc / "sys" / "kernel"
     p.kernel = _read(kernel / "osrelease")
     p.version = _read(kernel / "version")
-    version_words = (p.version or "").split()
     cmdline = _read(roots.proc / "cmdline") or ""
-    p.rt = _read(roots.sys / "kernel" / "realtime") == "1" or "PREEMPT_RT" in version_words
-    if p.rt:
-        p.preempt = "PREEMPT_RT"
-    elif "PREEMPT_DYNAMIC" in version_words:
-        modes = (_read(roots.sys / "kernel" / "debug" / "sched" / "preempt") or "").split()
-        current = next((m.strip("()") for m in modes if m.startswith("(")), None)
-        current = current or _cmdline_value(cmdline, "preempt")
-        p.preempt = (
-            f"{current} (PREEMPT_DYNAMIC)"
-            if current
-            else "PREEMPT_DYNAMIC (mode not readable: /sys/kernel/debug/sched/preempt needs root "
-            "and debugfs)"
-        )
-    elif "PREEMPT" in version_words:
-        p.preempt = "full (PREEMPT)"
-    elif p.version is not None:
-        p.preempt = "none or voluntary (no PREEMPT in the kernel version)"
+    _read_preemption(p, roots, cmdline, euid)
     p.rt_runtime_us = _int(kernel / "sched_rt_runtime_us")
     p.rt_period_us = _int(kernel / "sched_rt_period_us")
     cpu_dir = roots.sys / "devices" / "system" / "cpu"
@@ -159,6 +167,36 @@ def read_platform(roots: Roots = Roots()) -> Platform:
     p.model = _read(roots.proc / "device-tree" / "model") or _read(
         roots.sys / "firmware" / "devicetree" / "base" / "model"
     )
+    _read_power(p, roots)
+    return p
+
+
+def _read_preemption(p: Platform, roots: Roots, cmdline: str, euid: int) -> None:
+    """The kernel's preemption model (``p.rt``, ``p.preempt``), from its version, its
+    realtime flag, debugfs's preempt mode or the command line's ``preempt=``."""
+    version_words = (p.version or "").split()
+    p.rt = _read(roots.sys / "kernel" / "realtime") == "1" or "PREEMPT_RT" in version_words
+    if p.rt:
+        p.preempt = "PREEMPT_RT"
+    elif "PREEMPT_DYNAMIC" in version_words:
+        modes = (_read(roots.sys / "kernel" / "debug" / "sched" / "preempt") or "").split()
+        current = next((m.strip("()") for m in modes if m.startswith("(")), None)
+        current = current or _cmdline_value(cmdline, "preempt")
+        p.preempt = (
+            f"{current} (PREEMPT_DYNAMIC)"
+            if current
+            else "PREEMPT_DYNAMIC (mode not readable: /sys/kernel/debug/sched/preempt "
+            f"{_preempt_unreadable(roots, euid)}; or set preempt= on the kernel command line)"
+        )
+    elif "PREEMPT" in version_words:
+        p.preempt = "full (PREEMPT)"
+    elif p.version is not None:
+        p.preempt = "none or voluntary (no PREEMPT in the kernel version)"
+
+
+def _read_power(p: Platform, roots: Roots) -> None:
+    """The board's power: a Raspberry Pi's under-voltage alarm and its firmware's throttled
+    bits (``p.undervoltage``, ``p.throttled``)."""
     for hwmon in sorted((roots.sys / "class" / "hwmon").glob("hwmon*")):
         if _read(hwmon / "name") == "rpi_volt":
             alarm = _read(hwmon / "in0_lcrit_alarm")
@@ -178,7 +216,6 @@ def read_platform(roots: Roots = Roots()) -> Platform:
             except ValueError:
                 continue
             break
-    return p
 
 
 def throttled_text(bits: int) -> list[str]:

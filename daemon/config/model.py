@@ -549,7 +549,9 @@ against a device; Wireshark and tshark open it. Off unless `file` is set here or
     notes="""\
 The trace is bounded: when the file would grow past `max_file_mb` it is renamed to
 `FILE.1` (an older `FILE.1` to `FILE.2`, ...) and a new `FILE` is started, keeping `files`
-files in all; the oldest goes. Records are written from memory every 0.2 s by a thread of
+files in all; the oldest goes. Each file names the daemon's run (its session) and its part
+number (1, 2, ...), so `motorctl trace` and `motorctl replay` say which parts are missing.
+Records are written from memory every 0.2 s by a thread of
 their own; if the disk falls that far behind that 4 MiB wait, further byte runs are left
 out and counted (`trace.dropped_runs` in the status, `epb_dropcount` in the file). Under
 systemd the service may write only below /run/motorctl and /var/lib/motorctl.""",

@@ -12,10 +12,11 @@ any thread (it copies counters). :meth:`TraceRecorder.open` and :meth:`TraceReco
 run on the main thread, at start and at exit.
 
 Bounds: a file grows to at most ``max_bytes``, then rotates (``FILE`` -> ``FILE.1`` ->
-``FILE.2`` ...), ``files`` files in all; the memory buffer holds at most ``buffer_limit``
-bytes: beyond it runs are left out and counted, and the next run recorded carries the count
-(``epb_dropcount``). A write error is logged once, counted, and the trace goes on with the
-next flush: it never stops the link.
+``FILE.2`` ...), ``files`` files in all; each file's header names this run's session and
+the file's part number (1, 2, ...), so a reader notices the parts rotation deleted. The
+memory buffer holds at most ``buffer_limit`` bytes: beyond it runs are left out and
+counted, and the next run recorded carries the count (``epb_dropcount``). A write error is
+logged once, counted, and the trace goes on with the next flush: it never stops the link.
 """
 
 from __future__ import annotations
@@ -27,6 +28,7 @@ import platform
 import stat
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -69,7 +71,10 @@ class TraceRecorder:
         self.buffer_limit = buffer_limit
         self._t0 = clock_origin
         self._wall0 = time.time_ns() if wall_origin_ns is None else wall_origin_ns
-        self._header = header(info, os_name=f"{platform.system()} {platform.release()}")
+        self._os_name = f"{platform.system()} {platform.release()}"
+        self.session = info.session or os.urandom(6).hex()  # this run's files, numbered:
+        self.part = 0  # the part being written (1 = the session's first file)
+        self._head_size = 0
         self._enc = RecordEncoder()
         self._lock = threading.Lock()
         self._buf = bytearray()
@@ -96,8 +101,7 @@ class TraceRecorder:
         clear_the_way(self.path)  # not a trace of ours: set aside, not rotated
         self._rotate_files()
         self._file = _create(self.path)  # closed in close()
-        self._file.write(self._header)
-        self._size = len(self._header)
+        self._write_header()
         self._thread = threading.Thread(target=self._run, name="motorctl-trace", daemon=True)
         self._thread.start()
 
@@ -166,7 +170,7 @@ class TraceRecorder:
         while data:
             room = self.max_bytes - self._size
             cut = len(data) if len(data) <= room else self._fits(data, room)
-            if cut == 0 and self._size == len(self._header):  # one block larger than a file
+            if cut == 0 and self._size == self._head_size:  # one block larger than a file
                 cut = int.from_bytes(data[4:8], "little")
             if cut:
                 self._put(data[:cut])
@@ -199,11 +203,28 @@ class TraceRecorder:
         clear_the_way(self.path)
         self._rotate_files()
         self._file = _create(self.path)
-        self._file.write(self._header)
-        self._size = len(self._header)
+        self._write_header()
+
+    def _write_header(self) -> None:
+        """The next part's header: its session and number let a reader notice a part that
+        rotation deleted (or that was not given) and a session whose start is gone."""
+        self.part += 1
+        info = replace(self.info, session=self.session, part=self.part)
+        head = header(info, os_name=self._os_name)
+        self._file.write(head)
+        self._size = self._head_size = len(head)
 
     def _rotate_files(self) -> None:
-        rotated(self.path, self.files - 1).unlink(missing_ok=True)
+        oldest = rotated(self.path, self.files - 1)
+        if oldest.exists():
+            log.info(
+                "trace %s: %s rotated away (the oldest of %d files; readers of the rest say "
+                "which part is missing)",
+                self.path,
+                oldest,
+                self.files,
+            )
+        oldest.unlink(missing_ok=True)
         for index in range(self.files - 2, -1, -1):
             src = rotated(self.path, index)
             if src.exists():
@@ -220,6 +241,8 @@ class TraceRecorder:
             "lost_bytes": self.lost_bytes,
             "max_file_bytes": self.max_bytes,
             "files": self.files,
+            "session": self.session,
+            "part": self.part,
         }
 
 

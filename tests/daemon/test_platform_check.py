@@ -188,6 +188,20 @@ def test_a_bare_tree_reports_what_it_cannot_see(tmp_path: Path) -> None:
     assert cmdline.preempt == "voluntary (PREEMPT_DYNAMIC)" and cmdline.isolated == {1, 2}
 
 
+def test_an_unreadable_preemption_mode_says_what_to_do(tmp_path: Path) -> None:
+    """PREEMPT_DYNAMIC without preempt= on the command line: the mode is in debugfs."""
+    version = {"proc/sys/kernel/version": "#1 SMP PREEMPT_DYNAMIC Debian\n"}
+    user = read_platform(tree(tmp_path / "user", version), euid=1000)
+    assert "needs root and debugfs: run --probe as root" in user.preempt
+    unmounted = read_platform(tree(tmp_path / "root", version), euid=0)
+    assert "root" not in unmounted.preempt.split("debugfs is not mounted")[0]
+    assert "debugfs is not mounted: 'mount -t debugfs none /sys/kernel/debug'" in unmounted.preempt
+    base = tmp_path / "mounted"
+    mounts = f"sysfs {base}/sys sysfs rw 0 0\ndebugfs {base}/sys/kernel/debug debugfs rw 0 0\n"
+    mounted = read_platform(tree(base, {**version, "proc/mounts": mounts}), euid=0)
+    assert "CONFIG_SCHED_DEBUG" in mounted.preempt and "mount" not in mounted.preempt
+
+
 def test_small_parsers() -> None:
     assert parse_cpulist("0-2,5\n") == {0, 1, 2, 5} and parse_cpulist("") == set()
     assert parse_cpulist("junk,3") == {3}

@@ -76,6 +76,13 @@ grep -qx '  runs: compiled' "$build/deb-probe.txt" \
   || { cat "$build/deb-probe.txt"; fail "motorctld --probe: the compiled step core would not run"; }
 echo "the compiled step core: installed, and --probe says it runs"
 in_root motorctl --help >/dev/null
+# the Wireshark dissector, linked into the Lua plugin folder of this machine's architecture
+triplet=$(in_root python3 -c 'import sysconfig; print(sysconfig.get_config_var("MULTIARCH"))')
+lua=/usr/lib/$triplet/wireshark/plugins/motorctl.lua
+[ -L "$root$lua" ] && [ "$(readlink "$root$lua")" = /usr/share/motorctl/wireshark/motorctl.lua ] \
+  && [ -f "$root/usr/share/motorctl/wireshark/motorctl.lua" ] \
+  || fail "the Wireshark dissector is not linked as $lua"
+echo "Wireshark dissector: $lua"
 
 step "the installed units: systemd-analyze security --offline=true and verify"
 # each unit by the name it runs under: the template as an instance of it
@@ -162,5 +169,7 @@ grep -E "$complaints" "$build/deb-purge.log" && fail "purge complained"
 in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl 2>/dev/null | grep -qx installed \
   && fail "still installed after purge"
 [ ! -e "$root/etc/motorctl/motorctl.toml" ] || fail "conffile left after purge"
+[ ! -L "$root$lua" ] && [ ! -d "$root/usr/lib/$triplet/wireshark" ] \
+  || fail "the Wireshark dissector's link (or its folder, Wireshark not installed) left after purge"
 echo
 echo "package check: 1 passed, 0 failed"
