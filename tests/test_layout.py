@@ -1,66 +1,119 @@
-"""The tests mirror the package: each test file is named after the module it tests.
+"""The tree keeps its shape where a room has been put in order (issue 23): its tests mirror
+it, file by file, and no module or function of it grows past what a reader takes in.
 
-``tests/<room>/<folders>/test_<name>.py`` tests a module (or package) of
-``<room>/<folders>/``: ``<name>`` is the module's name, or starts with it and an underscore
-and says which part of it the file holds (``test_server_subscribe.py``: the status
-server's subscriptions; ``test_serve_e2e.py``: daemon/serve.py, against motorctld as a
-process on a real PTY). So a newcomer finds a module's tests by its path, and a test file's
-module by its name (tests/conftest.py).
+- Mirrored rooms (``MIRRORED``): every test file of tests/<room>/ is named after the module
+  it tests, at the same place: ``tests/<room>/<folders>/test_<name>.py`` tests
+  ``<room>/<folders>/<name>.py`` (or the package ``<name>/``); a module whose tests are
+  many may have more files, each named ``test_<name>_<part>.py`` after the part it holds
+  (tests/daemon/status/test_server_subscribe.py: the status server's subscriptions);
+  ``_e2e``: the same module, against motorctld as a process on a real PTY
+  (tests/daemon/test_serve_e2e.py: daemon/serve.py). So a newcomer finds a module's tests
+  by its path, and a test file's module by its name (tests/conftest.py).
+- Sized rooms (``SIZED``): no module over ``MAX_LINES`` lines, no function or method of a
+  cyclomatic complexity above ``MAX_COMPLEXITY`` (radon's measure, as the issue measured).
+
+A room joins a tuple when it is in order; the rules then keep it so.
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
+
+import pytest
+from radon.visitors import ComplexityVisitor, Function
 
 from tests.support import REPO
 
-ROOMS = ("protocol", "client", "daemon", "motion", "hal")
-#: Rooms whose tests do not mirror the room yet, with the reason; a room here that mirrors
-#: it is taken off (the last test below fails until it is).
-NOT_YET = {
-    "hal": "tests/hal/ is flat while hal/backends/ is nested (issue 23's hal part moves it)",
-}
+MIRRORED = ("daemon",)
+SIZED = ("daemon",)
+MAX_LINES = 600
+MAX_COMPLEXITY = 25
 
 
-def module_of(test_file: Path) -> Path | None:
-    """The module (or package) a test file is named after, None when there is none."""
-    rel = test_file.relative_to(REPO / "tests")
-    folder = REPO.joinpath(*rel.parts[:-1])
-    parts = test_file.stem.removeprefix("test_").split("_")
-    for i in range(len(parts), 0, -1):  # the longest name first: session_end before session
+def module_tested_by(test: Path) -> Path | None:
+    """The module (or package) a test file is named after, None when there is none: the
+    longest name first (test_session_end.py: session_end.py before session.py)."""
+    rel = test.parent.relative_to(REPO / "tests")
+    folder = REPO / rel
+    parts = test.stem.removeprefix("test_").split("_")
+    for i in range(len(parts), 0, -1):
         name = "_".join(parts[:i])
         for candidate in (folder / f"{name}.py", folder / name / "__init__.py"):
-            if candidate.exists():
+            if candidate.is_file():
                 return candidate
     return None
 
 
-def unnamed(room: str) -> list[str]:
-    """The test files of ``room`` named after no module of it."""
-    files = sorted((REPO / "tests" / room).rglob("test_*.py"))
-    return [str(f.relative_to(REPO)) for f in files if module_of(f) is None]
-
-
-def test_each_test_file_is_named_after_the_module_it_tests() -> None:
-    found = {room: unnamed(room) for room in ROOMS if room not in NOT_YET}
-    assert sum(len(list((REPO / "tests" / r).rglob("test_*.py"))) for r in found) > 40
-    assert {room: files for room, files in found.items() if files} == {}
+@pytest.mark.parametrize("room", MIRRORED)
+def test_each_test_file_is_named_after_the_module_it_tests(room: str) -> None:
+    tests = sorted((REPO / "tests" / room).rglob("test_*.py"))
+    assert len(tests) > 5
+    strays = [str(t.relative_to(REPO)) for t in tests if module_tested_by(t) is None]
+    assert strays == [], f"test files that name no module of {room}/: {strays}"
 
 
 def test_a_test_file_is_matched_with_its_module() -> None:
-    daemon = REPO / "tests" / "daemon"
-    assert module_of(daemon / "link" / "test_session_end.py") == (
+    tests = REPO / "tests" / "daemon"
+    assert module_tested_by(tests / "link" / "test_session_end.py") == (
         REPO / "daemon" / "link" / "session_end.py"
     )
-    assert module_of(daemon / "status" / "test_server_subscribe.py") == (
+    assert module_tested_by(tests / "status" / "test_server_subscribe.py") == (
         REPO / "daemon" / "status" / "server.py"
     )
-    assert module_of(daemon / "test_config.py") == REPO / "daemon" / "config" / "__init__.py"
-    assert module_of(daemon / "test_e2e.py") is None  # names no module: not allowed
-    assert module_of(daemon / "link" / "test_assemble.py") is None  # not in daemon/link/
+    assert module_tested_by(tests / "test_serve_e2e.py") == REPO / "daemon" / "serve.py"
+    assert module_tested_by(tests / "test_config.py") == REPO / "daemon" / "config" / "__init__.py"
+    assert module_tested_by(tests / "test_e2e.py") is None  # names no module: not allowed
+    assert module_tested_by(tests / "link" / "test_assemble.py") is None  # not in daemon/link/
 
 
-def test_the_rooms_not_mirrored_yet_are_still_not() -> None:
-    """A room that mirrors the package now is taken off ``NOT_YET``, not kept for later."""
-    for room in NOT_YET:
-        assert unnamed(room), f"tests/{room}/ mirrors {room}/ now: take it off NOT_YET"
+def _blocks(functions: list[Function], outer: str = "") -> Iterator[tuple[str, int]]:
+    for f in functions:
+        name = f"{outer}.{f.name}" if outer else f.fullname
+        yield name, f.complexity
+        yield from _blocks(f.closures, name)
+
+
+def complexities(source: str) -> Iterator[tuple[str, int]]:
+    """(name, cyclomatic complexity) of every function, method and closure in ``source``
+    (radon counts a closure on its own, not in the function around it)."""
+    visitor = ComplexityVisitor.from_code(source)
+    yield from _blocks(visitor.functions)
+    for cls in visitor.classes:
+        yield from _blocks(cls.methods)
+
+
+@pytest.mark.parametrize("room", SIZED)
+def test_no_module_too_long_and_no_function_too_complex(room: str) -> None:
+    long, complex_ = [], []
+    for path in sorted((REPO / room).rglob("*.py")):
+        source = path.read_text(encoding="utf-8")
+        where = str(path.relative_to(REPO))
+        lines = source.count("\n")
+        if lines > MAX_LINES:
+            long.append(f"{where}: {lines} lines")
+        complex_ += [
+            f"{where} {n}: CC {cc}" for n, cc in complexities(source) if cc > MAX_COMPLEXITY
+        ]
+    assert long == [], f"modules over {MAX_LINES} lines: {long}"
+    assert complex_ == [], f"functions above CC {MAX_COMPLEXITY}: {complex_}"
+
+
+SOURCE = """
+class A:
+    def m(self, x):
+        def inner(y):
+            if y:
+                return 1
+            if y > 2:
+                return 2
+            return 3
+        return inner(x)
+
+def f(x):
+    return 1 if x else 0
+"""
+
+
+def test_the_measure_sees_functions_methods_and_closures() -> None:
+    assert dict(complexities(SOURCE)) == {"f": 2, "A.m": 1, "A.m.inner": 3}
