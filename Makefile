@@ -79,7 +79,7 @@ test-asan: venv
 run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-# What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py);
+# What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
 # tshark and mergecap (tests/client/test_wireshark.py: the Lua dissector, merged files), with
 # wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
 test-deps:
@@ -96,7 +96,7 @@ test-deps:
 	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
 	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
 	    "dissector's tests are SKIPPED" >&2; fi; }
-# ... and promtool, from Debian's prometheus package (tests/daemon/test_metrics.py lints the
+# ... and promtool, from Debian's prometheus package (tests/daemon/status/test_metrics.py lints the
 # metrics with `promtool check metrics`; installing it starts no server where systemd does
 # not run, and where it does the package's prometheus.service is stopped and disabled again)
 	@command -v promtool >/dev/null || { \

@@ -165,7 +165,7 @@ def status_reader(state_dir: Path, seconds: float, per_s: int) -> subprocess.Pop
     code = (
         "import time\n"
         "from pathlib import Path\n"
-        "from motorctl.daemon.status import read_status\n"
+        "from motorctl.daemon.status.reader import read_status\n"
         f"p=Path({str(state_dir / 'status.sock')!r}); end=time.monotonic()+{seconds}; n=0\n"
         f"period=1/{per_s}; nxt=time.monotonic()\n"
         "while time.monotonic()<end:\n"

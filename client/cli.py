@@ -383,7 +383,7 @@ def _main(argv: list[str] | None) -> int:
         return replay.run(args)
     if args.command == "monitor":
         # The status socket is the daemon's own interface: its reader and view live there.
-        from motorctl.daemon import monitor
+        from motorctl.daemon.status import monitor
 
         return monitor.run(args.state_dir / "status.sock", args.period, args.once)
     if not args.port:

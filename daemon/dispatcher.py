@@ -228,7 +228,7 @@ class Dispatcher:
         return OK
 
     def link_silent(self, *, hard: bool, reason: str) -> list[str]:
-        """The host fell silent ([link] timeout_ms; :mod:`motorctl.daemon.silence`): every
+        """The host fell silent ([link] timeout_ms; :mod:`motorctl.daemon.link.silence`): every
         motor in motion stops and latches ``reason``, the DC motor brakes; what was
         stopped, for the log."""
         engine = self.engine

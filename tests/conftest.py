@@ -1,11 +1,12 @@
 """What every test shares.
 
-The tests mirror the package, one folder a room and a sub-folder a wing (hal/backends/gpiod/,
-motion/executors/ and its process/, ...), each test file named after the module it tests
-(``_e2e``: against motorctld as a process on a real PTY); where a room has folders, its tests
-have the same (tests/hal/backends/gpiod/test_config.py tests hal/backends/gpiod/config.py); at
-the top, the package's own rules: test_imports.py (the import graph) and test_layout.py (the
-tests' mirror, modules' and functions' sizes):
+The tests mirror the package, one folder a room and a sub-folder a wing (daemon/link/,
+state/, status/; motion/executors/ and its process/; hal/backends/gpiod/, hal/layers/tmc/),
+each test file named after the module it tests, at the same place: test_<module>.py, or
+test_<module>_<part>.py for one part of a module's tests (``_e2e``: against motorctld as a
+process on a real PTY); tests/hal/backends/gpiod/test_config.py tests
+hal/backends/gpiod/config.py. At the top, the package's own rules: test_layout.py (the
+tests' mirror, modules' and functions' sizes) and test_imports.py (the import graph):
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
@@ -16,11 +17,13 @@ tests' mirror, modules' and functions' sizes):
                 stand-in executor that records, the ramp executor over TMC5160 models, the
                 process executor, the rings' slots written by hand), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
-                (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
-                mock_factory (the mock backend as gpiozero's mock factory), line_requests
-                (a recording GPIO request, a PWM sysfs tree), stand_ins (the environment
-                for tests/fakegpiod/ and tests/fakespi/), fsutil, tamper (a forwarder that
-                changes one answer: the replay's tests)
+                (``DaemonProcess``), sessions (``SessionRig``: the link's session and
+                silence watch in front of a daemon on a virtual clock), stalls (a step
+                executor whose stop confirmations stall), spi_bench and tmc_model (TMC
+                chips on a fake SPI bus), mock_factory (the mock backend as gpiozero's mock
+                factory), line_requests (a recording GPIO request, a PWM sysfs tree),
+                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
+                tamper (a forwarder that changes one answer: the replay's tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports

@@ -12,9 +12,13 @@ functions, and module names written as strings for ``importlib``), not by import
   ``motorctl.hal.interfaces`` (hal/__init__.py);
 - inside ``hal/`` too the registry alone names them: no backend or layer imports another
   (the gpiod backend learns a motor's driver chip through the contract, not from the TMC
-  layer), and the public modules (interfaces, contract, spec, ...) import none of them.
+  layer), and the public modules (interfaces, contract, spec, ...) import none of them;
 - inside ``motion/``, the executors' wing (``motion/executors/``) is entered through its base
-  only, and looks no higher than the modules it is handed (see ``EXECUTORS``).
+  only, and looks no higher than the modules it is handed (see ``EXECUTORS``);
+- inside ``daemon/``, the wings keep their order and the top stays on top (see
+  ``DAEMON_TOP`` and ``DAEMON_WINGS``); the link's pure parts reach no file, clock or thread
+  (``PURE``); an optional library is imported only by the one module that needs it
+  (``OPTIONAL``).
 """
 
 from __future__ import annotations
@@ -43,7 +47,7 @@ ALLOWED = {
 #: the daemon's machine and is the same view as ``motorctld --status --watch``; the status
 #: socket's format is the daemon's own. The CLI imports it lazily, only for that command, so
 #: the client library and every other command load nothing of the daemon.
-EXCEPTIONS = {("motorctl.client.cli", "motorctl.daemon.monitor")}
+EXCEPTIONS = {("motorctl.client.cli", "motorctl.daemon.status.monitor")}
 #: what only hal/ imports: the backends and the layers (hal/registry.py names them)
 HIDDEN = ("motorctl.hal.backends.", "motorctl.hal.layers.")
 REGISTRY = "motorctl.hal.registry"
@@ -60,6 +64,58 @@ EXECUTORS = "motorctl.motion.executors"
 EXECUTORS_BASE = "motorctl.motion.executors.base"
 #: what of motion/ the wing must not import (it is handed plans, not the state machines)
 ABOVE_EXECUTORS = ("motorctl.motion.motor", "motorctl.motion.engine")
+#: What builds and runs the daemon, in order: the motorctld command starts the command line,
+#: which hands a daemon to serve to the serve module, which has the assembler build it. Each
+#: imports only those after it, and nothing else of the daemon imports any of them: the parts
+#: are built and run, they do not build or run one another (a part that needs an error of the
+#: start raises daemon/errors.py's, which is below them all).
+DAEMON_TOP = (
+    "motorctl.daemon.launch",
+    "motorctl.daemon.main",
+    "motorctl.daemon.serve",
+    "motorctl.daemon.assemble",
+)
+#: The daemon's wings and the other wings each may import. state/ is the lowest and imports
+#: nothing of the daemon outside itself: what the daemon keeps on disk, and the rule of every
+#: path it writes (state/files.py), which the link's recorder and ports and the status socket
+#: use too. The link reads the state wing's files only; the status wing reads the link and
+#: the state, and nothing reads the status back (a part that wants its subscribers to look
+#: is handed the server's ``poke``).
+DAEMON_WINGS: dict[str, set[str]] = {
+    "motorctl.daemon.state": set(),
+    "motorctl.daemon.link": {"motorctl.daemon.state"},
+    "motorctl.daemon.status": {"motorctl.daemon.state", "motorctl.daemon.link"},
+}
+#: The link's pure parts: bytes and times in, answers out (pymodbus's framer, Klipper's
+#: host-side serial queue), so tests drive them on any clock with any split of the bytes.
+#: They import none of the standard library's ways to a file, a clock or a thread, and of
+#: motorctl only the protocol and the dispatcher's types.
+PURE = ("motorctl.daemon.link.session", "motorctl.daemon.link.silence")
+REACHES_OUT = {
+    "os",
+    "io",
+    "select",
+    "selectors",
+    "socket",
+    "threading",
+    "time",
+    "signal",
+    "subprocess",
+    "fcntl",
+    "termios",
+    "ctypes",
+    "mmap",
+    "multiprocessing",
+    "asyncio",
+    "pathlib",
+}
+PURE_MAY_IMPORT = ("motorctl.protocol", "motorctl.daemon.dispatcher")
+#: An optional library (a package extra) and the one module that imports it: the daemon and
+#: the rest of the package run without it.
+OPTIONAL = {
+    "rich": "motorctl.daemon.status.monitor_view",
+    "prometheus_client": "motorctl.daemon.status.metrics",
+}
 
 
 def package_modules() -> dict[str, Path]:
@@ -91,6 +147,32 @@ def wing_problem(name: str, target: str) -> str | None:
         )
     if inside and any(in_package(target, above) for above in ABOVE_EXECUTORS):
         return f"{name} imports {target}: the executors carry out plans, they do not make them"
+    return None
+
+
+def wing_of(module: str) -> str | None:
+    """The daemon's wing a module is in (``motorctl.daemon.link``, ...), None: none."""
+    return next((w for w in DAEMON_WINGS if in_package(module, w)), None)
+
+
+def daemon_problem(name: str, target: str) -> str | None:
+    """What breaks the daemon's inner order (``DAEMON_TOP``, ``DAEMON_WINGS``), or None."""
+    if not (in_package(name, "motorctl.daemon") and in_package(target, "motorctl.daemon")):
+        return None
+    if target in DAEMON_TOP and (
+        name not in DAEMON_TOP or DAEMON_TOP.index(target) <= DAEMON_TOP.index(name)
+    ):
+        return (
+            f"{name} imports {target}: the daemon's top imports only down its order "
+            f"{' -> '.join(DAEMON_TOP)}, and no part imports it"
+        )
+    here, there = wing_of(name), wing_of(target)
+    if here is None or here == there:
+        return None
+    if there is None and here == "motorctl.daemon.state":
+        return f"{name} imports {target}: the state wing imports nothing of the daemon outside it"
+    if there is not None and there not in DAEMON_WINGS[here]:
+        return f"{name} imports {target}: against the wings' order state <- link <- status"
     return None
 
 
@@ -176,9 +258,47 @@ def violations(modules: dict[str, str]) -> list[str]:
                     f"{name} ({here}) imports {target} ({there}): against the rooms' "
                     "order client -> protocol <- daemon -> motion -> hal"
                 )
-            elif (problem := wing_problem(name, target)) is not None:
+            elif problem := wing_problem(name, target) or daemon_problem(name, target):
                 out.append(problem)
     return out
+
+
+def outside_imports(source: str) -> set[str]:
+    """The first names of the modules ``source`` imports that are not motorctl's (the
+    standard library's, a third party's), also inside functions."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.Import):
+            found.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module.split(".")[0])
+    return {m for m in found if m != "motorctl"}
+
+
+def pure_problems(modules: dict[str, str]) -> list[str]:
+    """What of ``PURE`` reaches a file, a clock or a thread, or more of motorctl than it may."""
+    known = set(modules)
+    out = []
+    for name in PURE:
+        source = modules.get(name, "")
+        for lib in sorted(outside_imports(source) & REACHES_OUT):
+            out.append(
+                f"{name} imports {lib}: the link's pure parts reach no file, clock or thread"
+            )
+        for target in sorted(imports_of(source, known) & known):  # not logger names
+            if not any(in_package(target, ok) for ok in PURE_MAY_IMPORT):
+                out.append(f"{name} imports {target}: a pure part imports only {PURE_MAY_IMPORT}")
+    return out
+
+
+def optional_problems(modules: dict[str, str]) -> list[str]:
+    """Where an optional library (``OPTIONAL``) is imported by another module than its one."""
+    return [
+        f"{name} imports {lib}, an optional library only {OPTIONAL[lib]} imports"
+        for name, source in sorted(modules.items())
+        for lib in sorted(outside_imports(source) & set(OPTIONAL))
+        if name != OPTIONAL[lib]
+    ]
 
 
 def test_the_package_keeps_the_rooms_order_and_the_hal_boundary() -> None:
@@ -192,7 +312,21 @@ def test_the_package_keeps_the_rooms_order_and_the_hal_boundary() -> None:
         EXECUTORS_BASE,
         "motorctl.motion.executors.process.parent",
     } <= set(modules)
+    assert {*DAEMON_TOP, *PURE, *OPTIONAL.values()} <= set(modules)
+    assert {wing_of(m) for m in modules} == {*DAEMON_WINGS, None}  # every wing has modules
     assert violations(modules) == []
+
+
+def test_the_links_pure_parts_reach_no_file_clock_or_thread() -> None:
+    modules = {name: path.read_text(encoding="utf-8") for name, path in package_modules().items()}
+    assert pure_problems(modules) == []
+
+
+def test_an_optional_library_is_imported_by_its_one_module_only() -> None:
+    modules = {name: path.read_text(encoding="utf-8") for name, path in package_modules().items()}
+    assert optional_problems(modules) == []
+    for lib, name in OPTIONAL.items():  # a rule kept for a module that no longer needs it: out
+        assert lib in outside_imports(modules[name]), f"{name} no longer imports {lib}"
 
 
 def test_the_one_exception_is_still_there() -> None:
@@ -238,8 +372,8 @@ def test_the_one_exception_is_still_there() -> None:
         ),
         (
             "motorctl.client.x",
-            "from motorctl.daemon.status import read_status\n",
-            "motorctl.client.x (client) imports motorctl.daemon.status (daemon)",
+            "from motorctl.daemon.status.server import read_status\n",
+            "motorctl.client.x (client) imports motorctl.daemon.status.server (daemon)",
         ),
         (
             "motorctl.schema",
@@ -276,6 +410,31 @@ def test_the_one_exception_is_still_there() -> None:
             "from motorctl.motion.motor import Motor\n",
             "the executors carry out plans, they do not make them",
         ),
+        (
+            "motorctl.daemon.link.ports",
+            "from motorctl.daemon.assemble import StartupError\n",
+            "motorctl.daemon.link.ports imports motorctl.daemon.assemble: the daemon's top",
+        ),
+        (
+            "motorctl.daemon.assemble",
+            "def f():\n    from motorctl.daemon.serve import run\n",
+            "motorctl.daemon.assemble imports motorctl.daemon.serve: the daemon's top",
+        ),
+        (
+            "motorctl.daemon.state.journal",
+            "from motorctl.daemon.link.loop import Link\n",
+            "against the wings' order state <- link <- status",
+        ),
+        (
+            "motorctl.daemon.link.loop",
+            "from motorctl.daemon.status.server import StatusServer\n",
+            "against the wings' order state <- link <- status",
+        ),
+        (
+            "motorctl.daemon.state.records",
+            "from motorctl.daemon.config import Config\n",
+            "the state wing imports nothing of the daemon outside it",
+        ),
     ],
 )
 def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
@@ -291,6 +450,29 @@ def test_a_wrong_import_is_named(name: str, source: str, says: str) -> None:
     modules = {name: source, **{k: "" for k in known}}
     found = violations(modules)
     assert len(found) == 1 and says in found[0], found
+
+
+@pytest.mark.parametrize(
+    ("source", "says"),
+    [
+        ("import select\n", "imports select: the link's pure parts reach no file"),
+        ("def f():\n    import time\n", "imports time: the link's pure parts reach no file"),
+        ("from motorctl.motion.engine import MotionEngine\n", "a pure part imports only"),
+    ],
+)
+def test_a_pure_part_that_reaches_out_is_named(source: str, says: str) -> None:
+    known = {"motorctl.motion.engine": ""}
+    found = pure_problems({"motorctl.daemon.link.session": source, **known})
+    assert len(found) == 1 and says in found[0], found
+
+
+def test_an_optional_library_elsewhere_is_named() -> None:
+    modules = {"motorctl.daemon.main": "def f():\n    from rich.console import Console\n"}
+    assert optional_problems(modules) == [
+        "motorctl.daemon.main imports rich, an optional library only "
+        "motorctl.daemon.status.monitor_view imports"
+    ]
+    assert optional_problems({"motorctl.daemon.status.monitor_view": "import rich\n"}) == []
 
 
 def test_what_is_allowed_is_not_named() -> None:
@@ -309,5 +491,12 @@ def test_what_is_allowed_is_not_named() -> None:
         "StepExecutor\nfrom motorctl.motion.profile import Trajectory\n",
         "motorctl.daemon.assemble": "from motorctl.motion.executors.thread import "
         "ThreadStepExecutor\n",
+        "motorctl.daemon.main": "from motorctl.daemon.serve import serve\n",
+        "motorctl.daemon.serve": "from motorctl.daemon.assemble import build_served\n",
+        "motorctl.daemon.status.document": "from motorctl.daemon.link.loop import Link\n"
+        "from motorctl.daemon.state.persistence import Persistence\n"
+        "from motorctl.daemon.config import Config\n",
+        "motorctl.daemon.link.ports": "from motorctl.daemon.state import files\n"
+        "from motorctl.daemon.errors import StartupError\n",
     }
     assert violations(modules) == []

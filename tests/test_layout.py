@@ -32,8 +32,8 @@ from radon.visitors import ComplexityVisitor, Function
 
 from tests.support import REPO
 
-MIRRORED = ("motion", "hal")
-SIZED = ("motion", "hal")
+MIRRORED = ("daemon", "motion", "hal")
+SIZED = ("daemon", "motion", "hal")
 MAX_LINES = 600
 MAX_COMPLEXITY = 25
 #: the sources whose length counts (the compiled step core's C beside the Python)
@@ -66,14 +66,26 @@ def test_each_test_file_is_named_after_the_module_it_tests(room: str) -> None:
 
 def test_a_test_file_is_matched_with_its_module() -> None:
     tests = REPO / "tests"
+    assert module_tested_by(tests / "daemon" / "link" / "test_session_end.py") == (
+        REPO / "daemon" / "link" / "session_end.py"
+    )
+    assert module_tested_by(tests / "daemon" / "status" / "test_server_subscribe.py") == (
+        REPO / "daemon" / "status" / "server.py"
+    )
+    assert module_tested_by(tests / "daemon" / "test_serve_e2e.py") == (
+        REPO / "daemon" / "serve.py"
+    )
+    assert module_tested_by(tests / "daemon" / "test_config.py") == (
+        REPO / "daemon" / "config" / "__init__.py"
+    )
     assert module_tested_by(tests / "hal" / "backends" / "gpiod" / "test_config.py") == (
         REPO / "hal" / "backends" / "gpiod" / "config.py"
     )
     assert module_tested_by(tests / "motion" / "executors" / "process" / "test_child.py") == (
         REPO / "motion" / "executors" / "process" / "child.py"
     )
-    assert module_tested_by(tests / "motion" / "test_e2e.py") is None  # names no module
-    assert module_tested_by(tests / "motion" / "test_child.py") is None  # not in motion/
+    assert module_tested_by(tests / "daemon" / "test_e2e.py") is None  # names no module
+    assert module_tested_by(tests / "daemon" / "link" / "test_assemble.py") is None  # not there
 
 
 def _blocks(functions: list[Function], outer: str = "") -> Iterator[tuple[str, int]]:

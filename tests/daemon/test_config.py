@@ -822,23 +822,6 @@ def test_backends_get_their_sections_in_the_hardware_spec() -> None:
     assert all(pin.section(GpiodPinConfig) is None for pin in spec.pins)  # not wired
 
 
-def test_motorctld_prints_and_checks_the_default_config(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    from motorctl.daemon.main import main
-
-    assert main(["--print-default-config"]) == 0
-    text = capsys.readouterr().out
-    assert text == default_config_text()
-    path = tmp_path / "motorctl.toml"
-    path.write_text(text, encoding="utf-8")
-    assert main(["--check-config", str(path)]) == 0
-    assert capsys.readouterr().out == (f"{path}: OK (3 motors, 8 pins, a DC motor, backend mock)\n")
-    path.write_text(text.replace("max_travel = 40000", "max_travel = 0", 1), encoding="utf-8")
-    assert main(["--check-config", str(path)]) == 1
-    assert "motors[0].homing.max_travel = 0: out of range" in capsys.readouterr().err
-
-
 def test_motion_defaults_are_the_configs() -> None:
     """motion.types keeps construction defaults for its own tests; the daemon always passes
     every value from the config (daemon.assemble.motor_params). They must not drift apart."""

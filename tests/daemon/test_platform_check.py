@@ -25,7 +25,7 @@ from motorctl.daemon.platform_check import (
     throttled_text,
 )
 from tests.support import REPO
-from tests.support.daemon_proc import StartDaemon, for_tests
+from tests.support.daemon_proc import for_tests
 
 ROOT = REPO
 
@@ -258,46 +258,3 @@ def test_probe_prints_the_platform_section(tmp_path: Path) -> None:
     assert "[step_thread] priority = 0" in text
     assert "max lag at 20,000 step/s with 16 microsteps would be" in text
     assert "Traceback" not in out.stderr
-
-
-LAT0 = ("--latency-seconds", "0")
-
-
-def _probe(tmp_path: Path, step_thread: str) -> subprocess.CompletedProcess[str]:
-    config = tmp_path / "m.toml"
-    config.write_text(
-        for_tests(f'[step_thread]\n{step_thread}\n[[motors]]\nname = "a"\n', force=True)
-    )
-    return subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config), *LAT0],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
-    )
-
-
-def test_probe_says_which_step_core_would_run(tmp_path: Path) -> None:
-    out = _probe(tmp_path, 'core = "auto"')
-    assert out.returncode == 0, out.stderr
-    assert (
-        'step core:\n  [step_thread] core = "auto", executor = "process"\n'
-        "  compiled core: built\n  lines for it: the simulated mechanics of the mock\n"
-        "  runs: compiled\n"
-    ) in out.stdout
-
-
-def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_error(
-    tmp_path: Path, motorctld: StartDaemon
-) -> None:
-    out = _probe(tmp_path, 'core = "compiled"\nexecutor = "thread"')
-    assert out.returncode == 1
-    assert "  runs: python (the thread executor runs the Python core)\n" in out.stdout
-    assert 'PROBLEM: [step_thread] core = "compiled" runs in the process executor only' in (
-        out.stdout
-    )
-    config = 'core = "compiled"\nexecutor = "thread"'
-    text = for_tests(f'[step_thread]\n{config}\n[[motors]]\nname = "a"\n', force=True)
-    with pytest.raises(RuntimeError, match="motorctld exited") as err:
-        motorctld(text)
-    assert '[step_thread] core = "compiled" runs in the process executor only' in str(err.value)

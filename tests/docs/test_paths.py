@@ -2,7 +2,7 @@
 
 Read from each page: paths in prose, code spans, tables and command blocks that start with
 one of the repository's top-level folders (``motion/profile.py``, ``docs/timing.md``,
-``bench/steps.py``, ``tests/daemon/test_link.py::test_name``); relative Markdown links
+``bench/steps.py``, ``tests/daemon/link/test_loop.py::test_name``); relative Markdown links
 (``[status.md](status.md)``, from the page's own folder); and the README's architecture
 map, whose file names are relative to the room their line group starts with (``motion/``
 ... ``engine.py``), or to a folder named earlier in that group (``config/ (model.py``).
@@ -196,7 +196,10 @@ def test_every_name_in_the_readmes_map_exists() -> None:
     ("text", "paths"),
     [
         ("see `motion/profile.py` and docs/timing.md.", ["motion/profile.py", "docs/timing.md"]),
-        ("| tests/daemon/test_link.py::test_serves_and_stops |", ["tests/daemon/test_link.py"]),
+        (
+            "| tests/daemon/link/test_loop.py::test_serves_and_stops |",
+            ["tests/daemon/link/test_loop.py"],
+        ),
         ("`bench/latency.py --trace` (bench/steps.py)", ["bench/latency.py", "bench/steps.py"]),
         ("/etc/motorctl.toml, /dev/spidev0.0, /run/motorctl/x, /usr/bin/python3", []),
         ("https://example.org/motion/profile.py and build/deb/build.log", []),
