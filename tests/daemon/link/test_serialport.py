@@ -174,8 +174,12 @@ def test_unplugged_and_plugged_back_in_it_is_served_again(
         assert s.counters()["device_reopened"] == 0
         again = Adapter(names[0])  # back, as another tty behind the same names
         try:
-            until("the reopen", lambda: s.counters()["device_reopened"] == 1, detail=s.counters)
-            assert s.link.status()["peer"] == "open"
+            # the device's watch counts the reopen before the link thread takes its descriptor
+            until(
+                "the reopen",
+                lambda: s.counters()["device_reopened"] == 1 and s.link.status()["peer"] == "open",
+                detail=s.counters,
+            )
             again.write(frame(IsReady(1)))
             assert again.responses(1) == [Response.boolean(True)]  # its own answer only
             assert again.nothing_within(0.05)
