@@ -288,19 +288,19 @@ def core_cost_us(core: str = "python", steps: int = 30_000) -> float:
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.shm import SharedBlock
     from motorctl.hal.spec import HardwareSpec
-    from motorctl.motion.executors.base import AxisLimits
     from motorctl.motion.executors.compiled_core import CompiledStepCore
     from motorctl.motion.executors.process.rings import Layout, Shared
     from motorctl.motion.executors.segments import StepSegment
     from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
     from motorctl.motion.latency import LatencyStats
+    from tests.support.motor_defaults import motor_limits
 
     clock = VirtualClock()
     far = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
     spec = HardwareSpec(axes=(far,) * 3, options={"timeline_len": 1000})
     hw = build(spec, clock)
     io = build_step_io(spec, clock, hw)
-    limits = [AxisLimits(1e-6)] * 3
+    limits = [motor_limits(1e-6)] * 3
     start = round(clock.now() * 1e9) + 1000
     if core == "compiled":
         layout = Layout(3, len(io.inputs.names))

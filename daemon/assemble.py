@@ -38,6 +38,7 @@ from typing import Any
 
 from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, MotorConfig
+from motorctl.daemon.config.model import MICROSTEPS_UNSAID
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.instance import Owned
@@ -134,9 +135,9 @@ def motor_params(config: Config) -> list[MotorParams]:
 
 def motor_microsteps(m: MotorConfig) -> int:
     """Microsteps per full step: its own key, else its driver chip's (``[motors.tmc]``),
-    else 16."""
+    else MICROSTEPS_UNSAID."""
     known = known_microsteps(m)
-    return 16 if known is None else known
+    return MICROSTEPS_UNSAID if known is None else known
 
 
 def known_microsteps(m: MotorConfig) -> int | None:

@@ -30,6 +30,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from motorctl.daemon.config.model import MICROSTEPS_UNSAID
+from motorctl.motion.executors.base import LagRule, lag_full_steps
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.rt import set_realtime
 
@@ -287,8 +289,8 @@ class MotorRate:
     name: str
     max_speed: float
     microsteps: int | None
-    start_speed: float = 100.0
-    max_lag_full_steps: float = 0.5
+    start_speed: float  # the config's, as max_lag_full_steps ([[motors]]: their defaults)
+    max_lag_full_steps: float
     loses_steps: bool = True
 
 
@@ -300,12 +302,6 @@ class TimingConfig:
     priority: int = 50
     spin_us: float = 200.0
     executor: str = "process"
-
-
-def lag_full_steps(lateness_us: float, rate: float, microsteps: int) -> float:
-    """How far a motor at ``rate`` (micro)steps/s falls behind in full steps when a step is
-    ``lateness_us`` late."""
-    return lateness_us * 1e-6 * rate / microsteps
 
 
 def advice(
@@ -401,17 +397,19 @@ def lag_advice(lat: Latency, motors: Sequence[MotorRate]) -> list[str]:
         key = (m.max_speed, m.microsteps, m.start_speed, m.max_lag_full_steps, m.loses_steps)
         groups.setdefault(key, []).append(m.name)
     for (rate, microsteps, start, tolerance, loses), names in groups.items():
-        micro = microsteps or 16
-        lag = lag_full_steps(lat.max_us, rate, micro)
-        known = "" if microsteps else "; microsteps not in the config: 16 assumed"
+        micro = microsteps or MICROSTEPS_UNSAID
+        rule = LagRule(micro, start, tolerance)  # the step core's own rule
+        late_s = lat.max_us * 1e-6
+        lag = lag_full_steps(late_s, 1 / rate, micro)
+        known = "" if microsteps else f"; microsteps not in the config: {micro} assumed"
         which = f"motor{'s' if len(names) > 1 else ''} {', '.join(names)}"
         out.append(
             f"max lag at {rate:,.0f} step/s with {micro} microsteps would be "
             f"{lag:,.2f} full steps ({lat.max_us * 1e-6 * rate:,.1f} steps) after "
             f"the worst wake-up ({which}{known})"
         )
-        if lag > tolerance and rate > start:
-            safe = max(start, tolerance * micro / (lat.max_us * 1e-6))
+        if rule.loses_steps_at(late_s, rate):
+            safe = rule.fastest_safe_rate(late_s)
             if loses:
                 out.append(
                     f"that is beyond max_lag_full_steps ({tolerance:g}): a wake-up "

@@ -357,6 +357,10 @@ def _microsteps_power_of_two(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+#: a motor's microsteps per full step when neither its config nor its driver chip's says
+MICROSTEPS_UNSAID = 16
+
+
 @section(
     "Stepper motors, numbered 0..N-1 in file order.",
     rules=(
@@ -432,7 +436,7 @@ class MotorConfig(Sectioned):
         "Microsteps per full step the driver is set to (a power of two): a late step's lag "
         "is judged in full steps.",
         optional=True,
-        default_text="the [motors.tmc] table's microsteps, else 16",
+        default_text=f"the [motors.tmc] table's microsteps, else {MICROSTEPS_UNSAID}",
     )
     max_lag_full_steps: float = number(
         0.5,

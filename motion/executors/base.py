@@ -98,10 +98,57 @@ class AxisLimits:
     pulse_s: float = 2e-6
     debounce_s: float = 0.0
     slide_after_s: float = 100e-6
-    microsteps: int = 16
-    start_speed: float = 0.0
-    max_lag_full_steps: float = 0.5
+    # the motor's own, always given (their defaults are the config model's: [[motors]])
+    microsteps: int = field(kw_only=True)
+    start_speed: float = field(kw_only=True)
+    max_lag_full_steps: float = field(kw_only=True)
     lag_faults: bool = True
+
+    def lag_rule(self) -> LagRule:
+        return LagRule(self.microsteps, self.start_speed, self.max_lag_full_steps)
+
+
+def lag_full_steps(late: float, gap: float, microsteps: int) -> float:
+    """The lag, in full steps, of a motor whose step came ``late`` after its planned time
+    while its steps are ``gap`` apart (its rate; both in one unit of time)."""
+    return late / gap / microsteps
+
+
+class LagRule:
+    """The one rule for a late step (docs/timing.md, "Late steps: slide, or stop"): a motor
+    moving faster than its ``start_speed`` (step/s) whose lag (:func:`lag_full_steps`) is
+    beyond ``max_lag_full_steps`` may have lost steps, and is stopped; otherwise the move
+    slides. The step core asks it of every late step (the compiled core's C mirrors it:
+    csrc/core.c), ``motorctld --probe``'s platform check of the worst wake-up measured."""
+
+    __slots__ = ("lag_k", "max_lag_full_steps", "microsteps", "start_gap", "start_speed")
+
+    def __init__(self, microsteps: int, start_speed: float, max_lag_full_steps: float) -> None:
+        self.microsteps = microsteps
+        self.start_speed = start_speed
+        self.max_lag_full_steps = max_lag_full_steps
+        #: above the start speed: a step's planned gap shorter than this (ticks)
+        self.start_gap = TICKS_PER_S if start_speed <= 0 else round(TICKS_PER_S / start_speed)
+        #: lag (full steps) = late / gap / microsteps: beyond the tolerance when late > gap * this
+        self.lag_k = max_lag_full_steps * microsteps
+
+    def lag(self, late: float, gap: float) -> float:
+        """:func:`lag_full_steps` for this motor (0 when it is not moving: ``gap`` of 1 s or
+        more, or none)."""
+        return lag_full_steps(late, gap, self.microsteps) if 0 < gap < TICKS_PER_S else 0.0
+
+    def loses_steps(self, late: float, gap: float) -> bool:
+        """A step ``late`` ticks after its time, ending a gap of ``gap`` ticks: True when it
+        lagged the motor beyond its tolerance above its start speed."""
+        return 0 < gap < TICKS_PER_S and gap < self.start_gap and late > gap * self.lag_k
+
+    def loses_steps_at(self, late_s: float, rate: float) -> bool:
+        """The same of a motor stepping at ``rate`` step/s, ``late_s`` seconds late."""
+        return rate > 0 and self.loses_steps(late_s * TICKS_PER_S, TICKS_PER_S / rate)
+
+    def fastest_safe_rate(self, late_s: float) -> float:
+        """The step rate (step/s) above which a step ``late_s`` seconds late loses steps."""
+        return max(self.start_speed, self.lag_k / late_s)
 
 
 @dataclass(frozen=True)

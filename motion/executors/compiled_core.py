@@ -148,17 +148,18 @@ class CompiledStepCore:
         out = io.outputs
         for m, lim in enumerate(limits):
             lo, hi = io.endstops[m]
+            rule = lim.lag_rule()  # the C core's late steps mirror LagRule.loses_steps
             self._core.motor(
                 m,
                 to_ticks(lim.min_interval_s),
                 to_ticks(lim.slide_after_s),
-                TICKS_PER_S if lim.start_speed <= 0 else round(TICKS_PER_S / lim.start_speed),
+                rule.start_gap,
                 to_ticks(lim.pulse_s),
                 to_ticks(lim.debounce_s),
-                lim.microsteps,
-                lim.max_lag_full_steps * lim.microsteps,
-                lim.max_lag_full_steps,
-                lim.start_speed,
+                rule.microsteps,
+                rule.lag_k,
+                rule.max_lag_full_steps,
+                rule.start_speed,
                 lim.lag_faults,
                 -1 if lo is None else lo,
                 -1 if hi is None else hi,

@@ -155,16 +155,8 @@ class StepCore:
         self.motors = range(n)
         self.min_iv = [to_ticks(lim.min_interval_s) for lim in limits]
         self.slide_after = [to_ticks(lim.slide_after_s) for lim in limits]
-        # lag (full steps) = late / gap / microsteps: it faults when late > gap * this
-        self.lag_k = [lim.max_lag_full_steps * lim.microsteps for lim in limits]
-        self.microsteps = [lim.microsteps for lim in limits]
-        self.max_lag = [lim.max_lag_full_steps for lim in limits]
-        # above the start speed: the step's planned gap is shorter than this (ticks)
-        self.start_gap = [
-            TICKS_PER_S if lim.start_speed <= 0 else round(TICKS_PER_S / lim.start_speed)
-            for lim in limits
-        ]
-        self.start_speed = [lim.start_speed for lim in limits]
+        # how a late step is judged: the one lag rule (motion/executors/base.py)
+        self.lag_rule = [lim.lag_rule() for lim in limits]
         self.lag_faults = [lim.lag_faults for lim in limits]
         self.mcells: Cells = motor_cells if motor_cells is not None else [0] * (n * MOTOR_CELLS)
         if len(self.mcells) < n * MOTOR_CELLS:
@@ -443,25 +435,25 @@ class StepCore:
         planned = self.next_t[m]
         late = now - planned
         gap = planned - self.prev_t[m]  # the interval this step ends: the motor's step rate
-        moving = 0 < gap < TICKS_PER_S
+        rule = self.lag_rule[m]
         cells = self.mcells
         base = m * MOTOR_CELLS
-        lag = late / gap / self.microsteps[m] if moving else 0.0
+        lag = rule.lag(late, gap)
         if late > cells[base + WORST_LATE]:
             cells[base + WORST_LATE] = late
         ulag = min(int(lag * LAG_UNIT), _CELL_MAX)
         if ulag > cells[base + WORST_LAG]:
             cells[base + WORST_LAG] = ulag
-        if self.lag_faults[m] and moving and gap < self.start_gap[m] and late > gap * self.lag_k[m]:
+        if self.lag_faults[m] and rule.loses_steps(late, gap):
             cells[base + LAG_FAULTS] += 1
             rate = self._speed(m, planned)
             self._lost(
                 m,
                 now,
                 f"step {late / 1000:.0f} us late at {rate:.0f} step/s: lag "
-                f"{lag:.3f} full steps > max_lag_full_steps {self.max_lag[m]:g} "
-                f"({self.microsteps[m]} microsteps, start_speed "
-                f"{self.start_speed[m]:g} step/s)",
+                f"{lag:.3f} full steps > max_lag_full_steps {rule.max_lag_full_steps:g} "
+                f"({rule.microsteps} microsteps, start_speed "
+                f"{rule.start_speed:g} step/s)",
                 planned,
             )
             return False

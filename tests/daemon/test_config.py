@@ -823,13 +823,16 @@ def test_backends_get_their_sections_in_the_hardware_spec() -> None:
 
 
 def test_motion_defaults_are_the_configs() -> None:
-    """motion.types keeps construction defaults for its own tests; the daemon always passes
-    every value from the config (daemon.assemble.motor_params). They must not drift apart."""
+    """motion.types keeps construction defaults for its own tests, but not those of the lag
+    rule (start_speed, max_lag_full_steps: declared in the config model only, the tests take
+    them from there); the daemon always passes every value from the config
+    (daemon.assemble.motor_params). They must not drift apart."""
     from motorctl.daemon.assemble import motor_params
-    from motorctl.motion.types import HomingParams, MotorParams
+    from motorctl.motion.types import HomingParams
+    from tests.support.motor_defaults import motor_params as declared_params
 
     built = motor_params(parse_config(MOTOR, SOURCE))[0]
-    assert dataclasses.replace(built, name="motor", host_position=None) == MotorParams()
+    assert dataclasses.replace(built, name="motor", host_position=None) == declared_params()
     assert built.homing == HomingParams()
 
 

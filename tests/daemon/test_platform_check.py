@@ -13,19 +13,19 @@ import pytest
 
 from motorctl.daemon.platform_check import (
     Latency,
-    MotorRate,
     Roots,
     TimingConfig,
     advice,
-    lag_full_steps,
     measure_latency,
     parse_cpulist,
     read_platform,
     report,
     throttled_text,
 )
+from motorctl.motion.executors.base import lag_full_steps
 from tests.support import REPO
 from tests.support.daemon_proc import for_tests
+from tests.support.motor_defaults import motor_rate
 
 ROOT = REPO
 
@@ -75,7 +75,11 @@ RT = {
 LATENCY = Latency(
     samples=3000, p50_us=12.0, p99_us=45.0, max_us=160.0, policy="SCHED_FIFO 50 on CPU 3"
 )
-MOTORS = [MotorRate("x", 25_000.0, 16), MotorRate("y", 25_000.0, 16), MotorRate("z", 4_000.0, None)]
+MOTORS = [
+    motor_rate("x", 25_000.0, 16),
+    motor_rate("y", 25_000.0, 16),
+    motor_rate("z", 4_000.0, None),
+]
 
 
 def test_a_raspberry_pi_on_a_stock_kernel(tmp_path: Path) -> None:
@@ -150,9 +154,9 @@ def test_a_tuned_rt_board_needs_nothing_but_the_lag_figures(tmp_path: Path) -> N
         "or keep them slower" in tips
     )
     assert sum("beyond max_lag_full_steps" in t for t in tips) == 2
-    mock = [MotorRate("x", 25_000.0, None, loses_steps=False)]
+    mock = [motor_rate("x", 25_000.0, None, loses_steps=False)]
     assert "the mock's simulated motor x slide instead" in advice(p, late, cfg, mock)[-1]
-    slow = [MotorRate("x", 3_000.0, 16), MotorRate("y", 25_000.0, 16, start_speed=30_000.0)]
+    slow = [motor_rate("x", 3_000.0, 16), motor_rate("y", 25_000.0, 16, start_speed=30_000.0)]
     assert not any("beyond" in t for t in advice(p, late, cfg, slow))
     spun = Latency(samples=10, p50_us=10.0, p99_us=300.0, max_us=400.0, policy="x")
     assert "more than step_thread.spin_us (200)" in advice(p, spun, cfg, [])[0]
@@ -210,7 +214,7 @@ def test_small_parsers() -> None:
         "soft temperature limit has occurred",
     ]
     assert throttled_text(1 << 30) == ["bit 30 (unknown)"]
-    assert lag_full_steps(200.0, 25_000, 16) == pytest.approx(0.3125)
+    assert lag_full_steps(200e-6, 1 / 25_000, 16) == pytest.approx(0.3125)
 
 
 def test_the_measurement_goes_on_without_sched_fifo() -> None:

@@ -20,7 +20,8 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.thread import ThreadStepExecutor
-from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from motorctl.motion.types import MotorState, MoveToCmd, Ramp, RunCmd
+from tests.support.motor_defaults import motor_params
 from tests.support.rigs import engine_rig, planned_times
 
 FAST = settings(max_examples=40, deadline=None)
@@ -99,7 +100,7 @@ def test_invert_dir_swaps_the_dir_line_not_the_motion() -> None:
 
 
 def test_two_motors_step_independently() -> None:
-    rig = engine_rig(MotorParams(name="a"), MotorParams(name="b"))
+    rig = engine_rig(motor_params(name="a"), motor_params(name="b"))
     t0 = rig.clock.now()
     rig.submit(MoveToCmd(300, RAMP), 0)
     rig.submit(MoveToCmd(-150, Ramp(900.0, 3000.0, 3000.0)), 1)
@@ -124,7 +125,7 @@ def test_position_readable_while_moving() -> None:
 
 
 def test_engine_shutdown_soft_stops_everything() -> None:
-    rig = engine_rig(MotorParams(), MotorParams(), dc=True)
+    rig = engine_rig(motor_params(), motor_params(), dc=True)
     rig.submit(RunCmd(1, RAMP), 0)
     rig.submit(MoveToCmd(-5000, RAMP), 1)
     with rig.engine.lock:
@@ -200,14 +201,14 @@ def test_engine_checks_its_configuration_and_clock() -> None:
     clock = VirtualClock()
     spec = HardwareSpec(axes=(AxisSpec(),))
     hw = build(spec, clock)
-    one = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 0.0))
+    one = ThreadStepExecutor(hw, "mock", spec, axis_limits([motor_params()], 0.0))
     with pytest.raises(ValueError, match="2 motors configured"):
-        MotionEngine(hw, [MotorParams(), MotorParams()], one)
+        MotionEngine(hw, [motor_params(), motor_params()], one)
     with pytest.raises(ValueError, match="real clock"):
-        MotionEngine(hw, [MotorParams()], one).start()
+        MotionEngine(hw, [motor_params()], one).start()
     real = build(spec, MonotonicClock())
-    ex = ThreadStepExecutor(real, "mock", spec, axis_limits([MotorParams()], 0.0))
-    engine = MotionEngine(real, [MotorParams()], ex)
+    ex = ThreadStepExecutor(real, "mock", spec, axis_limits([motor_params()], 0.0))
+    engine = MotionEngine(real, [motor_params()], ex)
     with pytest.raises(TypeError):
         engine.run_until(1.0)
     with pytest.raises(TypeError):
@@ -270,7 +271,7 @@ def test_random_command_mixes_keep_every_invariant(
     script: list[tuple[str, int | bool, Ramp]], waits: list[float]
 ) -> None:
     rig = engine_rig(
-        MotorParams(soft_min=-1000, soft_max=1000),
+        motor_params(soft_min=-1000, soft_max=1000),
         axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)],
     )
     for (kind, arg, ramp), dt in zip(script, waits, strict=False):
@@ -301,7 +302,7 @@ def test_random_command_mixes_keep_every_invariant(
 
 
 def test_a_fault_on_one_motor_leaves_the_other_alone() -> None:
-    rig = engine_rig(MotorParams(), MotorParams())
+    rig = engine_rig(motor_params(), motor_params())
     rig.submit(MoveToCmd(800, RAMP), 0)
     rig.submit(MoveToCmd(-800, RAMP), 1)
     rig.advance(0.1)

@@ -40,6 +40,7 @@ from motorctl.motion.types import (
 )
 from motorctl.protocol.codec import wrap24
 from tests.support.executors import RecordingExecutor
+from tests.support.motor_defaults import motor_params
 from tests.support.rigs import engine_rig, planned_times
 
 FAST = settings(max_examples=40, deadline=None)
@@ -59,7 +60,7 @@ def alone(
     ex = RecordingExecutor(1, stops_at_once=stops_at_once)
     hw = build(HardwareSpec(axes=(AxisSpec(),)), VirtualClock())
     notes: list[str] = []
-    m = Motor(0, params or MotorParams(), hw.steppers[0].driver, ex, lambda _, e: notes.append(e))
+    m = Motor(0, params or motor_params(), hw.steppers[0].driver, ex, lambda _, e: notes.append(e))
     return m, ex, notes, world_of(hw)
 
 
@@ -96,7 +97,7 @@ def test_a_plan_that_makes_no_step_is_done_at_once() -> None:
 
 
 def test_the_done_of_a_replaced_plan_is_ignored() -> None:
-    m, ex, notes, _ = alone(MotorParams(soft_min=-(10**6), soft_max=10**6))
+    m, ex, notes, _ = alone(motor_params(soft_min=-(10**6), soft_max=10**6))
     m.submit(RunCmd(1, RAMP), 0.0)
     m.submit(RunCmd(1, Ramp(4000.0, 8000.0, 8000.0)), 0.5)  # a new speed: re-planned at once
     assert [gen for gen, _, _ in followed(ex)] == [1, 2]
@@ -164,7 +165,7 @@ def test_an_event_overtaken_by_a_stop_of_ours_is_left_to_that_stop() -> None:
 def test_what_stopped_the_axis_decides_whether_its_position_is_lost(
     kind: ExecEventKind, speed: float, lost: bool, cause: str
 ) -> None:
-    m, ex, _, _ = alone(MotorParams(start_speed=100.0))
+    m, ex, _, _ = alone(motor_params(start_speed=100.0))
     m.submit(RunCmd(1, RAMP), 0.0)
     m.on_event(ex.report(kind, 0, 1, speed=speed, detail="what happened"), 0.2)
     assert ex.of("stop") == [("stop", 0, 2)]
@@ -192,7 +193,7 @@ def test_stopmove_clears_a_fault_unless_the_driver_still_reports_one() -> None:
 
 
 def test_stall_homing_follows_without_end_stops() -> None:
-    m, ex, _, _ = alone(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
+    m, ex, _, _ = alone(motor_params(homing=HomingParams(source=HomingSource.STALL)))
     m.submit(HomeCmd(-1, RAMP), 0.0)
     ((_, traj, watch),) = followed(ex)
     assert watch is False and traj.velocity(10.0) < 0  # the driver's stall flag ends it
@@ -202,18 +203,18 @@ def test_stall_homing_follows_without_end_stops() -> None:
 
 
 def test_the_host_sees_a_wrapped_linear_counter_or_a_rotary_angle() -> None:
-    m, ex, _, _ = alone(MotorParams(host_position=wrap24))
+    m, ex, _, _ = alone(motor_params(host_position=wrap24))
     ex.positions[0] = 2**23 + 5
     assert m.abs_steps == 2**23 + 5 and m.position == -(2**23) + 5
     m.set_position(10)  # declared: here is 10
     assert m.position == 10 and m.offset == 2**23 - 5
-    r, rex, _, _ = alone(MotorParams(steps_per_rev=200))
+    r, rex, _, _ = alone(motor_params(steps_per_rev=200))
     rex.positions[0] = -30
     assert r.position == 170
 
 
 def test_the_queue_is_full_at_its_depth_behind_the_running_command() -> None:
-    m, _, _, _ = alone(MotorParams(queue_depth=2))
+    m, _, _, _ = alone(motor_params(queue_depth=2))
     assert not m.queue_full  # idle: a command starts at once
     m.submit(MoveToCmd(100, RAMP), 0.0)
     m.submit(MoveToCmd(200, RAMP), 0.0)
@@ -274,7 +275,7 @@ def test_queued_moves_run_in_order_back_to_back() -> None:
 
 
 def test_queue_full_at_queue_depth_behind_the_running_command() -> None:
-    rig = engine_rig(MotorParams(queue_depth=3))
+    rig = engine_rig(motor_params(queue_depth=3))
     assert not rig.m.queue_full
     rig.submit(MoveToCmd(500, RAMP))  # runs at once, queue still empty
     assert not rig.m.queue and not rig.m.queue_full
@@ -441,7 +442,7 @@ def test_homing_clears_a_lost_position() -> None:
 
 def test_two_phase_homing_backs_off_and_reapproaches_slowly() -> None:
     homing = HomingParams(pull_off=50, second_speed=200.0)
-    rig = engine_rig(MotorParams(homing=homing))
+    rig = engine_rig(motor_params(homing=homing))
     ramp = Ramp(1500.0, 6000.0, 6000.0)
     rig.submit(HomeCmd(-1, ramp))
     assert rig.state() is MotorState.HOMING
@@ -460,7 +461,7 @@ def test_two_phase_homing_backs_off_and_reapproaches_slowly() -> None:
 
 def test_two_phase_homing_with_second_speed_above_the_ramp_uses_the_ramp() -> None:
     homing = HomingParams(pull_off=20, second_speed=5000.0)
-    rig = engine_rig(MotorParams(homing=homing))
+    rig = engine_rig(motor_params(homing=homing))
     rig.submit(HomeCmd(1, Ramp(400.0, 100_000.0, 100_000.0)))
     rig.engine.run_until_idle()
     approach = rig.steps()[1020:]
@@ -476,7 +477,7 @@ STALL_OVERRUN = int(RAMP.speed * POLL) + 1
 
 
 def test_stall_homing() -> None:
-    rig = engine_rig(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
+    rig = engine_rig(motor_params(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     # The mock stalls once it is pushed past its end stop.
@@ -487,7 +488,7 @@ def test_stall_homing() -> None:
 
 def test_two_phase_stall_homing() -> None:
     homing = HomingParams(source=HomingSource.STALL, pull_off=30, second_speed=300.0)
-    rig = engine_rig(MotorParams(homing=homing))
+    rig = engine_rig(motor_params(homing=homing))
     rig.submit(HomeCmd(-1, RAMP))
     rig.engine.run_until_idle()
     assert rig.m.fault is None and rig.m.position == 0
@@ -499,7 +500,7 @@ def test_two_phase_stall_homing() -> None:
 
 
 def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None:
-    rig = engine_rig(MotorParams(homing=HomingParams(source=HomingSource.STALL)))
+    rig = engine_rig(motor_params(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     rig.advance(0.1)
@@ -521,7 +522,7 @@ def test_stall_during_endstop_homing_is_a_fault() -> None:
 
 
 def test_homing_fails_beyond_max_travel() -> None:
-    rig = engine_rig(MotorParams(homing=HomingParams(max_travel=300)))
+    rig = engine_rig(motor_params(homing=HomingParams(max_travel=300)))
     rig.submit(HomeCmd(-1, RAMP))
     rig.submit(MoveToCmd(50, RAMP))
     rig.engine.run_until_idle()
@@ -537,7 +538,7 @@ def test_homing_fails_beyond_max_travel() -> None:
 
 def test_homing_fails_when_the_reapproach_finds_nothing() -> None:
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
-    rig = engine_rig(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
+    rig = engine_rig(motor_params(homing=HomingParams(pull_off=40)), axes=[far])
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.2)
     rig.world.force_endstop(0, "max", True)
@@ -552,7 +553,7 @@ def test_homing_fails_when_the_reapproach_finds_nothing() -> None:
 
 def test_homing_fails_when_the_switch_stays_active_after_pull_off() -> None:
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
-    rig = engine_rig(MotorParams(homing=HomingParams(pull_off=40)), axes=[far])
+    rig = engine_rig(motor_params(homing=HomingParams(pull_off=40)), axes=[far])
     rig.submit(HomeCmd(1, RAMP))
     rig.advance(0.2)
     rig.world.force_endstop(0, "max", True)
@@ -573,7 +574,7 @@ def test_homing_that_starts_on_the_switch_does_not_move() -> None:
 
 
 def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
-    rig = engine_rig(MotorParams(homing=HomingParams(pull_off=25, second_speed=100.0)))
+    rig = engine_rig(motor_params(homing=HomingParams(pull_off=25, second_speed=100.0)))
     rig.world.axes[0].position = 1000
     rig.submit(HomeCmd(1, RAMP))
     assert rig.state() is MotorState.HOMING
@@ -584,7 +585,7 @@ def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
 
 def test_homing_with_debounce_ignores_short_glitches() -> None:
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
-    rig = engine_rig(MotorParams(debounce_s=0.02), axes=[far])
+    rig = engine_rig(motor_params(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)  # 1 ms per step almost at once
     rig.submit(HomeCmd(1, ramp))
     rig.advance(0.2)
@@ -604,7 +605,7 @@ def test_homing_with_debounce_ignores_short_glitches() -> None:
 
 def test_endstop_hit_with_debounce_outside_homing() -> None:
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
-    rig = engine_rig(MotorParams(debounce_s=0.0105), axes=[far])
+    rig = engine_rig(motor_params(debounce_s=0.0105), axes=[far])
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.1)
     rig.world.force_endstop(0, "min", True)
@@ -620,7 +621,7 @@ def test_endstop_hit_with_debounce_outside_homing() -> None:
 def test_debounce_forgets_what_it_no_longer_watches() -> None:
     """Two short glitches far apart, each shorter than the debounce, never add up."""
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
-    rig = engine_rig(MotorParams(debounce_s=0.02), axes=[far])
+    rig = engine_rig(motor_params(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)
     rig.submit(RunCmd(1, ramp))
     rig.advance(0.1)
@@ -737,7 +738,7 @@ def test_stall_while_idle_is_not_a_fault() -> None:
 
 
 def test_rotary_moves_in_the_given_direction() -> None:
-    rig = engine_rig(MotorParams(steps_per_rev=200))
+    rig = engine_rig(motor_params(steps_per_rev=200))
     rig.submit(MoveToCmd(150, RAMP, 1))  # 0 -> 150 up: 150 steps
     rig.submit(MoveToCmd(50, RAMP, 1))  # 150 -> 50 up, across 0: 100 steps
     rig.submit(MoveToCmd(150, RAMP, -1))  # 50 -> 150 down, across 0: 100 steps
@@ -753,7 +754,7 @@ def test_rotary_moves_in_the_given_direction() -> None:
 
 def test_rotary_position_stays_in_range_while_moving() -> None:
     rig = engine_rig(
-        MotorParams(steps_per_rev=100), axes=[mock_axis(endstop_min=-(10**6), endstop_max=10**6)]
+        motor_params(steps_per_rev=100), axes=[mock_axis(endstop_min=-(10**6), endstop_max=10**6)]
     )
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
     rig.submit(MoveToCmd(30, Ramp(2000.0, 20000.0, 20000.0), -1))
@@ -770,7 +771,7 @@ def test_rotary_position_stays_in_range_while_moving() -> None:
 
 
 def test_rotary_homing_sets_zero() -> None:
-    rig = engine_rig(MotorParams(steps_per_rev=360))
+    rig = engine_rig(motor_params(steps_per_rev=360))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
     assert rig.m.position == 0 and rig.axis() == 1000
@@ -783,7 +784,7 @@ def test_rotary_homing_sets_zero() -> None:
 
 
 def soft(lo: int, hi: int) -> MotorParams:
-    return MotorParams(soft_min=lo, soft_max=hi)
+    return motor_params(soft_min=lo, soft_max=hi)
 
 
 def test_target_allowed() -> None:
@@ -831,7 +832,7 @@ def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
 
 def test_linear_position_wraps_at_24_bits() -> None:
     rig = engine_rig(
-        MotorParams(host_position=wrap24),
+        motor_params(host_position=wrap24),
         axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)],
     )
     with rig.engine.lock:
@@ -962,7 +963,7 @@ def test_random_run_changes_keep_counter_and_mechanics_together(
 def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
     spr = 97
     rig = engine_rig(
-        MotorParams(steps_per_rev=spr), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)]
+        motor_params(steps_per_rev=spr), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)]
     )
     expected = 0
     pos = 0
@@ -978,7 +979,7 @@ def test_random_rotary_moves(queue: list[tuple[int, int]]) -> None:
 
 def test_debounce_forgets_the_end_stop_behind_a_reversal() -> None:
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
-    rig = engine_rig(MotorParams(debounce_s=0.02), axes=[far])
+    rig = engine_rig(motor_params(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)
     rig.submit(RunCmd(1, ramp))
     rig.advance(0.1)
@@ -1036,7 +1037,7 @@ def test_a_move_queued_behind_homing_counts_from_the_switch() -> None:
 
 def test_rotary_run_wraps_and_agrees_with_the_mechanics() -> None:
     rig = engine_rig(
-        MotorParams(steps_per_rev=50), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)]
+        motor_params(steps_per_rev=50), axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)]
     )
     rig.submit(RunCmd(-1, Ramp(1000.0, 1e6, 1e6)))
     rig.advance(0.3)

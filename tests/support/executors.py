@@ -16,7 +16,6 @@ from motorctl.hal.layers.tmc.settings import TmcSettings
 from motorctl.hal.layers.tmc.tmc5160 import TMC5160, RefSwitches, Tmc5160
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.executors.base import (
-    AxisLimits,
     Committed,
     ExecEvent,
     ExecEventKind,
@@ -28,6 +27,7 @@ from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.executors.process.rings import Ring, ring_size
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import Ramp
+from tests.support.motor_defaults import motor_limits
 from tests.support.spi_bench import SpiBench
 from tests.support.tmc_model import TmcModel
 
@@ -157,7 +157,7 @@ def process_executor(
     not started: the caller starts it and closes both)."""
     spec = HardwareSpec(axes=(AxisSpec(),) * motors)
     hw = build(spec, MonotonicClock())
-    limits = [AxisLimits(1e-4)] * motors
+    limits = [motor_limits(1e-4)] * motors
     return hw, ProcessStepExecutor(
         hw, backend, spec, limits, start_timeout_s=start_timeout_s, core=core
     )

@@ -30,6 +30,7 @@ from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.profile import Steps, plan_move_to
 from motorctl.motion.types import MotionCmd, MotorParams, MotorState, Ramp
+from tests.support.motor_defaults import motor_params
 from tests.support.wait import WAIT_S
 
 
@@ -168,7 +169,7 @@ def engine_rig(
     of the mock's; ``executor``: another executor instead.
     """
     if not params:
-        params = (MotorParams(),)
+        params = (motor_params(),)
     if axes is None:
         axes = [mock_axis(endstop_min=-1000, endstop_max=1000) for _ in params]
     if lows is not None:
@@ -230,7 +231,7 @@ class StepCoreRig:
         self.hw = build(spec, self.clock)
         self.world = world_of(self.hw)
         io = build_step_io(spec, self.clock, self.hw)
-        params = MotorParams(
+        params = motor_params(
             max_speed=max_speed,
             start_speed=start_speed,
             microsteps=microsteps,

@@ -21,13 +21,13 @@ from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
     HomingSource,
-    MotorParams,
     MotorState,
     MoveToCmd,
     Ramp,
     RunCmd,
 )
 from tests.support.executors import RAMP_SETTINGS, RampRig
+from tests.support.motor_defaults import motor_params
 from tests.support.rigs import engine_rig
 from tests.support.tmc_model import A_CHOPCONF, A_VMAX, A_XTARGET, FakeKernel, TmcModel
 
@@ -127,7 +127,7 @@ def test_spi_errors_become_fault_events_never_exceptions() -> None:
 def ramp_engine(homing: HomingParams | None = None) -> tuple[RampRig, MotionEngine]:
     rig = RampRig()
     engine = engine_rig(
-        MotorParams(homing=homing or HomingParams()),
+        motor_params(homing=homing or HomingParams()),
         axes=[AxisSpec()],
         clock=rig.clock,
         driver_poll_s=0.005,
@@ -247,7 +247,7 @@ def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(
     assert model.reg(A_CHOPCONF) >> 24 & 0xF == mres
     hw = build(HardwareSpec((AxisSpec(),)), clock)
     hw.steppers[0].driver = chip
-    engine = MotionEngine(hw, [MotorParams()], RampExecutor([chip], clock), driver_poll_s=0.005)
+    engine = MotionEngine(hw, [motor_params()], RampExecutor([chip], clock), driver_poll_s=0.005)
     m = engine.motors[0]
     target = 2 * microsteps  # two full steps
     with engine.lock:

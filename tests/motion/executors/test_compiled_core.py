@@ -15,10 +15,10 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.executors import compiled_core
-from motorctl.motion.executors.base import AxisLimits
 from motorctl.motion.executors.process.rings import Layout, Shared
 from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.latency import CELLS
+from tests.support.motor_defaults import motor_limits
 from tests.support.rigs import FAR
 
 
@@ -54,9 +54,9 @@ def test_a_step_io_without_lines_for_it_is_refused_with_its_reason() -> None:
     try:
         assert compiled_core.unavailable(io) == "kept"
         with pytest.raises(ValueError, match="no lines for a compiled core: kept"):
-            compiled_core.CompiledStepCore(io, [AxisLimits(1e-4)], shared)
+            compiled_core.CompiledStepCore(io, [motor_limits(1e-4)], shared)
         with pytest.raises(ValueError, match="2 motors configured, the step IO drives 1"):
-            compiled_core.CompiledStepCore(io, [AxisLimits(1e-4)] * 2, shared)
+            compiled_core.CompiledStepCore(io, [motor_limits(1e-4)] * 2, shared)
     finally:
         shared.release()
         shm.close()

@@ -20,20 +20,21 @@ from motorctl.motion.executors.planner import REFILL_S, StepExecutor, axis_limit
 from motorctl.motion.executors.step_core import COUNTER_NAMES
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.profile import Segment, Trajectory, plan_move_to
-from motorctl.motion.types import MotorParams, MotorState, Ramp, RunCmd
+from motorctl.motion.types import MotorState, Ramp, RunCmd
+from tests.support.motor_defaults import motor_params
 from tests.support.rigs import FAR, engine_rig
 
 K = ExecEventKind
 
 
 def test_each_motor_is_bounded_by_its_maximum_speed_less_the_step_error() -> None:
-    fast, slow = MotorParams(max_speed=10_000.0), MotorParams(max_speed=100.0, start_speed=50.0)
+    fast, slow = motor_params(max_speed=10_000.0), motor_params(max_speed=100.0, start_speed=50.0)
     a, b = axis_limits([fast, slow], 5e-6, slide_after_s=50e-6, lag_faults=False)
     assert a.min_interval_s == pytest.approx(95e-6) and a.min_interval_s < 95e-6
     assert b.min_interval_s == pytest.approx(0.01 - 5e-6)
     assert (b.start_speed, b.slide_after_s, b.lag_faults) == (50.0, 50e-6, False)
     assert (a.pulse_s, a.microsteps) == (fast.pulse_s, fast.microsteps)
-    (never,) = axis_limits([MotorParams(max_speed=1e9)], 5e-6)  # faster than the error
+    (never,) = axis_limits([motor_params(max_speed=1e9)], 5e-6)  # faster than the error
     assert never.min_interval_s == 0.0
 
 
@@ -52,7 +53,7 @@ def test_a_kind_without_its_transport_cannot_be_made() -> None:
             return ExecutorHealth(True, 0)
 
     with pytest.raises(TypeError, match="_push, _push_stop, _raw_events"):
-        NoTransport(VirtualClock(), axis_limits([MotorParams()], 0.0))  # type: ignore[abstract]
+        NoTransport(VirtualClock(), axis_limits([motor_params()], 0.0))  # type: ignore[abstract]
 
 
 # ---------------------------------------------------------------- re-plans
@@ -62,7 +63,7 @@ def rig(ahead_s: float = 0.05) -> tuple[VirtualClock, MotionEngine, ThreadStepEx
     """A thread executor on a virtual clock that plans ``ahead_s`` ahead, as on a real clock."""
     clock = VirtualClock()
     r = engine_rig(
-        MotorParams(max_speed=10_000.0),
+        motor_params(max_speed=10_000.0),
         axes=[FAR],
         clock=clock,
         max_error_s=5e-6,
@@ -154,7 +155,7 @@ def test_motors_started_apart_are_topped_up_in_one_pass_not_one_pass_each() -> N
     clock = VirtualClock()
     spec = HardwareSpec(axes=(FAR, FAR, FAR), options={"timeline_len": None})
     hw = build(spec, clock)
-    params = [MotorParams(max_speed=10_000.0)] * 3
+    params = [motor_params(max_speed=10_000.0)] * 3
     fed: list[tuple[float, int]] = []
 
     class Spy(ThreadStepExecutor):

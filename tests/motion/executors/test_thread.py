@@ -23,6 +23,7 @@ from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.rt import GcPolicy
 from motorctl.motion.types import HomeCmd, MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from tests.support.motor_defaults import motor_params
 from tests.support.rigs import FAR, EngineRig, engine_rig
 from tests.support.wait import until
 
@@ -31,7 +32,7 @@ FAST = Ramp(4000.0, 40000.0, 40000.0)
 
 @pytest.fixture
 def live(request: pytest.FixtureRequest) -> Iterator[EngineRig]:
-    params: MotorParams = getattr(request, "param", MotorParams())
+    params: MotorParams = getattr(request, "param", motor_params())
     # the mock's own rule (simulated motors: late steps slide), as the embedded default's
     rig = engine_rig(
         params,
@@ -54,9 +55,9 @@ def test_refuses_a_virtual_clock() -> None:
     clock = VirtualClock()
     spec = HardwareSpec(axes=(AxisSpec(),))
     hw = build(spec, clock)
-    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits([MotorParams()], 0.0))
+    ex = ThreadStepExecutor(hw, "mock", spec, axis_limits([motor_params()], 0.0))
     with pytest.raises(ValueError, match="real clock"):
-        MotionEngine(hw, [MotorParams()], ex).start()
+        MotionEngine(hw, [motor_params()], ex).start()
 
 
 def test_a_short_move_completes(live: EngineRig) -> None:
@@ -89,7 +90,7 @@ def test_homing_on_the_real_clock(live: EngineRig) -> None:
     assert (pos, axis) == (0, -5000)
 
 
-@pytest.mark.parametrize("live", [MotorParams(soft_min=-100, soft_max=350)], indirect=True)
+@pytest.mark.parametrize("live", [motor_params(soft_min=-100, soft_max=350)], indirect=True)
 def test_a_run_ends_at_the_soft_limit(live: EngineRig) -> None:
     live.submit(RunCmd(1, FAST))
     live.wait("idle")
@@ -162,7 +163,7 @@ def engine_rig_1(
     """One motor on a virtual clock; ``ahead_s`` None: one step ahead (re-plans at once)."""
     clock = VirtualClock()
     rig = engine_rig(
-        MotorParams(max_speed=10_000.0, start_speed=start_speed),
+        motor_params(max_speed=10_000.0, start_speed=start_speed),
         axes=[FAR],
         clock=clock,
         lag_faults=lag_faults,

@@ -21,12 +21,12 @@ from motorctl.motion.types import (
     HomeCmd,
     HomingParams,
     HomingSource,
-    MotorParams,
     MotorState,
     Ramp,
     RunCmd,
 )
 from tests.support import tmc_model as tm
+from tests.support.motor_defaults import motor_params
 from tests.support.rigs import engine_rig
 from tests.support.spi_bench import S2130, S5160, SpiBench
 from tests.support.tmc_model import TmcModel
@@ -206,7 +206,7 @@ def engine_with_tmc(
     drv.start()
     # the mock's STEP/DIR, a TMC2130 for the status
     engine = engine_rig(
-        MotorParams(homing=homing),
+        motor_params(homing=homing),
         axes=[AxisSpec()],
         clock=spi_bench.clock,
         driver_poll_s=0.005,

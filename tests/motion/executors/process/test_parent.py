@@ -22,12 +22,13 @@ from motorctl.hal.backends.mock.world import EventKind, read_timeline, world_of
 from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.executors.process.rings import EVENT_KINDS, EVENT_RECORD, READY_CELL
-from motorctl.motion.types import MotorParams, MotorState, MoveToCmd, Ramp, RunCmd
+from motorctl.motion.types import MotorState, MoveToCmd, Ramp, RunCmd
 from tests.support.executors import process_executor, show_slot, slot_bytes, slot_offset
+from tests.support.motor_defaults import motor_limits, motor_params
 from tests.support.rigs import FAR
 from tests.support.wait import until
 
@@ -43,7 +44,7 @@ def proc(
         options={"timeline_len": None, "executor_process": True, "timeline_file": str(timeline)},
     )
     hw = build(spec, clock)
-    params = [MotorParams(max_speed=10_000.0)] * 2
+    params = [motor_params(max_speed=10_000.0)] * 2
     # tests run without real-time priority on a shared machine: the simulated motors' rule
     # (late steps slide, never a fault), but the real-hardware rule where the test is about it
     real = request.node.get_closest_marker("real_rule") is not None
@@ -174,7 +175,7 @@ def test_the_process_executor_needs_a_real_clock() -> None:
     clock = VirtualClock()
     spec = HardwareSpec(axes=(FAR,))
     with pytest.raises(ValueError, match="real clock"):
-        ProcessStepExecutor(build(spec, clock), "mock", spec, [AxisLimits(1e-5)])
+        ProcessStepExecutor(build(spec, clock), "mock", spec, [motor_limits(1e-5)])
 
 
 def test_auto_runs_the_compiled_core_where_it_is_built_and_the_backend_hands_lines_over(
@@ -185,7 +186,7 @@ def test_auto_runs_the_compiled_core_where_it_is_built_and_the_backend_hands_lin
     spec = HardwareSpec(axes=(FAR,), options={"executor_process": True})
     hw = build(spec, MonotonicClock())
     wanted = "auto" if step_core == "compiled" else "python"
-    ex = ProcessStepExecutor(hw, "mock", spec, [AxisLimits(1e-4)], core=wanted)
+    ex = ProcessStepExecutor(hw, "mock", spec, [motor_limits(1e-4)], core=wanted)
     try:
         ex.start()
         assert ex.step_core() == step_core and ex.health().alive
@@ -204,7 +205,7 @@ def test_the_compiled_core_asked_for_where_it_cannot_run_is_a_clear_start_error(
     spec = HardwareSpec(axes=(FAR,), options={"executor_process": True})
     hw = build(spec, MonotonicClock())
     try:
-        ex = ProcessStepExecutor(hw, "mock", spec, [AxisLimits(1e-4)], core="compiled")
+        ex = ProcessStepExecutor(hw, "mock", spec, [motor_limits(1e-4)], core="compiled")
         try:
             with pytest.raises(HalError) as err:
                 ex.start()
@@ -213,7 +214,7 @@ def test_the_compiled_core_asked_for_where_it_cannot_run_is_a_clear_start_error(
         text = str(err.value)
         assert text.startswith('the step executor cannot start: [step_thread] core = "compiled"')
         assert "the compiled step core is not built" in text and "missing.so" in text
-        ex = ProcessStepExecutor(hw, "mock", spec, [AxisLimits(1e-4)], core="auto")
+        ex = ProcessStepExecutor(hw, "mock", spec, [motor_limits(1e-4)], core="auto")
         try:
             ex.start()
             assert ex.step_core() == "python" and "not the compiled core" in ex.core_note
