@@ -26,6 +26,7 @@ from motorctl.motion.engine import MotionEngine, Settled
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
 from motorctl.protocol.codec import (
+    MOTION_COMMANDS,
     Command,
     ConfigPin,
     DcMove,
@@ -50,8 +51,6 @@ log = logging.getLogger("motorctl.dispatcher")
 
 E = ErrorCode
 OK = Response.ok()
-
-MOTION_COMMANDS = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)
 
 
 class Persist(Protocol):

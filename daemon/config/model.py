@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from motorctl.motion.engine import STOP_CONFIRM_S
 from motorctl.motion.types import HomingSource
-from motorctl.protocol.codec import POS_MAX, POS_MIN
+from motorctl.protocol.codec import POS_MAX, POS_MIN, WAYPOINTS
 from motorctl.protocol.crc import (
     CHECKSUM_DEFAULT,
     CHECKSUM_TEXT,
@@ -461,7 +461,7 @@ class MotorConfig(Sectioned):
     queue_depth: int = integer(
         16, 1, 1024, "Motion commands that may wait behind the one executing; more -> E0."
     )
-    max_waypoints: int = integer(255, 1, 255, "Size of the waypoint table; more -> E5.")
+    max_waypoints: int = integer(WAYPOINTS, 1, WAYPOINTS, "Size of the waypoint table; more -> E5.")
     soft_limit_min: int | None = integer(
         None,
         POS_MIN,

@@ -37,13 +37,11 @@ from pathlib import Path
 from typing import Any
 
 from motorctl.daemon.state.files import describe, folder_owner, ours
+from motorctl.protocol.codec import POS_MAX, POS_MIN, WAYPOINTS
 
 STATE_VERSION = 2
 STATE_NAME = "state.json"
 JOURNAL_NAME = "state.moving"
-POS_MIN = -(1 << 23)
-POS_MAX = (1 << 23) - 1
-MAX_WAYPOINTS = 255  # the protocol's table size; a motor's configured table may be smaller
 #: The largest state or journal file read: 64 motors with full tables write about 240 KiB
 #: (tests/daemon/state/test_persistence.py checks it); anything larger is not this daemon's
 #: and is set aside unread.
@@ -69,7 +67,7 @@ class MotorIdentity:
 
     name: str
     fingerprint: str
-    max_waypoints: int = MAX_WAYPOINTS
+    max_waypoints: int = WAYPOINTS
     steps_per_rev: int = 0  # > 0: rotary, positions in [0, steps_per_rev)
 
 
@@ -148,8 +146,8 @@ def parse_motor(m: object, where: str) -> SavedMotor:
     wps = m.get("waypoints")
     if not isinstance(wps, list):
         raise StateError(f"{where}.waypoints is not a list")
-    if len(wps) > MAX_WAYPOINTS:
-        raise StateError(f"{where} has {len(wps)} waypoints, the table holds {MAX_WAYPOINTS}")
+    if len(wps) > WAYPOINTS:
+        raise StateError(f"{where} has {len(wps)} waypoints, the table holds {WAYPOINTS}")
     return SavedMotor(
         name=_str(m.get("name"), f"{where}.name"),
         fingerprint=_str(m.get("fingerprint"), f"{where}.fingerprint"),

@@ -29,6 +29,8 @@ from motorctl.daemon.state.journal import MotionJournal
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.daemon.state.records import StateError, parse_state, read_state
 from motorctl.protocol.codec import (
+    POS_MAX,
+    POS_MIN,
     Command,
     ErrorCode,
     GoHome,
@@ -749,7 +751,7 @@ def test_parse_state_takes_any_bytes(raw: bytes) -> None:
         assert len(str(exc)) < 500
         return
     for motor in state.motors:
-        assert isinstance(motor.position, int) and st.POS_MIN <= motor.position <= st.POS_MAX
+        assert isinstance(motor.position, int) and POS_MIN <= motor.position <= POS_MAX
     assert all(len(b.problem) < 500 for b in state.bad)
 
 

@@ -12,6 +12,7 @@ import pytest
 
 from motorctl.daemon.state import records as st
 from motorctl.daemon.state.records import MotorIdentity, StateError, parse_state, read_state
+from motorctl.protocol.codec import POS_MIN, WAYPOINTS
 
 
 def test_parse_state_lists_the_bad_records() -> None:
@@ -53,7 +54,7 @@ def test_the_size_bound_is_far_above_any_real_state() -> None:
     """64 motors (the most a config has), 64-character names, full tables of 255
     waypoints of the widest value, the mock's axes: the bound is 16 times that."""
     biggest = [
-        st.SavedMotor(f"{i:064d}", "f" * 16, st.POS_MIN, st.POS_MIN, [st.POS_MIN] * 255, True, True)
+        st.SavedMotor(f"{i:064d}", "f" * 16, POS_MIN, POS_MIN, [POS_MIN] * WAYPOINTS, True, True)
         for i in range(64)
     ]
     size = len(st.SavedState(biggest, {"mock": {"axes": [-(1 << 62) + 1] * 64}}).to_bytes())
