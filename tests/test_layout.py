@@ -32,7 +32,7 @@ from radon.visitors import ComplexityVisitor, Function
 
 from tests.support import REPO
 
-MIRRORED = ("daemon", "motion", "hal")
+MIRRORED = ("protocol", "client", "daemon", "motion", "hal")
 SIZED = ("daemon", "motion", "hal")
 MAX_LINES = 600
 MAX_COMPLEXITY = 25
@@ -59,7 +59,7 @@ def module_tested_by(test: Path) -> Path | None:
 @pytest.mark.parametrize("room", MIRRORED)
 def test_each_test_file_is_named_after_the_module_it_tests(room: str) -> None:
     tests = sorted((REPO / "tests" / room).rglob("test_*.py"))
-    assert len(tests) > 5
+    assert len(tests) >= 3  # the room's tests are found
     strays = [str(t.relative_to(REPO)) for t in tests if module_tested_by(t) is None]
     assert strays == [], f"test files that name no module of {room}/: {strays}"
 
