@@ -127,8 +127,10 @@ class LagRule:
         self.microsteps = microsteps
         self.start_speed = start_speed
         self.max_lag_full_steps = max_lag_full_steps
-        #: above the start speed: a step's planned gap shorter than this (ticks)
-        self.start_gap = TICKS_PER_S if start_speed <= 0 else round(TICKS_PER_S / start_speed)
+        #: above the start speed: a step's planned gap shorter than this (ticks); a start
+        #: speed of 1 step/s or less is any motion (a gap of 1 s or more is rest), and a
+        #: tiny one would overflow the division
+        self.start_gap = TICKS_PER_S if start_speed <= 1 else round(TICKS_PER_S / start_speed)
         #: lag (full steps) = late / gap / microsteps: beyond the tolerance when late > gap * this
         self.lag_k = max_lag_full_steps * microsteps
 
