@@ -6,11 +6,11 @@
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
 #               is made when missing; in the guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
-# The venv's install builds the compiled step core (setup.py: motion/csrc/ ->
-# motion/_stepcore*.so, in place); that needs gcc and the Python headers, installed via apt
-# (gcc, python3-dev) when root and missing. make stepcore rebuilds it after a change to its
-# sources (make test and make run do); make test-asan runs the core's tests on a build with
-# the address and undefined-behaviour sanitizers.
+# The venv's install builds the compiled step core (setup.py: motion/executors/csrc/ ->
+# motion/executors/_stepcore*.so, in place); that needs gcc and the Python headers, installed
+# via apt (gcc, python3-dev) when root and missing. make stepcore rebuilds it after a change to
+# its sources (make test and make run do); make test-asan runs the core's tests on a build
+# with the address and undefined-behaviour sanitizers.
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
 # tear a socat PTY pair down and make it again; without socat they skip, saying so loudly), and
 # tshark the same way (the Wireshark dissector's tests; without it they skip, saying so loudly),
@@ -53,7 +53,8 @@ $(VENV)/.installed: pyproject.toml setup.py
 # The compiled step core again, in place, after a change to its sources (-Wall -Wextra -Werror).
 stepcore: $(VENV)/.stepcore
 
-$(VENV)/.stepcore: $(VENV)/.installed setup.py $(wildcard motion/csrc/*.c motion/csrc/*.h)
+STEPCORE_SRC = $(wildcard motion/executors/csrc/*.c motion/executors/csrc/*.h)
+$(VENV)/.stepcore: $(VENV)/.installed setup.py $(STEPCORE_SRC)
 	$(BIN)/python setup.py -q build_ext --inplace
 	touch $@
 
@@ -62,23 +63,23 @@ $(VENV)/.stepcore: $(VENV)/.installed setup.py $(wildcard motion/csrc/*.c motion
 # preloaded): any error the sanitizers find fails the run.
 ASAN_FLAGS = -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined \
   -fno-sanitize-recover=all -fno-wrapv
-ASAN_TESTS = tests/motion/test_step_core.py tests/motion/test_segments.py \
-  tests/motion/test_executor_process.py tests/motion/test_executor_process_rings.py
+ASAN_TESTS = tests/motion/executors/test_step_core.py tests/motion/executors/test_compiled_core.py \
+  tests/motion/executors/process/
 test-asan: venv
 	rm -rf build/asan
 	CFLAGS="$(ASAN_FLAGS)" LDFLAGS="-fsanitize=address,undefined" \
 	  $(BIN)/python setup.py -q build_ext --build-lib build/asan/lib --build-temp build/asan/tmp
-	cp build/asan/lib/motorctl/motion/_stepcore*.so build/asan/_stepcore.so
+	cp build/asan/lib/motorctl/motion/executors/_stepcore*.so build/asan/_stepcore.so
 	MOTORCTL_STEPCORE=$(CURDIR)/build/asan/_stepcore.so LD_PRELOAD="$$(gcc -print-file-name=libasan.so)" \
 	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
-	  PYTHONMALLOC=malloc sh -c '$(BIN)/python -c "from motorctl.motion import compiled_core as c; \
+	  PYTHONMALLOC=malloc sh -c '$(BIN)/python -c "from motorctl.motion.executors import compiled_core as c; \
 	    assert c.load().__file__ == \"$$MOTORCTL_STEPCORE\""; \
 	    $(BIN)/pytest -q -n $(JOBS) -p no:cacheprovider -k "compiled or both_cores" $(ASAN_TESTS)'
 
 run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-# What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py);
+# What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
 # tshark and mergecap (tests/client/test_wireshark.py: the Lua dissector, merged files), with
 # wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
 test-deps:
@@ -95,7 +96,7 @@ test-deps:
 	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
 	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
 	    "dissector's tests are SKIPPED" >&2; fi; }
-# ... and promtool, from Debian's prometheus package (tests/daemon/test_metrics.py lints the
+# ... and promtool, from Debian's prometheus package (tests/daemon/status/test_metrics.py lints the
 # metrics with `promtool check metrics`; installing it starts no server where systemd does
 # not run, and where it does the package's prometheus.service is stopped and disabled again)
 	@command -v promtool >/dev/null || { \
@@ -180,4 +181,5 @@ test-deb: deb
 	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_ARCH).deb
 
 clean:
-	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info motion/_stepcore*.so
+	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info \
+	  motion/executors/_stepcore*.so

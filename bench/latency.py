@@ -33,7 +33,7 @@ import serial
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from motorctl.daemon.status import read_status  # noqa: E402
+from motorctl.daemon.status.reader import read_status  # noqa: E402
 from motorctl.protocol.codec import CodecOptions, IsReady, encode_command  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 

@@ -51,7 +51,7 @@ sys.path.insert(0, str(ROOT))
 from bench import rt_throttling_off  # noqa: E402
 from motorctl.client.client import Client, DeviceError, error_text  # noqa: E402
 from motorctl.daemon.config import default_config_text  # noqa: E402
-from motorctl.daemon.status import read_status  # noqa: E402
+from motorctl.daemon.status.reader import read_status  # noqa: E402
 from motorctl.protocol.codec import ErrorCode  # noqa: E402
 from tests.docs.test_readme import walkthrough  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402

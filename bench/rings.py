@@ -21,12 +21,12 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from motorctl.hal.shm import SharedBlock  # noqa: E402
-from motorctl.motion.executor_process import (  # noqa: E402
-    _EVENT,
-    _SEG,
-    _STOP,
+from motorctl.motion.executors.process.rings import (  # noqa: E402
+    EVENT_RECORD,
     EVENT_RING,
+    SEG_RECORD,
     SEG_RING,
+    STOP_RECORD,
     STOP_RING,
     Ring,
     ring_size,
@@ -34,7 +34,11 @@ from motorctl.motion.executor_process import (  # noqa: E402
 
 
 def measure(number: int, repeat: int) -> dict[str, float]:
-    rings = {"seg": (_SEG, SEG_RING), "stop": (_STOP, STOP_RING), "event": (_EVENT, EVENT_RING)}
+    rings = {
+        "seg": (SEG_RECORD, SEG_RING),
+        "stop": (STOP_RECORD, STOP_RING),
+        "event": (EVENT_RECORD, EVENT_RING),
+    }
     size = sum(ring_size(rec, cap) for rec, cap in rings.values())
     shm = SharedBlock.create(size, "motorctl-bench-rings")  # the executor's kind of block
     out: dict[str, float] = {}

@@ -28,7 +28,7 @@ Parts (each reports its figures and every invariant violation; exit status 1 if 
 - faults: the state directory turns read-only (a read-only bind mount onto itself; needs
   root, else skipped and said so): SaveHome/SaveWayPoint must answer E4 and change nothing, the
   daemon keeps serving, and after a kill -9 every acknowledged save is there. (Line and
-  driver faults are injected in-process: tests/daemon/test_hal_faults.py.)
+  driver faults are injected in-process: tests/daemon/test_dispatcher_faults.py.)
 - soak: mixed traffic as fast as the host can send while 3 motors move, for --soak-s
   seconds: RSS and open file descriptors of the daemon sampled; error counters must only
   grow by what the traffic provokes.
@@ -51,7 +51,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from motorctl.daemon.status import read_status
+from motorctl.daemon.status.reader import read_status
 
 ROOT = Path(__file__).resolve().parent.parent
 # The harness's daemon uses a 100 ms gap: this host is a Python process on a shared machine

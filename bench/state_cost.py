@@ -25,13 +25,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from motorctl.daemon.state import (  # noqa: E402
-    MotionJournal,
-    SavedMotor,
-    SavedState,
-    Snapshot,
-    StateWriter,
-)
+from motorctl.daemon.state.journal import MotionJournal  # noqa: E402
+from motorctl.daemon.state.records import SavedMotor, SavedState  # noqa: E402
+from motorctl.daemon.state.writer import Snapshot, StateWriter  # noqa: E402
 
 
 def percentiles(samples: list[float]) -> dict[str, float]:

@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.steps import config_text  # noqa: E402  (the daemon of its status scenario)
-from motorctl.daemon.status import read_status  # noqa: E402
+from motorctl.daemon.status.reader import read_status  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 

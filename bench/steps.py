@@ -165,7 +165,7 @@ def status_reader(state_dir: Path, seconds: float, per_s: int) -> subprocess.Pop
     code = (
         "import time\n"
         "from pathlib import Path\n"
-        "from motorctl.daemon.status import read_status\n"
+        "from motorctl.daemon.status.reader import read_status\n"
         f"p=Path({str(state_dir / 'status.sock')!r}); end=time.monotonic()+{seconds}; n=0\n"
         f"period=1/{per_s}; nxt=time.monotonic()\n"
         "while time.monotonic()<end:\n"
@@ -283,23 +283,24 @@ def core_cost_us(core: str = "python", steps: int = 30_000) -> float:
     virtual clock: the Python core's ``step()`` per edge (the loop's other work not
     counted), the compiled core's whole loop per edge (``run_until``: refill, end stops,
     due times, the step; its rings and cells in a shared block)."""
-    from motorctl.hal.backends.mock.backend import build, build_step_io, mock_axis
+    from motorctl.hal.backends.mock.backend import build, build_step_io
+    from motorctl.hal.backends.mock.world import mock_axis
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.shm import SharedBlock
     from motorctl.hal.spec import HardwareSpec
-    from motorctl.motion.compiled_core import CompiledStepCore
-    from motorctl.motion.executor_process import Layout, Shared
-    from motorctl.motion.executor_seam import AxisLimits
+    from motorctl.motion.executors.compiled_core import CompiledStepCore
+    from motorctl.motion.executors.process.rings import Layout, Shared
+    from motorctl.motion.executors.segments import StepSegment
+    from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
     from motorctl.motion.latency import LatencyStats
-    from motorctl.motion.segments import StepSegment
-    from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
+    from tests.support.motor_defaults import motor_limits
 
     clock = VirtualClock()
     far = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
     spec = HardwareSpec(axes=(far,) * 3, options={"timeline_len": 1000})
     hw = build(spec, clock)
     io = build_step_io(spec, clock, hw)
-    limits = [AxisLimits(1e-6)] * 3
+    limits = [motor_limits(1e-6)] * 3
     start = round(clock.now() * 1e9) + 1000
     if core == "compiled":
         layout = Layout(3, len(io.inputs.names))

@@ -20,12 +20,12 @@ from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_n
 __all__ = ["build_parser", "main"]
 
 
-_UNITS = """\
+_UNITS = f"""\
 All numbers are the raw protocol values the host sends, not physical units: MOTOR, PIN,
 waypoint N and --speed/--acc/--dec are single bytes (0..255; 0 = the motor's configured
 default); with the default factors InitMove/Move speed = SPEED x 4096 step/s, MoveTo and
 waypoint speed = SPEED x 4 step/s, ramps = ACC/DEC x 16 step/s^2. POS is a signed 24-bit
-step count (-8388608..8388607). Times are milliseconds (0..65535). Integers may be given
+step count ({POS_MIN}..{POS_MAX}). Times are milliseconds (0..65535). Integers may be given
 in decimal or with a 0x/0o/0b prefix.
 
 exit status: 0 ok, 1 the device answered with an error (printed by name, e.g.
@@ -383,7 +383,7 @@ def _main(argv: list[str] | None) -> int:
         return replay.run(args)
     if args.command == "monitor":
         # The status socket is the daemon's own interface: its reader and view live there.
-        from motorctl.daemon import monitor
+        from motorctl.daemon.status import monitor
 
         return monitor.run(args.state_dir / "status.sock", args.period, args.once)
     if not args.port:

@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 
 from motorctl.client.trace import Conversation, Frame
 from motorctl.protocol.codec import (
+    MOTION_COMMANDS,
     POS_MAX,
     POS_MIN,
     Command,
@@ -45,7 +46,6 @@ from motorctl.protocol.codec import (
 #: the recording then shows: see :func:`speed_bound`)
 MOVE_SPEED_FACTOR = 4.0  # MoveTo, MoveToWayPoint: step/s per SPEED
 RUN_SPEED_FACTOR = 4096.0  # InitMove, Move
-MOTION = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)
 INF = math.inf
 _POS_SPAN = POS_MAX - POS_MIN + 1
 
@@ -229,7 +229,7 @@ class _Builder:
         elif ep is not None and not resp.ack and resp.payload[0] == 0xE4:
             self.rec.roles[f.number] = ("ended?", ep)
             self._finish(ep, "fault")
-        elif isinstance(cmd, MOTION) and resp.ack:
+        elif isinstance(cmd, MOTION_COMMANDS) and resp.ack:
             self._motion(f, cmd, motor, ep, span)
         elif isinstance(cmd, StopMove) and ep is not None and resp.ack:
             self._stop(f, cmd, ep, span)

@@ -1,15 +1,23 @@
-"""The assembler: a config becomes a running daemon (everything behind the serial port).
+"""The assembler: a config becomes a running daemon, everything it runs built here.
 
 The one place where the names a config gives become objects, as python-can's interface.py
 makes a bus of a name: the hardware backend and its layers by name through the HAL's
 registry (:func:`hardware_spec`: the config as the HAL's picklable spec), the step executor
 the config asks for (:func:`build_executor`: process, running the step core ``[step_thread]
 core`` names; thread; or none when every motor's driver runs its own ramp), the motion
-engine, the state file and the dispatcher
-(:meth:`Daemon.build`); and the link's parts (:func:`silence_watch`, :func:`open_trace`,
-:func:`progress_watch`). It knows the HAL only by its interfaces: what some hardware can
+engine, the state file and the dispatcher (:meth:`Daemon.build`: everything behind the
+serial port); then what serves it (:func:`build_served`): the port (a PTY, or the UART,
+daemon/link/), the trace, the link and its silence watch, the status socket, systemd's
+STATUS= line, the motor events' journal entries and the watchdog's idea of progress.
+:meth:`Daemon._on_motor_event` is the one listener of the motors' events: it wakes each
+part that wants to know. It knows the HAL only by its interfaces: what some hardware can
 do it asks for (``RampDriver``, ``StepperDriver.stats``, ``Hardware.persistent_state``),
 never a backend's class.
+
+A part that cannot be built stops the start with a :class:`StartupError` (or the HAL's
+message), and what was opened before it is closed again, each close registered once, as
+it is opened, on one ``ExitStack``; :meth:`Served.close` closes what served after
+daemon/serve.py's shutdown.
 
 Threads: everything here runs on the main thread at start-up, before the daemon serves,
 except :meth:`Daemon.status` (the status server's thread and the STATUS= line's: reads
@@ -23,32 +31,47 @@ import contextlib
 import logging
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from motorctl import __version__
-from motorctl.daemon.config import Config, MotorConfig
+from motorctl.daemon.config import Config, ConfigError, MotorConfig
+from motorctl.daemon.config.model import MICROSTEPS_UNSAID
 from motorctl.daemon.dispatcher import Dispatcher
-from motorctl.daemon.link import Link
-from motorctl.daemon.service import ProgressWatch
-from motorctl.daemon.silence import SilenceWatch
-from motorctl.daemon.state import MotorIdentity, Persistence, StateWriter, geometry_fingerprint
-from motorctl.daemon.trace import TraceRecorder
-from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, Pin, RampDriver
+from motorctl.daemon.errors import StartupError
+from motorctl.daemon.instance import Owned
+from motorctl.daemon.link.devwatch import NOT_BACK, PathWatch
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.ports import PtySlave, open_pty
+from motorctl.daemon.link.recorder import TraceRecorder
+from motorctl.daemon.link.serialport import DeviceError, SerialDevice
+from motorctl.daemon.link.silence import SilenceWatch, check_timeout
+from motorctl.daemon.service import (
+    MotorEventLog,
+    ProgressWatch,
+    StatusLine,
+    Watchdog,
+    watchdog_interval,
+)
+from motorctl.daemon.state.persistence import Persistence
+from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
+from motorctl.daemon.state.writer import StateWriter
+from motorctl.daemon.status.document import status_document, summary_line
+from motorctl.daemon.status.server import StatusServer
+from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
-from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_chip_ramp import RampExecutor, with_ramp_motors
-from motorctl.motion.executor_process import ProcessStepExecutor
-from motorctl.motion.executor_process_start import ExecutorProcess
-from motorctl.motion.executor_seam import Executor
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import Executor
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.parent import ProcessStepExecutor
+from motorctl.motion.executors.process.start import WaitingInterpreter
+from motorctl.motion.executors.split import with_ramp_motors
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
-from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
-from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import HomingParams, MotorParams
 from motorctl.protocol.capture import CaptureInfo
 from motorctl.protocol.codec import wrap24
@@ -57,10 +80,6 @@ log = logging.getLogger("motorctl")
 
 #: the planner's step-time error bound (segments' reproduction of exact step times)
 STEP_ERROR_S = 5e-6
-
-
-class StartupError(Exception):
-    """Something the user must fix before the daemon can start; the message says what."""
 
 
 def hardware_spec(config: Config) -> HardwareSpec:
@@ -116,9 +135,9 @@ def motor_params(config: Config) -> list[MotorParams]:
 
 def motor_microsteps(m: MotorConfig) -> int:
     """Microsteps per full step: its own key, else its driver chip's (``[motors.tmc]``),
-    else 16."""
+    else MICROSTEPS_UNSAID."""
     known = known_microsteps(m)
-    return 16 if known is None else known
+    return MICROSTEPS_UNSAID if known is None else known
 
 
 def known_microsteps(m: MotorConfig) -> int | None:
@@ -169,6 +188,11 @@ class Daemon:
     link: Link | None = None
     trace: TraceRecorder | None = None
     started: float = field(default_factory=time.monotonic)
+    #: served only (:func:`build_served`): motor events for the journal, systemd's STATUS=
+    #: line and the status socket, each told of the motors' events
+    events: MotorEventLog | None = None
+    status_line: StatusLine | None = None
+    status_server: StatusServer | None = None
 
     @classmethod
     def build(
@@ -176,26 +200,31 @@ class Daemon:
         config: Config,
         state_dir: Path,
         clock: Clock | None = None,
-        executor_process: ExecutorProcess | None = None,
+        executor_process: WaitingInterpreter | None = None,
+        undo: contextlib.ExitStack | None = None,
     ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
-        :func:`motorctl.daemon.main.main`."""
+        :func:`motorctl.daemon.main.main`. What it opens (the hardware, the step executor)
+        registers its close on ``undo``, the caller's stack for a later part's failure; by
+        default on its own, closed when a part of the daemon fails."""
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
         spec = hardware_spec(config)
         if config.step_thread.executor == "process" and not clock.is_virtual:
             spec = replace(spec, options={**spec.options, "executor_process": True})
         params = motor_params(config)
-        try:
-            hw = open_hardware(config.hal.backend, spec, clock)
-        except HalError as exc:
-            raise StartupError(str(exc)) from exc
-        executor: Executor | None = None
-        try:  # what is open is closed again when a later part fails (lines, the executor)
+        with contextlib.ExitStack() as own:
+            opened = own if undo is None else undo
+            try:
+                hw = open_hardware(config.hal.backend, spec, clock)
+            except HalError as exc:
+                raise StartupError(str(exc)) from exc
+            opened.callback(quietly(hw.close))  # the lines, e.g. the mock's shared memory
             try:
                 executor = build_executor(config, hw, spec, params, executor_process)
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
+            opened.callback(quietly(executor.close))  # e.g. the process executor's memory
             engine = MotionEngine(
                 hw,
                 params,
@@ -215,132 +244,180 @@ class Daemon:
             daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
             persistence.restore()
             persistence.open()
-        except BaseException:
-            if executor is not None:
-                with contextlib.suppress(Exception):
-                    executor.close()
-            with contextlib.suppress(Exception):
-                hw.close()
-            raise
-        engine.listeners.append(daemon._on_motor_event)
+            own.pop_all()  # built: nothing to close
+        engine.listeners.append(daemon._on_motor_event)  # the one listener
         return daemon
 
     @property
     def writer(self) -> StateWriter:
         return self.persistence.writer
 
+    def status(self, histogram: bool = False) -> dict[str, Any]:
+        """The status document (daemon/status/document.py)."""
+        return status_document(self, histogram)
+
     def _on_motor_event(self, motor: Motor, event: str) -> None:
-        # Runs with the engine lock held, often on the step thread: no I/O here.
+        """The motors' one listener: a motor started, stopped, faulted, ... Runs with the
+        engine lock held, often on the step thread: no I/O here, only requests and pokes."""
         self.writer.request()
         if event == "start":
             self.gc_policy.motion(True)
         elif not self.engine.any_active:
             self.gc_policy.motion(False)
         if self.link is not None:
-            self.link.wake()
+            self.link.wake()  # a held WaitMoved looks again
+        if self.events is not None:
+            self.events.record(
+                motor.index,
+                motor.params.name,
+                event,
+                motor.fault,
+                motor.fault_cause,
+                motor.position_lost,
+            )
+        if self.status_line is not None:
+            self.status_line.poke()
+        if self.status_server is not None:
+            self.status_server.poke()  # subscribers see a start, stop or fault at once
 
-    # -- status --------------------------------------------------------------------
-    def status(self, histogram: bool = False) -> dict[str, Any]:
-        """A snapshot for the status socket, taken WITHOUT the motion lock: each field is
-        read whole (the executor's counters and histogram are its own snapshots), so a
-        status read never delays planning, let alone a step. Its cost is bounded (the
-        lateness percentiles come from the histogram's blocks), except ``histogram``: the
-        step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
-        up to 20,001), for the benchmarks that ask for it."""
-        executor = self.engine.executor
-        motors: list[dict[str, Any]] = [
-            {
-                "index": m.index,
-                "name": m.params.name,
-                "state": m.state.value,
-                "position": m.position,
-                "queued": len(m.queue),
-                "fault": m.fault,
-                "position_lost": m.position_lost,
-                "waypoints": len(m.waypoints),
-                "faults": dict(m.faults),
-                "timing": {
-                    **executor.motor_timing(m.index),
-                    "microsteps": m.params.microsteps,
-                    "max_lag_full_steps": m.params.max_lag_full_steps,
-                },
-                "soft_stops": {
-                    "count": m.soft_stops,
-                    "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
-                    "takeover_steps": list(m.takeover_steps),
-                },
-            }
-            for m in list(self.engine.motors)
-        ]
-        now = self.engine.clock.now()
-        for doc, m in zip(motors, self.engine.motors, strict=True):
-            doc["speed"] = motor_speed(m.traj, executor.motor_time(m.index, now))
-        health = executor.health()
-        steps = dict(health.latency)
-        steps.update(health.counters)
-        stats = executor.step_lateness()
-        if histogram and stats is not None:  # the step executor's, with or without ramps
-            steps["histogram_us"] = stats.histogram()
-        out: dict[str, Any] = {
-            "version": __version__,
-            "motors": motors,
-            "steps": steps,
-            "executor": {
-                "alive": health.alive,
-                "reason": health.reason,
-                "kind": step_executor_kind(self.config, executor),
-                "core": executor.step_core(),
-                "pid": getattr(executor, "pid", None),
-            },
-            "clamped": dict(self.dispatcher.clamped),
-            "hard_stops": self.engine.stop_wait_status(),
-            "state": self.persistence.status(),
-            "pins": pin_status(self.hw.pins),
-            "dc": dc_status(self.engine.dc, now),
-        }
-        mono = time.monotonic()
-        out.update(
-            monotonic_s=mono, uptime_s=round(mono - self.started, 3), unix_s=round(time.time(), 3)
+
+def quietly(close: Callable[[], None]) -> Callable[[], None]:
+    """``close`` for a start that failed: its own error is not the one to report."""
+
+    def run() -> None:
+        with contextlib.suppress(Exception):
+            close()
+
+    return run
+
+
+@dataclass(frozen=True)
+class ServeOptions:
+    """Where the daemon serves and keeps its files: the command line's say (daemon/main.py)."""
+
+    state_dir: Path
+    pty: Path | None = None  # --pty: a new PTY, this path a link to it
+    port: str | None = None  # --port: a UART's path
+    baud: int = 115200
+    trace: Path | None = None  # --trace: overrides [trace] file
+
+
+@dataclass
+class Served:
+    """A daemon built to serve (:func:`build_served`), nothing started yet: daemon/serve.py
+    starts it, serves, shuts it down and closes it (:meth:`close`)."""
+
+    daemon: Daemon
+    link: Link
+    status: StatusServer
+    line: StatusLine
+    where: str  # the port in words, for the READY line
+    uart: SerialDevice | None  # --port's device (the link opens it again by its path)
+    fd: int  # --pty: the PTY's master, closed after the link
+    recorder: TraceRecorder | None
+    watchdog: Watchdog | None  # only under systemd's WatchdogSec
+
+    def close(self) -> None:
+        """After the shutdown (which closed the step executor): the watchdog, the status
+        socket, the link, the trace, the port and the hardware, in that order."""
+        if self.watchdog is not None:
+            self.watchdog.stop()
+        self.status.close()
+        self.link.close()
+        if self.recorder is not None:
+            self.recorder.close()
+        if self.uart is not None:
+            self.uart.close()
+        else:
+            os.close(self.fd)
+        self.daemon.hw.close()
+
+
+def build_served(
+    config: Config,
+    options: ServeOptions,
+    owned: Owned,
+    executor_process: WaitingInterpreter | None = None,
+) -> Served:
+    """Everything the daemon runs, built and wired, in the order a start must fail in: the
+    serial device before the state (one that is there but cannot be used stops the start
+    before the state is restored and written again; one that is not there yet is served
+    when it appears), the daemon behind the port, the PTY (its link recorded in ``owned``),
+    the trace, the link, the status socket. A part that fails closes what was opened
+    before it (ConfigError, StartupError or the HAL's error)."""
+    why = check_timeout(config.link.timeout_ms, options.baud)
+    if why is not None:
+        raise ConfigError(f"{config.source}: {why}")
+    with contextlib.ExitStack() as undo:
+        uart, fd = open_uart(options)
+        if uart is not None:
+            undo.callback(quietly(uart.close))
+        daemon = Daemon.build(
+            config, options.state_dir, executor_process=executor_process, undo=undo
         )
-        if self.link is not None:
-            out["link"] = self.link.status()
-        if self.trace is not None:
-            out["trace"] = self.trace.status()
-        drivers = [d for s in self.hw.steppers if (d := s.driver.stats()) is not None]
-        if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
-            out["drivers"] = drivers
-        return out
+        pty: PtySlave | None = None
+        if options.pty is not None:
+            fd, name = open_pty(options.pty)
+            undo.callback(quietly(lambda: os.close(fd)))
+            owned.symlink(options.pty, name)
+            pty = PtySlave(fd, name)
+            undo.callback(quietly(pty.close))
+            where = f"{options.pty} -> {name}"
+        else:
+            where = f"{options.port} at {options.baud} baud"
+            if fd < 0:
+                where += " (not there yet: served when it appears)"
+        recorder = open_trace(options.trace, config, where)
+        if recorder is not None:
+            undo.callback(quietly(recorder.close))
+        c = config.link
+        link = Link(
+            fd,
+            daemon.dispatcher,
+            c.codec_options(),
+            c.frame_gap_ms / 1000.0,
+            c.held_frames,
+            pty=pty,
+            device=uart,
+            notice=None if uart is None else PathWatch(uart.path),
+            watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
+            recorder=recorder,
+        )
+        undo.callback(quietly(link.close))
+        daemon.link = link
+        daemon.trace = recorder
+        status = open_status(options.state_dir, daemon)
+        undo.pop_all()  # built: from here on, Served.close closes it
+    events = MotorEventLog()
+    line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
+    daemon.events, daemon.status_line, daemon.status_server = events, line, status
+    daemon.writer.on_change = line.poke
+    interval = watchdog_interval()
+    watchdog = Watchdog(interval, progress_watch(daemon, link).healthy) if interval else None
+    return Served(daemon, link, status, line, where, uart, fd, recorder, watchdog)
 
 
-def motor_speed(traj: Trajectory | None, now: float) -> float:
-    """The planned speed at ``now`` in step/s, signed (0 without a trajectory)."""
-    return 0.0 if traj is None else round(traj.velocity(now), 1)
+def open_uart(options: ServeOptions) -> tuple[SerialDevice | None, int]:
+    """``--port``'s device and its descriptor (-1: not there yet, served when it appears);
+    (None, -1) without ``--port``. StartupError when it is there but cannot be used."""
+    if options.port is None:
+        return None, -1
+    uart = SerialDevice(options.port, options.baud)
+    try:
+        return uart, uart.open()
+    except DeviceError as exc:
+        if exc.errno not in NOT_BACK:
+            raise StartupError(str(exc)) from exc
+        return uart, -1
 
 
-def pin_status(pins: dict[int, Pin]) -> list[dict[str, Any]]:
-    """Each IO pin: number, output or not, level (an input is read now; None if that
-    failed, ``error`` says why)."""
-    out: list[dict[str, Any]] = []
-    for number, pin in sorted(pins.items()):
-        entry: dict[str, Any] = {"number": number, "output": pin.is_output}
-        try:
-            entry["level"] = pin.read()
-        except (HalError, OSError) as exc:
-            entry.update(level=None, error=str(exc))
-        out.append(entry)
-    return out
-
-
-def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
-    """The DC motor's bridge state and the time left of its run; None: no DC motor."""
-    if dc is None:
-        return None
-    deadline = dc.deadline
-    return {
-        "state": dc.bridge.state.value,
-        "running": deadline is not None,
-        "left_s": None if deadline is None else round(max(0.0, deadline - now), 3),
-    }
+def open_status(state_dir: Path, daemon: Daemon) -> StatusServer:
+    """The status socket ``status.sock`` in ``state_dir``, serving ``daemon``'s document."""
+    path = state_dir / "status.sock"
+    try:
+        return StatusServer(path, daemon.status)
+    except OSError as exc:
+        raise StartupError(f"cannot serve the status socket {path}: {exc.strerror or exc}") from exc
 
 
 def state_files_dir(config: Config, state_dir: Path) -> Path:
@@ -360,18 +437,12 @@ def make_state_dir(state_dir: Path) -> None:
         raise StartupError(f"state directory {state_dir} is not writable; pass --state-dir")
 
 
-def step_executor_kind(config: Config, executor: Executor) -> str:
-    """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
-    TMC5160's own ramp (no step executor at all)."""
-    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
-
-
 def build_executor(
     config: Config,
     hw: Hardware,
     spec: HardwareSpec,
     params: list[MotorParams],
-    process: ExecutorProcess | None = None,
+    process: WaitingInterpreter | None = None,
 ) -> Executor:
     """The step executor the config asks for (only it runs real-time and locks memory), for
     the motors ``spec.stepped()`` names; the motors whose driver runs its own ramp (the

@@ -26,6 +26,7 @@ from motorctl.motion.engine import MotionEngine, Settled
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
 from motorctl.protocol.codec import (
+    MOTION_COMMANDS,
     Command,
     ConfigPin,
     DcMove,
@@ -50,8 +51,6 @@ log = logging.getLogger("motorctl.dispatcher")
 
 E = ErrorCode
 OK = Response.ok()
-
-MOTION_COMMANDS = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)
 
 
 class Persist(Protocol):
@@ -228,7 +227,7 @@ class Dispatcher:
         return OK
 
     def link_silent(self, *, hard: bool, reason: str) -> list[str]:
-        """The host fell silent ([link] timeout_ms; :mod:`motorctl.daemon.silence`): every
+        """The host fell silent ([link] timeout_ms; :mod:`motorctl.daemon.link.silence`): every
         motor in motion stops and latches ``reason``, the DC motor brakes; what was
         stopped, for the log."""
         engine = self.engine

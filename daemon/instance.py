@@ -6,7 +6,7 @@ with a message naming the first one's PID, before it touches any file: an exclus
 symlink. (A UART is locked by pyserial's ``exclusive=True``, a flock on the device; its
 holder is found in /proc/locks when that is visible.) The lock files hold the owner's PID;
 what stands at their paths is dealt with as at every path the daemon writes
-(daemon/paths.py), and a lock file another user left is set aside unless someone holds it.
+(daemon/state/files.py), and a lock file another user left is set aside unless someone holds it.
 
 :class:`Owned` records the files this daemon created (the PTY symlink, the status socket,
 its lock files) with what they were when created, and removes each at exit only if it is
@@ -28,7 +28,7 @@ import stat
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from motorctl.daemon import paths
+from motorctl.daemon.state import files
 
 log = logging.getLogger("motorctl.instance")
 
@@ -77,7 +77,7 @@ def _pid_in(fd: int) -> int | None:
 class InstanceLock:
     """An exclusive, non-blocking flock on ``path`` that names its holder's PID.
 
-    The lock file is the daemon's own (daemon/paths.py): never a link followed, a FIFO or
+    The lock file is the daemon's own (daemon/state/files.py): never a link followed, a FIFO or
     a device opened, a file of someone else's written. A regular file that another user
     left there is locked read-only first: held, it is another daemon's (InstanceError);
     not held, it is set aside while locked (so that nobody takes it meanwhile) and the
@@ -93,7 +93,7 @@ class InstanceLock:
         for _ in range(5):
             self._set_aside_if_foreign()
             try:
-                fd = paths.open_for_writing(self.path)
+                fd = files.open_for_writing(self.path)
             except OSError as exc:
                 raise InstanceError(
                     f"cannot create lock file {self.path}: {exc.strerror or exc}"
@@ -142,8 +142,8 @@ class InstanceLock:
             st = os.lstat(self.path)
         except OSError:
             return
-        owner = paths.folder_owner(self.path)
-        if not stat.S_ISREG(st.st_mode) or paths.ours(st, owner):
+        owner = files.folder_owner(self.path)
+        if not stat.S_ISREG(st.st_mode) or files.ours(st, owner):
             return  # open_for_writing takes it, or sets it aside
         try:
             fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
@@ -155,13 +155,13 @@ class InstanceLock:
                 return  # replaced meanwhile: open_for_writing looks again
             self._lock(fd)
             try:
-                bad = paths.move_aside(self.path)
+                bad = files.move_aside(self.path)
             except OSError as exc:
                 raise InstanceError(f"{exc.strerror}; lock {self.path}") from exc
             log.warning(
                 "%s was %s, in the way of this daemon's lock: moved aside to %s",
                 self.path,
-                paths.describe(st, owner),
+                files.describe(st, owner),
                 bad,
                 extra={"FILE_PATH": str(self.path)},
             )

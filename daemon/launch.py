@@ -1,7 +1,7 @@
 """The ``motorctld`` command: the step executor's interpreter starts first, then the daemon.
 
 The executor's process is the longest part of motorctld's start-up: a second Python
-interpreter, then the step core's modules (``motion/executor_process_start.py``). Started
+interpreter, then the step core's modules (``motion/executors/process/start.py``). Started
 here, before the daemon imports its own modules, the two interpreters start side by side
 and READY comes sooner (bench/startup.py, docs/service.md). It is started only for a command line
 that serves (``--pty`` or ``--port``, none of the commands that print and exit) and when a
@@ -18,7 +18,7 @@ import os
 import sys
 from collections.abc import Sequence
 
-from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executors.process.start import WaitingInterpreter
 
 #: Options after which motorctld prints something and exits instead of serving.
 ONE_SHOT = frozenset(
@@ -46,7 +46,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     early = None
     if serves(args) and len(os.sched_getaffinity(0)) > 1:
         try:
-            early = ExecutorProcess.start()
+            early = WaitingInterpreter.start()
         except OSError:
             early = None  # the daemon starts it itself, and reports what is wrong then
     from motorctl.daemon.main import main as daemon_main

@@ -1,79 +1,39 @@
 """motorctld: serve the motor-controller protocol on a PTY or a UART.
 
 The command line only: its options (:func:`parse_args`), the commands that print and exit
-(``--check-config``, ``--print-default-config``, ``--probe``, ``--status``), and serving:
-lock the state directory and port, assemble the daemon (daemon/assemble.py), open the port
-(daemon/ports.py), serve until a stop signal (daemon/signals.py) or the executor's death,
-then shut down (motors ramp down, state written) and say why it stopped in the exit status.
+(``--check-config``, ``--print-default-config``, ``--probe`` with the platform check of
+daemon/platform_check.py, ``--status`` read through daemon/status/reader.py), and, for a
+command line that serves, the hand-over to daemon/serve.py, which runs the daemon; a
+daemon that cannot start says why here, in one line, and exits 1.
 
-Threads: the main thread runs all of it, and the link loop (``Link.serve``) while serving;
-it starts ``motorctl-exec-death`` (:func:`stop_when_executor_dies`), which only waits and
-stops the link.
+Threads: the main thread, all of it (serving goes on in daemon/serve.py on this thread).
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import gc
 import logging
-import os
 import sys
-import threading
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
 
 from motorctl import __version__
 from motorctl.daemon import platform_check
-from motorctl.daemon.assemble import (
-    Daemon,
-    StartupError,
-    hardware_spec,
-    known_microsteps,
-    make_state_dir,
-    open_trace,
-    progress_watch,
-    silence_watch,
-    state_files_dir,
-)
-from motorctl.daemon.config import Config, ConfigError, StepThreadConfig, load_config
-from motorctl.daemon.devwatch import NOT_BACK, PathWatch
-from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
-from motorctl.daemon.link import Link
-from motorctl.daemon.ports import PtySlave, open_pty
-from motorctl.daemon.serialport import DeviceError, SerialDevice
-from motorctl.daemon.service import (
-    MotorEventLog,
-    StatusLine,
-    Watchdog,
-    notify_backend,
-    sd_notify,
-    setup_logging,
-    watchdog_interval,
-)
-from motorctl.daemon.signals import StopSignals
-from motorctl.daemon.silence import check_timeout
-from motorctl.daemon.status import StatusServer, read_status, summary_line
-from motorctl.hal.interfaces import MonotonicClock, ProbeReport
+from motorctl.daemon.assemble import ServeOptions, hardware_spec, known_microsteps
+from motorctl.daemon.config import ConfigError, StepThreadConfig, load_config
+from motorctl.daemon.errors import StartupError
+from motorctl.daemon.link.silence import check_timeout
+from motorctl.daemon.serve import serve
+from motorctl.daemon.service import setup_logging
+from motorctl.daemon.status.reader import read_status
+from motorctl.hal.contract import ProbeReport, ProblemKind
+from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
-from motorctl.motion import compiled_core
-from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process_start import ExecutorProcess
-from motorctl.motion.motor import Motor
+from motorctl.motion.executors import compiled_core
+from motorctl.motion.executors.process.start import WaitingInterpreter
 
 log = logging.getLogger("motorctl")
-
-SHUTDOWN_LIMIT_S = 10.0
-
-#: exit code when the step executor died; answers go on this long before that
-EXIT_EXECUTOR_DIED = 3
-EXECUTOR_DEATH_GRACE_S = 2.0
-
-#: exit code when the final state could not be written at shutdown (e.g. a read-only or full
-#: state directory): the state file keeps what was last written
-EXIT_STATE_NOT_SAVED = 4
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
@@ -192,7 +152,9 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
-def main(argv: Sequence[str] | None = None, executor_process: ExecutorProcess | None = None) -> int:
+def main(
+    argv: Sequence[str] | None = None, executor_process: WaitingInterpreter | None = None
+) -> int:
     """motorctld. ``executor_process``: the step executor's process, started before this
     module was imported (``daemon/launch.py``, the ``motorctld`` command): the process
     executor takes it over; ended unused otherwise (another executor, another command, an
@@ -204,7 +166,7 @@ def main(argv: Sequence[str] | None = None, executor_process: ExecutorProcess | 
             executor_process.dismiss()  # a no-op once taken over
 
 
-def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) -> int:
+def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | None) -> int:
     args = parse_args(argv)
     logs_to = setup_logging(args.log_level)
     if args.print_default_config:
@@ -248,15 +210,16 @@ def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) 
         )
         return 2
     log.debug("logging to %s", logs_to)
+    options = ServeOptions(args.state_dir, args.pty, args.port, args.baud, args.trace)
     try:
-        return serve(args, executor_process)
+        return serve(args.config, options, executor_process)
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
 
 
 #: what ``--status --format prometheus|openmetrics`` says without prometheus_client (an
-#: optional dependency, like rich for the monitor: daemon/metrics.py alone imports it)
+#: optional dependency, like rich for the monitor: daemon/status/metrics.py alone imports it)
 METRICS_MISSING = (
     "the metrics formats need the Python package 'prometheus_client', which is not "
     "installed: 'apt install python3-prometheus-client' (Debian, Raspberry Pi OS) or "
@@ -276,7 +239,7 @@ def status_command(args: argparse.Namespace) -> int:
                 file=sys.stderr,
             )
             return 2
-        from motorctl.daemon import monitor
+        from motorctl.daemon.status import monitor
 
         return monitor.run(path, args.period)
     if args.histogram and args.format != "json":
@@ -287,7 +250,7 @@ def status_command(args: argparse.Namespace) -> int:
     metrics: ModuleType | None = None
     if args.format != "json":
         try:
-            from motorctl.daemon import metrics
+            from motorctl.daemon.status import metrics
         except ModuleNotFoundError as exc:
             if exc.name is None or exc.name.split(".")[0] != "prometheus_client":
                 raise
@@ -361,8 +324,9 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
     if st.executor == "thread":
         runs = "python (the thread executor runs the Python core)"
         if st.core == "compiled":
-            report.problems.append(
-                '[step_thread] core = "compiled" runs in the process executor only'
+            report.problem(
+                '[step_thread] core = "compiled" runs in the process executor only',
+                ProblemKind.CONFIG,
             )
     elif st.core == "python":
         runs = "python (as asked)"
@@ -373,253 +337,9 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
         runs = f"python ({why})"
         if st.core == "compiled":
             runs = "none: motorctld would not start"
-            report.problems.append(f'[step_thread] core = "compiled", but {why}')
+            report.problem(f'[step_thread] core = "compiled", but {why}', ProblemKind.CONFIG)
     out.append(f"runs: {runs}")
     return out
-
-
-def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = None) -> int:
-    config = load_config(args.config)
-    stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
-    with contextlib.ExitStack() as cleanup:
-        owned = Owned()
-        cleanup.callback(owned.cleanup)
-        return _serve(args, config, stop, owned, executor_process)
-
-
-def _serve(
-    args: argparse.Namespace,
-    config: Config,
-    stop: StopSignals,
-    owned: Owned,
-    executor_process: ExecutorProcess | None = None,
-) -> int:
-    st = config.step_thread
-    for notice in config.notices:
-        log.warning("%s", notice)
-    sys.setswitchinterval(st.switch_interval_us / 1e6)
-    if st.cpu >= 0:
-        others = os.sched_getaffinity(0) - {st.cpu}
-        if others:  # every thread but the step thread keeps off its CPU
-            os.sched_setaffinity(0, others)
-    make_state_dir(args.state_dir)
-    try:  # one daemon per state directory and PTY path, before any file is touched
-        owned.lock(args.state_dir / LOCK_NAME, f"state directory {args.state_dir}")
-        files_dir = state_files_dir(config, args.state_dir)
-        if files_dir != args.state_dir:
-            make_state_dir(files_dir)
-            owned.lock(files_dir / LOCK_NAME, f"state directory {files_dir}")
-        if args.pty is not None:
-            owned.lock(args.pty.with_name(f".{args.pty.name}.lock"), f"PTY {args.pty}")
-    except InstanceError as exc:
-        raise StartupError(str(exc)) from exc
-    why = check_timeout(config.link.timeout_ms, args.baud)
-    if why is not None:
-        raise ConfigError(f"{config.source}: {why}")
-    # The serial device before the state: one that is there but cannot be used stops the
-    # start before the state is restored and written again; one that is not there yet is
-    # served when it appears (the link waits for it as for one that went away).
-    uart: SerialDevice | None = None
-    fd = -1
-    if args.port is not None:
-        uart = SerialDevice(args.port, args.baud)
-        try:
-            fd = uart.open()
-        except DeviceError as exc:
-            if exc.errno not in NOT_BACK:
-                raise StartupError(str(exc)) from exc
-    try:
-        daemon = Daemon.build(config, args.state_dir, executor_process=executor_process)
-    except BaseException:
-        if uart is not None:
-            uart.close()
-        raise
-    pty: PtySlave | None = None
-    try:
-        if args.pty is not None:
-            fd, name = open_pty(args.pty)
-            owned.symlink(args.pty, name)
-            pty = PtySlave(fd, name)
-            where = f"{args.pty} -> {name}"
-        else:
-            where = f"{args.port} at {args.baud} baud"
-            if fd < 0:
-                where += " (not there yet: served when it appears)"
-    except BaseException:
-        daemon.engine.executor.close()  # the process executor's shared memory
-        daemon.hw.close()  # e.g. the mock's shared memory
-        raise
-    c = config.link
-    try:
-        recorder = open_trace(args.trace, config, where)
-    except BaseException:
-        daemon.engine.executor.close()
-        daemon.hw.close()
-        if uart is not None:
-            uart.close()
-        raise
-    link = Link(
-        fd,
-        daemon.dispatcher,
-        c.codec_options(),
-        c.frame_gap_ms / 1000.0,
-        c.held_frames,
-        pty=pty,
-        device=uart,
-        notice=None if uart is None else PathWatch(uart.path),
-        watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
-        recorder=recorder,
-    )
-    daemon.link = link
-    daemon.trace = recorder
-    try:
-        status = StatusServer(args.state_dir / "status.sock", daemon.status)
-    except OSError as exc:
-        if recorder is not None:
-            recorder.close()
-        daemon.engine.executor.close()
-        daemon.hw.close()
-        raise StartupError(
-            f"cannot serve the status socket {args.state_dir / 'status.sock'}: "
-            f"{exc.strerror or exc}"
-        ) from exc
-    events = MotorEventLog()
-    line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
-
-    def on_motor_event(motor: Motor, event: str) -> None:  # step thread: no I/O
-        events.record(
-            motor.index,
-            motor.params.name,
-            event,
-            motor.fault,
-            motor.fault_cause,
-            motor.position_lost,
-        )
-        line.poke()
-        status.poke()  # subscribers see a start, stop or fault at once
-
-    daemon.engine.listeners.append(on_motor_event)
-    daemon.writer.on_change = line.poke
-    stop.attach(link.stop, link.signal_fd)
-    daemon.persistence.start()
-    daemon.engine.executor.start()
-    daemon.engine.start()
-    status.start()
-    daemon.gc_policy.ready()
-    interval = watchdog_interval()
-    watchdog = None
-    if interval:
-        watch = progress_watch(daemon, link)
-        watchdog = Watchdog(interval, watch.healthy)
-        watchdog.start()
-    print(
-        f"motorctld ready: serving {where}; config {config.source}; "
-        f"{len(config.motors)} motors; {config.hal.backend} hardware; "
-        f"step core {daemon.engine.executor.step_core() or 'none'}; "
-        f"state in {args.state_dir}",
-        flush=True,
-    )
-    if os.environ.get("NOTIFY_SOCKET"):
-        log.info("systemd notifications through %s", notify_backend()[0])
-    sd_notify("READY=1")
-    line.start()
-    threading.Thread(
-        target=stop_when_executor_dies,
-        args=(daemon.engine, link.stop),
-        name="motorctl-exec-death",
-        daemon=True,
-    ).start()
-    try:
-        link.serve()  # returns at once when a signal came during start-up
-    finally:
-        stop.detach()  # before link.close() closes the wake-up pipe
-        sd_notify("STOPPING=1")
-        line.stop("stopping: motors ramping down, state being written")
-        saved = shutdown(daemon)
-        if watchdog is not None:
-            watchdog.stop()
-        status.close()
-        link.close()
-        if recorder is not None:
-            recorder.close()
-        if uart is not None:
-            uart.close()
-        else:
-            os.close(fd)
-        daemon.hw.close()
-    died = daemon.engine.executor_died
-    if died is not None:
-        log.error(
-            "stopped because the step executor died (%s): exit %d for the service "
-            "manager to restart motorctld; every motor must be homed again",
-            died,
-            EXIT_EXECUTOR_DIED,
-        )
-        return EXIT_EXECUTOR_DIED
-    if not saved:
-        writer = daemon.writer
-        log.error(
-            "stopped WITHOUT saving the final state (%s): %s keeps what was last "
-            "written (%d writes, %d failed); exit %d",
-            writer.last_error,
-            writer.path,
-            writer.writes,
-            writer.errors,
-            EXIT_STATE_NOT_SAVED,
-            extra={"STATE_PATH": str(writer.path)},
-        )
-        return EXIT_STATE_NOT_SAVED
-    log.info("stopped")
-    return 0
-
-
-def stop_when_executor_dies(engine: MotionEngine, stop: Callable[[], None]) -> None:
-    """After the executor died (every motor already faulted, E4), keep answering for
-    ``EXECUTOR_DEATH_GRACE_S`` so the host and ``--status`` see why, then stop the daemon
-    (exit EXIT_EXECUTOR_DIED: systemd's Restart= brings it back with positions lost)."""
-    pause = threading.Event()
-    while engine.executor_died is None:
-        pause.wait(0.1)
-    log.error(
-        "the step executor died: %s; stopping in %.0f s",
-        engine.executor_died,
-        EXECUTOR_DEATH_GRACE_S,
-    )
-    pause.wait(EXECUTOR_DEATH_GRACE_S)
-    stop()
-
-
-def shutdown(daemon: Daemon) -> bool:
-    """Stop along the ramps (bounded), brake the DC motor, set safe outputs, write state;
-    True when the final state is durable."""
-    engine = daemon.engine
-    engine.shutdown()
-    deadline = time.monotonic() + SHUTDOWN_LIMIT_S
-    while time.monotonic() < deadline:
-        with engine.lock:
-            # a dead executor confirms no stop and moves nothing: nothing to wait for
-            if engine.executor_died is not None or not any(
-                m.active or m.stopping for m in engine.motors
-            ):
-                break
-        time.sleep(0.005)
-    with engine.lock:
-        now = engine.clock.now()
-        for m in engine.motors:
-            if m.active:
-                log.warning(
-                    "motor %d did not stop within %.0f s: hard stop", m.index, SHUTDOWN_LIMIT_S
-                )
-                m.stop(hard=True, now=now)
-    engine.stop_threads()
-    engine.executor.close()
-    for p in daemon.config.pins:
-        pin = daemon.hw.pins.get(p.number)
-        if pin is not None and pin.is_output:
-            pin.write(p.safe)
-    saved = daemon.persistence.close()
-    gc.enable()
-    return saved
 
 
 if __name__ == "__main__":

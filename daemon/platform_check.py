@@ -30,6 +30,8 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from motorctl.daemon.config.model import MICROSTEPS_UNSAID
+from motorctl.motion.executors.base import LagRule, lag_full_steps
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.rt import set_realtime
 
@@ -149,8 +151,32 @@ def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
     kernel = roots.proc / "sys" / "kernel"
     p.kernel = _read(kernel / "osrelease")
     p.version = _read(kernel / "version")
-    version_words = (p.version or "").split()
     cmdline = _read(roots.proc / "cmdline") or ""
+    _read_preemption(p, roots, cmdline, euid)
+    p.rt_runtime_us = _int(kernel / "sched_rt_runtime_us")
+    p.rt_period_us = _int(kernel / "sched_rt_period_us")
+    cpu_dir = roots.sys / "devices" / "system" / "cpu"
+    p.online = parse_cpulist(_read(cpu_dir / "online"))
+    p.isolated = parse_cpulist(_read(cpu_dir / "isolated")) or parse_cpulist(
+        _cmdline_value(cmdline, "isolcpus")
+    )
+    p.nohz_full = parse_cpulist(_read(cpu_dir / "nohz_full"))
+    for gov in sorted(cpu_dir.glob("cpu[0-9]*/cpufreq/scaling_governor")):
+        name = gov.parent.parent.name.removeprefix("cpu")
+        text = _read(gov)
+        if name.isdigit() and text:
+            p.governors[int(name)] = text
+    p.model = _read(roots.proc / "device-tree" / "model") or _read(
+        roots.sys / "firmware" / "devicetree" / "base" / "model"
+    )
+    _read_power(p, roots)
+    return p
+
+
+def _read_preemption(p: Platform, roots: Roots, cmdline: str, euid: int) -> None:
+    """The kernel's preemption model (``p.rt``, ``p.preempt``), from its version, its
+    realtime flag, debugfs's preempt mode or the command line's ``preempt=``."""
+    version_words = (p.version or "").split()
     p.rt = _read(roots.sys / "kernel" / "realtime") == "1" or "PREEMPT_RT" in version_words
     if p.rt:
         p.preempt = "PREEMPT_RT"
@@ -168,22 +194,11 @@ def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
         p.preempt = "full (PREEMPT)"
     elif p.version is not None:
         p.preempt = "none or voluntary (no PREEMPT in the kernel version)"
-    p.rt_runtime_us = _int(kernel / "sched_rt_runtime_us")
-    p.rt_period_us = _int(kernel / "sched_rt_period_us")
-    cpu_dir = roots.sys / "devices" / "system" / "cpu"
-    p.online = parse_cpulist(_read(cpu_dir / "online"))
-    p.isolated = parse_cpulist(_read(cpu_dir / "isolated")) or parse_cpulist(
-        _cmdline_value(cmdline, "isolcpus")
-    )
-    p.nohz_full = parse_cpulist(_read(cpu_dir / "nohz_full"))
-    for gov in sorted(cpu_dir.glob("cpu[0-9]*/cpufreq/scaling_governor")):
-        name = gov.parent.parent.name.removeprefix("cpu")
-        text = _read(gov)
-        if name.isdigit() and text:
-            p.governors[int(name)] = text
-    p.model = _read(roots.proc / "device-tree" / "model") or _read(
-        roots.sys / "firmware" / "devicetree" / "base" / "model"
-    )
+
+
+def _read_power(p: Platform, roots: Roots) -> None:
+    """The board's power: a Raspberry Pi's under-voltage alarm and its firmware's throttled
+    bits (``p.undervoltage``, ``p.throttled``)."""
     for hwmon in sorted((roots.sys / "class" / "hwmon").glob("hwmon*")):
         if _read(hwmon / "name") == "rpi_volt":
             alarm = _read(hwmon / "in0_lcrit_alarm")
@@ -203,7 +218,6 @@ def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
             except ValueError:
                 continue
             break
-    return p
 
 
 def throttled_text(bits: int) -> list[str]:
@@ -275,8 +289,8 @@ class MotorRate:
     name: str
     max_speed: float
     microsteps: int | None
-    start_speed: float = 100.0
-    max_lag_full_steps: float = 0.5
+    start_speed: float  # the config's, as max_lag_full_steps ([[motors]]: their defaults)
+    max_lag_full_steps: float
     loses_steps: bool = True
 
 
@@ -290,16 +304,25 @@ class TimingConfig:
     executor: str = "process"
 
 
-def lag_full_steps(lateness_us: float, rate: float, microsteps: int) -> float:
-    """How far a motor at ``rate`` (micro)steps/s falls behind in full steps when a step is
-    ``lateness_us`` late."""
-    return lateness_us * 1e-6 * rate / microsteps
-
-
 def advice(
     p: Platform, lat: Latency | None, cfg: TimingConfig, motors: Sequence[MotorRate]
 ) -> list[str]:
     """Plain advice, most important first; an empty list: nothing to change."""
+    out = board_advice(p) + cpu_advice(p, cfg)
+    if lat is not None and lat.samples:
+        if lat.p99_us > cfg.spin_us:
+            out.append(
+                f"1 % of wake-ups are later than {lat.p99_us:,.0f} us, more than "
+                f"step_thread.spin_us ({cfg.spin_us:,.0f}), which busy-waits that "
+                "part away: those steps come late"
+            )
+        out += lag_advice(lat, motors)
+    return out
+
+
+def board_advice(p: Platform) -> list[str]:
+    """The board's power and the kernel's scheduling: under-voltage, PREEMPT_RT, RT
+    throttling, the cpufreq governors."""
     out: list[str] = []
     if p.undervoltage or (p.throttled is not None and p.throttled & 0x5):
         out.append(
@@ -331,6 +354,12 @@ def advice(
             "delay wake-ups), e.g. cpufreq.default_governor=performance on the kernel "
             "command line"
         )
+    return out
+
+
+def cpu_advice(p: Platform, cfg: TimingConfig) -> list[str]:
+    """The executor's CPU (isolated, online) and its real-time priority."""
+    out: list[str] = []
     if cfg.cpu < 0:
         spare = max(p.online) if len(p.online) > 1 else None
         example = (
@@ -355,42 +384,45 @@ def advice(
             "[step_thread] priority = 0: the executor runs without real-time priority;"
             " set it (e.g. 50)"
         )
-    if lat is not None and lat.samples:
-        if lat.p99_us > cfg.spin_us:
-            out.append(
-                f"1 % of wake-ups are later than {lat.p99_us:,.0f} us, more than "
-                f"step_thread.spin_us ({cfg.spin_us:,.0f}), which busy-waits that "
-                "part away: those steps come late"
-            )
-        groups: dict[tuple[float, int | None, float, float, bool], list[str]] = {}
-        for m in motors:  # motors alike share a line
-            key = (m.max_speed, m.microsteps, m.start_speed, m.max_lag_full_steps, m.loses_steps)
-            groups.setdefault(key, []).append(m.name)
-        for (rate, microsteps, start, tolerance, loses), names in groups.items():
-            micro = microsteps or 16
-            lag = lag_full_steps(lat.max_us, rate, micro)
-            known = "" if microsteps else "; microsteps not in the config: 16 assumed"
-            which = f"motor{'s' if len(names) > 1 else ''} {', '.join(names)}"
-            out.append(
-                f"max lag at {rate:,.0f} step/s with {micro} microsteps would be "
-                f"{lag:,.2f} full steps ({lat.max_us * 1e-6 * rate:,.1f} steps) after "
-                f"the worst wake-up ({which}{known})"
-            )
-            if lag > tolerance and rate > start:
-                safe = max(start, tolerance * micro / (lat.max_us * 1e-6))
-                if loses:
-                    out.append(
-                        f"that is beyond max_lag_full_steps ({tolerance:g}): a wake-up "
-                        f"that late stops {which} with E4 'step timing lost' above "
-                        f"{safe:,.0f} step/s; make the platform steadier (above) or "
-                        "keep them slower"
-                    )
-                else:
-                    out.append(
-                        f"beyond max_lag_full_steps ({tolerance:g}) above {safe:,.0f} "
-                        f"step/s: the mock's simulated {which} slide instead; real "
-                        "motors there would stop with E4 'step timing lost'"
-                    )
+    return out
+
+
+def lag_advice(lat: Latency, motors: Sequence[MotorRate]) -> list[str]:
+    """Each group of alike motors: its lag after the worst wake-up measured, and whether
+    that is beyond its ``max_lag_full_steps`` (docs/timing.md, "Late steps: slide, or
+    stop")."""
+    out: list[str] = []
+    groups: dict[tuple[float, int | None, float, float, bool], list[str]] = {}
+    for m in motors:  # motors alike share a line
+        key = (m.max_speed, m.microsteps, m.start_speed, m.max_lag_full_steps, m.loses_steps)
+        groups.setdefault(key, []).append(m.name)
+    for (rate, microsteps, start, tolerance, loses), names in groups.items():
+        micro = microsteps or MICROSTEPS_UNSAID
+        rule = LagRule(micro, start, tolerance)  # the step core's own rule
+        late_s = lat.max_us * 1e-6
+        lag = lag_full_steps(late_s, 1 / rate, micro)
+        known = "" if microsteps else f"; microsteps not in the config: {micro} assumed"
+        which = f"motor{'s' if len(names) > 1 else ''} {', '.join(names)}"
+        out.append(
+            f"max lag at {rate:,.0f} step/s with {micro} microsteps would be "
+            f"{lag:,.2f} full steps ({lat.max_us * 1e-6 * rate:,.1f} steps) after "
+            f"the worst wake-up ({which}{known})"
+        )
+        if rule.loses_steps_at(late_s, rate):
+            safe = rule.fastest_safe_rate(late_s)
+            if loses:
+                out.append(
+                    f"that is beyond max_lag_full_steps ({tolerance:g}): a wake-up "
+                    f"that late stops {which} with E4 'step timing lost' above "
+                    f"{safe:,.0f} step/s; make the platform steadier (above) or "
+                    "keep them slower"
+                )
+            else:
+                out.append(
+                    f"beyond max_lag_full_steps ({tolerance:g}) above {safe:,.0f} "
+                    f"step/s: the mock's simulated {which} slide instead; real "
+                    "motors there would stop with E4 'step timing lost'"
+                )
     return out
 
 

@@ -1,11 +1,13 @@
-"""Small typed interfaces between motion logic and hardware.
+"""Small typed interfaces between motion logic and hardware: what a backend builds.
 
-Over 500 lines on purpose: this is the whole contract between motion and a backend,
-read in one place; each interface is short.
+Over 500 lines on purpose: these are all the parts motion and the daemon use, read in one
+place; each interface is short. What a backend is (what the registry builds by name) is in
+``contract.py``; the lines a compiled step core may drive in ``compiled_lines.py``.
 
 Each interface follows one pattern: the public method validates and records, the
 backend implements one small hook (``_write``, ``_read``, ...). Backends live in
-their own packages (``hal/backends/``); nothing here imports a hardware library.
+their own packages (``hal/backends/``, the layers in ``hal/layers/``); nothing here imports
+a hardware library.
 
 What only some hardware can do is asked for, never found out from a backend's class:
 
@@ -24,6 +26,13 @@ from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
+
+from motorctl.hal.compiled_lines import (
+    NO_COMPILED_LINES,
+    ChardevLines,
+    CompiledLines,
+    SimulatedLines,
+)
 
 
 class HalError(RuntimeError):
@@ -295,63 +304,6 @@ class EdgeInputs(ABC):
         return None
 
 
-@dataclass(frozen=True)
-class ChardevRequest:
-    """One kernel GPIO line request, as its file descriptor (the backend keeps owning it).
-
-    ``uapi``: 2 for a ``GPIO_V2_GET_LINE_IOCTL`` request (lines set with a mask,
-    ``GPIO_V2_LINE_SET_VALUES_IOCTL``; events ``struct gpio_v2_line_event``), 1 for a v1
-    line handle (``GPIOHANDLE_SET_LINE_VALUES_IOCTL`` sets every line of it at once) or a
-    v1 event request (one line, ``struct gpioevent_data``). ``offsets``: the chip's line
-    offsets in the request's order (the kernel's bit i / ``values[i]``). ``levels``: an
-    output request's driven physical levels, in that order (a v1 write repeats them).
-    """
-
-    fd: int
-    uapi: int
-    offsets: tuple[int, ...]
-    levels: tuple[bool, ...] = ()
-
-
-@dataclass(frozen=True)
-class ChardevLines:
-    """Lines a compiled core may drive: the STEP/DIR and end-stop line requests of a
-    :class:`StepIO` as kernel GPIO character-device requests, written and read with ioctls,
-    no Python per step. ``step[m]``/``dir[m]``: motor m's line as (index into ``outputs``,
-    index of the line in that request); ``inputs``: edge-event requests, ``input_lines[i]``
-    their lines' :class:`EdgeInputs` numbers in request order; ``active_low`` per input
-    line. The requests stay the backend's: it releases them when the StepIO closes."""
-
-    outputs: tuple[ChardevRequest, ...]
-    step: tuple[tuple[int, int], ...]
-    dir: tuple[tuple[int, int], ...]
-    inputs: tuple[ChardevRequest, ...] = ()
-    input_lines: tuple[tuple[int, ...], ...] = ()
-    active_low: tuple[bool, ...] = ()
-
-
-@dataclass(frozen=True)
-class SimulatedLines:
-    """Lines a compiled core may drive, of a simulated machine (the mock backend): its
-    mechanics' cells (six int64 per axis: position, heading, forced min end stop, forced max,
-    forced stall, generation; :class:`~motorctl.hal.backends.mock.backend.MockAxis`), where
-    each axis' end stops sit, the axis of each motor, and where the edges go: ``record`` takes
-    them as (t ns, kind 0 step / 1 dir, axis, value, rise call) into the machine's timeline;
-    ``line_errors`` gives the writes that fail now, (``"step"``/``"dir"``, axis) -> the
-    HalIOError text. The compiled counterpart records the same timeline as the Python parts."""
-
-    cells: memoryview
-    endstops: tuple[tuple[int, int], ...]
-    axis_of: tuple[int, ...]
-    timeline_len: int | None
-    record: Callable[[list[tuple[int, int, int, int, int]]], None]
-    line_errors: Callable[[], dict[tuple[str, int], str]]
-
-
-#: What a backend's StepIO offers a compiled step core (``StepIO.compiled``)
-CompiledLines = ChardevLines | SimulatedLines
-
-
 @dataclass
 class StepIO:
     """What a step executor owns: STEP/DIR outputs, end-stop inputs, the clock they share.
@@ -362,10 +314,12 @@ class StepIO:
     Built by :func:`motorctl.hal.registry.open_step_io` from a picklable spec, in the process
     that uses it (a child process cannot inherit a gpiod request).
 
-    ``compiled``: the capability "lines a compiled core may drive" (:data:`CompiledLines`:
-    the same lines as raw kernel requests, or a simulated machine's), None when the backend
-    has none to give; then ``compiled_missing`` says why. A compiled core that takes them
-    owns them until it stops (the Python parts above are not called meanwhile).
+    ``compiled``: the optional capability "lines a compiled core may drive"
+    (:data:`~motorctl.hal.compiled_lines.CompiledLines`: the same lines as raw kernel
+    requests, or a simulated machine's; ``Backend.compiled_lines`` in contract.py gives
+    them), None when the backend has none to give; then ``compiled_missing`` says why. A
+    compiled core that takes them owns them until it stops (the Python parts above are not
+    called meanwhile).
     """
 
     clock: Clock
@@ -374,7 +328,7 @@ class StepIO:
     endstops: tuple[tuple[int | None, int | None], ...]
     closers: list[Callable[[], None]] = field(default_factory=list)
     compiled: CompiledLines | None = None
-    compiled_missing: str = "the backend hands no lines to a compiled core"
+    compiled_missing: str = NO_COMPILED_LINES
 
     def close(self) -> None:
         for close in reversed(self.closers):
@@ -382,6 +336,14 @@ class StepIO:
         self.closers.clear()
         self.outputs.close()
         self.inputs.close()
+
+    def set_compiled(self, lines: CompiledLines | str) -> None:
+        """What the backend offers a compiled core (``Backend.compiled_lines``): its lines,
+        or why there are none."""
+        if isinstance(lines, str):
+            self.compiled, self.compiled_missing = None, lines
+        else:
+            self.compiled = lines
 
     def compiled_text(self) -> str:
         """What the StepIO offers a compiled core, in words (``motorctld --probe``)."""
@@ -458,7 +420,7 @@ class RampStatus:
 class RampDriver(ABC):
     """The capability of a driver chip that runs its own ramp (a TMC5160 in
     motion-controller mode): it moves its motor itself, with no STEP/DIR lines; an executor
-    (``motion/executor_chip_ramp.py``) hands it targets, speeds and ramps, and reads back
+    (``motion/executors/chip_ramp.py``) hands it targets, speeds and ramps, and reads back
     where it is. Asked for with ``isinstance(stepper.driver, RampDriver)``.
 
     Positions are the driver's step counter (steps of the configured microstep resolution),
@@ -578,26 +540,3 @@ class Hardware:
         for close in reversed(self.closers):
             close()
         self.closers.clear()
-
-
-@dataclass
-class ProbeReport:
-    """What ``motorctld --probe`` prints: sections of lines, each backend adds its own."""
-
-    sections: list[tuple[str, list[str]]] = field(default_factory=list)
-    problems: list[str] = field(default_factory=list)
-    #: what the step IO offers a compiled step core (StepIO.compiled_text), when the probe
-    #: opened it
-    compiled_lines: str | None = None
-
-    def add(self, title: str, lines: list[str]) -> None:
-        self.sections.append((title, lines))
-
-    def text(self) -> str:
-        out: list[str] = []
-        for title, lines in self.sections:
-            out.append(f"{title}:")
-            out += [f"  {line}" for line in lines]
-        for p in self.problems:
-            out.append(f"PROBLEM: {p}")
-        return "\n".join(out) + "\n"

@@ -18,8 +18,8 @@ from motorctl.schema import Sectioned
 
 @dataclass(frozen=True)
 class DriverSpec:
-    """A driver chip a layer of the HAL talks to (the SPI layer's TMC2130/TMC5160), as the
-    config gives it. The layer's own subclass carries the rest (``hal/backends/tmc``); the
+    """A driver chip a layer of the HAL talks to (the TMC layer's TMC2130/TMC5160), as the
+    config gives it. The layer's own subclass carries the rest (``hal/layers/tmc``); the
     daemon gets one from :func:`motorctl.hal.registry.driver_spec` and reads only this."""
 
     @property

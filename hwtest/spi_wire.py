@@ -2,7 +2,7 @@
 
 spi-gpio bit-bangs /dev/spidev1.0 over gpio-sim bank 0 lines 0..3 (SCK, MOSI, MISO, CS); the
 kernel's gpio:gpio_value trace events record every edge. This script drives motorctl's own
-SPI layer (py-spidev from the guest's venv, ``motorctl.hal.backends.tmc``'s SPI link and
+SPI layer (py-spidev from the guest's venv, ``motorctl.hal.layers.tmc``'s SPI link and
 driver) and decodes the trace: each datagram must be one chip-select window of exactly 40 clocks,
 SCK must idle high (SPI mode 3) and the MOSI bits sampled on SCK's rising edges must be the
 datagrams the driver means to send. MISO has no chip behind it (it reads the sim's pull), so
@@ -23,12 +23,12 @@ REPO = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(REPO))
 sys.dont_write_bytecode = True
 
-from motorctl.hal.backends.tmc.driver import TmcDriver  # noqa: E402
-from motorctl.hal.backends.tmc.fields import Reg  # noqa: E402
-from motorctl.hal.backends.tmc.link import TmcError, TmcLink  # noqa: E402
-from motorctl.hal.backends.tmc.settings import TmcSettings  # noqa: E402
-from motorctl.hal.backends.tmc.spi import SpiAddress, SpiBuses, SpiDevice, spidev_factory  # noqa: E402
-from motorctl.hal.backends.tmc.tmc2130 import TMC2130  # noqa: E402
+from motorctl.hal.layers.tmc.driver import TmcDriver  # noqa: E402
+from motorctl.hal.layers.tmc.fields import Reg  # noqa: E402
+from motorctl.hal.layers.tmc.link import TmcError, TmcLink  # noqa: E402
+from motorctl.hal.layers.tmc.settings import TmcSettings  # noqa: E402
+from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice, spidev_factory  # noqa: E402
+from motorctl.hal.layers.tmc.tmc2130 import TMC2130  # noqa: E402
 
 SCK, MOSI, MISO, CS = 0, 1, 2, 3
 TRACE = "/sys/kernel/tracing"
@@ -120,7 +120,7 @@ def main() -> int:
 
     # 1. start-up against a bus with no chip: MISO pulled high reads 0xffffffff
     pull_miso("pull-up")
-    driver = TmcDriver("x", dev, TmcSettings(chip="tmc2130"))
+    driver = TmcDriver("x", dev, TmcSettings(chip=TMC2130))
     events, result = traced(driver.start)
     frames, clocks, idle = datagrams(events)
     good &= check(

@@ -24,12 +24,12 @@ from hwtest.gpiod_harness import GpiodHarness
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.shm import SharedBlock
-from motorctl.motion.compiled_core import CompiledStepCore
-from motorctl.motion.executor_process import Layout, Shared
-from motorctl.motion.executor_seam import AxisLimits
+from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.process.rings import Layout, Shared
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
 from motorctl.motion.latency import LatencyStats
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
+from tests.support.motor_defaults import motor_limits
 
 API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 
@@ -40,7 +40,7 @@ def cost(core: str, per_motor: int, shared_ticks: bool) -> float:
     spec = GpiodHarness().spec(3, [], False)
     hw = open_hardware("gpiod", spec, clock)
     io = open_step_io("gpiod", spec, clock, parent=hw)
-    limits = [AxisLimits(1e-6)] * 3
+    limits = [motor_limits(1e-6)] * 3
     start = clock.now_ns() + 1000
     ivs = [10_000] * 3 if shared_ticks else [10_000 + 7 * m for m in range(3)]
     end = start + per_motor * 10_100

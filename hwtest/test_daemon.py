@@ -33,7 +33,7 @@ API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 def example_config() -> str:
     """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`),
     without its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
-    hwtest/spi_wire.py and tests/hal/test_tmc*.py)."""
+    hwtest/spi_wire.py and tests/hal/layers/tmc/test_*.py)."""
     text = re.sub(r"  \[motors\.tmc\][^\n]*\n(  \w+ = [^\n]*\n)*", "", EXAMPLE.read_text())
     assert not re.search(r"^\s*\[motors\.tmc\]|^\s*driver = ", text, re.M)
     return in_the_guest(text, API)
@@ -313,7 +313,7 @@ def test_shutdown_leaves_outputs_at_their_safe_values(tmp_path: Path) -> None:
 
 
 def test_probe_of_the_full_example_adds_the_spi_drivers_through_the_hook(tmp_path: Path) -> None:
-    """With its [motors.tmc] tables the example's probe also asks the SPI layer (registry
+    """With its [motors.tmc] tables the example's probe also asks the TMC layer (registry
     LAYERS): the guest has no /dev/spidev0.x, which is a named problem, the GPIO part stays."""
     cfg = tmp_path / "pi.toml"
     cfg.write_text(EXAMPLE.read_text().replace('api = "auto"', f'api = "{API}"'))

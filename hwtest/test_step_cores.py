@@ -23,16 +23,17 @@ from hwtest.gpiod_harness import GpiodHarness
 from hwtest.layout import MOTORS, where
 from hwtest.test_daemon import example_config
 from motorctl.hal.backends.gpiod.chip import load_api
-from motorctl.hal.interfaces import ChardevLines, Hardware, StepIO, VirtualClock
+from motorctl.hal.compiled_lines import ChardevLines
+from motorctl.hal.interfaces import Hardware, StepIO, VirtualClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.shm import SharedBlock
-from motorctl.motion.compiled_core import CompiledStepCore
-from motorctl.motion.executor_process import Layout, Shared
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_planner import axis_limits
-from motorctl.motion.types import MotorParams
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.rings import Layout, Shared
+from motorctl.motion.executors.segments import StepSegment
 from tests.support.daemon_proc import DaemonProcess
+from tests.support.motor_defaults import motor_params
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
@@ -74,7 +75,7 @@ def rig() -> Iterator[Rig]:
     shm = SharedBlock.create(layout.size, "motorctl-hwtest")
     shared = Shared(shm, layout)
     events: list[ExecEvent] = []
-    limits = axis_limits([MotorParams(max_speed=20_000.0)] * 3, 0.0, lag_faults=False)
+    limits = axis_limits([motor_params(max_speed=20_000.0)] * 3, 0.0, lag_faults=False)
     core = CompiledStepCore(io, limits, shared, emit=events.append)
     try:
         yield Rig(hw, io, shared, core, events)

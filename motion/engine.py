@@ -33,7 +33,7 @@ from motorctl.hal.interfaces import (
     VirtualClock,
 )
 from motorctl.motion.dc import DcMotor
-from motorctl.motion.executor_seam import ExecEvent, ExecEventKind, Executor, from_ticks, to_ticks
+from motorctl.motion.executors.base import ExecEvent, ExecEventKind, Executor, from_ticks, to_ticks
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorParams
 

@@ -17,7 +17,7 @@ from collections import deque
 from collections.abc import Callable
 
 from motorctl.hal.interfaces import DriverStatus, StepperDriver
-from motorctl.motion.executor_seam import Committed, ExecEvent, ExecEventKind, Executor
+from motorctl.motion.executors.base import Committed, ExecEvent, ExecEventKind, Executor
 from motorctl.motion.profile import Trajectory, plan_move_to, plan_run, plan_stop
 from motorctl.motion.types import (
     HomeCmd,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import enum
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 
 @dataclass(frozen=True)
@@ -77,19 +77,28 @@ class HomingParams:
 @dataclass(frozen=True)
 class MotorParams:
     name: str = "motor"
-    steps_per_rev: int = 0  # 0 = linear axis
-    queue_depth: int = 16
-    max_waypoints: int = 255
+    # The motor's config: the config model declares the defaults ([[motors]]), so these
+    # are always given (the daemon: daemon/assemble.py's motor_params)
+    steps_per_rev: int = field(kw_only=True)  # 0 = linear axis
+    queue_depth: int = field(kw_only=True)
+    # the table size: the config model declares its default (the protocol's table), so
+    # always given
+    max_waypoints: int = field(kw_only=True)
     soft_min: int | None = None
     soft_max: int | None = None
     homing: HomingParams = HomingParams()
     debounce_s: float = 0.0
     dir_setup_s: float = 5e-6
     pulse_s: float = 2e-6
-    max_speed: float = 25_000.0  # step/s: no plan is faster (the executor's spacing bound)
-    start_speed: float = 100.0  # step/s: a motor stopped from above may have lost steps
-    microsteps: int = 16  # per full step: a late step's lag is judged in full steps
-    max_lag_full_steps: float = 0.5  # a lag beyond this, above start_speed, loses steps
+    # step/s: no plan is faster (the executor's spacing bound); always given
+    max_speed: float = field(kw_only=True)
+    # step/s: a motor stopped from above may have lost steps; its default is the config
+    # model's ([[motors]] start_speed), so always given
+    start_speed: float = field(kw_only=True)
+    # per full step: a late step's lag is judged in full steps; always given
+    microsteps: int = field(kw_only=True)
+    # a lag beyond this, above start_speed, loses steps (always given: [[motors]])
+    max_lag_full_steps: float = field(kw_only=True)
     # How a linear axis shows its step count to the host: the daemon passes the protocol's
     # counter (motorctl.protocol.codec.wrap24: 24-bit two's complement). None: unbounded.
     # Motion does not know the protocol, so the wrap is passed in, not defined here.

@@ -21,9 +21,13 @@ from motorctl.protocol.crc import SMBUS, Crc8
 FRAME_LEN = 10
 RESPONSE_LEN = 5
 PAYLOAD_LEN = RESPONSE_LEN - 2
+#: a position's range: 24-bit two's complement (PROTOCOL.md section 3)
 POS_MIN = -8_388_608
 POS_MAX = 8_388_607
 _POS_MOD = 1 << 24
+#: the most waypoints a motor's table holds (a motor's configured table may be smaller): E5
+#: beyond it (PROTOCOL.md, "SaveHome / SaveWayPoint")
+WAYPOINTS = 255
 
 
 class ErrorCode(IntEnum):
@@ -260,6 +264,9 @@ COMMAND_TYPES: tuple[type[Command], ...] = (
     MoveToWayPoint,
     DcMove,
 )
+#: the motion commands: they go into the motor's queue (E0 when it is full) and their ACK
+#: waits for "moving" to be durable (PROTOCOL.md, "Motion commands")
+MOTION_COMMANDS = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)
 """All command classes, in code order."""
 
 _BY_CODE: dict[int, type[Command]] = {cls.code: cls for cls in COMMAND_TYPES}

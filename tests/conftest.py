@@ -1,16 +1,27 @@
 """What every test shares.
 
-The tests mirror the package, one folder a room, each test file named after the module it
-tests (``_e2e``: against motorctld as a process on a real PTY):
+The tests mirror the package, one folder a room and a sub-folder a wing (daemon/link/,
+state/, status/; motion/executors/ and its process/; hal/backends/gpiod/, hal/layers/tmc/),
+each test file named after the module it tests, at the same place: test_<module>.py, or
+test_<module>_<part>.py for one part of a module's tests (``_e2e``: against motorctld as a
+process on a real PTY); tests/hal/backends/gpiod/test_config.py tests
+hal/backends/gpiod/config.py. At the top, the package's own rules: test_layout.py (the
+tests' mirror, modules' and functions' sizes) and test_imports.py (the import graph):
 
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
     docs/       the README's walkthrough run as written; every path the pages name exists
     packaging/  debian/, the wheel, the systemd units, --version, hwtest/run
     support/    the shared rigs, one module each: wait (``until``, the deadline wait),
-                frames, rigs (the engine or the step core on a virtual clock), inprocess
+                frames, rigs (the engine or the step core on a virtual clock), executors (a
+                stand-in executor that records, the ramp executor over TMC5160 models, the
+                process executor, the rings' slots written by hand), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
-                (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
+                (``DaemonProcess``), sessions (``SessionRig``: the link's session and
+                silence watch in front of a daemon on a virtual clock), stalls (a step
+                executor whose stop confirmations stall), spi_bench and tmc_model (TMC
+                chips on a fake SPI bus), mock_factory (the mock backend as gpiozero's mock
+                factory), line_requests (a recording GPIO request, a PWM sysfs tree),
                 stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
                 tamper (a forwarder that changes one answer: the replay's tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
@@ -18,7 +29,9 @@ tests (``_e2e``: against motorctld as a process on a real PTY):
 This file is also loaded for tests/contract in the hardware tier's guests: it imports
 nothing beyond pytest at module level. Here: the ``motorctld`` fixture (daemons as
 processes, stopped after their test), ``step_core`` and ``core_rig`` (a test run on each
-step core, Python and compiled), and for every test:
+step core, Python and compiled), ``mock_factory`` (simulated machines through the registry,
+closed after the test, as gpiozero hands its mock factory to every test) and ``spi_bench``
+(TMC chip models on a fake SPI bus), and for every test:
 
 - The root logger is put back after each test. A test that runs motorctld's ``main()`` in
   this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
@@ -46,7 +59,9 @@ import pytest
 
 if TYPE_CHECKING:
     from tests.support.daemon_proc import DaemonProcess, StartDaemon
+    from tests.support.mock_factory import MockFactory
     from tests.support.rigs import StepCoreRig
+    from tests.support.spi_bench import SpiBench
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -74,11 +89,11 @@ def keep_root_logger() -> Iterator[None]:
 
 @pytest.fixture(params=["python", "compiled"])
 def step_core(request: pytest.FixtureRequest) -> str:
-    """Each step core in turn: "python" (motion/step_core.py) and "compiled" (motion/csrc,
-    built by make venv; not built is a failure, not a skip)."""
+    """Each step core in turn: "python" (motion/executors/step_core.py) and "compiled"
+    (motion/executors/csrc/, built by make venv; not built is a failure, not a skip)."""
     core = str(request.param)
     if core == "compiled":
-        from motorctl.motion.compiled_core import unavailable
+        from motorctl.motion.executors.compiled_core import unavailable
 
         why = unavailable()
         if why is not None:
@@ -130,3 +145,22 @@ def motorctld(tmp_path: Path) -> Iterator[StartDaemon]:
             d.kill()
         else:
             d.close()
+
+
+@pytest.fixture
+def mock_factory() -> Iterator[MockFactory]:
+    """The mock backend as gpiozero's mock factory (tests/support/mock_factory.py): simulated
+    machines built through the registry, all closed after the test."""
+    from tests.support.mock_factory import MockFactory
+
+    factory = MockFactory()
+    yield factory
+    factory.close()
+
+
+@pytest.fixture
+def spi_bench() -> SpiBench:
+    """TMC chip models on a fake SPI bus and a virtual clock (tests/support/spi_bench.py)."""
+    from tests.support.spi_bench import SpiBench
+
+    return SpiBench()

@@ -125,12 +125,14 @@ the doc; the same dataclass is what the code reads. This page, the checks and
   The dataclass may live with the code that owns it (an executor's table in `motion/`, which
   may import `motorctl.schema` but not the daemon); only the `Config` field is in model.py.
 - **A hardware backend's tables** (say `[gpiod]` and `[motors.gpiod]`): declare them in
-  `hal/backends/<backend>/config.py`, a module that imports no hardware library, export
-  `CONFIG_SECTIONS = (Extension("", "gpiod", GpiodConfig, owner=...), Extension("motors",
-  "gpiod", GpiodAxisConfig, owner=...))` and name that module as the `config` of the
-  backend's entry in `hal/registry.py`. The backend's `build(spec, clock)` reads them from
-  the HardwareSpec: `spec.section(GpiodConfig)`, `spec.axes[i].section(GpiodAxisConfig)`.
-  Regenerate this page.
+  `hal/backends/<backend>/config.py`, a module that imports no hardware library, whose
+  declaration (a `BackendDeclaration`, `hal/contract.py`) returns them from `sections()`:
+  `(Extension("", "gpiod", GpiodConfig, owner=...), Extension("motors", "gpiod",
+  GpiodAxisConfig, owner=...))`; name that class as the `declaration` of the backend's
+  entry in `hal/registry.py` (a layer's likewise, `hal/layers/<layer>/config.py`). The
+  backend's `build(spec, clock)` reads them from the HardwareSpec:
+  `spec.section(GpiodConfig)`, `spec.axes[i].section(GpiodAxisConfig)`. Regenerate this
+  page.
 - A rule across keys (a bound naming another key: `hi="max_speed"`; anything else: a `Rule`
   in `@section(rules=...)`) keeps the error format: file, key, value, problem, accepted.
 """

@@ -21,7 +21,7 @@ import tomllib
 from typing import Any, Final
 
 from motorctl.daemon.config.model import Config
-from motorctl.daemon.paths import kind
+from motorctl.daemon.state.files import kind
 from motorctl.hal.registry import config_sections
 from motorctl.schema import (
     Child,

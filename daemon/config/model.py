@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING, Any
 
 from motorctl.motion.engine import STOP_CONFIRM_S
 from motorctl.motion.types import HomingSource
-from motorctl.protocol.codec import POS_MAX, POS_MIN
+from motorctl.protocol.codec import POS_MAX, POS_MIN, WAYPOINTS
 from motorctl.protocol.crc import (
     CHECKSUM_DEFAULT,
     CHECKSUM_TEXT,
@@ -357,6 +357,10 @@ def _microsteps_power_of_two(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+#: a motor's microsteps per full step when neither its config nor its driver chip's says
+MICROSTEPS_UNSAID = 16
+
+
 @section(
     "Stepper motors, numbered 0..N-1 in file order.",
     rules=(
@@ -432,7 +436,7 @@ class MotorConfig(Sectioned):
         "Microsteps per full step the driver is set to (a power of two): a late step's lag "
         "is judged in full steps.",
         optional=True,
-        default_text="the [motors.tmc] table's microsteps, else 16",
+        default_text=f"the [motors.tmc] table's microsteps, else {MICROSTEPS_UNSAID}",
     )
     max_lag_full_steps: float = number(
         0.5,
@@ -457,7 +461,7 @@ class MotorConfig(Sectioned):
     queue_depth: int = integer(
         16, 1, 1024, "Motion commands that may wait behind the one executing; more -> E0."
     )
-    max_waypoints: int = integer(255, 1, 255, "Size of the waypoint table; more -> E5.")
+    max_waypoints: int = integer(WAYPOINTS, 1, WAYPOINTS, "Size of the waypoint table; more -> E5.")
     soft_limit_min: int | None = integer(
         None,
         POS_MIN,

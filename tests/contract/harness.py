@@ -11,7 +11,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
 
-from motorctl.hal.backends.mock.backend import EventKind, MockWorld, world_of
+from motorctl.hal.backends.mock.world import EventKind, MockWorld, world_of
 from motorctl.hal.interfaces import BridgeState, Hardware, MonotonicClock, StepIO
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec

@@ -40,7 +40,7 @@ from motorctl.hal.backends.gpiod.config import (
     GpiodPwmConfig,
 )
 from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
-from motorctl.hal.backends.tmc.config import SpidevConfig, TmcAxisConfig
+from motorctl.hal.layers.tmc.config import SpidevConfig, TmcAxisConfig
 from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import CodecOptions
 from motorctl.protocol.crc import SMBUS, crc8_by_name
@@ -178,7 +178,8 @@ def test_defaults_agree_with_describe_keys() -> None:
         if path in ("motors[].name", "mock.wires", "motors[].microsteps"):
             continue  # (microsteps: test_microsteps_come_from_the_motor_or_its_tmc_table)
         if path.split(".")[0] == "gpiod" or ".gpiod" in path:
-            continue  # not in this config; tests/hal/test_gpiod_config.py checks those defaults
+            # not in this config; tests/hal/backends/gpiod/test_config.py checks those defaults
+            continue
         expected = tomllib.loads(f"v = {default}")["v"]
         actual = lookup(config, path)
         assert actual == expected, path
@@ -231,7 +232,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
     expected |= {f.name for f in dataclasses.fields(Config) if f.name not in given}
     expected |= {"mock", "motors[].mock"}  # the mock backend's tables, in `sections`
     expected |= {"gpiod", "motors[].gpiod", "pins[].gpiod"}  # the gpiod backend's
-    expected |= {"spidev", "motors[].tmc"}  # the SPI driver layer's tables
+    expected |= {"spidev", "motors[].tmc"}  # the TMC layer's tables
     assert expected == paths
 
 
@@ -624,11 +625,21 @@ def test_docs_mention_check_config() -> None:
 # --- owners: backends' sections, the schema engine -----------------------------------------
 
 
-def test_backend_choices_come_from_the_registry(monkeypatch: pytest.MonkeyPatch) -> None:
+def test_backend_choices_come_from_the_registry(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
     from motorctl.hal import registry
 
+    (tmp_path / "fake_empty_config.py").write_text(
+        "from motorctl.hal.contract import BackendDeclaration\n"
+        "class Empty(BackendDeclaration):\n"
+        "    def sections(self, drivers):\n"
+        "        return ()\n",
+        encoding="utf-8",
+    )
+    monkeypatch.syspath_prepend(str(tmp_path))
     backends = dict(registry.BACKENDS)
-    backends["fake"] = registry.Backend("no.such.module", "build", "a fake library")
+    backends["fake"] = registry.Entry("fake_empty_config:Empty", "no.such:Module", "a fake library")
     monkeypatch.setattr(registry, "BACKENDS", backends)
     assert parse_config('[hal]\nbackend = "fake"\n' + MOTOR, SOURCE).hal.backend == "fake"
     message = error_of('[hal]\nbackend = "gpio"\n' + MOTOR)
@@ -638,6 +649,7 @@ def test_backend_choices_come_from_the_registry(monkeypatch: pytest.MonkeyPatch)
 FAKE_CONFIG = """
 from __future__ import annotations
 from dataclasses import dataclass
+from motorctl.hal.contract import BackendDeclaration, DriverLookup
 from motorctl.schema import Extension, integer, section, text
 
 @section("Wiring of the fake backend.")
@@ -650,18 +662,20 @@ class FakeConfig:
 class FakeAxisConfig:
     step_line: int = integer(0, 0, 511, "STEP line offset.")
 
-CONFIG_SECTIONS = (
-    Extension("", "fake", FakeConfig, owner="the fake backend"),
-    Extension("motors", "fake", FakeAxisConfig, owner="the fake backend"),
-)
+class FakeDeclaration(BackendDeclaration):
+    def sections(self, drivers: DriverLookup) -> tuple[Extension, ...]:
+        return (
+            Extension("", "fake", FakeConfig, owner="the fake backend"),
+            Extension("motors", "fake", FakeAxisConfig, owner="the fake backend"),
+        )
 """
 
 
 def test_a_backend_registers_its_sections_without_loading_its_library(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    """A backend's config module is read to check a config; its build module (which would
-    import the hardware library) is not imported."""
+    """A backend's declaration is read to check a config; its implementation's module
+    (which would import the hardware library) is not imported."""
     import sys
 
     from motorctl.hal import registry
@@ -669,8 +683,8 @@ def test_a_backend_registers_its_sections_without_loading_its_library(
     (tmp_path / "fake_backend_config.py").write_text(FAKE_CONFIG, encoding="utf-8")
     monkeypatch.syspath_prepend(str(tmp_path))
     backends = dict(registry.BACKENDS)
-    backends["fake"] = registry.Backend(
-        "fake_backend_hw", "build", "a fake library", "fake_backend_config"
+    backends["fake"] = registry.Entry(
+        "fake_backend_config:FakeDeclaration", "fake_backend_hw:FakeBackend", "a fake library"
     )
     monkeypatch.setattr(registry, "BACKENDS", backends)
     config = parse_config(
@@ -696,7 +710,7 @@ def test_a_backend_registers_its_sections_without_loading_its_library(
 
 
 def test_checking_a_config_imports_no_backend_module() -> None:
-    """Loading a config (even naming the mock) never imports a backend's build module."""
+    """Loading a config (even naming the mock) never imports a backend's implementation."""
     import subprocess
     import sys
 
@@ -704,7 +718,8 @@ def test_checking_a_config_imports_no_backend_module() -> None:
         "import sys\n"
         "from motorctl.daemon.config import load_config, default_config_text\n"
         "load_config(None); default_config_text()\n"
-        "print(sorted(m for m in sys.modules if m == 'motorctl.hal.backends.mock.backend' or "
+        "print(sorted(m for m in sys.modules if m.startswith('motorctl.hal.backends.mock.') "
+        "and m != 'motorctl.hal.backends.mock.config' or "
         "m.split('.')[0] in ('gpiod', 'spidev', 'systemd')))\n"
     )
     out = subprocess.run(
@@ -807,31 +822,17 @@ def test_backends_get_their_sections_in_the_hardware_spec() -> None:
     assert all(pin.section(GpiodPinConfig) is None for pin in spec.pins)  # not wired
 
 
-def test_motorctld_prints_and_checks_the_default_config(
-    tmp_path: Path, capsys: pytest.CaptureFixture[str]
-) -> None:
-    from motorctl.daemon.main import main
-
-    assert main(["--print-default-config"]) == 0
-    text = capsys.readouterr().out
-    assert text == default_config_text()
-    path = tmp_path / "motorctl.toml"
-    path.write_text(text, encoding="utf-8")
-    assert main(["--check-config", str(path)]) == 0
-    assert capsys.readouterr().out == (f"{path}: OK (3 motors, 8 pins, a DC motor, backend mock)\n")
-    path.write_text(text.replace("max_travel = 40000", "max_travel = 0", 1), encoding="utf-8")
-    assert main(["--check-config", str(path)]) == 1
-    assert "motors[0].homing.max_travel = 0: out of range" in capsys.readouterr().err
-
-
 def test_motion_defaults_are_the_configs() -> None:
-    """motion.types keeps construction defaults for its own tests; the daemon always passes
-    every value from the config (daemon.assemble.motor_params). They must not drift apart."""
+    """motion.types keeps construction defaults for its own tests, but not those of the lag
+    rule (start_speed, max_lag_full_steps: declared in the config model only, the tests take
+    them from there); the daemon always passes every value from the config
+    (daemon.assemble.motor_params). They must not drift apart."""
     from motorctl.daemon.assemble import motor_params
-    from motorctl.motion.types import HomingParams, MotorParams
+    from motorctl.motion.types import HomingParams
+    from tests.support.motor_defaults import motor_params as declared_params
 
     built = motor_params(parse_config(MOTOR, SOURCE))[0]
-    assert dataclasses.replace(built, name="motor", host_position=None) == MotorParams()
+    assert dataclasses.replace(built, name="motor", host_position=None) == declared_params()
     assert built.homing == HomingParams()
 
 

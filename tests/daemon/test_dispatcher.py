@@ -8,7 +8,7 @@ import pytest
 
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.dispatcher import Wait
-from motorctl.hal.backends.mock.backend import world_of
+from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import BridgeState
 from motorctl.protocol.codec import (
     ConfigPin,

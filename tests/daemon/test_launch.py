@@ -1,5 +1,5 @@
 """The motorctld command (daemon/launch.py) starts the step executor's interpreter before
-the daemon's imports (motion/executor_process_start.py): the process executor takes it over;
+the daemon's imports (motion/executors/process/start.py): the process executor takes it over;
 any other outcome ends it, also when the daemon fails to start or is gone before handing it its
 parameters. Real processes throughout."""
 
@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon import launch
-from motorctl.motion.executor_process_start import ExecutorProcess
+from motorctl.motion.executors.process.start import WaitingInterpreter
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, children_of
 from tests.support.wait import until
@@ -55,14 +55,14 @@ def test_a_daemon_that_fails_to_start_ends_the_early_process(
     monkeypatch: pytest.MonkeyPatch,
     capsys: pytest.CaptureFixture[str],
 ) -> None:
-    started: list[ExecutorProcess] = []
-    real = ExecutorProcess.start
+    started: list[WaitingInterpreter] = []
+    real = WaitingInterpreter.start
 
-    def spy() -> ExecutorProcess:
+    def spy() -> WaitingInterpreter:
         started.append(real())
         return started[-1]
 
-    monkeypatch.setattr(ExecutorProcess, "start", spy)
+    monkeypatch.setattr(WaitingInterpreter, "start", spy)
     argv = [
         "--pty",
         str(tmp_path / "pty"),
@@ -84,8 +84,8 @@ def test_the_early_process_ends_by_itself_when_the_daemon_is_gone() -> None:
         [
             sys.executable,
             "-c",
-            "from motorctl.motion.executor_process_start import ExecutorProcess; "
-            "print(ExecutorProcess.start().pid)",
+            "from motorctl.motion.executors.process.start import WaitingInterpreter; "
+            "print(WaitingInterpreter.start().pid)",
         ],
         capture_output=True,
         text=True,

@@ -13,19 +13,19 @@ import pytest
 
 from motorctl.daemon.platform_check import (
     Latency,
-    MotorRate,
     Roots,
     TimingConfig,
     advice,
-    lag_full_steps,
     measure_latency,
     parse_cpulist,
     read_platform,
     report,
     throttled_text,
 )
+from motorctl.motion.executors.base import lag_full_steps
 from tests.support import REPO
-from tests.support.daemon_proc import StartDaemon, for_tests
+from tests.support.daemon_proc import for_tests
+from tests.support.motor_defaults import motor_rate
 
 ROOT = REPO
 
@@ -75,7 +75,11 @@ RT = {
 LATENCY = Latency(
     samples=3000, p50_us=12.0, p99_us=45.0, max_us=160.0, policy="SCHED_FIFO 50 on CPU 3"
 )
-MOTORS = [MotorRate("x", 25_000.0, 16), MotorRate("y", 25_000.0, 16), MotorRate("z", 4_000.0, None)]
+MOTORS = [
+    motor_rate("x", 25_000.0, 16),
+    motor_rate("y", 25_000.0, 16),
+    motor_rate("z", 4_000.0, None),
+]
 
 
 def test_a_raspberry_pi_on_a_stock_kernel(tmp_path: Path) -> None:
@@ -150,9 +154,9 @@ def test_a_tuned_rt_board_needs_nothing_but_the_lag_figures(tmp_path: Path) -> N
         "or keep them slower" in tips
     )
     assert sum("beyond max_lag_full_steps" in t for t in tips) == 2
-    mock = [MotorRate("x", 25_000.0, None, loses_steps=False)]
+    mock = [motor_rate("x", 25_000.0, None, loses_steps=False)]
     assert "the mock's simulated motor x slide instead" in advice(p, late, cfg, mock)[-1]
-    slow = [MotorRate("x", 3_000.0, 16), MotorRate("y", 25_000.0, 16, start_speed=30_000.0)]
+    slow = [motor_rate("x", 3_000.0, 16), motor_rate("y", 25_000.0, 16, start_speed=30_000.0)]
     assert not any("beyond" in t for t in advice(p, late, cfg, slow))
     spun = Latency(samples=10, p50_us=10.0, p99_us=300.0, max_us=400.0, policy="x")
     assert "more than step_thread.spin_us (200)" in advice(p, spun, cfg, [])[0]
@@ -210,7 +214,7 @@ def test_small_parsers() -> None:
         "soft temperature limit has occurred",
     ]
     assert throttled_text(1 << 30) == ["bit 30 (unknown)"]
-    assert lag_full_steps(200.0, 25_000, 16) == pytest.approx(0.3125)
+    assert lag_full_steps(200e-6, 1 / 25_000, 16) == pytest.approx(0.3125)
 
 
 def test_the_measurement_goes_on_without_sched_fifo() -> None:
@@ -258,46 +262,3 @@ def test_probe_prints_the_platform_section(tmp_path: Path) -> None:
     assert "[step_thread] priority = 0" in text
     assert "max lag at 20,000 step/s with 16 microsteps would be" in text
     assert "Traceback" not in out.stderr
-
-
-LAT0 = ("--latency-seconds", "0")
-
-
-def _probe(tmp_path: Path, step_thread: str) -> subprocess.CompletedProcess[str]:
-    config = tmp_path / "m.toml"
-    config.write_text(
-        for_tests(f'[step_thread]\n{step_thread}\n[[motors]]\nname = "a"\n', force=True)
-    )
-    return subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config), *LAT0],
-        capture_output=True,
-        text=True,
-        timeout=60,
-        cwd=ROOT,
-    )
-
-
-def test_probe_says_which_step_core_would_run(tmp_path: Path) -> None:
-    out = _probe(tmp_path, 'core = "auto"')
-    assert out.returncode == 0, out.stderr
-    assert (
-        'step core:\n  [step_thread] core = "auto", executor = "process"\n'
-        "  compiled core: built\n  lines for it: the simulated mechanics of the mock\n"
-        "  runs: compiled\n"
-    ) in out.stdout
-
-
-def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_error(
-    tmp_path: Path, motorctld: StartDaemon
-) -> None:
-    out = _probe(tmp_path, 'core = "compiled"\nexecutor = "thread"')
-    assert out.returncode == 1
-    assert "  runs: python (the thread executor runs the Python core)\n" in out.stdout
-    assert 'PROBLEM: [step_thread] core = "compiled" runs in the process executor only' in (
-        out.stdout
-    )
-    config = 'core = "compiled"\nexecutor = "thread"'
-    text = for_tests(f'[step_thread]\n{config}\n[[motors]]\nname = "a"\n', force=True)
-    with pytest.raises(RuntimeError, match="motorctld exited") as err:
-        motorctld(text)
-    assert '[step_thread] core = "compiled" runs in the process executor only' in str(err.value)

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import DeviceError
-from motorctl.daemon.main import EXIT_STATE_NOT_SAVED
+from motorctl.daemon.serve import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
 from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.fsutil import fill, read_only, small_tmpfs

@@ -68,7 +68,9 @@ grep -q 'KERNEL=="gpiochip\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-moto
 grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/lib/udev/rules.d/60-motorctl.rules" \
   || fail "udev rule for spidev"
 in_root motorctld --check-config /etc/motorctl/motorctl.toml
-in_root dpkg -L motorctl | grep -q '/motorctl/motion/_stepcore\.cpython-.*\.so$' \
+# grep reads the whole list (no -q): with pipefail, a grep that stops at the match would
+# leave dpkg -L writing into a closed pipe (SIGPIPE, exit 141) whenever its list is longer
+in_root dpkg -L motorctl | grep '/motorctl/motion/executors/_stepcore\.cpython-.*\.so$' >/dev/null \
   || fail "the compiled step core is not in the package"
 in_root motorctld --probe --latency-seconds 0 > "$build/deb-probe.txt" \
   || { cat "$build/deb-probe.txt"; fail "motorctld --probe"; }

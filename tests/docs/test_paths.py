@@ -2,10 +2,15 @@
 
 Read from each page: paths in prose, code spans, tables and command blocks that start with
 one of the repository's top-level folders (``motion/profile.py``, ``docs/timing.md``,
-``bench/steps.py``, ``tests/daemon/test_link.py::test_name``); relative Markdown links
+``bench/steps.py``, ``tests/daemon/link/test_loop.py::test_name``); relative Markdown links
 (``[status.md](status.md)``, from the page's own folder); and the README's architecture
 map, whose file names are relative to the room their line group starts with (``motion/``
 ... ``engine.py``), or to a folder named earlier in that group (``config/ (model.py``).
+
+The sources of the rooms split into wings so far (``SOURCE_ROOMS``: their docstrings and
+comments, Python and C) are read the same way, and their file names in code spans (a
+docstring's ``process/child.py``; any name in a C comment) must exist beside the file, in
+``motion/executors/`` or at the root.
 
 Not paths of this repository, so not checked: absolute paths (``/etc``, ``/dev``, ``/run``,
 ``/usr/bin/python3``), URLs, names with a placeholder (``motorctl_<version>-1_all.deb``),
@@ -42,6 +47,10 @@ TOP_DIRS = (
 TOP_FILES = ("README.md", "Makefile", "pyproject.toml", "LICENSE")
 
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+#: rooms whose sources are checked too (issue 23's wings; a room joins once its own are done)
+SOURCE_ROOMS = ("motion",)
+#: where a source's relative file names may be, besides its own folder
+SOURCE_BASES = (REPO / "motion" / "executors", REPO)
 
 #: A path that starts with a top-level folder, not inside another path, URL or word.
 _PATH = re.compile(
@@ -121,6 +130,28 @@ def map_paths(block: str) -> list[tuple[str, list[str]]]:
     return out
 
 
+#: a file name in a docstring's code span; in C, any file name (``#include`` lines aside)
+_SPAN_NAME = re.compile(r"``([\w./-]+\.(?:py|c|h))``")
+_C_NAME = re.compile(r"(?<![\w./-])((?:[\w-]+/)*[\w-]+\.(?:py|c|h))(?![\w/])")
+
+
+def source_names(path: Path, text: str) -> list[str]:
+    """The relative file names a source names (see the module's doc)."""
+    if path.suffix == ".py":
+        return _SPAN_NAME.findall(text)
+    prose = "\n".join(ln for ln in text.splitlines() if not ln.lstrip().startswith("#include"))
+    return _C_NAME.findall(prose)
+
+
+def sources() -> list[Path]:
+    return sorted(
+        p
+        for room in SOURCE_ROOMS
+        for ext in ("py", "c", "h")
+        for p in (REPO / room).rglob(f"*.{ext}")
+    )
+
+
 def _where(page: Path) -> str:
     return str(page.relative_to(REPO))
 
@@ -133,6 +164,20 @@ def test_every_path_a_page_names_exists(page: Path) -> None:
     missing = sorted({p for p in named_paths(text) if not _exists(p)})
     missing += sorted({t for t in link_targets(text) if not _exists(t, page.parent)})
     assert not missing, f"{_where(page)} names paths that do not exist: {missing}"
+
+
+@pytest.mark.parametrize("path", sources(), ids=_where)
+def test_every_path_a_source_names_exists(path: Path) -> None:
+    text = path.read_text(encoding="utf-8")
+    missing = sorted({p for p in named_paths(text) if not _exists(p)})
+    missing += sorted(
+        {
+            name
+            for name in source_names(path, text)
+            if not any((base / name).exists() for base in (path.parent, *SOURCE_BASES))
+        }
+    )
+    assert not missing, f"{_where(path)} names paths that do not exist: {missing}"
 
 
 def test_every_name_in_the_readmes_map_exists() -> None:
@@ -151,7 +196,10 @@ def test_every_name_in_the_readmes_map_exists() -> None:
     ("text", "paths"),
     [
         ("see `motion/profile.py` and docs/timing.md.", ["motion/profile.py", "docs/timing.md"]),
-        ("| tests/daemon/test_link.py::test_serves_and_stops |", ["tests/daemon/test_link.py"]),
+        (
+            "| tests/daemon/link/test_loop.py::test_serves_and_stops |",
+            ["tests/daemon/link/test_loop.py"],
+        ),
         ("`bench/latency.py --trace` (bench/steps.py)", ["bench/latency.py", "bench/steps.py"]),
         ("/etc/motorctl.toml, /dev/spidev0.0, /run/motorctl/x, /usr/bin/python3", []),
         ("https://example.org/motion/profile.py and build/deb/build.log", []),
@@ -172,10 +220,23 @@ def test_path_extraction(text: str, paths: list[str]) -> None:
     assert named_paths(text) == paths
 
 
+def test_a_sources_file_names_are_read() -> None:
+    py = REPO / "motion" / "executors" / "thread.py"
+    assert source_names(py, "a ``process/child.py`` and ``ticks`` in ``gone.py``") == [
+        "process/child.py",
+        "gone.py",
+    ]
+    c = REPO / "motion" / "executors" / "csrc" / "core.c"
+    assert source_names(c, "#include <poll.h>\n/* core.c mirrors step_core.py */") == [
+        "core.c",
+        "step_core.py",
+    ]
+
+
 def test_a_missing_path_is_caught() -> None:
     assert not _exists("motion/stepthread.py")
     assert not _exists("tests/test_nothing*.py")
-    assert _exists("tests/hal/test_tmc*.py") and _exists("motorctl_<version>-1_all.deb")
+    assert _exists("tests/hal/layers/tmc/test_*.py") and _exists("motorctl_<version>-1_all.deb")
     block = "motion/   engine.py, stepthread.py\ndaemon/   config/ (model.py), gone/\n"
     entries = dict(map_paths(block))
     assert entries["model.py"] == ["daemon", "daemon/config", ""]

@@ -1,4 +1,5 @@
-"""A stand-in for the py-spidev module in a motorctld subprocess (tests/hal/test_tmc_e2e.py).
+"""A stand-in for the py-spidev module in a motorctld subprocess
+(tests/hal/layers/tmc/test_layer_e2e.py).
 
 Put this folder first on PYTHONPATH and describe the chips in MOTORCTL_FAKE_SPI (JSON):
 ``{"chips": {"0.0": "tmc2130", "0.1": "tmc5160:step_dir", "0.2": "tmc5160"}, "control":

@@ -35,11 +35,11 @@ DAEMON_WORKS = (
     "assert ctx.working_directory == '/'; print('python-daemon ok')"
 )
 MOTORCTL_WORKS = (
-    "import motorctl, motorctl.daemon.main, motorctl.hal.backends.mock.backend\n"
+    "import motorctl, motorctl.daemon.main, motorctl.hal.backends.mock.world\n"
     "import motorctl.client.cli\n"
     "from motorctl.daemon.config import load_config\n"
     "assert len(load_config(None).motors) == 3\n"
-    "from motorctl.motion import compiled_core\n"
+    "from motorctl.motion.executors import compiled_core\n"
     "assert compiled_core.unavailable() is None, compiled_core.unavailable()\n"
     "print('motorctl ok', motorctl.__version__)"
 )
@@ -168,12 +168,24 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
         assert whl.read(f"{dist_info}/top_level.txt").decode().split() == ["motorctl"]
     for room in ("protocol", "client", "daemon", "motion", "hal"):
         assert f"motorctl/{room}/__init__.py" in names
+    # every module of every room, in every sub-package (found by setuptools, not listed)
+    modules = {
+        f"motorctl/{path.relative_to(ROOT).as_posix()}"
+        for room in ("protocol", "client", "daemon", "motion", "hal")
+        for path in (ROOT / room).rglob("*.py")
+    }
+    assert sorted(modules - set(names)) == []
+    assert "motorctl/hal/layers/tmc/tmc5160.py" in modules
     assert "motorctl/daemon/config/model.py" in names and "motorctl/schema.py" in names
     assert not any(name.endswith((".pyc", "/tests/__init__.py")) for name in names)
     # the compiled step core, built by the wheel's build; its sources stay out
     assert (
-        [n for n in names if n.startswith("motorctl/motion/_stepcore")]
-        == [n for n in names if n.startswith("motorctl/motion/_stepcore.") and n.endswith(".so")]
+        [n for n in names if n.startswith("motorctl/motion/executors/_stepcore")]
+        == [
+            n
+            for n in names
+            if n.startswith("motorctl/motion/executors/_stepcore.") and n.endswith(".so")
+        ]
         != []
     )
     assert not any(name.endswith((".c", ".h")) for name in names)

@@ -22,7 +22,7 @@ from motorctl.client.trace import (
     one_link,
     row_json,
 )
-from motorctl.daemon.trace import TraceRecorder, rotated
+from motorctl.daemon.link.recorder import TraceRecorder, rotated
 from motorctl.protocol.capture import (
     LINKTYPE_USER0,
     CaptureError,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 
 import pytest
 from hypothesis import given
@@ -10,9 +11,11 @@ from hypothesis import strategies as st
 
 from motorctl.protocol.codec import (
     FRAME_LEN,
+    MOTION_COMMANDS,
     POS_MAX,
     POS_MIN,
     RESPONSE_LEN,
+    WAYPOINTS,
     CodecOptions,
     Command,
     CommandCode,
@@ -46,6 +49,7 @@ from motorctl.protocol.codec import (
     wrap24,
 )
 from motorctl.protocol.crc import crc8_by_name
+from tests.support import REPO
 from tests.support.frames import raw_frame, ref_crc8
 
 OPTS = CodecOptions()
@@ -566,3 +570,50 @@ def test_command_field_names() -> None:
     assert names[WaitMoved] == ("motor", "timeout_ms")
     assert names[MoveToWayPoint] == ("motor", "waypoint", "speed", "acc", "dec")
     assert names[DcMove] == ("direction", "time_ms", "hiz")
+
+
+#: The protocol's facts, owned here and imported by every room that may (issue 23, "Written
+#: once"): how each would look written again.
+FACTS = {
+    "the 24-bit position range": re.compile(
+        r"^\s*(?:POS_MIN|POS_MAX)\s*[:=]|\b8_?388_?60[78]\b"
+        r"|-\(1 << 23\)|\(1 << 23\) - 1\b|2 \*\* 23",
+        re.M,
+    ),
+    "the waypoint table's size": re.compile(
+        r"^\s*\w*WAYPOINTS\s*[:=]|max_waypoints\s*:\s*int\s*=\s*\d|integer\(\s*255,\s*1,\s*255",
+        re.M,
+    ),
+    "the motion commands": re.compile(
+        r"\(\s*InitMove,\s*MoveTo,\s*Move,\s*GoHome,\s*MoveToWayPoint\s*\)|^\s*MOTION\w*\s*=", re.M
+    ),
+}
+#: where a fact is written again on purpose: hal/ may not import protocol/ (the rooms' order),
+#: so the mock's end-stop range is written out there and checked against POS_MIN/POS_MAX
+#: (tests/daemon/test_config.py)
+AGAIN = {("hal/backends/mock/config.py", "the 24-bit position range")}
+
+
+def test_the_protocols_facts_are_declared_in_protocol_only() -> None:
+    again = set()
+    for room in ("client", "daemon", "motion", "hal"):
+        for path in sorted((REPO / room).rglob("*.py")):
+            source = path.read_text(encoding="utf-8")
+            where = path.relative_to(REPO).as_posix()
+            again |= {(where, fact) for fact, pattern in FACTS.items() if pattern.search(source)}
+    assert again == AGAIN
+    assert WAYPOINTS == 255 and (POS_MIN, POS_MAX) == (-(1 << 23), (1 << 23) - 1)
+    assert (InitMove, MoveTo, Move, GoHome, MoveToWayPoint) == MOTION_COMMANDS
+
+
+@pytest.mark.parametrize(
+    "source",
+    [
+        "POS_MIN = -(1 << 23)\n",
+        "MAX_WAYPOINTS = 255\n",
+        "    max_waypoints: int = 255\n",
+        "MOTION = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)\n",
+    ],
+)
+def test_a_fact_written_again_is_seen(source: str) -> None:
+    assert any(pattern.search(source) for pattern in FACTS.values())

@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from motorctl.client.client import Client
-from motorctl.daemon.status import read_status
+from motorctl.daemon.status.reader import read_status
 from tests.support import REPO
 
 READY_TIMEOUT_S = 30.0

@@ -19,9 +19,9 @@ from typing import Any
 
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
-from motorctl.daemon.link import Link
-from motorctl.daemon.ports import PtySlave, open_pty
-from motorctl.hal.backends.mock.backend import MockWorld, world_of
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.ports import PtySlave, open_pty
+from motorctl.hal.backends.mock.world import MockWorld, world_of
 from motorctl.hal.interfaces import Clock, MonotonicClock, VirtualClock
 from motorctl.protocol.codec import Command, ErrorCode, GetAbsPos, Move, Response
 from tests.support.daemon_proc import TEST_STEP_THREAD

@@ -12,30 +12,34 @@ from collections import defaultdict
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
-from motorctl.hal.backends.mock.backend import (
-    Event,
-    EventKind,
-    MockWorld,
-    build,
-    build_step_io,
-    mock_axis,
-    world_of,
-)
+from motorctl.hal.backends.mock.backend import build, build_step_io
+from motorctl.hal.backends.mock.world import Event, EventKind, MockWorld, mock_axis, world_of
 from motorctl.hal.interfaces import Clock, Hardware, StepperDriver, VirtualClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.compiled_core import CompiledStepCore
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executor_process import _LAST, _WATCH, Layout, Shared, _ShmInbox
-from motorctl.motion.executor_seam import ExecEvent, Executor, to_ticks
-from motorctl.motion.executor_thread import ThreadStepExecutor
+from motorctl.motion.executors.base import ExecEvent, Executor, from_ticks, to_ticks
+from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.planner import axis_limits
+from motorctl.motion.executors.process.child import RingInbox
+from motorctl.motion.executors.process.rings import Layout, Shared, segment_fields
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
+from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
-from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
-from motorctl.motion.step_planner import axis_limits
-from motorctl.motion.types import MotionCmd, MotorParams, MotorState
+from motorctl.motion.profile import Steps, plan_move_to
+from motorctl.motion.types import MotionCmd, MotorParams, MotorState, Ramp
+from tests.support.motor_defaults import motor_params
 from tests.support.wait import WAIT_S
+
+
+def planned_times(t0: float, start: int, target: int, r: Ramp) -> list[float]:
+    """The step times of a MoveTo from rest at ``t0``, planned by the profile, on the step
+    path's 1 ns ticks."""
+    traj = plan_move_to(t0, float(start), 0.0, float(target), r.speed, r.acc, r.dec)
+    return [from_ticks(to_ticks(t)) for t, _ in Steps(traj, start)]
+
 
 #: End stops no test reaches.
 FAR = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
@@ -165,7 +169,7 @@ def engine_rig(
     of the mock's; ``executor``: another executor instead.
     """
     if not params:
-        params = (MotorParams(),)
+        params = (motor_params(),)
     if axes is None:
         axes = [mock_axis(endstop_min=-1000, endstop_max=1000) for _ in params]
     if lows is not None:
@@ -195,8 +199,8 @@ def engine_rig(
 class StepCoreRig:
     """A step core on a virtual clock over the mock world, fed by hand through the process
     executor's shared-memory rings (the same records, checked the same way, for both
-    cores): ``core`` "python" (motion/step_core.py over ``_ShmInbox``) or "compiled"
-    (motion/compiled_core.py). Lateness is judged by the real-hardware rule
+    cores): ``core`` "python" (motion/executors/step_core.py over ``RingInbox``) or
+    "compiled" (motion/executors/compiled_core.py). Lateness is judged by the real-hardware rule
     (``lag_faults``) unless a test says otherwise. ``close()`` releases the block."""
 
     def __init__(
@@ -227,7 +231,7 @@ class StepCoreRig:
         self.hw = build(spec, self.clock)
         self.world = world_of(self.hw)
         io = build_step_io(spec, self.clock, self.hw)
-        params = MotorParams(
+        params = motor_params(
             max_speed=max_speed,
             start_speed=start_speed,
             microsteps=microsteps,
@@ -242,7 +246,7 @@ class StepCoreRig:
         self.cells = self.shared.motor_cells
         self.core: StepCore | CompiledStepCore
         if core == "python":
-            self.inbox = _ShmInbox(self.shared, self.clock)
+            self.inbox = RingInbox(self.shared, self.clock)
             self.core = StepCore(
                 io,
                 self.limits,
@@ -288,10 +292,7 @@ class StepCoreRig:
         """Segments into the motor's ring, as the daemon's planner hands them over."""
         ring = self.shared.segs[motor]
         for seg in segments:
-            flags = (_LAST if seg.last else 0) | (_WATCH if seg.watch else 0)
-            assert ring.put(
-                seg.first, seg.interval, seg.count, seg.add, seg.direction, seg.gen, flags
-            ), "segment ring full"
+            assert ring.put(*segment_fields(seg)), "segment ring full"
 
     def stop(self, motor: int, gen: int, cut: int = -1) -> None:
         """A stop record (``cut`` -1: a hard stop; else a re-plan from that tick)."""

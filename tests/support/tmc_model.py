@@ -1,7 +1,7 @@
 """A register-level TMC2130/TMC5160 behind a fake of py-spidev's own API.
 
 The model follows the datasheets independently of motorctl's code (its unit formulas and bit
-positions are written out here again on purpose, so that a mistake in hal/backends/tmc/ shows):
+positions are written out here again on purpose, so that a mistake in hal/layers/tmc/ shows):
 
 - 40-bit datagrams, address byte bit 7 = write; the reply's first byte is the SPI status
   (latched at the end of the previous access), its 32 data bits answer the previous datagram:
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 
 from motorctl.hal.interfaces import Clock
 
-# -- the datasheet's numbers, written out independently of motorctl.hal.backends.tmc.driver
+# -- the datasheet's numbers, written out independently of motorctl.hal.layers.tmc.driver
 A_GCONF, A_GSTAT, A_IOIN, A_GLOBALSCALER = 0x00, 0x01, 0x04, 0x0B
 A_IHOLD_IRUN, A_TPOWERDOWN, A_TSTEP, A_TCOOLTHRS = 0x10, 0x11, 0x12, 0x14
 A_RAMPMODE, A_XACTUAL, A_VACTUAL, A_VSTART, A_A1, A_V1 = 0x20, 0x21, 0x22, 0x23, 0x24, 0x25

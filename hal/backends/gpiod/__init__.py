@@ -1,2 +1,4 @@
-"""The gpiod backend: STEP/DIR, end stops, an H-bridge and IO pins on Linux GPIO lines
-through libgpiod (its v1 or v2 Python API: ``chip.py``), wired as ``wiring.py`` says."""
+"""The gpiod backend: STEP/DIR, end stops, an H-bridge and IO pins on Linux GPIO lines through
+libgpiod (its v1 or v2 Python API: ``chip.py``), wired as ``wiring.py`` says: its
+declaration in ``config.py``, the Backend in ``backend.py``, its parts in ``parts.py`` and
+``bridge.py``, ``--probe`` in ``probe.py``."""

@@ -22,7 +22,8 @@ from datetime import timedelta
 from typing import Any
 
 from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
-from motorctl.hal.interfaces import ChardevRequest, HalError
+from motorctl.hal.compiled_lines import ChardevRequest
+from motorctl.hal.interfaces import HalError
 
 DEV = "/dev"
 

@@ -1,21 +1,23 @@
-"""The gpiod backend's config sections: [gpiod] (binding, consumer, the H-bridge's lines),
-[motors.gpiod] (a motor's STEP/DIR/ENABLE and end-stop lines) and [pins.gpiod] (a pin's line).
+"""The gpiod backend's declaration (:class:`GpiodDeclaration`, hal/contract.py): its config
+sections [gpiod] (binding, consumer, the H-bridge's lines), [motors.gpiod] (a motor's
+STEP/DIR/ENABLE and end-stop lines) and [pins.gpiod] (a pin's line).
 
-A motor whose TMC5160 runs its own ramp (``[motors.tmc] mode = "ramp"``) needs no STEP/DIR
-lines (the chip makes its own steps; its end stops are the chip's REFL/REFR inputs): its
-[motors.gpiod] is optional, and so are step and dir in it; every other motor must name both.
+A motor whose driver chip runs its own ramp (a TMC5160 with ``[motors.tmc] mode = "ramp"``:
+``AxisSpec.own_ramp``, from the driver spec its layer gives it) needs no STEP/DIR lines (the
+chip makes its own steps; its end stops are the chip's REFL/REFR inputs): its [motors.gpiod]
+is optional, and so are step and dir in it; every other motor must name both.
 
-Declared here and registered in `motorctl.hal.registry.BACKENDS`; imports no hardware library,
-so a config can be checked on any machine. `wiring_from` turns the loaded sections into the
-backend's `GpioWiring`; the rule below checks, before anything opens, that every motor and
-pin is wired and that no line is written twice.
+Named in `motorctl.hal.registry.BACKENDS`; imports no hardware library, so a config can be
+checked on any machine. `wiring_from` turns the loaded sections into the backend's
+`GpioWiring`; the rule below checks, before anything opens, that every motor and pin is
+wired and that no line is written twice.
 
 Pure declarations and functions: no state, no I/O.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
@@ -30,7 +32,9 @@ from motorctl.hal.backends.gpiod.wiring import (
     PinWiring,
     PwmWiring,
 )
-from motorctl.hal.backends.tmc.config import TmcAxisConfig
+from motorctl.hal.contract import BackendDeclaration, DriverLookup
+from motorctl.hal.interfaces import HalError
+from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.schema import (
     REQUIRED,
     Extension,
@@ -187,22 +191,8 @@ class WiringMissing(ValueError):
         self.value = value
 
 
-@dataclass(frozen=True)
-class AxisRole:
-    """What the wiring rules need to know of a motor besides its lines."""
-
-    name: str = ""  # the motor's name, for messages
-    own_ramp: bool = False  # a TMC5160 runs its own ramp: no STEP/DIR, no GPIO end stops
-
-
-def role_of(motor: Any) -> AxisRole:
-    """The role of a loaded [[motors]] entry (a MotorConfig)."""
-    tmc = motor.sections.get(TmcAxisConfig)
-    return AxisRole(motor.name, tmc is not None and tmc.mode == "ramp")
-
-
-def _motor(i: int, role: AxisRole) -> str:
-    return f"motor {i} ({role.name!r})" if role.name else f"motor {i}"
+def _motor(i: int, axis: AxisSpec) -> str:
+    return f"motor {i} ({axis.name!r})" if axis.name else f"motor {i}"
 
 
 _RAMP_NOTE = (
@@ -211,29 +201,29 @@ _RAMP_NOTE = (
 )
 
 
-def _axis_wiring(i: int, a: GpiodAxisConfig | None, role: AxisRole) -> MotorWiring:
+def _axis_wiring(i: int, a: GpiodAxisConfig | None, axis: AxisSpec) -> MotorWiring:
     if a is None:
-        if role.own_ramp:
+        if axis.own_ramp:
             return MotorWiring(own_ramp=True)
         raise WiringMissing(
             f"motors[{i}].gpiod",
-            f"missing: {_motor(i, role)} is moved by "
+            f"missing: {_motor(i, axis)} is moved by "
             f"STEP/DIR pulses; name its step and dir lines ({_RAMP_NOTE})",
         )
     for key in ("step", "dir"):
-        if not role.own_ramp and not getattr(a, key):
+        if not axis.own_ramp and not getattr(a, key):
             raise WiringMissing(
                 f"motors[{i}].gpiod.{key}",
-                f"missing: {_motor(i, role)} is "
+                f"missing: {_motor(i, axis)} is "
                 f"moved by STEP/DIR pulses and needs its {key.upper()} line "
                 f"({_RAMP_NOTE})",
             )
-    if role.own_ramp:
+    if axis.own_ramp:
         for key in ("endstop_min", "endstop_max"):
             if getattr(a, key):
                 raise WiringMissing(
                     f"motors[{i}].gpiod.{key}",
-                    f"{_motor(i, role)}'s TMC5160 "
+                    f"{_motor(i, axis)}'s TMC5160 "
                     "runs its own ramp and stops at its REFL/REFR inputs, "
                     "which no GPIO line can stand for: remove it",
                     getattr(a, key),
@@ -253,22 +243,25 @@ def _axis_wiring(i: int, a: GpiodAxisConfig | None, role: AxisRole) -> MotorWiri
         endstop_min=end(a.endstop_min, a.endstop_min_bias),
         endstop_max=end(a.endstop_max, a.endstop_max_bias),
         dir_hold_us=a.dir_hold_us,
-        own_ramp=role.own_ramp,
+        own_ramp=axis.own_ramp,
     )
 
 
 def wiring_from(
     top: GpiodConfig | None,
-    axes: Sequence[GpiodAxisConfig | None],
+    sections: Sequence[GpiodAxisConfig | None],
     pins: Sequence[tuple[int, GpiodPinConfig | None]],
     dc: bool,
-    roles: Sequence[AxisRole] | None = None,
+    axes: Sequence[AxisSpec] | None = None,
 ) -> GpioWiring:
-    """The backend's wiring from the loaded sections; ``roles`` (default: every motor moved
-    by STEP/DIR) say which motors' TMC5160 runs its own ramp."""
+    """The backend's wiring from the loaded sections (``sections``: each motor's
+    [motors.gpiod]); ``axes`` (default: every motor moved by STEP/DIR) name the motors and
+    say whose driver chip runs its own ramp (``AxisSpec.own_ramp``)."""
     top = top or make(GpiodConfig)
-    roles = list(roles) if roles is not None else [AxisRole() for _ in axes]
-    motors = [_axis_wiring(i, a, role) for i, (a, role) in enumerate(zip(axes, roles, strict=True))]
+    axes = list(axes) if axes is not None else [AxisSpec() for _ in sections]
+    motors = [
+        _axis_wiring(i, a, axis) for i, (a, axis) in enumerate(zip(sections, axes, strict=True))
+    ]
     wired = []
     for i, (number_, p) in enumerate(pins):
         if p is None:
@@ -301,59 +294,82 @@ def wiring_from(
     )
 
 
-def _wired(v: Mapping[str, Any]) -> Violation | None:
-    """With backend gpiod: every motor and pin wired, the bridge too, no line twice."""
-    if v["hal"].backend != "gpiod":
-        return None
+def wiring_of(spec: HardwareSpec) -> GpioWiring:
+    """The wiring from the config sections ([gpiod], [motors.gpiod], [pins.gpiod])."""
     try:
-        wiring = wiring_from(
-            v.get("gpiod"),
-            [m.sections.get(GpiodAxisConfig) for m in v["motors"]],
-            [(p.number, p.sections.get(GpiodPinConfig)) for p in v["pins"]],
-            v["dc"] is not None,
-            [role_of(m) for m in v["motors"]],
+        return wiring_from(
+            spec.sections.get(GpiodConfig),
+            [a.sections.get(GpiodAxisConfig) for a in spec.axes],
+            [(p.number, p.sections.get(GpiodPinConfig)) for p in spec.pins],
+            spec.dc,
+            spec.axes,
         )
     except WiringMissing as exc:
-        return (exc.path, exc.value, exc.problem)
-    dup = wiring.duplicates()
-    if dup:
-        return ("gpiod", REQUIRED, dup[0])
-    return None
+        raise HalError(str(exc)) from None
 
 
-CONFIG_SECTIONS = (
-    Extension(
-        "",
-        "gpiod",
-        GpiodConfig,
-        owner="the gpiod backend",
-        absent=None,
-        absent_text="defaults (api auto, consumer motorctl, no bridge)",
-        rules=(
-            Rule(
-                ("gpiod",),
-                'with backend "gpiod": every motor (STEP/DIR; a TMC5160 '
-                "running its own ramp: none needed), pin and the DC bridge wired, each line "
-                "used once",
-                _wired,
+def _wired(drivers: DriverLookup) -> Callable[[Mapping[str, Any]], Violation | None]:
+    """The rule: with backend gpiod, every motor and pin wired, the bridge too, no line
+    twice; ``drivers`` gives each motor's driver chip (one that runs its own ramp needs no
+    STEP/DIR)."""
+
+    def wired(v: Mapping[str, Any]) -> Violation | None:
+        if v["hal"].backend != "gpiod":
+            return None
+        try:
+            wiring = wiring_from(
+                v.get("gpiod"),
+                [m.sections.get(GpiodAxisConfig) for m in v["motors"]],
+                [(p.number, p.sections.get(GpiodPinConfig)) for p in v["pins"]],
+                v["dc"] is not None,
+                [AxisSpec(name=m.name, driver=drivers(m)) for m in v["motors"]],
+            )
+        except WiringMissing as exc:
+            return (exc.path, exc.value, exc.problem)
+        dup = wiring.duplicates()
+        if dup:
+            return ("gpiod", REQUIRED, dup[0])
+        return None
+
+    return wired
+
+
+class GpiodDeclaration(BackendDeclaration):
+    """The gpiod backend's sections: ``[gpiod]``, ``[motors.gpiod]``, ``[pins.gpiod]``."""
+
+    def sections(self, drivers: DriverLookup) -> tuple[Extension, ...]:
+        return (
+            Extension(
+                "",
+                "gpiod",
+                GpiodConfig,
+                owner="the gpiod backend",
+                absent=None,
+                absent_text="defaults (api auto, consumer motorctl, no bridge)",
+                rules=(
+                    Rule(
+                        ("gpiod",),
+                        'with backend "gpiod": every motor (STEP/DIR; a TMC5160 running its '
+                        "own ramp: none needed), pin and the DC bridge wired, each line used "
+                        "once",
+                        _wired(drivers),
+                    ),
+                ),
             ),
-        ),
-    ),
-    Extension(
-        "motors",
-        "gpiod",
-        GpiodAxisConfig,
-        owner="the gpiod backend",
-        absent=None,
-        absent_text="not wired",
-    ),
-    Extension(
-        "pins",
-        "gpiod",
-        GpiodPinConfig,
-        owner="the gpiod backend",
-        absent=None,
-        absent_text="not wired",
-    ),
-)
-"""The sections the gpiod backend adds to the config file."""
+            Extension(
+                "motors",
+                "gpiod",
+                GpiodAxisConfig,
+                owner="the gpiod backend",
+                absent=None,
+                absent_text="not wired",
+            ),
+            Extension(
+                "pins",
+                "gpiod",
+                GpiodPinConfig,
+                owner="the gpiod backend",
+                absent=None,
+                absent_text="not wired",
+            ),
+        )

@@ -1,8 +1,10 @@
-"""The mock backend's config sections: the simulated world ([mock]) and axes ([motors.mock]).
+"""The mock backend's declaration (:class:`MockDeclaration`, hal/contract.py): its config
+sections, the simulated world ([mock]) and axes ([motors.mock]), and whether its motors
+lose steps.
 
-Declared here, not in the daemon's core schema: the mock backend owns them and registers this
-module in `motorctl.hal.registry.BACKENDS`. Like every backend's config module it imports no
-hardware library, so a config can be checked without loading any backend.
+Declared here, not in the daemon's core schema: the mock backend owns them; the registry
+names this declaration in `motorctl.hal.registry.BACKENDS`. Like every declaration it imports
+no hardware library, so a config can be checked without loading any backend.
 
 Pure declarations: no state, no I/O.
 """
@@ -13,6 +15,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from motorctl.hal.contract import BackendDeclaration, DriverLookup
+from motorctl.hal.spec import HardwareSpec
 from motorctl.schema import (
     Extension,
     Rule,
@@ -117,24 +121,30 @@ def _wires_disjoint(v: Mapping[str, Any]) -> Violation | None:
 
 def motors_lose_steps(spec: Sectioned) -> bool:
     """``[mock] lose_steps``: whether the simulated motors may lose steps as real ones
-    (False without a [mock] table; the registry's ``motors_lose_steps``)."""
+    (False without a [mock] table)."""
     world = spec.sections.get(MockConfig)
     return isinstance(world, MockConfig) and world.lose_steps
 
 
-CONFIG_SECTIONS = (
-    Extension(
-        "",
-        "mock",
-        MockConfig,
-        owner="the mock backend",
-        absent={"wires": [], "lose_steps": False},
-        absent_text="no wires",
-        rules=(
-            Rule(("mock.wires",), "every wired pin is listed in [[pins]]", _wires_on_pins),
-            Rule(("mock.wires",), "each pin in at most one wire", _wires_disjoint),
-        ),
-    ),
-    Extension("motors", "mock", MockAxisConfig, owner="the mock backend"),
-)
-"""The sections the mock backend adds to the config file."""
+class MockDeclaration(BackendDeclaration):
+    """The mock backend's sections: ``[mock]`` and ``[motors.mock]``."""
+
+    def sections(self, drivers: DriverLookup) -> tuple[Extension, ...]:
+        return (
+            Extension(
+                "",
+                "mock",
+                MockConfig,
+                owner="the mock backend",
+                absent={"wires": [], "lose_steps": False},
+                absent_text="no wires",
+                rules=(
+                    Rule(("mock.wires",), "every wired pin is listed in [[pins]]", _wires_on_pins),
+                    Rule(("mock.wires",), "each pin in at most one wire", _wires_disjoint),
+                ),
+            ),
+            Extension("motors", "mock", MockAxisConfig, owner="the mock backend"),
+        )
+
+    def motors_lose_steps(self, spec: HardwareSpec) -> bool:
+        return motors_lose_steps(spec)

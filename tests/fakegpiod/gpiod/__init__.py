@@ -1,5 +1,6 @@
 """A stand-in for libgpiod's Python binding (v2 API) in a motorctld subprocess on a machine
-without GPIO (tests/hal/test_ramp_gpiod_e2e.py): put tests/fakegpiod first on PYTHONPATH.
+without GPIO (tests/hal/backends/gpiod/test_backend_e2e.py): put tests/fakegpiod first on
+PYTHONPATH.
 
 It lets the gpiod backend load and look for chips (the kernel's /dev/gpiochip*, as the real
 binding does; none in the test container), and refuses every line request: the test's

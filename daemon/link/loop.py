@@ -1,0 +1,582 @@
+"""The link's loop: poll, read, write, around the pure session (daemon/link/session.py).
+
+One loop that every byte crosses, whose states (reading, holding back, no host, a host's
+session ending, a device away) decide together what each turn waits for; what could stand
+apart does: the session, the silence watch (silence.py), the device's return (devwatch.py),
+the PTY's slave (ports.py), the ends of sessions in the counters and the log
+(session_end.py), all in daemon/link/.
+
+One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
+on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
+after a hard StopMove in the wait for the executor's confirmation (bounded by
+``step_thread.stop_confirm_ms``, and not repeated while an earlier one timed out, so a burst
+of frames cannot keep a turn from ending and :meth:`stop` is noticed promptly).
+:meth:`Link.wake` and :meth:`Link.stop` are the only calls other threads (the step thread,
+signal handlers) make: they write a byte to the pipe. The same pipe is the process's signal
+wake-up descriptor (:attr:`Link.signal_fd`, ``signal.set_wakeup_fd``): a signal whose Python
+handler has not run yet when the loop goes to sleep still wakes it (see :meth:`serve`).
+:meth:`Link.status` may be called from the status thread: it only copies counters whose keys
+all exist from the start, and the session's last frames (decoded there, on that thread).
+
+What the shell does, and why:
+- **Gaps are watched, not inferred.** Before each ``poll()`` it notes the time; when the poll
+  returns without input (a timeout or a wake-up), it reads the clock and then confirms with a
+  non-blocking read that nothing came. Only then does it tell the session that the line was
+  silent for that stretch, while ready to read. Bytes that waited in the kernel's buffer while
+  the daemon was busy or not scheduled are read as contiguous, however late. (What this can
+  and cannot detect: docs/protocol.md, "Framing".)
+- **Writes never block.** Responses go into an output buffer written as the descriptor takes
+  them. While more than ``out_limit`` bytes or ``backlog_limit`` responses are owed, the
+  shell stops reading: the host's writes then wait in the kernel (back pressure), nothing is
+  lost and memory stays bounded. Reads resume as soon as the host reads again.
+- **A host's session ends** when it closes the PTY (POLLHUP, EIO; or the slave's close
+  and a new open reported by ``pty``'s inotify watch, when a host closed the port and
+  another opened it before the link looked) or its serial device goes away. Everything
+  owed to it is dropped and counted by cause (``responses_dropped_*``; logged a moment
+  later, session_end.py): the partial frame, the answers not yet written (``unsent``; on a
+  PTY also those the kernel still holds for it, counted and flushed by ``pty``, a
+  :class:`~motorctl.daemon.link.ports.PtySlave`), a held WaitMoved's answer (``wait``) and
+  the answers of the frames kept behind it (``held``; their commands are never executed:
+  :meth:`LinkSession.end`). The next host reads only its own answers, and its first
+  command is answered at once: nothing of the old session is left to wait for.
+- **No host on the PTY**: ``pty`` holds the slave side open, so that the master does not
+  report POLLHUP over and over; ``poll()`` sleeps until a host writes, and its first bytes
+  are read like any others. Any other read or write error (or a PTY whose slave cannot be
+  held) is logged, counted and ends the session the same way; the shell then looks every
+  ``retry_s`` whether the port works again: the thread never dies.
+- **A serial device may go away** (``device``: ``--port``; a USB adapter unplugged, a
+  socat PTY torn down), or not be there yet at start. Its descriptor is hung up for good
+  (POLLHUP, an empty read, EIO), so the shell closes it, logs the loss once and opens the
+  device's *path* again (:class:`~motorctl.daemon.link.devwatch.DeviceReturn`) the moment
+  ``notice`` (a :class:`~motorctl.daemon.link.devwatch.PathWatch`: inotify on the folders of the
+  path) sees it come back, and on a :class:`~motorctl.daemon.link.serialport.Backoff` schedule
+  meanwhile (50 ms after the loss, doubling up to every second) as the fallback; it opens
+  it without flushing what the new session sent. Motors and positions are kept; the
+  session ends as above.
+- **The host's silence** (``watch``: ``[link] timeout_ms``, off by default): every byte
+  read tells the :class:`~motorctl.daemon.link.silence.SilenceWatch`; its deadline bounds the
+  waits; while the shell does not read (back pressure) the silence does not count, and it
+  is checked only after a read found nothing waiting (the gap's rule); when it passes the
+  watch stops the motors in motion.
+- **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
+  at most ``drain_s`` to leave.
+- **A recorder may listen.** Given one (``motorctld --trace``), every byte run read from the
+  host and every run written to it is handed to it with this loop's own clock reading, on
+  this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.link.recorder`).
+- **Processing time** (``processing``): from a read to its answers written, for every read
+  that produced answers, whichever way its frames were taken (the session's one-frame path
+  or its framer) and whether or not the read began a session.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import logging
+import os
+import select
+import time
+from collections import Counter
+from collections.abc import Callable
+from typing import Protocol
+
+from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
+from motorctl.daemon.link.serialport import Backoff
+from motorctl.daemon.link.session import CommandPort, LinkSession
+from motorctl.daemon.link.session_end import CAUSES, SessionEnds
+from motorctl.daemon.link.silence import SilenceWatch
+from motorctl.motion.latency import LatencyStats
+from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
+
+log = logging.getLogger("motorctl.link")
+
+POLLIN, POLLOUT = select.POLLIN, select.POLLOUT
+POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
+
+WRITE_MAX = 65536  # bytes handed to one write()
+
+SHELL_COUNTERS = (
+    "reads",
+    "read_eagain",
+    "write_eagain",
+    "link_errors",
+    "peer_closed",
+    "peer_reopened",
+    "hangup_partial_bytes",
+    "responses_dropped",
+    *(f"responses_dropped_{cause}" for cause in CAUSES),
+    "backpressure",
+    "device_lost",
+    "device_reopened",
+    "reopen_attempts",
+)
+
+
+class Slave(Protocol):
+    """The PTY's slave side, held while no host has it, its opens and closes watched
+    (daemon.ports.PtySlave)."""
+
+    @property
+    def held(self) -> bool: ...
+
+    @property
+    def events_fd(self) -> int | None: ...  # readable when the slave was opened or closed
+
+    def reopened(self) -> bool: ...  # opened again after a host closed it, since last asked
+
+    def hold(self) -> int: ...  # held from now on; the bytes the last host left, flushed
+
+    def release(self) -> None: ...
+
+    def close(self) -> None: ...
+
+
+class ByteRecorder(Protocol):
+    """Told each byte run the link reads or writes, with the link clock's reading (called on
+    the link thread: it must not block)."""
+
+    def received(self, data: bytes, t: float) -> None: ...
+
+    def sent(self, data: bytes, t: float) -> None: ...
+
+
+class Link:
+    def __init__(
+        self,
+        fd: int,
+        dispatcher: CommandPort,
+        options: CodecOptions,
+        frame_gap_s: float,
+        held_frames: int = 16,
+        clock: Callable[[], float] = time.monotonic,
+        *,
+        backlog_limit: int = 4096,
+        read_size: int = 4096,
+        retry_s: float = 0.02,
+        drain_s: float = 0.5,
+        pty: Slave | None = None,
+        device: Device | None = None,
+        notice: Notice | None = None,
+        watch: SilenceWatch | None = None,
+        backoff: Backoff | None = None,
+        recorder: ByteRecorder | None = None,
+    ) -> None:
+        """``fd``: the PTY's master (with ``pty``, its slave side), the serial device's
+        descriptor (with ``device``; -1: not there yet, served when it appears, ``notice``
+        telling when something changes on its path), or any other descriptor."""
+        self.fd = fd
+        self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
+        self.clock = clock
+        self.read_size = read_size
+        self.out_limit = backlog_limit * RESPONSE_LEN
+        self.retry_s = retry_s
+        self.drain_s = drain_s
+        self.pty = pty
+        self.device = device
+        self.watch = watch or SilenceWatch(0.0)
+        self._watching = self.watch.enabled
+        self.recorder = recorder
+        self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
+        self.away = (  # a device gone (or not there yet): when and how to open it again
+            None
+            if device is None
+            else DeviceReturn(device, notice, backoff or Backoff(), self.counters)
+        )
+        self.processing = LatencyStats(threshold_s=108e-6)
+        self.peer_gone = False
+        self._out = bytearray()
+        self._reading = True
+        self._mask = -1  # the PTY's events registered with serve()'s poller
+        self._opens: int | None = None  # the PTY slave's opens and closes, registered there
+        self.ends = SessionEnds(self.counters, self.clock)
+        self._poller = select.poll()
+        self._wake_r, self._wake_w = os.pipe()
+        os.set_blocking(self._wake_r, False)
+        os.set_blocking(self._wake_w, False)
+        self._stopped = False
+        self.turns = 0
+        if self.away is not None and fd < 0:  # not there at start: served when it appears
+            self.peer_gone = True
+            self.away.awaited(self.clock())
+        elif pty is not None:  # no host yet: hold the slave until one writes
+            self.peer_gone = True
+            pty.hold()
+
+    # -- thread-safe pokes ---------------------------------------------------------
+    def poke(self) -> None:
+        """Make the loop turn once (the watchdog's liveness probe; any thread)."""
+        with contextlib.suppress(BlockingIOError):
+            os.write(self._wake_w, b"\0")
+
+    def wake(self) -> None:
+        """Make the loop re-check a held WaitMoved (called on motor events)."""
+        if self.session.waiting:
+            with contextlib.suppress(BlockingIOError):
+                os.write(self._wake_w, b"\0")
+
+    def stop(self) -> None:
+        """End :meth:`serve` at its next turn, or at once if it has not started (from any
+        thread or a signal handler; a stop before :meth:`serve` is not forgotten)."""
+        self._stopped = True
+        with contextlib.suppress(BlockingIOError):
+            os.write(self._wake_w, b"\1")
+
+    @property
+    def signal_fd(self) -> int:
+        """The wake-up pipe's write end, for ``signal.set_wakeup_fd``: the C-level signal
+        handler writes a byte there, so a signal wakes :meth:`serve`'s ``poll()`` even when
+        its Python handler (which calls :meth:`stop`) cannot run before the loop sleeps."""
+        return self._wake_w
+
+    # -- the loop --------------------------------------------------------------------
+    def serve(self) -> None:
+        """Serve until :meth:`stop`.
+
+        A signal's Python handler runs in the main thread only between bytecodes: when the
+        signal arrives just before this loop's ``poll()`` (or is taken by another thread),
+        the handler runs only once ``poll()`` returns, and an idle link with the host's port
+        open has no timeout. With :attr:`signal_fd` as the signal wake-up descriptor the
+        signal's own byte ends that ``poll()``, and the handler runs right after it."""
+        poller = self._poller = select.poll()
+        poller.register(self._wake_r, POLLIN)
+        self._opens = self.pty.events_fd if self.pty is not None else None
+        if self._opens is not None:  # watched while a session is open
+            poller.register(self._opens, 0 if self.peer_gone else POLLIN)
+        self._mask = -1
+        while not self._stopped:
+            self.turn(poller)
+            self.turns += 1  # the watchdog's evidence that the loop is not hung
+        self.ends.say()
+        self._drain()
+
+    def turn(self, poller: select.poll) -> None:
+        """One turn of the loop: answer what is due, write, wait, read, watch the silence."""
+        session = self.session
+        if session.waiting:
+            session.poll(self.clock())
+        if self._watching:
+            self.watch.hold(session.waiting, self.clock())
+        self._flush()
+        if self.peer_gone and not (self.pty is not None and self.pty.held):
+            if self.device is not None:
+                self._look_for_device()
+            else:
+                self._look_for_peer()
+            if self._watching:
+                self.watch.check(self.clock())
+            return
+        reading = self._listen(poller)
+        t_enter = self.clock()
+        timeout = self.ends.bound(t_enter, self._timeout_ms(t_enter, reading))
+        events, opened = self._wait(poller, timeout)
+        # The slave's opens and closes first: a host that closed the port and opened it
+        # again before this poll (no POLLHUP seen) has ended its session all the same, and
+        # the bytes it sends since are the next session's. What is there to read now is
+        # taken as the new host's (the old one's were read as they came, unless it wrote
+        # and closed within the moment the new one opened and wrote: that cannot be told
+        # apart). The port's own events are looked at from the next turn on (holding the
+        # slave has changed them).
+        if opened and self._reopened():
+            self._hangup("closed")
+            self._read(None)  # the new host's first bytes, often there already
+            return
+        if events & POLLIN:
+            self._read(None)
+        elif events & POLLGONE:
+            if self.peer_gone and self.pty is not None:  # the held slave failed us
+                self.pty.release()  # look every retry_s from now on
+            else:
+                self._hangup("closed")
+        elif reading:
+            self._read(t_enter)
+        if self._watching:  # after the read: bytes that waited in the kernel were heard
+            self.watch.check(self.clock())
+
+    def _listen(self, poller: select.poll) -> bool:
+        """Whether to read this turn: not while the host has too much to read back (back
+        pressure; the silence does not count meanwhile). The port's events are registered
+        with ``poller`` accordingly."""
+        reading = self.session.wants_input() and len(self._out) < self.out_limit
+        if reading != self._reading:
+            self._reading = reading
+            if not reading:
+                self.counters["backpressure"] += 1
+            if self._watching:
+                self.watch.listening(reading, self.clock())
+        mask = (POLLIN if reading else 0) | (POLLOUT if self._out else 0)
+        if mask != self._mask:  # a new mask makes poll() rebuild its descriptor array
+            self._mask = mask
+            poller.register(self.fd, mask)
+        return reading
+
+    def _wait(self, poller: select.poll, timeout: float | None) -> tuple[int, bool]:
+        """``poll()``: the port's events, and whether the PTY's slave was opened or closed
+        (a wake-up's bytes are taken)."""
+        events = 0
+        opened = False
+        for ready, what in poller.poll(timeout):
+            if ready == self.fd:
+                events = what
+            elif ready == self._wake_r:
+                with contextlib.suppress(BlockingIOError):
+                    os.read(self._wake_r, 4096)
+            else:  # the slave was opened or closed
+                opened = True
+        return events, opened
+
+    def _deadline(self) -> float | None:
+        """When the loop must turn at the latest: a held WaitMoved's timeout, the silence."""
+        deadline = self.session.deadline()
+        if self._watching:
+            silence = self.watch.deadline()
+            if silence is not None and (deadline is None or silence < deadline):
+                deadline = silence
+        return deadline
+
+    def _timeout_ms(self, now: float, reading: bool) -> float | None:
+        deadline = self._deadline()
+        gap = self.session.gap_left() if reading else None
+        if gap is None:
+            if deadline is None:
+                return None
+            left = deadline - now
+        else:
+            left = gap if deadline is None else min(gap, deadline - now)
+        return max(0.0, left) * 1000.0
+
+    def _read(self, watched_since: float | None) -> None:
+        """Read what is there. With ``watched_since`` the poll saw no input: a read that finds
+        nothing confirms that the line was silent from then until the clock was read."""
+        now = self.clock()
+        try:
+            data = os.read(self.fd, self.read_size)
+        except (BlockingIOError, InterruptedError):
+            self.counters["read_eagain"] += 1
+            if watched_since is not None:
+                self.session.idle(now - watched_since)
+            return
+        except OSError as exc:
+            self._hangup("closed" if exc.errno == errno.EIO else f"read failed: {exc}")
+            return
+        if not data:  # end of file: nobody is on the other side
+            self._hangup("closed")
+            return
+        if self._reopened():  # these bytes came after a host closed the port and another
+            self._hangup("closed")  # opened it: the next session's (see turn())
+        self._take(data, now)
+
+    def _reopened(self) -> bool:
+        """Whether, during the open session, the PTY was closed by a host and opened again
+        (its events are taken in any case). Asked before the bytes read are taken: a host's
+        open is reported before anything it writes can be read, so no new host's byte
+        joins the old session, however the poll and the read fell."""
+        pty = self.pty
+        reopened = pty is not None and pty.events_fd is not None and pty.reopened()
+        if self._opens is not None and (pty is None or pty.events_fd is None):
+            self._poller.unregister(self._opens)  # no longer watched: before its number
+            self._opens = None  # can be reused
+        return reopened and not self.peer_gone
+
+    def _take(self, data: bytes, now: float) -> None:
+        """Bytes read at ``now``: to the session, and their answers to the port; the
+        processing time of every read that produced answers is recorded."""
+        opening = self.peer_gone
+        if opening:  # a new host's first bytes (found by a poll or a look)
+            self._open_session()
+        self._received(data, now)
+        if self._flush():
+            self.processing.record_ns(round((self.clock() - now) * 1e9))
+        if opening and self.pty is not None:  # after its first answers: they come first
+            self.pty.release()
+
+    def _flush(self) -> bool:
+        """Write what the descriptor takes without blocking; True if anything new was queued."""
+        data = self.session.take_output()
+        if data:
+            if self.peer_gone:  # nothing is owed to nobody; kept for safety
+                self.ends.drop("unsent", len(data) // RESPONSE_LEN)
+                return False
+            self._out += data
+        out = self._out
+        while out:
+            try:  # a bytearray is written as it is, without a copy, when it is not too long
+                n = os.write(self.fd, out if len(out) <= WRITE_MAX else out[:WRITE_MAX])
+            except BlockingIOError:
+                self.counters["write_eagain"] += 1
+                break
+            except InterruptedError:
+                continue
+            except OSError as exc:
+                self._hangup("closed" if exc.errno == errno.EIO else f"write failed: {exc}")
+                break
+            if self.recorder is not None:
+                self.recorder.sent(bytes(out[:n]), self.clock())
+            del out[:n]
+        return bool(data)
+
+    def _hangup(self, why: str) -> None:
+        """The host's side is gone (``why``: "closed", or the error): its session ends."""
+        if self.peer_gone:
+            return
+        self.peer_gone = True
+        if self.device is not None:
+            if why != "closed":
+                self.counters["link_errors"] += 1
+            self._lose_device("it hung up" if why == "closed" else why)
+        elif why == "closed":
+            self.counters["peer_closed"] += 1
+        else:
+            self.counters["link_errors"] += 1
+            log.error("link: %s; retrying every %.0f ms", why, self.retry_s * 1000)
+        self._end_session(
+            "its serial device went away"
+            if self.device is not None
+            else "the host closed the port"
+            if why == "closed"
+            else "the port failed"
+        )
+
+    def _end_session(self, how: str) -> None:
+        """Drop and count what was owed to the host whose session ended (``how``)."""
+        ended = self.session.end()
+        unsent = ended.unsent + -(-len(self._out) // RESPONSE_LEN)  # a part-sent one too
+        self._out.clear()
+        if self.pty is not None and self.device is None:
+            unsent += -(-self.pty.hold() // RESPONSE_LEN)  # left unread in the kernel
+        self.ends.ended(how, ended, unsent)
+        if self._opens is not None:  # no session: a host's open need not wake the loop
+            self._poller.modify(self._opens, 0)
+
+    def _open_session(self) -> None:
+        """A host is there again (a new session): its opens and closes are watched again;
+        the slave held meanwhile is let go once its first bytes are answered (:meth:`_take`)."""
+        self.peer_gone = False
+        if self._opens is not None:
+            self._poller.modify(self._opens, POLLIN)
+        self.counters["peer_reopened"] += 1
+        log.debug("a host opened the port")
+
+    def _look_for_peer(self) -> None:
+        """No host, and no held slave to wait on: wait ``retry_s`` (or a wake-up), then see
+        whether the port works again."""
+        deadline = self._deadline()
+        wait = self.retry_s
+        if deadline is not None:
+            wait = max(0.0, min(wait, deadline - self.clock()))
+        with contextlib.suppress(InterruptedError):
+            select.select([self._wake_r], [], [], wait)
+        with contextlib.suppress(BlockingIOError):
+            os.read(self._wake_r, 4096)
+        if self._stopped:
+            return
+        if self.pty is not None:
+            self.ends.drop("unsent", -(-self.pty.hold() // RESPONSE_LEN))
+            if self.pty.held:
+                return  # held again: the next turns wait for the host's first byte
+        probe = select.poll()
+        probe.register(self.fd, POLLIN)
+        events = dict(probe.poll(0)).get(self.fd, 0)
+        if events & POLLGONE and not events & POLLIN:
+            return
+        now = self.clock()
+        try:
+            data = os.read(self.fd, self.read_size) if events & POLLIN else b""
+        except (BlockingIOError, InterruptedError):
+            data = b""
+        except OSError:  # still failing: counted once, when it began
+            return
+        if events & POLLGONE and not data:
+            return
+        self._open_session()
+        if data:
+            self._take(data, now)
+
+    def _received(self, data: bytes, now: float) -> None:
+        """A run of bytes read at ``now``: it keeps the link alive, the trace records it,
+        the session takes it."""
+        self.counters["reads"] += 1
+        if self._watching:
+            self.watch.heard(now)
+        if self.recorder is not None:
+            self.recorder.received(data, now)
+        self.session.receive(data, now)
+
+    # -- a serial device that went away (or is not there yet) ------------------------------
+    def _lose_device(self, why: str) -> None:
+        """Close the dead descriptor; open the path again when it is back."""
+        with contextlib.suppress(KeyError, ValueError):
+            self._poller.unregister(self.fd)
+        self._mask = -1
+        assert self.away is not None
+        self.away.lost(why, self.clock())  # closes the device
+        self.fd = -1
+
+    def _look_for_device(self) -> None:
+        """Device gone: wait for news on its path, the next attempt, a deadline or a
+        wake-up; then try, if it is time or something changed."""
+        away = self.away
+        assert away is not None
+        now = self.clock()
+        wait = away.wait_s(now)
+        deadline = self._deadline()
+        if deadline is not None:
+            wait = min(wait, deadline - now)
+        ready: list[int] = []
+        with contextlib.suppress(InterruptedError):
+            ready = select.select([self._wake_r, *away.fds], [], [], max(0.0, wait))[0]
+        with contextlib.suppress(BlockingIOError):
+            os.read(self._wake_r, 4096)
+        if self._stopped:
+            return
+        fd = away.look(ready, self.clock())
+        if fd is not None:
+            self.fd = fd
+            self._mask = -1
+            self.peer_gone = False
+
+    def _drain(self) -> None:
+        """After stop(): give unsent responses at most ``drain_s`` to leave."""
+        if self.fd < 0:  # a serial device that is gone: nothing can leave
+            return
+        end = self.clock() + self.drain_s
+        poller = select.poll()
+        poller.register(self.fd, POLLOUT)
+        self._flush()
+        while self._out and not self.peer_gone:
+            left = end - self.clock()
+            if left <= 0:
+                self.ends.drop("shutdown", -(-len(self._out) // RESPONSE_LEN))
+                log.warning("shutdown: %d unsent response bytes dropped", len(self._out))
+                self._out.clear()
+                break
+            poller.poll(left * 1000.0)
+            self._flush()
+
+    def status(self) -> dict[str, object]:
+        session = self.session
+        counts: dict[str, object] = dict(session.counters)
+        counts.update(self.counters)
+        counts.update(self.watch.counters)
+        peer = "open"
+        if self.peer_gone:
+            peer = "closed" if self.away is None else "gone" if self.away.ever_open else "waiting"
+        out: dict[str, object] = {
+            "counters": counts,
+            "processing": self.processing.summary(),
+            "held": session.held,
+            "waiting": session.waiting,
+            "peer": peer,
+            "unsent_bytes": len(self._out),
+            "recent": session.describe_recent(),
+        }
+        if self.device is not None:
+            out["device"] = self.device.path
+        return out
+
+    def close(self) -> None:
+        os.close(self._wake_r)
+        os.close(self._wake_w)
+        if self.pty is not None:
+            self.pty.close()
+        if self.away is not None:
+            self.away.close()

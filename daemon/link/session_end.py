@@ -1,0 +1,103 @@
+"""The end of a host's session, as the link's loop records it: what was owed to the host
+and dropped, counted by cause, and said in the log a moment later.
+
+A host's session ends when it closes the port or its serial device goes away
+(daemon/link/loop.py decides when; daemon/link/session.py drops what was owed). Every
+answer dropped is counted in the link's counters, in ``responses_dropped`` and in
+``responses_dropped_<cause>``: ``unsent`` (answers written or due that the host never
+read), ``wait`` (a held WaitMoved's answer), ``held`` (the answers of the frames kept behind
+it) and ``shutdown`` (answers still unsent when the daemon stopped). A session that left
+something is logged at INFO, not at once but once the line has been quiet for
+``SAY_AFTER_S`` (the log costs more than a command: a new host's first command, maybe on
+its way, is answered first); one that left nothing at DEBUG.
+
+Threads: the link thread's, like the loop that owns it; it blocks on nothing.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import Counter
+from collections.abc import Callable
+
+from motorctl.daemon.link.session import Ended
+
+log = logging.getLogger("motorctl.link")
+
+SAY_AFTER_S = 0.02  # a session's end is logged this long after it
+
+#: why an answer owed to a host was dropped: responses_dropped_<cause>
+CAUSES = ("unsent", "wait", "held", "shutdown")
+
+
+class SessionEnds:
+    """Counts what ended sessions left in ``counters`` (the link's) and says it in the log
+    a moment later (on the link thread's ``clock``)."""
+
+    def __init__(self, counters: Counter[str], clock: Callable[[], float]) -> None:
+        self.counters = counters
+        self.clock = clock
+        self._later: list[tuple[str, Ended, int]] = []  # session ends to log, a moment later
+        self._later_at = 0.0
+
+    def drop(self, cause: str, answers: int) -> None:
+        """``answers`` owed to a host dropped, for ``cause`` (one of :data:`CAUSES`)."""
+        if answers:
+            self.counters["responses_dropped"] += answers
+            self.counters[f"responses_dropped_{cause}"] += answers
+
+    def ended(self, how: str, ended: Ended, unsent: int) -> None:
+        """A session ended (``how``, for the log): what the session dropped (``ended``) and
+        ``unsent`` answers that were written or due, counted; said a moment later."""
+        self.counters["hangup_partial_bytes"] += ended.partial_bytes
+        self.drop("unsent", unsent)
+        self.drop("wait", ended.wait)
+        self.drop("held", ended.held)
+        if unsent or ended.wait or ended.held or ended.partial_bytes:
+            # said a moment later (the log costs more than a command): a new host's first
+            # command, maybe on its way, is answered first
+            self._later_at = self.clock()
+            self._later.append((how, ended, unsent))
+        else:
+            log.debug("%s; serving the next host", how)
+
+    def bound(self, now: float, timeout_ms: float | None) -> float | None:
+        """Say what is due by ``now``; ``timeout_ms`` (a poll's, None: none) shortened to
+        when the next saying is due. Said once the line has been quiet a moment, not before
+        a new host's first command."""
+        if not self._later:
+            return timeout_ms
+        left = (self._later_at + SAY_AFTER_S - now) * 1000.0
+        if left <= 0:
+            self.say()
+        elif timeout_ms is None or left < timeout_ms:
+            return left
+        return timeout_ms
+
+    def say(self) -> None:
+        """Log every session end not said yet."""
+        for how, ended, unsent in self._later:
+            log.info(
+                "%s: dropped what its host did not read (%s); serving the next host",
+                how,
+                describe_ended(ended, unsent),
+                extra={"EVENT": "session_ended"},
+            )
+        self._later.clear()
+
+
+def describe_ended(ended: Ended, unsent: int) -> str:
+    """What an ended session left, in words, for the log."""
+    parts = []
+    if unsent:
+        parts.append(f"{unsent} answers written or due")
+    if ended.wait:
+        parts.append("a held WaitMoved's answer")
+    if ended.held:
+        kept = f"{ended.held} frames kept behind it"
+        if ended.discarded:
+            kept += f" ({ended.discarded} commands not executed)"
+        parts.append(kept)
+    if ended.partial_bytes:
+        parts.append(f"{ended.partial_bytes} bytes of an incomplete frame")
+    return ", ".join(parts)

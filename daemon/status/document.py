@@ -1,0 +1,198 @@
+"""The status document, built in this one module: what ``motorctld --status``, the status
+socket's subscribers, systemd's STATUS= line, the metrics and the monitor all read
+(docs/status.md says what each field means).
+
+:func:`status_document` builds it from the parts of a running daemon (:class:`Parts`, the
+assembler's ``Daemon`` in practice): its motors, step executor, link, trace, state file,
+pins and DC motor; :func:`summary_line` turns a document into systemd's one-line STATUS=.
+
+Threads: :func:`status_document` runs on the status server's thread and the STATUS= line's
+(daemon/service.py), never holding the motion lock: each field is read whole from a
+snapshot of its owner (the executor's counters and histogram are its own snapshots), so a
+status read never delays planning, let alone a step. :func:`summary_line` is pure.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, Protocol
+
+from motorctl import __version__
+from motorctl.daemon.config import Config
+from motorctl.daemon.dispatcher import Dispatcher
+from motorctl.daemon.link.loop import Link
+from motorctl.daemon.link.recorder import TraceRecorder
+from motorctl.daemon.state.persistence import Persistence
+from motorctl.hal.interfaces import HalError, Hardware, Pin
+from motorctl.motion.dc import DcMotor
+from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executors.base import Executor
+from motorctl.motion.executors.chip_ramp import RampExecutor
+from motorctl.motion.profile import Trajectory
+
+
+class Parts(Protocol):
+    """What the document is read from (the assembler's ``Daemon``)."""
+
+    @property
+    def config(self) -> Config: ...
+
+    @property
+    def hw(self) -> Hardware: ...
+
+    @property
+    def engine(self) -> MotionEngine: ...
+
+    @property
+    def dispatcher(self) -> Dispatcher: ...
+
+    @property
+    def persistence(self) -> Persistence: ...
+
+    @property
+    def link(self) -> Link | None: ...
+
+    @property
+    def trace(self) -> TraceRecorder | None: ...
+
+    @property
+    def started(self) -> float: ...  # time.monotonic() at the start
+
+
+def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
+    """A snapshot for the status socket, taken WITHOUT the motion lock: each field is
+    read whole (the executor's counters and histogram are its own snapshots), so a
+    status read never delays planning, let alone a step. Its cost is bounded (the
+    lateness percentiles come from the histogram's blocks), except ``histogram``: the
+    step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
+    up to 20,001), for the benchmarks that ask for it."""
+    executor = parts.engine.executor
+    motors: list[dict[str, Any]] = [
+        {
+            "index": m.index,
+            "name": m.params.name,
+            "state": m.state.value,
+            "position": m.position,
+            "queued": len(m.queue),
+            "fault": m.fault,
+            "position_lost": m.position_lost,
+            "waypoints": len(m.waypoints),
+            "faults": dict(m.faults),
+            "timing": {
+                **executor.motor_timing(m.index),
+                "microsteps": m.params.microsteps,
+                "max_lag_full_steps": m.params.max_lag_full_steps,
+            },
+            "soft_stops": {
+                "count": m.soft_stops,
+                "takeover_ms": [round(t * 1000, 3) for t in m.takeover_s],
+                "takeover_steps": list(m.takeover_steps),
+            },
+        }
+        for m in list(parts.engine.motors)
+    ]
+    now = parts.engine.clock.now()
+    for doc, m in zip(motors, parts.engine.motors, strict=True):
+        doc["speed"] = motor_speed(m.traj, executor.motor_time(m.index, now))
+    health = executor.health()
+    steps = dict(health.latency)
+    steps.update(health.counters)
+    stats = executor.step_lateness()
+    if histogram and stats is not None:  # the step executor's, with or without ramps
+        steps["histogram_us"] = stats.histogram()
+    out: dict[str, Any] = {
+        "version": __version__,
+        "motors": motors,
+        "steps": steps,
+        "executor": {
+            "alive": health.alive,
+            "reason": health.reason,
+            "kind": step_executor_kind(parts.config, executor),
+            "core": executor.step_core(),
+            "pid": getattr(executor, "pid", None),
+        },
+        "clamped": dict(parts.dispatcher.clamped),
+        "hard_stops": parts.engine.stop_wait_status(),
+        "state": parts.persistence.status(),
+        "pins": pin_status(parts.hw.pins),
+        "dc": dc_status(parts.engine.dc, now),
+    }
+    mono = time.monotonic()
+    out.update(
+        monotonic_s=mono, uptime_s=round(mono - parts.started, 3), unix_s=round(time.time(), 3)
+    )
+    if parts.link is not None:
+        out["link"] = parts.link.status()
+    if parts.trace is not None:
+        out["trace"] = parts.trace.status()
+    drivers = [d for s in parts.hw.steppers if (d := s.driver.stats()) is not None]
+    if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
+        out["drivers"] = drivers
+    return out
+
+
+def motor_speed(traj: Trajectory | None, now: float) -> float:
+    """The planned speed at ``now`` in step/s, signed (0 without a trajectory)."""
+    return 0.0 if traj is None else round(traj.velocity(now), 1)
+
+
+def pin_status(pins: dict[int, Pin]) -> list[dict[str, Any]]:
+    """Each IO pin: number, output or not, level (an input is read now; None if that
+    failed, ``error`` says why)."""
+    out: list[dict[str, Any]] = []
+    for number, pin in sorted(pins.items()):
+        entry: dict[str, Any] = {"number": number, "output": pin.is_output}
+        try:
+            entry["level"] = pin.read()
+        except (HalError, OSError) as exc:
+            entry.update(level=None, error=str(exc))
+        out.append(entry)
+    return out
+
+
+def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
+    """The DC motor's bridge state and the time left of its run; None: no DC motor."""
+    if dc is None:
+        return None
+    deadline = dc.deadline
+    return {
+        "state": dc.bridge.state.value,
+        "running": deadline is not None,
+        "left_s": None if deadline is None else round(max(0.0, deadline - now), 3),
+    }
+
+
+def step_executor_kind(config: Config, executor: Executor) -> str:
+    """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
+    TMC5160's own ramp (no step executor at all)."""
+    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
+
+
+def summary_line(status: dict[str, Any]) -> str:
+    """systemd's STATUS=: motors moving/faulted/lost, frames served, errors, state file."""
+    motors = status.get("motors", [])
+    moving = sum(1 for m in motors if m.get("state") not in ("idle", "fault"))
+    faulted = [str(m.get("index")) for m in motors if m.get("fault")]
+    lost = sum(1 for m in motors if m.get("position_lost"))
+    parts = [f"{len(motors)} motors: {moving} moving"]
+    parts[0] += f", faulted {','.join(faulted)}" if faulted else ", none faulted"
+    if lost:
+        parts[0] += f", {lost} to home"
+    link = status.get("link")
+    if isinstance(link, dict):
+        counters = link.get("counters", {})
+        errors = sum(
+            v
+            for k, v in counters.items()
+            if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_"))
+        )
+        parts.append(f"{counters.get('responses', 0)} frames served, {errors} errors")
+        device = link.get("device") or "?"
+        if link.get("peer") == "gone":
+            parts.append(f"SERIAL DEVICE {device} GONE, reopening it when it is back")
+        elif link.get("peer") == "waiting":
+            parts.append(f"WAITING FOR SERIAL DEVICE {device} (not there yet)")
+    state = status.get("state")
+    if isinstance(state, dict) and not state.get("ok", True):
+        parts.append("STATE NOT SAVED: " + str(state.get("last_error")))
+    return "; ".join(parts)

@@ -1,0 +1,474 @@
+"""The status socket's server: connect, send a request line, receive one JSON document,
+done; or subscribe and receive one JSON document per line for as long as you stay.
+
+Its clients are daemon/status/reader.py (the same protocol: request words, one JSON
+document per line; the constants here are theirs too); the document itself is built by
+daemon/status/document.py.
+
+The request is one line of words, ``\n``-terminated: empty for the status, ``histogram`` for
+the status with the full step-lateness histogram (``steps.histogram_us``, up to 20,001 bins:
+built and encoded only when asked), ``subscribe [PERIOD_MS]`` for a stream of updates
+(docs/status.md): the status at once, then again whenever it changed, looked at every
+PERIOD_MS (default ``SUBSCRIBE_PERIOD_S``) and at once when a motor starts, stops or faults
+(:meth:`StatusServer.poke`), at least every ``HEARTBEAT_S`` even when nothing changed. A
+client that sends nothing gets the plain status after ``REQUEST_WAIT_S`` (``socat -
+UNIX-CONNECT:status.sock`` works).
+
+Threads: :class:`StatusServer` owns one thread that serves every client with non-blocking
+sockets from one selector: it blocks only in ``select()``, so a client that is slow to ask
+or to read holds up nobody (it is dropped after ``SEND_TIMEOUT_S``); at most
+``MAX_CLIENTS`` at once, the rest wait in the listen backlog; of these at most
+``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot; when they are all
+taken, a new subscriber takes the place of the oldest one that does not read its updates
+(:meth:`StatusServer._evict_one`). A subscriber that has not taken an update within
+``SEND_TIMEOUT_S`` is dropped; while one is still being
+sent, newer ones are not queued behind it (it gets the state of its next turn). An
+``accept()`` error other than the socket being closed is logged and retried after a pause,
+never the end of the server. ``status()`` is called on that thread and takes no lock of the
+motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import json
+import logging
+import math
+import os
+import selectors
+import socket
+import struct
+import termios
+import threading
+import time
+from pathlib import Path
+from typing import Any, Protocol
+
+from motorctl.daemon.state.files import bind_socket
+
+log = logging.getLogger("motorctl.status")
+
+SEND_TIMEOUT_S = 2.0
+REQUEST_WAIT_S = 0.5
+ACCEPT_RETRY_S = 0.2
+MAX_CLIENTS = 16
+MAX_REQUEST = 256
+REQUESTS = ("histogram", "subscribe [PERIOD_MS]")
+MAX_SUBSCRIBERS = 8
+SUBSCRIBE_PERIOD_S = 0.25
+SUBSCRIBE_MIN_GAP_S = 0.02  # motor events make updates no more often than this
+PERIOD_MS_RANGE = (20, 60_000)
+HEARTBEAT_S = 5.0
+#: fields that change at every look without anything happening: not a reason for an update
+VOLATILE = ("monotonic_s", "uptime_s", "unix_s")
+VOLATILE_STEPS = ("progress",)
+
+
+class StatusSource(Protocol):
+    """Builds the status document; ``histogram``: with ``steps.histogram_us``."""
+
+    def __call__(self, histogram: bool = False) -> dict[str, Any]: ...
+
+
+class _Subscription:
+    __slots__ = ("due", "key", "last_len", "period", "sent_at", "since")
+
+    def __init__(self, period: float, since: float) -> None:
+        self.period = period
+        self.since = since  # when it subscribed: the oldest is evicted first
+        self.due = 0.0  # when to look for a change next
+        self.key: bytes | None = None  # the last update sent, volatile fields left out
+        self.sent_at = -math.inf
+        self.last_len = 0  # the last update's length
+
+
+def unread_bytes(sock: socket.socket) -> int:
+    """What the peer has not read yet of what was sent on ``sock`` (Linux: SIOCOUTQ, which
+    counts the kernel's buffers, a little more than the bytes); 0 where it cannot tell."""
+    try:
+        raw = fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0")
+    except OSError:
+        return 0
+    value: int = struct.unpack("i", raw)[0]
+    return value
+
+
+class _Client:
+    __slots__ = ("deadline", "events", "out", "request", "sock", "sub")
+
+    def __init__(self, sock: socket.socket, deadline: float) -> None:
+        self.sock = sock
+        self.request = b""
+        self.out: memoryview | None = None  # the answer, once the request is in
+        self.deadline = deadline
+        self.events = 0  # what the selector watches for it (0: not registered)
+        self.sub: _Subscription | None = None  # a subscriber's stream
+
+
+class _Request:
+    """A parsed request line: what to answer, or the error to answer with."""
+
+    __slots__ = ("error", "histogram", "period")
+
+    def __init__(
+        self, histogram: bool = False, period: float | None = None, error: str | None = None
+    ) -> None:
+        self.histogram = histogram
+        self.period = period  # a subscription's period in seconds; None: one document
+        self.error = error
+
+
+def parse_request(request: bytes) -> _Request:
+    """The request line's meaning (docs/status.md)."""
+    if len(request) > MAX_REQUEST:
+        return _Request(
+            error=f"unknown status request: a request line too long; known: {', '.join(REQUESTS)}"
+        )
+    words = request.split(b"\n", 1)[0].decode("ascii", "replace").split()
+    if words[:1] == ["subscribe"]:
+        lo, hi = PERIOD_MS_RANGE
+        if len(words) == 1:
+            return _Request(period=SUBSCRIBE_PERIOD_S)
+        if len(words) == 2 and words[1].isdigit() and lo <= int(words[1]) <= hi:
+            return _Request(period=int(words[1]) / 1000.0)
+        return _Request(
+            error=f"subscribe: PERIOD_MS must be a whole number of milliseconds "
+            f"from {lo} to {hi}, got {' '.join(words[1:])!r}"
+        )
+    unknown = [w for w in words if w != "histogram"]
+    if unknown:
+        return _Request(
+            error=f"unknown status request: {' '.join(unknown)}; known: {', '.join(REQUESTS)}"
+        )
+    return _Request(histogram="histogram" in words)
+
+
+def stable_view(doc: dict[str, Any]) -> dict[str, Any]:
+    """``doc`` without the fields that change at every look (the clock, the executor's
+    turns): what decides whether a subscriber gets an update."""
+    view = {k: v for k, v in doc.items() if k not in VOLATILE}
+    steps = view.get("steps")
+    if isinstance(steps, dict):
+        view["steps"] = {k: v for k, v in steps.items() if k not in VOLATILE_STEPS}
+    return view
+
+
+class StatusServer:
+    def __init__(self, path: Path, status: StatusSource) -> None:
+        """Bind ``path`` (the caller holds the instance lock: a socket there is stale;
+        anything else there is set aside, daemon/state/files.py). OSError when it cannot."""
+        self.path = path
+        self.status = status
+        self.errors = 0
+        self.served = 0
+        self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
+        # 0660: the service's group may ask (connecting needs write)
+        self._sock = bind_socket(path, 0o660)
+        st = os.lstat(path)
+        self.identity = (st.st_dev, st.st_ino, st.st_ctime_ns)
+        self._sock.listen(MAX_CLIENTS)
+        self._sock.setblocking(False)
+        self._wake_r, self._wake_w = socket.socketpair()
+        self._wake_w.setblocking(False)  # poke() from the step thread never blocks
+        self.subscribers = 0
+        self._closed = threading.Event()
+        self._clients: dict[int, _Client] = {}
+        self._sel = selectors.DefaultSelector()
+        self._accepting = False
+        self._resume_accept = 0.0
+        self._thread = threading.Thread(target=self._run, name="motorctl-status", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def poke(self) -> None:
+        """Something changed that subscribers should see at once (a motor started, stopped
+        or faulted). Any thread, never blocks, costs nothing without subscribers."""
+        if self.subscribers:
+            with contextlib.suppress(OSError):
+                self._wake_w.send(b"p")
+
+    # -- the server's thread -----------------------------------------------------------
+    # Few system calls per read: each one lets the step thread (thread executor) take the
+    # GIL, and getting it back costs up to a switch interval. A client that asked at once
+    # is answered straight from accept(), without the selector.
+    def _run(self) -> None:
+        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+        self._accept_on(True)
+        try:
+            while not self._closed.is_set():
+                now = time.monotonic()
+                due = [
+                    c.sub.due if c.sub is not None and c.out is None else c.deadline
+                    for c in self._clients.values()
+                ]
+                if not self._accepting and len(self._clients) < MAX_CLIENTS:
+                    due.append(self._resume_accept)
+                timeout = max(0.0, min(due) - now) if due else None
+                for key, _ in self._sel.select(timeout):
+                    if key.fileobj is self._wake_r:
+                        if self._closed.is_set():
+                            return
+                        self._poked()
+                    elif key.fileobj is self._sock:
+                        self._accept()
+                    elif isinstance(key.data, _Client):
+                        self._serve(key.data)
+                self._expire(time.monotonic())
+        finally:
+            for client in list(self._clients.values()):
+                self._drop(client)
+            self._sel.close()
+
+    def _accept_on(self, on: bool) -> None:
+        if on and not self._accepting:
+            self._sel.register(self._sock, selectors.EVENT_READ, None)
+        elif not on and self._accepting:
+            self._sel.unregister(self._sock)
+        self._accepting = on
+
+    def _accept(self) -> None:
+        """One client (more pending: the selector says so again at once)."""
+        try:
+            conn, _ = self._sock.accept()
+        except (BlockingIOError, InterruptedError):
+            return
+        except OSError as exc:
+            if self._closed.is_set():
+                return
+            self.errors += 1
+            log.warning("status socket %s: accept failed: %s; retrying", self.path, exc)
+            self._accept_on(False)  # e.g. EMFILE: the listener stays readable
+            self._resume_accept = time.monotonic() + ACCEPT_RETRY_S
+            return
+        conn.setblocking(False)
+        client = _Client(conn, time.monotonic() + REQUEST_WAIT_S)
+        self._clients[conn.fileno()] = client
+        if len(self._clients) >= MAX_CLIENTS:
+            self._accept_on(False)  # full: the rest wait in the backlog
+        self._serve(client)
+
+    def _poked(self) -> None:
+        """Subscribers look for a change now (at most every ``SUBSCRIBE_MIN_GAP_S``)."""
+        with contextlib.suppress(OSError):
+            self._wake_r.recv(4096)
+        now = time.monotonic()
+        for client in self._clients.values():
+            sub = client.sub
+            if sub is not None:
+                sub.due = min(sub.due, max(now, sub.sent_at + SUBSCRIBE_MIN_GAP_S))
+
+    def _serve(self, client: _Client) -> None:
+        """Take the request, answer it, as far as it goes without blocking; then let the
+        selector watch for what it waits for."""
+        if client.sub is not None:
+            self._serve_subscriber(client)
+            return
+        if client.out is None:
+            try:
+                chunk = client.sock.recv(MAX_REQUEST)
+            except (BlockingIOError, InterruptedError):
+                self._watch(client, selectors.EVENT_READ)
+                return
+            except OSError:
+                self._drop(client)
+                return
+            client.request += chunk
+            if chunk and b"\n" not in client.request and len(client.request) <= MAX_REQUEST:
+                self._watch(client, selectors.EVENT_READ)
+                return
+            self._answer(client)  # a line, the end of input, or too long
+            if client.sub is not None or client.out is None:
+                return  # a subscriber (its first update is on its way), or dropped
+        self._send(client)
+
+    def _answer(self, client: _Client) -> None:
+        request = parse_request(client.request)
+        if request.period is not None and request.error is None:
+            if self.subscribers >= MAX_SUBSCRIBERS:
+                self._evict_one()
+            if self.subscribers >= MAX_SUBSCRIBERS:
+                request.error = (
+                    f"too many subscribers ({MAX_SUBSCRIBERS}), each reading its updates: the "
+                    "daemon is full; close one, or read the status once"
+                )
+            else:
+                self.subscribers += 1
+                client.sub = _Subscription(request.period, time.monotonic())
+                self._update(client, time.monotonic(), None)
+                return
+        client.out = memoryview(self._encode(request))
+        client.deadline = time.monotonic() + SEND_TIMEOUT_S
+
+    # -- subscribers --------------------------------------------------------------------
+    def _evict_one(self) -> None:
+        """Full, and a subscriber asks: the oldest subscriber that does not read its updates
+        goes, so that one that reads gets in. Not reading: an update still being sent (its
+        socket is full), or about two updates or more lying unread in its socket (a reader
+        takes each as it comes). A client that subscribes and never reads, however quickly
+        it comes back, thus never keeps a monitor out."""
+        behind = [
+            c
+            for c in self._clients.values()
+            if c.sub is not None
+            and (c.out is not None or unread_bytes(c.sock) > 2 * (c.sub.last_len + 1024))
+        ]
+        if not behind:
+            return
+        oldest = min(behind, key=lambda c: c.sub.since if c.sub is not None else 0.0)
+        self.evicted += 1
+        log.warning(
+            "status socket %s: %d subscribers, the most there may be: closed the oldest one "
+            "that does not read its updates to let a new one in (%d so far)",
+            self.path,
+            MAX_SUBSCRIBERS,
+            self.evicted,
+        )
+        self._drop(oldest)
+
+    def _serve_subscriber(self, client: _Client) -> None:
+        """Readable: the subscriber closed (or says something, which is ignored);
+        writable: the rest of its update."""
+        try:
+            while True:
+                chunk = client.sock.recv(4096)
+                if not chunk:
+                    self._drop(client)
+                    return
+        except (BlockingIOError, InterruptedError):
+            pass
+        except OSError:
+            self._drop(client)
+            return
+        if client.out is not None:
+            self._send(client)
+
+    def _update(self, client: _Client, now: float, built: list[tuple[bytes, bytes]] | None) -> None:
+        """Look for a change for subscriber ``client`` (not sending one now): send the
+        status when it changed or the heartbeat is due. ``built``: the document of this
+        turn, shared by the subscribers due in it (empty: not built yet)."""
+        sub = client.sub
+        assert sub is not None and client.out is None
+        sub.due = now + sub.period
+        if built is None:
+            built = []
+        if not built:
+            built.append(self._stream_document())
+        key, line = built[0]
+        if key == sub.key and now - sub.sent_at < HEARTBEAT_S:
+            return
+        sub.key, sub.sent_at, sub.last_len = key, now, len(line)
+        client.out = memoryview(line)
+        client.deadline = now + SEND_TIMEOUT_S
+        self._send(client)
+
+    def _stream_document(self) -> tuple[bytes, bytes]:
+        """(what decides a change, the line to send) of the status now."""
+        try:
+            doc = self.status()
+        except Exception:
+            log.exception("cannot build the status document")
+            doc = {"error": "status unavailable, see the log"}
+        key = json.dumps(stable_view(doc), sort_keys=True).encode()
+        return key, json.dumps(doc, sort_keys=True).encode() + b"\n"
+
+    def _send(self, client: _Client) -> None:
+        assert client.out is not None
+        try:
+            sent = client.sock.send(client.out)
+        except (BlockingIOError, InterruptedError):
+            self._watch(client, selectors.EVENT_WRITE)
+            return
+        except OSError:
+            self._drop(client)
+            return
+        client.out = client.out[sent:]
+        if client.out:
+            self._watch(
+                client,
+                selectors.EVENT_WRITE | (selectors.EVENT_READ if client.sub is not None else 0),
+            )
+            return
+        self.served += 1
+        if client.sub is None:
+            self._drop(client)
+            return
+        client.out = None
+        client.deadline = math.inf
+        self._watch(client, selectors.EVENT_READ)
+
+    def _watch(self, client: _Client, events: int) -> None:
+        if client.events == events:
+            return
+        if client.events:
+            self._sel.modify(client.sock, events, client)
+        else:
+            self._sel.register(client.sock, events, client)
+        client.events = events
+
+    def _expire(self, now: float) -> None:
+        built: list[tuple[bytes, bytes]] = []
+        for client in list(self._clients.values()):
+            if client.sub is not None and client.out is None:
+                if client.sub.due <= now:
+                    self._update(client, now, built)
+                continue
+            if client.deadline <= now:
+                if client.out is None:
+                    self._answer(client)  # asked nothing: the plain status
+                    self._send(client)
+                else:
+                    self._drop(client)  # not reading its answer
+        if not self._accepting and len(self._clients) < MAX_CLIENTS and now >= self._resume_accept:
+            self._accept_on(True)
+
+    def _drop(self, client: _Client) -> None:
+        client.out = None
+        if client.sub is not None:
+            client.sub = None
+            self.subscribers -= 1
+        self._clients.pop(client.sock.fileno(), None)
+        if client.events:
+            self._sel.unregister(client.sock)
+            client.events = 0
+        client.sock.close()
+
+    def document(self, request: bytes) -> bytes:
+        """The answer to one request line that is not a subscription: the status as JSON,
+        or an error document."""
+        return self._encode(parse_request(request))
+
+    def _encode(self, request: _Request) -> bytes:
+        if request.error is not None:
+            return json.dumps({"error": request.error}).encode()
+        if request.period is not None:
+            return json.dumps(
+                {"error": "a subscription is answered by the server's thread"}
+            ).encode()
+        try:
+            return json.dumps(self.status(histogram=request.histogram), sort_keys=True).encode()
+        except Exception:
+            log.exception("cannot build the status document")
+            return json.dumps({"error": "status unavailable, see the log"}).encode()
+
+    def close(self) -> None:
+        """Stop serving and remove the socket if it is still ours; never raises."""
+        self._closed.set()
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"x")
+        if self._thread.is_alive():
+            self._thread.join(2.0)
+        with contextlib.suppress(OSError):
+            self._sock.shutdown(socket.SHUT_RDWR)
+        self._sock.close()
+        self._wake_r.close()
+        self._wake_w.close()
+        try:
+            st = os.lstat(self.path)
+            if (st.st_dev, st.st_ino, st.st_ctime_ns) == self.identity:
+                os.unlink(self.path)
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            log.warning("cannot remove status socket %s: %s", self.path, exc.strerror)

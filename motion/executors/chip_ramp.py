@@ -1,0 +1,287 @@
+"""The executor for driver chips that run their own ramps.
+
+:class:`RampExecutor` carries out the motors' plans with each driver's own ramp generator,
+through the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability (a TMC5160 in
+motion-controller mode): a finite plan (MoveTo, a soft stop, a homing back-off, a run up to
+a soft limit) becomes a trapezoid to the plan's end at the plan's peak speed with its ramps
+(``move_to``); an endless run becomes ``run`` at its speed. A hard stop is ``stop(None)``:
+the chip's largest deceleration. Positions are the chip's step counter. End stops are the
+chip's reference switches: the one ahead stops the motor in the chip and latches the
+position, reported as ENDSTOP at the latched position; stall homing (a plan without end
+stops) lets stallGuard stop the motor, and that stop is reported as the driver's stall flag.
+
+A machine that mixes such motors with STEP/DIR ones runs both executors behind one seam
+(``split.py``).
+
+Threads: as every :class:`~motorctl.motion.executors.base.Executor`: commands and
+:meth:`service` come with the engine's lock held (the planner thread); the drivers' bus
+transfers happen there (a few SPI datagrams, tens of microseconds each) and never on a step
+path. :meth:`position`, :meth:`endstop_active` and :meth:`health` read snapshots that
+:meth:`service` refreshes. Driver failures become FAULT events (the axis stops, its
+position is lost): never an exception out of the seam, never a dead thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+from collections.abc import Sequence
+from contextlib import suppress
+from dataclasses import dataclass
+
+from motorctl.hal.interfaces import Clock, HalError, RampDriver, RampStatus
+from motorctl.motion.executors.base import (
+    Committed,
+    ExecEvent,
+    ExecEventKind,
+    Executor,
+    ExecutorHealth,
+)
+from motorctl.motion.profile import Trajectory
+from motorctl.motion.types import Ramp
+
+log = logging.getLogger("motorctl.ramp")
+
+K = ExecEventKind
+
+
+@dataclass
+class _Axis:
+    gen: int = 0
+    plan: str = ""  # "move", "run", "stop" or "" (nothing planned)
+    target: int = 0
+    watch: int = 0  # the stop switch armed: +1 REFR, -1 REFL, 0 none
+    stop_gen: int = 0
+    blocked: bool = False  # stopped on its own: plans dropped until the caller's stop()
+    position: int = 0
+    velocity: float = 0.0  # steps/s
+    status: RampStatus | None = None  # the last read
+    next_poll: float = 0.0
+    resets: int = 0  # chip resets already reported
+
+
+def peak_speed(traj: Trajectory) -> float:
+    """The largest speed a (finite) trajectory reaches."""
+    best = 0.0
+    for seg in traj.segments:
+        best = max(best, abs(seg.v0), abs(seg.end_velocity))
+    return best
+
+
+class RampExecutor(Executor):
+    """Motors whose driver chip moves them (:class:`RampDriver`): one chip per motor."""
+
+    def __init__(
+        self,
+        chips: Sequence[RampDriver],
+        clock: Clock,
+        poll_s: float = 0.005,
+        idle_poll_s: float = 0.05,
+    ) -> None:
+        super().__init__(len(chips))
+        self.chips = list(chips)
+        self.clock = clock
+        self.poll_s = poll_s
+        self.idle_poll_s = idle_poll_s
+        self._axes = [_Axis() for _ in chips]
+        self._events: list[ExecEvent] = []
+        self._lock = threading.Lock()
+        self._progress = 0
+        self.counters = {"polls": 0, "spi_errors": 0, "endstops": 0, "sg_stops": 0}
+        for i, chip in enumerate(self.chips):  # the counters are XACTUAL from the start:
+            with suppress(HalError):  # the daemon restores positions before start()
+                self._refresh(i, chip.ramp_status())
+
+    # -- lifecycle -----------------------------------------------------------------
+    def start(self) -> None:
+        now = self.clock.now()
+        for i, chip in enumerate(self.chips):
+            try:
+                self._refresh(i, chip.ramp_status())
+            except HalError as exc:
+                self._fault(i, now, exc)
+
+    def close(self) -> None:
+        for i, chip in enumerate(self.chips):
+            try:
+                chip.stop(None)
+            except HalError as exc:
+                log.error("motor %d: could not stop the ramp at close: %s", i, exc)
+
+    # -- events ------------------------------------------------------------------------
+    def _emit(self, ev: ExecEvent) -> None:
+        with self._lock:
+            self._events.append(ev)
+        self.on_event()
+
+    def events(self) -> list[ExecEvent]:
+        with self._lock:
+            out, self._events = self._events, []
+        return out
+
+    def _fault(self, motor: int, now: float, exc: BaseException) -> None:
+        ax = self._axes[motor]
+        self.counters["spi_errors"] += 1
+        ax.plan, ax.blocked = "", True
+        with suppress(HalError):
+            self.chips[motor].stop(None)
+        # as for a failed STEP line: the position counts as lost if it was moving fast
+        self._emit(
+            ExecEvent(
+                K.FAULT, motor, ax.gen, ax.position, now, speed=abs(ax.velocity), detail=str(exc)
+            )
+        )
+
+    # -- commands ------------------------------------------------------------------------
+    def follow(
+        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+    ) -> bool:
+        ax, chip = self._axes[motor], self.chips[motor]
+        if ax.blocked:
+            return True  # made before the caller saw our event: dropped, as the seam says
+        now = self.clock.now()
+        ax.gen = gen
+        try:
+            if math.isinf(traj.end_time):
+                v = traj.segments[-1].v0
+                direction = 1 if v > 0 else -1
+                chip.watch(direction if endstops else 0, stall=not endstops)
+                chip.run(direction, abs(v), ramp.acc)
+                ax.plan, ax.watch = "run", direction if endstops else 0
+            else:
+                target = round(traj.end_position)
+                if target == ax.position and ax.velocity == 0:
+                    ax.plan = ""
+                    return False
+                direction = 1 if target > ax.position else -1
+                chip.watch(direction if endstops else 0, stall=not endstops)
+                speed = max(peak_speed(traj), abs(ax.velocity), 1.0)
+                chip.move_to(target, speed, ramp.acc, ramp.dec)
+                ax.plan, ax.target, ax.watch = "move", target, direction if endstops else 0
+        except HalError as exc:
+            self._fault(motor, now, exc)
+            return True
+        ax.next_poll = now
+        return True
+
+    def stop(self, motor: int, gen: int) -> int | None:
+        ax = self._axes[motor]
+        ax.blocked = False
+        ax.stop_gen = ax.gen = gen
+        try:
+            self.chips[motor].stop(None)
+        except HalError as exc:
+            # answering with another event would make the caller stop again, and again:
+            # the last known position is final; the driver monitor reports the SPI failure
+            self.counters["spi_errors"] += 1
+            log.error("motor %d: the hard stop did not reach the chip: %s", motor, exc)
+            ax.plan = ""
+            return ax.position
+        ax.plan = "stop"
+        ax.next_poll = self.clock.now()
+        return None
+
+    def committed(self, motor: int, now: float) -> Committed:
+        ax = self._axes[motor]
+        with suppress(HalError):  # the snapshot will do; the next poll reports the failure
+            self._refresh(motor, self.chips[motor].ramp_status())
+        return Committed(now, float(ax.position), ax.velocity, ax.position)
+
+    def planned(self, motor: int) -> bool:
+        return self._axes[motor].plan != ""
+
+    # -- the planner's side ----------------------------------------------------------------
+    def _refresh(self, motor: int, st: RampStatus) -> None:
+        ax = self._axes[motor]
+        ax.position = st.position
+        ax.velocity = st.velocity
+        ax.status = st
+
+    def service(self, now: float) -> float:
+        self._progress += 1
+        nxt = now + self.idle_poll_s
+        for i, (ax, chip) in enumerate(zip(self._axes, self.chips, strict=True)):
+            if now >= ax.next_poll:
+                ax.next_poll = now + (self.poll_s if ax.plan else self.idle_poll_s)
+                self._poll(i, ax, chip, now)
+            nxt = min(nxt, ax.next_poll)
+        return nxt
+
+    def _poll(self, i: int, ax: _Axis, chip: RampDriver, now: float) -> None:
+        self.counters["polls"] += 1
+        try:
+            st = chip.ramp_status()
+        except HalError as exc:
+            if ax.plan:
+                self._fault(i, now, exc)
+            return
+        self._refresh(i, st)
+        if chip.resets != ax.resets:  # XACTUAL restarted at 0: the position is lost
+            ax.resets = chip.resets
+            ax.plan, ax.blocked = "", True
+            self._emit(
+                ExecEvent(
+                    K.FAULT,
+                    i,
+                    ax.gen,
+                    ax.position,
+                    now,
+                    speed=math.inf,
+                    detail=f"{chip.name}: the driver was reset; position lost",
+                )
+            )
+            return
+        if st.stall_stopped and chip.report_stall_stop():  # the driver's stall flag: the
+            self.counters["sg_stops"] += 1  # engine's driver monitor acts on it
+        if ax.plan == "stop":
+            if st.velocity == 0:
+                ax.plan = ""
+                self._emit(ExecEvent(K.STOPPED, i, ax.stop_gen, ax.position, now))
+            return
+        if ax.plan == "" or ax.blocked:
+            return
+        if ax.watch and st.switch_stopped(ax.watch):
+            where = ax.position
+            if st.latched(ax.watch):
+                try:
+                    where = chip.latched_position()
+                except HalError as exc:
+                    self._fault(i, now, exc)
+                    return
+            self.counters["endstops"] += 1
+            ax.plan, ax.blocked = "", True
+            self._emit(
+                ExecEvent(
+                    K.ENDSTOP,
+                    i,
+                    ax.gen,
+                    where,
+                    now,
+                    direction=ax.watch,
+                    speed=abs(ax.velocity),
+                    detail="reference switch",
+                )
+            )
+            return
+        if ax.plan == "move" and st.velocity == 0 and ax.position == ax.target:
+            ax.plan = ""
+            self._emit(ExecEvent(K.DONE, i, ax.gen, ax.position, now))
+
+    # -- snapshots ----------------------------------------------------------------------------
+    def position(self, motor: int) -> int:
+        return self._axes[motor].position
+
+    def endstop_active(self, motor: int, direction: int) -> bool:
+        st = self._axes[motor].status
+        return st is not None and st.switch_active(direction)
+
+    def health(self) -> ExecutorHealth:
+        return ExecutorHealth(alive=True, progress=self._progress, counters=dict(self.counters))
+
+    # -- a virtual clock: the polls are due in service() -----------------------------------------
+    def next_deadline(self) -> float | None:
+        return min(ax.next_poll for ax in self._axes) if self._axes else None
+
+    def advance(self, now: float) -> None:
+        return None

@@ -1,0 +1,549 @@
+"""The step core: timed STEP/DIR edges from queued step segments, failing safe.
+
+THE HOT LOOP. This module is to motorctl what Klipper's C helper is to Klippy: the one
+place that runs per step, in real time, and it keeps rules of its own. Read them before
+changing anything here, and keep to them in what it calls:
+
+- One owner. Exactly one thread runs it: a thread of the daemon for the ``thread`` kind
+  (``thread.py``), the main thread of the executor's own process for ``process``
+  (``process/child.py``), or the engine's caller on a virtual clock. Nothing else
+  touches its state.
+- No locks. The planner reaches it only through :class:`CoreInbox` (deques that the GIL
+  makes safe for one producer and one consumer, or the shared-memory rings of
+  ``process/rings.py``); it answers through ``emit`` and cells (``positions``,
+  ``levels``, ``counters``, ``motor_cells``, the latency histogram): one store per
+  value, read by others as snapshots. ``emit`` must be cheap and never block (a deque
+  append, a ring record and a wake-up byte).
+- No allocation per step. Per-motor state lives in lists made at start, indexed by
+  motor; the motors due and done at an edge go into the core's own two lists, cleared
+  and refilled. New objects are made only for what ends or stops a motion (an
+  :class:`~motorctl.motion.executors.base.ExecEvent`), never per step; the ints of the
+  tick arithmetic are CPython's own. The executor's process runs with the garbage
+  collector off, the daemon while anything moves (``rt.GcPolicy``): garbage made here
+  would pile up, or cost a collection pause in the thread kind.
+- No logging, no printing, no I/O but the HAL's. The only calls out are the StepIO's
+  (``StepOutputs.set_direction``/``rise``/``fall``, ``EdgeInputs.read_edges``/``level``):
+  one backend call each, which may not block. A backend raises only ``HalError`` at run
+  time; the core catches it at each call and makes it a FAULT event of the motors
+  concerned: the loop never dies of a hardware error.
+- What may block: only ``wait`` (the caller's, when nothing is due within ``spin_s``);
+  the core spins only for the last ``spin_s`` before an edge and for the STEP pulse
+  width (``StepOutputs.fall``). Nothing here sleeps, joins or waits for the planner.
+- Its cost is measured: ``bench/steps.py`` prints ``core_cost_us_python`` (and its twin's
+  ``core_cost_us_compiled``), the CPU time per step on mock lines. A change here quotes it
+  before and after and must not make it worse.
+- A twin: the compiled core (``csrc/core.c``, driven by ``compiled_core.py``) keeps every
+  rule here in C, function by function; the executor process runs it where it is built. A
+  change to a rule is made in both, and the core's tests run on both
+  (tests/motion/executors/test_step_core.py). This one stays the readable reference and
+  the fallback.
+- One module, a little over 500 lines with this fence, on purpose: the loop's state and
+  every path that touches it are read together.
+
+Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
+the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
+plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
+motor may not survive (:class:`~motorctl.motion.executors.base.AxisLimits`): then it stops
+(TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
+DIR has settled, raise the STEP lines of every due motor in one call, account while they
+are high, lower them, then look at the end stop ahead of each
+motor that stepped. Each motor's next due time is kept up to date as its state changes, so
+finding the next edge is one ``min`` over the motors. Times are integer ns (ticks); a
+segment's ticks are plan ticks, made at plan tick + the motor's shift. A motor
+whose step is planned within ``coalesce_s`` after the edge being made (and that nothing
+else holds back) shares its pulse: up to ``coalesce_s`` early, within the planner's own step
+error bound, instead of queueing a few microseconds behind it.
+
+Stops from the planner: ``(motor, gen, -1)`` drops every segment of ``gen`` and older and
+reports STOPPED (a hard stop); ``(motor, gen, cut)`` drops only those of ``gen`` and older
+that start at or after tick ``cut``, silently: a re-plan takes over there. A segment of
+``count`` 0 is a marker: the plan before it is complete (DONE when it is ``last``).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Sequence
+
+from motorctl.hal.interfaces import HalError, StepIO
+from motorctl.motion.executors.base import (
+    TICKS_PER_S,
+    AxisLimits,
+    ExecEvent,
+    ExecEventKind,
+    from_ticks,
+    to_ticks,
+)
+from motorctl.motion.executors.segments import StepSegment
+from motorctl.motion.latency import Cells, LatencyStats
+
+# counters cells
+PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP, BAD_RECORDS = range(8)
+COUNTER_NAMES = (
+    "progress",
+    "steps",
+    "timing_lost",
+    "io_errors",
+    "endstops",
+    "dropped",
+    "min_gap_ns",
+    "bad_records",
+)
+#: the smallest time between two steps of a motor (MIN_GAP) counts steps less than this apart
+_GAP_WINDOW = TICKS_PER_S // 10
+
+# per motor cells (``motor_cells``: MOTOR_CELLS per motor, motor m's at m * MOTOR_CELLS)
+SHIFT, ABSORBED, WORST_LATE, WORST_LAG, LAG_FAULTS = range(5)
+MOTOR_CELL_NAMES = ("shift_ns", "late_absorbed", "worst_late_ns", "worst_lag_ufs", "lag_faults")
+MOTOR_CELLS = len(MOTOR_CELL_NAMES)
+#: worst lag cell unit: millionths of a full step
+LAG_UNIT = 1_000_000
+
+K = ExecEventKind
+#: stopped_gen after the core stopped a motor itself: every segment is dropped until the
+#: planner answers the event with a stop of a new generation
+BLOCKED = 1 << 62
+#: no step pending
+NEVER = 1 << 62
+#: the largest value of a shared int64 cell
+_CELL_MAX = (1 << 63) - 1
+
+
+class CoreInbox:
+    """What the planner hands the core: per-motor segment queues and hard stops; and the
+    records the transport found bad (``faults``: (motor or -1 for every motor, detail);
+    the shared-memory rings' only, process/child.py)."""
+
+    def __init__(self, motors: int) -> None:
+        self.queues: list[deque[StepSegment]] = [deque() for _ in range(motors)]
+        self.stops: deque[tuple[int, int, int]] = deque()  # (motor, gen, cut or -1)
+        self.faults: deque[tuple[int, str]] = deque()
+
+    def pull(self) -> None:
+        """Move pending work from the transport into the deques (in-process: nothing)."""
+
+
+class StepCore:
+    def __init__(
+        self,
+        io: StepIO,
+        limits: Sequence[AxisLimits],
+        inbox: CoreInbox,
+        emit: Callable[[ExecEvent], None],
+        *,
+        positions: Cells,
+        levels: Cells,
+        counters: Cells,
+        stats: LatencyStats,
+        motor_cells: Cells | None = None,
+        spin_s: float = 200e-6,
+        coalesce_s: float = 0.0,
+    ) -> None:
+        n = len(limits)
+        if io.outputs.motors != n:
+            raise ValueError(f"{n} motors configured, the step IO drives {io.outputs.motors}")
+        self.io = io
+        self.clock = io.clock
+        self.inbox = inbox
+        self.emit = emit
+        self.pos = positions
+        self.levels = levels  # per input line: 0/1, published for endstop_active
+        self.counters = counters
+        self.stats = stats
+        self.spin = to_ticks(spin_s)
+        self.coalesce = to_ticks(coalesce_s)
+        self.motors = range(n)
+        self.min_iv = [to_ticks(lim.min_interval_s) for lim in limits]
+        self.slide_after = [to_ticks(lim.slide_after_s) for lim in limits]
+        # how a late step is judged: the one lag rule (motion/executors/base.py)
+        self.lag_rule = [lim.lag_rule() for lim in limits]
+        self.lag_faults = [lim.lag_faults for lim in limits]
+        self.mcells: Cells = motor_cells if motor_cells is not None else [0] * (n * MOTOR_CELLS)
+        if len(self.mcells) < n * MOTOR_CELLS:
+            raise ValueError(f"motor cells need {n * MOTOR_CELLS} slots")
+        # the lateness of a step that slid its motor's schedule, until the step is made
+        self.slid = [0] * n
+        self.width = [to_ticks(lim.pulse_s) for lim in limits]
+        self.debounce = [to_ticks(lim.debounce_s) for lim in limits]
+        # the segment being executed, per motor
+        self.next_t = [NEVER] * n  # planned time of the next step
+        self.due_t = [NEVER] * n  # when it may be made: planned, spacing, DIR settled
+        self.iv = [0] * n
+        self.add = [0] * n
+        self.left = [0] * n
+        self.dir = [0] * n
+        self.gen = [-1] * n
+        self.last = [False] * n
+        self.watch = [True] * n
+        self.seg_first = [0] * n
+        self.seg_count = [0] * n
+        self.prev_t = [0] * n  # planned time of the last step emitted
+        self.last_edge = [-(1 << 62)] * n  # actual time of the last step emitted
+        self.stopped_gen = [-1] * n  # segments of this generation and older are dropped
+        # re-plans: (gen, tick) per cut, segments of gen or older from tick on are dropped;
+        # every cut still pending counts (a segment of an older plan may still be on its way
+        # when the next re-plan cuts the newer one later)
+        self.cuts: list[list[tuple[int, int]]] = [[] for _ in range(n)]
+        self.ready = [-(1 << 62)] * n  # DIR settled (ticks)
+        inputs = io.inputs
+        self.since = [0] * len(inputs.names)
+        for line in range(len(inputs.names)):
+            self.levels[line] = int(inputs.level(line))
+        # (min line, max line) per motor, indexed by direction > 0
+        self.ends = [(lo, hi) for lo, hi in io.endstops]
+        # the motors due at this edge and those whose segment it ended: the core's own
+        # lists, cleared and refilled by each step() (nothing is allocated per step)
+        self._due: list[int] = []
+        self._done: list[int] = []
+
+    # -- the planner's requests ---------------------------------------------------
+    def _apply_stops(self) -> None:
+        """A stop(gen) drops ``gen`` and older and lifts a block (the planner's answer)."""
+        stops = self.inbox.stops
+        while stops:
+            m, gen, cut = stops.popleft()
+            if cut >= 0:
+                self._cut(m, gen, cut)
+                continue
+            self.stopped_gen[m] = gen
+            self.cuts[m].clear()  # every cut so far was of an older plan: all dropped now
+            self._drop(m)
+            self.emit(ExecEvent(K.STOPPED, m, gen, self.pos[m], self._now_s()))
+
+    def _cut(self, m: int, gen: int, cut: int) -> None:
+        """A re-plan: segments of ``gen`` and older from tick ``cut`` on are not made."""
+        if self.stopped_gen[m] == BLOCKED:
+            return  # stopped on our own account: everything is dropped until the answer
+        self.cuts[m].append((gen, cut))
+        if self.next_t[m] != NEVER and self.gen[m] <= gen and self.seg_first[m] >= cut:
+            if self.left[m] < self.seg_count[m]:  # it began already: the re-plan came late
+                now = self.clock.now_ns()
+                late = now - cut - self.mcells[m * MOTOR_CELLS + SHIFT]
+                self._lost(m, now, f"re-plan came {late / 1000:.0f} us late")
+                return
+            self._unload(m)
+        if self.next_t[m] == NEVER:
+            self._load(m)  # drops what the cut removed (as it will for what comes later)
+
+    def _cut_off(self, m: int, seg: StepSegment) -> bool:
+        """A re-plan dropped this segment."""
+        gen, first = seg.gen, seg.first
+        return any(gen <= g and first >= t for g, t in self.cuts[m])
+
+    def _halt(self, m: int) -> None:
+        """Stop on the core's own account: drop everything until the planner answers."""
+        self.stopped_gen[m] = BLOCKED
+        self._drop(m)
+
+    def _unload(self, m: int) -> None:
+        self.next_t[m] = self.due_t[m] = NEVER
+        self.left[m] = 0
+
+    def _drop(self, m: int) -> None:
+        if self.next_t[m] != NEVER and self.gen[m] <= self.stopped_gen[m]:
+            self._unload(m)
+        q = self.inbox.queues[m]
+        while q and q[0].gen <= self.stopped_gen[m]:
+            q.popleft()
+            self.counters[DROPPED] += 1
+
+    def _load(self, m: int) -> bool:
+        """Take the motor's next segment; True when one is loaded."""
+        q = self.inbox.queues[m]
+        while q:
+            if self.stopped_gen[m] == BLOCKED and self.inbox.stops:
+                self._apply_stops()  # the answer may have come with these segments
+                if self.next_t[m] != NEVER:
+                    return True  # a cut in that answer loaded it already
+                continue  # (it may have dropped every queued segment)
+            seg = q.popleft()
+            gen = seg.gen
+            cuts = self.cuts[m]
+            if gen <= self.stopped_gen[m] or (cuts and self._cut_off(m, seg)):
+                self.counters[DROPPED] += 1
+                continue
+            if cuts and cuts[0][0] < gen:  # no segment of those plans comes any more
+                cuts[:] = [c for c in cuts if c[0] >= gen]
+            if seg.count <= 0:  # a marker: the plan before it is complete
+                if seg.last:
+                    self.emit(ExecEvent(K.DONE, m, gen, self.pos[m], self._now_s()))
+                continue
+            first = seg.first
+            self.next_t[m] = first = first + self.mcells[m * MOTOR_CELLS + SHIFT]
+            self.iv[m] = seg.interval
+            self.add[m] = seg.add
+            self.left[m] = self.seg_count[m] = seg.count
+            self.seg_first[m] = seg.first  # plan ticks, as the planner's cuts
+            self.gen[m] = gen
+            self.last[m] = seg.last
+            self.watch[m] = seg.watch
+            if seg.direction != self.dir[m]:
+                self._set_dir(m, seg.direction)
+                if self.next_t[m] == NEVER:
+                    return False  # the DIR write failed: faulted
+            earliest = self.last_edge[m] + self.min_iv[m]
+            d = first if first >= earliest else earliest
+            ready = self.ready[m]
+            self.due_t[m] = d if d >= ready else ready
+            return True
+        return False
+
+    def _set_dir(self, m: int, d: int) -> None:
+        outputs = self.io.outputs
+        try:
+            outputs.set_direction(m, d > 0)
+        except HalError as exc:
+            self._io_fault((m,), exc)
+            return
+        self.dir[m] = d
+        self.ready[m] = to_ticks(outputs.ready_at[m])
+
+    def _take(self) -> None:
+        """New work: pull the transport, apply stops, load idle motors."""
+        inbox = self.inbox
+        inbox.pull()
+        if inbox.stops:
+            self._apply_stops()
+        if inbox.faults:
+            self._bad_records()
+        next_t = self.next_t
+        if NEVER in next_t:
+            queues = inbox.queues
+            for m in self.motors:
+                if next_t[m] == NEVER and queues[m]:
+                    self._load(m)
+
+    def refill(self) -> None:
+        self._take()
+        self._edges()
+
+    # -- time ------------------------------------------------------------------------
+    def _now_s(self) -> float:
+        return self.clock.now()
+
+    def deadline(self) -> int | None:
+        d = min(self.due_t)
+        return None if d == NEVER else d
+
+    # -- one edge ----------------------------------------------------------------------
+    def step(self, now: int) -> None:
+        """Emit every step due at ``now`` (ticks)."""
+        due_t, next_t, slide_after = self.due_t, self.next_t, self.slide_after
+        # due now, or planned within ``coalesce`` of now with nothing else holding it back
+        # (spacing, DIR set-up): it shares this pulse rather than queue behind it
+        soon = now + self.coalesce
+        due = self._due
+        due.clear()
+        slid = False
+        for m in self.motors:
+            d = due_t[m]
+            if d <= now or (d <= soon and d == next_t[m]):
+                if now - next_t[m] > slide_after[m]:
+                    if not self._late(m, now):
+                        continue  # stopped: a real motor may have lost steps
+                    slid = True
+                due.append(m)
+        if not due:
+            return
+        outputs = self.io.outputs
+        try:
+            rise = outputs.rise(due)
+        except HalError as exc:
+            self._io_fault(due, exc)
+            return
+        # the accounting happens while the lines are high (the pulse width)
+        record, pos, counters, dirs = self.stats.record_ns, self.pos, self.counters, self.dir
+        left, iv, add, min_iv = self.left, self.iv, self.add, self.min_iv
+        last_edge, prev_t = self.last_edge, self.prev_t
+        width = 0
+        done = self._done
+        done.clear()
+        for m in due:
+            planned = next_t[m]
+            if slid and self.slid[m]:  # lateness is judged against the schedule before it slid
+                record(rise - planned + self.slid[m])
+                self.slid[m] = 0
+            else:
+                record(rise - planned)
+            gap = rise - last_edge[m]
+            if gap < _GAP_WINDOW:
+                g = counters[MIN_GAP]
+                if gap < g or not g:
+                    counters[MIN_GAP] = gap
+            pos[m] += dirs[m]
+            prev_t[m] = planned
+            last_edge[m] = rise
+            if self.width[m] > width:
+                width = self.width[m]
+            n = left[m] - 1
+            left[m] = n
+            if n > 0:
+                nt = planned + iv[m]
+                next_t[m] = nt
+                iv[m] += add[m]
+                earliest = rise + min_iv[m]
+                due_t[m] = nt if nt >= earliest else earliest
+            else:
+                next_t[m] = due_t[m] = NEVER
+                done.append(m)
+        counters[STEPS] += len(due)
+        try:
+            outputs.fall(due, rise + width)
+        except HalError as exc:
+            self._io_fault(due, exc)
+            return
+        for m in done:
+            if self.last[m]:  # before the next segment (a marker reports its own DONE)
+                self.emit(ExecEvent(K.DONE, m, self.gen[m], pos[m], from_ticks(rise)))
+            self._load(m)
+        self._edges()
+        levels, ends, watch = self.levels, self.ends, self.watch
+        for m in due:
+            if watch[m]:
+                line = ends[m][1 if dirs[m] > 0 else 0]
+                if line is not None and levels[line]:
+                    self._check_endstop(m, line)
+
+    def _edges(self) -> None:
+        try:
+            edges = self.io.inputs.read_edges()
+        except HalError as exc:
+            self._io_fault(tuple(self.motors), exc)
+            return
+        for e in edges:
+            self.levels[e.line] = int(e.active)
+            if e.active:
+                self.since[e.line] = to_ticks(e.t)
+
+    def _check_endstop(self, m: int, line: int) -> None:
+        """Motor m stepped toward ``line``, which is active: stop once it is debounced."""
+        since = self.since[line]
+        if self.clock.now_ns() - since < self.debounce[m]:
+            return
+        gen = self.gen[m]
+        self._halt(m)
+        self.counters[ENDSTOPS] += 1
+        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)), self.dir[m]))
+
+    def _speed(self, m: int, planned: int) -> float:
+        gap = planned - self.prev_t[m]
+        return TICKS_PER_S / gap if 0 < gap < TICKS_PER_S else 0.0
+
+    def _late(self, m: int, now: int) -> bool:
+        """Motor m's step is late: slide the rest of its schedule by the lateness, or stop it
+        where the lag that caused is one a real motor may not survive. False: stopped."""
+        planned = self.next_t[m]
+        late = now - planned
+        gap = planned - self.prev_t[m]  # the interval this step ends: the motor's step rate
+        rule = self.lag_rule[m]
+        cells = self.mcells
+        base = m * MOTOR_CELLS
+        lag = rule.lag(late, gap)
+        if late > cells[base + WORST_LATE]:
+            cells[base + WORST_LATE] = late
+        ulag = min(int(lag * LAG_UNIT), _CELL_MAX)
+        if ulag > cells[base + WORST_LAG]:
+            cells[base + WORST_LAG] = ulag
+        if self.lag_faults[m] and rule.loses_steps(late, gap):
+            cells[base + LAG_FAULTS] += 1
+            rate = self._speed(m, planned)
+            self._lost(
+                m,
+                now,
+                f"step {late / 1000:.0f} us late at {rate:.0f} step/s: lag "
+                f"{lag:.3f} full steps > max_lag_full_steps {rule.max_lag_full_steps:g} "
+                f"({rule.microsteps} microsteps, start_speed "
+                f"{rule.start_speed:g} step/s)",
+                planned,
+            )
+            return False
+        cells[base + SHIFT] += late
+        cells[base + ABSORBED] += 1
+        self.slid[m] = late
+        self.next_t[m] = now  # (and the steps after it keep their intervals from here)
+        return True
+
+    def _lost(self, m: int, now: int, detail: str, planned: int | None = None) -> None:
+        gen = self.gen[m]
+        speed = self._speed(m, self.next_t[m] if planned is None else planned)
+        self._halt(m)
+        self.counters[TIMING_LOST] += 1
+        self.emit(
+            ExecEvent(
+                K.TIMING_LOST, m, gen, self.pos[m], from_ticks(now), self.dir[m], speed, detail
+            )
+        )
+
+    def _io_fault(self, motors: Sequence[int], exc: Exception) -> None:
+        self.counters[IO_ERRORS] += 1
+        self._fault(motors, f"hardware error: {exc}")
+
+    def _bad_records(self) -> None:
+        """Records the transport found bad: a FAULT of their motors (every motor: -1)."""
+        faults = self.inbox.faults
+        while faults:
+            m, detail = faults.popleft()
+            self.counters[BAD_RECORDS] += 1
+            self._fault(self.motors if m < 0 else (m,), detail)
+
+    def _fault(self, motors: Sequence[int], detail: str) -> None:
+        for m in motors:
+            gen = self.gen[m]
+            t = self.next_t[m]
+            speed = 0.0 if t == NEVER else self._speed(m, t)
+            self._halt(m)
+            self.emit(
+                ExecEvent(
+                    K.FAULT,
+                    m,
+                    gen,
+                    self.pos[m],
+                    self._now_s(),
+                    self.dir[m],
+                    speed,
+                    detail,
+                )
+            )
+
+    def halt_all(self) -> None:
+        for m in self.motors:
+            self._halt(m)
+
+    # -- drivers ---------------------------------------------------------------------
+    def advance(self, now: int) -> None:
+        """Virtual clock: do everything due up to ``now`` (the caller moves the clock)."""
+        self.refill()
+        self.step(now)
+        self.refill()
+
+    def run(
+        self, running: Callable[[], bool], wait: Callable[[float], None], idle_s: float = 0.05
+    ) -> None:
+        """Real clock: the loop, until ``running()`` is False.
+
+        End-stop edges are read after each step (and before each wait), not per turn.
+        """
+        now_ns = self.clock.now_ns
+        counters = self.counters
+        stops = self.inbox.stops
+        due_t = self.due_t
+        spin = self.spin
+        take, step = self._take, self.step
+        while running():
+            counters[PROGRESS] += 1
+            take()
+            d = min(due_t)
+            if d == NEVER:
+                self._edges()
+                wait(idle_s)
+                continue
+            now = now_ns()
+            if d - now > spin:
+                self._edges()
+                wait(min((d - spin - now) / TICKS_PER_S, idle_s))
+                continue
+            while now < d and not stops:
+                now = now_ns()
+            if stops:
+                continue
+            step(now)

@@ -1,0 +1,160 @@
+"""motorctld's command line (daemon/main.py), in this process where it can be: the commands
+that print and exit (--print-default-config, --check-config, --probe's step core lines,
+--status without a daemon), the options that go only with --status, a start that cannot
+begin said in one line. Serving itself: test_serve.py, test_serve_e2e.py."""
+
+from __future__ import annotations
+
+import socket
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from motorctl.daemon.config import default_config_text
+from motorctl.daemon.main import main
+from tests.support import REPO
+from tests.support.daemon_proc import StartDaemon, for_tests
+
+ROOT = REPO
+
+
+def test_motorctld_prints_and_checks_the_default_config(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["--print-default-config"]) == 0
+    text = capsys.readouterr().out
+    assert text == default_config_text()
+    path = tmp_path / "motorctl.toml"
+    path.write_text(text, encoding="utf-8")
+    assert main(["--check-config", str(path)]) == 0
+    assert capsys.readouterr().out == (f"{path}: OK (3 motors, 8 pins, a DC motor, backend mock)\n")
+    path.write_text(text.replace("max_travel = 40000", "max_travel = 0", 1), encoding="utf-8")
+    assert main(["--check-config", str(path)]) == 1
+    assert "motors[0].homing.max_travel = 0: out of range" in capsys.readouterr().err
+
+
+LAT0 = ("--latency-seconds", "0")
+
+
+def _probe(tmp_path: Path, step_thread: str) -> subprocess.CompletedProcess[str]:
+    config = tmp_path / "m.toml"
+    config.write_text(
+        for_tests(f'[step_thread]\n{step_thread}\n[[motors]]\nname = "a"\n', force=True)
+    )
+    return subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config), *LAT0],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+
+
+def test_probe_says_which_step_core_would_run(tmp_path: Path) -> None:
+    out = _probe(tmp_path, 'core = "auto"')
+    assert out.returncode == 0, out.stderr
+    assert (
+        'step core:\n  [step_thread] core = "auto", executor = "process"\n'
+        "  compiled core: built\n  lines for it: the simulated mechanics of the mock\n"
+        "  runs: compiled\n"
+    ) in out.stdout
+
+
+def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_error(
+    tmp_path: Path, motorctld: StartDaemon
+) -> None:
+    out = _probe(tmp_path, 'core = "compiled"\nexecutor = "thread"')
+    assert out.returncode == 1
+    assert "  runs: python (the thread executor runs the Python core)\n" in out.stdout
+    assert 'PROBLEM: [step_thread] core = "compiled" runs in the process executor only' in (
+        out.stdout
+    )
+    config = 'core = "compiled"\nexecutor = "thread"'
+    text = for_tests(f'[step_thread]\n{config}\n[[motors]]\nname = "a"\n', force=True)
+    with pytest.raises(RuntimeError, match="motorctld exited") as err:
+        motorctld(text)
+    assert '[step_thread] core = "compiled" runs in the process executor only' in str(err.value)
+
+
+@pytest.mark.parametrize(
+    ("argv", "says"),
+    [
+        (["--pty", "x", "--histogram"], "error: --histogram goes with --status"),
+        (["--pty", "x", "--watch"], "error: --watch goes with --status"),
+        (["--pty", "x", "--format", "openmetrics"], "error: --format goes with --status"),
+        ([], "error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE"),
+        (
+            ["--status", "--watch", "--histogram"],
+            "error: --watch shows the live view; --histogram and --format go with a single "
+            "--status",
+        ),
+        (
+            ["--status", "--histogram", "--format", "openmetrics"],
+            "error: --histogram goes with --format json",
+        ),
+    ],
+)
+def test_options_out_of_place_are_named_and_exit_2(
+    argv: list[str], says: str, capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
+    assert main([*argv, "--state-dir", str(tmp_path)]) == 2
+    assert capsys.readouterr().err.strip() == says
+
+
+def test_status_without_a_daemon_says_where_it_looked(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["--status", "--state-dir", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: no daemon status at {tmp_path / 'status.sock'}: ")
+    assert "Traceback" not in err
+
+
+def test_status_prints_what_the_socket_answers(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """--status is the document as the status socket gives it; an error document is an
+    error (a socket that answers, but not with a status)."""
+    path = tmp_path / "status.sock"
+    for answer, code in ((b'{"motors": []}', 0), (b'{"error": "status unavailable"}', 1)):
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as server:
+            server.bind(str(path))
+            server.listen(1)
+            server.settimeout(60)
+
+            def answer_once(server: socket.socket = server, answer: bytes = answer) -> None:
+                conn, _ = server.accept()
+                with conn:
+                    conn.recv(64)
+                    conn.sendall(answer)
+
+            thread = threading.Thread(target=answer_once)
+            thread.start()
+            got = main(["--status", "--state-dir", str(tmp_path)])
+            thread.join(60)
+        path.unlink()
+        out, err = capsys.readouterr()
+        assert got == code, err
+        if code == 0:
+            assert out == '{\n "motors": []\n}\n'
+        else:
+            assert "status unavailable" in err
+
+
+def test_a_start_that_cannot_begin_is_one_line_and_exit_1(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    missing = tmp_path / "missing.toml"
+    args = ["--pty", str(tmp_path / "pty"), "--state-dir", str(tmp_path / "state")]
+    assert main([*args, "--config", str(missing)]) == 1  # a ConfigError
+    err = capsys.readouterr().err
+    assert err.startswith("error: ") and str(missing) in err and err.count("\n") == 1
+    config = tmp_path / "slow.toml"
+    config.write_text(for_tests('[link]\ntimeout_ms = 1\n[[motors]]\nname = "a"\n'))
+    assert main([*args, "--config", str(config), "--baud", "300"]) == 1  # ConfigError too
+    err = capsys.readouterr().err
+    assert err.startswith(f"error: {config}: ") and err.count("\n") == 1
+    assert not (tmp_path / "pty").exists()  # nothing was opened
