@@ -35,19 +35,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from motorctl.client.motions import (
-    Check,
-    Episode,
-    Replayed,
-    Span,
-    end_shift,
-    ends,
-    gap,
-    positions,
-    recording,
-    wrapped,
-)
-from motorctl.client.trace import ANSWER, Conversation, Frame, Row, answer_text
+from motorctl.client.conversation import ANSWER, Conversation, Frame, Row, answer_text
+from motorctl.client.motion_bounds import Check, Replayed, end_shift, gap, positions
+from motorctl.client.motions import Episode, Span, ends, recording, wrapped
 from motorctl.protocol.codec import (
     GetAbsPos,
     GoHome,

@@ -1,7 +1,7 @@
 """Reading trace files for ``motorctl trace`` and ``motorctl replay`` alike: one reader, so
 both accept the same files and name the same problems (docs/trace.md, "Reading files").
 
-:func:`load` reads the files through :func:`motorctl.protocol.capture.parse` and makes
+:func:`load` reads the files through :func:`motorctl.protocol.capture.reader.parse` and makes
 links of them: each USER0 interface its own (a mergecap of the tap's recording and the
 daemon's trace holds two), its parts (rotated files given in any order, sections put
 together with ``cat``) in time order, checked for a missing part, a session whose start is
@@ -19,16 +19,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from motorctl.protocol.capture import (
+from motorctl.protocol.capture.format import (
     LINKTYPE_USER0,
-    Capture,
     CaptureError,
     CaptureInfo,
-    Interface,
     Record,
     linktype_name,
-    parse,
 )
+from motorctl.protocol.capture.reader import Capture, Interface, parse
 
 
 class TraceFileError(Exception):

@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import pytest
 
+from motorctl.client.conversation import analyse
 from motorctl.client.judge import Tolerances, Verdict, compare
-from motorctl.client.motions import Span, envelope, recording, speed_bound, windows
+from motorctl.client.motion_bounds import envelope, speed_bound
+from motorctl.client.motions import Span, recording, windows
 from motorctl.client.replay import Outcome
-from motorctl.client.trace import analyse
-from motorctl.protocol.capture import CaptureInfo, Direction, Record
+from motorctl.protocol.capture.format import CaptureInfo, Direction, Record
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,

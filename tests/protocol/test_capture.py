@@ -9,32 +9,20 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.client.conversation import BAD_FRAME, EXTRA, GAP, LOST, analyse
 from motorctl.client.recording import TraceFileError
 from motorctl.client.replay import plan
-from motorctl.client.trace import (
-    BAD_FRAME,
-    EXTRA,
-    FIELDS,
-    GAP,
-    LOST,
-    analyse,
-    load,
-    one_link,
-    row_json,
-)
+from motorctl.client.trace import FIELDS, load, one_link, row_json
 from motorctl.daemon.link.recorder import TraceRecorder, rotated
-from motorctl.protocol.capture import (
+from motorctl.protocol.capture.format import (
     LINKTYPE_USER0,
     CaptureError,
     CaptureInfo,
     Direction,
     Record,
-    RecordEncoder,
-    direction_of,
-    encode,
-    header,
-    parse,
 )
+from motorctl.protocol.capture.reader import direction_of, parse
+from motorctl.protocol.capture.writer import RecordEncoder, encode, header
 from motorctl.protocol.codec import (
     CodecOptions,
     DcMove,
