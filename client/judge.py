@@ -1,5 +1,6 @@
 """How ``motorctl replay`` judges the device's answers against a recording's (docs/trace.md,
-"How the answers are judged"); what motions allow: :mod:`motorctl.client.motions`.
+"How the answers are judged"); the recording's motions: :mod:`motorctl.client.motions`;
+what they allow: :mod:`motorctl.client.motion_bounds`.
 
 Pure computation: two analysed conversations (the recording's and the replay's), when each
 frame was sent and answered on each run's own clock, and the replay's pacing in; one

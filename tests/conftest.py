@@ -2,10 +2,9 @@
 
 The tests mirror the package, one folder a room and a sub-folder a wing (daemon/link/,
 state/, status/; motion/executors/ and its process/; hal/backends/gpiod/, hal/layers/tmc/;
-protocol/capture/),
-each test file named after the module it tests, at the same place: test_<module>.py, or
-test_<module>_<part>.py for one part of a module's tests (``_e2e``: against motorctld as a
-process on a real PTY); tests/hal/backends/gpiod/test_config.py tests
+protocol/capture/), each test file named after the module it tests, at the same place:
+test_<module>.py, or test_<module>_<part>.py for one part of a module's tests (``_e2e``:
+against motorctld as a process on a real PTY); tests/hal/backends/gpiod/test_config.py tests
 hal/backends/gpiod/config.py. At the top, the package's own rules: test_layout.py (the
 tests' mirror, modules' and functions' sizes) and test_imports.py (the import graph):
 

@@ -1,6 +1,6 @@
-"""How the replay judges answers (client/judge.py, client/motions.py), on constructed
-recordings: each frame sent and answered at a chosen time, in the recording and in the
-replay. No process, no clock.
+"""How the replay judges answers (client/judge.py, and the motions.py and motion_bounds.py it
+judges with), on constructed recordings: each frame sent and answered at a chosen time, in
+the recording and in the replay. No process, no clock.
 
 The numbers in the comments are the derivations docs/trace.md describes: a stop's moment in
 the motion's own time is its window less the motion command's; the device's own timing may
