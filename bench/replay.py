@@ -36,7 +36,8 @@ from typing import Any
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from bench import rt_throttling_off
-from motorctl.client.trace import analyse, one_link
+from motorctl.client.conversation import analyse
+from motorctl.client.trace import one_link
 from motorctl.protocol.codec import ErrorCode, GetAbsPos, MoveTo, StopMove, WaitMoved
 from tests.docs.test_readme import walkthrough
 from tests.support.daemon_proc import DaemonProcess

@@ -1,5 +1,6 @@
 """How ``motorctl replay`` judges the device's answers against a recording's (docs/trace.md,
-"How the answers are judged"); what motions allow: :mod:`motorctl.client.motions`.
+"How the answers are judged"); the recording's motions: :mod:`motorctl.client.motions`;
+what they allow: :mod:`motorctl.client.motion_bounds`.
 
 Pure computation: two analysed conversations (the recording's and the replay's), when each
 frame was sent and answered on each run's own clock, and the replay's pacing in; one
@@ -35,19 +36,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from motorctl.client.motions import (
-    Check,
-    Episode,
-    Replayed,
-    Span,
-    end_shift,
-    ends,
-    gap,
-    positions,
-    recording,
-    wrapped,
-)
-from motorctl.client.trace import ANSWER, Conversation, Frame, Row, answer_text
+from motorctl.client.conversation import ANSWER, Conversation, Frame, Row, answer_text
+from motorctl.client.motion_bounds import Check, Replayed, end_shift, gap, positions
+from motorctl.client.motions import Episode, Span, ends, recording, wrapped
 from motorctl.protocol.codec import (
     GetAbsPos,
     GoHome,

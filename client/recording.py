@@ -1,7 +1,7 @@
 """Reading trace files for ``motorctl trace`` and ``motorctl replay`` alike: one reader, so
 both accept the same files and name the same problems (docs/trace.md, "Reading files").
 
-:func:`load` reads the files through :func:`motorctl.protocol.capture.parse` and makes
+:func:`load` reads the files through :func:`motorctl.protocol.capture.reader.parse` and makes
 links of them: each USER0 interface its own (a mergecap of the tap's recording and the
 daemon's trace holds two), its parts (rotated files given in any order, sections put
 together with ``cat``) in time order, checked for a missing part, a session whose start is
@@ -19,16 +19,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from motorctl.protocol.capture import (
+from motorctl.protocol.capture.format import (
     LINKTYPE_USER0,
-    Capture,
     CaptureError,
     CaptureInfo,
-    Interface,
     Record,
     linktype_name,
-    parse,
 )
+from motorctl.protocol.capture.reader import Capture, Interface, parse
 
 
 class TraceFileError(Exception):
@@ -203,6 +201,20 @@ def _link(units: list[_Unit], problems: list[str]) -> Link:
     units = sorted(units, key=lambda u: (u.span or (0, 0))[0])
     first = next((u for u in units if u.info is not None), units[0])
     link = Link(first.iface.number, first.iface.name, first.info)
+    kept = _parts(link, units, problems)
+    _refuse_overlaps(link, kept)
+    _check_sessions(link, problems)
+    for unit in kept:
+        if unit.records:
+            if not link.sources or link.sources[-1][1] != str(unit.path):
+                link.sources.append((len(link.records), str(unit.path)))
+            link.records += unit.records
+    return link
+
+
+def _parts(link: Link, units: list[_Unit], problems: list[str]) -> list[_Unit]:
+    """The units kept (a session's part given twice is left out), each session's parts
+    noted in ``link.sessions``; units recorded with other settings than the link's named."""
     kept: list[_Unit] = []
     seen: dict[tuple[str, int], _Unit] = {}
     for unit in units:
@@ -220,6 +232,11 @@ def _link(units: list[_Unit], problems: list[str]) -> Link:
         if link.info is not None and info is not None and info.settings() != link.info.settings():
             problems.append(f"{unit.path}: recorded with other settings ({info.comment()})")
         kept.append(unit)
+    return kept
+
+
+def _refuse_overlaps(link: Link, kept: list[_Unit]) -> None:
+    """TraceFileError when two of the units overlap in time (in time order already)."""
     spans = [(u, u.span) for u in kept if u.span is not None]
     for (a, sa), (b, sb) in itertools.pairwise(spans):
         assert sa is not None and sb is not None
@@ -229,6 +246,10 @@ def _link(units: list[_Unit], problems: list[str]) -> Link:
                 "not parts of one recording (rotated parts follow each other); read them one "
                 "at a time, or merge them with mergecap and pick one with --interface N"
             )
+
+
+def _check_sessions(link: Link, problems: list[str]) -> None:
+    """Each session's parts put in order; a missing start or a part missing named."""
     for session, parts in link.sessions.items():
         parts.sort()
         where = f"interface {link.interface}, " if link.interface else ""
@@ -246,9 +267,3 @@ def _link(units: list[_Unit], problems: list[str]) -> Link:
                 "frames recorded there are not here, and frames and answers around the hole "
                 "may pair wrongly"
             )
-    for unit in kept:
-        if unit.records:
-            if not link.sources or link.sources[-1][1] != str(unit.path):
-                link.sources.append((len(link.records), str(unit.path)))
-            link.records += unit.records
-    return link

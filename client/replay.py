@@ -28,6 +28,7 @@ from typing import Any
 
 import serial
 
+from motorctl.client.conversation import Conversation, analyse
 from motorctl.client.judge import (
     POSITION_TOLERANCE,
     TIME_TOLERANCE_S,
@@ -37,14 +38,8 @@ from motorctl.client.judge import (
 )
 from motorctl.client.motions import windows
 from motorctl.client.recording import Recording, TraceFileError
-from motorctl.client.trace import (
-    Conversation,
-    add_settings_options,
-    analyse,
-    one_link,
-    warn,
-)
-from motorctl.protocol.capture import CaptureInfo, Direction, Record
+from motorctl.client.trace import add_settings_options, one_link, warn
+from motorctl.protocol.capture.format import CaptureInfo, Direction, Record
 from motorctl.protocol.codec import RESPONSE_LEN
 from motorctl.protocol.framing import Framer
 

@@ -31,7 +31,8 @@ from typing import Any, BinaryIO
 import serial
 
 from motorctl import __version__
-from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
+from motorctl.protocol.capture.format import CaptureInfo, Direction
+from motorctl.protocol.capture.writer import RecordEncoder, header
 from motorctl.protocol.crc import CHECKSUM_DEFAULT
 
 FLUSH_S = 0.2

@@ -73,7 +73,7 @@ from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.types import HomingParams, MotorParams
-from motorctl.protocol.capture import CaptureInfo
+from motorctl.protocol.capture.format import CaptureInfo
 from motorctl.protocol.codec import wrap24
 
 log = logging.getLogger("motorctl")

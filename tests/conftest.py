@@ -1,10 +1,10 @@
 """What every test shares.
 
 The tests mirror the package, one folder a room and a sub-folder a wing (daemon/link/,
-state/, status/; motion/executors/ and its process/; hal/backends/gpiod/, hal/layers/tmc/),
-each test file named after the module it tests, at the same place: test_<module>.py, or
-test_<module>_<part>.py for one part of a module's tests (``_e2e``: against motorctld as a
-process on a real PTY); tests/hal/backends/gpiod/test_config.py tests
+state/, status/; motion/executors/ and its process/; hal/backends/gpiod/, hal/layers/tmc/;
+protocol/capture/), each test file named after the module it tests, at the same place:
+test_<module>.py, or test_<module>_<part>.py for one part of a module's tests (``_e2e``:
+against motorctld as a process on a real PTY); tests/hal/backends/gpiod/test_config.py tests
 hal/backends/gpiod/config.py. At the top, the package's own rules: test_layout.py (the
 tests' mirror, modules' and functions' sizes) and test_imports.py (the import graph):
 
@@ -23,7 +23,9 @@ tests' mirror, modules' and functions' sizes) and test_imports.py (the import gr
                 chips on a fake SPI bus), mock_factory (the mock backend as gpiozero's mock
                 factory), line_requests (a recording GPIO request, a PWM sysfs tree),
                 stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
-                tamper (a forwarder that changes one answer: the replay's tests)
+                tamper (a forwarder that changes one answer: the replay's tests), traces
+                (made-up trace files: the trace format's, its readers' and the recorder's
+                tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports

@@ -33,7 +33,8 @@ from pathlib import Path
 from typing import Any
 
 from motorctl.daemon.state.files import clear_the_way, kind, open_for_writing
-from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
+from motorctl.protocol.capture.format import CaptureInfo, Direction
+from motorctl.protocol.capture.writer import RecordEncoder, header
 
 log = logging.getLogger("motorctl.trace")
 

@@ -1,6 +1,6 @@
-"""How the replay judges answers (client/judge.py, client/motions.py), on constructed
-recordings: each frame sent and answered at a chosen time, in the recording and in the
-replay. No process, no clock.
+"""How the replay judges answers (client/judge.py, and the motions.py and motion_bounds.py it
+judges with), on constructed recordings: each frame sent and answered at a chosen time, in
+the recording and in the replay. No process, no clock.
 
 The numbers in the comments are the derivations docs/trace.md describes: a stop's moment in
 the motion's own time is its window less the motion command's; the device's own timing may
@@ -10,11 +10,12 @@ from __future__ import annotations
 
 import pytest
 
+from motorctl.client.conversation import analyse
 from motorctl.client.judge import Tolerances, Verdict, compare
-from motorctl.client.motions import Span, envelope, recording, speed_bound, windows
+from motorctl.client.motion_bounds import envelope, speed_bound
+from motorctl.client.motions import Span, recording, windows
 from motorctl.client.replay import Outcome
-from motorctl.client.trace import analyse
-from motorctl.protocol.capture import CaptureInfo, Direction, Record
+from motorctl.protocol.capture.format import CaptureInfo, Direction, Record
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,

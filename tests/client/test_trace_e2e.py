@@ -23,8 +23,9 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import Client, DeviceError
-from motorctl.client.trace import load
-from motorctl.protocol.capture import Direction, parse
+from motorctl.client.recording import load
+from motorctl.protocol.capture.format import Direction
+from motorctl.protocol.capture.reader import parse
 from motorctl.protocol.codec import (
     CodecOptions,
     GetAbsPos,

@@ -28,7 +28,8 @@ import pytest
 from motorctl.client import cli, replay, trace
 from motorctl.client.client import Client
 from motorctl.client.recording import TraceFileError, links_of, load, read
-from motorctl.protocol.capture import LINKTYPE_USER0, Direction, parse
+from motorctl.protocol.capture.format import LINKTYPE_USER0, Direction
+from motorctl.protocol.capture.reader import parse
 from motorctl.protocol.codec import (
     CodecOptions,
     GetAbsPos,
@@ -512,7 +513,8 @@ def test_a_recording_cut_to_50_bytes_replays_nothing_and_fails(
 
 def test_output_into_a_closed_pipe_ends_quietly(tmp_path: Path) -> None:
     """motorctl trace FILE | head: no BrokenPipeError traceback."""
-    from motorctl.protocol.capture import CaptureInfo, Record, encode
+    from motorctl.protocol.capture.format import CaptureInfo, Record
+    from motorctl.protocol.capture.writer import encode
     from motorctl.protocol.codec import Response, encode_response
 
     recs = []

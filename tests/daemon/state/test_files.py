@@ -27,7 +27,7 @@ from motorctl.daemon.state.journal import MotionJournal
 from motorctl.daemon.state.records import JOURNAL_NAME, STATE_NAME, StateError, read_state
 from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.server import StatusServer
-from motorctl.protocol.capture import CaptureInfo
+from motorctl.protocol.capture.format import CaptureInfo
 from tests.support.fsutil import read_only
 from tests.support.inprocess import TWO_MOTORS, build_daemon
 from tests.support.traps import KINDS, OTHER, VICTIM_TEXT, Trap, place, shared_folder

@@ -1,308 +1,47 @@
-"""The trace file format (docs/trace.md): pcapng, interfaces of link type LINKTYPE_USER0.
+"""Reading the trace format (the package's doc): :func:`parse` takes any bytes and never
+fails other than with :class:`~motorctl.protocol.capture.format.CaptureError` (not a
+capture at all) or a :class:`Capture` whose ``problems`` name each damage by its byte
+offset: both byte orders, several sections (files concatenated with ``cat``), several
+interfaces (mergecap's output: each is its own link, ``Record.interface``), a file cut
+short or damaged (what comes before is read, the rest is reported), classic pcap files
+(which keep no directions: told from the bytes where a run is whole commands or whole
+answers with good checksums, else left out and counted: :func:`direction_of`).
 
-Over 500 lines on purpose: the format's writer and its one reader (pcapng and classic pcap,
-every kind of damage named by its offset) side by side, so that what one writes the other
-reads; trace and replay both read through :func:`parse`.
+``motorctl trace`` and ``motorctl replay`` both read through it (client/recording.py).
 
-Why it lives in protocol/: the daemon writes it (``motorctld --trace``), the client side
-writes and reads it (``motorctl tap``, ``motorctl trace``, ``motorctl replay``), and
-``client -> protocol <- daemon`` is the one room both may import. It is a pure codec like
-the rest of the room: bytes in, bytes out, no file, no clock, no thread. Callers read and
-write the files and pass the timestamps (and a session's name) in.
-
-What a file holds:
-
-- A Section Header Block whose comment carries the settings a reader needs to frame and
-  decode the bytes again: ``motorctl-trace/1 role=daemon checksum=crc8 crc_covers_ack=0
-  strict_padding=1 frame_gap_ms=10 session=3f2a9c01d4e5 part=1``, plus the recording
-  program and the port. ``session`` names one recording (a daemon's run, a tap's run) and
-  ``part`` numbers its files from 1 (the daemon's trace rotates), so a missing part and a
-  missing start are noticed.
-- One Interface Description Block: link type 147 (LINKTYPE_USER0, the range pcap leaves to
-  private use), no snap length, timestamps in nanoseconds (``if_tsresol`` = 9), and the same
-  settings comment again as its own ``opt_comment``: mergecap keeps only the first file's
-  section comment, each interface keeps its own.
-- One Enhanced Packet Block per byte run, as it was read from or written to the port, with
-  its direction in ``epb_flags`` (bits 0-1): inbound (1) = host -> device, a command's bytes;
-  outbound (2) = device -> host, an answer's bytes. Directions are always named from the
-  device's side, in the daemon's trace and in the tap's alike. ``epb_dropcount`` says how
-  many byte runs a writer that fell behind left out just before this one.
-
-Timestamps: nanoseconds, ``origin_wall_ns + (t - origin_t)``, where ``t`` is the recorder's
-monotonic clock: differences between records are differences of the monotonic clock (no NTP
-step can make them jump), and the absolute values read as wall-clock time in Wireshark.
-
-Reading (:func:`parse`) takes any bytes and never fails other than with
-:class:`CaptureError` (not a capture at all) or a :class:`Capture` whose ``problems`` name
-each damage by its byte offset: both byte orders, several sections (files concatenated with
-``cat``), several interfaces (mergecap's output: each is its own link, ``Record.interface``),
-a file cut short or damaged (what comes before is read, the rest is reported), classic pcap
-files (which keep no directions: told from the bytes where a run is whole commands or whole
-answers with good checksums, else left out and counted).
+Pure: bytes in, a :class:`Capture` out; a :func:`parse` call's state is its own, on the
+caller's thread.
 """
 
 from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, field, replace
-from enum import IntEnum
 
+from motorctl.protocol.capture.format import (
+    BYTE_ORDER_MAGIC,
+    EPB,
+    EPB_DROPCOUNT,
+    EPB_FLAGS,
+    IDB,
+    IF_NAME,
+    IF_TSRESOL,
+    LINKTYPE_USER0,
+    MAX_RECORD,
+    OPB,
+    OPT_COMMENT,
+    OPT_END,
+    PCAP_MAGIC,
+    SHB,
+    SHB_USERAPPL,
+    SPB,
+    CaptureError,
+    CaptureInfo,
+    Direction,
+    Record,
+    linktype_name,
+)
 from motorctl.protocol.codec import FRAME_LEN, RESPONSE_LEN, CodecOptions, CommandCode, ErrorCode
-from motorctl.protocol.crc import CHECKSUM_DEFAULT, checksum_by_name
-
-FORMAT = "motorctl-trace/1"
-"""The first word of the section comment; the number is the format's version."""
-
-LINKTYPE_USER0 = 147
-SUFFIX = ".pcapng"
-
-SHB = 0x0A0D0D0A
-IDB = 0x00000001
-OPB = 0x00000002  # the obsolete Packet Block
-SPB = 0x00000003
-EPB = 0x00000006
-BYTE_ORDER_MAGIC = 0x1A2B3C4D
-
-OPT_END = 0
-OPT_COMMENT = 1
-SHB_HARDWARE = 2
-SHB_OS = 3
-SHB_USERAPPL = 4
-IF_NAME = 2
-IF_DESCRIPTION = 3
-IF_TSRESOL = 9
-EPB_FLAGS = 2
-EPB_DROPCOUNT = 4
-
-#: classic pcap's magic numbers (as the first four bytes read) -> (byte order, ns resolution)
-PCAP_MAGIC = {
-    b"\xd4\xc3\xb2\xa1": ("<", False),
-    b"\xa1\xb2\xc3\xd4": (">", False),
-    b"\x4d\x3c\xb2\xa1": ("<", True),
-    b"\xa1\xb2\x3c\x4d": (">", True),
-}
-#: link types a user may meet, for messages
-LINKTYPE_NAMES = {
-    0: "NULL",
-    1: "Ethernet",
-    101: "raw IP",
-    113: "Linux cooked (SLL)",
-    147: "USER0",
-    276: "Linux cooked v2 (SLL2)",
-    **{147 + i: f"USER{i}" for i in range(1, 16)},
-}
-MAX_RECORD = 1 << 24  # a pcap record longer than this is damage, not data
-
-
-def linktype_name(linktype: int) -> str:
-    name = LINKTYPE_NAMES.get(linktype)
-    return f"link type {linktype}" + (f" ({name})" if name else "")
-
-
-class Direction(IntEnum):
-    """A byte run's direction, as ``epb_flags`` bits 0-1 say it (the device's view)."""
-
-    TO_DEVICE = 1  # inbound: host -> device (commands)
-    TO_HOST = 2  # outbound: device -> host (answers)
-
-    @property
-    def arrow(self) -> str:
-        """``->`` for host -> device, ``<-`` for device -> host."""
-        return "->" if self is Direction.TO_DEVICE else "<-"
-
-
-class CaptureError(Exception):
-    """Not a trace file this reader can use; the message says why."""
-
-
-def _flag(value: bool) -> str:
-    return "1" if value else "0"
-
-
-@dataclass(frozen=True)
-class CaptureInfo:
-    """What a reader needs besides the bytes: how frames were cut and checked, and which
-    recording and which part of it a file is."""
-
-    role: str = "daemon"  # "daemon" (motorctld --trace) or "tap" (motorctl tap)
-    checksum: str = CHECKSUM_DEFAULT
-    crc_covers_ack: bool = False
-    strict_padding: bool = True
-    frame_gap_ms: float = 10.0
-    port: str = ""  # the port recorded (the daemon's) or "host <-> device" (the tap's)
-    application: str = "motorctl"
-    session: str = ""  # names one recording (no spaces); "" in files of older versions
-    part: int = 0  # the file's number within its session, from 1; 0: not numbered
-
-    def comment(self) -> str:
-        """The section comment: ``motorctl-trace/1 key=value ...`` (no spaces in values)."""
-        text = (
-            f"{FORMAT} role={self.role} checksum={self.checksum.replace(' ', '')} "
-            f"crc_covers_ack={_flag(self.crc_covers_ack)} "
-            f"strict_padding={_flag(self.strict_padding)} "
-            f"frame_gap_ms={self.frame_gap_ms:g}"
-        )
-        if self.session:
-            text += f" session={self.session} part={self.part}"
-        return text
-
-    def settings(self) -> tuple[str, bool, bool, float]:
-        """What decoding depends on: two files with the same settings decode alike."""
-        return (self.checksum, self.crc_covers_ack, self.strict_padding, self.frame_gap_ms)
-
-    @classmethod
-    def from_comment(cls, text: str, port: str = "", application: str = "") -> CaptureInfo:
-        """Parse :meth:`comment`'s text; CaptureError if it is not one or a value is bad.
-        Unknown keys are ignored (a later minor version may add some)."""
-        words = text.split()
-        if not words or not words[0].startswith("motorctl-trace/"):
-            raise CaptureError(f"section comment {text[:60]!r} is not a {FORMAT} header")
-        version = words[0].split("/", 1)[1]
-        if version != FORMAT.split("/", 1)[1]:
-            raise CaptureError(f"trace format version {version}; this reader knows {FORMAT}")
-        values = dict(w.split("=", 1) for w in words[1:] if "=" in w)
-        try:
-            info = cls(
-                role=values.get("role", "daemon"),
-                checksum=values.get("checksum", CHECKSUM_DEFAULT),
-                crc_covers_ack=values.get("crc_covers_ack", "0") == "1",
-                strict_padding=values.get("strict_padding", "1") == "1",
-                frame_gap_ms=float(values.get("frame_gap_ms", "10")),
-                port=port,
-                application=application or "motorctl",
-                session=values.get("session", ""),
-                part=int(values.get("part", "0")),
-            )
-            info.codec_options()
-            if not info.frame_gap_ms >= 0 or info.part < 0:
-                raise ValueError("frame_gap_ms and part cannot be negative")
-        except ValueError as exc:
-            raise CaptureError(f"bad value in the section comment {text!r}: {exc}") from None
-        return info
-
-    def codec_options(self) -> CodecOptions:
-        """The codec settings the recorded link used (ValueError: unknown checksum name)."""
-        return CodecOptions(
-            crc=checksum_by_name(self.checksum),
-            crc_covers_ack=self.crc_covers_ack,
-            strict_padding=self.strict_padding,
-        )
-
-
-@dataclass(frozen=True)
-class Record:
-    """One byte run: when (ns, see the module doc), which way, the bytes, runs left out
-    just before it (``dropped``), the interface it was recorded on (its number within its
-    section: Wireshark's ``frame.interface_id``), and where it is in its file (``packet``:
-    its number among the file's packets, 1 = the first, as Wireshark's ``frame.number``;
-    ``offset``: its block's byte offset)."""
-
-    ts_ns: int
-    direction: Direction
-    data: bytes
-    dropped: int = 0
-    interface: int = 0
-    packet: int = field(default=0, compare=False)
-    offset: int = field(default=-1, compare=False)
-
-
-# --- writing ----------------------------------------------------------------------------------
-
-
-def _option(code: int, value: bytes) -> bytes:
-    pad = -len(value) % 4
-    return struct.pack("<HH", code, len(value)) + value + bytes(pad)
-
-
-def _block(kind: int, body: bytes) -> bytes:
-    total = 12 + len(body)
-    return struct.pack("<II", kind, total) + body + struct.pack("<I", total)
-
-
-def header(info: CaptureInfo, os_name: str = "") -> bytes:
-    """The Section Header Block and the Interface Description Block that open every file."""
-    comment = info.comment().encode()
-    shb_opts = _option(OPT_COMMENT, comment)
-    shb_opts += _option(SHB_USERAPPL, info.application.encode())
-    if os_name:
-        shb_opts += _option(SHB_OS, os_name.encode())
-    shb_opts += _option(OPT_END, b"")
-    shb = _block(SHB, struct.pack("<IHHq", BYTE_ORDER_MAGIC, 1, 0, -1) + shb_opts)
-    idb_opts = _option(OPT_COMMENT, comment)
-    idb_opts += _option(IF_NAME, (info.port or "motorctl link").encode())
-    idb_opts += _option(
-        IF_DESCRIPTION,
-        b"motorctl UART protocol: 10-byte commands in, 5-byte answers out (docs/trace.md)",
-    )
-    idb_opts += _option(IF_TSRESOL, bytes([9]))
-    idb_opts += _option(OPT_END, b"")
-    idb = _block(IDB, struct.pack("<HHI", LINKTYPE_USER0, 0, 0) + idb_opts)
-    return shb + idb
-
-
-_EPB_HEAD = struct.Struct("<IIIIIII")
-
-
-class RecordEncoder:
-    """Encodes byte runs as Enhanced Packet Blocks, fast: the link thread calls it for every
-    run read or written, so the parts that depend only on a run's length and direction are
-    built once and kept (a few dozen lengths occur: commands, answers and their batches).
-    Owned by the thread that calls it."""
-
-    def __init__(self) -> None:
-        self._tails: dict[tuple[int, int], tuple[int, bytes]] = {}
-
-    def _tail(self, length: int, direction: int) -> tuple[int, bytes]:
-        pad = -length % 4
-        opts = _option(EPB_FLAGS, struct.pack("<I", direction)) + _option(OPT_END, b"")
-        total = _EPB_HEAD.size + length + pad + len(opts) + 4
-        return total, bytes(pad) + opts + struct.pack("<I", total)
-
-    def encode(
-        self, ts_ns: int, direction: int, data: bytes | bytearray, dropped: int = 0
-    ) -> bytes:
-        """One block for ``data`` (a run of ``direction``) recorded at ``ts_ns``."""
-        length = len(data)
-        if dropped:
-            return self._encode_dropped(ts_ns, direction, bytes(data), dropped)
-        key = (length, direction)
-        tail = self._tails.get(key)
-        if tail is None:
-            tail = self._tails[key] = self._tail(length, direction)
-        total, end = tail
-        return b"".join(
-            (
-                _EPB_HEAD.pack(EPB, total, 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF, length, length),
-                data,
-                end,
-            )
-        )
-
-    @staticmethod
-    def _encode_dropped(ts_ns: int, direction: int, data: bytes, dropped: int) -> bytes:
-        opts = (
-            _option(EPB_FLAGS, struct.pack("<I", direction))
-            + _option(EPB_DROPCOUNT, struct.pack("<Q", dropped))
-            + _option(OPT_END, b"")
-        )
-        body = (
-            struct.pack("<IIIII", 0, ts_ns >> 32, ts_ns & 0xFFFFFFFF, len(data), len(data))
-            + data
-            + bytes(-len(data) % 4)
-            + opts
-        )
-        return _block(EPB, body)
-
-
-def encode(info: CaptureInfo, records: list[Record]) -> bytes:
-    """A whole file: header and records (tests, tools; the recorders stream instead)."""
-    enc = RecordEncoder()
-    return header(info) + b"".join(
-        enc.encode(r.ts_ns, r.direction, r.data, r.dropped) for r in records
-    )
-
-
-# --- reading ----------------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -758,8 +497,3 @@ def _parse_pcap(data: bytes, order: str, nanos: bool) -> Capture:
         )
     cap.problems.insert(0, note)
     return cap
-
-
-def ns_from(origin_wall_ns: int, origin_t: float, t: float) -> int:
-    """The timestamp of a record taken at monotonic ``t`` (see the module doc)."""
-    return origin_wall_ns + round((t - origin_t) * 1e9)
