@@ -80,7 +80,7 @@ run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
 # What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
-# tshark and mergecap (tests/client/test_wireshark.py: the Lua dissector, merged files), with
+# tshark and mergecap (tests/client/test_trace_files.py: the Lua dissector, merged files), with
 # wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
 test-deps:
 	@command -v socat >/dev/null || { \
