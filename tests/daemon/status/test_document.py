@@ -157,8 +157,9 @@ def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
     served: tuple[LiveDaemon, Path],
 ) -> None:
     """A soft StopMove re-plans from the executed state: the deceleration takes over at the
-    first segment boundary after the executor's lead, within lead + one segment's span of
-    the command, and the motor's status says how soon and how many steps on."""
+    first segment boundary after the executor's lead, within lead + one segment's span + one
+    step of the command (a run holds the steps within its span; the next starts at the step
+    after its last), and the motor's status says how soon and how many steps on."""
     live, path = served
     live.moving(1)
     until(
@@ -169,12 +170,14 @@ def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
     doc = read_status(path, timeout=READ_DEADLINE_S)
     soft = doc["motors"][1]["soft_stops"]
     executor = live.daemon.engine.executor
-    bound_ms = (executor.lead_s + executor.span / 1e9) * 1000  # type: ignore[attr-defined]
+    config = live.daemon.config  # Move SPEED 1, in step/s (clamped to the motor's maximum)
+    speed = min(config.units.run_speed_factor * 1, config.motors[1].max_speed)
+    span_s = executor.lead_s + executor.span / 1e9  # type: ignore[attr-defined]
+    bound_ms = (span_s + 1 / speed) * 1000
     assert soft["count"] == 1
     assert 0 < soft["takeover_ms"][0] == soft["takeover_ms"][1] <= bound_ms + 1e-6
     # in steps: those planned before the takeover, and those the executor was behind with
     # when the command came (no real-time priority here: up to its worst lateness)
-    speed = live.daemon.config.units.run_speed_factor * 1  # Move SPEED 1, in step/s
     behind_ms = doc["steps"]["max_us"] / 1000
     assert 0 < soft["takeover_steps"][0] <= (bound_ms + behind_ms) / 1000 * speed + 1
 
