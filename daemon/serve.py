@@ -38,6 +38,7 @@ from motorctl.daemon.errors import StartupError
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.service import notify_backend, sd_notify
 from motorctl.daemon.signals import StopSignals
+from motorctl.hal.interfaces import HalError
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.process.start import WaitingInterpreter
 
@@ -107,9 +108,14 @@ def run(served: Served, stop: StopSignals) -> int:
     shut down and close; the exit status."""
     daemon, link = served.daemon, served.link
     config = daemon.config
+    try:  # first: a core that cannot run ([step_thread] core) is a start error, state untouched
+        daemon.engine.executor.start()
+    except HalError as exc:
+        daemon.engine.executor.close()
+        served.close()
+        raise StartupError(str(exc)) from exc
     stop.attach(link.stop, link.signal_fd)
     daemon.persistence.start()
-    daemon.engine.executor.start()
     daemon.engine.start()
     served.status.start()
     daemon.gc_policy.ready()

@@ -77,6 +77,13 @@ def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_er
     with pytest.raises(RuntimeError, match="motorctld exited") as err:
         motorctld(text)
     assert '[step_thread] core = "compiled" runs in the process executor only' in str(err.value)
+    # where it is not built: the start says so in one line, and exits (no traceback)
+    text = for_tests('[step_thread]\ncore = "compiled"\n[[motors]]\nname = "a"\n', force=True)
+    with pytest.raises(RuntimeError, match="motorctld exited") as err:
+        motorctld(text, env={"MOTORCTL_STEPCORE": str(tmp_path / "missing.so")})
+    said = str(err.value)
+    assert 'error: the step executor cannot start: [step_thread] core = "compiled"' in said
+    assert "the compiled step core is not built" in said and "Traceback" not in said
 
 
 @pytest.mark.parametrize(
