@@ -31,7 +31,14 @@ import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from motorctl.hal.backends.gpiod.chip import GpioApi, LineRequest, LineSettings, load_api
+from motorctl.hal.backends.gpiod.boards import describe_chip, layout
+from motorctl.hal.backends.gpiod.chip import (
+    GpioApi,
+    LineRequest,
+    LineSettings,
+    chip_list,
+    load_api,
+)
 from motorctl.hal.backends.gpiod.config import (
     AxisRole,
     GpiodAxisConfig,
@@ -592,10 +599,18 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
     chips = api.chips()
+    links = {path: name for name, path in api.aliases().items()}
     report.add(
         f"libgpiod Python API {api.name} ({api.version})",
-        [f"{c.name} [{c.label}] {c.num_lines} lines ({c.path})" for c in chips],
+        [
+            f"{describe_chip(c)} ({c.path}"
+            + (f"; /dev/{links[c.path]} links to it" if c.path in links else "")
+            + ")"
+            for c in chips
+        ]
+        or [chip_list(chips)],
     )
+    report.add("board layout", [layout(chips)])
     dup = wiring.duplicates()
     if dup:
         report.problems += dup
@@ -613,9 +628,14 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         mode = "output" if info.output else "input"
         rows.append(
             f"{ln.use:<22} {ln.ref!s:<16} -> {os.path.basename(ln.chip_path)}:"
-            f"{ln.offset}{name} ({mode}, {held})"
+            f"{ln.offset}{name} [{ln.chip_label}] ({mode}, {held})"
         )
     report.add("configured lines (before opening)", rows or ["none"])
+    used = {ln.chip_path for ln in lines}
+    report.add(
+        "chips the config uses",
+        [describe_chip(c) for c in chips if c.path in used] or ["none"],
+    )
     try:
         api.check_free(lines)
         hw = build(spec, clock, for_probe=True)

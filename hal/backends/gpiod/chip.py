@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from datetime import timedelta
 from typing import Any
 
+from motorctl.hal.backends.gpiod.boards import board_of, chip_number, describe_chip
 from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
 from motorctl.hal.interfaces import HalError
 
@@ -105,17 +106,37 @@ class GpioApi(ABC):
     version: str
 
     def chip_paths(self) -> list[str]:
+        """The chips' character devices, by number: not the links to them (Raspberry Pi OS
+        links /dev/gpiochip4 to gpiochip0 on a Pi 5; :meth:`aliases`), as gpiodetect does."""
+        return [p for p in self._dev_chips() if not os.path.islink(p)]
+
+    def aliases(self) -> dict[str, str]:
+        """Links in /dev to a chip: ``{"gpiochip4": "/dev/gpiochip0"}``."""
+        out = {}
+        for path in self._dev_chips():
+            if os.path.islink(path):
+                target = os.path.realpath(path)
+                head, name = os.path.split(target)
+                if head == DEV and chip_number(name) is not None:
+                    out[os.path.basename(path)] = target
+        return out
+
+    def _dev_chips(self) -> list[str]:
         try:
             names = sorted(os.listdir(DEV), key=_chip_sort_key)
         except OSError:
             return []
-        return [f"{DEV}/{n}" for n in names if n.startswith("gpiochip") and n[8:].isdigit()]
+        return [f"{DEV}/{n}" for n in names if chip_number(n) is not None]
 
     @abstractmethod
     def chip_info(self, path: str) -> ChipInfo: ...
 
     @abstractmethod
     def line_info(self, path: str, offset: int) -> LineInfo: ...
+
+    @abstractmethod
+    def line_names(self, path: str) -> list[str]:
+        """Every line's name on one chip, by offset ("" for an unnamed line)."""
 
     @abstractmethod
     def _request(
@@ -133,15 +154,16 @@ class GpioApi(ABC):
         return out
 
     def resolve(self, lines: list[tuple[str, LineRef]]) -> list[ResolvedLine]:
-        """Find every line on the kernel's chips; any that cannot be found is an error."""
+        """Find every line on the kernel's chips; any that cannot be found is an error that
+        lists the chips there are (number, label, line count)."""
         chips = self.chips()
         names: dict[str, list[tuple[ChipInfo, int]]] = {}
         if any(ref.name is not None for _, ref in lines):
             for chip in chips:
-                for off in range(chip.num_lines):
-                    name = self.line_info(chip.path, off).name
+                for off, name in enumerate(self.line_names(chip.path)):
                     if name:
                         names.setdefault(name, []).append((chip, off))
+        aliases = self.aliases()
         out: list[ResolvedLine] = []
         for use, ref in lines:
             if ref.name is not None:
@@ -149,7 +171,8 @@ class GpioApi(ABC):
                 if not found:
                     raise HalError(
                         f"{use}: no GPIO line named {ref.name!r} on any chip "
-                        f"({_chip_list(chips)}); `gpioinfo` lists the names, or write chip:offset"
+                        f"({chip_list(chips)}); `gpioinfo` lists the names, or write "
+                        "chip:offset"
                     )
                 if len(found) > 1:
                     where = ", ".join(f"{c.name}:{o}" for c, o in found)
@@ -160,20 +183,43 @@ class GpioApi(ABC):
                 chip, off = found[0]
             else:
                 assert ref.chip is not None and ref.offset is not None
-                match = [c for c in chips if ref.chip in (c.name, c.label)]
-                if not match:
-                    raise HalError(
-                        f"{use}: no GPIO chip {ref.chip!r} ({_chip_list(chips)}); "
-                        "check the name with `gpiodetect`"
-                    )
-                chip, off = match[0], ref.offset
+                chip, off = self._chip_of(use, ref.chip, ref.offset, chips, aliases), ref.offset
                 if off >= chip.num_lines:
                     raise HalError(
-                        f"{use}: {chip.name} has lines 0..{chip.num_lines - 1}, not {off}"
+                        f"{use}: {chip.name} [{chip.label}] has {chip.num_lines} lines "
+                        f"(0..{chip.num_lines - 1}), no line {off} ({chip_list(chips)})"
                     )
             info = self.line_info(chip.path, off)
             out.append(ResolvedLine(use, ref, chip.path, off, chip.label, info.name))
         return out
+
+    @staticmethod
+    def _chip_of(
+        use: str, ref: str, offset: int, chips: list[ChipInfo], aliases: dict[str, str]
+    ) -> ChipInfo:
+        """The chip a config names by its name (``gpiochip0``), a link to it in /dev
+        (``gpiochip4`` -> gpiochip0) or its label (``pinctrl-rp1``)."""
+        path = aliases.get(ref)
+        match = [c for c in chips if ref == c.name or c.path == path]
+        if not match:
+            match = [c for c in chips if ref == c.label]
+            if len(match) > 1:
+                raise HalError(
+                    f"{use}: chip label {ref!r} is on several chips "
+                    f"({', '.join(c.name for c in match)}); write the chip's name"
+                )
+        if not match:
+            hint = "check the name with `gpiodetect`"
+            if chip_number(ref) is not None:
+                header = next((c for c in chips if board_of(c) is not None), None)
+                label = header.label if header is not None else "LABEL"
+                hint = (
+                    "chip numbers change between kernels (a Raspberry Pi 5's RP1 was gpiochip4 "
+                    f"before 6.6.45, gpiochip0 after): write the chip's label ({label}:{offset}) "
+                    "or the line's name (`gpioinfo` lists them)"
+                )
+            raise HalError(f"{use}: no GPIO chip {ref!r} ({chip_list(chips)}); {hint}")
+        return match[0]
 
     def check_free(self, lines: list[ResolvedLine]) -> None:
         """Every line resolves to a distinct, unheld line; otherwise an error that names it."""
@@ -207,14 +253,15 @@ class GpioApi(ABC):
 
 
 def _chip_sort_key(name: str) -> tuple[int, str]:
-    tail = name[8:]
-    return (int(tail), name) if tail.isdigit() else (1 << 30, name)
+    number = chip_number(name)
+    return (number, name) if number is not None else (1 << 30, name)
 
 
-def _chip_list(chips: list[ChipInfo]) -> str:
+def chip_list(chips: list[ChipInfo]) -> str:
+    """The chips there are, for an error: ``chips: gpiochip0 [pinctrl-rp1] 54 lines, ...``."""
     if not chips:
         return "the kernel shows no GPIO chips in /dev"
-    return "chips: " + ", ".join(f"{c.name} [{c.label}]" for c in chips)
+    return "chips: " + ", ".join(describe_chip(c) for c in chips)
 
 
 def _where(line: ResolvedLine) -> str:
@@ -287,6 +334,11 @@ class _V2(GpioApi):
         with self.g.Chip(path) as chip:
             info = chip.get_info()
             return ChipInfo(path, info.name, info.label, info.num_lines)
+
+    def line_names(self, path: str) -> list[str]:
+        with self.g.Chip(path) as chip:
+            n = chip.get_info().num_lines
+            return [chip.get_line_info(off).name or "" for off in range(n)]
 
     def line_info(self, path: str, offset: int) -> LineInfo:
         with self.g.Chip(path) as chip:
@@ -381,6 +433,13 @@ class _V1(GpioApi):
         chip = self._chip(path)
         try:
             return ChipInfo(path, chip.name(), chip.label(), chip.num_lines())
+        finally:
+            chip.close()
+
+    def line_names(self, path: str) -> list[str]:
+        chip = self._chip(path)
+        try:
+            return [chip.get_line(off).name() or "" for off in range(chip.num_lines())]
         finally:
             chip.close()
 
