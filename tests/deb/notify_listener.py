@@ -4,7 +4,8 @@ Usage: notify_listener.py SOCKET USER -- COMMAND...   (run as root inside the te
 
 Waits for READY=1, asks the daemon a question with the motorctl CLI as USER, checks the
 PTY's mode and group, waits for a STATUS= line, sends SIGTERM and expects STOPPING=1 and
-exit status 0. Every wait has a deadline. Exit status 0 when all held.
+exit status 0. Every wait has a deadline (NOTIFY_DEADLINE_S, default 30 s; longer for a root
+run under qemu-user). Exit status 0 when all held.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-DEADLINE_S = 30.0
+DEADLINE_S = float(os.environ.get("NOTIFY_DEADLINE_S", "30"))
 
 
 def main() -> int:

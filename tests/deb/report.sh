@@ -1,7 +1,8 @@
 #!/bin/sh
-# Runs inside the booted test root (report.service). Every wait has a deadline.
+# Runs inside the booted test root (report.service). Every wait has a deadline: 2 minutes,
+# for a root that runs under qemu-user (tools/debroot.sh); a native one is there in seconds.
 i=0
-while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 60 ]; do
+while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 240 ]; do
   sleep 0.5; i=$((i + 1))
 done
 sleep 3  # let STATUS= arrive
@@ -17,7 +18,7 @@ echo "left-in-run: $(ls -A /run/motorctl | tr '\n' ' ')"
 sed -i 's|^directory = ""|directory = "/var/lib/motorctl"|' /etc/motorctl/motorctl.toml
 systemctl start motorctld
 i=0
-while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 60 ]; do
+while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 240 ]; do
   sleep 0.5; i=$((i + 1))
 done
 echo "var-lib: $(systemctl show -P SubState motorctld) $(ls -A /var/lib/motorctl | tr '\n' ' ')"
@@ -43,7 +44,7 @@ echo 'MOTORCTLD_SERVE="--pty /run/motorctl-right/host.pty"' > /etc/default/motor
 systemctl enable --now motorctld@left motorctld@right 2>&1 | sed 's/^/  | /'
 for i in left right; do
   n=0
-  while [ "$(systemctl show -P SubState motorctld@$i)" != running ] && [ $n -lt 60 ]; do
+  while [ "$(systemctl show -P SubState motorctld@$i)" != running ] && [ $n -lt 240 ]; do
     sleep 0.5; n=$((n + 1))
   done
 done
