@@ -6,8 +6,15 @@
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
 #               is made when missing; in the guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
+# The venv's install builds the compiled step core (setup.py: motion/csrc/ ->
+# motion/_stepcore*.so, in place); that needs gcc and the Python headers, installed via apt
+# (gcc, python3-dev) when root and missing. make stepcore rebuilds it after a change to its
+# sources (make test and make run do); make test-asan runs the core's tests on a build with
+# the address and undefined-behaviour sanitizers.
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
-# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly).
+# tear a socat PTY pair down and make it again; without socat they skip, saying so loudly), and
+# tshark the same way (the Wireshark dissector's tests; without it they skip, saying so loudly),
+# and Debian's prometheus package for its promtool (the metrics' lint; skipped loudly without it).
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
@@ -18,37 +25,95 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps test-root
+.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
+  test-root stepcore test-asan
 
 venv: $(VENV)/.installed
 
-$(VENV)/.installed: pyproject.toml
+# What building the compiled step core needs: a C compiler and $(PYTHON)'s headers.
+HAVE_CC = command -v gcc >/dev/null && $(PYTHON) -c 'import os, sysconfig; \
+  raise SystemExit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))'
+
+$(VENV)/.installed: pyproject.toml setup.py
 	@$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q python3-venv; \
 	  else echo "python3-venv is missing: run 'sudo apt-get install python3-venv'" >&2; exit 1; fi; }
+	@$(HAVE_CC) 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+	    apt-get install -y -q -o DPkg::Lock::Timeout=600 --no-install-recommends gcc libc6-dev python3-dev; \
+	  else echo "the compiled step core needs gcc and the Python headers: run" \
+	    "'sudo apt-get install gcc python3-dev'" >&2; exit 1; fi; \
+	  $(HAVE_CC) || { echo "gcc or Python.h of $(PYTHON) still missing: install gcc and" \
+	    "the -dev package of that Python" >&2; exit 1; }; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	PYTHONWARNINGS='ignore:Editable installation:UserWarning' $(BIN)/pip install -q -e '.[dev]'
+	touch $@ $(VENV)/.stepcore
+
+# The compiled step core again, in place, after a change to its sources (-Wall -Wextra -Werror).
+stepcore: $(VENV)/.stepcore
+
+$(VENV)/.stepcore: $(VENV)/.installed setup.py $(wildcard motion/csrc/*.c motion/csrc/*.h)
+	$(BIN)/python setup.py -q build_ext --inplace
 	touch $@
 
-run: venv
+# The step core's tests on the compiled core built with -fsanitize=address,undefined (into
+# build/asan; MOTORCTL_STEPCORE makes every process load that build, the sanitizers' runtime
+# preloaded): any error the sanitizers find fails the run.
+ASAN_FLAGS = -O1 -g -fno-omit-frame-pointer -fsanitize=address,undefined \
+  -fno-sanitize-recover=all -fno-wrapv
+ASAN_TESTS = tests/motion/test_step_core.py tests/motion/test_segments.py \
+  tests/motion/test_executor_process.py tests/motion/test_executor_process_rings.py
+test-asan: venv
+	rm -rf build/asan
+	CFLAGS="$(ASAN_FLAGS)" LDFLAGS="-fsanitize=address,undefined" \
+	  $(BIN)/python setup.py -q build_ext --build-lib build/asan/lib --build-temp build/asan/tmp
+	cp build/asan/lib/motorctl/motion/_stepcore*.so build/asan/_stepcore.so
+	MOTORCTL_STEPCORE=$(CURDIR)/build/asan/_stepcore.so LD_PRELOAD="$$(gcc -print-file-name=libasan.so)" \
+	  ASAN_OPTIONS=detect_leaks=0:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+	  PYTHONMALLOC=malloc sh -c '$(BIN)/python -c "from motorctl.motion import compiled_core as c; \
+	    assert c.load().__file__ == \"$$MOTORCTL_STEPCORE\""; \
+	    $(BIN)/pytest -q -n $(JOBS) -p no:cacheprovider -k "compiled or both_cores" $(ASAN_TESTS)'
+
+run: venv stepcore
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
-# What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py).
+# What the tests need from Debian besides the venv: socat (tests/daemon/test_serialport_e2e.py);
+# tshark and mergecap (tests/client/test_wireshark.py: the Lua dissector, merged files), with
+# wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
 test-deps:
 	@command -v socat >/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
 	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat; \
 	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
 	    "device reconnect tests are SKIPPED" >&2; fi; }
+	@command -v tshark >/dev/null && command -v mergecap >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    { echo 'wireshark-common wireshark-common/install-setuid boolean false' \
+	      | debconf-set-selections && apt-get update -q && DEBIAN_FRONTEND=noninteractive \
+	      apt-get install -y -q -o DPkg::Lock::Timeout=600 --no-install-recommends tshark; } \
+	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
+	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
+	    "dissector's tests are SKIPPED" >&2; fi; }
+# ... and promtool, from Debian's prometheus package (tests/daemon/test_metrics.py lints the
+# metrics with `promtool check metrics`; installing it starts no server where systemd does
+# not run, and where it does the package's prometheus.service is stopped and disabled again)
+	@command -v promtool >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
+	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q -o DPkg::Lock::Timeout=600 \
+	      --no-install-recommends prometheus && \
+	    { ! command -v systemctl >/dev/null || systemctl disable --now prometheus 2>/dev/null \
+	      || true; }; \
+	  else echo "promtool is missing: run 'sudo apt-get install prometheus'; until then the" \
+	    "metrics' promtool check is SKIPPED" >&2; fi; }
 
-test: venv test-deps
+test: venv stepcore test-deps
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
 
-test-hw:
+test-hw: stepcore
 	hwtest/run all
 
 # Unit coverage of the daemon's modules (the link, its session, state, service, status).
@@ -56,7 +121,8 @@ coverage: venv test-deps
 	$(BIN)/pytest -q -n $(JOBS) --cov=motorctl.daemon --cov=motorctl.protocol.framing \
 	  --cov-report=term-missing
 
-# The robustness harness (docs/robustness.md): 10^6 frames, kill -9 cycles, HAL faults, soak.
+# The robustness harness (docs/robustness.md): 10^6 frames, kill -9 cycles, reconnects during a
+# WaitMoved, HAL faults, soak.
 # ARGS="--quick" for a short run; the full run takes about 20 minutes.
 robustness: venv
 	$(BIN)/python -m bench.robustness $(ARGS)
@@ -66,8 +132,10 @@ bench: venv
 	$(BIN)/python bench/steps.py
 	$(BIN)/python bench/noisy.py
 	$(BIN)/python bench/rings.py
+	$(BIN)/python bench/reconnect.py
 	$(BIN)/python bench/instances.py
 	$(BIN)/python bench/startup.py
+	$(BIN)/python bench/replay.py
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
 # ignored), in build/deb/SUITE-ARCH: an orig tarball from git, debian/ beside it, patches
@@ -78,8 +146,9 @@ bench: venv
 # only (a debootstrap cached in build/, see tools/debroot.sh), as an unprivileged user,
 # without network; so a Build-Depends missing from debian/control fails for everyone,
 # whatever this machine has installed. Then lintian. Needs root. Result:
-# build/deb/SUITE-ARCH/motorctl_<version>-1_all.deb (_ARCH.deb once the package is
-# Architecture: any; log: build.log beside it).
+# build/deb/SUITE-ARCH/motorctl_<version>-1_ARCH.deb (log: build.log beside it). One package
+# per release and architecture: it holds the compiled step core, built for that release's
+# one Python (3.11 on Debian 12, 3.13 on Debian 13; docs/service.md says more).
 # DEB_DEPS: what the host needs for make deb and make test-deb (not for building the package).
 SUITE ?= bookworm
 HOST_ARCH := $(shell dpkg --print-architecture 2>/dev/null || echo amd64)
@@ -87,8 +156,7 @@ ARCH ?= $(HOST_ARCH)
 DEB_DEPS = debootstrap lintian systemd-container $(if $(filter-out $(HOST_ARCH),$(ARCH)),qemu-user-static binfmt-support)
 DEB_VERSION = $(shell awk 'NR == 1 { v = $$2; gsub(/[()]/, "", v); sub(/-[^-]*$$/, "", v); print v }' debian/changelog)
 DEB_DIR = build/deb/$(SUITE)-$(ARCH)
-DEB_PKG_ARCH = $(if $(shell grep -qx 'Architecture: all' debian/control && echo all),all,$(ARCH))
-DEB_FILE = $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_PKG_ARCH).deb
+DEB_FILE = $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(ARCH).deb
 SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's tools, not a venv's or pyenv's
 DEBROOT = DEBROOT_SUITE=$(SUITE) DEBROOT_ARCH=$(ARCH)
 
@@ -114,15 +182,9 @@ deb: deb-deps
 	@ls -l $(DEB_DIR)/*.deb
 
 # Install the package on a fresh root of SUITE on ARCH (the same cached debootstrap) and check
-# it there: see tests/deb/check-install.sh. DEB=FILE checks that package instead of building
-# one (CI installs the one bookworm package on trixie too).
-ifeq ($(origin DEB),undefined)
+# it there: see tests/deb/check-install.sh.
 test-deb: deb
 	PATH=$(SYSPATH) $(DEBROOT) bash tests/deb/check-install.sh $(DEB_FILE)
-else
-test-deb: deb-deps
-	PATH=$(SYSPATH) $(DEBROOT) bash tests/deb/check-install.sh $(DEB)
-endif
 
 # The test suite in a fresh root of SUITE on ARCH with Debian's python3 and packages only (no
 # venv, nothing from PyPI): all of it where ARCH runs natively, the part that proves what
@@ -132,4 +194,4 @@ test-root: deb-deps
 	PATH=$(SYSPATH) $(DEBROOT) bash tests/deb/suite-in-root.sh $(TESTS)
 
 clean:
-	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info
+	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info motion/_stepcore*.so

@@ -1041,6 +1041,157 @@ def part_soak(workdir: Path, seconds: float, seed: int, report: Report) -> None:
             d.terminate()
 
 
+# -- part 5: a new host while the old one's WaitMoved is held ---------------------------
+def part_reconnect(workdir: Path, cycles: int, seed: int, report: Report) -> None:
+    """A host closes the port in the middle of a WaitMoved, with frames kept behind it, and
+    a new host opens it at once (or within 20 ms): the new host must read only its own
+    answers, exactly, long before the old WaitMoved could end; the old session's kept
+    commands must never run (a SetPin, a MoveTo), while a StopMove among them is carried
+    out; its partial frame must not join the new host's first frame."""
+    rng = random.Random(seed)
+    state = workdir / "state"
+    d = Daemon(workdir, state).start()
+    _current_daemon[:] = [d]
+    first_s: list[float] = []
+    expected = {"wait": 0, "held": 0, "discarded": 0}
+    t0 = time.monotonic()
+    try:
+        motion = [0]  # motor 0's target: where it is at start
+        for cycle in range(cycles):
+            reconnect_cycle(d, rng, cycle, report, first_s, expected, motion)
+        counters = d.status()["link"]["counters"]
+    finally:
+        if d.alive():
+            d.terminate()
+    for key, name in (
+        ("wait", "responses_dropped_wait"),
+        ("held", "responses_dropped_held"),
+        ("discarded", "held_discarded"),
+    ):
+        if counters.get(name) != expected[key]:
+            report.violation(
+                f"reconnect: the daemon counts {name} = {counters.get(name)}, "
+                f"the harness made {expected[key]}"
+            )
+    first_s.sort()
+    report.figures["reconnect"] = {
+        "cycles": cycles,
+        "seconds": round(time.monotonic() - t0, 1),
+        "first_answer_ms": {
+            "p50": round(first_s[len(first_s) // 2] * 1000, 3),
+            "p99": round(first_s[min(len(first_s) - 1, int(0.99 * len(first_s)))] * 1000, 3),
+            "max": round(first_s[-1] * 1000, 3),
+        },
+        "counters": {
+            k: v
+            for k, v in counters.items()
+            if k.startswith(("responses_dropped", "held_", "peer_", "stops_while"))
+        },
+    }
+    print(
+        f"  reconnect: {cycles} cycles, the new host's first answer after "
+        f"{report.figures['reconnect']['first_answer_ms']} ms"
+    )
+
+
+def reconnect_cycle(
+    d: Daemon,
+    rng: random.Random,
+    cycle: int,
+    report: Report,
+    first_s: list[float],
+    expected: dict[str, int],
+    motion: list[int],
+) -> None:
+    """One host restarted during a WaitMoved (``motion``: motor 0's target, kept across
+    cycles)."""
+    what = f"reconnect cycle {cycle}"
+    old = Port(d.pty)
+    try:
+        # what the new host must find unchanged: the output pins, motor 1 (at rest)
+        exchange(old, [cmd(STOP, 1, 1)], report, [ok()], what)
+        wait_idle(old, 1, report)
+        levels = [ask(old, cmd(GET_PIN, pin), report, what) for pin in range(4)]
+        pos1 = ask(old, cmd(GET_POS, 1), report, what)
+        # motor 0 moving for a second at least (1000 step/s, between 1000 and 6000, clear
+        # of the end stops; a new move once the last one is near its end); motor 2
+        # running, to be stopped
+        here = pos_of(ask(old, cmd(GET_POS, 0), report, what))
+        if abs(motion[0] - here) < 1000:
+            wait_idle(old, 0, report)
+            motion[0] = 1000 if motion[0] > 1000 else 6000
+            exchange(old, [cmd(MOVE_TO, 0, 1, motion[0], 10, 0, 0)], report, [ok()], what)
+        stop2 = rng.random() < 0.5
+        if stop2:
+            exchange(old, [cmd(MOVE, 2, 1, 1, 0, 0)], report, [ok()], what)
+        # the WaitMoved, and frames kept behind it: none of them may ever be executed
+        # but a StopMove; beyond 16 places they are answered E0 (never sent either)
+        kept: list[bytes] = []
+        for _ in range(rng.randint(0, 24)):
+            choice = rng.random()
+            if choice < 0.3:
+                pin = rng.randrange(4)
+                kept.append(cmd(SET_PIN, pin, 0 if levels[pin][1] else 1))
+            elif choice < 0.5:
+                kept.append(cmd(MOVE_TO, 1, 1, pos_of(pos1) + 500, 10, 0, 0))
+            elif choice < 0.7:
+                kept.append(cmd(GET_POS, 1))
+            elif choice < 0.85:
+                kept.append(cmd(IS_READY, 2))
+            else:  # a frame that fails its checks (one flipped bit)
+                flipped = bytearray(cmd(GET_POS, 0))
+                flipped[rng.randrange(10)] ^= 1 << rng.randrange(8)
+                kept.append(bytes(flipped))
+        if stop2:
+            kept.insert(rng.randint(0, len(kept)), cmd(STOP, 2, 1))
+        frames_before = d.status()["link"]["counters"]["frames"]
+        partial = cmd(GET_POS, 0)[: rng.randint(0, 9)]
+        old.write(cmd(WAIT, 0, 30_000) + b"".join(kept) + partial)
+        deadline = time.monotonic() + RESPONSE_TIMEOUT_S
+        while d.status()["link"]["counters"]["frames"] < frames_before + 1 + len(kept):
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"{what}: the daemon did not take the old host's frames")
+            time.sleep(0.002)
+        if d.status()["link"]["waiting"] is not True:
+            report.violation(f"{what}: the WaitMoved was not held (motor 0 not moving?)")
+        expected["wait"] += 1
+        expected["held"] += len(kept)
+        places = 0
+        for frame in kept:
+            if frame[0] == STOP and frame_valid(frame):
+                continue
+            places += 1
+            if places <= 16 and frame_valid(frame):
+                expected["discarded"] += 1
+    finally:
+        old.close()  # without reading: the WaitMoved's answer and the kept ones are owed
+    if rng.random() < 0.5:
+        time.sleep(rng.uniform(0, 0.02))
+    new = Port(d.pty)
+    try:
+        queries = [cmd(IS_READY, 1)] + [cmd(GET_PIN, pin) for pin in range(4)] + [cmd(GET_POS, 1)]
+        want = [ok(b"\x01\0\0"), *levels, pos1]
+        if stop2:  # the kept StopMove stopped it on arrival (a Move runs until stopped);
+            # its stop is confirmed a moment later on a loaded machine: a WaitMoved, not
+            # IsReady, asks whether it stopped
+            queries.append(cmd(WAIT, 2, 5000))
+            want.append(ok())
+        t = time.monotonic()
+        new.write(b"".join(queries))
+        got = new.take(5, timeout=2.0)
+        first_s.append(time.monotonic() - t)
+        got += new.take(5 * (len(queries) - 1), timeout=2.0)
+        if got != b"".join(want):
+            report.violation(
+                f"{what}: the new host read {got.hex(' ')}, not its own answers "
+                f"{b''.join(want).hex(' ')}"
+            )
+        if extra := new.extra(0.05):
+            report.violation(f"{what}: the new host read more than its answers: {extra.hex()}")
+    finally:
+        new.close()
+
+
 # -- part 4: the state directory turns read-only ---------------------------------------
 def part_faults(workdir: Path, report: Report) -> None:
     """SaveHome/SaveWayPoint while the state directory is read-only must answer E4 (the
@@ -1129,6 +1280,7 @@ PARTS: dict[str, Callable[[Path, argparse.Namespace, Report], None]] = {
     "faults": lambda w, a, r: part_faults(w, r),
     "frames": lambda w, a, r: part_frames(w, a.frames, a.seed, r),
     "kill": lambda w, a, r: part_kill(w, a.kills, a.seed, r),
+    "reconnect": lambda w, a, r: part_reconnect(w, a.reconnects, a.seed, r),
     "soak": lambda w, a, r: part_soak(w, a.soak_s, a.seed, r),
 }
 
@@ -1136,21 +1288,26 @@ PARTS: dict[str, Callable[[Path, argparse.Namespace, Report], None]] = {
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0] if __doc__ else None)
     p.add_argument(
-        "--parts", default="frames,kill,faults,soak", help="comma-separated: " + ", ".join(PARTS)
+        "--parts",
+        default="frames,kill,reconnect,faults,soak",
+        help="comma-separated: " + ", ".join(PARTS),
     )
     p.add_argument("--frames", type=int, default=1_000_000)
     p.add_argument("--kills", type=int, default=100)
+    p.add_argument("--reconnects", type=int, default=200)
     p.add_argument("--soak-s", type=float, default=600.0)
     p.add_argument("--seed", type=int, default=1)
     p.add_argument(
-        "--quick", action="store_true", help="20,000 frames, 10 kill cycles, a 30 s soak"
+        "--quick",
+        action="store_true",
+        help="20,000 frames, 10 kill cycles, 20 reconnects, a 30 s soak",
     )
     p.add_argument("--json", metavar="FILE", help="write the figures and violations here")
     args = p.parse_args(argv)
     signal.signal(signal.SIGTERM, lambda *_: sys.exit(2))  # so that daemons get cleaned up
     rt = Port.realtime_writes
     if args.quick:
-        args.frames, args.kills, args.soak_s = 20_000, 10, 30.0
+        args.frames, args.kills, args.reconnects, args.soak_s = 20_000, 10, 20, 30.0
     report = Report()
     report.figures["host_realtime"] = rt
     with tempfile.TemporaryDirectory(prefix="motorctl-robustness-") as tmp:

@@ -8,15 +8,21 @@ start and end of a steady-state window. Scenarios, all with the executor on the 
   idle         3 motors running, no traffic on the PTY
   flood        the same while a client floods the daemon with commands over its PTY
   status       the same while a client reads the status socket 1,000 times a second
-  sweep        aggregate step rates over 3 motors: the highest whose p99 stays within
-               1.5x cyclictest's p99
+  sweep        aggregate step rates over 3 motors, on each step core (compiled, python), going
+               up until a window fails: the highest whose p99 stays within 1.5x
+               cyclictest's p99 (the motors' max_speed, 200,000 step/s, ends it otherwise)
   stall        one motor at 5,000 step/s, the executor stopped for 50 ms (SIGSTOP/SIGCONT
                of the executor process; of the whole daemon for the thread kind): the fault
                must be latched and no two steps closer than the profile's bound
-  cost         CPU time per step of the step core (in this process, mock lines)
+  cost         CPU time per step of each step core (in this process, mock lines, a
+               virtual clock: the Python core's step() per edge, the compiled core's
+               whole loop per edge)
 
-Targets: idle p99 <= 1.2x cyclictest p99; flood and status p99 <= 1.5x idle p99;
->= 100,000 steps/s within 1.5x cyclictest p99. Needs root (SCHED_FIFO) and rt-tests
+idle, flood, status and stall run the daemon's default step core (the compiled one where it
+is built); idle runs again on the Python core. Targets: idle p99 <= 1.1x cyclictest p99 on
+the compiled core; flood and status p99 <= 1.5x idle p99; the compiled core >= 300,000
+steps/s within 1.5x cyclictest p99 and >= 3x the Python core's in the same run, <= 0.5 us
+of CPU per step on mock lines. Needs root (SCHED_FIFO) and rt-tests
 (apt-get install rt-tests). With --unlimited-rt it sets kernel.sched_rt_runtime_us=-1 for
 the run and restores it.
 """
@@ -55,10 +61,10 @@ wires = []
 lose_steps = {lose_steps}           # the real motors' rule only where the stall asks for it
 [[motors]]
 name = "a"
-max_speed = 100000.0
-max_accel = 1000000.0
-default_accel = 500000.0
-default_decel = 500000.0
+max_speed = 200000.0
+max_accel = 10000000.0
+default_accel = 2000000.0
+default_decel = 2000000.0
   [motors.mock]
   endstop_min = -8388000
   endstop_max = 8388000
@@ -66,10 +72,17 @@ default_decel = 500000.0
 
 
 def config_text(
-    prio: int, cpu: int, kind: str = "process", lose_steps: bool = False, step_thread: str = ""
+    prio: int,
+    cpu: int,
+    kind: str = "process",
+    lose_steps: bool = False,
+    step_thread: str = "",
+    core: str = "auto",
 ) -> str:
     """Three motors; ``step_thread``: more ``[step_thread]`` lines (``key = value``);
-    ``lose_steps``: the executor judges lateness as for real motors (docs/timing.md)."""
+    ``lose_steps``: the executor judges lateness as for real motors (docs/timing.md);
+    ``core``: the step core."""
+    step_thread = f'core = "{core}"\n{step_thread}'
     one = CONFIG.split("[[motors]]")[1]
     head = CONFIG.split("[[motors]]")[0].format(
         prio=prio, cpu=cpu, kind=kind, lose_steps=str(lose_steps).lower(), extra=step_thread
@@ -185,10 +198,15 @@ def run_daemon(
     flood_cpu: int | None,
     kind: str = "process",
     status_per_s: int = 0,
+    core: str = "auto",
 ) -> dict[str, Any]:
-    d = DaemonProcess(work, config_text(prio, cpu, kind), as_user=True)  # it pins its executor
+    text = config_text(prio, cpu, kind, core=core)
+    d = DaemonProcess(work, text, as_user=True)  # it pins its executor
     d.start()
     try:
+        ran = d.status()["executor"]["core"]
+        if core != "auto" and ran != core:
+            raise SystemExit(f"asked for the {core} step core, the daemon runs {ran}")
         with d.client() as c:
             for m in range(3):
                 c.move(m, True, speed=rate_per_motor // 1000)
@@ -226,6 +244,7 @@ def run_daemon(
     if status_per_s:
         result["status_reads_per_s"] = round(commands / elapsed)
     result["timing_lost"] = status["steps"].get("timing_lost", 0)
+    result["core"] = ran
     result.update(memory)
     return result
 
@@ -259,24 +278,51 @@ def stall(work: Path, prio: int, cpu: int, kind: str) -> dict[str, Any]:
     }
 
 
-def core_cost_us(steps: int = 30_000) -> float:
-    """CPU time per step of the step core on mock lines (3 motors), in this process."""
+def core_cost_us(core: str = "python", steps: int = 30_000) -> float:
+    """CPU time per step of a step core on mock lines (3 motors), in this process, on a
+    virtual clock: the Python core's ``step()`` per edge (the loop's other work not
+    counted), the compiled core's whole loop per edge (``run_until``: refill, end stops,
+    due times, the step; its rings and cells in a shared block)."""
     from motorctl.hal.backends.mock.backend import build, build_step_io, mock_axis
     from motorctl.hal.interfaces import VirtualClock
+    from motorctl.hal.shm import SharedBlock
     from motorctl.hal.spec import HardwareSpec
+    from motorctl.motion.compiled_core import CompiledStepCore
+    from motorctl.motion.executor_process import Layout, Shared
     from motorctl.motion.executor_seam import AxisLimits
     from motorctl.motion.latency import LatencyStats
     from motorctl.motion.segments import StepSegment
-    from motorctl.motion.step_core import COUNTER_NAMES, CoreInbox, StepCore
+    from motorctl.motion.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
 
     clock = VirtualClock()
     far = mock_axis(endstop_min=-(10**9), endstop_max=10**9)
     spec = HardwareSpec(axes=(far,) * 3, options={"timeline_len": 1000})
     hw = build(spec, clock)
+    io = build_step_io(spec, clock, hw)
+    limits = [AxisLimits(1e-6)] * 3
+    start = round(clock.now() * 1e9) + 1000
+    if core == "compiled":
+        layout = Layout(3, len(io.inputs.names))
+        shm = SharedBlock.create(layout.size, "motorctl-bench")
+        shared = Shared(shm, layout)
+        compiled = CompiledStepCore(io, limits, shared)
+        for m in range(3):
+            assert shared.segs[m].put(start, 10_000 + 7 * m, steps // 3, 0, 1, 0, 0)
+        compiled.refill()
+        t = time.process_time()
+        compiled.run_until(start + (steps // 3) * 10_100)
+        cost = (time.process_time() - t) / steps * 1e6
+        made = int(shared.counters[STEPS])
+        compiled.close()
+        shared.release()
+        shm.close()
+        if made != steps // 3 * 3:
+            raise SystemExit(f"the compiled core made {made} of {steps} steps")
+        return round(cost, 3)
     inbox = CoreInbox(3)
-    core = StepCore(
-        build_step_io(spec, clock, hw),
-        [AxisLimits(1e-6)] * 3,
+    python = StepCore(
+        io,
+        limits,
         inbox,
         lambda e: None,
         positions=[0] * 3,
@@ -284,15 +330,34 @@ def core_cost_us(steps: int = 30_000) -> float:
         counters=[0] * len(COUNTER_NAMES),
         stats=LatencyStats(),
     )
-    start = round(clock.now() * 1e9) + 1000
     for m in range(3):
         inbox.queues[m].append(StepSegment(start, 10_000 + 7 * m, steps // 3, 0, 1, 0))
-    core.refill()
+    python.refill()
     t = time.process_time()
-    while (d := core.deadline()) is not None:
+    while (d := python.deadline()) is not None:
         clock.advance_to(d / 1e9)
-        core.step(d)
-    return round((time.process_time() - t) / steps * 1e6, 2)
+        python.step(d)
+    return round((time.process_time() - t) / steps * 1e6, 3)
+
+
+def sweep(
+    args: argparse.Namespace, work: Path, core: str, ct_p99: float
+) -> tuple[list[dict[str, Any]], int]:
+    """Per-motor rates from ``--sweep`` in order on ``core`` until a window's p99 goes beyond
+    1.5x cyclictest's: the windows, and the highest aggregate rate within it."""
+    out: list[dict[str, Any]] = []
+    best = 0
+    for per_motor in (int(x) for x in args.sweep.split(",")):
+        r = run_daemon(
+            work, args.prio, per_motor, args.seconds, args.cpu, None, args.executor, core=core
+        )
+        r["per_motor"] = per_motor
+        r["within_1_5x_cyclictest"] = r.get("p99_us", 1e9) <= 1.5 * max(ct_p99, 1.0)
+        out.append(r)
+        if not r["within_1_5x_cyclictest"]:
+            break
+        best = max(best, r["rate_steps_per_s"])
+    return out, best
 
 
 def main() -> int:
@@ -304,8 +369,14 @@ def main() -> int:
     ap.add_argument("--rate", type=int, default=10000, help="step/s per motor, idle/flood/status")
     ap.add_argument(
         "--sweep",
-        default="10000,20000,30000,35000,40000",
-        help="step/s per motor to try (x3 aggregate)",
+        default="10000,20000,30000,40000,50000,60000,80000,100000,120000,150000,200000",
+        help="step/s per motor to try, in order, on each core until a window fails (x3 "
+        "aggregate; the motors' max_speed is 200000)",
+    )
+    ap.add_argument(
+        "--cores",
+        default="compiled,python",
+        help="the step cores to sweep and to measure the cost of",
     )
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
     ap.add_argument(
@@ -328,6 +399,7 @@ def main() -> int:
 def measure(args: argparse.Namespace) -> dict[str, Any]:
     rt = rt_runtime() or "?"
     kind = args.executor
+    cores = [c for c in args.cores.split(",") if c]
     fig: dict[str, Any] = {
         "executor": kind,
         "sched_rt_runtime_us": rt,
@@ -337,35 +409,49 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "load_average_1m": os.getloadavg()[0],
     }
     flood_cpu = (args.cpu + 1) % (os.cpu_count() or 1)
+    sweeps: dict[str, list[dict[str, Any]]] = {}
+    best: dict[str, int] = {}
+    idle_of: dict[str, dict[str, Any]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         ct = cyclictest(args.prio, args.period_us, args.seconds, args.cpu)
         idle = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, None, kind)
+        idle_of[idle["core"]] = idle
         fl = run_daemon(work, args.prio, args.rate, args.seconds, args.cpu, flood_cpu, kind)
         stq = run_daemon(
             work, args.prio, args.rate, args.seconds, args.cpu, None, kind, status_per_s=1000
         )
-        sweep = []
-        best = 0
-        for per_motor in (int(x) for x in args.sweep.split(",")):
-            r = run_daemon(work, args.prio, per_motor, args.seconds, args.cpu, None, kind)
-            r["per_motor"] = per_motor
-            r["within_1_5x_cyclictest"] = r.get("p99_us", 1e9) <= 1.5 * max(ct["p99_us"], 1.0)
-            sweep.append(r)
-            if r["within_1_5x_cyclictest"]:
-                best = max(best, r["rate_steps_per_s"])
+        for core in cores:
+            if core not in idle_of:
+                idle_of[core] = run_daemon(
+                    work, args.prio, args.rate, args.seconds, args.cpu, None, kind, core=core
+                )
+            sweeps[core], best[core] = sweep(args, work, core, ct["p99_us"])
         stl = stall(work, args.prio, args.cpu, kind)
-    cost = core_cost_us()
+        fig["load_average_1m_end"] = os.getloadavg()[0]
+    costs = {core: core_cost_us(core, 300_000 if core == "compiled" else 30_000) for core in cores}
     for name, r in (("cyclictest", ct), ("idle", idle), ("flood", fl), ("status", stq)):
         for k in ("p50_us", "p99_us", "p999_us", "max_us", "rate_steps_per_s"):
             if k in r:
                 fig[f"{name}_{k}"] = r[k]
+    fig["default_core"] = idle["core"]
     fig["flood_commands_per_s"] = fl.get("flood_commands_per_s", 0)
     fig["status_reads_per_s"] = stq.get("status_reads_per_s", 0)
-    for r in sweep:
-        fig[f"sweep_{3 * r['per_motor']}_p99_us"] = r.get("p99_us", 0)
-        fig[f"sweep_{3 * r['per_motor']}_rate_steps_per_s"] = r["rate_steps_per_s"]
-    fig["best_rate_within_1_5x"] = best
+    for core in cores:
+        for r in sweeps[core]:
+            fig[f"sweep_{core}_{3 * r['per_motor']}_p99_us"] = r.get("p99_us", 0)
+            fig[f"sweep_{core}_{3 * r['per_motor']}_rate_steps_per_s"] = r["rate_steps_per_s"]
+        fig[f"best_rate_{core}"] = best[core]
+        fig[f"sweep_{core}_ended"] = (
+            "failed" if not sweeps[core][-1]["within_1_5x_cyclictest"] else "max_speed"
+        )
+        fig[f"core_cost_us_{core}"] = costs[core]
+        fig[f"idle_vs_cyclictest_p99_{core}"] = round(
+            idle_of[core].get("p99_us", 0) / max(ct["p99_us"], 1.0), 2
+        )
+    if "compiled" in best and "python" in best:
+        fig["best_rate_compiled_vs_python"] = round(best["compiled"] / max(best["python"], 1), 2)
+    fig["best_rate_within_1_5x"] = best.get(idle["core"], 0)
     fig["idle_vs_cyclictest_p99"] = round(idle["p99_us"] / max(ct["p99_us"], 1.0), 2)
     fig["flood_vs_idle_p99"] = round(fl["p99_us"] / max(idle["p99_us"], 1.0), 2)
     fig["status_vs_idle_p99"] = round(stq["p99_us"] / max(idle["p99_us"], 1.0), 2)
@@ -373,40 +459,59 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     fig["stall_position_lost"] = stl["position_lost"]
     fig["stall_min_gap_us"] = stl["min_gap_us"]
     fig["stall_profile_bound_us"] = stl["profile_bound_us"]
-    fig["executor_step_cost_us"] = cost
+    fig["executor_step_cost_us"] = costs.get(idle["core"], 0.0)
     for k in ("daemon_rss_kb", "daemon_locked_kb", "executor_rss_kb", "executor_locked_kb"):
         fig[k] = idle.get(k, 0)  # while 3 motors step
     fig["timing_lost_in_windows"] = sum(r.get("timing_lost", 0) for r in (idle, fl, stq))
 
     def row(name: str, r: dict[str, Any]) -> str:
         return (
-            f"  {name:<24} p50 {r.get('p50_us', 0):7.0f}  p99 {r.get('p99_us', 0):7.0f}  "
+            f"  {name:<28} p50 {r.get('p50_us', 0):7.0f}  p99 {r.get('p99_us', 0):7.0f}  "
             f"p99.9 {r.get('p999_us', 0):7.0f}  max {r.get('max_us', 0):7.0f} us"
             + (f"  ({r['rate_steps_per_s']} steps/s)" if "rate_steps_per_s" in r else "")
         )
 
     print(
         f"step-edge lateness, {kind} executor on CPU {args.cpu}, SCHED_FIFO {args.prio}, "
-        f"sched_rt_runtime_us {rt}, load average {fig['load_average_1m']:.1f}:"
+        f"sched_rt_runtime_us {rt}, load average {fig['load_average_1m']:.1f} at the start, "
+        f"{fig['load_average_1m_end']:.1f} at the end; default step core {idle['core']}:"
     )
     print(row(f"cyclictest -i {args.period_us}", ct))
-    print(row(f"idle 3x{args.rate}", idle))
+    print(row(f"idle 3x{args.rate} ({idle['core']})", idle))
     print(row("under a command flood", fl) + f"  [{fig['flood_commands_per_s']} commands/s]")
     print(row("under status reads", stq) + f"  [{fig['status_reads_per_s']} reads/s]")
-    for r in sweep:
+    for core in cores:
+        if idle_of[core] is not idle:
+            print(row(f"idle 3x{args.rate} ({core})", idle_of[core]))
+        for r in sweeps[core]:
+            print(
+                row(f"sweep {core} 3x{r['per_motor']}", r)
+                + ("" if r["within_1_5x_cyclictest"] else "  > 1.5x cyclictest")
+            )
+    for core in cores:
+        target = " (target <= 1.1)" if core == "compiled" else ""
         print(
-            row(f"sweep 3x{r['per_motor']}", r)
-            + ("" if r["within_1_5x_cyclictest"] else "  > 1.5x cyclictest")
+            f"idle p99 / cyclictest p99, {core} core = "
+            f"{fig[f'idle_vs_cyclictest_p99_{core}']}{target}"
         )
-    print(f"idle p99 / cyclictest p99 = {fig['idle_vs_cyclictest_p99']} (target <= 1.2)")
     print(f"flood p99 / idle p99 = {fig['flood_vs_idle_p99']} (target <= 1.5)")
     print(f"status p99 / idle p99 = {fig['status_vs_idle_p99']} (target <= 1.5)")
-    print(f"highest aggregate rate with p99 <= 1.5x cyclictest: {best} steps/s (target >= 100000)")
+    for core in cores:
+        target = " (target >= 300000 and >= 3x python's)" if core == "compiled" else ""
+        ended = "a window failed" if fig[f"sweep_{core}_ended"] == "failed" else "max_speed"
+        print(
+            f"highest aggregate rate with p99 <= 1.5x cyclictest, {core} core: "
+            f"{best[core]} steps/s{target} (the sweep ended at {ended})"
+        )
+    if "best_rate_compiled_vs_python" in fig:
+        print(f"compiled / python best rate = {fig['best_rate_compiled_vs_python']}")
     print(
         f"50 ms stall at 5000 step/s: fault latched {stl['fault_latched']} ({stl['fault']!r}),"
         f" smallest gap {stl['min_gap_us']:.1f} us (bound {stl['profile_bound_us']} us)"
     )
-    print(f"step core CPU per step: {cost} us")
+    for core in cores:
+        target = " (target <= 0.5)" if core == "compiled" else ""
+        print(f"step core CPU per step, {core}: {costs[core]} us{target}")
     print(
         f"memory while 3 motors step: daemon RSS {fig['daemon_rss_kb'] / 1024:.1f} MB "
         f"(locked {fig['daemon_locked_kb'] / 1024:.1f}), step executor RSS "

@@ -355,8 +355,24 @@ def _print_raw(client: Client) -> None:
         print(f"<- {hex_bytes(client.last_response)}")
 
 
+EXIT_PIPE = 128 + 13  # as a program killed by SIGPIPE: what `cat FILE | head` gives cat
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``motorctl`` console script; returns the exit status."""
+    """Entry point of the ``motorctl`` console script; returns the exit status. Output into
+    a pipe whose reader went away (``motorctl trace FILE | head``) ends the command quietly,
+    as it ends ``cat``."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        # Python would flush stdout again at exit and complain: point it at /dev/null
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_PIPE
+
+
+def _main(argv: list[str] | None) -> int:
     parser = build_parser()
     args = parser.parse_args(_protect_negatives(sys.argv[1:] if argv is None else argv))
     if args.command == "trace":

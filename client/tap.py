@@ -266,6 +266,8 @@ def run(args: argparse.Namespace) -> int:
         frame_gap_ms=args.frame_gap_ms,
         port=f"host {args.host} <-> device {args.device}",
         application=f"motorctl tap {__version__}",
+        session=os.urandom(6).hex(),  # one file: part 1 of its own session
+        part=1,
     )
     try:
         info.codec_options()

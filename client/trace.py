@@ -9,12 +9,17 @@ silence between two recorded runs stands for the silence the daemon watched); an
 paired with frames in order, as the protocol answers them (every complete frame gets exactly
 one answer, in arrival order). The replay uses the same analysis.
 
-Runs on the caller's thread; :func:`load` reads the files, the rest is computation.
+Over 500 lines on purpose: the analysis and its two outputs (the table, and ``--json``'s rows
+with the typed fields docs/trace.md's schema lists) are read together.
+
+Runs on the caller's thread; :func:`motorctl.client.recording.load` reads the files (and is
+the replay's reader too), the rest is computation.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from collections.abc import Sequence
@@ -22,19 +27,18 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from motorctl.protocol.capture import (
-    Capture,
-    CaptureError,
-    CaptureInfo,
-    Direction,
-    Record,
-    parse,
-)
+from motorctl.client.recording import Link, Recording
+
+# the reader, re-exported: motorctl.client.trace.load was its home before client/recording.py
+from motorctl.client.recording import TraceFileError as TraceFileError
+from motorctl.client.recording import load as load
+from motorctl.protocol.capture import CaptureInfo, Direction, Record
 from motorctl.protocol.codec import (
     FRAME_LEN,
     RESPONSE_LEN,
     CodecOptions,
     Command,
+    DcMove,
     FrameError,
     GetAbsPos,
     GetPin,
@@ -47,40 +51,6 @@ from motorctl.protocol.codec import (
     describe,
 )
 from motorctl.protocol.framing import Framer
-
-# --- reading files -------------------------------------------------------------------------
-
-
-class TraceFileError(Exception):
-    """A file that cannot be read as a trace; the message names it and says why."""
-
-
-def load(paths: Sequence[Path]) -> Capture:
-    """Read one or more trace files (rotated parts in any order: sorted by their first
-    record's time) into one capture."""
-    parts: list[tuple[int, Path, Capture]] = []
-    for path in paths:
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise TraceFileError(f"cannot read {path}: {exc.strerror or exc}") from None
-        try:
-            cap = parse(data)
-        except CaptureError as exc:
-            raise TraceFileError(f"{path}: {exc}") from None
-        first = cap.records[0].ts_ns if cap.records else 0
-        parts.append((first, path, cap))
-    parts.sort(key=lambda p: p[0])
-    out = Capture(info=None)
-    for _, path, cap in parts:
-        if out.info is None:
-            out.info = cap.info
-        elif cap.info is not None and cap.info != out.info:
-            out.problems.append(f"{path}: recorded with other settings ({cap.info.comment()})")
-        out.records += cap.records
-        out.problems += [f"{path}: {p}" for p in cap.problems]
-    return out
-
 
 # --- analysis ------------------------------------------------------------------------------
 
@@ -108,6 +78,9 @@ class Row:
     response: Response | None = None
     error: str | None = None  # error code short name (answers) or frame error reason
     rtt_ns: int | None = None  # answers: from the last byte of the frame they answer
+    run: int = -1  # the index of the run (record) it came from, in the records analysed
+    packet: int = 0  # that run's packet number in its file (Wireshark's frame.number)
+    interface: int = 0  # that run's interface
 
 
 @dataclass
@@ -156,16 +129,35 @@ def answer_text(cmd: Command | None, resp: Response) -> str:
 
 
 def analyse(records: Sequence[Record], info: CaptureInfo) -> Conversation:
-    """Frames, answers and events of a recording, in recorded order."""
-    opts = info.codec_options()
-    framer = Framer(info.frame_gap_ms / 1000.0)
-    conv = Conversation()
-    pending = bytearray()  # what the framer holds, to show a dropped partial frame
-    out_buf = bytearray()
-    last_in: int | None = None
-    waiting: list[Frame] = []  # frames not answered yet, in order
-    next_answer = 0
-    for rec in records:
+    """Frames, answers and events of a recording (one link's runs), in recorded order."""
+    analysis = _Analysis(info)
+    conv = analysis.conv
+    for index, rec in enumerate(records):
+        mark = len(conv.rows)
+        analysis.step(rec)
+        for row in conv.rows[mark:]:
+            row.run, row.packet, row.interface = index, rec.packet, rec.interface
+    conv.partial_in = bytes(analysis.pending)
+    conv.partial_out = bytes(analysis.out_buf)
+    return conv
+
+
+class _Analysis:
+    """The state :func:`analyse` carries from one run to the next."""
+
+    def __init__(self, info: CaptureInfo) -> None:
+        self.info = info
+        self.opts = info.codec_options()
+        self.framer = Framer(info.frame_gap_ms / 1000.0)
+        self.conv = Conversation()
+        self.pending = bytearray()  # what the framer holds, to show a dropped partial frame
+        self.out_buf = bytearray()
+        self.last_in: int | None = None
+        self.waiting: list[Frame] = []  # frames not answered yet, in order
+        self.next_answer = 0
+
+    def step(self, rec: Record) -> None:
+        conv = self.conv
         if rec.dropped:
             conv.lost_runs += rec.dropped
             conv.rows.append(
@@ -180,68 +172,62 @@ def analyse(records: Sequence[Record], info: CaptureInfo) -> Conversation:
                 )
             )
         if rec.direction is Direction.TO_DEVICE:
-            if last_in is not None and framer.pending:
-                silence = (rec.ts_ns - last_in) / 1e9
-                if framer.idle(silence):
-                    conv.rows.append(
-                        Row(
-                            rec.ts_ns,
-                            Direction.TO_DEVICE,
-                            GAP,
-                            bytes(pending),
-                            f"partial frame dropped: {len(pending)} of {FRAME_LEN} bytes, then "
-                            f"{silence * 1000:.1f} ms of silence (> frame_gap_ms "
-                            f"{info.frame_gap_ms:g}); no answer",
-                        )
+            self._inbound(rec)
+            return
+        self.out_buf += rec.data
+        while len(self.out_buf) >= RESPONSE_LEN:
+            data = bytes(self.out_buf[:RESPONSE_LEN])
+            del self.out_buf[:RESPONSE_LEN]
+            target = None
+            if self.next_answer < len(self.waiting):
+                target = self.waiting[self.next_answer]
+                self.next_answer += 1
+            conv.rows.append(_answer(rec.ts_ns, data, target, self.opts))
+
+    def _inbound(self, rec: Record) -> None:
+        conv, framer, pending = self.conv, self.framer, self.pending
+        if self.last_in is not None and framer.pending:
+            silence = (rec.ts_ns - self.last_in) / 1e9
+            if framer.idle(silence):
+                conv.rows.append(
+                    Row(
+                        rec.ts_ns,
+                        Direction.TO_DEVICE,
+                        GAP,
+                        bytes(pending),
+                        f"partial frame dropped: {len(pending)} of {FRAME_LEN} bytes, then "
+                        f"{silence * 1000:.1f} ms of silence (> frame_gap_ms "
+                        f"{self.info.frame_gap_ms:g}); no answer",
                     )
-                    pending.clear()
-            last_in = rec.ts_ns
-            frames = framer.feed(rec.data)
-            pending += rec.data
-            del pending[: len(frames) * FRAME_LEN]
-            for data in frames:
-                frame = _frame(len(conv.frames) + 1, rec.ts_ns, data, opts)
-                conv.frames.append(frame)
-                waiting.append(frame)
-                if frame.command is not None:
-                    text = f"#{frame.number} {describe(frame.command)}"
-                    conv.rows.append(
-                        Row(
-                            rec.ts_ns,
-                            rec.direction,
-                            COMMAND,
-                            data,
-                            text,
-                            frame.number,
-                            frame.command,
-                        )
+                )
+                pending.clear()
+        self.last_in = rec.ts_ns
+        frames = framer.feed(rec.data)
+        pending += rec.data
+        del pending[: len(frames) * FRAME_LEN]
+        for data in frames:
+            frame = _frame(len(conv.frames) + 1, rec.ts_ns, data, self.opts)
+            conv.frames.append(frame)
+            self.waiting.append(frame)
+            if frame.command is not None:
+                text = f"#{frame.number} {describe(frame.command)}"
+                conv.rows.append(
+                    Row(rec.ts_ns, rec.direction, COMMAND, data, text, frame.number, frame.command)
+                )
+            else:
+                assert frame.error is not None
+                conv.rows.append(
+                    Row(
+                        rec.ts_ns,
+                        rec.direction,
+                        BAD_FRAME,
+                        data,
+                        f"#{frame.number} frame error ({frame.error.reason}):"
+                        f" {frame.error}; E1 expected",
+                        frame.number,
+                        error=frame.error.reason,
                     )
-                else:
-                    assert frame.error is not None
-                    conv.rows.append(
-                        Row(
-                            rec.ts_ns,
-                            rec.direction,
-                            BAD_FRAME,
-                            data,
-                            f"#{frame.number} frame error ({frame.error.reason}):"
-                            f" {frame.error}; E1 expected",
-                            frame.number,
-                            error=frame.error.reason,
-                        )
-                    )
-        else:
-            out_buf += rec.data
-            while len(out_buf) >= RESPONSE_LEN:
-                data = bytes(out_buf[:RESPONSE_LEN])
-                del out_buf[:RESPONSE_LEN]
-                target = waiting[next_answer] if next_answer < len(waiting) else None
-                if target is not None:
-                    next_answer += 1
-                conv.rows.append(_answer(rec.ts_ns, data, target, opts))
-    conv.partial_in = bytes(pending)
-    conv.partial_out = bytes(out_buf)
-    return conv
+                )
 
 
 def _frame(number: int, t_ns: int, data: bytes, opts: CodecOptions) -> Frame:
@@ -338,18 +324,123 @@ def summary(conv: Conversation) -> dict[str, Any]:
     }
 
 
-def row_json(row: Row, t0: int) -> dict[str, Any]:
-    return {
+#: the typed keys of every row of ``motorctl trace --json`` (docs/trace.md, "JSON"), null
+#: where they do not apply
+FIELDS = (
+    "command",
+    "code",
+    "motor",
+    "direction",
+    "position",
+    "speed",
+    "acc",
+    "dec",
+    "pin",
+    "value",
+    "output",
+    "hard",
+    "timeout_ms",
+    "time_ms",
+    "hiz",
+    "waypoint",
+    "ack",
+    "ready",
+    "error_code",
+    "error_name",
+)
+
+
+def direction_word(cmd: Command) -> str | None:
+    """A command's direction byte as the CLI names it: up/down, forward/reverse (DcMove)."""
+    value = getattr(cmd, "direction", None)
+    if value is None:
+        return None
+    if isinstance(cmd, DcMove):
+        return "forward" if value else "reverse"
+    return "up" if value else "down"
+
+
+def command_fields(cmd: Command | None) -> dict[str, Any]:
+    """A command's fields, typed: ``command`` (its name), ``code`` (B0), the parameters
+    (``direction`` as a word, SetPin's level as ``value`` 1/0); None where absent."""
+    out: dict[str, Any] = dict.fromkeys(FIELDS)
+    if cmd is None:
+        return out
+    out["command"] = type(cmd).__name__
+    out["code"] = int(cmd.code)
+    for f in dataclasses.fields(cmd):
+        value = getattr(cmd, f.name)
+        if f.name == "direction":
+            out["direction"] = direction_word(cmd)
+        elif f.name == "high":
+            out["value"] = int(value)
+        elif f.name in out:
+            out[f.name] = value
+    return out
+
+
+def answer_fields(cmd: Command | None, resp: Response | None) -> dict[str, Any]:
+    """An answer's fields, typed, for the command it answers: ``command``, ``code``,
+    ``motor``, ``pin`` of that command; ``ack``; ``ready`` (IsReady), ``position``
+    (GetAbsPos), ``value`` 1/0 (GetPin), ``waypoint`` (SaveWayPoint); ``error_code`` (0xE3
+    = 227) and ``error_name`` ("Motor not ready") of an error answer."""
+    out: dict[str, Any] = dict.fromkeys(FIELDS)
+    if cmd is not None:
+        out["command"] = type(cmd).__name__
+        out["code"] = int(cmd.code)
+        out["motor"] = getattr(cmd, "motor", None)
+        out["pin"] = getattr(cmd, "pin", None)
+    if resp is None:
+        return out
+    out["ack"] = resp.ack
+    if not resp.ack:
+        out["error_code"] = resp.payload[0]
+        code = resp.error_code
+        out["error_name"] = code.label if code is not None else "unknown error code"
+    elif isinstance(cmd, IsReady):
+        out["ready"] = resp.as_bool
+    elif isinstance(cmd, GetAbsPos):
+        out["position"] = resp.as_position
+    elif isinstance(cmd, GetPin):
+        out["value"] = int(resp.as_bool)
+    elif isinstance(cmd, SaveWayPoint):
+        out["waypoint"] = resp.payload[0]
+    return out
+
+
+def row_json(row: Row, t0: int, file: str | None = None) -> dict[str, Any]:
+    """One row for ``--json`` (docs/trace.md, "JSON"): where and when, the bytes and text,
+    and the typed fields of :data:`FIELDS`."""
+    doc: dict[str, Any] = {
         "t": round((row.t_ns - t0) / 1e9, 9),
         "ts_ns": row.t_ns,
-        "dir": "to_device" if row.direction is Direction.TO_DEVICE else "to_host",
-        "kind": row.kind,
-        "bytes": row.data.hex(" "),
-        "text": row.text,
-        "frame": row.frame,
-        "error": row.error,
-        "rtt_us": None if row.rtt_ns is None else round(row.rtt_ns / 1e3, 1),
+        "interface": row.interface,
+        "packet": row.packet,
     }
+    if file is not None:
+        doc["file"] = file
+    doc.update(
+        {
+            "dir": "to_device" if row.direction is Direction.TO_DEVICE else "to_host",
+            "kind": row.kind,
+            "bytes": row.data.hex(" "),
+            "text": row.text,
+            "frame": row.frame,
+            "error": row.error,
+            "rtt_us": None if row.rtt_ns is None else round(row.rtt_ns / 1e3, 1),
+        }
+    )
+    if row.kind == COMMAND:
+        doc.update(command_fields(row.command))
+    elif row.kind in (ANSWER, BAD_ANSWER):
+        doc.update(answer_fields(row.command, row.response))
+    elif row.kind == BAD_FRAME:
+        fields = dict.fromkeys(FIELDS)
+        fields["code"] = row.data[0] if row.data else None
+        doc.update(fields)
+    else:
+        doc.update(dict.fromkeys(FIELDS))
+    return doc
 
 
 def info_json(info: CaptureInfo) -> dict[str, Any]:
@@ -361,12 +452,16 @@ def info_json(info: CaptureInfo) -> dict[str, Any]:
         "frame_gap_ms": info.frame_gap_ms,
         "port": info.port,
         "application": info.application,
+        "session": info.session or None,
+        "part": info.part or None,
     }
 
 
-def print_table(conv: Conversation, info: CaptureInfo, problems: list[str], t0: int) -> None:
+def print_table(
+    conv: Conversation, info: CaptureInfo, problems: list[str], t0: int, title: str = ""
+) -> None:
     print(
-        f"# {info.role} trace of {info.port or 'an unnamed port'} ({info.application}); "
+        f"# {title}{info.role} trace of {info.port or 'an unnamed port'} ({info.application}); "
         f"checksum {info.checksum}, frame_gap_ms {info.frame_gap_ms:g}"
     )
     print(f"{'time s':>12}  dir  {'bytes':<29}  {'rtt':>10}  decoded")
@@ -402,11 +497,11 @@ def _duration(ns: int) -> str:
 
 
 def settings(
-    cap: Capture, checksum: str | None, frame_gap_ms: float | None, crc_covers_ack: bool
+    info: CaptureInfo | None, checksum: str | None, frame_gap_ms: float | None, crc_covers_ack: bool
 ) -> CaptureInfo:
-    """The recording's settings, with what the command line overrides; ValueError for a bad
-    checksum name."""
-    info = cap.info or CaptureInfo(role="unknown")
+    """A link's settings (None: no motorctl header: the defaults), with what the command
+    line overrides; ValueError for a bad checksum name."""
+    info = info or CaptureInfo(role="unknown")
     if checksum is not None:
         info = replace(info, checksum=checksum)
     if frame_gap_ms is not None:
@@ -415,6 +510,22 @@ def settings(
         info = replace(info, crc_covers_ack=True)
     info.codec_options()
     return info
+
+
+def one_link(
+    paths: Sequence[Path], interface: int | None, checksum: str | None, frame_gap_ms: float | None
+) -> tuple[Recording, Link, CaptureInfo]:
+    """The one link a replay plays: TraceFileError when the files hold several and
+    ``interface`` picks none; ValueError for a bad checksum name."""
+    recording = load(paths, interface)
+    if len(recording.links) > 1:
+        raise TraceFileError(
+            f"{', '.join(map(str, paths))} hold{'s' if len(paths) == 1 else ''} "
+            f"{len(recording.links)} motorctl links (interfaces "
+            f"{recording.describe_interfaces()}): pass --interface N to pick one"
+        )
+    link = recording.links[0]
+    return recording, link, settings(link.info, checksum, frame_gap_ms, False)
 
 
 def add_settings_options(p: argparse.ArgumentParser) -> None:
@@ -430,6 +541,19 @@ def add_settings_options(p: argparse.ArgumentParser) -> None:
         dest="trace_checksum",
         help="checksum to decode with (default: the recording's)",
     )
+    p.add_argument(
+        "--interface",
+        type=int,
+        metavar="N",
+        help="read only interface N of a file holding several (a mergecap of the tap's "
+        "recording and the daemon's trace); the reader lists them",
+    )
+
+
+def warn(problems: Sequence[str]) -> None:
+    """Each problem reading the files, on stderr."""
+    for p in problems:
+        print(f"warning: {p}", file=sys.stderr)
 
 
 def add_parser(sub: Any) -> None:
@@ -438,7 +562,9 @@ def add_parser(sub: Any) -> None:
         help="print a trace file (motorctld --trace, motorctl tap) frame by frame",
         description="Print a recorded conversation: time, direction, raw bytes, the decoded "
         "command or answer (error codes by name), frame errors, partial frames the gap rule "
-        "dropped, and each command's round-trip time. docs/trace.md.",
+        "dropped, and each command's round-trip time. A file of several interfaces (mergecap) "
+        "is decoded link by link (--interface N: one). Problems reading the files (damage, a "
+        "missing rotated part, a pcap file) are named on stderr. docs/trace.md.",
     )
     p.add_argument(
         "files",
@@ -447,35 +573,85 @@ def add_parser(sub: Any) -> None:
         metavar="FILE",
         help="trace files (rotated parts FILE.1 FILE ... in any order)",
     )
-    p.add_argument("--json", action="store_true", help="one JSON document for tools")
+    p.add_argument(
+        "--json", action="store_true", help="one JSON document for tools (docs/trace.md)"
+    )
     add_settings_options(p)
 
 
 def run(args: argparse.Namespace) -> int:
     try:
-        cap = load(args.files)
-        info = settings(cap, args.trace_checksum, args.frame_gap_ms, False)
-    except TraceFileError as exc:
+        recording = load(args.files, args.interface)
+        infos = [
+            settings(link.info, args.trace_checksum, args.frame_gap_ms, False)
+            for link in recording.links
+        ]
+    except (TraceFileError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
-    except ValueError as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    conv = analyse(cap.records, info)
-    t0 = cap.records[0].ts_ns if cap.records else 0
-    problems = list(cap.problems)
-    if cap.info is None:
-        problems.append("no motorctl header: decoded with the default settings")
+    problems = list(recording.problems)
+    if len(recording.interfaces) > 1:
+        problems.insert(
+            0,
+            f"the file{'s hold' if len(args.files) > 1 else ' holds'} interfaces "
+            f"{recording.describe_interfaces()}: "
+            + (
+                "each decoded as its own link (--interface N reads one)"
+                if len(recording.links) > 1
+                else f"interface {recording.links[0].interface} read"
+            ),
+        )
+    for link in recording.links:
+        if link.info is None:
+            problems.append(
+                f"interface {link.interface}: no motorctl header: decoded with the default settings"
+            )
+    warn(problems)
+    convs = [analyse(link.records, info) for link, info in zip(recording.links, infos, strict=True)]
+    starts = [link.records[0].ts_ns for link in recording.links if link.records]
+    t0 = min(starts) if starts else 0
+    several = len(args.files) > 1
     if args.json:
-        doc = {
-            "info": info_json(info),
+        rows: list[dict[str, Any]] = []
+        for link, conv in zip(recording.links, convs, strict=True):
+            rows += [row_json(r, t0, link.file_of(r.run) if several else None) for r in conv.rows]
+        rows.sort(key=lambda r: r["ts_ns"])
+        links = [
+            {
+                "interface": link.interface,
+                "name": link.name,
+                "info": info_json(info),
+                "runs": len(link.records),
+                "sessions": link.sessions,
+                "summary": summary(conv),
+            }
+            for link, info, conv in zip(recording.links, infos, convs, strict=True)
+        ]
+        doc: dict[str, Any] = {
+            "files": [str(f) for f in args.files],
+            "formats": recording.formats,
+            "interfaces": [
+                {
+                    "interface": i.number,
+                    "link_type": i.link_type,
+                    "name": i.name,
+                    "role": i.info.role if i.info is not None else None,
+                    "decoded": any(link.interface == i.number for link in recording.links),
+                }
+                for i in recording.interfaces
+            ],
+            "links": links,
             "t0_ns": t0,
-            "rows": [row_json(r, t0) for r in conv.rows],
-            "summary": summary(conv),
-            "problems": problems,
         }
+        if len(links) == 1:
+            doc["info"] = links[0]["info"]
+            doc["summary"] = links[0]["summary"]
+        doc["rows"] = rows
+        doc["problems"] = problems
         json.dump(doc, sys.stdout, indent=1)
         print()
-    else:
-        print_table(conv, info, problems, t0)
+        return 0
+    for link, info, conv in zip(recording.links, infos, convs, strict=True):
+        title = f"interface {link.interface}: " if len(recording.links) > 1 else ""
+        print_table(conv, info, problems if link is recording.links[-1] else [], t0, title)
     return 0

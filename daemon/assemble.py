@@ -3,8 +3,9 @@
 The one place where the names a config gives become objects, as python-can's interface.py
 makes a bus of a name: the hardware backend and its layers by name through the HAL's
 registry (:func:`hardware_spec`: the config as the HAL's picklable spec), the step executor
-the config asks for (:func:`build_executor`: process, thread, or none when every motor's
-driver runs its own ramp), the motion engine, the state file and the dispatcher
+the config asks for (:func:`build_executor`: process, running the step core ``[step_thread]
+core`` names; thread; or none when every motor's driver runs its own ramp), the motion
+engine, the state file and the dispatcher
 (:meth:`Daemon.build`); and the link's parts (:func:`silence_watch`, :func:`open_trace`,
 :func:`progress_watch`). It knows the HAL only by its interfaces: what some hardware can
 do it asks for (``RampDriver``, ``StepperDriver.stats``, ``Hardware.persistent_state``),
@@ -281,12 +282,14 @@ class Daemon:
         if histogram and stats is not None:  # the step executor's, with or without ramps
             steps["histogram_us"] = stats.histogram()
         out: dict[str, Any] = {
+            "version": __version__,
             "motors": motors,
             "steps": steps,
             "executor": {
                 "alive": health.alive,
                 "reason": health.reason,
                 "kind": step_executor_kind(self.config, executor),
+                "core": executor.step_core(),
                 "pid": getattr(executor, "pid", None),
             },
             "clamped": dict(self.dispatcher.clamped),
@@ -378,6 +381,11 @@ def build_executor(
     executor process started early (daemon/launch.py), the process executor's; ended here
     when the config has no use for it."""
     st = config.step_thread
+    if st.core == "compiled" and st.executor == "thread":
+        raise StartupError(
+            '[step_thread] core = "compiled" runs in the process executor only; set '
+            'executor = "process", or core = "auto" (the thread executor runs the Python core)'
+        )
     stepped = spec.stepped()
     drivers = [s.driver for s in hw.steppers]
     ramp = [i for i, d in enumerate(drivers) if isinstance(d, RampDriver)]
@@ -407,6 +415,7 @@ def build_executor(
             late_threshold_s=st.late_threshold_us / 1e6,
             rt=rt,
             process=process,
+            core=st.core,
         )
     else:
         steps = ThreadStepExecutor(
@@ -420,6 +429,7 @@ def build_executor(
             late_threshold_s=st.late_threshold_us / 1e6,
             rt=rt,
         )
+        log.info("step core: python (the thread executor runs the Python core)")
     if process is not None:
         process.dismiss()  # no process executor after all (a no-op when it took it)
     return with_ramp_motors(steps, drivers, hw.clock)  # polled as the ramp drivers ask

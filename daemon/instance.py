@@ -4,7 +4,9 @@ A second motorctld with the same ``--state-dir`` or the same ``--pty`` path exit
 with a message naming the first one's PID, before it touches any file: an exclusive
 ``flock`` on ``<state-dir>/motorctld.lock`` and on ``.<pty-name>.lock`` beside the PTY
 symlink. (A UART is locked by pyserial's ``exclusive=True``, a flock on the device; its
-holder is found in /proc/locks when that is visible.) The lock files hold the owner's PID.
+holder is found in /proc/locks when that is visible.) The lock files hold the owner's PID;
+what stands at their paths is dealt with as at every path the daemon writes
+(daemon/paths.py), and a lock file another user left is set aside unless someone holds it.
 
 :class:`Owned` records the files this daemon created (the PTY symlink, the status socket,
 its lock files) with what they were when created, and removes each at exit only if it is
@@ -22,8 +24,11 @@ import errno
 import fcntl
 import logging
 import os
+import stat
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from motorctl.daemon import paths
 
 log = logging.getLogger("motorctl.instance")
 
@@ -38,6 +43,13 @@ def flock_holder(path: Path) -> int | None:
     """The PID holding a flock on ``path``, from /proc/locks; None if unknown."""
     try:
         st = os.stat(path)
+    except OSError:
+        return None
+    return _holder(st)
+
+
+def _holder(st: os.stat_result) -> int | None:
+    try:
         text = Path("/proc/locks").read_text()
     except OSError:
         return None
@@ -52,9 +64,10 @@ def flock_holder(path: Path) -> int | None:
     return None
 
 
-def _pid_in(path: Path) -> int | None:
+def _pid_in(fd: int) -> int | None:
+    """The PID a lock file holds (read through its descriptor: a regular file)."""
     try:
-        text = path.read_text().strip()
+        text = os.pread(fd, 32, 0).decode("ascii").strip()
     except (OSError, UnicodeDecodeError):
         return None
     return int(text) if text.isdigit() else None
@@ -62,7 +75,14 @@ def _pid_in(path: Path) -> int | None:
 
 @dataclass
 class InstanceLock:
-    """An exclusive, non-blocking flock on ``path`` that names its holder's PID."""
+    """An exclusive, non-blocking flock on ``path`` that names its holder's PID.
+
+    The lock file is the daemon's own (daemon/paths.py): never a link followed, a FIFO or
+    a device opened, a file of someone else's written. A regular file that another user
+    left there is locked read-only first: held, it is another daemon's (InstanceError);
+    not held, it is set aside while locked (so that nobody takes it meanwhile) and the
+    daemon makes its own. Whatever else stands there is set aside.
+    """
 
     path: Path
     what: str  # "state directory /run/motorctl", for the message
@@ -71,28 +91,23 @@ class InstanceLock:
 
     def acquire(self) -> None:
         for _ in range(5):
+            self._set_aside_if_foreign()
             try:
-                fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o640)
+                fd = paths.open_for_writing(self.path)
             except OSError as exc:
-                raise InstanceError(f"cannot create lock file {self.path}: {exc.strerror}") from exc
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError as exc:
-                os.close(fd)
-                if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
-                    raise InstanceError(f"cannot lock {self.path}: {exc.strerror}") from exc
-                pid = _pid_in(self.path) or flock_holder(self.path)
-                who = f"PID {pid}" if pid is not None else "a process whose PID is unknown"
                 raise InstanceError(
-                    f"another motorctld ({who}) already serves the {self.what}; stop it "
-                    f"first, or give this one its own --state-dir and --pty/--port "
-                    f"(lock {self.path})"
-                ) from None
+                    f"cannot create lock file {self.path}: {exc.strerror or exc}"
+                ) from exc
+            try:
+                self._lock(fd)
+            except InstanceError:
+                os.close(fd)
+                raise
             # The previous holder may have removed the file between our open and our lock:
             # then we hold a lock on a file nobody else can find. Try again.
             st = os.fstat(fd)
             try:
-                now = os.stat(self.path)
+                now = os.lstat(self.path)
             except FileNotFoundError:
                 os.close(fd)
                 continue
@@ -104,6 +119,54 @@ class InstanceLock:
             self.fd, self.ino = fd, _identity(self.path)
             return
         raise InstanceError(f"cannot take the lock {self.path}: it keeps being replaced")
+
+    def _lock(self, fd: int) -> None:
+        """flock ``fd``; InstanceError naming the holder when another process holds it."""
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except OSError as exc:
+            if exc.errno not in (errno.EWOULDBLOCK, errno.EAGAIN):
+                raise InstanceError(f"cannot lock {self.path}: {exc.strerror}") from exc
+            pid = _pid_in(fd) or _holder(os.fstat(fd))
+            who = f"PID {pid}" if pid is not None else "a process whose PID is unknown"
+            raise InstanceError(
+                f"another motorctld ({who}) already serves the {self.what}; stop it "
+                f"first, or give this one its own --state-dir and --pty/--port "
+                f"(lock {self.path})"
+            ) from None
+
+    def _set_aside_if_foreign(self) -> None:
+        """A regular lock file that is not ours (another user's, a hard link): another
+        daemon's while someone holds it (InstanceError), else set aside while locked."""
+        try:
+            st = os.lstat(self.path)
+        except OSError:
+            return
+        owner = paths.folder_owner(self.path)
+        if not stat.S_ISREG(st.st_mode) or paths.ours(st, owner):
+            return  # open_for_writing takes it, or sets it aside
+        try:
+            fd = os.open(self.path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+        except OSError:
+            return  # cannot be looked into: open_for_writing sets it aside
+        try:
+            now = os.fstat(fd)
+            if (now.st_dev, now.st_ino) != (st.st_dev, st.st_ino):
+                return  # replaced meanwhile: open_for_writing looks again
+            self._lock(fd)
+            try:
+                bad = paths.move_aside(self.path)
+            except OSError as exc:
+                raise InstanceError(f"{exc.strerror}; lock {self.path}") from exc
+            log.warning(
+                "%s was %s, in the way of this daemon's lock: moved aside to %s",
+                self.path,
+                paths.describe(st, owner),
+                bad,
+                extra={"FILE_PATH": str(self.path)},
+            )
+        finally:
+            os.close(fd)
 
     def release(self) -> None:
         """Remove the lock file (still ours: we hold the lock) and release it."""

@@ -1,5 +1,10 @@
 """The link: the poll/read/write loop around a pure :class:`~motorctl.daemon.session.LinkSession`.
 
+Over 500 lines on purpose: one loop that every byte crosses, whose states (reading, holding
+back, no host, a host's session ending, a device away) decide together what each turn
+waits for; what could stand apart does (the session, the silence watch, the device's
+return in daemon/devwatch.py, the PTY's slave in daemon/ports.py).
+
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
 on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
 after a hard StopMove in the wait for the executor's confirmation (bounded by
@@ -23,26 +28,43 @@ What the shell does, and why:
   them. While more than ``out_limit`` bytes or ``backlog_limit`` responses are owed, the
   shell stops reading: the host's writes then wait in the kernel (back pressure), nothing is
   lost and memory stays bounded. Reads resume as soon as the host reads again.
-- **The peer may go away.** A PTY whose other side is closed reports POLLHUP and EIO. The
-  partial frame and unsent responses are dropped (like bytes sent down a UART to a closed
-  port; ``on_hangup`` also flushes what the kernel still holds for the closed PTY, see
-  :func:`flush_pty_input`), and the shell looks every ``retry_s`` whether the port is open
-  again, executing held frames meanwhile. Any other read or write error is logged, counted
-  and treated the same way: the thread never dies.
+- **A host's session ends** when it closes the PTY (POLLHUP, EIO; or the slave's close
+  and a new open reported by ``pty``'s inotify watch, when a host closed the port and
+  another opened it before the link looked) or its serial device goes away. Everything
+  owed to it is dropped and counted by cause (``responses_dropped_*``): the partial frame,
+  the answers not yet written (``unsent``; on a PTY also those the kernel still holds for
+  it, counted and flushed by ``pty``, a :class:`~motorctl.daemon.ports.PtySlave`), a held
+  WaitMoved's answer (``wait``) and the answers of the frames kept behind it (``held``;
+  their commands are never executed: :meth:`LinkSession.end`). The next host reads only
+  its own answers, and its first command is answered at once: nothing of the old session
+  is left to wait for.
+- **No host on the PTY**: ``pty`` holds the slave side open, so that the master does not
+  report POLLHUP over and over; ``poll()`` sleeps until a host writes, and its first bytes
+  are read like any others. Any other read or write error (or a PTY whose slave cannot be
+  held) is logged, counted and ends the session the same way; the shell then looks every
+  ``retry_s`` whether the port works again: the thread never dies.
 - **A serial device may go away** (``device``: ``--port``; a USB adapter unplugged, a
-  socat PTY torn down). Its descriptor is hung up for good (POLLHUP, an empty read, EIO),
-  so the shell closes it, logs the loss once and opens the device's *path* again on a
-  :class:`~motorctl.daemon.serialport.Backoff` schedule (50 ms after the loss, doubling up
-  to every second) until it is back; everything else (motors, positions, held frames) is
-  kept, and what the partial frame and unsent answers were is dropped as above.
+  socat PTY torn down), or not be there yet at start. Its descriptor is hung up for good
+  (POLLHUP, an empty read, EIO), so the shell closes it, logs the loss once and opens the
+  device's *path* again (:class:`~motorctl.daemon.devwatch.DeviceReturn`) the moment
+  ``notice`` (a :class:`~motorctl.daemon.devwatch.PathWatch`: inotify on the folders of the
+  path) sees it come back, and on a :class:`~motorctl.daemon.serialport.Backoff` schedule
+  meanwhile (50 ms after the loss, doubling up to every second) as the fallback; it opens
+  it without flushing what the new session sent. Motors and positions are kept; the
+  session ends as above.
 - **The host's silence** (``watch``: ``[link] timeout_ms``, off by default): every byte
   read tells the :class:`~motorctl.daemon.silence.SilenceWatch`; its deadline bounds the
-  waits, and when it passes the watch stops the motors in motion.
+  waits; while the shell does not read (back pressure) the silence does not count, and it
+  is checked only after a read found nothing waiting (the gap's rule); when it passes the
+  watch stops the motors in motion.
 - **Shutdown is bounded.** :meth:`stop` ends the loop at its next turn; unsent responses get
   at most ``drain_s`` to leave.
 - **A recorder may listen.** Given one (``motorctld --trace``), every byte run read from the
   host and every run written to it is handed to it with this loop's own clock reading, on
   this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.trace`).
+- **Processing time** (``processing``): from a read to its answers written, for every read
+  that produced answers, whichever way its frames were taken (the session's one-frame path
+  or its framer) and whether or not the read began a session.
 """
 
 from __future__ import annotations
@@ -52,14 +74,14 @@ import errno
 import logging
 import os
 import select
-import termios
 import time
 from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
-from motorctl.daemon.serialport import Backoff, DeviceError
-from motorctl.daemon.session import CommandPort, LinkSession
+from motorctl.daemon.devwatch import Device, DeviceReturn, Notice
+from motorctl.daemon.serialport import Backoff
+from motorctl.daemon.session import CommandPort, Ended, LinkSession
 from motorctl.daemon.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
@@ -70,6 +92,7 @@ POLLIN, POLLOUT = select.POLLIN, select.POLLOUT
 POLLGONE = select.POLLHUP | select.POLLERR | select.POLLNVAL
 
 WRITE_MAX = 65536  # bytes handed to one write()
+SAY_AFTER_S = 0.02  # a session's end is logged this long after it (see _end_session)
 
 SHELL_COUNTERS = (
     "reads",
@@ -80,22 +103,29 @@ SHELL_COUNTERS = (
     "peer_reopened",
     "hangup_partial_bytes",
     "responses_dropped",
+    *(f"responses_dropped_{cause}" for cause in ("unsent", "wait", "held", "shutdown")),
     "backpressure",
     "device_lost",
     "device_reopened",
     "reopen_attempts",
 )
-#: errors of a reopen that only say the device is not back yet (logged at debug level);
-#: any other (no permission, busy) is logged once as a warning: the user must act
-NOT_BACK = frozenset({errno.ENOENT, errno.ENXIO, errno.ENODEV, errno.EIO})
 
 
-class Device(Protocol):
-    """A serial device that can be opened again by its path (daemon.serialport)."""
+class Slave(Protocol):
+    """The PTY's slave side, held while no host has it, its opens and closes watched
+    (daemon.ports.PtySlave)."""
 
-    path: str
+    @property
+    def held(self) -> bool: ...
 
-    def open(self) -> int: ...  # a fresh non-blocking descriptor, or DeviceError
+    @property
+    def events_fd(self) -> int | None: ...  # readable when the slave was opened or closed
+
+    def reopened(self) -> bool: ...  # opened again after a host closed it, since last asked
+
+    def hold(self) -> int: ...  # held from now on; the bytes the last host left, flushed
+
+    def release(self) -> None: ...
 
     def close(self) -> None: ...
 
@@ -107,25 +137,6 @@ class ByteRecorder(Protocol):
     def received(self, data: bytes, t: float) -> None: ...
 
     def sent(self, data: bytes, t: float) -> None: ...
-
-
-def flush_pty_input(slave: str) -> None:
-    """Discard what was written to a PTY and not read before its host closed it.
-
-    The kernel keeps such bytes for whoever opens the slave next, which would then read
-    answers to someone else's questions. Opening the slave for a moment and flushing its
-    input is the only way from the master's side; failures are logged, never raised."""
-    try:
-        fd = os.open(slave, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
-    except OSError as exc:
-        log.warning("cannot open %s to flush stale responses: %s", slave, exc)
-        return
-    try:
-        termios.tcflush(fd, termios.TCIFLUSH)
-    except termios.error as exc:
-        log.warning("cannot flush stale responses on %s: %s", slave, exc)
-    finally:
-        os.close(fd)
 
 
 class Link:
@@ -142,12 +153,16 @@ class Link:
         read_size: int = 4096,
         retry_s: float = 0.02,
         drain_s: float = 0.5,
-        on_hangup: Callable[[], None] | None = None,
+        pty: Slave | None = None,
         device: Device | None = None,
+        notice: Notice | None = None,
         watch: SilenceWatch | None = None,
         backoff: Backoff | None = None,
         recorder: ByteRecorder | None = None,
     ) -> None:
+        """``fd``: the PTY's master (with ``pty``, its slave side), the serial device's
+        descriptor (with ``device``; -1: not there yet, served when it appears, ``notice``
+        telling when something changes on its path), or any other descriptor."""
         self.fd = fd
         self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
         self.clock = clock
@@ -155,28 +170,45 @@ class Link:
         self.out_limit = backlog_limit * RESPONSE_LEN
         self.retry_s = retry_s
         self.drain_s = drain_s
-        self.on_hangup = on_hangup
+        self.pty = pty
         self.device = device
-        self.backoff = backoff or Backoff()
         self.watch = watch or SilenceWatch(0.0)
         self._watching = self.watch.enabled
-        self._lost_at = 0.0  # when the device went away
-        self._next_try = 0.0  # when to try to open it again
-        self._attempts = 0  # reopen attempts since it went away
-        self._reported: set[int | None] = set()  # reopen errors logged since then
         self.recorder = recorder
         self.counters: Counter[str] = Counter(dict.fromkeys(SHELL_COUNTERS, 0))
+        self.away = (  # a device gone (or not there yet): when and how to open it again
+            None
+            if device is None
+            else DeviceReturn(device, notice, backoff or Backoff(), self.counters)
+        )
         self.processing = LatencyStats(threshold_s=108e-6)
         self.peer_gone = False
         self._out = bytearray()
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
+        self._opens: int | None = None  # the PTY slave's opens and closes, registered there
+        self._later: list[tuple[str, Ended, int]] = []  # session ends to log, a moment later
+        self._later_at = 0.0
         self._poller = select.poll()
         self._wake_r, self._wake_w = os.pipe()
         os.set_blocking(self._wake_r, False)
         os.set_blocking(self._wake_w, False)
         self._stopped = False
         self.turns = 0
+        if self.away is not None and fd < 0:  # not there at start: served when it appears
+            self.peer_gone = True
+            self.away.ever_open = False
+            self.away.away(self.clock())
+            log.warning(
+                "serial device %s is not there: serving it as soon as it appears (watching "
+                "its folder, and trying every %.0f ms at most)",
+                self.away.device.path,
+                self.away.backoff.max_s * 1000,
+                extra={"DEVICE": self.away.device.path, "EVENT": "device_awaited"},
+            )
+        elif pty is not None:  # no host yet: hold the slave until one writes
+            self.peer_gone = True
+            pty.hold()
 
     # -- thread-safe pokes ---------------------------------------------------------
     def poke(self) -> None:
@@ -215,51 +247,84 @@ class Link:
         signal's own byte ends that ``poll()``, and the handler runs right after it."""
         poller = self._poller = select.poll()
         poller.register(self._wake_r, POLLIN)
+        self._opens = self.pty.events_fd if self.pty is not None else None
+        if self._opens is not None:  # watched while a session is open
+            poller.register(self._opens, 0 if self.peer_gone else POLLIN)
         self._mask = -1
         while not self._stopped:
             self.turn(poller)
             self.turns += 1  # the watchdog's evidence that the loop is not hung
+        self._say_later()
         self._drain()
 
     def turn(self, poller: select.poll) -> None:
-        """One turn of the loop: answer what is due, write, wait, read or watch the silence."""
-        session, fd = self.session, self.fd
+        """One turn of the loop: answer what is due, write, wait, read, watch the silence."""
+        session = self.session
         if session.waiting:
             session.poll(self.clock())
         if self._watching:
-            now = self.clock()
-            self.watch.hold(session.waiting, now)
-            self.watch.check(now)
+            self.watch.hold(session.waiting, self.clock())
         self._flush()
-        if self.peer_gone:
+        if self.peer_gone and not (self.pty is not None and self.pty.held):
             if self.device is not None:
                 self._look_for_device()
             else:
                 self._look_for_peer()
+            if self._watching:
+                self.watch.check(self.clock())
             return
+        fd = self.fd
         reading = session.wants_input() and len(self._out) < self.out_limit
         if reading != self._reading:
             self._reading = reading
             if not reading:
                 self.counters["backpressure"] += 1
+            if self._watching:
+                self.watch.listening(reading, self.clock())
         mask = (POLLIN if reading else 0) | (POLLOUT if self._out else 0)
         if mask != self._mask:  # a new mask makes poll() rebuild its descriptor array
             self._mask = mask
             poller.register(fd, mask)
         t_enter = self.clock()
         events = 0
-        for ready, what in poller.poll(self._timeout_ms(t_enter, reading)):
+        opened = False
+        timeout = self._timeout_ms(t_enter, reading)
+        if self._later:  # said once the line has been quiet a moment, not before a new
+            left = (self._later_at + SAY_AFTER_S - t_enter) * 1000.0  # host's first command
+            if left <= 0:
+                self._say_later()
+            elif timeout is None or left < timeout:
+                timeout = left
+        for ready, what in poller.poll(timeout):
             if ready == fd:
                 events = what
-            else:  # the wake-up pipe
+            elif ready == self._wake_r:
                 with contextlib.suppress(BlockingIOError):
                     os.read(self._wake_r, 4096)
+            else:  # the slave was opened or closed
+                opened = True
+        # The slave's opens and closes first: a host that closed the port and opened it
+        # again before this poll (no POLLHUP seen) has ended its session all the same, and
+        # the bytes it sends since are the next session's. What is there to read now is
+        # taken as the new host's (the old one's were read as they came, unless it wrote
+        # and closed within the moment the new one opened and wrote: that cannot be told
+        # apart). The port's own events are looked at from the next turn on (holding the
+        # slave has changed them).
+        if opened and self._reopened():
+            self._hangup("closed")
+            self._read(None)  # the new host's first bytes, often there already
+            return
         if events & POLLIN:
             self._read(None)
         elif events & POLLGONE:
-            self._hangup("closed")
+            if self.peer_gone and self.pty is not None:  # the held slave failed us
+                self.pty.release()  # look every retry_s from now on
+            else:
+                self._hangup("closed")
         elif reading:
             self._read(t_enter)
+        if self._watching:  # after the read: bytes that waited in the kernel were heard
+            self.watch.check(self.clock())
 
     def _deadline(self) -> float | None:
         """When the loop must turn at the latest: a held WaitMoved's timeout, the silence."""
@@ -298,16 +363,40 @@ class Link:
         if not data:  # end of file: nobody is on the other side
             self._hangup("closed")
             return
+        if self._reopened():  # these bytes came after a host closed the port and another
+            self._hangup("closed")  # opened it: the next session's (see turn())
+        self._take(data, now)
+
+    def _reopened(self) -> bool:
+        """Whether, during the open session, the PTY was closed by a host and opened again
+        (its events are taken in any case). Asked before the bytes read are taken: a host's
+        open is reported before anything it writes can be read, so no new host's byte
+        joins the old session, however the poll and the read fell."""
+        pty = self.pty
+        reopened = pty is not None and pty.events_fd is not None and pty.reopened()
+        if self._opens is not None and (pty is None or pty.events_fd is None):
+            self._poller.unregister(self._opens)  # no longer watched: before its number
+            self._opens = None  # can be reused
+        return reopened and not self.peer_gone
+
+    def _take(self, data: bytes, now: float) -> None:
+        """Bytes read at ``now``: to the session, and their answers to the port; the
+        processing time of every read that produced answers is recorded."""
+        opening = self.peer_gone
+        if opening:  # a new host's first bytes (found by a poll or a look)
+            self._open_session()
         self._received(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
+        if opening and self.pty is not None:  # after its first answers: they come first
+            self.pty.release()
 
     def _flush(self) -> bool:
         """Write what the descriptor takes without blocking; True if anything new was queued."""
         data = self.session.take_output()
         if data:
-            if self.peer_gone:
-                self.counters["responses_dropped"] += len(data) // RESPONSE_LEN
+            if self.peer_gone:  # nothing is owed to nobody; kept for safety
+                self._drop("unsent", len(data) // RESPONSE_LEN)
                 return False
             self._out += data
         out = self._out
@@ -328,6 +417,7 @@ class Link:
         return bool(data)
 
     def _hangup(self, why: str) -> None:
+        """The host's side is gone (``why``: "closed", or the error): its session ends."""
         if self.peer_gone:
             return
         self.peer_gone = True
@@ -337,18 +427,65 @@ class Link:
             self._lose_device("it hung up" if why == "closed" else why)
         elif why == "closed":
             self.counters["peer_closed"] += 1
-            log.info("the host closed the port; serving again when it is reopened")
         else:
             self.counters["link_errors"] += 1
             log.error("link: %s; retrying every %.0f ms", why, self.retry_s * 1000)
-        self.counters["hangup_partial_bytes"] += self.session.peer_gone()
-        self.counters["responses_dropped"] += len(self._out) // RESPONSE_LEN
+        self._end_session(
+            "its serial device went away"
+            if self.device is not None
+            else "the host closed the port"
+            if why == "closed"
+            else "the port failed"
+        )
+
+    def _end_session(self, how: str) -> None:
+        """Drop and count what was owed to the host whose session ended (``how``)."""
+        ended = self.session.end()
+        unsent = ended.unsent + -(-len(self._out) // RESPONSE_LEN)  # a part-sent one too
         self._out.clear()
-        if self.on_hangup is not None:
-            self.on_hangup()
+        if self.pty is not None and self.device is None:
+            unsent += -(-self.pty.hold() // RESPONSE_LEN)  # left unread in the kernel
+        self.counters["hangup_partial_bytes"] += ended.partial_bytes
+        self._drop("unsent", unsent)
+        self._drop("wait", ended.wait)
+        self._drop("held", ended.held)
+        if self._opens is not None:  # no session: a host's open need not wake the loop
+            self._poller.modify(self._opens, 0)
+        if unsent or ended.wait or ended.held or ended.partial_bytes:
+            # said a moment later (the log costs more than a command): a new host's first
+            # command, maybe on its way, is answered first
+            self._later_at = self.clock()
+            self._later.append((how, ended, unsent))
+        else:
+            log.debug("%s; serving the next host", how)
+
+    def _say_later(self) -> None:
+        for how, ended, unsent in self._later:
+            log.info(
+                "%s: dropped what its host did not read (%s); serving the next host",
+                how,
+                describe_ended(ended, unsent),
+                extra={"EVENT": "session_ended"},
+            )
+        self._later.clear()
+
+    def _drop(self, cause: str, answers: int) -> None:
+        if answers:
+            self.counters["responses_dropped"] += answers
+            self.counters[f"responses_dropped_{cause}"] += answers
+
+    def _open_session(self) -> None:
+        """A host is there again (a new session): its opens and closes are watched again;
+        the slave held meanwhile is let go once its first bytes are answered (:meth:`_take`)."""
+        self.peer_gone = False
+        if self._opens is not None:
+            self._poller.modify(self._opens, POLLIN)
+        self.counters["peer_reopened"] += 1
+        log.debug("a host opened the port")
 
     def _look_for_peer(self) -> None:
-        """Peer gone: wait ``retry_s`` (or a wake-up), then see whether the port is open."""
+        """No host, and no held slave to wait on: wait ``retry_s`` (or a wake-up), then see
+        whether the port works again."""
         deadline = self._deadline()
         wait = self.retry_s
         if deadline is not None:
@@ -357,24 +494,29 @@ class Link:
             select.select([self._wake_r], [], [], wait)
         with contextlib.suppress(BlockingIOError):
             os.read(self._wake_r, 4096)
+        if self._stopped:
+            return
+        if self.pty is not None:
+            self._drop("unsent", -(-self.pty.hold() // RESPONSE_LEN))
+            if self.pty.held:
+                return  # held again: the next turns wait for the host's first byte
         probe = select.poll()
         probe.register(self.fd, POLLIN)
         events = dict(probe.poll(0)).get(self.fd, 0)
         if events & POLLGONE and not events & POLLIN:
             return
+        now = self.clock()
         try:
             data = os.read(self.fd, self.read_size) if events & POLLIN else b""
         except (BlockingIOError, InterruptedError):
             data = b""
-        except OSError:
+        except OSError:  # still failing: counted once, when it began
             return
         if events & POLLGONE and not data:
             return
-        self.peer_gone = False
-        self.counters["peer_reopened"] += 1
-        log.info("the port is open again")
+        self._open_session()
         if data:
-            self._received(data, self.clock())
+            self._take(data, now)
 
     def _received(self, data: bytes, now: float) -> None:
         """A run of bytes read at ``now``: it keeps the link alive, the trace records it,
@@ -386,9 +528,9 @@ class Link:
             self.recorder.received(data, now)
         self.session.receive(data, now)
 
-    # -- a serial device that went away --------------------------------------------------
+    # -- a serial device that went away (or is not there yet) ------------------------------
     def _lose_device(self, why: str) -> None:
-        """Close the dead descriptor; open the path again from ``backoff``'s first delay."""
+        """Close the dead descriptor; open the path again when it is back."""
         assert self.device is not None
         path = self.device.path
         with contextlib.suppress(KeyError, ValueError):
@@ -396,68 +538,43 @@ class Link:
         self._mask = -1
         self.device.close()
         self.fd = -1
-        self.counters["device_lost"] += 1
-        self._lost_at = now = self.clock()
-        self._attempts = 0
-        self._reported = set()
-        self.backoff.reset()
-        self._next_try = now + self.backoff.delay()
+        assert self.away is not None
+        self.away.away(self.clock())
+        self.counters["device_lost"] += 1  # once its path is watched (the tests wait on it)
         log.warning(
-            "serial device %s is gone (%s); motors, positions and held frames are "
-            "kept; opening %s again when it is back (first try in %.0f ms, then "
-            "doubling up to every %.0f ms)",
+            "serial device %s is gone (%s); motors and positions are kept; opening %s "
+            "again as soon as it is back (watching its folder, and trying %.0f ms after "
+            "the loss, then doubling up to every %.0f ms)",
             path,
             why,
             path,
-            self.backoff.first_s * 1000,
-            self.backoff.max_s * 1000,
+            self.away.backoff.first_s * 1000,
+            self.away.backoff.max_s * 1000,
             extra={"DEVICE": path, "EVENT": "device_lost"},
         )
 
     def _look_for_device(self) -> None:
-        """Device gone: wait for the next attempt (or a deadline, a wake-up), then try."""
-        assert self.device is not None
+        """Device gone: wait for news on its path, the next attempt, a deadline or a
+        wake-up; then try, if it is time or something changed."""
+        away = self.away
+        assert away is not None
         now = self.clock()
-        wait = self._next_try - now
+        wait = away.wait_s(now)
         deadline = self._deadline()
         if deadline is not None:
             wait = min(wait, deadline - now)
-        if wait > 0:
-            with contextlib.suppress(InterruptedError):
-                select.select([self._wake_r], [], [], wait)
+        ready: list[int] = []
+        with contextlib.suppress(InterruptedError):
+            ready = select.select([self._wake_r, *away.fds], [], [], max(0.0, wait))[0]
         with contextlib.suppress(BlockingIOError):
             os.read(self._wake_r, 4096)
-        now = self.clock()
-        if now < self._next_try or self._stopped:
+        if self._stopped:
             return
-        self._attempts += 1
-        self.counters["reopen_attempts"] += 1
-        try:
-            fd = self.device.open()
-        except DeviceError as exc:
-            self._next_try = now + self.backoff.delay()
-            if exc.errno in NOT_BACK or exc.errno in self._reported:
-                log.debug("%s; trying again in %.0f ms", exc, (self._next_try - now) * 1000)
-            else:  # there, but not usable: the user must act (it is retried all the same)
-                self._reported.add(exc.errno)
-                log.warning(
-                    "%s; trying again (every %.0f ms at most)",
-                    exc,
-                    self.backoff.max_s * 1000,
-                    extra={"DEVICE": self.device.path},
-                )
-            return
-        self.fd = fd
-        self._mask = -1
-        self.peer_gone = False
-        self.counters["device_reopened"] += 1
-        log.info(
-            "serial device %s is back after %.1f s (%d attempts): serving again",
-            self.device.path,
-            now - self._lost_at,
-            self._attempts,
-            extra={"DEVICE": self.device.path, "EVENT": "device_back"},
-        )
+        fd = away.look(ready, self.clock())
+        if fd is not None:
+            self.fd = fd
+            self._mask = -1
+            self.peer_gone = False
 
     def _drain(self) -> None:
         """After stop(): give unsent responses at most ``drain_s`` to leave."""
@@ -470,7 +587,7 @@ class Link:
         while self._out and not self.peer_gone:
             left = end - self.clock()
             if left <= 0:
-                self.counters["responses_dropped"] += len(self._out) // RESPONSE_LEN
+                self._drop("shutdown", -(-len(self._out) // RESPONSE_LEN))
                 log.warning("shutdown: %d unsent response bytes dropped", len(self._out))
                 self._out.clear()
                 break
@@ -484,8 +601,8 @@ class Link:
         counts.update(self.watch.counters)
         peer = "open"
         if self.peer_gone:
-            peer = "gone" if self.device is not None else "closed"
-        return {
+            peer = "closed" if self.away is None else "gone" if self.away.ever_open else "waiting"
+        out: dict[str, object] = {
             "counters": counts,
             "processing": self.processing.summary(),
             "held": session.held,
@@ -494,7 +611,31 @@ class Link:
             "unsent_bytes": len(self._out),
             "recent": session.describe_recent(),
         }
+        if self.device is not None:
+            out["device"] = self.device.path
+        return out
 
     def close(self) -> None:
         os.close(self._wake_r)
         os.close(self._wake_w)
+        if self.pty is not None:
+            self.pty.close()
+        if self.away is not None:
+            self.away.close()
+
+
+def describe_ended(ended: Ended, unsent: int) -> str:
+    """What an ended session left, in words, for the log."""
+    parts = []
+    if unsent:
+        parts.append(f"{unsent} answers written or due")
+    if ended.wait:
+        parts.append("a held WaitMoved's answer")
+    if ended.held:
+        kept = f"{ended.held} frames kept behind it"
+        if ended.discarded:
+            kept += f" ({ended.discarded} commands not executed)"
+        parts.append(kept)
+    if ended.partial_bytes:
+        parts.append(f"{ended.partial_bytes} bytes of an incomplete frame")
+    return ", ".join(parts)

@@ -22,8 +22,8 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Sequence
-from functools import partial
 from pathlib import Path
+from types import ModuleType
 
 from motorctl import __version__
 from motorctl.daemon import platform_check
@@ -38,11 +38,12 @@ from motorctl.daemon.assemble import (
     silence_watch,
     state_files_dir,
 )
-from motorctl.daemon.config import Config, ConfigError, load_config
+from motorctl.daemon.config import Config, ConfigError, StepThreadConfig, load_config
+from motorctl.daemon.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
-from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.ports import open_pty, open_uart
-from motorctl.daemon.serialport import SerialDevice
+from motorctl.daemon.link import Link
+from motorctl.daemon.ports import PtySlave, open_pty
+from motorctl.daemon.serialport import DeviceError, SerialDevice
 from motorctl.daemon.service import (
     MotorEventLog,
     StatusLine,
@@ -53,9 +54,11 @@ from motorctl.daemon.service import (
     watchdog_interval,
 )
 from motorctl.daemon.signals import StopSignals
+from motorctl.daemon.silence import check_timeout
 from motorctl.daemon.status import StatusServer, read_status, summary_line
-from motorctl.hal.interfaces import MonotonicClock
+from motorctl.hal.interfaces import MonotonicClock, ProbeReport
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
+from motorctl.motion import compiled_core
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_process_start import ExecutorProcess
 from motorctl.motion.motor import Motor
@@ -95,10 +98,18 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
         "--port",
         metavar="DEVICE",
         help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
-        "/dev/serial/by-id/usb-... name; a device that goes away is opened "
-        "again by this path when it is back (state kept)",
+        "/dev/serial/by-id/usb-... name; a device not there yet at start is served "
+        "as soon as it appears, one that goes away is opened again by this path "
+        "when it is back (state kept); one that is there but cannot be used (not a "
+        "tty, no permission, busy) stops the start",
     )
-    p.add_argument("--baud", type=int, default=115200, help="UART baud rate (default 115200)")
+    p.add_argument(
+        "--baud",
+        type=int,
+        default=115200,
+        help="UART baud rate (default 115200); [link] timeout_ms must be at least one "
+        "frame's time at it (also checked by --check-config)",
+    )
     p.add_argument(
         "--config",
         metavar="FILE",
@@ -155,11 +166,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument(
         "--format",
-        choices=["json", "openmetrics"],
+        choices=["json", "prometheus", "openmetrics"],
         default="json",
-        help="with --status: json (the document, docs/status.md) or openmetrics "
-        "(the OpenMetrics text format, names motorctl_*, for node_exporter's "
-        "textfile collector; motorctl_up 0 and exit 1 when no daemon answers)",
+        help="with --status: json (the document, docs/status.md), prometheus (the "
+        "Prometheus text format 0.0.4, names motorctl_*: what node_exporter's textfile "
+        "collector reads) or openmetrics (the same metrics as OpenMetrics, for scrapers "
+        "that ask for it); both need python3-prometheus-client; motorctl_up 0 and exit 1 "
+        "when no daemon answers",
     )
     p.add_argument(
         "--watch",
@@ -205,6 +218,10 @@ def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) 
         except ConfigError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return 1
+        why = check_timeout(cfg.link.timeout_ms, args.baud)
+        if why is not None:
+            print(f"error: {args.check_config}: {why}", file=sys.stderr)
+            return 1
         for notice in cfg.notices:
             print(f"warning: {notice}", file=sys.stderr)
         print(
@@ -238,6 +255,16 @@ def _main(argv: Sequence[str] | None, executor_process: ExecutorProcess | None) 
         return 1
 
 
+#: what ``--status --format prometheus|openmetrics`` says without prometheus_client (an
+#: optional dependency, like rich for the monitor: daemon/metrics.py alone imports it)
+METRICS_MISSING = (
+    "the metrics formats need the Python package 'prometheus_client', which is not "
+    "installed: 'apt install python3-prometheus-client' (Debian, Raspberry Pi OS) or "
+    "'pip install motorctl[metrics]'; the daemon itself does not need it, and "
+    "'motorctld --status' prints the same figures as JSON"
+)
+
+
 def status_command(args: argparse.Namespace) -> int:
     """``--status``: the running daemon's status once (JSON or OpenMetrics), or watched."""
     path = args.state_dir / "status.sock"
@@ -257,19 +284,26 @@ def status_command(args: argparse.Namespace) -> int:
         return 2
     import json
 
-    from motorctl.daemon import metrics
-
+    metrics: ModuleType | None = None
+    if args.format != "json":
+        try:
+            from motorctl.daemon import metrics
+        except ModuleNotFoundError as exc:
+            if exc.name is None or exc.name.split(".")[0] != "prometheus_client":
+                raise
+            print(f"error: {METRICS_MISSING}", file=sys.stderr)
+            return 2
     try:
         doc = read_status(path, histogram=args.histogram)
         if set(doc) == {"error"}:
             raise ValueError(doc["error"])
     except (OSError, ValueError) as exc:
         print(f"error: no daemon status at {path}: {exc}", file=sys.stderr)
-        if args.format == "openmetrics":
-            sys.stdout.write(metrics.down(str(exc)))
+        if metrics is not None:
+            sys.stdout.write(metrics.down(args.format))
         return 1
-    if args.format == "openmetrics":
-        sys.stdout.write(metrics.openmetrics(doc))
+    if metrics is not None:
+        sys.stdout.write(metrics.metrics(doc, args.format))
     else:
         print(json.dumps(doc, indent=1))
     return 0
@@ -287,10 +321,11 @@ def probe(
         return 1
     spec = hardware_spec(config)
     report = probe_hardware(config.hal.backend, spec, MonotonicClock())
+    st = config.step_thread
+    report.add("step core", step_core_probe(st, report))
     print(f"motorctld --probe: config {config.source}, backend {config.hal.backend}")
     sys.stdout.write(report.text())
     sys.stdout.flush()
-    st = config.step_thread
     timing = platform_check.TimingConfig(
         cpu=st.cpu, priority=st.priority, spin_us=st.spin_us, executor=st.executor
     )
@@ -310,6 +345,37 @@ def probe(
         latency, skipped = None, "not measured (--latency-seconds 0)"
     sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
     return 1 if report.problems else 0
+
+
+def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
+    """``--probe``'s lines on the step core: what is built, what the backend's lines offer,
+    which core the daemon would run (``[step_thread] core``); a core = "compiled" that
+    could not run is one of the report's problems."""
+    built = compiled_core.unavailable()
+    lines = report.compiled_lines
+    out = [
+        f'[step_thread] core = "{st.core}", executor = "{st.executor}"',
+        f"compiled core: {'built' if built is None else built}",
+        f"lines for it: {lines if lines is not None else 'not known (the lines did not open)'}",
+    ]
+    if st.executor == "thread":
+        runs = "python (the thread executor runs the Python core)"
+        if st.core == "compiled":
+            report.problems.append(
+                '[step_thread] core = "compiled" runs in the process executor only'
+            )
+    elif st.core == "python":
+        runs = "python (as asked)"
+    elif built is None and lines is not None and not lines.startswith("none"):
+        runs = "compiled"
+    else:
+        why = built or f"the backend's lines: {lines or 'not known'}"
+        runs = f"python ({why})"
+        if st.core == "compiled":
+            runs = "none: motorctld would not start"
+            report.problems.append(f'[step_thread] core = "compiled", but {why}')
+    out.append(f"runs: {runs}")
+    return out
 
 
 def serve(args: argparse.Namespace, executor_process: ExecutorProcess | None = None) -> int:
@@ -347,16 +413,38 @@ def _serve(
             owned.lock(args.pty.with_name(f".{args.pty.name}.lock"), f"PTY {args.pty}")
     except InstanceError as exc:
         raise StartupError(str(exc)) from exc
-    daemon = Daemon.build(config, args.state_dir, executor_process=executor_process)
+    why = check_timeout(config.link.timeout_ms, args.baud)
+    if why is not None:
+        raise ConfigError(f"{config.source}: {why}")
+    # The serial device before the state: one that is there but cannot be used stops the
+    # start before the state is restored and written again; one that is not there yet is
+    # served when it appears (the link waits for it as for one that went away).
     uart: SerialDevice | None = None
+    fd = -1
+    if args.port is not None:
+        uart = SerialDevice(args.port, args.baud)
+        try:
+            fd = uart.open()
+        except DeviceError as exc:
+            if exc.errno not in NOT_BACK:
+                raise StartupError(str(exc)) from exc
+    try:
+        daemon = Daemon.build(config, args.state_dir, executor_process=executor_process)
+    except BaseException:
+        if uart is not None:
+            uart.close()
+        raise
+    pty: PtySlave | None = None
     try:
         if args.pty is not None:
             fd, name = open_pty(args.pty)
             owned.symlink(args.pty, name)
+            pty = PtySlave(fd, name)
             where = f"{args.pty} -> {name}"
         else:
-            uart, fd = open_uart(args.port, args.baud)
             where = f"{args.port} at {args.baud} baud"
+            if fd < 0:
+                where += " (not there yet: served when it appears)"
     except BaseException:
         daemon.engine.executor.close()  # the process executor's shared memory
         daemon.hw.close()  # e.g. the mock's shared memory
@@ -367,6 +455,8 @@ def _serve(
     except BaseException:
         daemon.engine.executor.close()
         daemon.hw.close()
+        if uart is not None:
+            uart.close()
         raise
     link = Link(
         fd,
@@ -374,14 +464,25 @@ def _serve(
         c.codec_options(),
         c.frame_gap_ms / 1000.0,
         c.held_frames,
-        on_hangup=None if uart else partial(flush_pty_input, name),
+        pty=pty,
         device=uart,
+        notice=None if uart is None else PathWatch(uart.path),
         watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
         recorder=recorder,
     )
     daemon.link = link
     daemon.trace = recorder
-    status = StatusServer(args.state_dir / "status.sock", daemon.status)
+    try:
+        status = StatusServer(args.state_dir / "status.sock", daemon.status)
+    except OSError as exc:
+        if recorder is not None:
+            recorder.close()
+        daemon.engine.executor.close()
+        daemon.hw.close()
+        raise StartupError(
+            f"cannot serve the status socket {args.state_dir / 'status.sock'}: "
+            f"{exc.strerror or exc}"
+        ) from exc
     events = MotorEventLog()
     line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
 
@@ -414,6 +515,7 @@ def _serve(
     print(
         f"motorctld ready: serving {where}; config {config.source}; "
         f"{len(config.motors)} motors; {config.hal.backend} hardware; "
+        f"step core {daemon.engine.executor.step_core() or 'none'}; "
         f"state in {args.state_dir}",
         flush=True,
     )

@@ -1,133 +1,377 @@
-"""The status document as metrics: the OpenMetrics text format (``motorctld --status --format
-openmetrics``), for node_exporter's textfile collector (docs/service.md, "Metrics").
+"""The status document as metrics (``motorctld --status --format prometheus|openmetrics``;
+docs/status.md, "Metrics"), written by prometheus_client.
+
+Two formats of the same metrics: ``prometheus`` (the Prometheus text format 0.0.4), which
+node_exporter's textfile collector reads (a counter's TYPE line names its ``_total``
+sample there, so it arrives typed), and ``openmetrics`` for scrapers that ask for
+OpenMetrics. prometheus_client is an optional dependency (the ``metrics`` extra; Debian:
+python3-prometheus-client), imported by this module only: the daemon never imports it, and
+``motorctld --status`` says what to install when it is missing
+(``motorctl.daemon.main.METRICS_MISSING``).
 
 Pure: a status document in, text out; no socket, no clock. Every name starts with
 ``motorctl_``, values are in base units (seconds, bytes; steps are the machine's own unit),
-counters end in ``_total``. Only the counter, gauge and summary types are used, and no
-timestamps: node_exporter's textfile collector reads the file with the Prometheus text
-parser, which knows no other types (``info`` and ``stateset`` would make it drop the whole
-file); what would be a stateset is a gauge with a ``state`` label, 1 for the current state.
-Fields are read defensively: a field the document lacks (an older or newer daemon, per-motor
-timing figures before issue 15) is left out, never an error.
+counters are counted in ``_total``, summaries have ``_count`` and ``_sum``; what would be a
+stateset is a gauge with a ``state`` label, 1 for the current state. The metrics read from
+fixed places of the document are tables (:data:`SCALARS`, :data:`MOTOR_FIELDS`,
+:data:`LINK_COUNTERS`, :data:`SUMMARIES`): a new status field is one line there. Fields are
+read defensively: a field the document lacks (an older or newer daemon) is left out, never
+an error.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
-from dataclasses import dataclass, field
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
 from typing import Any
+
+from prometheus_client import CollectorRegistry
+from prometheus_client.exposition import generate_latest as _prometheus_text
+from prometheus_client.metrics_core import Metric
+from prometheus_client.openmetrics.exposition import generate_latest as _openmetrics_text
 
 from motorctl.hal.interfaces import BridgeState
 from motorctl.motion.types import MotorState
 
+FORMATS = ("prometheus", "openmetrics")
+
 Labels = Mapping[str, object]
 
-#: link counters read under a name of their own (the rest: motorctl_link_<key>_total)
-_FRAME_ERRORS = {
-    "checksum_errors": "checksum",
-    "unknown_errors": "unknown",
-    "padding_errors": "padding",
-    "length_errors": "length",
-}
-_LINK_RENAMED = {
-    "bytes_in": ("motorctl_link_received_bytes", "Bytes received from the host.", "bytes"),
-    "link_errors": (
-        "motorctl_link_port_errors",
-        "Read or write errors of the port (other than the host closing it).",
-        None,
-    ),
-}
-_LINK_GAUGES = {
-    "held_max": (
-        "motorctl_link_held_frames_max",
-        "The most frames ever held behind a WaitMoved at once.",
-    )
-}
-#: steps.* keys that are counters: name, help
-_STEP_COUNTERS = {
-    "steps": ("motorctl_steps", "Step edges made by the step executor."),
-    "late": ("motorctl_steps_late", "Step edges later than the late threshold."),
-    "timing_lost": (
+
+@dataclass(frozen=True)
+class Field:
+    """One metric read from one place of the document: ``key`` a dotted path (from the
+    document, or from a motor for :data:`MOTOR_FIELDS`), ``name`` without ``_total``, and
+    the factor to base units."""
+
+    key: str
+    name: str
+    kind: str  # "counter" or "gauge"
+    help: str
+    scale: float = 1.0
+
+
+def _unit(name: str) -> str:
+    for unit in ("seconds", "bytes"):
+        if name.endswith("_" + unit):
+            return unit
+    return ""
+
+
+#: the document's single values
+SCALARS: tuple[Field, ...] = (
+    Field("steps.steps", "motorctl_steps", "counter", "Step edges made by the step executor."),
+    Field("steps.late", "motorctl_steps_late", "counter", "Step edges later than the threshold."),
+    Field(
+        "steps.timing_lost",
         "motorctl_steps_timing_lost",
-        "Motors stopped because a late step's lag was beyond the motor's "
-        "max_lag_full_steps (E4 step timing lost).",
+        "counter",
+        "Motors stopped because a late step's lag was beyond the motor's max_lag_full_steps "
+        "(E4 step timing lost).",
     ),
-    "dropped": ("motorctl_steps_dropped", "Steps the executor dropped."),
-    "io_errors": ("motorctl_step_io_errors", "STEP/DIR line errors in the executor."),
-    "endstops": ("motorctl_step_endstops", "End-stop triggers the executor acted on."),
-    "ring_retries_reports": (
+    Field("steps.dropped", "motorctl_steps_dropped", "counter", "Steps the executor dropped."),
+    Field("steps.io_errors", "motorctl_step_io_errors", "counter", "STEP/DIR line errors."),
+    Field("steps.endstops", "motorctl_step_endstops", "counter", "End-stop triggers acted on."),
+    Field(
+        "steps.bad_records",
+        "motorctl_step_bad_records",
+        "counter",
+        "Records from the daemon the executor found bad (each a fault of its motor).",
+    ),
+    Field(
+        "steps.ring_retries_reports",
         "motorctl_step_ring_retries_reports",
+        "counter",
         "Retries reading the executor's report ring.",
     ),
-    "ring_retries_segments": (
+    Field(
+        "steps.ring_retries_segments",
         "motorctl_step_ring_retries_segments",
+        "counter",
         "Retries writing the executor's segment ring.",
     ),
-    "progress": ("motorctl_executor_progress", "Turns of the step executor's loop."),
-}
-#: per-motor timing figures (issue 15), when the daemon reports them: key -> name, type,
-#: help, scale to base units
-_TIMING = {
-    "late_absorbed": (
+    Field("steps.progress", "motorctl_executor_progress", "counter", "Turns of the executor."),
+    Field(
+        "steps.max_us",
+        "motorctl_step_lateness_max_seconds",
+        "gauge",
+        "The latest step edge since start.",
+        1e-6,
+    ),
+    Field(
+        "steps.late_threshold_us",
+        "motorctl_step_late_threshold_seconds",
+        "gauge",
+        "A step edge later than this counts as late.",
+        1e-6,
+    ),
+    Field(
+        "steps.min_gap_ns",
+        "motorctl_step_min_gap_seconds",
+        "gauge",
+        "The shortest gap between two step edges of one motor (0: none yet).",
+        1e-9,
+    ),
+    Field("executor.alive", "motorctl_executor_alive", "gauge", "1 while the executor runs."),
+    Field("link.held", "motorctl_link_held_frames", "gauge", "Frames held behind a WaitMoved."),
+    Field("link.waiting", "motorctl_link_waiting", "gauge", "1 while a WaitMoved holds answers."),
+    Field(
+        "link.unsent_bytes",
+        "motorctl_link_unsent_bytes",
+        "gauge",
+        "Answer bytes not yet taken by the port.",
+    ),
+    Field(
+        "link.processing.max_us",
+        "motorctl_link_processing_max_seconds",
+        "gauge",
+        "The longest processing since start.",
+        1e-6,
+    ),
+    Field("state.ok", "motorctl_state_ok", "gauge", "1 while the state file is written fine."),
+    Field("state.writes", "motorctl_state_writes", "counter", "State file writes."),
+    Field("state.errors", "motorctl_state_write_errors", "counter", "State writes that failed."),
+    Field(
+        "state.save_errors",
+        "motorctl_state_save_errors",
+        "counter",
+        "SaveHome/SaveWayPoint answered E4 because the state could not be written.",
+    ),
+    Field(
+        "state.motion_refused",
+        "motorctl_state_motion_refused",
+        "counter",
+        "Motion commands answered E4 because the motion journal could not be written.",
+    ),
+    Field(
+        "state.last_write_ms",
+        "motorctl_state_last_write_duration_seconds",
+        "gauge",
+        "How long the last state file write took.",
+        1e-3,
+    ),
+    Field(
+        "state.journal.marks",
+        "motorctl_state_journal_marks",
+        "counter",
+        "Motions marked in the motion journal.",
+    ),
+    Field(
+        "hard_stops.wait_max_us",
+        "motorctl_hard_stop_wait_max_seconds",
+        "gauge",
+        "The longest a hard stop waited for the executor's confirmation.",
+        1e-6,
+    ),
+    Field("trace.runs", "motorctl_trace_runs", "counter", "Byte runs the trace recorded."),
+    Field(
+        "trace.dropped_runs",
+        "motorctl_trace_dropped_runs",
+        "counter",
+        "Byte runs left out of the trace (its writer fell behind).",
+    ),
+    Field(
+        "trace.bytes_written",
+        "motorctl_trace_written_bytes",
+        "counter",
+        "Bytes written to the trace files.",
+    ),
+    Field("trace.rotations", "motorctl_trace_rotations", "counter", "Trace file rotations."),
+    Field(
+        "trace.write_errors",
+        "motorctl_trace_write_errors",
+        "counter",
+        "Trace writes that failed.",
+    ),
+    Field(
+        "trace.lost_bytes",
+        "motorctl_trace_lost_bytes",
+        "counter",
+        "Bytes lost to failed trace writes.",
+    ),
+    Field(
+        "trace.max_file_bytes",
+        "motorctl_trace_max_file_bytes",
+        "gauge",
+        "A trace file's size at which it rotates.",
+    ),
+    Field("trace.files", "motorctl_trace_files", "gauge", "Trace files kept, rotated ones too."),
+)
+
+#: each motor's values (labels motor, name)
+MOTOR_FIELDS: tuple[Field, ...] = (
+    Field("position", "motorctl_motor_position_steps", "gauge", "Position as the host sees it."),
+    Field(
+        "speed",
+        "motorctl_motor_speed_steps_per_second",
+        "gauge",
+        "The motor's planned speed now (signed).",
+    ),
+    Field("position_lost", "motorctl_motor_position_lost", "gauge", "1 while it must be homed."),
+    Field(
+        "queued",
+        "motorctl_motor_queued_commands",
+        "gauge",
+        "Motion commands queued behind the running one.",
+    ),
+    Field("waypoints", "motorctl_motor_waypoints", "gauge", "Waypoints saved for the motor."),
+    Field(
+        "timing.late_absorbed",
         "motorctl_motor_late_steps_absorbed",
         "counter",
         "Late steps absorbed by sliding the motor's schedule.",
-        1.0,
     ),
-    "slid_ms": (
+    Field(
+        "timing.slid_ms",
         "motorctl_motor_slid_seconds",
         "counter",
         "Time the motor's schedule slid to absorb late steps.",
         1e-3,
     ),
-    "worst_late_us": (
+    Field(
+        "timing.worst_late_us",
         "motorctl_motor_worst_lateness_seconds",
         "gauge",
         "The latest step of the motor, after its planned time.",
         1e-6,
     ),
-    "worst_lag_full_steps": (
+    Field(
+        "timing.worst_lag_full_steps",
         "motorctl_motor_worst_lag_full_steps",
         "gauge",
         "The motor's worst lag behind its plan, in full steps.",
-        1.0,
     ),
-    "lag_faults": (
+    Field(
+        "timing.lag_faults",
         "motorctl_motor_lag_faults",
         "counter",
         "Faults for a lag beyond the motor's limit.",
-        1.0,
     ),
-    "microsteps": (
-        "motorctl_motor_microsteps",
-        "gauge",
-        "Microsteps per full step of the motor.",
-        1.0,
-    ),
-    "max_lag_full_steps": (
+    Field("timing.microsteps", "motorctl_motor_microsteps", "gauge", "Microsteps per full step."),
+    Field(
+        "timing.max_lag_full_steps",
         "motorctl_motor_max_lag_full_steps",
         "gauge",
         "The lag, in full steps, beyond which the motor faults.",
-        1.0,
+    ),
+)
+
+#: link.counters read under a name of their own: key -> name, kind, help, labels
+LINK_COUNTERS: dict[str, tuple[str, str, str, dict[str, str]]] = {
+    **{
+        f"{reason}_errors": (
+            "motorctl_link_frame_errors",
+            "counter",
+            "Frames that failed their checks (answered E1), by reason.",
+            {"reason": reason},
+        )
+        for reason in ("checksum", "unknown", "padding", "length")
+    },
+    **{
+        f"sent_E{n}": (
+            "motorctl_link_error_responses",
+            "counter",
+            "Error responses sent, by code.",
+            {"code": f"E{n}"},
+        )
+        for n in range(7)
+    },
+    **{
+        f"responses_dropped_{cause}": (
+            "motorctl_link_responses_dropped",
+            "counter",
+            "Answers never sent, by cause (unsent, wait, held: owed to a host whose session "
+            "ended; shutdown).",
+            {"cause": cause},
+        )
+        for cause in ("unsent", "wait", "held", "shutdown")
+    },
+    "bytes_in": ("motorctl_link_received_bytes", "counter", "Bytes received from the host.", {}),
+    "link_errors": (
+        "motorctl_link_port_errors",
+        "counter",
+        "Read or write errors of the port (other than the host closing it).",
+        {},
+    ),
+    "held_max": (
+        "motorctl_link_held_frames_max",
+        "gauge",
+        "The most frames ever held behind a WaitMoved at once.",
+        {},
+    ),
+    "link_timeouts": (
+        "motorctl_link_timeouts",
+        "counter",
+        "Times the host fell silent for [link] timeout_ms with motors in motion.",
+        {},
+    ),
+    "link_timeout_stops": (
+        "motorctl_link_timeout_stops",
+        "counter",
+        "Motors stopped because the host fell silent ([link] timeout_ms).",
+        {},
     ),
 }
-_QUANTILES = (("p50_us", "0.5"), ("p99_us", "0.99"), ("p999_us", "0.999"))
 
 
-@dataclass
-class _Family:
-    kind: str
+@dataclass(frozen=True)
+class Summary:
+    """A summary from one place of the document: quantiles ``p50_us``..., ``_count`` from
+    ``count``, ``_sum`` from ``sum`` (each key within ``key``'s mapping)."""
+
+    key: str
+    name: str
     help: str
-    unit: str | None
-    samples: list[tuple[str, dict[str, str], float | int]] = field(default_factory=list)
+    count: str
+    sum: str
+    quantiles: tuple[tuple[str, str], ...]
+    scale: float = 1e-6
 
 
-class _Writer:
-    """Families in the order first named; each family's samples together."""
+SUMMARIES: tuple[Summary, ...] = (
+    Summary(
+        "steps",
+        "motorctl_step_lateness_seconds",
+        "How late step edges were, after their planned time (since start).",
+        "steps",
+        "sum_us",
+        (("p50_us", "0.5"), ("p99_us", "0.99"), ("p999_us", "0.999")),
+    ),
+    Summary(
+        "link.processing",
+        "motorctl_link_processing_seconds",
+        "From a read to its answers being written (since start).",
+        "steps",
+        "sum_us",
+        (("p50_us", "0.5"), ("p99_us", "0.99"), ("p999_us", "0.999")),
+    ),
+    Summary(
+        "hard_stops",
+        "motorctl_hard_stop_wait_seconds",
+        "How long hard stops waited for the executor's confirmation (quantiles over the "
+        "latest 1024).",
+        "waits",
+        "wait_sum_us",
+        (("wait_p50_us", "0.5"), ("wait_p99_us", "0.99")),
+    ),
+)
+
+
+class _Families:
+    """prometheus_client's families, in the order first named; each family's samples
+    together. One name, one type: a second type for a name is a programming error."""
 
     def __init__(self) -> None:
-        self.families: dict[str, _Family] = {}
+        self.families: dict[str, Metric] = {}
+
+    def family(self, name: str, kind: str, help_text: str) -> Metric:
+        family = self.families.get(name)
+        if family is None:
+            family = self.families[name] = Metric(name, help_text, kind, _unit(name))
+        elif family.type != kind:
+            raise ValueError(f"{name} is a {family.type}, not a {kind}")
+        return family
 
     def add(
         self,
@@ -137,77 +381,42 @@ class _Writer:
         value: object,
         labels: Labels | None = None,
         suffix: str = "",
-        unit: str | None = None,
+        scale: float = 1.0,
     ) -> None:
         number = _number(value)
         if number is None:
             return
-        family = self.families.get(name)
-        if family is None:
-            family = self.families[name] = _Family(kind, help_text, unit)
-        elif family.kind != kind:  # a programming error: one name, one type
-            raise ValueError(f"{name} is a {family.kind}, not a {kind}")
-        if kind == "counter":
-            suffix = suffix or "_total"
-        text_labels = {k: str(v) for k, v in (labels or {}).items() if v is not None}
-        family.samples.append((name + suffix, text_labels, number))
+        family = self.family(name, kind, help_text)
+        suffix = suffix or ("_total" if kind == "counter" else "")
+        text = {k: str(v) for k, v in (labels or {}).items() if v is not None}
+        if scale != 1.0:  # 12 digits: no 9.999999999999999e-05 for 100 us
+            number = float(f"{number * scale:.12g}")
+        family.add_sample(name + suffix, text, number)
 
-    def gauge(
-        self,
-        name: str,
-        help_text: str,
-        value: object,
-        labels: Labels | None = None,
-        unit: str | None = None,
-    ) -> None:
-        self.add(name, "gauge", help_text, value, labels, unit=unit)
+    def gauge(self, name: str, help_text: str, value: object, labels: Labels | None = None) -> None:
+        self.add(name, "gauge", help_text, value, labels)
 
     def counter(
-        self,
-        name: str,
-        help_text: str,
-        value: object,
-        labels: Labels | None = None,
-        unit: str | None = None,
+        self, name: str, help_text: str, value: object, labels: Labels | None = None
     ) -> None:
-        self.add(name, "counter", help_text, value, labels, unit=unit)
+        self.add(name, "counter", help_text, value, labels)
 
-    def summary(
-        self,
-        name: str,
-        help_text: str,
-        figures: Mapping[str, Any],
-        count: object,
-        scale: float,
-        labels: Labels | None = None,
-    ) -> None:
-        """Quantiles ``p50_us``... of ``figures`` (scaled to seconds) and their count."""
-        if not isinstance(figures, Mapping) or _number(count) is None:
+    def field(self, f: Field, source: Mapping[str, Any], labels: Labels | None = None) -> None:
+        self.add(f.name, f.kind, f.help, _get(source, f.key), labels, scale=f.scale)
+
+    def summary(self, s: Summary, figures: Mapping[str, Any]) -> None:
+        """Its quantiles (when present), ``_count`` and ``_sum``: all, or none of it."""
+        count, total = _number(figures.get(s.count)), _number(figures.get(s.sum))
+        if count is None or total is None:
             return
-        for key, q in _QUANTILES:
-            value = _number(figures.get(key))
-            if value is not None:
-                self.add(
-                    name,
-                    "summary",
-                    help_text,
-                    value * scale,
-                    {**(labels or {}), "quantile": q},
-                    unit="seconds",
-                )
-        self.add(name, "summary", help_text, count, labels, suffix="_count", unit="seconds")
+        for key, q in s.quantiles:
+            self.add(s.name, "summary", s.help, figures.get(key), {"quantile": q}, scale=s.scale)
+        self.add(s.name, "summary", s.help, count, suffix="_count")
+        self.add(s.name, "summary", s.help, total, suffix="_sum", scale=s.scale)
 
-    def text(self) -> str:
-        out: list[str] = []
-        for name, family in self.families.items():
-            out.append(f"# TYPE {name} {family.kind}")
-            if family.unit:
-                out.append(f"# UNIT {name} {family.unit}")
-            out.append(f"# HELP {name} {_escape_help(family.help)}")
-            for sample, labels, value in family.samples:
-                out.append(f"{sample}{_labels(labels)} {_value(value)}")
-        out.append("# EOF")
-        return "\n".join(out) + "\n"
+    def info(self, name: str, help_text: str, labels: Mapping[str, str]) -> None:
+        family = self.family(name, "info", help_text)
+        family.add_sample(name + "_info", dict(labels), 1)
 
 
 def _number(value: object) -> float | int | None:
@@ -221,26 +430,13 @@ def _number(value: object) -> float | int | None:
     return None
 
 
-def _value(value: float | int) -> str:
-    if isinstance(value, int):
-        return str(value)
-    if math.isinf(value):
-        return "+Inf" if value > 0 else "-Inf"
-    return repr(value)
-
-
-def _escape_label(text: str) -> str:
-    return text.replace("\\", "\\\\").replace("\n", "\\n").replace('"', '\\"')
-
-
-def _escape_help(text: str) -> str:
-    return text.replace("\\", "\\\\").replace("\n", "\\n")
-
-
-def _labels(labels: Mapping[str, str]) -> str:
-    if not labels:
-        return ""
-    return "{" + ",".join(f'{k}="{_escape_label(v)}"' for k, v in labels.items()) + "}"
+def _get(source: Mapping[str, Any], key: str) -> object:
+    value: object = source
+    for part in key.split("."):
+        if not isinstance(value, Mapping):
+            return None
+        value = value.get(part)
+    return value
 
 
 def _dict(value: object) -> Mapping[str, Any]:
@@ -251,24 +447,53 @@ def _list(value: object) -> Iterable[Any]:
     return value if isinstance(value, list) else []
 
 
-def openmetrics(doc: Mapping[str, Any]) -> str:
-    """The status document ``doc`` (``motorctld --status``) in the OpenMetrics text format."""
-    w = _Writer()
+class _Collector:
+    """What prometheus_client's registry collects: the families, once."""
+
+    def __init__(self, families: _Families) -> None:
+        self._families = families
+
+    def collect(self) -> Iterator[Metric]:
+        yield from self._families.families.values()
+
+
+def render(families: _Families, fmt: str) -> str:
+    """The families in ``fmt`` (:data:`FORMATS`)."""
+    registry = CollectorRegistry(auto_describe=False)
+    registry.register(_Collector(families))
+    write = _openmetrics_text if fmt == "openmetrics" else _prometheus_text
+    return write(registry).decode("utf-8")
+
+
+def metrics(doc: Mapping[str, Any], fmt: str = "prometheus") -> str:
+    """The status document ``doc`` (``motorctld --status``) as metrics in ``fmt``."""
+    w = _Families()
     w.gauge("motorctl_up", "1: the status was read from a running motorctld.", 1)
+    version = doc.get("version")
+    if isinstance(version, str):
+        w.info("motorctl_build", "The running motorctld's version.", {"version": version})
     unix, uptime = _number(doc.get("unix_s")), _number(doc.get("uptime_s"))
     if unix is not None and uptime is not None:
         w.gauge(
             "motorctl_start_time_seconds",
             "When motorctld started (Unix time).",
             round(unix - uptime, 3),
-            unit="seconds",
         )
+    for f in SCALARS:
+        w.field(f, doc)
+    for s in SUMMARIES:
+        w.summary(s, _dict(_get(doc, s.key)))
+    w.gauge("motorctl_trace_enabled", "1 while motorctld traces its link.", "trace" in doc)
     _motors(w, doc)
-    _steps(w, _dict(doc.get("steps")))
     _executor(w, _dict(doc.get("executor")))
     _link(w, doc.get("link"))
-    _state(w, _dict(doc.get("state")))
-    _hard_stops(w, _dict(doc.get("hard_stops")))
+    for outcome in ("confirmed", "timed_out", "skipped", "died"):
+        w.counter(
+            "motorctl_hard_stops",
+            "Hard stops' waits for the executor's confirmation, by how they ended.",
+            _dict(doc.get("hard_stops")).get(outcome),
+            {"outcome": outcome},
+        )
     for what, count in sorted(_dict(doc.get("clamped")).items()):
         w.counter(
             "motorctl_clamped_values",
@@ -278,35 +503,24 @@ def openmetrics(doc: Mapping[str, Any]) -> str:
         )
     _pins_and_dc(w, doc)
     _drivers(w, doc.get("drivers"))
-    return w.text()
+    return render(w, fmt)
 
 
-def down(reason: str) -> str:
-    """The metrics when the daemon could not be read: ``motorctl_up 0`` (``reason`` is for
-    the caller's stderr; node_exporter keeps no text)."""
-    w = _Writer()
+def down(fmt: str = "prometheus") -> str:
+    """The metrics when the daemon could not be read: ``motorctl_up 0``."""
+    w = _Families()
     w.gauge("motorctl_up", "1: the status was read from a running motorctld.", 0)
-    return w.text()
+    return render(w, fmt)
 
 
-def _motors(w: _Writer, doc: Mapping[str, Any]) -> None:
+def _motors(w: _Families, doc: Mapping[str, Any]) -> None:
     states = [s.value for s in MotorState]
     for m in _list(doc.get("motors")):
         if not isinstance(m, Mapping):
             continue
         who = {"motor": m.get("index"), "name": m.get("name")}
-        w.gauge(
-            "motorctl_motor_position_steps",
-            "The motor's position as the host sees it.",
-            m.get("position"),
-            who,
-        )
-        w.gauge(
-            "motorctl_motor_speed_steps_per_second",
-            "The motor's planned speed now (signed).",
-            m.get("speed"),
-            who,
-        )
+        for f in MOTOR_FIELDS:
+            w.field(f, m, who)
         state = m.get("state")
         for s in [*states, *([state] if isinstance(state, str) and state not in states else [])]:
             w.gauge(
@@ -322,21 +536,6 @@ def _motors(w: _Writer, doc: Mapping[str, Any]) -> None:
                 m.get("fault") is not None,
                 who,
             )
-        w.gauge(
-            "motorctl_motor_position_lost",
-            "1 while the motor must be homed again.",
-            m.get("position_lost"),
-            who,
-        )
-        w.gauge(
-            "motorctl_motor_queued_commands",
-            "Motion commands queued behind the running one.",
-            m.get("queued"),
-            who,
-        )
-        w.gauge(
-            "motorctl_motor_waypoints", "Waypoints saved for the motor.", m.get("waypoints"), who
-        )
         for cause, count in sorted(_dict(m.get("faults")).items()):
             w.counter(
                 "motorctl_motor_faults",
@@ -344,50 +543,9 @@ def _motors(w: _Writer, doc: Mapping[str, Any]) -> None:
                 count,
                 {**who, "cause": cause},
             )
-        timing = _dict(m.get("timing"))
-        for key, (name, kind, help_text, scale) in _TIMING.items():
-            value = _number(timing.get(key))
-            if value is None:
-                continue
-            scaled = value if scale == 1.0 else value * scale
-            unit = "seconds" if name.endswith("_seconds") else None
-            w.add(name, kind, help_text, scaled, who, unit=unit)
 
 
-#: steps.* keys that are times, as gauges in seconds: name, help, scale
-_STEP_SECONDS = {
-    "max_us": ("motorctl_step_lateness_max_seconds", "The latest step edge since start.", 1e-6),
-    "late_threshold_us": (
-        "motorctl_step_late_threshold_seconds",
-        "A step edge later than this counts as late.",
-        1e-6,
-    ),
-    "min_gap_ns": (
-        "motorctl_step_min_gap_seconds",
-        "The shortest gap between two step edges of one motor (0: none yet).",
-        1e-9,
-    ),
-}
-
-
-def _steps(w: _Writer, steps: Mapping[str, Any]) -> None:
-    w.summary(
-        "motorctl_step_lateness_seconds",
-        "How late step edges were, after their planned time (since start).",
-        steps,
-        steps.get("steps"),
-        1e-6,
-    )
-    for key, (name, help_text, scale) in _STEP_SECONDS.items():
-        value = _number(steps.get(key))
-        if value is not None:
-            w.gauge(name, help_text, value * scale, unit="seconds")
-    for key, (name, help_text) in _STEP_COUNTERS.items():
-        w.counter(name, help_text, steps.get(key))
-
-
-def _executor(w: _Writer, executor: Mapping[str, Any]) -> None:
-    w.gauge("motorctl_executor_alive", "1 while the step executor runs.", executor.get("alive"))
+def _executor(w: _Families, executor: Mapping[str, Any]) -> None:
     kind = executor.get("kind")
     if isinstance(kind, str):
         w.gauge(
@@ -395,118 +553,27 @@ def _executor(w: _Writer, executor: Mapping[str, Any]) -> None:
         )
 
 
-def _link(w: _Writer, link: object) -> None:
+def _link(w: _Families, link: object) -> None:
     if not isinstance(link, Mapping):
         return
     for key, count in sorted(_dict(link.get("counters")).items()):
-        if key in _FRAME_ERRORS:
+        if key == "responses_dropped":  # the sum of responses_dropped_<cause>, not repeated
+            continue
+        if key in LINK_COUNTERS:
+            name, kind, help_text, labels = LINK_COUNTERS[key]
+            w.add(name, kind, help_text, count, labels)
+        else:  # a counter without a name of its own: motorctl_link_<key>_total
             w.counter(
-                "motorctl_link_frame_errors",
-                "Frames that failed their checks (answered E1), by reason.",
-                count,
-                {"reason": _FRAME_ERRORS[key]},
-            )
-        elif key.startswith("sent_E"):
-            w.counter(
-                "motorctl_link_error_responses",
-                "Error responses sent, by code.",
-                count,
-                {"code": key.removeprefix("sent_")},
-            )
-        elif key in _LINK_GAUGES:
-            name, help_text = _LINK_GAUGES[key]
-            w.gauge(name, help_text, count)
-        elif key in _LINK_RENAMED:
-            name, help_text, unit = _LINK_RENAMED[key]
-            w.counter(name, help_text, count, unit=unit)
-        else:
-            w.counter(
-                f"motorctl_link_{key}",
+                f"motorctl_link_{key.removeprefix('link_')}",
                 f"The link's {key.replace('_', ' ')} (docs/status.md).",
                 count,
             )
-    w.gauge("motorctl_link_held_frames", "Frames held behind a WaitMoved now.", link.get("held"))
-    w.gauge("motorctl_link_waiting", "1 while a WaitMoved holds the answers.", link.get("waiting"))
     peer = link.get("peer")
     if isinstance(peer, str):
         w.gauge("motorctl_link_peer_open", "1 while the host has the port open.", peer == "open")
-    w.gauge(
-        "motorctl_link_unsent_bytes",
-        "Answer bytes not yet taken by the port.",
-        link.get("unsent_bytes"),
-        unit="bytes",
-    )
-    processing = _dict(link.get("processing"))
-    w.summary(
-        "motorctl_link_processing_seconds",
-        "From a read to its answers being written (since start).",
-        processing,
-        processing.get("steps"),
-        1e-6,
-    )
-    max_us = _number(processing.get("max_us"))
-    if max_us is not None:
-        w.gauge(
-            "motorctl_link_processing_max_seconds",
-            "The longest processing since start.",
-            max_us * 1e-6,
-            unit="seconds",
-        )
 
 
-def _state(w: _Writer, state: Mapping[str, Any]) -> None:
-    w.gauge(
-        "motorctl_state_ok", "1 while the state file is written without errors.", state.get("ok")
-    )
-    w.counter("motorctl_state_writes", "State file writes.", state.get("writes"))
-    w.counter("motorctl_state_write_errors", "State file writes that failed.", state.get("errors"))
-    w.counter(
-        "motorctl_state_save_errors",
-        "SaveHome/SaveWayPoint answered E4 because the state could not be written.",
-        state.get("save_errors"),
-    )
-    w.counter(
-        "motorctl_state_motion_refused",
-        "Motion commands answered E4 because the motion journal could not be written.",
-        state.get("motion_refused"),
-    )
-    last = _number(state.get("last_write_ms"))
-    if last is not None:
-        w.gauge(
-            "motorctl_state_last_write_seconds",
-            "How long the last state write took.",
-            last * 1e-3,
-            unit="seconds",
-        )
-    w.counter(
-        "motorctl_state_journal_marks",
-        "Motions marked in the motion journal.",
-        _dict(state.get("journal")).get("marks"),
-    )
-
-
-def _hard_stops(w: _Writer, stops: Mapping[str, Any]) -> None:
-    for outcome in ("confirmed", "timed_out", "skipped", "died"):
-        w.counter(
-            "motorctl_hard_stops",
-            "Hard stops' waits for the executor's confirmation, by how they ended.",
-            stops.get(outcome),
-            {"outcome": outcome},
-        )
-    for key, q in (("wait_p50_us", "0.5"), ("wait_p99_us", "0.99"), ("wait_max_us", "1")):
-        value = _number(stops.get(key))
-        if value is not None:
-            w.gauge(
-                "motorctl_hard_stop_wait_seconds",
-                "How long hard stops waited for the "
-                "executor's confirmation (quantile 1: the longest).",
-                value * 1e-6,
-                {"quantile": q},
-                unit="seconds",
-            )
-
-
-def _pins_and_dc(w: _Writer, doc: Mapping[str, Any]) -> None:
+def _pins_and_dc(w: _Families, doc: Mapping[str, Any]) -> None:
     for pin in _list(doc.get("pins")):
         if isinstance(pin, Mapping):
             w.gauge(
@@ -528,11 +595,10 @@ def _pins_and_dc(w: _Writer, doc: Mapping[str, Any]) -> None:
             "motorctl_dc_run_left_seconds",
             "Time left of the DC motor's run (0: not running).",
             dc.get("left_s") if dc.get("running") else 0,
-            unit="seconds",
         )
 
 
-def _drivers(w: _Writer, drivers: object) -> None:
+def _drivers(w: _Families, drivers: object) -> None:
     for d in _list(drivers):
         if not isinstance(d, Mapping):
             continue

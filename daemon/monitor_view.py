@@ -5,13 +5,16 @@ it; :mod:`motorctl.daemon.monitor` is the entry point and says what to install w
 so tests draw a known state into a string. :func:`watch` follows the subscription
 (docs/status.md) on a reader thread and redraws on each update and every half period (the
 frames' ages move; no update within a period means nothing changed, so frames/s is 0), and
-reconnects when the daemon restarts. Every field is read defensively: an older or newer
+reconnects when the daemon restarts; while the daemon is gone the whole view is marked as
+the last state seen (a banner, dimmed, nothing read as live). Off a terminal lines are not
+wrapped at 80 columns. Every field is read defensively: an older or newer
 daemon, or one without per-motor timing figures, draws what it has.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import queue
 import threading
 import time
@@ -23,6 +26,7 @@ from typing import Any
 from rich import box
 from rich.console import Console, Group, RenderableType
 from rich.live import Live
+from rich.styled import Styled
 from rich.table import Table
 from rich.text import Text
 
@@ -83,38 +87,65 @@ def frames_per_second(
 
 
 def render(
-    doc: Mapping[str, Any], rate: float | None = None, since_s: float = 0.0, note: str = ""
+    doc: Mapping[str, Any],
+    rate: float | None = None,
+    since_s: float = 0.0,
+    note: str = "",
+    stale: str = "",
 ) -> RenderableType:
     """The whole view of ``doc``; ``rate``: frames/s; ``since_s``: how long ago it came
-    (frames' ages grow by it); ``note``: a line on the connection."""
-    parts: list[RenderableType] = [_header(doc)]
+    (frames' ages grow by it); ``note``: a line on the connection; ``stale``: why no update
+    comes any more (the daemon stopped, cannot be reached): the whole view is then marked as
+    the last state seen, dimmed, with nothing in it read as live (no "alive", no frames/s)."""
+    parts: list[RenderableType] = [_header(doc, stale=bool(stale))]
     parts.append(_motors(doc))
     timing = _timing(doc)
     if timing is not None:
         parts.append(timing)
     parts.append(_steps(doc))
     parts.append(_io(doc))
-    parts.append(_link(doc, rate))
+    parts.append(_link(doc, None if stale else rate))
+    trace = _trace(doc)
+    if trace is not None:
+        parts.append(trace)
     parts.append(_recent(doc, since_s))
     drivers = _drivers(doc)
     if drivers is not None:
         parts.append(drivers)
+    view: list[RenderableType] = parts
+    if stale:
+        banner = Text(
+            f"NOT LIVE: {stale}. Everything below is the last state motorctld reported, "
+            f"{_ago(since_s)} ago.",
+            style="bold white on red",
+        )
+        view = [banner, Styled(Group(*parts), "dim")]
     if note:
-        parts.append(Text(note, style="yellow"))
-    return Group(*parts)
+        view.append(Text(note, style="yellow"))
+    return Group(*view)
 
 
-def _header(doc: Mapping[str, Any]) -> Text:
+def _ago(seconds: float) -> str:
+    return f"{seconds:.1f} s" if seconds < 60 else _duration(seconds)
+
+
+def _header(doc: Mapping[str, Any], stale: bool = False) -> Text:
     ex = _d(doc.get("executor"))
     text = Text("motorctld", style="bold")
-    text.append(f"  up {_duration(doc.get('uptime_s'))}")
+    if stale:
+        text.append(" (last seen)", style="bold red")
+    text.append(f"  up {_duration(doc.get('uptime_s'))}" + (" then" if stale else ""))
     alive = ex.get("alive")
     text.append("  executor ")
     text.append(f"{ex.get('kind', '?')}", style="bold")
+    if ex.get("core"):  # the step core (a daemon before issue 24 does not say)
+        text.append(f", {ex.get('core')} core")
     if ex.get("pid"):
         text.append(f" (pid {ex.get('pid')})")
     if alive is False:
         text.append(f" DEAD: {ex.get('reason')}", style="bold red")
+    elif alive and stale:
+        text.append(" state unknown")
     elif alive:
         text.append(" alive", style="green")
     state = _d(doc.get("state"))
@@ -301,6 +332,27 @@ def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
     return text
 
 
+def _trace(doc: Mapping[str, Any]) -> Text | None:
+    """The link's trace (motorctld --trace), when it records one."""
+    t = _d(doc.get("trace"))
+    if not t:
+        return None
+    text = Text("trace ", style="bold")
+    text.append(f"{t.get('file', '?')}")
+    if t.get("part"):
+        text.append(f" (part {t.get('part')} of session {t.get('session', '?')})")
+    text.append(f"  runs {_num(t.get('runs'))}  written {_num(t.get('bytes_written'))} bytes")
+    for key, label in (
+        ("dropped_runs", "runs left out"),
+        ("write_errors", "write errors"),
+        ("lost_bytes", "bytes lost"),
+    ):
+        value = t.get(key)
+        text.append(f"  {label} ")
+        text.append(_num(value), style="bold red" if value else "")
+    return text
+
+
 def _recent(doc: Mapping[str, Any], since_s: float) -> Table:
     table = Table(title="last frames", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1))
     table.add_column("age s", justify="right", no_wrap=True)
@@ -347,9 +399,24 @@ def _drivers(doc: Mapping[str, Any]) -> Text | None:
 
 
 # -- the terminal ---------------------------------------------------------------------------
+NO_WRAP = 1000  # columns off a terminal: each line as long as it is (COLUMNS still wins)
+RULE = "-" * 72  # between drawings off a terminal
+
+
+def _console(console: Console | None) -> Console:
+    """The console to draw on: a terminal's width on a terminal; off one (a pipe, a log)
+    lines are not wrapped at rich's 80 columns unless COLUMNS says a width."""
+    if console is not None:
+        return console
+    console = Console()
+    if not console.is_terminal and "COLUMNS" not in os.environ:
+        console.width = NO_WRAP
+    return console
+
+
 def once(path: Path, console: Console | None = None) -> int:
     """Draw the status once (``motorctl monitor --once``): for scripts and logs."""
-    console = console or Console()
+    console = _console(console)
     try:
         doc = read_status(path)
     except (OSError, ValueError) as exc:
@@ -369,8 +436,8 @@ def print_error(console: Console, message: str) -> None:
 def _follow(
     path: Path, period_s: float, updates: queue.Queue[Seen | str], stop: threading.Event
 ) -> None:
-    """Reader thread: the subscription's updates into ``updates``; a string says why there
-    are none (reconnecting every RETRY_S)."""
+    """Reader thread: the subscription's updates into ``updates``; a string says why none
+    come (then it tries again every RETRY_S): every such string means the view is stale."""
     while not stop.is_set():
         try:
             stream = subscribe(path, period_s)
@@ -379,28 +446,43 @@ def _follow(
                     updates.put(Seen(doc, time.monotonic()))
                     if stop.is_set():
                         return
-                updates.put(f"motorctld at {path} stopped; waiting for it to come back")
+                updates.put(f"motorctld at {path} stopped")
             finally:
                 stream.close()
-        except (OSError, ValueError, StatusError) as exc:
-            updates.put(f"no motorctld at {path} ({exc}); retrying every {RETRY_S:.0f} s")
+        except StatusError as exc:  # an error document: a daemon is there, and says why not
+            updates.put(f"motorctld at {path} is running but refused the subscription: {exc}")
+        except TimeoutError as exc:  # names the path: silent for too long, or every slot busy
+            updates.put(f"motorctld does not answer: {exc}")
+        except OSError as exc:
+            updates.put(f"no motorctld at {path} ({exc.strerror or exc})")
+        except ValueError as exc:
+            updates.put(f"motorctld at {path} sent something that is not a status ({exc})")
         stop.wait(RETRY_S)
 
 
-def watch(path: Path, period_ms: int, console: Console | None = None) -> int:
-    """Refresh in the terminal until Ctrl-C (exit 0). Not on a terminal: one drawing per
-    update, one after another."""
-    console = console or Console()
+def watch(
+    path: Path,
+    period_ms: int,
+    console: Console | None = None,
+    stop: threading.Event | None = None,
+) -> int:
+    """Refresh in the terminal until Ctrl-C (exit 0) or ``stop`` is set. Not on a terminal:
+    one drawing per update, one after another. Once the daemon is gone (or cannot be
+    reached), the whole view is marked as the last state seen until updates come again."""
+    console = _console(console)
     period_s = max(20, min(60_000, period_ms)) / 1000.0
     updates: queue.Queue[Seen | str] = queue.Queue()
-    stop = threading.Event()
+    reader_stop = threading.Event()
     reader = threading.Thread(
-        target=_follow, args=(path, period_s, updates, stop), name="motorctl-monitor", daemon=True
+        target=_follow,
+        args=(path, period_s, updates, reader_stop),
+        name="motorctl-monitor",
+        daemon=True,
     )
     reader.start()
     last: Seen | None = None
     before: Seen | None = None
-    note = f"connecting to {path} ..."
+    stale = ""
     live = (
         Live(console=console, screen=console.is_terminal, auto_refresh=False, transient=False)
         if console.is_terminal
@@ -408,7 +490,7 @@ def watch(path: Path, period_ms: int, console: Console | None = None) -> int:
     )
     try:
         with live if live is not None else contextlib.nullcontext():
-            while True:
+            while stop is None or not stop.is_set():
                 try:
                     item = updates.get(timeout=max(0.1, period_s / 2))
                 except queue.Empty:
@@ -416,28 +498,41 @@ def watch(path: Path, period_ms: int, console: Console | None = None) -> int:
                     if live is None:
                         continue
                 if isinstance(item, Seen):
-                    before, last, note = last, item, ""
+                    before, last, stale = last, item, ""
                 elif isinstance(item, str):
-                    note, before = item, None
-                view = _view(last, before, note, period_s)
+                    stale, before = item, None
+                view = _view(last, before, stale, period_s, path)
                 if live is not None:
                     live.update(view, refresh=True)
                 elif item is not None:
                     console.print(view)
-                    console.rule()
+                    console.print(RULE)
     except KeyboardInterrupt:
         pass
     finally:
-        stop.set()
+        reader_stop.set()
     return 0
 
 
-def _view(last: Seen | None, before: Seen | None, note: str, period_s: float) -> RenderableType:
+def _view(
+    last: Seen | None, before: Seen | None, stale: str, period_s: float, path: Path
+) -> RenderableType:
     if last is None:
-        return Text(note or "waiting for the first update ...", style="yellow")
+        return Text(
+            f"{stale}; retrying every {RETRY_S:.0f} s" if stale else f"connecting to {path} ...",
+            style="yellow",
+        )
     now = time.monotonic()
+    if stale:
+        return render(
+            last.doc,
+            since_s=now - last.at,
+            note=f"retrying every {RETRY_S:.0f} s; the view comes back with the daemon; "
+            "Ctrl-C quits",
+            stale=stale,
+        )
     rate = frames_per_second(last, before, now, period_s)
-    footer = note or (
+    footer = (
         f"updated {now - last.at:.1f} s ago; the daemon sends a change as it "
         f"comes, looking every {period_s * 1000:.0f} ms; Ctrl-C quits"
     )

@@ -119,7 +119,32 @@ def _cmdline_value(cmdline: str, key: str) -> str | None:
     return None
 
 
-def read_platform(roots: Roots = Roots()) -> Platform:
+def _debugfs_mounted(roots: Roots) -> bool:
+    """Whether debugfs is mounted (``/proc/mounts``) where the preemption mode is read."""
+    where = str(roots.sys / "kernel" / "debug")
+    for line in (_read(roots.proc / "mounts") or "").splitlines():
+        fields = line.split()
+        if len(fields) >= 3 and fields[2] == "debugfs" and fields[1] == where:
+            return True
+    return False
+
+
+def _preempt_unreadable(roots: Roots, euid: int) -> str:
+    """Why ``/sys/kernel/debug/sched/preempt`` could not be read, and the fix."""
+    if euid != 0:
+        return "needs root and debugfs: run --probe as root"
+    if not _debugfs_mounted(roots):
+        return (
+            "debugfs is not mounted: 'mount -t debugfs none /sys/kernel/debug', then run "
+            "--probe again"
+        )
+    return "missing: a kernel without CONFIG_SCHED_DEBUG"
+
+
+def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
+    """What the kernel and the board say (``euid``: whose eyes read it; default: this
+    process's, which decides what a missing debugfs file means)."""
+    euid = os.geteuid() if euid is None else euid
     p = Platform()
     kernel = roots.proc / "sys" / "kernel"
     p.kernel = _read(kernel / "osrelease")
@@ -136,8 +161,8 @@ def read_platform(roots: Roots = Roots()) -> Platform:
         p.preempt = (
             f"{current} (PREEMPT_DYNAMIC)"
             if current
-            else "PREEMPT_DYNAMIC (mode not readable: /sys/kernel/debug/sched/preempt needs root "
-            "and debugfs)"
+            else "PREEMPT_DYNAMIC (mode not readable: /sys/kernel/debug/sched/preempt "
+            f"{_preempt_unreadable(roots, euid)}; or set preempt= on the kernel command line)"
         )
     elif "PREEMPT" in version_words:
         p.preempt = "full (PREEMPT)"

@@ -13,7 +13,11 @@ a serial device) is a :class:`DeviceError` whose message names the path and the 
 The device is opened with pyserial (baud rate, 8N1, no flow control, an exclusive ``flock``
 so a second program cannot open it too) and then made to answer a read with nothing to read
 with EAGAIN instead of an empty read (``VMIN = 1``; pyserial leaves 0): an empty read then
-means only one thing, a device that hung up.
+means only one thing, a device that hung up. pyserial's ``open()`` flushes the input; ours
+does not (:class:`KeepInput`): bytes the host sent after its device came back, before the
+daemon opened it again, are its new session's first frames and are read, not discarded.
+Anything but a character device at the path (a regular file, a folder, a FIFO, a socket) is
+refused before it is opened.
 
 Threads: opened by the main thread at start-up, then owned by the link thread (reopen,
 close); nothing here blocks except ``open()`` and the terminal ioctls.
@@ -24,7 +28,9 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import stat
 import termios
+from functools import cache
 from pathlib import Path
 from typing import Any
 
@@ -97,6 +103,58 @@ class Backoff:
         return d
 
 
+@cache
+def keep_input_serial() -> Any:
+    """pyserial's ``Serial`` whose ``open()`` keeps what is in the input buffer.
+
+    pyserial's ``open()`` ends with a ``tcflush(TCIFLUSH)``: the bytes a host sent between
+    its device's return and the daemon's reopen would be lost. Only the flush inside
+    ``open()`` is skipped; an explicit ``reset_input_buffer()`` afterwards still flushes.
+    (tests/daemon/test_serialport.py holds pyserial to this.)"""
+    import serial
+
+    class KeepInput(serial.Serial):
+        _opening = False
+
+        def open(self) -> None:
+            self._opening = True
+            try:
+                super().open()
+            finally:
+                self._opening = False
+
+        def _reset_input_buffer(self) -> None:  # pyserial 3.5's open() calls this one
+            if not self._opening:
+                super()._reset_input_buffer()  # type: ignore[misc]
+
+        def reset_input_buffer(self) -> None:  # and earlier versions' this one
+            if not self._opening:
+                super().reset_input_buffer()
+
+    return KeepInput
+
+
+def not_a_device(path: str) -> str | None:
+    """What is at ``path`` when it exists and is not a character device (None otherwise):
+    such a thing is never opened (a FIFO would block, a file is not a UART)."""
+    try:
+        mode = os.stat(path).st_mode
+    except OSError:
+        return None  # open() says why
+    if stat.S_ISCHR(mode):
+        return None
+    for test, what in (
+        (stat.S_ISREG, "a regular file"),
+        (stat.S_ISDIR, "a folder"),
+        (stat.S_ISFIFO, "a FIFO"),
+        (stat.S_ISSOCK, "a socket"),
+        (stat.S_ISBLK, "a block device"),
+    ):
+        if test(mode):
+            return what
+    return "not a character device"
+
+
 class SerialDevice:
     """A UART (or anything that looks like one) opened by its path, at ``baud``."""
 
@@ -116,8 +174,11 @@ class SerialDevice:
         import serial
 
         self.close()
+        what = not_a_device(self.path)
+        if what is not None:
+            raise DeviceError(explain(self.path, errno.ENOTTY, what), errno.ENOTTY)
         try:
-            port = serial.Serial(self.path, self.baud, timeout=0, exclusive=True)
+            port = keep_input_serial()(self.path, self.baud, timeout=0, exclusive=True)
         except serial.SerialException as exc:
             code = exc.errno if isinstance(exc.errno, int) else None
             detail = exc.strerror if code is not None and exc.strerror else str(exc)

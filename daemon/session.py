@@ -21,12 +21,20 @@ The rules (PROTOCOL.md §2, §4):
   it never takes a place and is never refused for lack of room. When the WaitMoved is
   answered the kept frames run in order; a WaitMoved among them is taken up then (its
   TIMEOUT counts from that moment) and holds again.
+- The host's session ends (:meth:`LinkSession.end`: the shell saw the host close the PTY, or
+  the serial device go away). Nothing owed to it is ever given to the next host: the
+  partial frame, the answers not yet taken, a held WaitMoved's answer and the kept frames'
+  answers are dropped, and the kept commands are discarded, never executed (their host is
+  gone and was waiting for the motion to end before it sent them; a StopMove among them was
+  executed on arrival). The motors go on with what they were doing (docs/protocol.md,
+  "When a host goes away").
 """
 
 from __future__ import annotations
 
 import logging
 from collections import Counter, deque
+from dataclasses import dataclass
 from typing import Protocol
 
 from motorctl.daemon.dispatcher import Wait
@@ -66,11 +74,32 @@ COUNTERS = (
     "stops_while_held",
     "waits_taken_up",
     "internal_errors",
+    "held_discarded",
     *(f"sent_{code.short}" for code in ErrorCode),
 )
 _SENT = {code.value: f"sent_{code.short}" for code in ErrorCode}
 CACHE_LIMIT = 256  # frames and responses remembered; forgotten all at once when full
 RECENT = 16  # the last frames and answers kept for the status (:meth:`LinkSession.recent`)
+
+
+#: the answer recorded in :meth:`LinkSession.recent` for a frame whose answer was dropped
+#: when its host's session ended
+DROPPED = b""
+
+
+@dataclass(frozen=True)
+class Ended:
+    """What an ended session left behind, all of it dropped (:meth:`LinkSession.end`)."""
+
+    partial_bytes: int  # bytes of an incomplete frame
+    unsent: int  # answers decided but not yet taken by the shell
+    wait: int  # 1 when a WaitMoved's answer was held
+    held: int  # answers owed to the frames kept behind it (decided or not)
+    discarded: int  # of those, commands never executed
+
+    @property
+    def answers(self) -> int:
+        return self.unsent + self.wait + self.held
 
 
 class CommandPort(Protocol):
@@ -116,6 +145,7 @@ class LinkSession:
         # is the answer to frame n, as responses go out in the order of their frames.
         self._frames_seen: deque[tuple[int, float, bytes]] = deque(maxlen=RECENT)
         self._answers_seen: deque[tuple[int, bytes]] = deque(maxlen=RECENT)
+        self._answer_no = 0  # the number of the last answer (or dropped one)
         # their words, remembered by the threads that read the status (never the link's)
         self._described: dict[tuple[bytes, bytes | None], tuple[str, str | None]] = {}
 
@@ -148,15 +178,17 @@ class LinkSession:
 
     def recent(self) -> list[tuple[float, bytes, bytes | None]]:
         """The last frames, oldest first: (arrival time, frame, its answer or None while it
-        is owed). Any thread: each deque is copied in one C call under the GIL."""
+        is owed; :data:`DROPPED` when it went with its host's session). Any thread: each
+        deque is copied in one C call under the GIL."""
         frames = self._frames_seen.copy()
         answers = dict(self._answers_seen.copy())
         return [(t, frame, answers.get(n)) for n, t, frame in frames]
 
     def describe_recent(self) -> list[dict[str, object]]:
         """:meth:`recent` for the status: ``at_s`` (the link's clock), ``frame`` and
-        ``answer`` as hex (``answer`` None while owed), ``command`` and ``result`` in words
-        (``result`` None while owed). Decoding is the caller's work (the status thread)."""
+        ``answer`` as hex (``answer`` None while owed, "" when dropped with its host's
+        session), ``command`` and ``result`` in words (``result`` None while owed).
+        Decoding is the caller's work (the status thread)."""
         out: list[dict[str, object]] = []
         described = self._described  # the status readers' own cache (dict ops are atomic)
         for t, frame, answer in self.recent():
@@ -185,7 +217,9 @@ class LinkSession:
         except FrameError as exc:
             cmd, command = None, f"bad frame ({exc.reason}): {exc}"
         result: str | None = None
-        if answer is not None:
+        if answer == DROPPED:
+            result = "not sent: its host's session ended"
+        elif answer is not None:
             try:
                 result = describe_answer(cmd, decode_response(answer, self.options))
             except ResponseError as exc:  # not one of ours: say so, never raise
@@ -244,9 +278,32 @@ class LinkSession:
         self._emit(result)
         self._release(now)
 
-    def peer_gone(self) -> int:
-        """The host closed the port: its partial frame goes; returns the bytes dropped."""
-        return self.framer.reset()
+    def end(self) -> Ended:
+        """The host's session ended (it closed the port, or its device went away): what is
+        owed to it is dropped, so that the next host reads only its own answers. The partial
+        frame, the answers not yet taken, a held WaitMoved and the frames kept behind it go;
+        the kept commands are never executed (a StopMove among them already was). The next
+        frame starts a session with nothing held."""
+        held = self._held
+        discarded = sum(1 for item in held if not isinstance(item, bytes) and item is not None)
+        ended = Ended(
+            partial_bytes=self.framer.reset(),
+            unsent=len(self._out) // RESPONSE_LEN,
+            wait=int(self.wait is not None),
+            held=len(held),
+            discarded=discarded,
+        )
+        self.wait = None
+        held.clear()
+        self._held_places = 0
+        self._out.clear()
+        self.counters["held_discarded"] += discarded
+        # the frames whose answers go are marked as such (the status's last frames)
+        frames = self.counters["frames"]
+        for n in range(max(self._answer_no, frames - RECENT) + 1, frames + 1):
+            self._answers_seen.append((n, DROPPED))
+        self._answer_no = frames
+        return ended
 
     # -- frames -----------------------------------------------------------------------------
     def _on_frame(self, frame: bytes, now: float) -> None:
@@ -350,6 +407,7 @@ class LinkSession:
         self._out += data
         counters = self.counters
         counters["responses"] += 1
-        self._answers_seen.append((counters["responses"], data))
+        self._answer_no += 1
+        self._answers_seen.append((self._answer_no, data))
         if data[0] == 0x00:
             counters[_SENT[data[1]]] += 1

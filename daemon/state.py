@@ -11,8 +11,10 @@ moves them, e.g. to /var/lib/motorctl (docs/service.md says when that is wise).
 
 What is trusted: a state file is read strictly, record by record. Whatever stands at
 ``state.json`` that is not a readable regular file (a directory, a symbolic link, a FIFO, a
-file that cannot be read), bad bytes, bad JSON or a file without a list of motor records
-restores nothing: every motor must be homed again. A motor record that is wrong in itself
+file that cannot be read), a file larger than ``MAX_FILE_BYTES`` (refused unread), bad
+bytes, JSON that Python's parser cannot take (bad syntax, nesting too deep, an integer of
+thousands of digits) or a file without a list of motor records restores nothing: every
+motor must be homed again. A motor record that is wrong in itself
 (wrong types, a position outside the 24-bit range, more waypoints than any table holds, a
 name that two records share) or written for another motor (its name, or the fingerprint
 of its geometry, does not match the config) restores nothing for that motor only; a record
@@ -22,10 +24,12 @@ restored, the file is set aside for inspection under the first free name of
 older one), and the log names it.
 
 How it is written: complete or absent. A temporary file is written in full (looping on
-short writes), fsynced, renamed over the state file, and the directory is fsynced. Whatever
-stands in the way of the temporary file or of the motion journal (a directory, a symbolic
-link, ...) is set aside the same way, so the daemon can always write while its directory is
-writable.
+short writes), fsynced, renamed over the state file, and the directory is fsynced. The
+temporary file and the motion journal are opened as every file the daemon writes
+(daemon/paths.py: never through a link, never a FIFO or a device, never someone else's
+file): whatever stands in their way (a directory, a symbolic link, ...) is set aside the
+same way, so the daemon can always write while its directory is writable. A motion journal
+that cannot be read is set aside once the state file written after it is durable.
 
 Moving before the ACK: a motion command must not be acknowledged while the state on disk
 still says its motor is at rest (a SIGKILL right then would restore a stale position).
@@ -54,6 +58,7 @@ import hashlib
 import json
 import logging
 import os
+import reprlib
 import stat
 import threading
 import time
@@ -62,6 +67,15 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
+
+from motorctl.daemon.paths import (
+    clear_the_way,
+    describe,
+    folder_owner,
+    open_for_writing,
+    ours,
+    set_aside,
+)
 
 if TYPE_CHECKING:
     from motorctl.motion.engine import MotionEngine as Engine
@@ -74,7 +88,13 @@ JOURNAL_NAME = "state.moving"
 POS_MIN = -(1 << 23)
 POS_MAX = (1 << 23) - 1
 MAX_WAYPOINTS = 255  # the protocol's table size; a motor's configured table may be smaller
-ASIDE_LIMIT = 1000  # names tried when setting a file aside: .bad, .bad.1 .. .bad.999
+#: The largest state or journal file read: 64 motors with full tables write about 240 KiB
+#: (tests/daemon/test_state.py checks it); anything larger is not this daemon's and is set
+#: aside unread.
+MAX_FILE_BYTES = 4 << 20
+
+_show = reprlib.Repr()
+_show.maxstring = _show.maxother = _show.maxlong = 40
 
 
 class StateError(Exception):
@@ -147,7 +167,7 @@ class SavedState:
 # -- reading --------------------------------------------------------------------------------
 def _int(value: object, where: str, lo: int = POS_MIN, hi: int = POS_MAX) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
-        raise StateError(f"{where} is {value!r}, not an integer")
+        raise StateError(f"{where} is {_show.repr(value)}, not an integer")
     if not lo <= value <= hi:
         raise StateError(f"{where} is {value}, outside {lo}..{hi}")
     return value
@@ -155,13 +175,13 @@ def _int(value: object, where: str, lo: int = POS_MIN, hi: int = POS_MAX) -> int
 
 def _bool(value: object, where: str) -> bool:
     if not isinstance(value, bool):
-        raise StateError(f"{where} is {value!r}, not true or false")
+        raise StateError(f"{where} is {_show.repr(value)}, not true or false")
     return value
 
 
 def _str(value: object, where: str) -> str:
     if not isinstance(value, str):
-        raise StateError(f"{where} is {value!r}, not a string")
+        raise StateError(f"{where} is {_show.repr(value)}, not a string")
     return value
 
 
@@ -199,10 +219,16 @@ def parse_state(raw: bytes) -> SavedState:
         data = json.loads(text)
     except json.JSONDecodeError as exc:
         raise StateError(f"not valid JSON ({exc})") from exc
+    except RecursionError:
+        raise StateError("JSON nested too deeply to be read") from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        why = str(exc).split(":")[0]  # without the advice to raise Python's own limit
+        raise StateError(f"JSON that cannot be read ({why})") from None
     if not isinstance(data, dict):
         raise StateError("not a JSON object")
     if data.get("version") != STATE_VERSION:
-        raise StateError(f"version is {data.get('version')!r}, this daemon writes {STATE_VERSION}")
+        version = _show.repr(data.get("version"))
+        raise StateError(f"version is {version}, this daemon writes {STATE_VERSION}")
     motors = data.get("motors")
     if not isinstance(motors, list):
         raise StateError("'motors' is missing or not a list")
@@ -220,7 +246,9 @@ def parse_state(raw: bytes) -> SavedState:
         if saved.name in shared:
             bad.append(
                 BadRecord(
-                    i, saved.name, f"{names[saved.name]} motor records are named {saved.name!r}"
+                    i,
+                    saved.name,
+                    f"{names[saved.name]} motor records are named {_show.repr(saved.name)}",
                 )
             )
     bad.sort(key=lambda b: b.index)
@@ -243,40 +271,35 @@ def read_state(path: Path) -> SavedState | None:
         raise StateError(f"{path}: {exc}") from exc
 
 
-_KINDS = (
-    (stat.S_ISDIR, "a directory"),
-    (stat.S_ISLNK, "a symbolic link"),
-    (stat.S_ISFIFO, "a FIFO"),
-    (stat.S_ISSOCK, "a socket"),
-    (stat.S_ISCHR, "a character device"),
-    (stat.S_ISBLK, "a block device"),
-)
-
-
-def _kind(mode: int) -> str:
-    return next((name for test, name in _KINDS if test(mode)), "not a regular file")
-
-
-def read_regular(path: Path) -> bytes:
-    """The bytes of the regular file at ``path``: never through a symbolic link, never
-    opening a FIFO or a device. FileNotFoundError when nothing is there; StateError naming
-    what is there instead, or why it cannot be read."""
+def read_regular(path: Path, limit: int = MAX_FILE_BYTES) -> bytes:
+    """The bytes of the regular file at ``path`` that is the daemon's own (daemon/paths.py:
+    not another user's, not a hard link to a file elsewhere): never through a symbolic
+    link, never opening a FIFO or a device, never more than ``limit`` bytes (a larger file
+    is refused unread). FileNotFoundError when nothing is there; StateError naming what is
+    there instead, or why it cannot be read."""
+    owner = folder_owner(path)
     try:
-        mode = os.lstat(path).st_mode
-        if not stat.S_ISREG(mode):
-            raise StateError(f"{path} is {_kind(mode)}, not a regular file")
+        st = os.lstat(path)
+        if not ours(st, owner):
+            raise StateError(_not_ours(path, st, owner))
         fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
     except FileNotFoundError:
         raise
     except OSError as exc:
         raise StateError(f"{path} cannot be read: {exc.strerror}") from exc
     try:
-        mode = os.fstat(fd).st_mode
-        if not stat.S_ISREG(mode):  # replaced since the lstat
-            raise StateError(f"{path} is {_kind(mode)}, not a regular file")
+        st = os.fstat(fd)
+        if not ours(st, owner):  # replaced since the lstat
+            raise StateError(_not_ours(path, st, owner))
+        if st.st_size > limit:
+            raise StateError(_too_large(path, st.st_size, limit))
         chunks = []
-        while chunk := os.read(fd, 1 << 16):
+        size = 0
+        while size <= limit and (chunk := os.read(fd, min(1 << 16, limit + 1 - size))):
             chunks.append(chunk)
+            size += len(chunk)
+        if size > limit:  # it grew while being read
+            raise StateError(_too_large(path, size, limit))
         return b"".join(chunks)
     except OSError as exc:
         raise StateError(f"{path} cannot be read: {exc.strerror}") from exc
@@ -284,59 +307,18 @@ def read_regular(path: Path) -> bytes:
         os.close(fd)
 
 
-def aside_name(path: Path) -> Path | None:
-    """The first free name of ``<name>.bad``, ``<name>.bad.1``, ... (None: all taken)."""
-    for n in range(ASIDE_LIMIT):
-        bad = path.with_name(f"{path.name}.bad" + (f".{n}" if n else ""))
-        if not os.path.lexists(bad):
-            return bad
-    return None
+def _not_ours(path: Path, st: os.stat_result, owner: int) -> str:
+    what = describe(st, owner)
+    if stat.S_ISREG(st.st_mode):
+        return f"{path} is {what}, not this daemon's"
+    return f"{path} is {what}, not a regular file"
 
 
-def set_aside(path: Path) -> Path | None:
-    """Move whatever is at ``path`` (a file, a directory, a link, ...) to a free name, never
-    replacing an older one (:func:`aside_name`); the new name, or None (logged) if it
-    cannot be moved. Called only by the daemon that holds the state directory's lock."""
-    bad = aside_name(path)
-    try:
-        if bad is None:
-            raise OSError(
-                errno.EEXIST,
-                f"{path.name}.bad .. {path.name}.bad."
-                f"{ASIDE_LIMIT - 1} are all taken; remove old ones",
-            )
-        os.rename(path, bad)
-    except OSError as exc:
-        log.error(
-            "cannot move %s aside to %s: %s",
-            path,
-            bad or f"{path.name}.bad.N",
-            exc.strerror or exc,
-            extra={"STATE_PATH": str(path), "ERRNO": exc.errno},
-        )
-        return None
-    return bad
-
-
-def clear_the_way(path: Path) -> Path | None:
-    """Set aside whatever stands at ``path`` that is not a regular file (so that a file can
-    be made there); the name it was moved to, None when nothing had to move (or could)."""
-    try:
-        mode = os.lstat(path).st_mode
-    except OSError:
-        return None
-    if stat.S_ISREG(mode):
-        return None
-    bad = set_aside(path)
-    if bad is not None:
-        log.warning(
-            "%s was %s, in the way of a file: moved aside to %s",
-            path,
-            _kind(mode),
-            bad,
-            extra={"STATE_PATH": str(path)},
-        )
-    return bad
+def _too_large(path: Path, size: int, limit: int) -> str:
+    return (
+        f"{path} has {size} bytes, more than the {limit >> 20} MiB of the largest file "
+        "this daemon reads (not read)"
+    )
 
 
 @dataclass
@@ -381,7 +363,10 @@ def unmatched_records(state: SavedState, motors: Sequence[MotorIdentity]) -> lis
     the config does not have, and records without a usable name."""
     names = {ident.name for ident in motors}
     out = [
-        (state.slots.get(saved.name, -1), f"motor {saved.name!r}, which the config does not have")
+        (
+            state.slots.get(saved.name, -1),
+            f"motor {_show.repr(saved.name)}, which the config does not have",
+        )
         for saved in state.motors
         if saved.name not in names
     ]
@@ -415,15 +400,19 @@ def fsync_dir(path: Path) -> None:
 def write_atomic(path: Path, data: bytes, mode: int = 0o640) -> None:
     """Replace ``path`` with ``data``, complete or not at all; OSError when it cannot."""
     tmp = path.with_name(path.name + ".tmp")
-    clear_the_way(tmp)  # a directory or a link there would block every write
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+    fd = open_for_writing(tmp, mode, os.O_WRONLY)  # what else is there is set aside
     try:
         try:
+            os.ftruncate(fd, 0)
             write_all(fd, data)
             os.fsync(fd)
         finally:
             os.close(fd)
-        os.replace(tmp, path)
+        try:
+            os.replace(tmp, path)  # replaces a link or a FIFO there, never follows it
+        except IsADirectoryError:  # a directory made there since the start
+            clear_the_way(path)
+            os.replace(tmp, path)
     except OSError:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
@@ -452,22 +441,20 @@ class MotionJournal:
         self.withdrawn = 0  # flags cleared at once after a command that did not move
 
     @staticmethod
-    def read(path: Path) -> list[bool] | None:
-        """Which motors were marked moving; None when the journal exists but is unreadable."""
+    def read(path: Path) -> list[bool]:
+        """Which motors were marked moving ([] when there is no journal); StateError when
+        the journal cannot be read or holds anything but ``0`` and ``1``."""
         try:
             raw = read_regular(path)
         except FileNotFoundError:
             return []
-        except StateError:
-            return None
         if raw.strip(b"01"):
-            return None
+            raise StateError(f"{path} holds other bytes than 0 and 1")
         return [b == ord("1") for b in raw]
 
     def reset(self) -> None:
         """Start afresh, all at rest (after the state file says what is known). OSError."""
-        clear_the_way(self.path)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o640)
+        fd = open_for_writing(self.path)  # what else is there is set aside
         try:
             os.ftruncate(fd, 0)
             write_all(fd, b"0" * self.count)
@@ -721,6 +708,7 @@ class Persistence:
         self.journal = MotionJournal(directory / JOURNAL_NAME, len(identities))
         self.writer = StateWriter(self.path, self.snapshot, self.journal, on_change)
         self.restored = "nothing to restore"
+        self.journal_problem: str | None = None  # why the journal could not be read
         self.save_errors = 0
         self.motion_refused = 0
         # Motion commands in hand (link thread) that found their motor at rest on disk:
@@ -731,24 +719,24 @@ class Persistence:
     def restore(self) -> None:
         """Load the state file into the motors; never raises for a bad file (see module doc)."""
         motors = self.engine.motors
+        marks: list[bool] | None
+        try:
+            marks = MotionJournal.read(self.journal.path)
+        except StateError as exc:  # logged and set aside by open(), once the state is durable
+            marks, self.journal_problem = None, str(exc)
         try:
             state = read_state(self.path)
         except StateError as exc:
             self._lose_all(f"{exc}", set_aside(self.path))
             return
-        marks = MotionJournal.read(self.journal.path)
         if state is None:
-            if marks is None or any(marks):
+            if marks is None:
+                self._lose_all(f"{self.path} is missing and the motion journal is unreadable", None)
+            elif any(marks):
                 self._lose_all(
                     f"{self.journal.path} says a motor was moving and {self.path} is missing", None
                 )
             return
-        if marks is None:
-            log.error(
-                "motion journal %s is unreadable: every motor counts as moved",
-                self.journal.path,
-                extra={"STATE_PATH": str(self.journal.path)},
-            )
         matches = match_motors(state, self.identities)
         moved = []
         with self.engine.lock:
@@ -807,6 +795,18 @@ class Persistence:
             self.restored = f"restored {len(matches)} motors"
         log.info("%s from %s", self.restored, self.path)
 
+    def _journal_unreadable(self, bad: Path | None) -> None:
+        """The one log line of an unreadable motion journal (none when it was readable)."""
+        if self.journal_problem is None:
+            return
+        log.error(
+            "motion journal unreadable: %s: every motor counts as moved; %s",
+            self.journal_problem,
+            f"kept it as {bad}" if bad is not None else "it stays where it is",
+            extra={"STATE_PATH": str(self.journal.path)},
+        )
+        self.journal_problem = None
+
     def _lose_all(self, why: str, bad: Path | None) -> None:
         kept = f"kept it as {bad}" if bad is not None else "it stays where it is"
         log.error(
@@ -821,9 +821,13 @@ class Persistence:
                 m.position_lost = True
 
     def open(self) -> None:
-        """After :meth:`restore`: write what is known now, then start the journal afresh."""
+        """After :meth:`restore`: write what is known now, then start the journal afresh
+        (an unreadable one set aside first)."""
         if not self.writer.write_now():
+            self._journal_unreadable(None)
             return  # the journal keeps what it says: a restart must still see it
+        if self.journal_problem is not None:
+            self._journal_unreadable(set_aside(self.journal.path))
         try:
             self.journal.reset()
         except OSError as exc:

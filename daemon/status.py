@@ -19,8 +19,10 @@ Threads: :class:`StatusServer` owns one thread that serves every client with non
 sockets from one selector: it blocks only in ``select()``, so a client that is slow to ask
 or to read holds up nobody (it is dropped after ``SEND_TIMEOUT_S``); at most
 ``MAX_CLIENTS`` at once, the rest wait in the listen backlog; of these at most
-``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot. A subscriber that
-has not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being
+``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot; when they are all
+taken, a new subscriber takes the place of the oldest one that does not read its updates
+(:meth:`StatusServer._evict_one`). A subscriber that has not taken an update within
+``SEND_TIMEOUT_S`` is dropped; while one is still being
 sent, newer ones are not queued behind it (it gets the state of its next turn). An
 ``accept()`` error other than the socket being closed is logged and retried after a pause,
 never the end of the server. ``status()`` is called on that thread and takes no lock of the
@@ -30,17 +32,22 @@ motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
 from __future__ import annotations
 
 import contextlib
+import fcntl
 import json
 import logging
 import math
 import os
 import selectors
 import socket
+import struct
+import termios
 import threading
 import time
 from collections.abc import Generator
 from pathlib import Path
 from typing import Any, Protocol
+
+from motorctl.daemon.paths import bind_socket
 
 log = logging.getLogger("motorctl.status")
 
@@ -67,13 +74,26 @@ class StatusSource(Protocol):
 
 
 class _Subscription:
-    __slots__ = ("due", "key", "period", "sent_at")
+    __slots__ = ("due", "key", "last_len", "period", "sent_at", "since")
 
-    def __init__(self, period: float) -> None:
+    def __init__(self, period: float, since: float) -> None:
         self.period = period
+        self.since = since  # when it subscribed: the oldest is evicted first
         self.due = 0.0  # when to look for a change next
         self.key: bytes | None = None  # the last update sent, volatile fields left out
         self.sent_at = -math.inf
+        self.last_len = 0  # the last update's length
+
+
+def unread_bytes(sock: socket.socket) -> int:
+    """What the peer has not read yet of what was sent on ``sock`` (Linux: SIOCOUTQ, which
+    counts the kernel's buffers, a little more than the bytes); 0 where it cannot tell."""
+    try:
+        raw = fcntl.ioctl(sock.fileno(), termios.TIOCOUTQ, b"\0\0\0\0")
+    except OSError:
+        return 0
+    value: int = struct.unpack("i", raw)[0]
+    return value
 
 
 class _Client:
@@ -138,16 +158,15 @@ def stable_view(doc: dict[str, Any]) -> dict[str, Any]:
 
 class StatusServer:
     def __init__(self, path: Path, status: StatusSource) -> None:
-        """Bind ``path`` (the caller holds the instance lock: a socket there is stale)."""
+        """Bind ``path`` (the caller holds the instance lock: a socket there is stale;
+        anything else there is set aside, daemon/paths.py). OSError when it cannot."""
         self.path = path
         self.status = status
         self.errors = 0
         self.served = 0
-        if path.is_socket():
-            path.unlink()
-        self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
-        self._sock.bind(str(path))
-        os.chmod(path, 0o660)  # the service's group may ask (connecting needs write)
+        self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
+        # 0660: the service's group may ask (connecting needs write)
+        self._sock = bind_socket(path, 0o660)
         st = os.lstat(path)
         self.identity = (st.st_dev, st.st_ino, st.st_ctime_ns)
         self._sock.listen(MAX_CLIENTS)
@@ -270,18 +289,46 @@ class StatusServer:
         request = parse_request(client.request)
         if request.period is not None and request.error is None:
             if self.subscribers >= MAX_SUBSCRIBERS:
+                self._evict_one()
+            if self.subscribers >= MAX_SUBSCRIBERS:
                 request.error = (
-                    f"too many subscribers ({MAX_SUBSCRIBERS}): close one, or read the status once"
+                    f"too many subscribers ({MAX_SUBSCRIBERS}), each reading its updates: the "
+                    "daemon is full; close one, or read the status once"
                 )
             else:
                 self.subscribers += 1
-                client.sub = _Subscription(request.period)
+                client.sub = _Subscription(request.period, time.monotonic())
                 self._update(client, time.monotonic(), None)
                 return
         client.out = memoryview(self._encode(request))
         client.deadline = time.monotonic() + SEND_TIMEOUT_S
 
     # -- subscribers --------------------------------------------------------------------
+    def _evict_one(self) -> None:
+        """Full, and a subscriber asks: the oldest subscriber that does not read its updates
+        goes, so that one that reads gets in. Not reading: an update still being sent (its
+        socket is full), or about two updates or more lying unread in its socket (a reader
+        takes each as it comes). A client that subscribes and never reads, however quickly
+        it comes back, thus never keeps a monitor out."""
+        behind = [
+            c
+            for c in self._clients.values()
+            if c.sub is not None
+            and (c.out is not None or unread_bytes(c.sock) > 2 * (c.sub.last_len + 1024))
+        ]
+        if not behind:
+            return
+        oldest = min(behind, key=lambda c: c.sub.since if c.sub is not None else 0.0)
+        self.evicted += 1
+        log.warning(
+            "status socket %s: %d subscribers, the most there may be: closed the oldest one "
+            "that does not read its updates to let a new one in (%d so far)",
+            self.path,
+            MAX_SUBSCRIBERS,
+            self.evicted,
+        )
+        self._drop(oldest)
+
     def _serve_subscriber(self, client: _Client) -> None:
         """Readable: the subscriber closed (or says something, which is ignored);
         writable: the rest of its update."""
@@ -313,7 +360,7 @@ class StatusServer:
         key, line = built[0]
         if key == sub.key and now - sub.sent_at < HEARTBEAT_S:
             return
-        sub.key, sub.sent_at = key, now
+        sub.key, sub.sent_at, sub.last_len = key, now, len(line)
         client.out = memoryview(line)
         client.deadline = now + SEND_TIMEOUT_S
         self._send(client)
@@ -524,8 +571,11 @@ def summary_line(status: dict[str, Any]) -> str:
             if isinstance(v, int) and (k.endswith("_errors") or k.startswith("sent_"))
         )
         parts.append(f"{counters.get('responses', 0)} frames served, {errors} errors")
+        device = link.get("device") or "?"
         if link.get("peer") == "gone":
-            parts.append("SERIAL DEVICE GONE, reopening it")
+            parts.append(f"SERIAL DEVICE {device} GONE, reopening it when it is back")
+        elif link.get("peer") == "waiting":
+            parts.append(f"WAITING FOR SERIAL DEVICE {device} (not there yet)")
     state = status.get("state")
     if isinstance(state, dict) and not state.get("ok", True):
         parts.append("STATE NOT SAVED: " + str(state.get("last_error")))

@@ -12,22 +12,27 @@ any thread (it copies counters). :meth:`TraceRecorder.open` and :meth:`TraceReco
 run on the main thread, at start and at exit.
 
 Bounds: a file grows to at most ``max_bytes``, then rotates (``FILE`` -> ``FILE.1`` ->
-``FILE.2`` ...), ``files`` files in all; the memory buffer holds at most ``buffer_limit``
-bytes: beyond it runs are left out and counted, and the next run recorded carries the count
-(``epb_dropcount``). A write error is logged once, counted, and the trace goes on with the
-next flush: it never stops the link.
+``FILE.2`` ...), ``files`` files in all; each file's header names this run's session and
+the file's part number (1, 2, ...), so a reader notices the parts rotation deleted. The
+memory buffer holds at most ``buffer_limit`` bytes: beyond it runs are left out and
+counted, and the next run recorded carries the count (``epb_dropcount``). A write error is
+logged once, counted, and the trace goes on with the next flush: it never stops the link.
 """
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import platform
+import stat
 import threading
 import time
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from motorctl.daemon.paths import clear_the_way, kind, open_for_writing
 from motorctl.protocol.capture import CaptureInfo, Direction, RecordEncoder, header
 
 log = logging.getLogger("motorctl.trace")
@@ -66,7 +71,10 @@ class TraceRecorder:
         self.buffer_limit = buffer_limit
         self._t0 = clock_origin
         self._wall0 = time.time_ns() if wall_origin_ns is None else wall_origin_ns
-        self._header = header(info, os_name=f"{platform.system()} {platform.release()}")
+        self._os_name = f"{platform.system()} {platform.release()}"
+        self.session = info.session or os.urandom(6).hex()  # this run's files, numbered:
+        self.part = 0  # the part being written (1 = the session's first file)
+        self._head_size = 0
         self._enc = RecordEncoder()
         self._lock = threading.Lock()
         self._buf = bytearray()
@@ -89,10 +97,11 @@ class TraceRecorder:
     def open(self) -> None:
         """Start a new file (the previous ones rotate away) and the writer thread; OSError
         if the file cannot be created (the caller names it to the user)."""
+        _not_a_device(self.path)
+        clear_the_way(self.path)  # not a trace of ours: set aside, not rotated
         self._rotate_files()
-        self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115 (closed in close())
-        self._file.write(self._header)
-        self._size = len(self._header)
+        self._file = _create(self.path)  # closed in close()
+        self._write_header()
         self._thread = threading.Thread(target=self._run, name="motorctl-trace", daemon=True)
         self._thread.start()
 
@@ -161,7 +170,7 @@ class TraceRecorder:
         while data:
             room = self.max_bytes - self._size
             cut = len(data) if len(data) <= room else self._fits(data, room)
-            if cut == 0 and self._size == len(self._header):  # one block larger than a file
+            if cut == 0 and self._size == self._head_size:  # one block larger than a file
                 cut = int.from_bytes(data[4:8], "little")
             if cut:
                 self._put(data[:cut])
@@ -191,13 +200,31 @@ class TraceRecorder:
         return pos
 
     def _start_file(self) -> None:
+        clear_the_way(self.path)
         self._rotate_files()
-        self._file = open(self.path, "wb", buffering=0)  # noqa: SIM115
-        self._file.write(self._header)
-        self._size = len(self._header)
+        self._file = _create(self.path)
+        self._write_header()
+
+    def _write_header(self) -> None:
+        """The next part's header: its session and number let a reader notice a part that
+        rotation deleted (or that was not given) and a session whose start is gone."""
+        self.part += 1
+        info = replace(self.info, session=self.session, part=self.part)
+        head = header(info, os_name=self._os_name)
+        self._file.write(head)
+        self._size = self._head_size = len(head)
 
     def _rotate_files(self) -> None:
-        rotated(self.path, self.files - 1).unlink(missing_ok=True)
+        oldest = rotated(self.path, self.files - 1)
+        if oldest.exists():
+            log.info(
+                "trace %s: %s rotated away (the oldest of %d files; readers of the rest say "
+                "which part is missing)",
+                self.path,
+                oldest,
+                self.files,
+            )
+        oldest.unlink(missing_ok=True)
         for index in range(self.files - 2, -1, -1):
             src = rotated(self.path, index)
             if src.exists():
@@ -214,4 +241,34 @@ class TraceRecorder:
             "lost_bytes": self.lost_bytes,
             "max_file_bytes": self.max_bytes,
             "files": self.files,
+            "session": self.session,
+            "part": self.part,
         }
+
+
+def _not_a_device(path: Path) -> None:
+    """OSError when ``path`` is a device, or a link to one (``--trace /dev/null``,
+    ``/dev/stdout``): only root makes those, so it is no one's trap to set aside, and
+    neither renaming it (set aside, rotated) nor writing to it is what anyone wants."""
+    try:
+        mode = os.stat(path).st_mode  # through a link: never opened
+    except OSError:
+        return
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        through = " (through a symbolic link)" if os.path.islink(path) else ""
+        raise OSError(
+            errno.ENODEV, f"{path} is {kind(mode)}{through}, not a file; a trace is a file"
+        )
+
+
+def _create(path: Path) -> Any:
+    """A new, empty trace file at ``path`` (0640 less the umask, like the state), opened
+    as the daemon opens every file it writes (daemon/paths.py: never through a link, never
+    a FIFO or a device; what stands there is set aside). OSError when it cannot."""
+    fd = open_for_writing(path, 0o640, os.O_WRONLY)
+    try:
+        os.ftruncate(fd, 0)
+    except OSError:
+        os.close(fd)
+        raise
+    return open(fd, "wb", buffering=0)  # the recorder closes it

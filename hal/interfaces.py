@@ -295,6 +295,63 @@ class EdgeInputs(ABC):
         return None
 
 
+@dataclass(frozen=True)
+class ChardevRequest:
+    """One kernel GPIO line request, as its file descriptor (the backend keeps owning it).
+
+    ``uapi``: 2 for a ``GPIO_V2_GET_LINE_IOCTL`` request (lines set with a mask,
+    ``GPIO_V2_LINE_SET_VALUES_IOCTL``; events ``struct gpio_v2_line_event``), 1 for a v1
+    line handle (``GPIOHANDLE_SET_LINE_VALUES_IOCTL`` sets every line of it at once) or a
+    v1 event request (one line, ``struct gpioevent_data``). ``offsets``: the chip's line
+    offsets in the request's order (the kernel's bit i / ``values[i]``). ``levels``: an
+    output request's driven physical levels, in that order (a v1 write repeats them).
+    """
+
+    fd: int
+    uapi: int
+    offsets: tuple[int, ...]
+    levels: tuple[bool, ...] = ()
+
+
+@dataclass(frozen=True)
+class ChardevLines:
+    """Lines a compiled core may drive: the STEP/DIR and end-stop line requests of a
+    :class:`StepIO` as kernel GPIO character-device requests, written and read with ioctls,
+    no Python per step. ``step[m]``/``dir[m]``: motor m's line as (index into ``outputs``,
+    index of the line in that request); ``inputs``: edge-event requests, ``input_lines[i]``
+    their lines' :class:`EdgeInputs` numbers in request order; ``active_low`` per input
+    line. The requests stay the backend's: it releases them when the StepIO closes."""
+
+    outputs: tuple[ChardevRequest, ...]
+    step: tuple[tuple[int, int], ...]
+    dir: tuple[tuple[int, int], ...]
+    inputs: tuple[ChardevRequest, ...] = ()
+    input_lines: tuple[tuple[int, ...], ...] = ()
+    active_low: tuple[bool, ...] = ()
+
+
+@dataclass(frozen=True)
+class SimulatedLines:
+    """Lines a compiled core may drive, of a simulated machine (the mock backend): its
+    mechanics' cells (six int64 per axis: position, heading, forced min end stop, forced max,
+    forced stall, generation; :class:`~motorctl.hal.backends.mock.backend.MockAxis`), where
+    each axis' end stops sit, the axis of each motor, and where the edges go: ``record`` takes
+    them as (t ns, kind 0 step / 1 dir, axis, value, rise call) into the machine's timeline;
+    ``line_errors`` gives the writes that fail now, (``"step"``/``"dir"``, axis) -> the
+    HalIOError text. The compiled counterpart records the same timeline as the Python parts."""
+
+    cells: memoryview
+    endstops: tuple[tuple[int, int], ...]
+    axis_of: tuple[int, ...]
+    timeline_len: int | None
+    record: Callable[[list[tuple[int, int, int, int, int]]], None]
+    line_errors: Callable[[], dict[tuple[str, int], str]]
+
+
+#: What a backend's StepIO offers a compiled step core (``StepIO.compiled``)
+CompiledLines = ChardevLines | SimulatedLines
+
+
 @dataclass
 class StepIO:
     """What a step executor owns: STEP/DIR outputs, end-stop inputs, the clock they share.
@@ -304,6 +361,11 @@ class StepIO:
     is not a step executor's motor).
     Built by :func:`motorctl.hal.registry.open_step_io` from a picklable spec, in the process
     that uses it (a child process cannot inherit a gpiod request).
+
+    ``compiled``: the capability "lines a compiled core may drive" (:data:`CompiledLines`:
+    the same lines as raw kernel requests, or a simulated machine's), None when the backend
+    has none to give; then ``compiled_missing`` says why. A compiled core that takes them
+    owns them until it stops (the Python parts above are not called meanwhile).
     """
 
     clock: Clock
@@ -311,6 +373,8 @@ class StepIO:
     inputs: EdgeInputs
     endstops: tuple[tuple[int | None, int | None], ...]
     closers: list[Callable[[], None]] = field(default_factory=list)
+    compiled: CompiledLines | None = None
+    compiled_missing: str = "the backend hands no lines to a compiled core"
 
     def close(self) -> None:
         for close in reversed(self.closers):
@@ -318,6 +382,19 @@ class StepIO:
         self.closers.clear()
         self.outputs.close()
         self.inputs.close()
+
+    def compiled_text(self) -> str:
+        """What the StepIO offers a compiled core, in words (``motorctld --probe``)."""
+        lines = self.compiled
+        if isinstance(lines, ChardevLines):
+            apis = sorted({f"v{r.uapi}" for r in (*lines.outputs, *lines.inputs)})
+            return (
+                f"GPIO character-device requests (uAPI {', '.join(apis)}): "
+                f"{len(lines.outputs)} for STEP/DIR, {len(lines.inputs)} for end stops"
+            )
+        if isinstance(lines, SimulatedLines):
+            return "the simulated mechanics of the mock"
+        return f"none ({self.compiled_missing})"
 
 
 @dataclass(frozen=True)
@@ -509,6 +586,9 @@ class ProbeReport:
 
     sections: list[tuple[str, list[str]]] = field(default_factory=list)
     problems: list[str] = field(default_factory=list)
+    #: what the step IO offers a compiled step core (StepIO.compiled_text), when the probe
+    #: opened it
+    compiled_lines: str | None = None
 
     def add(self, title: str, lines: list[str]) -> None:
         self.sections.append((title, lines))

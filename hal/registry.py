@@ -193,6 +193,9 @@ def probe_hardware(backend: str, spec: HardwareSpec, clock: Clock) -> ProbeRepor
         own = cast(Prober | None, getattr(module, "probe", None))
         if own is None:
             report.add(f"backend {backend}", ["nothing to probe: no hardware is opened"])
+            io = open_step_io(backend, spec, clock)  # no hardware: nothing is opened
+            report.compiled_lines = io.compiled_text()
+            io.close()
         else:
             own(spec, clock, report)
     except HalError as exc:

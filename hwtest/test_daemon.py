@@ -86,9 +86,11 @@ def client(daemon: DaemonProcess) -> Iterator[Client]:
 
 
 def test_daemon_runs_the_example_with_the_chosen_api(daemon: DaemonProcess) -> None:
-    assert "gpiod hardware" in daemon.ready_line
+    assert "gpiod hardware; step core compiled;" in daemon.ready_line
     if API != "auto":
         assert f"gpiod {API}" in daemon.stderr()
+    assert daemon.status()["executor"]["core"] == "compiled"  # the default, where built
+    assert "step core: compiled (its lines: GPIO character devices)" in daemon.stderr()
 
 
 def test_every_pin_command_end_to_end(client: Client) -> None:

@@ -111,6 +111,7 @@ class MotionEngine:
         self.stop_waits: Counter[str] = Counter(dict.fromkeys((s.value for s in Settled), 0))
         self.stop_wait_times: deque[float] = deque(maxlen=STOP_WAITS_KEPT)
         self.stop_wait_max_s = 0.0
+        self.stop_wait_sum_s = 0.0
         executor.on_event = self._on_executor_event
         self._running = False
         self._threads: list[threading.Thread] = []
@@ -194,6 +195,7 @@ class MotionEngine:
             self.stop_waits[result.value] += 1
             self.stop_wait_times.append(waited)
             self.stop_wait_max_s = max(self.stop_wait_max_s, waited)
+            self.stop_wait_sum_s += waited
         return result
 
     def stop_wait_status(self) -> dict[str, object]:
@@ -205,9 +207,11 @@ class MotionEngine:
             return round(times[min(len(times) - 1, int(q * len(times)))] * 1e6, 1)
 
         out.update(
+            waits=sum(self.stop_waits.values()),
             wait_p50_us=pct(0.5) if times else 0.0,
             wait_p99_us=pct(0.99) if times else 0.0,
             wait_max_us=round(self.stop_wait_max_s * 1e6, 1),
+            wait_sum_us=round(self.stop_wait_sum_s * 1e6, 1),
         )
         return out
 

@@ -413,6 +413,10 @@ class SplitExecutor(Executor):
         """The step executor's (the ramp executor makes no STEP edges)."""
         return next((s for ex in self.parts if (s := ex.step_lateness()) is not None), None)
 
+    def step_core(self) -> str | None:
+        """The step executor's (the ramp executor has none)."""
+        return next((c for ex in self.parts if (c := ex.step_core()) is not None), None)
+
     def next_deadline(self) -> float | None:
         found = [d for ex in self.parts if (d := ex.next_deadline()) is not None]
         return min(found) if found else None

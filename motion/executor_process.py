@@ -59,6 +59,18 @@ A torn slot is taken only if its CRC-32 matches by chance: never for a differenc
 a mix is only visible for the moment a store takes to propagate. The check adds about
 0.3 us per record on each side (``bench/rings.py``); records are segments, not steps.
 
+Bad records (a stray write, a bug): a record of the daemon's rings still not whole after
+``BAD_RECORD_S`` and two reads or more, or whole with a field no planner makes
+(:func:`segment_problem`, :func:`stop_problem`: bounds that also keep the step core's tick
+arithmetic far from overflow), is taken and reported as a FAULT of its motor (of every
+motor for a stop record whose motor is unknown), counted in ``bad_records``; never a crash,
+a hang or a step. Both step cores keep this rule (the compiled one in motion/csrc/rings.c).
+
+The child runs the compiled step core (``motion/compiled_core.py``) or the Python one, as
+``[step_thread] core`` and what is built and offered decide; it writes which into the
+header's core cell before READY, with a note (why not the compiled core, or why it cannot
+start at all) that the daemon logs.
+
 If the child dies, the event thread notices at once (the end of the event pipe, whose only
 writer it was) and reports DIED: every motor faults (E4, position lost) and health says why;
 the service then exits non-zero.
@@ -84,7 +96,14 @@ from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
-from motorctl.hal.interfaces import HalError, Hardware, MonotonicClock
+from motorctl.hal.interfaces import (
+    ChardevLines,
+    Clock,
+    HalError,
+    Hardware,
+    MonotonicClock,
+    StepIO,
+)
 from motorctl.hal.registry import config_sections, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
@@ -116,8 +135,83 @@ _KINDS = list(ExecEventKind)
 _LAST, _WATCH = 1, 2
 
 # header cells (int64)
-_RUN, _READY, _PID = 0, 1, 2
+_RUN, _READY, _PID, _CORE = 0, 1, 2, 3
 _HEADER = 8
+#: the _CORE cell: which step core the child runs (0: not yet known)
+CORES = ("", "python", "compiled")
+#: bytes of the child's note to the daemon: why it runs the Python core, or cannot start
+NOTE = 256
+#: a record announced but still not whole this long (and over two reads or more) is bad: a
+#: store takes nanoseconds to show, never this long (see "bad records" below)
+BAD_RECORD_S = 0.5
+
+
+_LIM_GEN = 1 << 62
+_LIM_TICK = 1 << 59
+_LIM_COUNT = 1 << 24
+_LIM_IV = 1 << 34
+
+
+def segment_problem(
+    first: int, interval: int, count: int, add: int, direction: int, gen: int, flags: int
+) -> str | None:
+    """What is wrong with a whole segment record's fields, None when nothing: generations
+    below 2**62 (the core's own block is 2**62), ticks below 2**59, at most 2**24 steps,
+    intervals below 2**34 ns that never go negative (motion/csrc/rings.c, the same rule)."""
+    if not 0 <= gen < _LIM_GEN:
+        return f"generation {gen}"
+    if flags & ~(_LAST | _WATCH):
+        return f"flags {flags}"
+    if not 0 <= count <= _LIM_COUNT:
+        return f"count {count}"
+    if count == 0:
+        return None  # a marker: nothing is timed by it
+    if direction not in (1, -1):
+        return f"direction {direction}"
+    if not 0 <= first < _LIM_TICK:
+        return f"first step at tick {first}"
+    if not 0 <= interval < _LIM_IV:
+        return f"interval {interval}"
+    if not -_LIM_IV < add < _LIM_IV or abs(add) * count >= _LIM_IV:
+        return f"add {add} over {count} steps"
+    if count >= 2 and interval + add * (count - 2) < 0:
+        return f"intervals below 0 (interval {interval}, add {add}, count {count})"
+    return None
+
+
+def stop_problem(motor: int, gen: int, cut: int, motors: int) -> str | None:
+    """What is wrong with a whole stop record's fields, None when nothing."""
+    if not 0 <= motor < motors:
+        return f"motor {motor}"
+    if not 0 <= gen < _LIM_GEN:
+        return f"generation {gen}"
+    if cut != -1 and not 0 <= cut < _LIM_TICK:
+        return f"cut at tick {cut}"
+    return None
+
+
+def bad_record_text(which: str, problem: str) -> str:
+    """The FAULT's detail for a bad record (both step cores word it so)."""
+    return f"bad {which} record in the executor's ring: {problem}"
+
+
+def torn_problem(bad_after_s: float = BAD_RECORD_S) -> str:
+    return f"not whole after {bad_after_s * 1000:.0f} ms (CRC-32 or sequence number wrong)"
+
+
+def decode_event(rec: tuple[Any, ...]) -> ExecEvent:
+    """An event record's fields (after the sequence number) as the event."""
+    kind, motor, gen, position, t_ns, direction, speed, text = rec
+    return ExecEvent(
+        _KINDS[kind],
+        motor,
+        gen,
+        position,
+        from_ticks(t_ns),
+        direction,
+        speed,
+        text.rstrip(b"\0").decode(errors="replace"),
+    )
 
 
 class Layout:
@@ -128,6 +222,8 @@ class Layout:
         off = 0
         self.header = off
         off += _HEADER * 8
+        self.note = off
+        off += NOTE
         self.counters = off
         off += len(COUNTER_NAMES) * 8
         self.positions = off
@@ -262,6 +358,7 @@ class Shared:
         self.shm = shm
         self.layout = lay = layout
         self.header = buf[lay.header : lay.header + _HEADER * 8].cast("q")
+        self.note = buf[lay.note : lay.note + NOTE]
         self.counters = buf[lay.counters : lay.counters + len(COUNTER_NAMES) * 8].cast("q")
         self.positions = buf[lay.positions : lay.positions + lay.motors * 8].cast("q")
         self.levels = buf[lay.levels : lay.levels + max(lay.lines, 1) * 8].cast("q")
@@ -284,6 +381,7 @@ class Shared:
     def release(self) -> None:
         views = (
             self.header,
+            self.note,
             self.counters,
             self.positions,
             self.levels,
@@ -301,29 +399,76 @@ class Shared:
 
 
 class _ShmInbox(CoreInbox):
-    """The core's inbox filled from the rings (the child)."""
+    """The core's inbox filled from the rings (the child, or a test on a virtual clock).
 
-    def __init__(self, shared: Shared) -> None:
+    A record is checked before it is queued; a bad one (see the module's doc) is queued in
+    ``faults`` instead, for the core to fault its motor. ``clock`` times how long a record
+    has been announced but not whole."""
+
+    def __init__(self, shared: Shared, clock: Clock, bad_record_s: float = BAD_RECORD_S) -> None:
         super().__init__(shared.layout.motors)
         self.shared = shared
+        self.clock = clock
+        self.bad_after = to_ticks(bad_record_s)
+        self.torn = torn_problem(bad_record_s)
+        # per ring: [tail of the record seen not whole, since (ticks), reads]
+        self._watch = [[-1, 0, 0] for _ in range(len(shared.segs) + 1)]
+
+    def _get(self, ring: Ring, watch: list[int]) -> tuple[Any, ...] | None:
+        """The next whole record; None: none (yet); ``()``: a bad one, taken."""
+        rec = ring.get()
+        if rec is not None:
+            watch[0] = -1
+            return rec
+        tail = ring.cells[1]
+        if tail >= ring.cells[0]:
+            return None  # empty
+        now = self.clock.now_ns()
+        if watch[0] != tail:
+            watch[:] = [tail, now, 1]
+            return None
+        watch[2] += 1
+        if watch[2] < 2 or now - watch[1] < self.bad_after:
+            return None
+        watch[0] = -1
+        ring.cells[1] = tail + 1  # the consumer's own cell: the ring moves on
+        return ()
 
     def pull(self) -> None:
         sh = self.shared
         stops = sh.stops
+        motors = len(self.queues)
         while stops.pending():
-            rec = stops.get()
+            rec = self._get(stops, self._watch[-1])
             if rec is None:
                 break
-            self.stops.append((rec[0], rec[1], rec[2]))
+            if not rec:
+                self.faults.append((-1, bad_record_text("stop", self.torn)))
+                continue
+            motor, gen, cut = rec
+            problem = stop_problem(motor, gen, cut, motors)
+            if problem is not None:
+                who = motor if 0 <= motor < motors else -1
+                self.faults.append((who, bad_record_text("stop", problem)))
+                continue
+            self.stops.append((motor, gen, cut))
         for m, ring in enumerate(sh.segs):
             if not ring.pending():
                 continue
             q = self.queues[m]
+            watch = self._watch[m]
             while len(q) < 64:
-                rec = ring.get()
+                rec = self._get(ring, watch)
                 if rec is None:
                     break
+                if not rec:
+                    self.faults.append((m, bad_record_text("step segment", self.torn)))
+                    continue
                 first, interval, count, add, direction, gen, flags = rec
+                problem = segment_problem(first, interval, count, add, direction, gen, flags)
+                if problem is not None:
+                    self.faults.append((m, bad_record_text("step segment", problem)))
+                    continue
                 q.append(
                     StepSegment(
                         first,
@@ -386,10 +531,12 @@ def _child_main(
     coalesce_s: float,
     wake_fd: int,
     event_fd: int,
+    core: str = "auto",
 ) -> None:
-    """The executor process: real-time set-up, own lines, then the step loop. ``shm_fd``,
-    ``wake_fd`` and ``event_fd`` are inherited descriptors (the shared block, the read end
-    of the daemon's wake-up pipe, the write end of the event pipe)."""
+    """The executor process: real-time set-up, own lines, then the step loop on the step
+    core ``core`` asks for (:func:`choose_core`). ``shm_fd``, ``wake_fd`` and ``event_fd``
+    are inherited descriptors (the shared block, the read end of the daemon's wake-up pipe,
+    the write end of the event pipe)."""
     import gc
     import signal
 
@@ -409,8 +556,41 @@ def _child_main(
     for m, (lo, hi) in enumerate(io.endstops):
         shared.endmap[2 * m] = -1 if lo is None else lo
         shared.endmap[2 * m + 1] = -1 if hi is None else hi
-    inbox = _ShmInbox(shared)
+    header = shared.header
+    chosen, note = choose_core(core, io)
+    text = note.encode()[: NOTE - 1]
+    shared.note[: len(text)] = text
+    if chosen is None:  # the daemon reads the note once our end of the event pipe closes
+        io.close()
+        shared.release()
+        shm.close()
+        raise SystemExit(EXIT_NO_CORE)
+    header[_CORE] = CORES.index(chosen)
+    header[_PID] = os.getpid()
     os.set_blocking(event_fd, False)
+    os.set_blocking(wake_fd, False)
+    if chosen == "compiled":
+        from motorctl.motion.compiled_core import CompiledStepCore
+
+        compiled = CompiledStepCore(
+            io,
+            limits,
+            shared,
+            late_threshold_s=late_threshold_s,
+            spin_s=spin_s,
+            coalesce_s=coalesce_s,
+        )
+        _ready(header, event_fd, gc)
+        try:
+            compiled.run(wake_fd, event_fd, parent)
+        finally:
+            compiled.halt_all()
+            compiled.close()
+            io.close()
+            shared.release()
+            shm.close()
+        return
+    inbox = _ShmInbox(shared, io.clock)
 
     def emit(ev: ExecEvent) -> None:
         text = ev.detail.encode()[:120]
@@ -427,7 +607,7 @@ def _child_main(
         with contextlib.suppress(BlockingIOError):
             os.write(event_fd, b"e")
 
-    core = StepCore(
+    runner = StepCore(
         io,
         limits,
         inbox,
@@ -440,8 +620,6 @@ def _child_main(
         spin_s=spin_s,
         coalesce_s=coalesce_s,
     )
-    header = shared.header
-    header[_PID] = os.getpid()
 
     def wait(timeout: float) -> None:
         if os.getppid() != parent:  # the daemon is gone (PDEATHSIG is the first guard)
@@ -453,24 +631,52 @@ def _child_main(
                 if os.read(wake_fd, 4096) == b"":  # the daemon's end is closed: it is gone
                     header[_RUN] = 0
 
-    os.set_blocking(wake_fd, False)
-    gc.collect()
-    gc.freeze()
-    gc.disable()
-    # ready when the loop starts (not before the collection above: the daemon plans the
-    # first steps a few ms ahead as soon as start() returns). The daemon reads READY (and so
-    # the end-stop map above) only after this byte: the pipe orders our stores before its
-    # loads on a weakly ordered CPU too
-    header[_READY] = 1
-    with contextlib.suppress(BlockingIOError):
-        os.write(event_fd, b"r")
+    _ready(header, event_fd, gc)
     try:
-        core.run(lambda: bool(header[_RUN]), wait)
+        runner.run(lambda: bool(header[_RUN]), wait)
     finally:
-        core.halt_all()
+        runner.halt_all()
         io.close()
         shared.release()
         shm.close()
+
+
+def _ready(header: memoryview, event_fd: int, gc: Any) -> None:
+    """Ready when the loop starts (not before the collection: the daemon plans the first
+    steps a few ms ahead as soon as start() returns). The daemon reads READY (and so the
+    end-stop map, the core cell and the note before it) only after this byte: the pipe
+    orders our stores before its loads on a weakly ordered CPU too."""
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    header[_READY] = 1
+    with contextlib.suppress(BlockingIOError):
+        os.write(event_fd, b"r")
+
+
+#: the executor process's exit status when it cannot run the step core the config asks for
+EXIT_NO_CORE = 3
+
+
+def choose_core(wanted: str, io: StepIO) -> tuple[str | None, str]:
+    """The step core to run over ``io`` for ``[step_thread] core = wanted``, and a note
+    for the daemon's log: "python" asked for; "compiled" when it is built and the backend
+    hands over its lines, else, for "auto", "python" with the reason (for "compiled": None,
+    the process cannot start, the note says why)."""
+    if wanted == "python":
+        return "python", 'as [step_thread] core = "python" asks'
+    if wanted not in ("auto", "compiled"):
+        return None, f"[step_thread] core = {wanted!r}: no such step core"
+    from motorctl.motion import compiled_core
+
+    why = compiled_core.unavailable(io)
+    if why is None:
+        lines = io.compiled
+        what = "GPIO character devices" if isinstance(lines, ChardevLines) else "the mock"
+        return "compiled", f"its lines: {what}"
+    if wanted == "compiled":
+        return None, f'[step_thread] core = "compiled", but {why}'
+    return "python", f"not the compiled core: {why}"
 
 
 # --------------------------------------------------------------------------- the daemon
@@ -494,9 +700,12 @@ class ProcessStepExecutor(StepExecutor):
         rt: RealtimeOptions | None = None,
         start_timeout_s: float = 30.0,
         process: executor_process_start.ExecutorProcess | None = None,
+        core: str = "auto",
     ) -> None:
         """``process``: an executor process started earlier (``daemon/launch.py``), else
-        one is started here."""
+        one is started here. ``core``: the step core it runs, "auto" (the compiled one where
+        it is built and the backend hands over its lines, else the Python one, with a
+        warning), "compiled" (else it cannot start) or "python"."""
         if hw.clock.is_virtual:
             raise ValueError(
                 "the process executor runs on the real clock; tests on a virtual "
@@ -510,6 +719,11 @@ class ProcessStepExecutor(StepExecutor):
         self.coalesce_s = max_error_s  # a step may share an earlier pulse within the error
         self.late_threshold_s = late_threshold_s
         self.start_timeout_s = start_timeout_s
+        self.core = core
+        #: the step core the process runs ("compiled", "python"; None until started) and
+        #: its note (why not the compiled one)
+        self.core_name: str | None = None
+        self.core_note = ""
         motors = len(limits)
         self.lines = 2 * len(spec.axes)
         self.layout = Layout(motors, self.lines)
@@ -577,6 +791,7 @@ class ProcessStepExecutor(StepExecutor):
             "spin_s": self.spin_s,
             "late_threshold_s": self.late_threshold_s,
             "coalesce_s": self.coalesce_s,
+            "core": self.core,
         }
         with contextlib.suppress(OSError):  # it is gone already: start() says how it ended
             process.hand_over(params, list(fds.values()))
@@ -606,16 +821,32 @@ class ProcessStepExecutor(StepExecutor):
             except BlockingIOError:
                 continue
             if byte == b"":  # its end closed: it exited
+                code = proc.wait()
+                note = self._note()
+                if code == EXIT_NO_CORE and note:
+                    raise HalError(f"the step executor cannot start: {note}")
                 raise HalError(
-                    f"the step executor process exited at start (code "
-                    f"{proc.wait()}); see the log above"
+                    f"the step executor process exited at start (code {code}); see the log above"
                 )
             if self.shared.header[_READY]:
                 break
+        self.core_name = CORES[self.shared.header[_CORE]] or None
+        self.core_note = self._note()
+        if self.core_name == "python" and self.core != "python":
+            log.warning("step core: python (%s)", self.core_note)
+        else:
+            log.info("step core: %s (%s)", self.core_name, self.core_note)
         self._watcher = threading.Thread(
             target=self._watch, name="motorctl-exec-watch", daemon=True
         )
         self._watcher.start()
+
+    def _note(self) -> str:
+        """The child's note (written before READY or before it exited)."""
+        return bytes(self.shared.note).rstrip(b"\0").decode(errors="replace")
+
+    def step_core(self) -> str | None:
+        return self.core_name
 
     def _forget_child_fds(self) -> None:
         """Close this process's copies of the child's descriptors (its pipe ends, the block's
@@ -727,19 +958,7 @@ class ProcessStepExecutor(StepExecutor):
             rec = ring.get()
             if rec is None:
                 break
-            kind, motor, gen, position, t_ns, direction, speed, text = rec
-            out.append(
-                ExecEvent(
-                    _KINDS[kind],
-                    motor,
-                    gen,
-                    position,
-                    from_ticks(t_ns),
-                    direction,
-                    speed,
-                    text.rstrip(b"\0").decode(errors="replace"),
-                )
-            )
+            out.append(decode_event(rec))
         if self.died is not None and not self._died_reported:
             self._died_reported = True
             out.append(ExecEvent(ExecEventKind.DIED, -1, -1, 0, self.clock.now(), detail=self.died))

@@ -229,6 +229,11 @@ class Executor(ABC):
         None for an executor that makes none (a chip running its own ramp)."""
         return None
 
+    def step_core(self) -> str | None:
+        """Which step core times this executor's STEP edges: "compiled" or "python"
+        (``[step_thread] core``); None for an executor that makes none, or before it runs."""
+        return None
+
     # -- a virtual clock (tests): executors that run on their own refuse ----------------
     def next_deadline(self) -> float | None:
         """The next time the executor needs the caller's thread (virtual clock only)."""

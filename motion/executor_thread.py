@@ -184,6 +184,9 @@ class ThreadStepExecutor(StepExecutor):
     def step_lateness(self) -> LatencyStats:
         return self.stats
 
+    def step_core(self) -> str:
+        return "python"  # a thread of the daemon keeps the Python core
+
     # -- the virtual clock ---------------------------------------------------------------
     def next_deadline(self) -> float | None:
         if not self.virtual:

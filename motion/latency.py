@@ -1,7 +1,8 @@
 """Lateness of step edges: a fixed-bin histogram, cheap enough for the step path.
 
 The counters live in one flat sequence of ints (a list, or an int64 view of shared memory
-when the step core runs in a process of its own): [count, late, max_ns, bins..., blocks...]
+when the step core runs in a process of its own): [count, late, max_ns, sum_ns, bins...,
+blocks...]
 (a block cell counts the edges of BLOCK consecutive bins). The step core is the only writer;
 readers (status, benchmarks) read it without a lock and may see a histogram a few steps
 behind or ahead of its counters, never a torn value.
@@ -31,8 +32,8 @@ BINS = 20_000  # 1 us bins up to 20 ms; later edges go to the overflow bin
 BLOCK_SHIFT = 6
 BLOCK = 1 << BLOCK_SHIFT
 BLOCKS = (BINS + 1 + BLOCK - 1) // BLOCK
-_COUNT, _LATE, _MAX = 0, 1, 2
-_BINS = 3
+_COUNT, _LATE, _MAX, _SUM = 0, 1, 2, 3  # _SUM: lateness summed (ns; early edges as 0)
+_BINS = 4
 _BLOCKS = _BINS + BINS + 1
 CELLS = _BLOCKS + BLOCKS
 
@@ -61,6 +62,11 @@ class LatencyStats:
     def max_s(self) -> float:
         return self._c[_MAX] / 1e9
 
+    @property
+    def sum_s(self) -> float:
+        """All edges' lateness added up (early ones as 0): a summary's ``_sum``."""
+        return self._c[_SUM] / 1e9
+
     def _span(self, start: int, stop: int) -> list[int]:
         """Cells ``start:stop`` as a list, in one C-level copy (a list or shared memory)."""
         c = self._c
@@ -85,6 +91,8 @@ class LatencyStats:
             c[_MAX] = ns
         if ns > self._threshold_ns:
             c[_LATE] += 1
+        if ns > 0:
+            c[_SUM] += ns
         us = ns // 1000 if ns >= 0 else 0
         if us > BINS:
             us = BINS
@@ -138,7 +146,7 @@ class LatencyStats:
         return float(us) if us < BINS else self.max_s * 1e6
 
     def summary(self) -> dict[str, Any]:
-        """Count, p50/p99/p99.9, max and late steps: a bounded cost (the blocks and three of
+        """Count, p50/p99/p99.9, max, sum and late steps: a bounded cost (the blocks and three of
         them), whatever the spread, so the status and the watchdog can ask often."""
         cum = list(itertools.accumulate(self._span(_BLOCKS, _BLOCKS + BLOCKS)))
         return {
@@ -147,6 +155,7 @@ class LatencyStats:
             "p99_us": self._percentile(99, cum),
             "p999_us": self._percentile(99.9, cum),
             "max_us": round(self.max_s * 1e6, 1),
+            "sum_us": round(self.sum_s * 1e6, 1),
             "late": self.late,
             "late_threshold_us": self.threshold_s * 1e6,
         }

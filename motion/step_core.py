@@ -29,8 +29,13 @@ changing anything here, and keep to them in what it calls:
 - What may block: only ``wait`` (the caller's, when nothing is due within ``spin_s``);
   the core spins only for the last ``spin_s`` before an edge and for the STEP pulse
   width (``StepOutputs.fall``). Nothing here sleeps, joins or waits for the planner.
-- Its cost is measured: ``bench/steps.py`` prints ``core_cost_us``, the CPU time per step
-  on mock lines. A change here quotes it before and after and must not make it worse.
+- Its cost is measured: ``bench/steps.py`` prints ``core_cost_us_python`` (and its twin's
+  ``core_cost_us_compiled``), the CPU time per step on mock lines. A change here quotes it
+  before and after and must not make it worse.
+- A twin: the compiled core (``motion/csrc/core.c``, driven by ``motion/compiled_core.py``)
+  keeps every rule here in C, function by function; the executor process runs it where it
+  is built. A change to a rule is made in both, and the core's tests run on both
+  (tests/motion/test_step_core.py). This one stays the readable reference and the fallback.
 - One module, a little over 500 lines with this fence, on purpose: the loop's state and
   every path that touches it are read together.
 
@@ -72,7 +77,7 @@ from motorctl.motion.latency import Cells, LatencyStats
 from motorctl.motion.segments import StepSegment
 
 # counters cells
-PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP = range(7)
+PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP, BAD_RECORDS = range(8)
 COUNTER_NAMES = (
     "progress",
     "steps",
@@ -81,6 +86,7 @@ COUNTER_NAMES = (
     "endstops",
     "dropped",
     "min_gap_ns",
+    "bad_records",
 )
 #: the smallest time between two steps of a motor (MIN_GAP) counts steps less than this apart
 _GAP_WINDOW = TICKS_PER_S // 10
@@ -98,14 +104,19 @@ K = ExecEventKind
 BLOCKED = 1 << 62
 #: no step pending
 NEVER = 1 << 62
+#: the largest value of a shared int64 cell
+_CELL_MAX = (1 << 63) - 1
 
 
 class CoreInbox:
-    """What the planner hands the core: per-motor segment queues and hard stops."""
+    """What the planner hands the core: per-motor segment queues and hard stops; and the
+    records the transport found bad (``faults``: (motor or -1 for every motor, detail);
+    the shared-memory rings' only, executor_process.py)."""
 
     def __init__(self, motors: int) -> None:
         self.queues: list[deque[StepSegment]] = [deque() for _ in range(motors)]
         self.stops: deque[tuple[int, int, int]] = deque()  # (motor, gen, cut or -1)
+        self.faults: deque[tuple[int, str]] = deque()
 
     def pull(self) -> None:
         """Move pending work from the transport into the deques (in-process: nothing)."""
@@ -249,6 +260,9 @@ class StepCore:
         while q:
             if self.stopped_gen[m] == BLOCKED and self.inbox.stops:
                 self._apply_stops()  # the answer may have come with these segments
+                if self.next_t[m] != NEVER:
+                    return True  # a cut in that answer loaded it already
+                continue  # (it may have dropped every queued segment)
             seg = q.popleft()
             gen = seg.gen
             cuts = self.cuts[m]
@@ -297,6 +311,8 @@ class StepCore:
         inbox.pull()
         if inbox.stops:
             self._apply_stops()
+        if inbox.faults:
+            self._bad_records()
         next_t = self.next_t
         if NEVER in next_t:
             queues = inbox.queues
@@ -432,7 +448,7 @@ class StepCore:
         lag = late / gap / self.microsteps[m] if moving else 0.0
         if late > cells[base + WORST_LATE]:
             cells[base + WORST_LATE] = late
-        ulag = int(lag * LAG_UNIT)
+        ulag = min(int(lag * LAG_UNIT), _CELL_MAX)
         if ulag > cells[base + WORST_LAG]:
             cells[base + WORST_LAG] = ulag
         if self.lag_faults[m] and moving and gap < self.start_gap[m] and late > gap * self.lag_k[m]:
@@ -467,6 +483,17 @@ class StepCore:
 
     def _io_fault(self, motors: Sequence[int], exc: Exception) -> None:
         self.counters[IO_ERRORS] += 1
+        self._fault(motors, f"hardware error: {exc}")
+
+    def _bad_records(self) -> None:
+        """Records the transport found bad: a FAULT of their motors (every motor: -1)."""
+        faults = self.inbox.faults
+        while faults:
+            m, detail = faults.popleft()
+            self.counters[BAD_RECORDS] += 1
+            self._fault(self.motors if m < 0 else (m,), detail)
+
+    def _fault(self, motors: Sequence[int], detail: str) -> None:
         for m in motors:
             gen = self.gen[m]
             t = self.next_t[m]
@@ -481,7 +508,7 @@ class StepCore:
                     self._now_s(),
                     self.dir[m],
                     speed,
-                    f"hardware error: {exc}",
+                    detail,
                 )
             )
 

@@ -422,11 +422,14 @@ _SHORT_NAMES = {"direction": "dir", "position": "pos"}
 
 
 def describe(cmd: Command) -> str:
-    """Short human text, e.g. "MoveTo(motor=0, dir=up, pos=1200, speed=250, acc=0, dec=0)"."""
+    """Short human text, e.g. "MoveTo(motor=0, dir=up, pos=1200, speed=250, acc=0, dec=0)",
+    "DcMove(dir=forward, time_ms=500, hiz=false)"."""
     parts: list[str] = []
     for name, kind in _LAYOUT[cmd.code]:
         value = getattr(cmd, name)
-        if name == "direction":
+        if name == "direction" and cmd.code is CommandCode.DC_MOVE:
+            text = "forward" if value else "reverse"  # as the CLI says it (motorctl dc)
+        elif name == "direction":
             text = "up" if value else "down"
         elif kind == "bool":
             text = "true" if value else "false"

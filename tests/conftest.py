@@ -11,12 +11,14 @@ tests (``_e2e``: against motorctld as a process on a real PTY):
                 frames, rigs (the engine or the step core on a virtual clock), inprocess
                 (``LiveDaemon``: an in-process daemon serving a real PTY), daemon_proc
                 (``DaemonProcess``), spi_bench and tmc_model (TMC chips on a fake SPI bus),
-                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil
+                stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
+                tamper (a forwarder that changes one answer: the replay's tests)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports
 nothing beyond pytest at module level. Here: the ``motorctld`` fixture (daemons as
-processes, stopped after their test), and for every test:
+processes, stopped after their test), ``step_core`` and ``core_rig`` (a test run on each
+step core, Python and compiled), and for every test:
 
 - The root logger is put back after each test. A test that runs motorctld's ``main()`` in
   this process (``--print-default-config``, ``--check-config``) installs the daemon's stderr
@@ -36,7 +38,7 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -44,6 +46,7 @@ import pytest
 
 if TYPE_CHECKING:
     from tests.support.daemon_proc import DaemonProcess, StartDaemon
+    from tests.support.rigs import StepCoreRig
 
 
 def pytest_configure(config: pytest.Config) -> None:
@@ -67,6 +70,38 @@ def keep_root_logger() -> Iterator[None]:
         if h not in root.handlers:
             root.addHandler(h)
     root.setLevel(level)
+
+
+@pytest.fixture(params=["python", "compiled"])
+def step_core(request: pytest.FixtureRequest) -> str:
+    """Each step core in turn: "python" (motion/step_core.py) and "compiled" (motion/csrc,
+    built by make venv; not built is a failure, not a skip)."""
+    core = str(request.param)
+    if core == "compiled":
+        from motorctl.motion.compiled_core import unavailable
+
+        why = unavailable()
+        if why is not None:
+            pytest.fail(why)
+    return core
+
+
+@pytest.fixture
+def core_rig(step_core: str) -> Iterator[Callable[..., StepCoreRig]]:
+    """``core_rig(**kw)``: a StepCoreRig (tests/support/rigs.py) on the step core of the
+    test's parameter, closed after the test."""
+    from tests.support.rigs import StepCoreRig
+
+    rigs: list[StepCoreRig] = []
+
+    def make(*args: Any, **kw: Any) -> StepCoreRig:
+        rig = StepCoreRig(*args, core=step_core, **kw)
+        rigs.append(rig)
+        return rig
+
+    yield make
+    for rig in rigs:
+        rig.close()
 
 
 @pytest.fixture

@@ -50,6 +50,12 @@ motorctld --check-config /etc/motorctl.toml
 loads the file exactly as the daemon would at start-up (`load_config`) and prints a line
 with `OK` and a short summary (exit status 0), or the error (exit status 1).
 
+The file is UTF-8 text; a UTF-8 byte order mark at its top (which some editors write) is
+accepted and ignored. The path must name a regular file (a symbolic link to one is fine):
+a FIFO, a device, a socket or a directory is refused at once, never read from or waited
+for (`/etc/motorctl.toml: is a FIFO, not a regular file; fix: give the path of a TOML
+file`), so that `ExecStartPre=motorctld --check-config` cannot hang a unit's start.
+
 ## How errors look
 
 Loading stops at the first problem. The message names the file, the key path (arrays of

@@ -10,14 +10,18 @@ Runs on the caller's thread; blocks only on reading the file.
 
 from __future__ import annotations
 
+import codecs
 import dataclasses
+import errno
 import os
 import re
+import stat
 import textwrap
 import tomllib
 from typing import Any, Final
 
 from motorctl.daemon.config.model import Config
+from motorctl.daemon.paths import kind
 from motorctl.hal.registry import config_sections
 from motorctl.schema import (
     Child,
@@ -116,25 +120,54 @@ def parse_config(text: str, source: str) -> Config:
     return dataclasses.replace(config, notices=tuple(parser.notices)) if parser.notices else config
 
 
+class _NotRegular(OSError):
+    """The config path names something other than a regular file (what, in the message)."""
+
+
+def _read_regular(source: str) -> bytes:
+    """The bytes of the regular file at ``source`` (a link to one is followed: a config is
+    only read). A FIFO, a device, a socket or a directory is never read from, never waited
+    for: _NotRegular. OSError as ``open`` raises it."""
+    mode = os.stat(source).st_mode  # a device is not even opened
+    if not stat.S_ISREG(mode):
+        raise _NotRegular(errno.EINVAL, kind(mode))
+    fd = os.open(source, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    try:
+        mode = os.fstat(fd).st_mode
+        if not stat.S_ISREG(mode):
+            raise _NotRegular(errno.EINVAL, kind(mode))
+        chunks = []
+        while chunk := os.read(fd, 1 << 16):
+            chunks.append(chunk)
+        return b"".join(chunks)
+    finally:
+        os.close(fd)
+
+
 def load_config(path: str | os.PathLike[str] | None) -> Config:
     """Read and validate the config file at `path`; None loads the embedded default."""
     if path is None:
         return parse_config(EMBEDDED_WORLD, EMBEDDED_SOURCE)
     source = os.fspath(path)
     try:
-        with open(source, "rb") as file:
-            data = file.read()
+        data = _read_regular(source)
     except FileNotFoundError:
         raise ConfigError(
             f"{source}: config file not found; fix: create it (`motorctld "
             "--print-default-config` prints a commented example; docs/config.md describes "
             "every key) or give the path of an existing file"
         ) from None
+    except _NotRegular as exc:
+        raise ConfigError(
+            f"{source}: is {exc.strerror}, not a regular file; fix: give the path of a TOML file"
+        ) from None
     except OSError as exc:
         raise ConfigError(
             f"{source}: cannot read config file: {exc.strerror}; "
             "fix: give the path of a readable TOML file"
         ) from None
+    if data.startswith(codecs.BOM_UTF8):  # written by some editors: not part of the TOML
+        data = data[len(codecs.BOM_UTF8) :]
     try:
         text = data.decode("utf-8")
     except UnicodeDecodeError as exc:

@@ -110,8 +110,10 @@ class LinkConfig:
         "0 = off (as the original microcontroller). > 0: when the host sends no byte for "
         "this long (while a WaitMoved's answer is held the host is waiting, not silent), "
         "every motor in motion stops (timeout_action) and answers E4 until a StopMove "
-        "clears it; motors at rest are not touched; the DC motor brakes. An extension: "
-        "docs/protocol.md, 'When the host falls silent'.",
+        "clears it; motors at rest are not touched; the DC motor brakes. Above 0 it must "
+        "be at least one frame's time at --baud (0.868 ms at 115200; the daemon and "
+        "--check-config refuse less). An extension: docs/protocol.md, 'When the host "
+        "falls silent'.",
     )
     timeout_action: str = choice(
         "decelerate",
@@ -252,6 +254,14 @@ class StepThreadConfig:
         "A hard StopMove is answered once the executor confirms the motor stopped (normally "
         "well under 1 ms), so IsReady right after it answers 1; at most this long, then it "
         "is answered all the same (a stalled executor; docs/protocol.md, StopMove).",
+    )
+    core: str = choice(
+        "auto",
+        ("auto", "compiled", "python"),
+        "The step core of the process executor: 'auto' = the compiled one where it is built "
+        "and the backend hands its lines over (GPIO character devices, the mock), else the "
+        "Python one with a warning; 'compiled' = that one, or a start error that says why "
+        "not; 'python' = the Python reference. The thread executor runs the Python core.",
     )
 
 
@@ -539,7 +549,9 @@ against a device; Wireshark and tshark open it. Off unless `file` is set here or
     notes="""\
 The trace is bounded: when the file would grow past `max_file_mb` it is renamed to
 `FILE.1` (an older `FILE.1` to `FILE.2`, ...) and a new `FILE` is started, keeping `files`
-files in all; the oldest goes. Records are written from memory every 0.2 s by a thread of
+files in all; the oldest goes. Each file names the daemon's run (its session) and its part
+number (1, 2, ...), so `motorctl trace` and `motorctl replay` say which parts are missing.
+Records are written from memory every 0.2 s by a thread of
 their own; if the disk falls that far behind that 4 MiB wait, further byte runs are left
 out and counted (`trace.dropped_runs` in the status, `epb_dropcount` in the file). Under
 systemd the service may write only below /run/motorctl and /var/lib/motorctl.""",

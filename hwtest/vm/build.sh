@@ -4,7 +4,7 @@
 # Needs: Debian 12 (bookworm) amd64, root (apt-get install, debootstrap), Debian apt + PyPI access.
 # Env knobs: GSIM_KVER=6.1.0-56-amd64 (default: what linux-image-amd64 depends on), GSIM_ROOTFS=0 (skip the
 #   debootstrap bookworm rootfs = libgpiod v1), GSIM_TRIXIE=0 (skip the debootstrap trixie root = Debian's
-#   python3-libgpiod 2.x, the v2 API, and python3-spidev), GSIM_VENV=0 (skip the venv = PyPI gpiod v2 + spidev),
+#   python3-libgpiod 2.x, the v2 API, python3-spidev, and gcc + python3-dev for the step core), GSIM_VENV=0 (skip the venv = PyPI gpiod v2 + spidev),
 #   GSIM_PIP="gpiod spidev" (pin e.g. "gpiod==2.5.0 spidev==3.8"), GSIM_KEEP=1 (keep debs + extracted trees),
 #   GSIM_PYTHON=/usr/bin/python3 (venv base), GSIM_MIRROR (debootstrap), GSIM_APT_UPDATE=0 (skip apt-get update).
 # Result (~450 MB; ~70 MB without the roots): vmlinuz + vmlinux, initrd.img, mod/, rootfs/, trixie/, venv/,
@@ -79,7 +79,8 @@ fi
 if [ "${GSIM_TRIXIE:-1}" = 1 ] && [ ! -x "$C/trixie/usr/bin/python3" ]; then
   step "debootstrap trixie rootfs with Debian's python3-libgpiod 2 (libgpiod v2 API) and python3-spidev"
   rm -rf "$C/trixie"
-  debootstrap --variant=minbase --include=python3-minimal,python3-libgpiod,gpiod,python3-serial,python3-pytest,python3-spidev trixie "$C/trixie" "$MIRROR" > "$X/debootstrap-trixie.log"
+  # gcc, python3-dev, python3-setuptools: the guest builds the compiled step core for Python 3.13 (hwtest/run)
+  debootstrap --variant=minbase --include=python3-minimal,python3-libgpiod,gpiod,python3-serial,python3-pytest,python3-spidev,gcc,libc6-dev,python3-dev,python3-setuptools trixie "$C/trixie" "$MIRROR" > "$X/debootstrap-trixie.log"
   rm -f "$C/trixie"/var/cache/apt/archives/*.deb
 fi
 if [ "${GSIM_VENV:-1}" = 1 ] && [ ! -x "$C/venv/bin/python" ]; then

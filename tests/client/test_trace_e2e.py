@@ -52,6 +52,13 @@ mode = "input"
 #: the same machine without pin 5: SetPin(5) answers E2 (invalid address), not E1
 VARIANT = CONFIG.replace('[[pins]]\nnumber = 5\nmode = "input"\n', "")
 SESSION_FRAMES = 17
+#: The replays' device timing (docs/trace.md, "How the answers are judged"): these test
+#: daemons run without real-time priority beside a parallel test run, and a motion of
+#: theirs may slide behind its plan by half a second or more, so a WaitMoved's hold may end
+#: that much later than recorded. What is tested here is the replay's reading, pairing and
+#: naming of frames; how closely it judges timing: tests/client/test_judge.py, and with
+#: daemons as a user starts them at the default 50 ms, bench/replay.py.
+DEVICE_TIMING = ("--time-tolerance-ms", "2000")
 
 
 def motorctl(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
@@ -131,19 +138,21 @@ def test_a_recorded_session_replays_clean_against_a_fresh_daemon(
 ) -> None:
     d = DaemonProcess(tmp_path, CONFIG).start()
     try:
-        run = motorctl("replay", str(recorded), "--port", str(d.pty), "--json")
+        run = motorctl("replay", str(recorded), "--port", str(d.pty), "--json", *DEVICE_TIMING)
     finally:
         d.close()
     doc = json.loads(run.stdout)
     assert run.returncode == 0, run.stdout
     assert doc["ok"] and doc["differs"] == 0 and doc["frames"] == SESSION_FRAMES
-    assert doc["exact"] == SESSION_FRAMES  # nothing here depends on timing
+    assert doc["exact"] + doc["tolerated"] == SESSION_FRAMES
+    # what depends on timing here: how long each WaitMoved was held (judged by the move)
+    assert [v["command"].split("(")[0] for v in doc["verdicts"]] == ["WaitMoved"] * 3
 
 
 def test_a_changed_daemon_is_caught_naming_the_frame(recorded: Path, tmp_path: Path) -> None:
     d = DaemonProcess(tmp_path, VARIANT).start()
     try:
-        run = motorctl("replay", str(recorded), "--port", str(d.pty), "--fast")
+        run = motorctl("replay", str(recorded), "--port", str(d.pty), "--fast", *DEVICE_TIMING)
     finally:
         d.close()
     assert run.returncode == 1, run.stdout + run.stderr
@@ -318,8 +327,8 @@ def test_the_tap_between_a_host_and_motorctld_records_a_replayable_session(tmp_p
         )
     fresh = DaemonProcess(subdir(tmp_path, "fresh"), CONFIG).start()
     try:
-        run = motorctl("replay", str(out), "--port", str(fresh.pty))
+        run = motorctl("replay", str(out), "--port", str(fresh.pty), *DEVICE_TIMING)
     finally:
         fresh.close()
     assert run.returncode == 0, run.stdout + run.stderr
-    assert "5 answers byte-exact, 0 within tolerance, 0 differ" in run.stdout
+    assert "4 answers byte-exact, 1 within tolerance, 0 differ" in run.stdout  # the WaitMoved

@@ -162,7 +162,7 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
     assert config.hal == HalConfig("mock")
     assert config.step_thread == StepThreadConfig(
-        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, 10.0, -1, "process", 50.0, 50.0
+        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, 10.0, -1, "process", 50.0, 50.0, "auto"
     )
     assert load_config(str(path)) == config
 
@@ -570,7 +570,7 @@ def test_missing_file(tmp_path: Path) -> None:
 
 
 def test_unreadable_and_undecodable_files(tmp_path: Path) -> None:
-    with pytest.raises(ConfigError, match=r"cannot read config file.*fix:"):
+    with pytest.raises(ConfigError, match=r"is a directory, not a regular file; fix:"):
         load_config(tmp_path)
     path = tmp_path / "latin1.toml"
     path.write_bytes(b"[[motors]]\n# caf\xe9\n")

@@ -531,6 +531,8 @@ def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
     d.start()
     try:
         assert d.status()["executor"]["kind"] == "thread"
+        assert d.status()["executor"]["core"] == "python"  # the thread kind keeps it
+        assert "; step core python;" in d.ready_line
         assert d.proc is not None  # motorctld started an executor process early: ended
         assert children_of(d.proc.pid) == []
         with d.client() as c:
@@ -557,6 +559,8 @@ def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
 
     status = daemon.status()
     assert status["executor"]["kind"] == "process" and status["executor"]["alive"]
+    assert status["executor"]["core"] == "compiled"  # where it is built: the default
+    assert "; mock hardware; step core compiled; state in " in daemon.ready_line
     assert daemon.proc is not None
     assert children_of(daemon.proc.pid) == [status["executor"]["pid"]]  # no tracker
     blocks = memfd_labels(daemon.proc.pid)

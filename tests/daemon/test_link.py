@@ -6,8 +6,8 @@ virtual clock: these tests are about the bytes, not the motors.
 
 from __future__ import annotations
 
-import errno
 import os
+import select
 import signal
 import socket
 import threading
@@ -19,18 +19,22 @@ import pytest
 
 from motorctl.daemon.dispatcher import Dispatcher, Wait
 from motorctl.daemon.signals import StopSignals
+from motorctl.daemon.silence import SilenceWatch
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,
     GetAbsPos,
+    GetPin,
     IsReady,
     Move,
+    MoveTo,
     Response,
+    SetPin,
     StopMove,
     WaitMoved,
 )
 from tests.support.frames import frame
-from tests.support.inprocess import LiveDaemon
+from tests.support.inprocess import LIVE_CONFIG, LiveDaemon
 
 E = ErrorCode
 DEADLINE_S = 20.0  # generous: these tests must pass on a loaded 2-core machine
@@ -51,6 +55,23 @@ class SlowPort:
         return self.inner.wait_begin(cmd, now)
 
     def wait_poll(self, wait: Wait, now: float) -> Response | None:
+        return self.inner.wait_poll(wait, now)
+
+
+class GatedPort(SlowPort):
+    """The dispatcher, whose held WaitMoved's next look waits for the test: the link is
+    kept busy (not in poll()) for as long as the test needs."""
+
+    def __init__(self, inner: Dispatcher) -> None:
+        super().__init__(inner, 0.0)
+        self.gate = threading.Event()
+        self.gate.set()
+        self.entered = threading.Event()
+
+    def wait_poll(self, wait: Wait, now: float) -> Response | None:
+        if not self.gate.is_set():
+            self.entered.set()
+            self.gate.wait(DEADLINE_S)
         return self.inner.wait_poll(wait, now)
 
 
@@ -315,16 +336,217 @@ def test_write_error_is_counted_and_survived(tmp_path: Path) -> None:
         theirs.close()
 
 
-def test_eio_from_pty_without_host_is_not_an_error(served: LiveDaemon) -> None:
+def test_with_no_host_the_link_sleeps_holding_the_slave(served: LiveDaemon) -> None:
+    """No host on the PTY: the link holds its slave side, so the master does not report a
+    hang-up at every poll (the loop used to look every 20 ms, and a new host's first
+    command waited for that look); it sleeps until a host writes. Nothing is an error."""
     served.until("no host", lambda: served.link.peer_gone)
+    assert served.link.pty is not None and served.link.pty.held
+    probe = select.poll()
+    probe.register(served.fd, select.POLLIN)
+    assert probe.poll(0) == []  # neither POLLHUP nor input
+    turns = served.link.turns
+    host = served.host()  # a host that opens the port and says nothing: no session yet
+    try:
+        assert host.nothing_within(0.2)
+    finally:
+        host.close()
+    # asleep in poll() but for the host's open and close, not looking every 20 ms
+    assert served.link.turns - turns <= 3
+    c = served.counters()
+    assert c["link_errors"] == 0 and c["peer_closed"] == 0  # no host yet: none closed
 
-    def read_errno() -> int | None:
+
+# -- a host's session ends: the next one reads only its own answers ---------------------------
+def _three_motor_daemon(tmp_path: Path) -> LiveDaemon:
+    """Motors on the real clock (a move takes its time), three of them and output pin 0."""
+    return LiveDaemon(tmp_path, LIVE_CONFIG + '[[motors]]\nname = "c"\n', motion=True)
+
+
+def test_a_host_that_closes_during_a_wait_leaves_nothing_to_the_next(tmp_path: Path) -> None:
+    """Issue 22's scenario on a PTY: MoveTo 0 -> 6000 at 1000 step/s, WaitMoved(0, 30 s) and
+    GetAbsPos(2), the port closed without reading the last two answers; the next host's
+    IsReady(1) is answered at once (the motor still moving), with its own answer and
+    nothing else. The two answers owed to the old session are dropped and counted; the
+    motor goes on (the host left; it did not ask for a stop)."""
+    s = _three_motor_daemon(tmp_path)
+    try:
+        old = s.host()
+        old.write(frame(MoveTo(0, True, 6000, 250, 0, 0)))  # SPEED 250 x 4 = 1000 step/s
+        assert old.responses(1)[0].ack
+        old.write(frame(WaitMoved(0, 30_000), GetAbsPos(2)))
+        s.until("the WaitMoved held, GetAbsPos kept", lambda: s.link.status()["held"] == 1)
+        old.close()
+        s.until("the session's end", lambda: s.counters()["peer_closed"] == 1)
+        new = s.host()
         try:
-            os.read(served.fd, 1)
-        except OSError as exc:
-            return exc.errno
-        return None
+            new.write(frame(IsReady(1)))
+            assert new.responses(1) == [Response.boolean(True)]
+            assert not s.daemon.engine.motors[0].idle  # answered long before the move ends
+            new.write(frame(GetAbsPos(1)))  # in step: its own answer again
+            assert new.responses(1) == [Response.position(0)]
+            assert new.nothing_within(0.2)
+        finally:
+            new.close()
+        c = s.counters()
+        assert c["responses_dropped_wait"] == 1 and c["responses_dropped_held"] == 1
+        assert c["responses_dropped_unsent"] == 0 and c["responses_dropped"] == 2
+        assert c["held_discarded"] == 1  # GetAbsPos(2): never executed
+        status = s.link.status()
+        assert not status["waiting"] and status["held"] == 0
+        results = {r["command"]: r["result"] for r in status["recent"]}  # type: ignore[attr-defined]
+        assert results["WaitMoved(motor=0, timeout_ms=30000)"] == (
+            "not sent: its host's session ended"
+        )
+    finally:
+        s.close()
 
-    # EAGAIN while the link briefly opens the slave side to flush what the old host left
-    served.until("EIO from the PTY master with no host", lambda: read_errno() == errno.EIO)
-    assert served.counters()["link_errors"] == 0
+
+def test_kept_commands_of_a_host_that_left_are_not_executed_but_its_stop_is(
+    tmp_path: Path,
+) -> None:
+    """Behind a held WaitMoved: SetPin (kept) and StopMove of motor 1 (executed on arrival).
+    The host closes: the StopMove has stopped motor 1, the SetPin never runs (pin 0 stays
+    low), the waited-for motor goes on; their answers are never sent."""
+    s = _three_motor_daemon(tmp_path)
+    try:
+        old = s.host()
+        old.write(frame(MoveTo(0, True, 6000, 250, 0, 0), Move(1, True, 1, 0, 0)))
+        assert [r.ack for r in old.responses(2)] == [True, True]
+        old.write(frame(WaitMoved(0, 30_000), SetPin(0, True), StopMove(1, True)))
+        s.until("the StopMove kept", lambda: s.link.status()["held"] == 2)
+        old.close()
+        s.until("the session's end", lambda: s.counters()["peer_closed"] == 1)
+        new = s.host()
+        try:
+            new.write(frame(GetPin(0), IsReady(1), IsReady(0)))
+            assert [r.as_bool for r in new.responses(3)] == [False, True, False]
+            assert new.nothing_within(0.2)
+        finally:
+            new.close()
+        c = s.counters()
+        assert c["held_discarded"] == 1  # the SetPin; the StopMove was executed
+        assert c["responses_dropped_wait"] == 1 and c["responses_dropped_held"] == 2
+        assert c["stops_while_held"] == 1
+    finally:
+        s.close()
+
+
+def test_answers_the_old_host_did_not_read_are_flushed_and_counted(served: LiveDaemon) -> None:
+    """Answers already written to the PTY and left unread: the kernel keeps them for the
+    next host unless the daemon takes them; counted as unsent."""
+    old = served.host()
+    old.write(frame(IsReady(0), GetAbsPos(0), IsReady(1)))
+    served.until("the answers written", lambda: served.counters()["responses"] == 3)
+    old.close()
+    served.until("the session's end", lambda: served.counters()["peer_closed"] == 1)
+    new = served.host()
+    try:
+        new.write(frame(GetAbsPos(1)))
+        assert new.responses(1) == [Response.position(0)]
+        assert new.nothing_within(0.1)
+    finally:
+        new.close()
+    c = served.counters()
+    assert c["responses_dropped_unsent"] == 3 and c["responses_dropped"] == 3
+
+
+def test_a_host_per_command_counts_in_the_processing_time(served: LiveDaemon) -> None:
+    """Issue 27 item 7: a host that opens the port for each command (the motorctl CLI):
+    each first read of a session is a read like any other; every one counts, the one-frame
+    path's (a frame seen before) and the framer's alike."""
+    for n in range(1, 6):
+        host = served.host()
+        try:
+            host.write(frame(IsReady(n % 2)))
+            assert len(host.responses(1)) == 1
+        finally:
+            host.close()
+        served.until("the session's end", lambda n=n: served.counters()["peer_closed"] == n)
+    processing = served.link.status()["processing"]
+    assert isinstance(processing, dict) and processing["steps"] == 5
+    assert served.counters()["peer_reopened"] == 5
+
+
+def test_a_host_held_back_by_its_unread_answers_is_not_silent(tmp_path: Path) -> None:
+    """[link] timeout_ms: the host writes on and does not read, the daemon holds back (it
+    does not read while the answers are not taken): the host is not silent, however long
+    (its bytes wait in the kernel). Once it reads, the daemon reads on; silence counts
+    again only from when it listens, and is then acted on."""
+    now = [0.0]
+    acted: list[float] = []
+
+    def act(t: float) -> list[str]:
+        acted.append(t)
+        return ["motor 0 (a)"]
+
+    s = LiveDaemon(
+        tmp_path, clock=lambda: now[0], watch=SilenceWatch(0.5, act, 0.0), backlog_limit=64
+    )
+    stop = threading.Event()
+    host = s.host()
+    writer = threading.Thread(
+        target=host.write, args=(frame(*[IsReady(0)] * 20_000), stop), daemon=True
+    )
+
+    def at(t: float) -> None:
+        """The link's clock at ``t``, seen by a whole turn of its loop."""
+        now[0] = t
+        for _ in range(2):
+            turns = s.link.turns
+            s.link.poke()
+            s.until("a turn", lambda turns=turns: s.link.turns > turns)
+
+    try:
+        writer.start()
+        s.until("back pressure", lambda: s.counters()["backpressure"] > 0)
+        at(0.4)
+        at(30.0)  # held back all along: not silence
+        assert acted == []
+        assert writer.is_alive()  # the host's bytes wait in the kernel
+        assert all(r.as_bool for r in host.responses(20_000, timeout=60.0))
+        writer.join(DEADLINE_S)
+        assert not writer.is_alive()
+        assert s.counters()["frames_good"] == 20_000
+        at(30.4)
+        assert acted == []
+        at(31.0)  # now silent for 0.5 s while the daemon listened
+        assert acted == [31.0]
+    finally:
+        stop.set()
+        host.close()
+        s.close()
+
+
+def test_a_host_that_closes_and_opens_again_before_the_link_looks(tmp_path: Path) -> None:
+    """The old host closes the port and a new one opens it while the link is busy (here:
+    in the held WaitMoved's look, kept there by the test): the master never reports the
+    hang-up (a host has the slave open again when the link polls). The slave's opens and
+    closes tell it all the same: the new host's IsReady is answered at once, alone."""
+    base = LiveDaemon(tmp_path / "a")
+    base.close()
+    gated = GatedPort(base.daemon.dispatcher)
+    s = LiveDaemon(tmp_path, port=gated)
+    try:
+        old = s.host()
+        old.write(frame(Move(0, True, 1, 0, 0), WaitMoved(0, 60_000), GetAbsPos(1)))
+        assert old.responses(1)[0].ack
+        s.until("the WaitMoved held, GetAbsPos kept", lambda: s.link.status()["held"] == 1)
+        gated.gate.clear()
+        s.link.wake()
+        assert gated.entered.wait(DEADLINE_S), "the link never looked at its WaitMoved"
+        old.close()  # and at once a new host: the link is busy meanwhile
+        new = s.host()
+        try:
+            new.write(frame(IsReady(1)))
+            gated.gate.set()
+            assert new.responses(1) == [Response.boolean(True)]
+            assert new.nothing_within(0.1)
+        finally:
+            new.close()
+        c = s.counters()
+        assert c["peer_closed"] == 1
+        assert c["responses_dropped_wait"] == 1 and c["responses_dropped_held"] == 1
+    finally:
+        gated.gate.set()
+        s.close()

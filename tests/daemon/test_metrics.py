@@ -1,20 +1,30 @@
-"""``motorctld --status --format openmetrics`` from documents: valid OpenMetrics
-(prometheus_client's strict parser) that node_exporter's Prometheus text parser also reads
-(only counter, gauge and summary types), names and units, the per-motor timing figures of
-issue 15 when present, nothing but ``motorctl_up`` from an empty document. Against a live
-daemon: tests/daemon/test_observe_e2e.py."""
+"""``motorctld --status --format prometheus|openmetrics`` from documents, written by
+prometheus_client: each format parsed by prometheus_client's parser of that format (the
+Prometheus text format 0.0.4, which node_exporter's textfile collector reads; OpenMetrics,
+strictly), every counter typed counter in both, summaries with ``_count`` and ``_sum``, no
+quantile on a gauge, the build's version, the trace's state, the renamed metrics of issue
+27, names and base units, nothing but ``motorctl_up`` (and the version) from an empty
+document; ``promtool check metrics`` (Debian's prometheus package; make test installs it)
+on the Prometheus format. Against a live daemon: tests/daemon/test_observe_e2e.py; read by
+Debian's node_exporter: make test-deb (tests/deb/check-install.sh)."""
 
 from __future__ import annotations
 
+import shutil
+import subprocess
+import sys
 from typing import Any
 
+import pytest
 from prometheus_client.metrics_core import Metric
 from prometheus_client.openmetrics.parser import text_string_to_metric_families as _om
 from prometheus_client.parser import text_string_to_metric_families as _prometheus
 
-from motorctl.daemon.metrics import down, openmetrics
+from motorctl.daemon.metrics import LINK_COUNTERS, MOTOR_FIELDS, SCALARS, down, metrics
+from tests.support import REPO
 
 DOC: dict[str, Any] = {
+    "version": "9.8.7",
     "uptime_s": 100.0,
     "unix_s": 1_700_000_100.0,
     "monotonic_s": 5.0,
@@ -58,6 +68,7 @@ DOC: dict[str, Any] = {
         "p99_us": 31.0,
         "p999_us": 63.0,
         "max_us": 90.5,
+        "sum_us": 7500.0,
         "late": 3,
         "late_threshold_us": 100.0,
         "timing_lost": 2,
@@ -67,7 +78,7 @@ DOC: dict[str, Any] = {
         "endstops": 1,
         "progress": 55,
     },
-    "executor": {"alive": True, "kind": "process", "pid": 12, "reason": None},
+    "executor": {"alive": True, "kind": "process", "core": "compiled", "pid": 12, "reason": None},
     "link": {
         "counters": {
             "bytes_in": 100,
@@ -77,8 +88,20 @@ DOC: dict[str, Any] = {
             "held_max": 3,
             "link_errors": 0,
             "responses": 10,
+            "responses_dropped": 3,
+            "responses_dropped_wait": 1,
+            "responses_dropped_held": 2,
+            "link_timeouts": 1,
+            "link_timeout_stops": 2,
         },
-        "processing": {"steps": 9, "p50_us": 20.0, "p99_us": 40.0, "p999_us": 41.0, "max_us": 44.0},
+        "processing": {
+            "steps": 9,
+            "p50_us": 20.0,
+            "p99_us": 40.0,
+            "p999_us": 41.0,
+            "max_us": 44.0,
+            "sum_us": 230.0,
+        },
         "held": 0,
         "waiting": False,
         "peer": "open",
@@ -99,9 +122,22 @@ DOC: dict[str, Any] = {
         "timed_out": 0,
         "skipped": 0,
         "died": 0,
+        "waits": 2,
         "wait_p50_us": 100.0,
         "wait_p99_us": 200.0,
         "wait_max_us": 250.0,
+        "wait_sum_us": 350.0,
+    },
+    "trace": {
+        "file": "/run/motorctl/link.pcapng",
+        "runs": 120,
+        "dropped_runs": 3,
+        "bytes_written": 4096,
+        "rotations": 1,
+        "write_errors": 2,
+        "lost_bytes": 64,
+        "max_file_bytes": 16777216,
+        "files": 4,
     },
     "clamped": {"speed": 2},
     "pins": [
@@ -133,25 +169,61 @@ def parse_prometheus(text: str) -> list[Metric]:
     return list(_prometheus(text))
 
 
-def samples(text: str) -> dict[tuple[str, frozenset[tuple[str, str]]], float]:
-    return {
-        (s.name, frozenset(s.labels.items())): s.value
-        for family in parse_om(text)
-        for s in family.samples
+Samples = dict[tuple[str, frozenset[tuple[str, str]]], float]
+
+
+def samples(families: list[Metric]) -> Samples:
+    return {(s.name, frozenset(s.labels.items())): s.value for f in families for s in f.samples}
+
+
+def counters() -> set[str]:
+    """Every counter the tables name (family names, without _total)."""
+    names = {f.name for f in (*SCALARS, *MOTOR_FIELDS) if f.kind == "counter"}
+    names |= {name for name, kind, _, _ in LINK_COUNTERS.values() if kind == "counter"}
+    return names | {
+        "motorctl_motor_faults",
+        "motorctl_hard_stops",
+        "motorctl_clamped_values",
+        "motorctl_driver_polls",
+        "motorctl_driver_spi_errors",
+        "motorctl_driver_faults",
+        "motorctl_link_frames",
+        "motorctl_link_responses",
     }
 
 
-def test_a_full_document_is_valid_openmetrics_with_base_units() -> None:
-    text = openmetrics(DOC)
-    assert text.endswith("# EOF\n")
-    families = list(parse_om(text))
-    assert {f.type for f in families} <= {"counter", "gauge", "summary"}
-    assert all(f.name.startswith("motorctl_") for f in families)
+@pytest.mark.parametrize("fmt", ["prometheus", "openmetrics"])
+def test_every_counter_is_typed_counter_and_summaries_have_count_and_sum(fmt: str) -> None:
+    text = metrics(DOC, fmt)
+    families = parse_prometheus(text) if fmt == "prometheus" else parse_om(text)
+    types = {f.name: f.type for f in families}
+    assert all(name.startswith("motorctl_") for name in types)
+    present = counters() & set(types)
+    assert present >= {"motorctl_steps", "motorctl_link_frames", "motorctl_trace_runs"}
+    assert {name: types[name] for name in present} == dict.fromkeys(present, "counter")
+    assert "untyped" not in types.values() and "unknown" not in types.values()
     for f in families:
         if f.type == "counter":
-            assert all(s.name == f.name + "_total" for s in f.samples), f.name
-    got = samples(text)
+            assert {s.name for s in f.samples} == {f.name + "_total"}, f.name
+        if f.type == "summary":
+            names = {s.name for s in f.samples}
+            assert {f.name + "_count", f.name + "_sum"} <= names, f.name
+        if f.type != "summary":  # quantiles only on summaries
+            assert all("quantile" not in s.labels for s in f.samples), f.name
+    assert types["motorctl_hard_stop_wait_seconds"] == "summary"
+    assert types["motorctl_build" if fmt == "openmetrics" else "motorctl_build_info"] == (
+        "info" if fmt == "openmetrics" else "gauge"
+    )
+    if fmt == "openmetrics":
+        assert text.endswith("# EOF\n")
+        assert "# UNIT motorctl_step_lateness_seconds seconds" in text
+
+
+def test_names_values_and_base_units() -> None:
+    got = samples(parse_prometheus(metrics(DOC)))
     x = frozenset({("motor", "0"), ("name", 'we"ird\\name')})  # escaped, read back whole
+    none: frozenset[tuple[str, str]] = frozenset()
+    assert got[("motorctl_build_info", frozenset({("version", "9.8.7")}))] == 1
     assert got[("motorctl_motor_position_steps", x)] == -12
     assert got[("motorctl_motor_speed_steps_per_second", x)] == -250.5
     assert got[("motorctl_motor_state", x | {("state", "fault")})] == 1
@@ -166,45 +238,108 @@ def test_a_full_document_is_valid_openmetrics_with_base_units() -> None:
     assert got[("motorctl_motor_late_steps_absorbed_total", x)] == 40
     y = frozenset({("motor", "1"), ("name", "y")})
     assert ("motorctl_motor_slid_seconds_total", y) not in got  # no timing for y: none
-    assert got[("motorctl_steps_total", frozenset())] == 1000
+    assert got[("motorctl_steps_total", none)] == 1000
     assert got[("motorctl_step_lateness_seconds", frozenset({("quantile", "0.99")}))] == 31e-6
-    assert got[("motorctl_step_lateness_seconds_count", frozenset())] == 1000
-    assert got[("motorctl_step_min_gap_seconds", frozenset())] == 479635e-9
+    assert got[("motorctl_step_lateness_seconds_count", none)] == 1000
+    assert got[("motorctl_step_lateness_seconds_sum", none)] == 0.0075
+    assert got[("motorctl_link_processing_seconds_sum", none)] == 0.00023
+    assert got[("motorctl_link_processing_seconds_count", none)] == 9
+    assert got[("motorctl_hard_stop_wait_seconds", frozenset({("quantile", "0.5")}))] == 1e-4
+    assert got[("motorctl_hard_stop_wait_seconds_count", none)] == 2
+    assert got[("motorctl_hard_stop_wait_seconds_sum", none)] == 0.00035
+    assert got[("motorctl_hard_stop_wait_max_seconds", none)] == 0.00025
+    assert got[("motorctl_step_min_gap_seconds", none)] == 479635e-9
     assert got[("motorctl_link_frame_errors_total", frozenset({("reason", "checksum")}))] == 1
     assert got[("motorctl_link_error_responses_total", frozenset({("code", "E2")}))] == 4
-    assert got[("motorctl_link_received_bytes_total", frozenset())] == 100
-    assert got[("motorctl_link_held_frames_max", frozenset())] == 3
-    assert got[("motorctl_link_peer_open", frozenset())] == 1
-    assert got[("motorctl_state_ok", frozenset())] == 0
-    assert got[("motorctl_start_time_seconds", frozenset())] == 1_700_000_000.0
+    assert got[("motorctl_link_received_bytes_total", none)] == 100
+    assert got[("motorctl_link_held_frames_max", none)] == 3
+    assert got[("motorctl_link_peer_open", none)] == 1
+    dropped = "motorctl_link_responses_dropped_total"
+    assert got[(dropped, frozenset({("cause", "held")}))] == 2
+    assert (dropped, none) not in got  # the total: the sum of the causes
+    assert got[("motorctl_state_ok", none)] == 0
+    assert got[("motorctl_start_time_seconds", none)] == 1_700_000_000.0
     assert got[("motorctl_pin_level", frozenset({("pin", "3"), ("mode", "output")}))] == 1
     assert not any(
         name == "motorctl_pin_level" and ("pin", "4") in labels for name, labels in got
     )  # unreadable: left out, not a 0
     assert got[("motorctl_dc_state", frozenset({("state", "forward")}))] == 1
-    assert got[("motorctl_dc_run_left_seconds", frozenset())] == 0.25
+    assert got[("motorctl_dc_run_left_seconds", none)] == 0.25
     dev = frozenset({("device", "/dev/spidev0.0"), ("chip", "TMC5160")})
     assert got[("motorctl_driver_faults_total", dev | {("flag", "ot")})] == 1
-    assert "# UNIT motorctl_step_lateness_seconds seconds" in text
-    # node_exporter's textfile collector reads the Prometheus text format: it must parse
-    # there too (counters come out untyped under their _total names, values the same)
-    prom = {s.name for f in parse_prometheus(text) for s in f.samples}
-    assert {
-        "motorctl_steps_total",
-        "motorctl_motor_position_steps",
-        "motorctl_step_lateness_seconds_count",
-    } <= prom
+
+
+def test_the_renamed_metrics_of_issue_27_and_the_trace_state() -> None:
+    got = samples(parse_prometheus(metrics(DOC)))
+    names = {name for name, _ in got}
+    none: frozenset[tuple[str, str]] = frozenset()
+    assert got[("motorctl_link_timeouts_total", none)] == 1
+    assert got[("motorctl_link_timeout_stops_total", none)] == 2
+    assert got[("motorctl_state_last_write_duration_seconds", none)] == 0.0015
+    assert (
+        not {
+            "motorctl_link_link_timeouts_total",
+            "motorctl_link_link_timeout_stops_total",
+            "motorctl_state_last_write_seconds",
+        }
+        & names
+    )
+    assert got[("motorctl_trace_enabled", none)] == 1
+    assert got[("motorctl_trace_runs_total", none)] == 120
+    assert got[("motorctl_trace_dropped_runs_total", none)] == 3
+    assert got[("motorctl_trace_written_bytes_total", none)] == 4096
+    assert got[("motorctl_trace_rotations_total", none)] == 1
+    assert got[("motorctl_trace_write_errors_total", none)] == 2
+    assert got[("motorctl_trace_lost_bytes_total", none)] == 64
+    untraced = samples(parse_prometheus(metrics({k: v for k, v in DOC.items() if k != "trace"})))
+    assert untraced[("motorctl_trace_enabled", none)] == 0
+    assert not any(name.startswith("motorctl_trace_runs") for name, _ in untraced)
 
 
 def test_what_is_missing_is_left_out() -> None:
-    assert samples(openmetrics({})) == {("motorctl_up", frozenset()): 1}
+    none: frozenset[tuple[str, str]] = frozenset()
+    up, enabled = ("motorctl_up", none), ("motorctl_trace_enabled", none)
+    assert samples(parse_om(metrics({}, "openmetrics"))) == {up: 1, enabled: 0}
     odd = {
         "motors": [None, {"index": 0, "state": "warping"}],
         "steps": "no",
         "link": 3,
         "pins": {"0": 1},
         "dc": None,
+        "hard_stops": {"wait_p50_us": 3.0},  # no count and sum: no summary at all
     }
-    got = samples(openmetrics(odd))
+    got = samples(parse_om(metrics(odd, "openmetrics")))
     assert got[("motorctl_motor_state", frozenset({("motor", "0"), ("state", "warping")}))] == 1
-    assert samples(down("no daemon")) == {("motorctl_up", frozenset()): 0}
+    assert not any(name.startswith("motorctl_hard_stop_wait") for name, _ in got)
+    for fmt in ("prometheus", "openmetrics"):
+        parse = parse_prometheus if fmt == "prometheus" else parse_om
+        assert samples(parse(down(fmt))) == {up: 0}
+
+
+def test_promtool_check_metrics_passes() -> None:
+    """promtool's lint of what node_exporter reads (the Prometheus format)."""
+    promtool = shutil.which("promtool")
+    if promtool is None:
+        pytest.skip(
+            "promtool is not installed (apt-get install prometheus; make test does it as "
+            "root): the metrics' lint is NOT checked"
+        )
+    for text in (metrics(DOC), down()):
+        run = subprocess.run(
+            [promtool, "check", "metrics"], input=text, capture_output=True, text=True, timeout=60
+        )
+        assert run.returncode == 0 and run.stdout + run.stderr == "", run.stdout + run.stderr
+
+
+def test_without_prometheus_client_the_status_says_what_to_install(tmp_path: Any) -> None:
+    code = (
+        "import sys; sys.modules['prometheus_client'] = None\n"
+        "from motorctl.daemon.main import main\n"
+        f"sys.exit(main(['--status', '--format', 'prometheus', '--state-dir', {str(tmp_path)!r}]))"
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=60, cwd=REPO
+    )
+    assert run.returncode == 2 and run.stdout == ""
+    assert "apt install python3-prometheus-client" in run.stderr
+    assert "pip install motorctl[metrics]" in run.stderr and "Traceback" not in run.stderr

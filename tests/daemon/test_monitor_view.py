@@ -1,21 +1,30 @@
 """The live monitor's view drawn from known documents into a string (rich's recording
 console): what a user reads for a known state, with and without the per-motor timing
-figures of issue 15; frames/s; the message when rich is missing. Against a live daemon:
+figures of issue 15; frames/s; the message when rich is missing; the view marked stale once
+the daemon is gone, a full daemon told from an absent one, --once off a terminal unwrapped
+(against a status socket in this process). Against a live daemon:
 tests/daemon/test_observe_e2e.py."""
 
 from __future__ import annotations
 
 import io
+import json
+import queue
 import subprocess
 import sys
+import threading
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import pytest
 from rich.console import Console
 
-from motorctl.daemon.monitor_view import Seen, frames_per_second, render
+from motorctl.daemon.monitor_view import Seen, _follow, frames_per_second, once, render, watch
+from motorctl.daemon.status import MAX_SUBSCRIBERS, StatusServer, subscribe
 from tests.daemon.test_metrics import DOC
 from tests.support import REPO
+from tests.support.wait import until
 
 
 def drawn(doc: dict[str, Any], width: int = 140, **kw: Any) -> str:
@@ -49,7 +58,7 @@ def test_a_known_state_drawn() -> None:
     }
     text = drawn(doc, rate=12.5, since_s=0.25, note="updated 0.2 s ago")
     lines = text.splitlines()
-    assert "motorctld  up 0:01:40  executor process (pid 12) alive" in text
+    assert "motorctld  up 0:01:40  executor process, compiled core (pid 12) alive" in text
     assert "STATE NOT SAVED" in text
     row0 = next(line for line in lines if 'we"ird\\name' in line and "fault" in line)
     assert row0.split()[:7] == ["0", 'we"ird\\name', "fault", "-12", "-250", "1", "2"]
@@ -125,3 +134,95 @@ def test_without_rich_the_monitor_says_what_to_install(tmp_path: Path) -> None:
         assert out.returncode == 1, out.stderr
         assert "apt install python3-rich" in out.stderr and "motorctl[monitor]" in out.stderr
         assert "Traceback" not in out.stderr
+
+
+def test_the_trace_when_the_daemon_records_one() -> None:
+    trace = {
+        "file": "/run/motorctl/link.pcapng",
+        "runs": 1234,
+        "dropped_runs": 0,
+        "bytes_written": 56789,
+        "rotations": 2,
+        "write_errors": 1,
+        "lost_bytes": 300,
+        "session": "3f2a9c01d4e5",
+        "part": 3,
+    }
+    text = drawn({**DOC, "trace": trace}, width=250)
+    assert (
+        "trace /run/motorctl/link.pcapng (part 3 of session 3f2a9c01d4e5)  runs 1,234  written "
+        "56,789 bytes  runs left out 0  write errors 1  bytes lost 300"
+    ) in text
+    assert "trace " not in drawn(DOC)
+
+
+def test_a_stale_view_is_marked_as_such_throughout() -> None:
+    text = drawn(DOC, rate=12.5, since_s=12.0, stale="motorctld at /run/x stopped")
+    lines = [line for line in text.splitlines() if line.strip()]
+    assert lines[0].startswith("NOT LIVE: motorctld at /run/x stopped. Everything below is")
+    assert "12.0 s ago" in lines[0]
+    assert "motorctld (last seen)  up 0:01:40 then  executor process (pid 12) state unknown" in text
+    assert " alive" not in text and "frames 10 (?/s)" in text  # nothing read as live
+
+
+@pytest.fixture
+def served(tmp_path: Path) -> Iterator[StatusServer]:
+    server = StatusServer(
+        tmp_path / "status.sock", lambda histogram=False: json.loads(json.dumps(DOC))
+    )
+    server.start()
+    try:
+        yield server
+    finally:
+        server.close()
+
+
+def test_once_off_a_terminal_keeps_each_line_whole(
+    served: StatusServer, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.delenv("COLUMNS", raising=False)
+    out = io.StringIO()
+    monkeypatch.setattr(sys, "stdout", out)
+    assert once(served.path) == 0
+    text = out.getvalue()
+    assert max(map(len, text.splitlines())) > 100  # not wrapped at rich's 80 columns
+    assert "link host port open  frames 10 (?/s)  bad frames checksum 1  errors sent E2x4" in text
+
+
+def test_watch_marks_the_whole_view_stale_once_the_daemon_is_gone(served: StatusServer) -> None:
+    out = io.StringIO()
+    console = Console(file=out, width=200, color_system=None)
+    stop = threading.Event()
+    thread = threading.Thread(target=watch, args=(served.path, 50, console, stop), daemon=True)
+    thread.start()
+    try:
+        until("the first drawing", lambda: "executor process (pid 12) alive" in out.getvalue())
+        served.close()
+        until("the stale drawing", lambda: "NOT LIVE" in out.getvalue())
+    finally:
+        stop.set()
+        thread.join(10)
+    stale = out.getvalue().split("NOT LIVE", 1)[1]
+    assert stale.startswith(f": motorctld at {served.path} stopped. Everything below")
+    assert "(last seen)" in stale and "state unknown" in stale and " alive" not in stale
+    assert "retrying every 1 s" in stale
+
+
+def test_a_full_daemon_is_not_called_absent(served: StatusServer) -> None:
+    streams = [subscribe(served.path, period_s=0.02) for _ in range(MAX_SUBSCRIBERS)]
+    for stream in streams:
+        next(stream)  # each reads its update: none can be evicted
+    updates: queue.Queue[Seen | str] = queue.Queue()
+    stop = threading.Event()
+    thread = threading.Thread(target=_follow, args=(served.path, 0.02, updates, stop))
+    thread.start()
+    try:
+        note = updates.get(timeout=30)
+    finally:
+        stop.set()
+        thread.join(10)
+        for stream in streams:
+            stream.close()
+    assert isinstance(note, str) and "no motorctld" not in note
+    assert note.startswith(f"motorctld at {served.path} is running but refused the subscription")
+    assert "too many subscribers (8)" in note and "the daemon is full" in note

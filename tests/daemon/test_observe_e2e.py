@@ -1,7 +1,7 @@
 """Watching a real motorctld (a process on a real PTY): the subscribe stream follows a move as
-it happens, --status --format openmetrics parses and carries the expected names and values,
-the monitor draws the daemon's state (motorctl monitor --once, motorctld --status --watch
-off a terminal)."""
+it happens, --status --format prometheus and openmetrics parse and carry the expected names,
+types and values, the monitor draws the daemon's state (motorctl monitor --once, motorctld
+--status --watch off a terminal)."""
 
 from __future__ import annotations
 
@@ -14,6 +14,7 @@ import time
 
 import pytest
 
+from motorctl import __version__
 from motorctl.daemon.status import subscribe
 from tests.daemon.test_metrics import parse_om, parse_prometheus
 from tests.support import REPO
@@ -62,7 +63,9 @@ def test_the_subscribe_stream_follows_a_move(daemon: DaemonProcess) -> None:
     )
 
 
-def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
+def test_metrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
+    """Each format of a live daemon's metrics, parsed by prometheus_client's parser of that
+    format: the expected names, values, types; ``motorctl_up 0`` without a daemon."""
     with daemon.client() as c:
         c.move_to(1, 200, 250)
         c.wait_moved(1, 20_000)
@@ -70,16 +73,17 @@ def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
         c.dc_move(True, 5000, False)
         with pytest.raises(Exception, match="E2"):
             c.move_to(7, 1)
+    for fmt in ("prometheus", "openmetrics"):
+        check_metrics(daemon, fmt)
+
+
+def check_metrics(daemon: DaemonProcess, fmt: str) -> None:
+    parse = parse_prometheus if fmt == "prometheus" else parse_om
     out = run(
-        "motorctl.daemon.main",
-        "--status",
-        "--format",
-        "openmetrics",
-        "--state-dir",
-        str(daemon.state_dir),
+        "motorctl.daemon.main", "--status", "--format", fmt, "--state-dir", str(daemon.state_dir)
     )
     assert out.returncode == 0, out.stderr
-    families = {f.name: f for f in parse_om(out.stdout)}
+    families = {f.name: f for f in parse(out.stdout)}
     assert all(name.startswith("motorctl_") for name in families)
     assert {
         "motorctl_up",
@@ -93,17 +97,26 @@ def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
         "motorctl_dc_state",
         "motorctl_executor_alive",
         "motorctl_state_writes",
-    } <= set(families)
+        "motorctl_link_processing_seconds",
+    } <= set(families), fmt
+    for name in ("motorctl_steps", "motorctl_link_frames", "motorctl_link_error_responses"):
+        assert families[name].type == "counter", (fmt, name)
+    for name in ("motorctl_step_lateness_seconds", "motorctl_link_processing_seconds"):
+        assert families[name].type == "summary", (fmt, name)
+        assert {s.name for s in families[name].samples} >= {name + "_count", name + "_sum"}
 
-    def value(metric: str, **labels: str) -> float:
+    def value(metric: str, sample: str | None = None, **labels: str) -> float:
         found = [
             s.value
             for s in families[metric].samples
-            if all(s.labels.get(k) == v for k, v in labels.items())
+            if (sample is None or s.name == sample)
+            and all(s.labels.get(k) == v for k, v in labels.items())
         ]
-        assert len(found) == 1, (metric, labels, families[metric].samples)
+        assert len(found) == 1, (fmt, metric, labels, families[metric].samples)
         return float(found[0])
 
+    build = "motorctl_build" if fmt == "openmetrics" else "motorctl_build_info"
+    assert value(build, version=__version__) == 1
     assert value("motorctl_up") == 1
     assert value("motorctl_motor_position_steps", motor="1", name="y") == 200
     assert value("motorctl_motor_state", motor="1", state="idle") == 1
@@ -113,18 +126,19 @@ def test_openmetrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
     assert value("motorctl_link_error_responses", code="E2") == 1
     assert value("motorctl_link_frames") >= 5
     assert value("motorctl_steps") >= 200
+    assert value("motorctl_step_lateness_seconds", "motorctl_step_lateness_seconds_sum") > 0
     assert value("motorctl_executor_alive") == 1
-    assert parse_prometheus(out.stdout)  # node_exporter's format reads it too
+    assert value("motorctl_trace_enabled") == 0
     gone = run(
         "motorctl.daemon.main",
         "--status",
         "--format",
-        "openmetrics",
+        fmt,
         "--state-dir",
         str(daemon.workdir / "nowhere"),
     )
     assert gone.returncode == 1 and "no daemon status at" in gone.stderr
-    assert [(s.name, s.value) for f in parse_om(gone.stdout) for s in f.samples] == [
+    assert [(s.name, s.value) for f in parse(gone.stdout) for s in f.samples] == [
         ("motorctl_up", 0)
     ]
 

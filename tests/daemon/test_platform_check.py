@@ -25,7 +25,7 @@ from motorctl.daemon.platform_check import (
     throttled_text,
 )
 from tests.support import REPO
-from tests.support.daemon_proc import for_tests
+from tests.support.daemon_proc import StartDaemon, for_tests
 
 ROOT = REPO
 
@@ -188,6 +188,20 @@ def test_a_bare_tree_reports_what_it_cannot_see(tmp_path: Path) -> None:
     assert cmdline.preempt == "voluntary (PREEMPT_DYNAMIC)" and cmdline.isolated == {1, 2}
 
 
+def test_an_unreadable_preemption_mode_says_what_to_do(tmp_path: Path) -> None:
+    """PREEMPT_DYNAMIC without preempt= on the command line: the mode is in debugfs."""
+    version = {"proc/sys/kernel/version": "#1 SMP PREEMPT_DYNAMIC Debian\n"}
+    user = read_platform(tree(tmp_path / "user", version), euid=1000)
+    assert "needs root and debugfs: run --probe as root" in user.preempt
+    unmounted = read_platform(tree(tmp_path / "root", version), euid=0)
+    assert "root" not in unmounted.preempt.split("debugfs is not mounted")[0]
+    assert "debugfs is not mounted: 'mount -t debugfs none /sys/kernel/debug'" in unmounted.preempt
+    base = tmp_path / "mounted"
+    mounts = f"sysfs {base}/sys sysfs rw 0 0\ndebugfs {base}/sys/kernel/debug debugfs rw 0 0\n"
+    mounted = read_platform(tree(base, {**version, "proc/mounts": mounts}), euid=0)
+    assert "CONFIG_SCHED_DEBUG" in mounted.preempt and "mount" not in mounted.preempt
+
+
 def test_small_parsers() -> None:
     assert parse_cpulist("0-2,5\n") == {0, 1, 2, 5} and parse_cpulist("") == set()
     assert parse_cpulist("junk,3") == {3}
@@ -244,3 +258,46 @@ def test_probe_prints_the_platform_section(tmp_path: Path) -> None:
     assert "[step_thread] priority = 0" in text
     assert "max lag at 20,000 step/s with 16 microsteps would be" in text
     assert "Traceback" not in out.stderr
+
+
+LAT0 = ("--latency-seconds", "0")
+
+
+def _probe(tmp_path: Path, step_thread: str) -> subprocess.CompletedProcess[str]:
+    config = tmp_path / "m.toml"
+    config.write_text(
+        for_tests(f'[step_thread]\n{step_thread}\n[[motors]]\nname = "a"\n', force=True)
+    )
+    return subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config), *LAT0],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+
+
+def test_probe_says_which_step_core_would_run(tmp_path: Path) -> None:
+    out = _probe(tmp_path, 'core = "auto"')
+    assert out.returncode == 0, out.stderr
+    assert (
+        'step core:\n  [step_thread] core = "auto", executor = "process"\n'
+        "  compiled core: built\n  lines for it: the simulated mechanics of the mock\n"
+        "  runs: compiled\n"
+    ) in out.stdout
+
+
+def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_error(
+    tmp_path: Path, motorctld: StartDaemon
+) -> None:
+    out = _probe(tmp_path, 'core = "compiled"\nexecutor = "thread"')
+    assert out.returncode == 1
+    assert "  runs: python (the thread executor runs the Python core)\n" in out.stdout
+    assert 'PROBLEM: [step_thread] core = "compiled" runs in the process executor only' in (
+        out.stdout
+    )
+    config = 'core = "compiled"\nexecutor = "thread"'
+    text = for_tests(f'[step_thread]\n{config}\n[[motors]]\nname = "a"\n', force=True)
+    with pytest.raises(RuntimeError, match="motorctld exited") as err:
+        motorctld(text)
+    assert '[step_thread] core = "compiled" runs in the process executor only' in str(err.value)

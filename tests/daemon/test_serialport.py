@@ -14,10 +14,13 @@ import fcntl
 import logging
 import os
 import select
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+import tty
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -25,6 +28,8 @@ from typing import Any
 import pytest
 import serial
 
+from motorctl.daemon import serialport
+from motorctl.daemon.devwatch import PathWatch, watched_names
 from motorctl.daemon.link import Link
 from motorctl.daemon.ports import open_pty
 from motorctl.daemon.serialport import Backoff, DeviceError, SerialDevice
@@ -35,6 +40,7 @@ from motorctl.protocol.codec import (
     IsReady,
     Response,
 )
+from tests.support.daemon_proc import DaemonProcess
 from tests.support.frames import OPTS, answers, frame
 from tests.support.inprocess import TWO_MOTORS, build_daemon
 from tests.support.wait import until
@@ -95,7 +101,9 @@ class FailsFirst(SerialDevice):
 class DeviceServed:
     """A Link serving a SerialDevice on a thread, with a daemon on a virtual clock behind."""
 
-    def __init__(self, tmp: Path, device: SerialDevice, **kw: Any) -> None:
+    def __init__(self, tmp: Path, device: SerialDevice, slow: bool = False, **kw: Any) -> None:
+        """``slow``: a backoff of 60 s, so that only ``notice`` can find the device back
+        within a test's deadline."""
         self.daemon = build_daemon(TWO_MOTORS, tmp / "state")
         self.device = device
         self.link = Link(
@@ -105,7 +113,7 @@ class DeviceServed:
             0.010,
             16,
             device=device,
-            backoff=Backoff(0.005, 0.02),
+            backoff=Backoff(60.0, 60.0) if slow else Backoff(0.005, 0.02),
             **kw,
         )
         self.thread = threading.Thread(target=self.link.serve, name="link", daemon=True)
@@ -292,6 +300,127 @@ def test_the_host_keeps_the_link_alive_with_any_bytes(tmp_path: Path) -> None:
         os.close(fd)
 
 
+# -- the device's return, noticed at once, nothing the host sent lost -------------------------
+class Raw:
+    """A serial adapter's tty made, and written to from the far end, before its name
+    exists: the bytes wait in the tty for whoever opens it (as socat's PTYs made again, or
+    a USB adapter that buffers what came before the daemon's open)."""
+
+    def __init__(self) -> None:
+        self.master, slave = os.openpty()
+        tty.setraw(slave)  # as socat's pty,raw,echo=0: bytes are taken as they are
+        self.name = os.ttyname(slave)
+        os.close(slave)
+
+    def responses(self, n: int) -> list[Response]:
+        """Once the daemon has the tty open (until then the master reads EIO)."""
+        return Adapter.responses(self, n)  # type: ignore[arg-type]
+
+    def close(self) -> None:
+        os.close(self.master)
+
+
+def test_bytes_sent_before_the_device_is_opened_again_are_read(
+    tmp_path: Path, names: tuple[Path, Path], adapter: Adapter
+) -> None:
+    """The host writes as soon as its device is back, before the daemon has opened it:
+    pyserial's open() would flush those bytes (the host would wait for answers that never
+    come); the daemon's keeps them. And its return is noticed through the folder's events,
+    not the backoff (60 s here: a reopen by the schedule would fail the deadline)."""
+    s = DeviceServed(
+        tmp_path,
+        SerialDevice(str(names[1]), 115200),
+        notice=PathWatch(str(names[1])),
+        slow=True,
+    )
+    raw: Raw | None = None
+    try:
+        adapter.unplug()
+        # (counted once the path is watched: it may come back from then on)
+        until("the loss", lambda: s.counters()["device_lost"] == 1, detail=s.counters)
+        raw = Raw()
+        os.write(raw.master, frame(IsReady(0), GetAbsPos(1)))  # the new session's frames
+        names[0].symlink_to(raw.name)  # only now can the daemon open it
+        until("the reopen", lambda: s.counters()["device_reopened"] == 1, detail=s.counters)
+        assert raw.responses(2) == [Response.boolean(True), Response.position(0)]
+        c = s.counters()
+        assert c["device_reopened"] == 1 and c["reopen_attempts"] <= 3, c
+    finally:
+        s.close()
+        if raw is not None:
+            raw.close()
+
+
+def test_a_device_whose_folder_went_too_is_noticed_when_both_are_back(tmp_path: Path) -> None:
+    """udev removes /dev/serial/by-id/ with the last adapter: the daemon watches the
+    nearest folder that exists for the missing one's name, then the new folder for its
+    link; the backoff (60 s) plays no part."""
+    by_id = tmp_path / "serial" / "by-id"
+    by_id.mkdir(parents=True)
+    path = by_id / "usb-test-if00-port0"
+    first = Raw()
+    path.symlink_to(first.name)
+    s = DeviceServed(
+        tmp_path, SerialDevice(str(path), 115200), notice=PathWatch(str(path)), slow=True
+    )
+    second: Raw | None = None
+    try:
+        first.close()
+        path.unlink()
+        shutil.rmtree(tmp_path / "serial")
+        until("the loss", lambda: s.counters()["device_lost"] == 1, detail=s.counters)
+        second = Raw()
+        by_id.mkdir(parents=True)
+        path.symlink_to(second.name)
+        until("the reopen", lambda: s.counters()["device_reopened"] == 1, detail=s.counters)
+        os.write(second.master, frame(IsReady(1)))
+        assert second.responses(1) == [Response.boolean(True)]
+    finally:
+        s.close()
+        if second is not None:
+            second.close()
+
+
+def test_the_folders_watched_follow_the_links(tmp_path: Path) -> None:
+    (tmp_path / "by-id").mkdir()
+    (tmp_path / "dev").mkdir()
+    link = tmp_path / "by-id" / "usb-x"
+    link.symlink_to("../dev/ttyUSB0")  # relative, as udev's; its target not there yet
+    assert watched_names(str(link)) == {
+        str(tmp_path / "by-id"): {"usb-x"},
+        str(tmp_path / "dev"): {"ttyUSB0"},
+    }
+    missing = tmp_path / "serial" / "by-id" / "usb-y"  # two folders missing
+    assert watched_names(str(missing)) == {str(tmp_path): {"serial"}}
+
+
+def test_motorctld_waits_for_a_device_not_there_at_start(tmp_path: Path) -> None:
+    """Ready at once, saying what it waits for; served as soon as the device appears; the
+    log says each once."""
+    (tmp_path / "by-id").mkdir()
+    path = tmp_path / "by-id" / "usb-late-if00"
+    d = DaemonProcess(tmp_path, TWO_MOTORS, port=str(path)).start()
+    raw: Raw | None = None
+    try:
+        assert "not there yet" in d.ready_line
+        link = d.status()["link"]
+        assert link["peer"] == "waiting" and link["device"] == str(path)
+        assert "WAITING FOR SERIAL DEVICE" in summary_line(d.status())
+        raw = Raw()
+        os.write(raw.master, frame(IsReady(0)))  # sent before the device is there
+        path.symlink_to(raw.name)
+        until("the device served", lambda: d.status()["link"]["peer"] == "open")
+        assert raw.responses(1) == [Response.boolean(True)]
+    finally:
+        d.close()
+        if raw is not None:
+            raw.close()
+    err = d.stderr()
+    assert err.count("is not there: serving it as soon as it appears") == 1, err
+    assert err.count("is there after") == 1, err
+    assert "Traceback" not in err
+
+
 # -- what a user is told ----------------------------------------------------------------------
 def test_a_missing_device_names_the_path_and_where_to_look(tmp_path: Path) -> None:
     path = str(tmp_path / "ttyUSB7")
@@ -319,7 +448,7 @@ def test_no_permission_names_the_group(monkeypatch: pytest.MonkeyPatch) -> None:
             errno.EACCES, f"could not open port {port}: [Errno 13] Permission denied: '{port}'"
         )
 
-    monkeypatch.setattr(serial, "Serial", refuse)
+    monkeypatch.setattr(serialport, "keep_input_serial", lambda: refuse)
     with pytest.raises(DeviceError) as exc:
         SerialDevice("/dev/ttyUSB0", 115200).open()
     msg = str(exc.value)
@@ -340,25 +469,66 @@ def test_a_held_device_names_its_holder(adapter: Adapter) -> None:
     )
 
 
-def test_motorctld_on_a_missing_device_says_so_and_exits_1(tmp_path: Path) -> None:
-    path = str(tmp_path / "by-id" / "usb-nothing")
-    out = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "motorctl.daemon.main",
-            "--port",
-            path,
-            "--state-dir",
-            str(tmp_path / "state"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=DEADLINE_S,
-    )
+def _motorctld(args: list[str], *, as_nobody: bool = False) -> subprocess.CompletedProcess[str]:
+    """``motorctld ARGS`` as a user runs it (``as_nobody``: as user nobody, when root)."""
+    cmd = [sys.executable, "-m", "motorctl.daemon.main", *args]
+    if as_nobody:
+        cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=DEADLINE_S)
+
+
+def _files(folder: Path) -> dict[str, tuple[bytes, int]]:
+    """Every file of ``folder`` but the lock, with its bytes and modification time."""
+    return {
+        f.name: (f.read_bytes(), f.stat().st_mtime_ns)
+        for f in sorted(folder.iterdir())
+        if f.name != "motorctld.lock"
+    }
+
+
+@pytest.mark.parametrize("what", ["a regular file", "/dev/null", "no permission"])
+def test_a_device_that_cannot_be_used_stops_the_start_before_the_state(
+    tmp_path: Path, what: str, request: pytest.FixtureRequest
+) -> None:
+    """A --port device that is there but cannot be used (not a tty, no permission) is
+    named with its fix, exit 1, and the state is left as it was: not restored, not set
+    aside, not written again (a state file no daemon could take stands in for any)."""
+    as_nobody = what == "no permission" and os.geteuid() == 0
+    if as_nobody:  # root opens anything: the daemon runs as user nobody, in a folder it
+        # can reach (pytest's are its owner's only)
+        tmp_path = Path(tempfile.mkdtemp(prefix="motorctl-test-"))
+        tmp_path.chmod(0o755)
+        request.addfinalizer(lambda: shutil.rmtree(tmp_path))
+    state = tmp_path / "state"
+    state.mkdir()
+    (state / "state.json").write_text("a state file the daemon would set aside\n")
+    if as_nobody:
+        os.chown(state, 65534, 65534)
+        os.chown(state / "state.json", 65534, 65534)
+    before = _files(state)
+    master = -1
+    if what == "a regular file":
+        device = tmp_path / "ttyUSB0"
+        device.write_text("")
+        expected = f"{device} is not a serial device (a regular file)"
+    elif what == "/dev/null":
+        device = Path("/dev/null")
+        expected = "/dev/null is not a serial device"
+    else:
+        master, slave = os.openpty()
+        device = Path(os.ttyname(slave))
+        os.close(slave)
+        os.chmod(device, 0o600 if as_nobody else 0)  # not for the daemon's user
+        expected = f"no permission to open serial device {device}"
+    try:
+        out = _motorctld(["--port", str(device), "--state-dir", str(state)], as_nobody=as_nobody)
+    finally:
+        if master >= 0:
+            os.close(master)
     assert out.returncode == 1, out.stderr
-    assert f"error: serial device {path} does not exist" in out.stderr
+    assert expected in out.stderr, out.stderr
     assert "Traceback" not in out.stderr
+    assert _files(state) == before  # not restored, not set aside, not rewritten
 
 
 def test_backoff_doubles_up_to_its_limit() -> None:
@@ -369,9 +539,13 @@ def test_backoff_doubles_up_to_its_limit() -> None:
 
 
 def test_systemds_status_line_says_the_device_is_gone() -> None:
-    link = {"counters": {"responses": 3}, "peer": "gone"}
+    link = {"counters": {"responses": 3}, "peer": "gone", "device": "/dev/ttyUSB0"}
     assert (
         summary_line({"motors": [], "link": link})
         == "0 motors: 0 moving, none faulted; 3 frames served, 0 errors; "
-        "SERIAL DEVICE GONE, reopening it"
+        "SERIAL DEVICE /dev/ttyUSB0 GONE, reopening it when it is back"
+    )
+    link["peer"] = "waiting"
+    assert summary_line({"motors": [], "link": link}).endswith(
+        "; WAITING FOR SERIAL DEVICE /dev/ttyUSB0 (not there yet)"
     )

@@ -8,9 +8,13 @@ unplugged and plugged back in; the daemon is given a symlink to socat's symlink,
 
 from __future__ import annotations
 
+import contextlib
+import os
+import select
 import shutil
 import signal
 import subprocess
+import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -18,8 +22,19 @@ from typing import Any
 import pytest
 
 from motorctl.client.client import Client, DeviceError
-from motorctl.protocol.codec import CodecOptions, ErrorCode, MoveTo, WaitMoved, encode_command
+from motorctl.protocol.codec import (
+    CodecOptions,
+    Command,
+    ErrorCode,
+    GetAbsPos,
+    IsReady,
+    MoveTo,
+    Response,
+    WaitMoved,
+    encode_command,
+)
 from tests.support.daemon_proc import DaemonProcess
+from tests.support.frames import answers
 from tests.support.wait import until
 
 E = ErrorCode
@@ -112,6 +127,8 @@ def test_a_serial_device_torn_down_mid_move_is_reopened_by_its_path(
         pair.stop()  # unplugged, mid-move
         until("the daemon to notice the device is gone", lambda: link_status(d)["peer"] == "gone")
         assert motor(d, 0)["state"] == "running"  # nothing stops: no [link] timeout_ms
+        # (the device is noticed back at once: it moved on before it is plugged in again)
+        until("motor 0 to move on meanwhile", lambda: motor(d, 0)["position"] > before)
         pair.start()  # plugged back in, the same names
         until("the daemon to reopen the device", lambda: link_status(d)["peer"] == "open")
         # open until the daemon has stopped: socat ends the pair when the host closes it
@@ -207,3 +224,76 @@ def test_the_hosts_silence_on_a_pty_stops_a_move_that_decelerates(tmp_path: Path
     err = d.stderr()
     assert "no byte from the host for" in err and "motor 0 (a)" in err, err
     assert "fault latched: link timeout" in err, err
+
+
+class RawHost:
+    """The host's side of the socat pair, opened as a host program opens a serial port,
+    without a client library: it can close the port without reading."""
+
+    def __init__(self, path: Path) -> None:
+        self.fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+
+    def write(self, *cmds: Command) -> None:
+        os.write(self.fd, b"".join(encode_command(c, OPTS) for c in cmds))
+
+    def responses(self, n: int, timeout: float = 20.0) -> list[Response]:
+        out = bytearray()
+        end = time.monotonic() + timeout
+        while len(out) < 5 * n:
+            left = end - time.monotonic()
+            assert left > 0 and select.select([self.fd], [], [], left)[0], (
+                f"got {len(out) // 5} of {n} responses"
+            )
+            with contextlib.suppress(BlockingIOError):
+                out += os.read(self.fd, 5 * n - len(out))
+        return answers(bytes(out))
+
+    def nothing_within(self, seconds: float) -> bool:
+        return not select.select([self.fd], [], [], seconds)[0]
+
+    def close(self) -> None:
+        os.close(self.fd)
+
+
+@needs_socat
+def test_a_new_host_after_the_device_came_back_reads_only_its_own_answers(
+    tmp_path: Path, pair: PtyPair
+) -> None:
+    """Issue 22's scenario over --port: MoveTo 0 -> 6000 at 1000 step/s, WaitMoved(0, 30 s)
+    and GetAbsPos(2), then the host closes without reading, the device hangs up (socat
+    torn down) and comes back (made again); the new host's IsReady(1) is answered at
+    once with its own answer, and a GetAbsPos after it reads a position, not an old
+    answer. The host writes as soon as its port is there: nothing it sends is lost."""
+    pair.start()
+    d = DaemonProcess(tmp_path, CONFIG + '[[motors]]\nname = "c"\n', port=str(pair.device))
+    d.start()
+    host: RawHost | None = None
+    try:
+        old = RawHost(pair.host)
+        old.write(MoveTo(0, True, 6000, 250, 0, 0))  # SPEED 250 x 4 = 1000 step/s
+        assert old.responses(1)[0].ack
+        old.write(WaitMoved(0, 30_000), GetAbsPos(2))
+        until("the WaitMoved held, GetAbsPos kept", lambda: link_status(d)["held"] == 1)
+        old.close()
+        pair.stop()  # the device hangs up (socat goes on when only the host closes)
+        until("the device's loss", lambda: link_status(d)["counters"]["device_lost"] == 1)
+        pair.start()  # the same names, a new device
+        host = RawHost(pair.host)
+        host.write(IsReady(1))  # at once: the daemon may not have opened the device yet
+        assert host.responses(1) == [Response.boolean(True)]
+        assert motor(d, 0)["state"] != "idle"  # answered long before the move ends
+        host.write(GetAbsPos(0))
+        position = host.responses(1)[0].as_position
+        assert 0 <= position <= motor(d, 0)["position"] < 6000  # the position, still moving
+        assert host.nothing_within(0.2)
+        counters = link_status(d)["counters"]
+        assert counters["responses_dropped_wait"] == 1
+        assert counters["responses_dropped_held"] == 1
+        assert counters["held_discarded"] == 1
+    finally:
+        d.close()
+        if host is not None:
+            host.close()
+    err = d.stderr()
+    assert "a held WaitMoved's answer" in err, err
+    assert "Traceback" not in err

@@ -16,7 +16,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from motorctl.daemon.dispatcher import Wait
-from motorctl.daemon.session import LinkSession
+from motorctl.daemon.session import Ended, LinkSession
 from motorctl.hal.backends.mock.backend import world_of
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import (
@@ -457,9 +457,9 @@ def test_backlog_limit_asks_for_back_pressure(tmp_path: Path) -> None:
     assert w.session.wants_input()
 
 
-def test_peer_gone_drops_partial_frame(w: World) -> None:
+def test_the_end_of_a_session_drops_the_partial_frame(w: World) -> None:
     w.session.receive(frame(IsReady(0))[:4], w.now)
-    assert w.session.peer_gone() == 4
+    assert w.session.end().partial_bytes == 4
     w.send(IsReady(0))
     assert codes(w.responses()) == [None]
 
@@ -533,3 +533,41 @@ def test_recent_frames_pair_each_frame_with_its_answer(w: World) -> None:
         w.send(IsReady(1))
     recent = w.session.describe_recent()
     assert len(recent) == 16 and {r["result"] for r in recent} == {"ready"}
+
+
+def test_the_end_of_a_session_drops_what_was_owed_and_runs_nothing_kept(w: World) -> None:
+    """A host's session ends behind a held WaitMoved: the wait, the kept frames and the
+    partial frame go; the kept MoveTo never runs (its host is gone), the StopMove among
+    them was carried out on arrival; the motor waited for goes on; the next host starts
+    with nothing held and its answers pair with its own frames in the status."""
+    w.send(Move(0, True, 1, 0, 0))
+    assert codes(w.responses()) == [None]
+    w.send(WaitMoved(0, 20_000), MoveTo(1, True, 100, 0, 0, 0), StopMove(1, True), IsReady(1))
+    w.session.receive(frame(IsReady(0))[:3], w.now)
+    ended = w.session.end()
+    assert ended == Ended(partial_bytes=3, unsent=0, wait=1, held=3, discarded=2)
+    assert ended.answers == 4
+    assert not w.session.waiting and w.session.held == 0 and w.session.owed == 0
+    assert w.session.counters["held_discarded"] == 2
+    assert w.session.counters["stops_while_held"] == 1
+    w.run(1.0)
+    assert w.responses() == []  # nothing of the old session, ever
+    assert w.engine.motors[1].idle and w.engine.motors[1].position == 0  # MoveTo not run
+    assert not w.engine.motors[0].idle  # the waited-for motor goes on
+    w.send(IsReady(1))
+    assert codes(w.responses()) == [None]
+    recent = w.session.describe_recent()
+    assert [r["result"] for r in recent[-6:]] == [
+        "ok",
+        "not sent: its host's session ended",
+        "not sent: its host's session ended",
+        "not sent: its host's session ended",
+        "not sent: its host's session ended",
+        "ready",
+    ]
+
+
+def test_answers_not_yet_taken_go_with_the_session(w: World) -> None:
+    w.send(IsReady(0), GetAbsPos(0))
+    assert w.session.end() == Ended(partial_bytes=0, unsent=2, wait=0, held=0, discarded=0)
+    assert w.session.take_output() == b""

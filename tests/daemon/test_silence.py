@@ -8,12 +8,15 @@ link shell's part: bytes in at a time, and the time passing in small steps.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 from motorctl.daemon.assemble import silence_watch
 from motorctl.daemon.session import LinkSession
+from motorctl.daemon.silence import SilenceWatch, check_timeout, min_timeout_ms
 from motorctl.hal.interfaces import BridgeState, DcBridge
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorState
@@ -243,3 +246,87 @@ def test_the_dc_motor_brakes_and_idle_silence_does_nothing(line: Line) -> None:
     line.run(0.25)
     assert bridge_state(bridge) is BridgeState.BRAKE and line.timeouts() == 1
     assert line.call(DcMove(True, 100, True)).ack  # no fault to clear for the DC motor
+
+
+# -- the gap's rule: only silence the daemon listened to --------------------------------------
+def test_time_the_daemon_does_not_read_is_not_silence() -> None:
+    """Back pressure: while the daemon does not read, no byte can reach it; that time does
+    not count, the silence before it does."""
+    acted: list[float] = []
+
+    def act(t: float) -> list[str]:
+        acted.append(t)
+        return ["motor 0 (a)"]
+
+    watch = SilenceWatch(1.0, act, 0.0)
+    watch.listening(True, 0.0)
+    watch.listening(False, 0.4)  # 0.4 s of silence, then it stops reading
+    assert watch.deadline() is None
+    assert not watch.check(100.0)  # however long it holds back
+    watch.listening(True, 100.0)
+    assert watch.deadline() == pytest.approx(100.6)  # the 0.4 s before still count
+    assert not watch.check(100.55)
+    assert watch.check(100.6) and acted == [100.6]
+
+
+def test_a_timeout_shorter_than_a_frame_is_refused_naming_the_minimum() -> None:
+    assert min_timeout_ms(115200) == pytest.approx(0.868, abs=1e-3)
+    why = check_timeout(0.5, 115200)
+    assert why is not None and "[link] timeout_ms = 0.5" in why and "0.868 ms" in why
+    assert check_timeout(0.9, 115200) is None and check_timeout(0, 9600) is None
+    why = check_timeout(5, 9600)  # 10.4 ms a frame at 9600 baud
+    assert why is not None and "at least 10.4 ms" in why
+
+
+def test_the_timeout_is_logged_as_configured(caplog: pytest.LogCaptureFixture) -> None:
+    watch = SilenceWatch(0.0015, lambda t: ["motor 0 (a)"], 0.0)
+    with caplog.at_level("WARNING", "motorctl.link"):
+        assert watch.check(0.002)
+    assert "[link] timeout_ms = 1.5," in caplog.text  # not rounded to 2 (or 0.5 to 0)
+
+
+def test_check_config_refuses_a_timeout_below_a_frame(tmp_path: Path) -> None:
+    config = tmp_path / "short.toml"
+    config.write_text('[link]\ntimeout_ms = 0.5\n[[motors]]\nname = "a"\n')
+    out = subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", "--check-config", str(config)],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert out.returncode == 1 and "0.868 ms" in out.stderr and "Traceback" not in out.stderr
+    slow = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--check-config",
+            str(config),
+            "--baud",
+            "9600",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert slow.returncode == 1 and "at 9600 baud" in slow.stderr
+    config.write_text('[link]\ntimeout_ms = 0.5\n[[motors]]\nname = "a"\n')
+    state = tmp_path / "state"
+    start = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.main",
+            "--config",
+            str(config),
+            "--pty",
+            str(tmp_path / "pty"),
+            "--state-dir",
+            str(state),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert start.returncode == 1 and "0.868 ms" in start.stderr, start.stderr
+    assert not (state / "state.json").exists()  # refused before anything was written

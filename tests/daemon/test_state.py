@@ -8,12 +8,17 @@ import errno
 import json
 import logging
 import os
+import shutil
+import tempfile
 import threading
 from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import example, given, settings
+from hypothesis import strategies as hst
 
+from motorctl.daemon import paths
 from motorctl.daemon import state as st
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
@@ -110,6 +115,11 @@ BAD: dict[str, bytes] = {
     "not an object": b"[1, 2]",
     "old version": b'{"version": 1, "motors": []}',
     "motors not a list": b'{"version": 2, "motors": {}}',
+    # issue 22: what Python's JSON parser itself refuses crashed every start (traceback)
+    "nested 200,000 deep": b"[" * 200_000,
+    "an integer of 5,000 digits": b'{"version": 2, "motors": [], "n": ' + b"7" * 5000 + b"}",
+    "a version of 5,000 digits": b'{"version": ' + b"7" * 5000 + b', "motors": []}',
+    "a version nested 900 deep": b'{"version": ' + b"[" * 900 + b"]" * 900 + b', "motors": []}',
 }
 
 
@@ -127,8 +137,10 @@ def test_unreadable_file_is_set_aside(
     d = build(tmp_path)
     assert lost(d) == [True, True]
     assert (tmp_path / "state.json.bad").read_bytes() == BAD[kind]
-    assert "every motor must be homed again" in caplog.text
-    assert "kept it as" in caplog.text
+    lines = [r.getMessage() for r in caplog.records if "state.json" in r.getMessage()]
+    assert len(lines) == 1, lines
+    assert "every motor must be homed again" in lines[0] and "kept it as" in lines[0]
+    assert len(lines[0]) < 500  # a line, whatever the file holds
     assert d.dispatcher.handle(MoveTo(0, True, 5, 0, 0, 0)).error_code is E.MOTOR_ERROR
     assert saved(tmp_path)["motors"][0]["position_lost"] is True
 
@@ -310,6 +322,19 @@ def test_whatever_stands_at_the_temporary_file_is_set_aside(tmp_path: Path, kind
     assert not (tmp_path / "missing").exists()  # a link was not written through
 
 
+def test_a_directory_made_at_the_state_file_while_running(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    d = build(tmp_path)
+    move(d, 0, 12)
+    (tmp_path / "state.json").unlink()
+    (tmp_path / "state.json").mkdir()
+    assert d.writer.write_now()
+    assert saved(tmp_path)["motors"][0]["position"] == 12
+    assert (tmp_path / "state.json.bad").is_dir()
+    assert f"{tmp_path / 'state.json'} was a directory" in caplog.text
+
+
 @pytest.mark.parametrize("kind", IN_THE_WAY)
 def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) -> None:
     good_state(tmp_path)
@@ -325,10 +350,10 @@ def test_whatever_stands_at_the_journal_is_set_aside(tmp_path: Path, kind: str) 
 def test_no_free_name_left(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
 ) -> None:
-    monkeypatch.setattr(st, "ASIDE_LIMIT", 3)
+    monkeypatch.setattr(paths, "ASIDE_LIMIT", 3)
     for name in ("state.json", "state.json.bad", "state.json.bad.1", "state.json.bad.2"):
         (tmp_path / name).mkdir()
-    assert st.set_aside(tmp_path / "state.json") is None
+    assert paths.set_aside(tmp_path / "state.json") is None
     assert "are all taken; remove old ones" in caplog.text
 
 
@@ -553,7 +578,8 @@ def test_journal_unreadable_or_missing_state(
     assert lost(d) == [True, True]
     assert MotionJournal.read(tmp_path / "nothing") == []
     (tmp_path / "dir").mkdir()
-    assert MotionJournal.read(tmp_path / "dir") is None
+    with pytest.raises(StateError, match="is a directory"):
+        MotionJournal.read(tmp_path / "dir")
 
 
 def test_journal_directory_in_its_place(tmp_path: Path) -> None:
@@ -660,7 +686,7 @@ def test_read_only_directory_save_answers_e4(
 def test_set_aside_fails_on_read_only_dir(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     (tmp_path / "state.json").write_bytes(b"\xff")
     with read_only(tmp_path):
-        assert st.set_aside(tmp_path / "state.json") is None
+        assert paths.set_aside(tmp_path / "state.json") is None
     assert "cannot move" in caplog.text
 
 
@@ -735,3 +761,220 @@ def test_geometry_fingerprint_covers_microsteps_and_backend() -> None:
     assert prints(tmc.replace("microsteps = 16", "microsteps = 32"))[1] != base[1]
     assert prints(tmc.replace('name = "b"', 'name = "b"\ninvert_dir = true'))[1] != base[1]
     assert prints(tmc.replace('name = "b"', 'name = "b"\nsteps_per_rev = 200'))[1] != base[1]
+
+
+# -- a bounded read (issue 22) -------------------------------------------------------------------
+def test_the_size_bound_is_far_above_any_real_state() -> None:
+    """64 motors (the most a config has), 64-character names, full tables of 255
+    waypoints of the widest value, the mock's axes: the bound is 16 times that."""
+    biggest = [
+        st.SavedMotor(f"{i:064d}", "f" * 16, st.POS_MIN, st.POS_MIN, [st.POS_MIN] * 255, True, True)
+        for i in range(64)
+    ]
+    size = len(st.SavedState(biggest, {"mock": {"axes": [-(1 << 62) + 1] * 64}}).to_bytes())
+    assert size * 16 <= st.MAX_FILE_BYTES
+
+
+def test_a_state_file_over_the_bound_is_set_aside_unread(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    # Issue 22: a 100 MB padded file took 1.2 s and 129 MB to be accepted.
+    path = tmp_path / "state.json"
+    with open(path, "wb") as f:
+        f.truncate(100 << 20)  # sparse: nothing to write, a lot to read
+    real_read = os.read
+
+    def no_read(fd: int, n: int) -> bytes:
+        raise AssertionError("a file over the bound was read")
+
+    monkeypatch.setattr(os, "read", no_read)
+    with pytest.raises(StateError, match=f"{path} has {100 << 20} bytes, more than the 4 MiB"):
+        read_state(path)
+    monkeypatch.setattr(os, "read", real_read)
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert (tmp_path / "state.json.bad").stat().st_size == 100 << 20
+    lines = [r.getMessage() for r in caplog.records if str(path) in r.getMessage()]
+    assert len(lines) == 1 and "kept it as" in lines[0]
+
+
+def test_a_state_file_at_the_bound_is_read(tmp_path: Path) -> None:
+    data = json.dumps(two_motors_state(tmp_path)).encode()
+    (tmp_path / "state.json").write_bytes(data + b" " * (st.MAX_FILE_BYTES - len(data)))
+    d = build(tmp_path)
+    restored_b(d)
+    assert d.persistence.restored == "restored 2 motors"
+
+
+def test_a_file_that_grows_past_the_bound_while_read(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    path = tmp_path / "state.json"
+    path.write_bytes(b" " * 100)
+    real_read = os.read
+
+    def growing(fd: int, n: int) -> bytes:
+        return b" " * n if n > 1 else real_read(fd, n) or b" "  # never ends
+
+    monkeypatch.setattr(os, "read", growing)
+    with pytest.raises(StateError, match="more than the 4 MiB"):
+        read_state(path)
+
+
+# -- a journal that cannot be read: set aside once the state file is durable --------------------
+@pytest.mark.parametrize(
+    "content",
+    [b"zz", b"0" * (st.MAX_FILE_BYTES + 1), b"01\n", b"\x00"],
+    ids=["letters", "over the bound", "a line end", "a NUL"],
+)
+def test_an_unreadable_journal_is_set_aside_with_one_line(
+    tmp_path: Path, content: bytes, caplog: pytest.LogCaptureFixture
+) -> None:
+    good_state(tmp_path)
+    (tmp_path / st.JOURNAL_NAME).write_bytes(content)
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert (tmp_path / (st.JOURNAL_NAME + ".bad")).read_bytes() == content
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"00"
+    lines = [r.getMessage() for r in caplog.records if "motion journal" in r.getMessage()]
+    assert len(lines) == 1 and "every motor counts as moved; kept it as" in lines[0], lines
+    assert len(lines[0]) < 500
+
+
+def test_an_unreadable_journal_stays_while_the_state_cannot_be_written(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The journal is all that says a motor was moving: it is kept in place until a state
+    file that says so (every motor lost) is durable, so that a restart still sees it."""
+    good_state(tmp_path)
+    (tmp_path / st.JOURNAL_NAME).write_bytes(b"zz")
+
+    def cannot(path: Path, data: bytes, mode: int = 0o640) -> None:
+        raise OSError(errno.EROFS, "Read-only file system")
+
+    monkeypatch.setattr(st, "write_atomic", cannot)
+    d = build(tmp_path)
+    assert lost(d) == [True, True]
+    assert (tmp_path / st.JOURNAL_NAME).read_bytes() == b"zz"
+    assert "every motor counts as moved; it stays where it is" in caplog.text
+    monkeypatch.undo()
+    d = build(tmp_path)  # the next start: still every motor lost, and now set aside
+    assert lost(d) == [True, True]
+    assert (tmp_path / (st.JOURNAL_NAME + ".bad")).read_bytes() == b"zz"
+
+
+# -- fuzzing: anything at all in the files is a clear "not restored", never an exception ---------
+JSON = hst.recursive(
+    hst.none()
+    | hst.booleans()
+    | hst.integers()
+    | hst.integers(min_value=-(10**80), max_value=10**80)
+    | hst.floats(allow_nan=True, allow_infinity=True)
+    | hst.text(max_size=20),
+    lambda inner: hst.lists(inner, max_size=4) | hst.dictionaries(hst.text(max_size=8), inner),
+    max_leaves=20,
+)
+RECORD_KEYS = ["name", "fingerprint", "position", "home", "waypoints", "moving", "position_lost"]
+
+
+def _document(valid: dict[str, Any], changes: list[tuple[int, str, Any]], extra: Any) -> bytes:
+    doc = json.loads(json.dumps(valid))
+    for index, key, value in changes:
+        if index < len(doc["motors"]):
+            doc["motors"][index][key] = value
+        else:
+            doc["motors"].append({key: value})
+    doc["mock"] = extra
+    return json.dumps(doc).encode()
+
+
+POISON = [
+    b"[" * 200_000,
+    b"{" * 200_000,
+    b'{"version": 2, "motors": [], "n": ' + b"9" * 5000 + b"}",
+    b'{"version": 2, "motors": [' + b'{"name": "a"},' * 3 + b"1e999]}",
+    b'{"version": 2, "motors": [{"name": "\\ud800"}]}',
+    b'{"version": 2, "motors": [], "mock": {"axes": 5}}',
+    b'{"version": 2, "motors": [], "mock": {"axes": [1e300, true, 99999999999999999999999]}}',
+    b'\xef\xbb\xbf{"version": 2, "motors": []}',
+    b"\x00" * 64,
+]
+
+
+@settings(max_examples=100, deadline=None)
+@given(raw=hst.binary(max_size=500) | JSON.map(lambda v: json.dumps(v).encode()))
+@example(raw=POISON[0])
+@example(raw=POISON[2])
+def test_parse_state_takes_any_bytes(raw: bytes) -> None:
+    try:
+        state = parse_state(raw)
+    except StateError as exc:
+        assert len(str(exc)) < 500
+        return
+    for motor in state.motors:
+        assert isinstance(motor.position, int) and st.POS_MIN <= motor.position <= st.POS_MAX
+    assert all(len(b.problem) < 500 for b in state.bad)
+
+
+@pytest.fixture(scope="module")
+def fuzz_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("fuzz")
+
+
+@pytest.fixture(scope="module")
+def valid_state(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """A state file of two motors as a daemon writes it (a and b restored, see
+    two_motors_state), for the fuzzer to spoil."""
+    return two_motors_state(tmp_path_factory.mktemp("valid"))
+
+
+def test_the_fuzzers_document_restores_when_unspoilt(
+    tmp_path: Path, valid_state: dict[str, Any]
+) -> None:
+    (tmp_path / "state.json").write_bytes(_document(valid_state, [], {"axes": [3, 4]}))
+    d = build(tmp_path)
+    assert d.persistence.restored == "restored 2 motors"
+    restored_b(d)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    state=hst.one_of(
+        hst.none(),
+        hst.sampled_from(POISON),
+        hst.binary(max_size=200),
+        hst.tuples(
+            hst.lists(
+                hst.tuples(hst.integers(0, 3), hst.sampled_from(RECORD_KEYS), JSON), max_size=3
+            ),
+            JSON | hst.fixed_dictionaries({"axes": JSON}),
+        ),
+    ),
+    journal=hst.none() | hst.binary(max_size=6) | hst.sampled_from([b"00", b"11", b"10"]),
+)
+@example(state=([], {"axes": 5}), journal=None)  # every motor restored: the mock's turn
+@example(state=([], {"axes": [10**30, True, 1.5, None]}), journal=b"00")
+def test_anything_in_the_state_and_journal_files_starts_the_daemon(
+    fuzz_dir: Path, valid_state: dict[str, Any], state: Any, journal: bytes | None
+) -> None:
+    """Whatever the two files hold: the daemon is built (no exception), a state file of its
+    own is written, and a file that was not wholly restored is kept aside."""
+    folder = Path(tempfile.mkdtemp(dir=fuzz_dir))
+    try:
+        if isinstance(state, tuple):
+            (folder / "state.json").write_bytes(_document(valid_state, *state))
+        elif state is not None:
+            (folder / "state.json").write_bytes(state)
+        if journal is not None:
+            (folder / st.JOURNAL_NAME).write_bytes(journal)
+        before = (folder / "state.json").read_bytes() if (folder / "state.json").exists() else None
+        d = build(folder)
+        restored = d.persistence.restored
+        assert saved(folder)["version"] == st.STATE_VERSION
+        if before is not None and not restored.startswith("restored 2 motors"):
+            kept = (folder / "state.json.bad").read_bytes()
+            assert kept == before, restored
+        assert (folder / st.JOURNAL_NAME).read_bytes() == b"00"
+        d.persistence.close()
+    finally:
+        shutil.rmtree(folder)

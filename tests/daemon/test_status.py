@@ -60,6 +60,7 @@ STEP_KEYS = {
     "dropped",
     "io_errors",
     "endstops",
+    "bad_records",
     "progress",
 }
 
@@ -110,7 +111,13 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
     assert last["command"] == "GetAbsPos(motor=0)" and last["result"].startswith("pos=")
     assert set(doc["steps"]) >= STEP_KEYS and doc["steps"]["steps"] > 0
     assert "histogram_us" not in doc["steps"]  # bounded cost unless asked
-    assert doc["executor"] == {"alive": True, "reason": None, "kind": "thread", "pid": None}
+    assert doc["executor"] == {
+        "alive": True,
+        "reason": None,
+        "kind": "thread",
+        "core": "python",
+        "pid": None,
+    }
     assert {"counters", "processing"} <= set(doc["link"])
     assert doc["state"]["ok"] is True
     assert live.code(StopMove(0, True)) is None

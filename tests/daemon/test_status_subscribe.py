@@ -1,12 +1,16 @@
 """The status socket's subscribe mode (docs/status.md), against a StatusServer with a scripted
 source: the first update at once, updates only on a change (the clock and the executor's
-turns are no change), a heartbeat, a poke, the subscriber limit, a subscriber that stops
-reading. Against a real daemon: tests/daemon/test_observe_e2e.py."""
+turns are no change), a heartbeat, a poke, the subscriber limit (a new subscriber in place
+of the oldest one that does not read its updates), a subscriber that stops reading. Against
+a real daemon: tests/daemon/test_observe_e2e.py."""
 
 from __future__ import annotations
 
+import fcntl
 import json
 import socket
+import struct
+import termios
 import threading
 from collections.abc import Iterator
 from pathlib import Path
@@ -190,3 +194,52 @@ def test_a_subscriber_that_stops_reading_is_dropped(
     with raw_subscriber(server.path, b"subscribe 20\n"):
         until("the subscriber dropped", lambda: server.subscribers == 0)
         assert read_status(server.path)["blob"] == "x" * 8_000_000
+
+
+def unread(sock: socket.socket) -> int:
+    """Bytes waiting in ``sock`` to be read (FIONREAD)."""
+    raw = fcntl.ioctl(sock.fileno(), termios.FIONREAD, b"\0\0\0\0")
+    value: int = struct.unpack("i", raw)[0]
+    return value
+
+
+def test_a_new_subscriber_takes_the_place_of_the_oldest_that_does_not_read(
+    served: tuple[StatusServer, Source],
+) -> None:
+    """Every slot held by clients that subscribe and never read (the status changing all
+    the while): a monitor still gets in, in place of the oldest of them; when every one
+    reads, the daemon is full and says so."""
+    server, src = served
+    stop = threading.Event()
+
+    def changes() -> None:
+        tick = 0
+        while not stop.wait(0.005):
+            tick += 1
+            src.set(tick=tick)
+
+    changer = threading.Thread(target=changes, daemon=True)
+    idle = []
+    changer.start()
+    try:
+        for _ in range(status_module.MAX_SUBSCRIBERS):
+            idle.append(raw_subscriber(server.path, b"subscribe 20\n"))
+            until("subscribed", lambda: server.subscribers == len(idle))
+        line = len(json.dumps(src()).encode())
+        until("each several updates behind", lambda: min(map(unread, idle)) > 4 * (line + 1024))
+        stream = subscribe(server.path, period_s=0.02)
+        assert "tick" in next(stream)  # in, not "too many subscribers"
+        assert server.evicted == 1 and server.subscribers == status_module.MAX_SUBSCRIBERS
+        idle[0].settimeout(DEADLINE_S)  # the oldest: closed (after what it had not read)
+        while idle[0].recv(1 << 20):
+            pass
+        for sock in idle[1:]:
+            assert nothing_waiting(sock) is False  # the others: still subscribed
+        assert next(stream)["tick"] > 0
+        stream.close()
+    finally:
+        stop.set()
+        changer.join()
+        for sock in idle:
+            sock.close()
+    until("all dropped", lambda: server.subscribers == 0)

@@ -9,13 +9,15 @@
 # apt installs the package with its dependencies from Debian's archive, then this script
 # checks, the same on every release and architecture:
 #   the user and groups (sysusers.d), the conffiles, the udev rules, --check-config on the
-#   example config; the daemon started as the unit starts it (user motorctl, the unit's
+#   example config, the compiled step core installed and chosen (--probe; the booted
+#   service's status and journal say it runs); the daemon started as the unit starts it (user motorctl, the unit's
 #   ExecStart, a fake NOTIFY_SOCKET) reaching READY=1 via systemd-python, answering a
 #   command on its PTY (mode 0660, group motorctl), sending STATUS= and STOPPING=1;
 #   the installed unit scored by `systemd-analyze security --offline=true` (<= 2.0) and
 #   `systemd-analyze verify` clean, both against this root; the root booted with
 #   systemd-nspawn, so the service runs under a real systemd with its whole sandbox
-#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop); and a clean purge.
+#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop), a --port device that
+#   appears 30 s after its service started served with no manual step; and a clean purge.
 # Logs: build/deb/check-SUITE-ARCH/.
 set -euo pipefail
 deb=$(realpath "${1:?usage: tests/deb/check-install.sh PACKAGE.deb}")
@@ -32,7 +34,7 @@ mkdir -p "$build"
 root=$debroot_build/deb-root-$debroot_tag
 max_exposure=${MAX_EXPOSURE:-2.0}
 # the booted root's deadline: under emulation (qemu-user) systemd and the daemon start slower
-boot_timeout=180; [ -n "$debroot_qemu" ] && boot_timeout=900
+boot_timeout=240; [ -n "$debroot_qemu" ] && boot_timeout=900
 
 step() { printf '\n== %s\n' "$*"; }
 fail() { echo "FAILED: $*" >&2; exit 1; }
@@ -74,7 +76,21 @@ grep -q 'KERNEL=="gpiochip\*".*GROUP="motorctl"' "$root/usr/lib/udev/rules.d/60-
 grep -q 'KERNEL=="spidev\*".*GROUP="motorctl"' "$root/usr/lib/udev/rules.d/60-motorctl.rules" \
   || fail "udev rule for spidev"
 in_root motorctld --check-config /etc/motorctl/motorctl.toml
+in_root dpkg -L motorctl | grep -q '/motorctl/motion/_stepcore\.cpython-.*\.so$' \
+  || fail "the compiled step core is not in the package"
+in_root motorctld --probe --latency-seconds 0 > "$build/deb-probe.txt" \
+  || { cat "$build/deb-probe.txt"; fail "motorctld --probe"; }
+grep -qx '  runs: compiled' "$build/deb-probe.txt" \
+  || { cat "$build/deb-probe.txt"; fail "motorctld --probe: the compiled step core would not run"; }
+echo "the compiled step core: installed, and --probe says it runs"
 in_root motorctl --help >/dev/null
+# the Wireshark dissector, linked into the Lua plugin folder of this machine's architecture
+triplet=$(in_root python3 -c 'import sysconfig; print(sysconfig.get_config_var("MULTIARCH"))')
+lua=/usr/lib/$triplet/wireshark/plugins/motorctl.lua
+[ -L "$root$lua" ] && [ "$(readlink "$root$lua")" = /usr/share/motorctl/wireshark/motorctl.lua ] \
+  && [ -f "$root/usr/share/motorctl/wireshark/motorctl.lua" ] \
+  || fail "the Wireshark dissector is not linked as $lua"
+echo "Wireshark dissector: $lua"
 
 step "the installed units: systemd-analyze security --offline=true and verify"
 # each unit by the name it runs under: the template as an instance of it
@@ -106,6 +122,9 @@ in_root env NOTIFY_DEADLINE_S=$((boot_timeout / 6)) \
   || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
 
 step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
+# socat plays a USB serial adapter that appears late (report.sh)
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat \
+  > "$build/deb-socat.log" 2>&1 || { tail -20 "$build/deb-socat.log"; fail "install socat"; }
 debroot_umount "$root"
 cp "$here/tests/deb/report.service" "$root/etc/systemd/system/"
 cp "$here/tests/deb/report.sh" "$root/root/"
@@ -134,6 +153,8 @@ expect "User=motorctl"
 expect "pty: crw-rw---- motorctl motorctl"
 expect "client: motor 0 at 0"
 expect "status-socket: 1"
+expect "step-core: compiled"
+grep -q 'step core: compiled' "$report" || fail "the journal does not say the compiled core runs"
 expect "after-stop: inactive success"
 expect "left-in-run: state.json state.moving "
 expect "journal-fields: 2"
@@ -151,9 +172,65 @@ expect "instance left executor cpus: 0"
 expect "instance right executor cpus: $([ "$(nproc)" -gt 1 ] && echo 1 || echo 0)"
 expect "instances after stop: inactive inactive"
 expect "var-lib: running motorctld.lock state.json state.moving "
+# a --port device that appears 30 s after the service started: served, no restart
+expect "late before: running WAITING FOR SERIAL DEVICE /dev/serial/by-id/usb-motorctl_late_test-if00-port0"
+expect "late client: motor 0 at 0"
+expect "late after: running NRestarts=0"
+expect "late journal: 1 1"
 grep -q '^StatusText=3 motors: 0 moving, none faulted' "$report" || fail "no STATUS= line"
 grep -q 'systemd notifications through systemd-python' "$report" || fail "not systemd-python"
 debroot_mount "$root"
+
+# ---- metrics through Debian's node_exporter (issue 26: this block and
+# tests/deb/metrics-report.*) ----------------------------------------------------------------
+# docs/service.md's motorctl-metrics units, taken from the page as written, write the
+# textfile (--format prometheus); Debian's prometheus-node-exporter, installed with
+# python3-prometheus-client (which the package suggests), serves it. A second boot of the
+# root, on a network of its own, reports what node_exporter's /metrics says of motorctl.
+step "metrics: docs/service.md's timer feeds Debian's prometheus-node-exporter"
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+  prometheus-node-exporter python3-prometheus-client > "$build/deb-metrics.log" 2>&1 \
+  || { tail -30 "$build/deb-metrics.log"; fail "apt-get install prometheus-node-exporter"; }
+python3 - "$here/docs/service.md" "$root/etc/systemd/system" <<'PY' || fail "units from docs/service.md"
+import re, sys
+from pathlib import Path
+page, units = Path(sys.argv[1]).read_text(), Path(sys.argv[2])
+for name in ("motorctl-metrics.service", "motorctl-metrics.timer"):
+    m = re.search(rf"`/etc/systemd/system/{re.escape(name)}`:\n\n```ini\n(.*?)```", page, re.S)
+    if m is None:
+        raise SystemExit(f"docs/service.md shows no {name}")
+    (units / name).write_text(m.group(1))
+    print(f"{name}: from docs/service.md")
+PY
+version=$(in_root dpkg-query -W -f='${Version}' motorctl)
+debroot_umount "$root"
+rm -f "$root/etc/systemd/system/multi-user.target.wants/report.service"
+cp "$here/tests/deb/metrics-report.service" "$root/etc/systemd/system/"
+cp "$here/tests/deb/metrics-report.sh" "$root/root/"
+ln -sf /etc/systemd/system/metrics-report.service "$root/etc/systemd/system/multi-user.target.wants/"
+rm -f "$root/root/metrics-report.txt"
+timeout "$boot_timeout" systemd-nspawn -D "$root" --boot --register=no --keep-unit --console=pipe \
+  --private-network "${nspawn_env[@]}" </dev/null > "$build/deb-nspawn-metrics.log" 2>&1 \
+  || { tail -20 "$build/deb-nspawn-metrics.log"; fail "nspawn boot (metrics)"; }
+report=$root/root/metrics-report.txt
+[ -f "$report" ] || { tail -20 "$build/deb-nspawn-metrics.log"; fail "no metrics report"; }
+cat "$report"
+expect "timer: active"
+expect "metrics-service: success"
+expect "node_textfile_scrape_error 0"
+expect "untyped: 0"
+expect "motorctl_up 1"
+expect "motorctl_build_info{version=\"${version%-*}\"} 1"
+for typed in "motorctl_link_frames_total counter" "motorctl_steps_total counter" \
+  "motorctl_state_writes_total counter" "motorctl_step_lateness_seconds summary" \
+  "motorctl_motor_position_steps gauge"; do
+  expect "type $typed"
+done
+rm -f "$root/etc/systemd/system/metrics-report.service" \
+  "$root/etc/systemd/system/multi-user.target.wants/metrics-report.service" \
+  "$root/etc/systemd/system/motorctl-metrics."* "$root/root/metrics-report."*
+debroot_mount "$root"
+# ---- end of the metrics block ---------------------------------------------------------------
 
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
@@ -162,5 +239,7 @@ grep -E "$complaints" "$build/deb-purge.log" && fail "purge complained"
 in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl 2>/dev/null | grep -qx installed \
   && fail "still installed after purge"
 [ ! -e "$root/etc/motorctl/motorctl.toml" ] || fail "conffile left after purge"
+[ ! -L "$root$lua" ] && [ ! -d "$root/usr/lib/$triplet/wireshark" ] \
+  || fail "the Wireshark dissector's link (or its folder, Wireshark not installed) left after purge"
 echo
 echo "package check: 1 passed, 0 failed"

@@ -11,6 +11,8 @@ echo "pty: $(stat -L -c '%A %U %G' /run/motorctl/motorctl.pty)"
 echo "client: $(su -s /bin/sh -c 'motorctl -p /run/motorctl/motorctl.pty pos 0' motorctl 2>&1)"
 echo "status-socket: $(su -s /bin/sh -c 'motorctld --status --state-dir /run/motorctl' motorctl \
   | grep -c '"motors"')"
+echo "step-core: $(su -s /bin/sh -c 'motorctld --status --state-dir /run/motorctl' motorctl \
+  | python3 -c 'import json, sys; print(json.load(sys.stdin)["executor"]["core"])')"
 systemctl stop motorctld
 echo "after-stop: $(systemctl show -P ActiveState motorctld) $(systemctl show -P Result motorctld)"
 echo "left-in-run: $(ls -A /run/motorctl | tr '\n' ' ')"
@@ -68,4 +70,34 @@ journalctl -u motorctld@left -u motorctld@right --no-pager | sed 's/^/  | /'
 # what the admin made goes before the package is purged (dpkg keeps /etc/motorctl otherwise)
 systemctl disable --quiet motorctld@left motorctld@right
 rm -f /etc/motorctl/left.toml /etc/motorctl/right.toml /etc/default/motorctld-right
+# A USB serial adapter that appears late: motorctld@late serves a --port device that is not
+# there when the service starts; 30 s later it appears (a socat PTY pair, named as udev names
+# an adapter, /dev/serial/by-id/...) and a command is answered, with no manual step.
+late=/dev/serial/by-id/usb-motorctl_late_test-if00-port0
+motorctld --print-default-config > /etc/motorctl/late.toml
+echo "MOTORCTLD_SERVE=\"--port $late\"" > /etc/default/motorctld-late
+systemctl start motorctld@late
+n=0
+while [ "$(systemctl show -P SubState motorctld@late)" != running ] && [ $n -lt 240 ]; do
+  sleep 0.5; n=$((n + 1))
+done
+sleep 3  # let STATUS= arrive
+echo "late before: $(systemctl show -P SubState motorctld@late) $(systemctl show -P StatusText \
+  motorctld@late | sed -n 's/.*\(WAITING FOR SERIAL DEVICE [^ ]*\).*/\1/p')"
+sleep 30
+mkdir -p /dev/serial/by-id
+socat "pty,raw,echo=0,link=$late,group=motorctl,perm=0660" pty,raw,echo=0,link=/root/late-host \
+  2>/dev/null &
+socat_pid=$!
+n=0
+while [ ! -e /root/late-host ] && [ $n -lt 120 ]; do sleep 0.25; n=$((n + 1)); done
+echo "late client: $(timeout 60 motorctl -p /root/late-host pos 0 2>&1)"
+echo "late after: $(systemctl show -P SubState motorctld@late) NRestarts=$(systemctl show -P \
+  NRestarts motorctld@late)"
+said() { journalctl -u motorctld@late --no-pager -o cat | grep -c "$1"; }
+echo "late journal: $(said 'is not there: serving it as soon as it appears') $(said 'is there after')"
+systemctl stop motorctld@late
+kill "$socat_pid"
+journalctl -u motorctld@late --no-pager | sed 's/^/  | /'
+rm -f /etc/motorctl/late.toml /etc/default/motorctld-late
 systemctl poweroff

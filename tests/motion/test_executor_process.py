@@ -1,7 +1,8 @@
-"""The ``process`` step executor on the real clock: it moves and reports positions, its
-process dying faults every motor, a stopped process never bursts afterwards (the real
-motors' rule) or slides a simulated motor (the mock's), and it needs a real clock. (Its
-shared-memory rings: test_executor_process_rings.py.)"""
+"""The ``process`` step executor on the real clock, on each step core (Python, compiled): it
+moves and reports positions, its process dying faults every motor, a stopped process never
+bursts afterwards (the real motors' rule) or slides a simulated motor (the mock's), and it
+needs a real clock; which core it runs, and a clear start error when the compiled one is
+asked for and cannot run. (Its shared-memory rings: test_executor_process_rings.py.)"""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.hal.backends.mock.backend import EventKind, build, read_timeline, world_of
-from motorctl.hal.interfaces import MonotonicClock, VirtualClock
+from motorctl.hal.interfaces import HalError, MonotonicClock, VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executor_process import ProcessStepExecutor
@@ -27,7 +28,7 @@ from tests.support.wait import until
 
 @pytest.fixture
 def proc(
-    tmp_path: Path, request: pytest.FixtureRequest
+    tmp_path: Path, request: pytest.FixtureRequest, step_core: str
 ) -> Iterator[tuple[MotionEngine, ProcessStepExecutor, Path]]:
     clock = MonotonicClock()
     timeline = tmp_path / "timeline.jsonl"
@@ -40,9 +41,12 @@ def proc(
     # tests run without real-time priority on a shared machine: the simulated motors' rule
     # (late steps slide, never a fault), but the real-hardware rule where the test is about it
     real = request.node.get_closest_marker("real_rule") is not None
-    ex = ProcessStepExecutor(hw, "mock", spec, axis_limits(params, 5e-6, lag_faults=real))
+    ex = ProcessStepExecutor(
+        hw, "mock", spec, axis_limits(params, 5e-6, lag_faults=real), core=step_core
+    )
     engine = MotionEngine(hw, params, ex, driver_poll_s=0.01)
     ex.start()
+    assert ex.step_core() == step_core
     engine.start()
     try:
         yield engine, ex, timeline
@@ -165,3 +169,49 @@ def test_the_process_executor_needs_a_real_clock() -> None:
     spec = HardwareSpec(axes=(FAR,))
     with pytest.raises(ValueError, match="real clock"):
         ProcessStepExecutor(build(spec, clock), "mock", spec, [AxisLimits(1e-5)])
+
+
+def test_auto_runs_the_compiled_core_where_it_is_built_and_the_backend_hands_lines_over(
+    step_core: str,
+) -> None:
+    """The mock hands its lines over; "auto" takes the compiled core (built by make venv);
+    "python" asked for is the Python core."""
+    spec = HardwareSpec(axes=(FAR,), options={"executor_process": True})
+    hw = build(spec, MonotonicClock())
+    wanted = "auto" if step_core == "compiled" else "python"
+    ex = ProcessStepExecutor(hw, "mock", spec, [AxisLimits(1e-4)], core=wanted)
+    try:
+        ex.start()
+        assert ex.step_core() == step_core and ex.health().alive
+    finally:
+        ex.close()
+        hw.close()
+    assert ex.step_core() == step_core  # kept after close (the status, the journal)
+
+
+def test_the_compiled_core_asked_for_where_it_cannot_run_is_a_clear_start_error(
+    monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    """Not built (here: MOTORCTL_STEPCORE names no extension): "compiled" does not start,
+    and says why; "auto" runs the Python core and says why not the compiled one."""
+    monkeypatch.setenv("MOTORCTL_STEPCORE", str(tmp_path / "missing.so"))
+    spec = HardwareSpec(axes=(FAR,), options={"executor_process": True})
+    hw = build(spec, MonotonicClock())
+    try:
+        ex = ProcessStepExecutor(hw, "mock", spec, [AxisLimits(1e-4)], core="compiled")
+        try:
+            with pytest.raises(HalError) as err:
+                ex.start()
+        finally:
+            ex.close()
+        text = str(err.value)
+        assert text.startswith('the step executor cannot start: [step_thread] core = "compiled"')
+        assert "the compiled step core is not built" in text and "missing.so" in text
+        ex = ProcessStepExecutor(hw, "mock", spec, [AxisLimits(1e-4)], core="auto")
+        try:
+            ex.start()
+            assert ex.step_core() == "python" and "not the compiled core" in ex.core_note
+        finally:
+            ex.close()
+    finally:
+        hw.close()

@@ -419,11 +419,13 @@ def test_no_record_is_lost_or_duplicated_between_two_processes() -> None:
 # ---------------------------------------------------------------- the start handshake
 
 
-def _executor(backend: str, start_timeout_s: float = 30.0) -> tuple[Hardware, ProcessStepExecutor]:
-    spec = HardwareSpec(axes=(AxisSpec(),))
+def _executor(
+    backend: str, start_timeout_s: float = 30.0, core: str = "auto", motors: int = 1
+) -> tuple[Hardware, ProcessStepExecutor]:
+    spec = HardwareSpec(axes=(AxisSpec(),) * motors)
     hw = build(spec, MonotonicClock())
     return hw, ProcessStepExecutor(
-        hw, backend, spec, [AxisLimits(1e-4)], start_timeout_s=start_timeout_s
+        hw, backend, spec, [AxisLimits(1e-4)] * motors, start_timeout_s=start_timeout_s, core=core
     )
 
 
@@ -498,11 +500,11 @@ def test_the_shared_block_sums_retries_by_direction() -> None:
         shm.close()
 
 
-def test_retries_of_both_directions_are_in_the_process_executors_health() -> None:
-    """A torn record each way between the daemon and a real executor process: the child
-    retries a stop, the daemon a report; health() (the status's ``steps``) counts both,
-    and each record is taken once it is whole."""
-    hw, ex = _executor("mock")
+def test_retries_of_both_directions_are_in_the_process_executors_health(step_core: str) -> None:
+    """A torn record each way between the daemon and a real executor process (on each step
+    core): the child retries a stop, the daemon a report; health() (the status's ``steps``)
+    counts both, and each record is taken once it is whole."""
+    hw, ex = _executor("mock", core=step_core)
     try:
         ex.start()
         counters = ex.health().counters
@@ -545,3 +547,40 @@ def test_retries_of_both_directions_are_in_the_process_executors_health() -> Non
         hw.close()
     after = ex.health().counters  # plain copies once closed
     assert after["ring_retries_segments"] >= 1 and after["ring_retries_reports"] == 2
+
+
+def test_a_bad_record_from_the_daemon_faults_its_motor_in_the_executor_process(
+    step_core: str,
+) -> None:
+    """Records whose CRC is right but whose fields no planner makes, into a real executor
+    process (on each step core): a segment with direction 5 faults its motor, a stop for
+    motor 7 (there are 2) faults every motor; the process lives on and counts them."""
+    hw, ex = _executor("mock", core=step_core, motors=2)
+    try:
+        ex.start()
+        assert ex.shared.segs[1].put(10**9, 1000, 3, 0, 5, 1, 0)
+        ex._kick()
+        got: list[ExecEvent] = []
+
+        def events(n: int) -> bool:
+            got.extend(ex.events())
+            return len(got) >= n
+
+        until("the segment's fault", lambda: events(1))
+        assert [(e.kind, e.motor) for e in got] == [(ExecEventKind.FAULT, 1)]
+        assert got[0].detail == "bad step segment record in the executor's ring: direction 5"
+        assert ex.shared.stops.put(7, 1, -1)
+        ex._kick()
+        got.clear()
+        until("the stop's faults", lambda: events(2))
+        assert sorted((e.kind, e.motor) for e in got) == [
+            (ExecEventKind.FAULT, 0),
+            (ExecEventKind.FAULT, 1),
+        ]
+        assert all(e.detail.endswith("stop record in the executor's ring: motor 7") for e in got)
+        health = ex.health()
+        assert health.alive and health.counters["bad_records"] == 2
+        assert health.counters["steps"] == 0
+    finally:
+        ex.close()
+        hw.close()

@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import math
 import random
+from collections.abc import Callable
 
 import pytest
 from hypothesis import given, settings
@@ -299,63 +300,66 @@ def test_an_empty_re_plan_behind_handed_over_steps_reports_done_after_them() -> 
     assert not ex.planned(0)
 
 
-def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twice() -> None:
-    c = StepCoreRig()
+def test_a_cut_that_comes_after_its_segment_began_faults_instead_of_stepping_twice(
+    core_rig: Callable[..., StepCoreRig],
+) -> None:
+    c = core_rig()
     t0 = c.clock.now()
     first = to_ticks(t0 + 0.001)
-    c.inbox.queues[0].extend(
-        [
-            StepSegment(first, 200_000, 5, 0, 1, 1),
-            StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1),
-        ]
+    c.push(
+        0,
+        StepSegment(first, 200_000, 5, 0, 1, 1),
+        StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1),
     )
     c.run_until(t0 + 0.0021)  # the second segment began (its first step made)
     assert len(c.times()) == 6
-    c.inbox.stops.append((0, 1, first + 1_000_000))
+    c.stop(0, 1, first + 1_000_000)
     c.run_until(t0 + 0.1)
     assert [e.kind for e in c.events] == [K.TIMING_LOST]
     assert "re-plan came" in c.events[0].detail and len(c.times()) == 6
 
 
-def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows() -> None:
-    c = StepCoreRig()
+def test_a_cut_in_time_drops_the_rest_silently_and_the_next_plan_follows(
+    core_rig: Callable[..., StepCoreRig],
+) -> None:
+    c = core_rig()
     t0 = c.clock.now()
     first = to_ticks(t0 + 0.001)
-    c.inbox.queues[0].extend(
-        [
-            StepSegment(first, 200_000, 5, 0, 1, 1),
-            StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1, True),
-        ]
+    c.push(
+        0,
+        StepSegment(first, 200_000, 5, 0, 1, 1),
+        StepSegment(first + 1_000_000, 200_000, 5, 0, 1, 1, True),
     )
     c.run_until(t0 + 0.0005)
-    c.inbox.stops.append((0, 1, first + 1_000_000))
-    c.inbox.queues[0].append(StepSegment(first + 1_000_000, 400_000, 3, 0, -1, 2, True))
+    c.stop(0, 1, first + 1_000_000)
+    c.push(0, StepSegment(first + 1_000_000, 400_000, 3, 0, -1, 2, True))
     c.run_until(t0 + 0.1)
     assert [e.kind for e in c.events] == [K.DONE] and c.events[0].gen == 2
     assert c.positions[0] == 5 - 3 and len(c.times()) == 8
 
 
-def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_plan() -> None:
+def test_an_older_plans_segment_still_on_its_way_stays_cut_after_a_second_re_plan(
+    core_rig: Callable[..., StepCoreRig],
+) -> None:
     """Two re-plans in quick succession: a segment of the first plan that reaches the core
     only after the second cut (it was still in the ring) is judged by the first cut too."""
-    c = StepCoreRig()
+    c = core_rig()
     t0 = c.clock.now()
     ms = to_ticks(0.001)
     base = to_ticks(t0)
-    c.inbox.queues[0].append(StepSegment(base + ms, 0, 1, 0, 1, 1))
+    c.push(0, StepSegment(base + ms, 0, 1, 0, 1, 1))
     c.run_until(t0 + 0.0005)
-    c.inbox.stops.append((0, 1, base + 2 * ms))  # plan 1 cut at 2 ms
+    c.stop(0, 1, base + 2 * ms)  # plan 1 cut at 2 ms
     c.run_until(t0 + 0.0006)
     # still arriving: plan 1's step at 2.5 ms (cut), then plan 2 from 2 ms
-    c.inbox.queues[0].extend(
-        [
-            StepSegment(base + 5 * ms // 2, 0, 1, 0, 1, 1),
-            StepSegment(base + 2 * ms, 0, 1, 0, 1, 2),
-            StepSegment(base + 3 * ms, 0, 1, 0, 1, 2, True),
-        ]
+    c.push(
+        0,
+        StepSegment(base + 5 * ms // 2, 0, 1, 0, 1, 1),
+        StepSegment(base + 2 * ms, 0, 1, 0, 1, 2),
+        StepSegment(base + 3 * ms, 0, 1, 0, 1, 2, True),
     )
-    c.inbox.stops.append((0, 2, base + 3 * ms))  # plan 2 cut at 3 ms, before any of them
-    c.inbox.queues[0].append(StepSegment(base + 3 * ms, 0, 1, 0, -1, 3, True))
+    c.stop(0, 2, base + 3 * ms)  # plan 2 cut at 3 ms, before any of them
+    c.push(0, StepSegment(base + 3 * ms, 0, 1, 0, -1, 3, True))
     c.run_until(t0 + 0.01)
     assert c.times() == [(base + ms) / 1e9, (base + 2 * ms) / 1e9, (base + 3 * ms) / 1e9]
     assert c.positions[0] == 1 + 1 - 1  # plan 1's 2.5 ms step was never made

@@ -168,3 +168,13 @@ def test_an_instance_has_its_own_config_serving_place_and_state() -> None:
     # the state directory the daemon is given is the runtime directory systemd makes for it
     assert "--state-dir /run/motorctl-%i " in start and "RuntimeDirectory=motorctl-%i" in lines
     assert "StateDirectory=motorctl-%i" in lines
+
+
+def test_the_package_is_built_per_architecture_with_the_compiled_step_core() -> None:
+    """The compiled step core makes the package Architecture: any, built against the headers
+    of every supported Python 3 (python3-all-dev, dh-python), linked to libc only."""
+    control = (DEBIAN / "control").read_text()
+    assert re.search(r"^Architecture: any$", control, re.M)
+    assert "python3-all-dev" in build_depends()
+    depends = re.search(r"^Depends:(.*?)^\S", control, re.M | re.S)
+    assert depends and "${shlibs:Depends}" in depends.group(1)

@@ -1,4 +1,5 @@
-"""The wheel installs one top-level package, `motorctl`, and lives beside python-daemon.
+"""The wheel installs one top-level package, `motorctl` (with its compiled step core), and
+lives beside python-daemon.
 
 Marked `packaging`: builds the wheel with `pip wheel` (setuptools from PyPI, in pip's build
 isolation) and installs it with python-daemon (whose import name is `daemon`) from PyPI in a
@@ -38,6 +39,8 @@ MOTORCTL_WORKS = (
     "import motorctl.client.cli\n"
     "from motorctl.daemon.config import load_config\n"
     "assert len(load_config(None).motors) == 3\n"
+    "from motorctl.motion import compiled_core\n"
+    "assert compiled_core.unavailable() is None, compiled_core.unavailable()\n"
     "print('motorctl ok', motorctl.__version__)"
 )
 
@@ -140,6 +143,7 @@ def build_wheel(tmp: Path, env: dict[str, str]) -> Path:
         ".hypothesis",
         ".run",
         "*.pty",
+        "*.so",
     )
     shutil.copytree(ROOT, src, symlinks=True, ignore=junk)
     out = tmp / "wheels"
@@ -166,6 +170,13 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
         assert f"motorctl/{room}/__init__.py" in names
     assert "motorctl/daemon/config/model.py" in names and "motorctl/schema.py" in names
     assert not any(name.endswith((".pyc", "/tests/__init__.py")) for name in names)
+    # the compiled step core, built by the wheel's build; its sources stay out
+    assert (
+        [n for n in names if n.startswith("motorctl/motion/_stepcore")]
+        == [n for n in names if n.startswith("motorctl/motion/_stepcore.") and n.endswith(".so")]
+        != []
+    )
+    assert not any(name.endswith((".c", ".h")) for name in names)
 
     # python-daemon first, then motorctl; uninstall motorctl.
     env.pip("install", "-q", "python-daemon")

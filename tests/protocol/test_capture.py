@@ -1,5 +1,6 @@
 """The trace format (protocol/capture.py), the daemon's recorder (rotation, bounds) and the
-reader's and the replay's analysis, on made-up byte runs: no process, no clock."""
+reader's and the replay's analysis, on made-up byte runs: no process, no clock. How the
+replay judges answers: tests/client/test_judge.py."""
 
 from __future__ import annotations
 
@@ -8,8 +9,19 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.client.replay import Tolerances, compare, plan
-from motorctl.client.trace import BAD_FRAME, EXTRA, GAP, LOST, analyse, load
+from motorctl.client.recording import TraceFileError
+from motorctl.client.replay import plan
+from motorctl.client.trace import (
+    BAD_FRAME,
+    EXTRA,
+    FIELDS,
+    GAP,
+    LOST,
+    analyse,
+    load,
+    one_link,
+    row_json,
+)
 from motorctl.daemon.trace import TraceRecorder, rotated
 from motorctl.protocol.capture import (
     LINKTYPE_USER0,
@@ -17,14 +29,18 @@ from motorctl.protocol.capture import (
     CaptureInfo,
     Direction,
     Record,
+    RecordEncoder,
+    direction_of,
     encode,
     header,
     parse,
 )
 from motorctl.protocol.codec import (
     CodecOptions,
+    DcMove,
     ErrorCode,
     GetAbsPos,
+    GetPin,
     IsReady,
     MoveTo,
     Response,
@@ -109,7 +125,11 @@ def test_recorder_rotates_within_its_bounds_and_keeps_the_newest(tmp_path: Path)
     assert rec.rotations > 2 and rec.dropped_runs == 0
     cap = load([rotated(path, 2), path, rotated(path, 1)])  # any order
     times = [r.ts_ns for r in cap.records]
-    assert times == sorted(times) and cap.problems == []
+    assert times == sorted(times)
+    # the parts are numbered: the first ones were rotated away, and the reader says so
+    (note,) = cap.problems
+    assert f"the start of session {rec.session}" in note and "is missing" in note
+    assert cap.links[0].sessions == {rec.session: [rec.part - 2, rec.part - 1, rec.part]}
     # the newest runs are all there, up to the last one, without a hole
     assert times[-1] == round(0.199 * 1e9 + 0.0001 * 1e9)
     expected = sorted(
@@ -192,44 +212,241 @@ def test_plan_waits_for_answers_and_keeps_framing_pauses() -> None:
     assert [s.framing for s in sends] == [False, False, False, True, False, True, False]
 
 
-def _replayed(pos3: int, pos4: int, pin_answer: Response) -> list[Record]:
-    recs = conversation()
-    out = []
-    for r in recs:
-        if r.data == ans(Response.position(100)):
-            r = Record(r.ts_ns, OUT, ans(Response.position(pos3)))
-        elif r.data == ans(Response.position(200)):
-            r = Record(r.ts_ns, OUT, ans(Response.position(pos4)))
-        elif r.data == ans(Response.error(ErrorCode.INVALID_COMMAND)):
-            r = Record(r.ts_ns, OUT, ans(pin_answer))
-        out.append(r)
-    return out[:-1]
+# --- rotated parts, merged files, pcap, damage --------------------------------------------------
 
 
-def test_compare_tolerates_moving_positions_and_names_a_changed_answer() -> None:
-    rec = analyse(conversation()[:-1], INFO)
-    tol = Tolerances(time_s=0.05, position=2)
-    # speed around the reads: 100 steps in 103 ms, ~970 step/s: tolerance ~ 2 + 48
-    same = compare(
-        rec, analyse(_replayed(130, 160, Response.error(ErrorCode.INVALID_COMMAND)), INFO), tol, 0
+def _rotating(tmp_path: Path, files: int) -> tuple[TraceRecorder, Path]:
+    path = tmp_path / "t.pcapng"
+    rec = TraceRecorder(
+        path, INFO, max_bytes=600, files=files, clock_origin=0.0, wall_origin_ns=0, flush_s=3600
     )
-    assert [v.result for v in same] == ["exact", "exact", "tolerated", "tolerated", "exact"]
-    off = compare(
-        rec, analyse(_replayed(300, 200, Response.error(ErrorCode.INVALID_ADDRESS)), INFO), tol, 0
-    )
-    assert [v.result for v in off] == ["exact", "exact", "differs", "exact", "differs"]
-    assert "E2 Invalid Address" in off[4].replayed and "E1 Invalid Command" in off[4].recorded
-    assert off[4].frame == 5
+    rec.open()
+    for i in range(40):
+        rec.received(cmd(IsReady(0)), i / 100)
+        rec.sent(ans(Response.boolean(True)), i / 100 + 0.001)
+        rec._flush()
+    rec.close()
+    return rec, path
 
 
-def test_compare_fast_accepts_any_position_the_motion_covers() -> None:
-    rec = analyse(conversation()[:-1], INFO)
-    tol = Tolerances(time_s=0.05, position=2, fast=True)
-    inside = compare(
-        rec, analyse(_replayed(1000, 0, Response.error(ErrorCode.INVALID_COMMAND)), INFO), tol, 0
+def test_a_missing_part_is_named_and_a_complete_set_reads_clean(tmp_path: Path) -> None:
+    rec, path = _rotating(tmp_path, files=100)
+    parts = sorted(tmp_path.iterdir())
+    assert rec.part == len(parts) > 3
+    whole = load(parts)
+    assert whole.problems == [] and len(whole.records) == 80
+    assert analyse(whole.records, INFO).unanswered == []
+    rotated(path, 1).unlink()  # the part before the newest: a hole
+    holed = load(sorted(tmp_path.iterdir()))
+    (note,) = holed.problems
+    assert f"session {rec.session}" in note and f"lacks part {rec.part - 1}" in note
+    newest = load([path])  # one part alone: its session's start is missing
+    assert any("start of session" in p for p in newest.problems)
+
+
+def test_a_part_given_twice_is_left_out_and_files_that_overlap_are_refused(
+    tmp_path: Path,
+) -> None:
+    _, path = _rotating(tmp_path, files=100)
+    parts = sorted(tmp_path.iterdir())
+    copy = tmp_path / "copy.pcapng"
+    copy.write_bytes(path.read_bytes())
+    twice = load([path, copy])
+    assert any("was given already" in p for p in twice.problems)
+    other = tmp_path / "other.pcapng"  # a second recording of the same time: not a part
+    other.write_bytes(
+        encode(
+            CaptureInfo(session="bbbb", part=1),
+            [Record(5 * MS, IN, cmd(IsReady(0))), Record(390 * MS, OUT, ans(Response.ok()))],
+        )
     )
-    assert [v.result for v in inside][2:4] == ["tolerated", "tolerated"]
-    beyond = compare(
-        rec, analyse(_replayed(1003, 0, Response.error(ErrorCode.INVALID_COMMAND)), INFO), tol, 0
+    with pytest.raises(TraceFileError, match="overlap in time"):
+        load([*parts, other])
+
+
+def merged(a: tuple[CaptureInfo, list[Record]], b: tuple[CaptureInfo, list[Record]]) -> bytes:
+    """What mergecap makes of two recordings: one section, two interfaces, the packets in
+    time order, each naming its interface."""
+    head_b = header(b[0])
+    shb_len = struct.unpack_from("<I", head_b, 4)[0]
+    enc = RecordEncoder()
+    packets = sorted([(r, 0) for r in a[1]] + [(r, 1) for r in b[1]], key=lambda p: p[0].ts_ns)
+    out = bytearray(header(a[0]) + head_b[shb_len:])
+    for r, iface in packets:
+        block = bytearray(enc.encode(r.ts_ns, r.direction, r.data))
+        struct.pack_into("<I", block, 8, iface)
+        out += block
+    return bytes(out)
+
+
+def test_a_merged_file_decodes_each_interface_as_its_own_link(tmp_path: Path) -> None:
+    device = CaptureInfo(role="daemon", port="/dev/ttyAMA0", session="d", part=1)
+    tap = CaptureInfo(role="tap", port="host A <-> device B", frame_gap_ms=20, session="t", part=1)
+    talk = conversation()[:4]
+    later = [Record(r.ts_ns + 50_000, r.direction, r.data) for r in talk]  # the tap, a bit later
+    path = tmp_path / "merged.pcapng"
+    path.write_bytes(merged((device, talk), (tap, later)))
+    both = load([path])
+    assert [link.interface for link in both.links] == [0, 1]
+    assert [link.info.role for link in both.links if link.info] == ["daemon", "tap"]
+    assert both.links[1].info is not None and both.links[1].info.frame_gap_ms == 20
+    for link in both.links:  # each link pairs its own answers: nothing twice, nothing extra
+        conv = analyse(link.records, link.info or INFO)
+        assert len(conv.frames) == 2 and conv.unanswered == []
+        assert not [r for r in conv.rows if r.kind == EXTRA]
+    assert (
+        both.describe_interfaces()
+    ) == "0: /dev/ttyAMA0 (daemon, 4 runs), 1: host A <-> device B (tap, 4 runs)"
+    one = load([path], interface=1)
+    assert [link.interface for link in one.links] == [1]
+    assert [(r.ts_ns, r.data, r.interface) for r in one.records] == [
+        (r.ts_ns, r.data, 1) for r in later
+    ]
+    with pytest.raises(TraceFileError, match="pass --interface N"):
+        one_link([path], None, None, None)  # the replay's reader: one link or none
+    with pytest.raises(TraceFileError, match="no motorctl interface 7"):
+        load([path], interface=7)
+
+
+def pcap(records: list[Record], linktype: int = LINKTYPE_USER0) -> bytes:
+    """The classic pcap file editcap -F pcap makes: no directions."""
+    out = struct.pack("<IHHiIII", 0xA1B23C4D, 2, 4, 0, 0, 0xFFFF, linktype)
+    for r in records:
+        out += struct.pack("<IIII", r.ts_ns // 10**9, r.ts_ns % 10**9, len(r.data), len(r.data))
+        out += r.data
+    return out
+
+
+def test_a_pcap_file_says_so_and_reads_the_directions_its_bytes_tell(tmp_path: Path) -> None:
+    talk = conversation()
+    cap = parse(pcap(talk))
+    assert cap.format == "pcap"
+    told = [r for r in talk if direction_of(r.data, OPTS) is not None]
+    assert [(r.ts_ns, r.direction, r.data) for r in cap.records] == [
+        (r.ts_ns, r.direction, r.data) for r in told
+    ]
+    untold = len(talk) - len(told)  # the partial frames and the frame with a bad checksum
+    assert untold == 4
+    offset = 24 + sum(16 + len(r.data) for r in talk[:4])  # the first partial frame's record
+    assert cap.problems[0].startswith("a pcap file (not pcapng): pcap keeps no directions")
+    assert f"{untold} could not be (the first at offset {offset})" in cap.problems[0]
+    with pytest.raises(CaptureError, match=r"link type 1 \(Ethernet\).*offset 20"):
+        parse(pcap(talk, linktype=1))
+
+
+def test_direction_of_tells_only_whole_frames_with_good_checksums() -> None:
+    assert direction_of(cmd(IsReady(0)) + cmd(GetPin(3)), OPTS) is Direction.TO_DEVICE
+    assert direction_of(ans(Response.ok()) * 2, OPTS) is Direction.TO_HOST
+    assert direction_of(ans(Response.error(ErrorCode.MOTOR_ERROR)), OPTS) is Direction.TO_HOST
+    assert direction_of(cmd(IsReady(0))[:9] + b"\x00", OPTS) is None
+    assert direction_of(cmd(IsReady(0))[:4], OPTS) is None
+    assert direction_of(b"", OPTS) is None
+
+
+def test_foreign_link_types_are_left_out_or_refused_by_name(tmp_path: Path) -> None:
+    ether = bytearray(encode(INFO, conversation()[:2]))
+    shb_len = struct.unpack_from("<I", ether, 4)[0]
+    struct.pack_into("<H", ether, shb_len + 8, 1)  # the interface: Ethernet
+    path = tmp_path / "ether.pcapng"
+    path.write_bytes(bytes(ether))
+    with pytest.raises(TraceFileError, match=rf"link type 1 \(Ethernet\).*offset {shb_len}"):
+        load([path])
+    cap = parse(bytes(ether))
+    assert cap.records == [] and "are not motorctl's (the first at offset" in cap.problems[0]
+
+
+def _blocks(data: bytes) -> list[int]:
+    """The offsets of a little-endian pcapng file's blocks."""
+    offsets, pos = [], 0
+    while pos < len(data):
+        offsets.append(pos)
+        pos += struct.unpack_from("<I", data, pos + 4)[0]
+    return offsets
+
+
+@pytest.mark.parametrize(
+    ("length", "what"),
+    [(7, "bad length"), (30, "bad length"), (0, "bad length"), (1 << 30, "ends inside a block")],
+)
+def test_a_block_of_a_wrong_length_is_named_by_its_offset(length: int, what: str) -> None:
+    data = bytearray(encode(INFO, conversation()))
+    blocks = _blocks(bytes(data))
+    at = blocks[5]  # the fourth packet
+    struct.pack_into("<I", data, at + 4, length)
+    cap = parse(bytes(data))
+    assert len(cap.records) == 3 and cap.damaged_at == at
+    assert any(what in p and f"offset {at}" in p for p in cap.problems), cap.problems
+
+
+def test_a_block_whose_two_lengths_differ_is_named_and_one_whose_content_lies_is_skipped() -> None:
+    data = bytearray(encode(INFO, conversation()))
+    blocks = _blocks(bytes(data))
+    at = blocks[4]
+    end = blocks[5] - 4
+    struct.pack_into("<I", data, end, 999)  # its trailing length
+    cap = parse(bytes(data))
+    assert len(cap.records) == 2 and "at its start and 999 at its end" in cap.problems[0]
+    data = bytearray(encode(INFO, conversation()))
+    struct.pack_into("<I", data, at + 20, 500)  # its captured length, more than the block
+    cap = parse(bytes(data))
+    assert len(cap.records) == len(conversation()) - 1  # that packet alone is left out
+    assert f"the packet at offset {at} claims 500 bytes" in cap.problems[0]
+
+
+def test_every_truncation_point_reads_the_whole_blocks_before_it_and_names_the_cut() -> None:
+    data = encode(INFO, conversation())
+    blocks = _blocks(data)
+    for cut in range(1, len(data)):
+        if cut < blocks[1]:  # inside the section header: nothing to read
+            cap = parse(data[:cut])
+            assert cap.sections == [] and "its first block at offset 0" in cap.problems[0]
+            continue
+        cap = parse(data[:cut])
+        whole = sum(1 for b in blocks[2:] if b < cut and _next(blocks, b, len(data)) <= cut)
+        assert len(cap.records) == whole
+        if cut in blocks:
+            assert cap.problems == []
+        else:
+            start = max(b for b in blocks if b < cut)
+            assert cap.damaged_at == start and f"offset {start}" in cap.problems[0]
+
+
+def _next(blocks: list[int], b: int, end: int) -> int:
+    later = [x for x in blocks if x > b]
+    return later[0] if later else end
+
+
+def test_rows_carry_typed_fields() -> None:
+    records = [
+        Record(0, IN, cmd(MoveTo(1, False, -300, 250, 3, 4))),
+        Record(1 * MS, OUT, ans(Response.ok())),
+        Record(2 * MS, IN, cmd(GetAbsPos(1))),
+        Record(3 * MS, OUT, ans(Response.position(-300))),
+        Record(4 * MS, IN, cmd(DcMove(False, 50, True))),
+        Record(5 * MS, OUT, ans(Response.error(ErrorCode.MOTOR_NOT_READY))),
+        Record(6 * MS, IN, cmd(GetPin(5))),
+        Record(7 * MS, OUT, ans(Response.boolean(True))),
+    ]
+    rows = [row_json(r, 0) for r in analyse(records, INFO).rows]
+    assert all(set(FIELDS) <= set(r) for r in rows)
+    move, moved, read, pos, dc, e3, pin, high = rows
+    assert (move["command"], move["code"], move["motor"], move["direction"]) == (
+        "MoveTo",
+        1,
+        1,
+        "down",
     )
-    assert beyond[2].result == "differs"
+    assert (move["position"], move["speed"], move["acc"], move["dec"]) == (-300, 250, 3, 4)
+    assert moved["command"] == "MoveTo" and moved["ack"] is True and moved["position"] is None
+    assert moved["rtt_us"] == 1000.0 and moved["packet"] == 0 and moved["interface"] == 0
+    assert (pos["command"], pos["motor"], pos["position"]) == ("GetAbsPos", 1, -300)
+    assert read["position"] is None
+    assert (dc["direction"], dc["time_ms"], dc["hiz"], dc["motor"]) == ("reverse", 50, True, None)
+    assert dc["text"] == "#3 DcMove(dir=reverse, time_ms=50, hiz=true)"
+    assert (e3["ack"], e3["error_code"], e3["error_name"], e3["error"]) == (
+        False,
+        0xE3,
+        "Motor not ready",
+        "E3",
+    )
+    assert (pin["pin"], high["pin"], high["value"]) == (5, 5, 1)

@@ -557,7 +557,7 @@ def test_describe() -> None:
         == "MoveTo(motor=0, dir=up, pos=1200, speed=250, acc=0, dec=0)"
     )
     assert describe(StopMove(motor=2, hard=False)) == "StopMove(motor=2, hard=false)"
-    assert describe(DcMove(False, 100, True)) == "DcMove(dir=down, time_ms=100, hiz=true)"
+    assert describe(DcMove(False, 100, True)) == "DcMove(dir=reverse, time_ms=100, hiz=true)"
 
 
 def test_command_field_names() -> None:

@@ -19,8 +19,8 @@ from typing import Any
 
 from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
-from motorctl.daemon.link import Link, flush_pty_input
-from motorctl.daemon.ports import open_pty
+from motorctl.daemon.link import Link
+from motorctl.daemon.ports import PtySlave, open_pty
 from motorctl.hal.backends.mock.backend import MockWorld, world_of
 from motorctl.hal.interfaces import Clock, MonotonicClock, VirtualClock
 from motorctl.protocol.codec import Command, ErrorCode, GetAbsPos, Move, Response
@@ -116,7 +116,7 @@ class LiveDaemon:
         self.path = tmp / "pty"
         if fd is None:
             fd, self.name = open_pty(self.path)
-            link_kw.setdefault("on_hangup", lambda: flush_pty_input(self.name))
+            link_kw.setdefault("pty", PtySlave(fd, self.name))
         self.fd = fd
         self.link = Link(fd, port or self.daemon.dispatcher, OPTS, gap_s, 16, **link_kw)
         self.daemon.link = self.link

@@ -22,14 +22,17 @@ from motorctl.hal.backends.mock.backend import (
     world_of,
 )
 from motorctl.hal.interfaces import Clock, Hardware, StepperDriver, VirtualClock
+from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.motion.compiled_core import CompiledStepCore
 from motorctl.motion.engine import MotionEngine
+from motorctl.motion.executor_process import _LAST, _WATCH, Layout, Shared, _ShmInbox
 from motorctl.motion.executor_seam import ExecEvent, Executor, to_ticks
 from motorctl.motion.executor_thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor
 from motorctl.motion.segments import StepSegment
-from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS, CoreInbox, StepCore
+from motorctl.motion.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
 from motorctl.motion.step_planner import axis_limits
 from motorctl.motion.types import MotionCmd, MotorParams, MotorState
 from tests.support.wait import WAIT_S
@@ -190,21 +193,37 @@ def engine_rig(
 
 
 class StepCoreRig:
-    """A step core on a virtual clock over the mock world, fed by hand. Lateness is judged
-    by the real-hardware rule (``lag_faults``) unless a test says otherwise."""
+    """A step core on a virtual clock over the mock world, fed by hand through the process
+    executor's shared-memory rings (the same records, checked the same way, for both
+    cores): ``core`` "python" (motion/step_core.py over ``_ShmInbox``) or "compiled"
+    (motion/compiled_core.py). Lateness is judged by the real-hardware rule
+    (``lag_faults``) unless a test says otherwise. ``close()`` releases the block."""
 
     def __init__(
         self,
         motors: int = 1,
         max_speed: float = 10_000.0,
         *,
+        core: str = "python",
         start_speed: float = 0.0,
         microsteps: int = 16,
         max_lag: float = 0.5,
         lag_faults: bool = True,
+        coalesce_s: float = 0.0,
+        axes: Sequence[AxisSpec] | None = None,
+        dir_setup_s: float | None = None,
+        dir_hold_s: float | None = None,
+        late_threshold_s: float = 100e-6,
     ) -> None:
+        self.kind = core
         self.clock = VirtualClock()
-        spec = HardwareSpec(axes=(FAR,) * motors, options={"timeline_len": None})
+        if axes is None:
+            axes = (FAR,) * motors
+        if dir_setup_s is not None:
+            axes = [replace(a, dir_setup_s=dir_setup_s) for a in axes]
+        if dir_hold_s is not None:
+            axes = [replace(a, dir_hold_s=dir_hold_s) for a in axes]
+        spec = HardwareSpec(axes=tuple(axes), options={"timeline_len": None})
         self.hw = build(spec, self.clock)
         self.world = world_of(self.hw)
         io = build_step_io(spec, self.clock, self.hw)
@@ -215,35 +234,82 @@ class StepCoreRig:
             max_lag_full_steps=max_lag,
         )
         self.limits = axis_limits([params] * motors, 0.0, lag_faults=lag_faults)
-        self.inbox = CoreInbox(motors)
+        self.layout = Layout(motors, len(io.inputs.names))
+        self.shm = SharedBlock.create(self.layout.size, "motorctl-test-core")
+        self.shared = Shared(self.shm, self.layout)
         self.events: list[ExecEvent] = []
-        self.positions = [0] * motors
-        self.cells = [0] * (motors * MOTOR_CELLS)
-        self.core = StepCore(
-            io,
-            self.limits,
-            self.inbox,
-            self.events.append,
-            positions=self.positions,
-            levels=[0] * (2 * motors),
-            counters=[0] * len(COUNTER_NAMES),
-            stats=LatencyStats(),
-            motor_cells=self.cells,
-        )
+        self.positions = self.shared.positions
+        self.cells = self.shared.motor_cells
+        self.core: StepCore | CompiledStepCore
+        if core == "python":
+            self.inbox = _ShmInbox(self.shared, self.clock)
+            self.core = StepCore(
+                io,
+                self.limits,
+                self.inbox,
+                self.events.append,
+                positions=self.shared.positions,
+                levels=self.shared.levels,
+                counters=self.shared.counters,
+                stats=LatencyStats(late_threshold_s, self.shared.latency),
+                motor_cells=self.cells,
+                coalesce_s=coalesce_s,
+            )
+        elif core == "compiled":
+            self.core = CompiledStepCore(
+                io,
+                self.limits,
+                self.shared,
+                late_threshold_s=late_threshold_s,
+                coalesce_s=coalesce_s,
+                emit=self.events.append,
+            )
+        else:
+            raise ValueError(f"no step core {core!r}")
+        self._closed = False
+
+    def close(self) -> None:
+        if self._closed:
+            return
+        self._closed = True
+        if isinstance(self.core, CompiledStepCore):
+            self.core.close()
+        self.shared.release()
+        self.shm.close()
+        self.hw.close()
 
     def cell(self, which: int, motor: int = 0) -> int:
-        return self.cells[motor * MOTOR_CELLS + which]
+        return int(self.cells[motor * MOTOR_CELLS + which])
 
-    def cruise(self, motor: int, rate: float, count: int, start: float) -> None:
+    def counter(self, name: str) -> int:
+        return int(self.shared.counters[COUNTER_NAMES.index(name)])
+
+    def push(self, motor: int, *segments: StepSegment) -> None:
+        """Segments into the motor's ring, as the daemon's planner hands them over."""
+        ring = self.shared.segs[motor]
+        for seg in segments:
+            flags = (_LAST if seg.last else 0) | (_WATCH if seg.watch else 0)
+            assert ring.put(
+                seg.first, seg.interval, seg.count, seg.add, seg.direction, seg.gen, flags
+            ), "segment ring full"
+
+    def stop(self, motor: int, gen: int, cut: int = -1) -> None:
+        """A stop record (``cut`` -1: a hard stop; else a re-plan from that tick)."""
+        assert self.shared.stops.put(motor, gen, cut), "stop ring full"
+
+    def cruise(self, motor: int, rate: float, count: int, start: float, gen: int = 1) -> None:
         iv = to_ticks(1.0 / rate)
-        self.inbox.queues[motor].append(StepSegment(to_ticks(start), iv, count, 0, 1, 1))
+        self.push(motor, StepSegment(to_ticks(start), iv, count, 0, 1, gen))
 
     def run_until(self, t: float) -> None:
         core = self.core
-        core.refill()
-        while (d := core.deadline()) is not None and d <= to_ticks(t):
-            self.clock.advance_to(d / 1e9)  # never backwards: after a stall, "now" is later
-            core.advance(to_ticks(self.clock.now()))
+        if isinstance(core, CompiledStepCore):
+            core.run_until(to_ticks(t))
+        else:
+            core.refill()
+            while (d := core.deadline()) is not None and d <= to_ticks(t):
+                self.clock.advance_to(d / 1e9)  # never backwards: after a stall, "now" is later
+                core.advance(to_ticks(self.clock.now()))
         self.clock.advance_to(t)
 
     def times(self, motor: int = 0) -> list[float]:
@@ -251,6 +317,8 @@ class StepCoreRig:
 
     def pulse_calls(self) -> list[list[int]]:
         """From now on, the motors of each STEP rise, one list per backend call."""
+        if isinstance(self.core, CompiledStepCore):
+            return self.core.pulse_calls()
         calls: list[list[int]] = []
         out = self.core.io.outputs
         real = out._write_steps

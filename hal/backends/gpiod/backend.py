@@ -56,6 +56,8 @@ from motorctl.hal.backends.gpiod.wiring import (
 )
 from motorctl.hal.interfaces import (
     BridgeState,
+    ChardevLines,
+    ChardevRequest,
     Clock,
     DcBridge,
     DriverStatus,
@@ -583,7 +585,48 @@ def _open_step_io(
             index[(len(in_reqs), line.offset)] = line_no
         in_reqs.append(req)
     inputs = GpiodEdgeInputs(names, in_reqs, index, lows)
-    return StepIO(clock, outputs, inputs, tuple(ends), closers=closers)
+    io = StepIO(clock, outputs, inputs, tuple(ends), closers=closers)
+    lines = _chardev_lines(outputs, in_reqs, index, lows)
+    if isinstance(lines, str):
+        io.compiled_missing = lines
+    else:
+        io.compiled = lines
+    return io
+
+
+def _chardev_lines(
+    outputs: GpiodStepOutputs,
+    in_reqs: list[LineRequest],
+    index: dict[tuple[int, int], int],
+    lows: list[bool],
+) -> ChardevLines | str:
+    """The step IO's requests as kernel line requests, for a compiled core's ioctls (the
+    capability "lines a compiled core may drive"), or why they cannot be had."""
+    outs: list[ChardevRequest] = []
+    for req in outputs.reqs:
+        raw = req.raw()
+        if isinstance(raw, str):
+            return f"{req.chip_path}: {raw}"
+        outs.append(raw)
+    ins: list[ChardevRequest] = []
+    for req in in_reqs:
+        raw = req.raw()
+        if isinstance(raw, str):
+            return f"{req.chip_path} (end stops): {raw}"
+        ins.append(raw)
+
+    def at(where: tuple[int, int]) -> tuple[int, int]:
+        r, off = where
+        return r, outs[r].offsets.index(off)
+
+    return ChardevLines(
+        tuple(outs),
+        tuple(at(w) for w in outputs.steps),
+        tuple(at(w) for w in outputs.dirs),
+        tuple(ins),
+        tuple(tuple(index[(r, off)] for off in raw.offsets) for r, raw in enumerate(ins)),
+        tuple(lows),
+    )
 
 
 # --------------------------------------------------------------------------------------------
@@ -648,6 +691,7 @@ def probe(spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         hw.close()
         report.problems.append(str(exc))
         return
+    report.compiled_lines = io.compiled_text()
     try:
         ends = []
         for i, pair in zip(spec.stepped(), io.endstops, strict=True):

@@ -23,7 +23,7 @@ from typing import Any
 
 from motorctl.hal.backends.gpiod.boards import board_of, chip_number, describe_chip
 from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
-from motorctl.hal.interfaces import HalError
+from motorctl.hal.interfaces import ChardevRequest, HalError
 
 DEV = "/dev"
 
@@ -97,6 +97,42 @@ class LineRequest(ABC):
         """Edge events arriving within ``timeout_s`` (none: an empty list)."""
         r, _, _ = select.select([self.fileno()], [], [], max(0.0, timeout_s))
         return self.read_events() if r else []
+
+    def raw(self) -> ChardevRequest | str:
+        """The request as the kernel knows it, for a compiled core's ioctls (its descriptor,
+        uAPI, lines in order, driven levels), or why it cannot be had."""
+        return "this libgpiod binding does not give the request's descriptor"
+
+
+#: what /proc/self/fd shows for a GPIO chardev request, by uAPI (gpiolib-cdev.c's names)
+_KINDS = {"anon_inode:gpio-line": 2, "anon_inode:gpio-linehandle": 1, "anon_inode:gpio-event": 1}
+
+
+def _fd_kind(fd: int) -> str:
+    try:
+        return os.readlink(f"/proc/self/fd/{fd}")
+    except OSError as exc:
+        return f"unreadable ({exc.strerror})"
+
+
+def chardev_request(
+    fd: int, offsets: tuple[int, ...], levels: tuple[bool, ...] = ()
+) -> ChardevRequest | str:
+    """``fd`` as a GPIO chardev request when the kernel says it is one, else why not."""
+    kind = _fd_kind(fd)
+    uapi = _KINDS.get(kind)
+    if uapi is None:
+        return f"descriptor {fd} is not a GPIO line request ({kind})"
+    return ChardevRequest(fd, uapi, offsets, levels)
+
+
+def _open_fds() -> dict[int, str]:
+    """Open descriptors and what each is (the listing's own descriptor shows as gone: a
+    later descriptor of that number is new)."""
+    try:
+        return {int(n): _fd_kind(int(n)) for n in os.listdir("/proc/self/fd")}
+    except OSError:
+        return {}
 
 
 class GpioApi(ABC):
@@ -405,6 +441,14 @@ class _V2Request(LineRequest):
     def fileno(self) -> int:
         return int(self.req.fd)
 
+    def raw(self) -> ChardevRequest | str:
+        try:
+            fd, offsets = int(self.req.fd), tuple(int(o) for o in self.req.offsets)
+        except (AttributeError, TypeError, ValueError) as exc:
+            return f"the gpiod binding gives no descriptor and offsets ({exc})"
+        levels = tuple(self.settings[o].value for o in offsets if o in self.settings)
+        return chardev_request(fd, offsets, levels if len(levels) == len(offsets) else ())
+
     def read_events(self) -> list[Edge]:
         rising = self.rising
         return [
@@ -503,13 +547,20 @@ class _V1(GpioApi):
             if not all(settings[o].output for o in offs):
                 raise HalError("v1: a multi-line request is outputs only")
             bulk = chip.get_lines(offs)
+            before = _open_fds()
             bulk.request(
                 consumer=consumer,
                 type=g.LINE_REQ_DIR_OUT,
                 default_vals=[int(settings[o].value) for o in offs],
             )
             lines = {o: ln for o, ln in zip(offs, bulk.to_list(), strict=True)}
-            return _V1Request(self, path, settings, chip, lines, bulk)
+            req = _V1Request(self, path, settings, chip, lines, bulk)
+            # libgpiod 1.6's binding does not give an output handle's descriptor: it is the
+            # one GPIO line handle this request opened (a compiled core writes it)
+            handle = "anon_inode:gpio-linehandle"
+            new = [fd for fd, kind in _open_fds().items() if kind == handle != before.get(fd)]
+            req.handle_fd = new[0] if len(new) == 1 else None
+            return req
         except BaseException:
             chip.close()
             raise
@@ -536,6 +587,7 @@ class _V1Request(LineRequest):
         self.levels = {o: s.value for o, s in settings.items()}
         self.order = list(lines)
         self.consumer = ""
+        self.handle_fd: int | None = None  # a multi-line output handle's, when found
 
     def set_values(self, values: dict[int, bool]) -> None:
         self.levels.update(values)
@@ -566,6 +618,17 @@ class _V1Request(LineRequest):
     def fileno(self) -> int:
         (line,) = self.lines.values()
         return int(line.event_get_fd())
+
+    def raw(self) -> ChardevRequest | str:
+        if self.bulk is not None:
+            if self.handle_fd is None:
+                return "the line handle's descriptor was not found (libgpiod v1)"
+            levels = tuple(self.levels[o] for o in self.order)
+            return chardev_request(self.handle_fd, tuple(self.order), levels)
+        ((off, line),) = self.lines.items()
+        if not self.settings[off].edges:
+            return "a single v1 output line gives no descriptor"
+        return chardev_request(int(line.event_get_fd()), (off,))
 
     def read_events(self) -> list[Edge]:
         ((off, line),) = self.lines.items()

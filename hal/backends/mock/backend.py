@@ -37,6 +37,7 @@ from motorctl.hal.interfaces import (
     HalIOError,
     Hardware,
     Pin,
+    SimulatedLines,
     StepIO,
     StepOutputs,
     StepperDriver,
@@ -448,9 +449,13 @@ class MockWorld:
         return {"axes": [a.position for a in self.axes]}
 
     def restore(self, data: dict[str, Any]) -> None:
+        """Axis positions from a state file: what is not a list of integers an axis can
+        hold is left out (the file may hold anything)."""
         positions = data.get("axes", [])
+        if not isinstance(positions, list):
+            return
         for axis, pos in zip(self.axes, positions, strict=False):
-            if isinstance(pos, int):
+            if isinstance(pos, int) and not isinstance(pos, bool) and abs(pos) < 1 << 62:
                 axis.position = pos
 
     def hardware(self) -> Hardware:
@@ -464,12 +469,37 @@ class MockWorld:
 
     def step_io(self) -> StepIO:
         """The step executor's part: the axes ``spec.stepped()`` names (the end-stop inputs
-        cover every axis; line 2*i is axis i's min)."""
+        cover every axis; line 2*i is axis i's min). Its compiled lines: these mechanics and
+        this timeline, for the compiled step core's counterpart of the parts here."""
         stepped = self.spec.stepped()
         inputs = MockEdgeInputs(self)
         outputs = MockStepOutputs(self, inputs, stepped)
         ends = tuple((2 * i, 2 * i + 1) for i in stepped)
-        return StepIO(self.clock, outputs, inputs, ends)
+        lines = SimulatedLines(
+            self._cells,
+            tuple((a.endstop_min, a.endstop_max) for a in self.axes),
+            tuple(stepped),
+            self.timeline.events.maxlen,
+            self._record_compiled,
+            self._compiled_line_errors,
+        )
+        return StepIO(self.clock, outputs, inputs, ends, compiled=lines)
+
+    def _record_compiled(self, edges: list[tuple[int, int, int, int, int]]) -> None:
+        """The compiled core's simulated edges into the timeline: (t ns, 0 step or 1 dir,
+        axis, value, rise call)."""
+        kinds = (EventKind.STEP, EventKind.DIR)
+        record = self.timeline.record
+        for t, kind, axis, value, _call in edges:
+            record(t / 1e9, kinds[kind], axis, bool(value))
+
+    def _compiled_line_errors(self) -> dict[tuple[str, int], str]:
+        """The STEP/DIR writes that fail now, as the text of the HalIOError they raise."""
+        return {
+            (kind, index): f"motor {index} {kind.upper()} line: {error}"
+            for (kind, index), error in self.line_errors.items()
+            if kind in ("step", "dir")
+        }
 
 
 @dataclass
