@@ -357,6 +357,8 @@ static void record_ns(struct core *c, int64_t ns) {
         CELL_SET(&l[L_MAX], ns);
     if (ns > c->late_thr)
         CELL_ADD(&l[L_LATE], 1);
+    if (ns > 0)
+        CELL_ADD(&l[L_SUM], ns);
     int64_t us = ns >= 0 ? ns / 1000 : 0;
     if (us > L_BINS)
         us = L_BINS;

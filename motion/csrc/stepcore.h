@@ -47,7 +47,8 @@ enum { H_RUN = 0 };
 #define L_COUNT 0
 #define L_LATE 1
 #define L_MAX 2
-#define L_BIN0 3
+#define L_SUM 3 /* lateness summed, ns; early edges as 0 */
+#define L_BIN0 4
 #define L_BLOCK0 (L_BIN0 + L_BINS + 1)
 #define L_BLOCKS ((L_BINS + 1 + (1 << L_BLOCK_SHIFT) - 1) >> L_BLOCK_SHIFT)
 #define L_CELLS (L_BLOCK0 + L_BLOCKS)
