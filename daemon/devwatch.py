@@ -153,16 +153,28 @@ class PathWatch:
         assert self._libc is not None
         # a folder watched already keeps its watch descriptor (inotify_add_watch returns
         # it again): removing and adding it would queue an IN_IGNORED for nothing
+        # A folder made between reading the path and watching its parent (mkdir -p of
+        # serial/by-id) sends its event to no one: read the path again once the watches are
+        # in place, until it reads the same (bounded: each round follows a real change).
+        wanted_before: dict[str, set[str]] | None = None
         names: dict[int, set[str]] = {}
-        for folder, wanted in watched_names(self.path).items():
-            wd = self._libc.inotify_add_watch(self._fd, os.fsencode(folder), WATCH_MASK)
-            if wd < 0:
-                code = ctypes.get_errno()
-                if code in (errno.ENOENT, errno.ENOTDIR):  # gone meanwhile: its parent's
-                    continue  # event (watched too) brings another look
-                return self._give_up(f"inotify_add_watch {folder}: {os.strerror(code)}")
-            names.setdefault(wd, set()).update(wanted)
-        for wd in set(self._names) - set(names):
+        added: set[int] = set()
+        for _ in range(MAX_LINKS):
+            wanted_now = watched_names(self.path)
+            if wanted_now == wanted_before:
+                break
+            wanted_before = wanted_now
+            names = {}
+            for folder, wanted in wanted_now.items():
+                wd = self._libc.inotify_add_watch(self._fd, os.fsencode(folder), WATCH_MASK)
+                if wd < 0:
+                    code = ctypes.get_errno()
+                    if code in (errno.ENOENT, errno.ENOTDIR):  # gone meanwhile: its parent's
+                        continue  # event (watched too) brings another look
+                    return self._give_up(f"inotify_add_watch {folder}: {os.strerror(code)}")
+                names.setdefault(wd, set()).update(wanted)
+                added.add(wd)
+        for wd in (set(self._names) | added) - set(names):
             self._libc.inotify_rm_watch(self._fd, wd)
         self._names = names
         return True

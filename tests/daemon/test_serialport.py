@@ -28,7 +28,7 @@ from typing import Any
 import pytest
 import serial
 
-from motorctl.daemon import serialport
+from motorctl.daemon import devwatch, serialport
 from motorctl.daemon.devwatch import PathWatch, watched_names
 from motorctl.daemon.link import Link
 from motorctl.daemon.ports import open_pty
@@ -379,6 +379,35 @@ def test_a_device_whose_folder_went_too_is_noticed_when_both_are_back(tmp_path: 
         s.close()
         if second is not None:
             second.close()
+
+
+def test_a_folder_made_while_the_watch_is_set_is_watched_too(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """mkdir -p of serial/by-id can fall between reading the path and watching its nearest
+    folder: no event reaches anyone, so the watch reads the path again once set, and the
+    link made next in the new folder is news."""
+    by_id = tmp_path / "serial" / "by-id"
+    path = by_id / "usb-z"
+    real = devwatch.watched_names
+    raced: list[bool] = []
+
+    def racing(p: str) -> dict[str, set[str]]:
+        out = real(p)
+        if not raced:  # the folders appear after the reading, before the watch
+            raced.append(True)
+            by_id.mkdir(parents=True)
+        return out
+
+    monkeypatch.setattr(devwatch, "watched_names", racing)
+    watch = PathWatch(str(path))
+    try:
+        assert watch.arm()
+        assert not watch.changed()
+        path.symlink_to("/dev/null")
+        assert watch.changed()
+    finally:
+        watch.close()
 
 
 def test_the_folders_watched_follow_the_links(tmp_path: Path) -> None:
