@@ -33,8 +33,18 @@ build=$debroot_build/deb/check-$debroot_tag
 mkdir -p "$build"
 root=$debroot_build/deb-root-$debroot_tag
 max_exposure=${MAX_EXPOSURE:-2.0}
-# the booted root's deadline: under emulation (qemu-user) systemd and the daemon start slower
+# the booted root's deadline: under emulation (qemu-user) the daemon starts slower
 boot_timeout=240; [ -n "$debroot_qemu" ] && boot_timeout=900
+# Booting the root with systemd-nspawn (the service under a real systemd, its sandbox, two
+# instances, the late serial device, the metrics through node_exporter) needs systemd as the
+# container's PID 1. Under qemu-user (another ARCH) Debian 13's systemd 257 on Debian 12's
+# qemu-user-static 7.2 runs its generators and then starts no unit at all: measured, nothing
+# in 5 and in 15 minutes (docs/platforms.md). So there the boots are left out, loudly, and
+# the rest runs: install, reinstall, user, conffiles, udev rules, the units' security and
+# verify, --probe (the compiled core runs), the daemon started by the unit's own ExecStart as
+# its user under a NOTIFY_SOCKET (READY=1, a command answered, the compiled core running,
+# STATUS=, STOPPING=1, exit 0) and the purge. DEB_BOOT=1 tries the boots anyway.
+boot=1; [ -n "$debroot_qemu" ] && boot=${DEB_BOOT:-0}
 
 step() { printf '\n== %s\n' "$*"; }
 fail() { echo "FAILED: $*" >&2; exit 1; }
@@ -121,6 +131,7 @@ in_root env NOTIFY_DEADLINE_S=$((boot_timeout / 6)) \
   setpriv --reuid=motorctl --regid=motorctl --init-groups $cmd \
   || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
 
+if [ "$boot" = 1 ]; then
 step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
 # socat plays a USB serial adapter that appears late (report.sh)
 in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat \
@@ -231,6 +242,11 @@ rm -f "$root/etc/systemd/system/metrics-report.service" \
   "$root/etc/systemd/system/motorctl-metrics."* "$root/root/metrics-report."*
 debroot_mount "$root"
 # ---- end of the metrics block ---------------------------------------------------------------
+else
+  step "NOT booted with systemd-nspawn: $debroot_arch runs under qemu-user, where Debian 13's systemd as PID 1 starts no unit (docs/platforms.md)"
+  echo "left out on $debroot_arch: the service under real systemd (sandbox, Type=notify, journal," \
+    "two instances, the late serial device) and the metrics through node_exporter"
+fi
 
 step "purge"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get purge -y -q motorctl > "$build/deb-purge.log" 2>&1 \
