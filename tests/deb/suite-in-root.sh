@@ -12,6 +12,9 @@
 # - under emulation: the part that proves what differs on another architecture, since the
 #   whole suite takes about 26 minutes there (measured on this 2-core machine, trixie arm64,
 #   pytest -n 2, load 7-9) against about 2.5 natively:
+#     tests/motion/test_step_core.py               the compiled step core (built here, for arm64's
+#                                                  Python 3.13) against the Python reference, on
+#                                                  a virtual clock
 #     tests/motion/test_executor_process_rings.py  the shared-memory rings' ordering between
 #                                                  two processes (arm64's weaker memory order)
 #     tests/motion/test_executor_process.py        the step executor as a process of its own
@@ -32,9 +35,14 @@ here=$(cd "$(dirname "$0")/../.." && pwd)
 # shellcheck source=tools/debroot.sh
 . "$here/tools/debroot.sh"
 debroot_needs "make test-root"
+# the suite's imports, socat and patch (tests it runs), and what building the compiled step
+# core for the root's Python needs (gcc, its headers, setuptools: as debian/control's
+# Build-Depends)
 PACKAGES="python3-pytest python3-pytest-xdist python3-hypothesis python3-serial python3-libgpiod
-  python3-spidev python3-systemd python3-prometheus-client python3-rich socat"
-EMULATED=(tests/motion/test_executor_process_rings.py tests/motion/test_executor_process.py
+  python3-spidev python3-systemd python3-prometheus-client python3-rich socat patch
+  gcc libc6-dev python3-dev python3-setuptools"
+EMULATED=(tests/motion/test_step_core.py tests/motion/test_executor_process_rings.py
+  tests/motion/test_executor_process.py
   tests/daemon/test_e2e.py tests/packaging/test_debian.py tests/protocol tests/contract
   -m "not slow and not real_rule" -k "not lose_steps")
 NEEDS_THE_CHECKOUT=(--ignore=tests/docs/test_readme.py --ignore=tests/packaging/test_wheel.py
@@ -63,6 +71,12 @@ echo "   installed in $((SECONDS - t0)) s: $(debroot_run "$root" python3 --versi
 mkdir -p "$root/src"
 git -C "$here" ls-files -z --cached --others --exclude-standard -- . ':!build' \
   | tar -C "$here" --null -T - -cf - | tar -C "$root/src" -xf -
+
+t1=$SECONDS
+echo "== the compiled step core for the root's $(debroot_run "$root" python3 --version), built in /src"
+debroot_run "$root" sh -c "cd /src && python3 setup.py -q build_ext --inplace --build-temp /tmp/stepcore" \
+  > "$out/stepcore.log" 2>&1 || { tail -20 "$out/stepcore.log"; debroot_fail "building the compiled step core (log: $out/stepcore.log)"; }
+echo "   built in $((SECONDS - t1)) s: $(cd "$root/src/motion" && ls _stepcore*.so)"
 
 t1=$SECONDS
 args=""; for a in "${selection[@]}"; do args="$args '${a//\'/\'\\\'\'}'"; done
