@@ -37,11 +37,11 @@ here=$(cd "$(dirname "$0")/../.." && pwd)
 # shellcheck source=tools/debroot.sh
 . "$here/tools/debroot.sh"
 debroot_needs "make test-root"
-# the suite's imports, socat and patch (tests it runs), and what building the compiled step
-# core for the root's Python needs (gcc, its headers, setuptools: as debian/control's
-# Build-Depends)
+# the suite's imports (radon: tests/test_layout.py's complexity; Debian's package of it is
+# named radon), socat and patch (tests it runs), and what building the compiled step core for
+# the root's Python needs (gcc, its headers, setuptools: as debian/control's Build-Depends)
 PACKAGES="python3-pytest python3-pytest-xdist python3-hypothesis python3-serial python3-libgpiod
-  python3-spidev python3-systemd python3-prometheus-client python3-rich socat patch
+  python3-spidev python3-systemd python3-prometheus-client python3-rich radon socat patch
   gcc libc6-dev python3-dev python3-setuptools"
 EMULATED=(tests/motion/executors/test_step_core.py tests/motion/executors/process/test_rings.py
   tests/motion/executors/process/test_parent.py tests/motion/executors/process/test_child.py
