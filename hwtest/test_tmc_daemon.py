@@ -59,6 +59,15 @@ def test_probe_lists_the_three_drivers(tmp_path: Path) -> None:
     assert "DRV_STATUS=" in out.stdout and "SD_MODE=1 (external STEP/DIR)" in out.stdout
 
 
+def set_chips(control: Path, state: dict[str, object]) -> None:
+    """The fake chips' state, written whole (a new file renamed over the old): the daemon's
+    driver monitor reads it at any moment, and a file truncated and then written could be
+    read empty (it was: a JSONDecodeError latched a fault on a motor the test never faulted)."""
+    tmp = control.with_suffix(".tmp")
+    tmp.write_text(json.dumps(state))
+    os.replace(tmp, control)
+
+
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[DaemonProcess, Path]]:
     for m in MOTORS:  # end stops clear (active low: pulled high)
@@ -91,7 +100,7 @@ def test_a_driver_fault_on_spi_answers_e4_while_gpio_steps_the_others(
         c.move_to(1, 200, speed=250)
         c.wait_moved(1, timeout_ms=20_000)
         assert c.position(1) == 200
-        control.write_text(json.dumps({"0.0": {"faults": [25]}}))  # x: over-temperature
+        set_chips(control, {"0.0": {"faults": [25]}})  # x: over-temperature
         deadline = time.monotonic() + 10.0
         while True:
             try:
@@ -101,7 +110,7 @@ def test_a_driver_fault_on_spi_answers_e4_while_gpio_steps_the_others(
                 assert exc.code is ErrorCode.MOTOR_ERROR
                 break
             assert time.monotonic() < deadline, "no E4 within 10 s of the fault"
-        control.write_text(json.dumps({"0.0": {"faults": []}}))
+        set_chips(control, {"0.0": {"faults": []}})
         deadline = time.monotonic() + 10.0
         while True:
             try:
