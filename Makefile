@@ -26,7 +26,7 @@ JOBS   ?= 2
 BIN     = $(VENV)/bin
 
 .PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
-  stepcore test-asan
+  test-root stepcore test-asan
 
 venv: $(VENV)/.installed
 
@@ -139,20 +139,27 @@ bench: venv
 	$(BIN)/python bench/replay.py
 
 # The Debian package (dh + pybuild), built from the files git knows of (committed or not, not
-# ignored), in build/deb: an orig tarball from git, debian/ beside it, patches applied
-# there (never in the work tree). Built as Debian's build daemons do (tools/build-deb.sh):
-# in a fresh Debian 12 root holding build-essential and debian/control's Build-Depends only
-# (a debootstrap cached in build/, see tools/debroot.sh), as an unprivileged user, without
-# network; so a Build-Depends missing from debian/control fails for everyone, whatever this
-# machine has installed. Then lintian. Needs root. Result:
-# build/deb/motorctl_<version>-1_<arch>.deb (log: build/deb/build.log; <arch>: this machine's
-# Debian architecture, the package holds the compiled step core).
+# ignored), in build/deb/SUITE-ARCH: an orig tarball from git, debian/ beside it, patches
+# applied there (never in the work tree). Built as Debian's build daemons do
+# (tools/build-deb.sh): in a fresh root of SUITE (bookworm = Debian 12, the default; trixie =
+# Debian 13) on ARCH (this machine's by default; arm64 on an amd64 machine runs under
+# qemu-user through binfmt_misc) holding build-essential and debian/control's Build-Depends
+# only (a debootstrap cached in build/, see tools/debroot.sh), as an unprivileged user,
+# without network; so a Build-Depends missing from debian/control fails for everyone,
+# whatever this machine has installed. Then lintian. Needs root. Result:
+# build/deb/SUITE-ARCH/motorctl_<version>-1_ARCH.deb (log: build.log beside it). One package
+# per release and architecture: it holds the compiled step core, built for that release's
+# one Python (3.11 on Debian 12, 3.13 on Debian 13; docs/service.md says more).
 # DEB_DEPS: what the host needs for make deb and make test-deb (not for building the package).
-DEB_DEPS = debootstrap lintian systemd-container
+SUITE ?= bookworm
+HOST_ARCH := $(shell dpkg --print-architecture 2>/dev/null || echo amd64)
+ARCH ?= $(HOST_ARCH)
+DEB_DEPS = debootstrap lintian systemd-container $(if $(filter-out $(HOST_ARCH),$(ARCH)),qemu-user-static binfmt-support)
 DEB_VERSION = $(shell awk 'NR == 1 { v = $$2; gsub(/[()]/, "", v); sub(/-[^-]*$$/, "", v); print v }' debian/changelog)
-DEB_DIR = build/deb
-DEB_ARCH = $(shell dpkg --print-architecture)
+DEB_DIR = build/deb/$(SUITE)-$(ARCH)
+DEB_FILE = $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(ARCH).deb
 SYSPATH = /usr/sbin:/usr/bin:/sbin:/bin  # Debian's tools, not a venv's or pyenv's
+DEBROOT = DEBROOT_SUITE=$(SUITE) DEBROOT_ARCH=$(ARCH)
 
 deb-deps:
 	@missing=$$(for p in $(DEB_DEPS); do dpkg-query -W -f='$${db:Status-Status}' $$p 2>/dev/null \
@@ -171,14 +178,21 @@ deb: deb-deps
 	  | gzip -n > $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	tar -C $(DEB_DIR) -xzf $(DEB_DIR)/motorctl_$(DEB_VERSION).orig.tar.gz
 	cp -a debian $(DEB_DIR)/motorctl-$(DEB_VERSION)/
-	PATH=$(SYSPATH) bash tools/build-deb.sh $(DEB_DIR)/motorctl-$(DEB_VERSION)
-	PATH=$(SYSPATH) lintian --fail-on error --display-info $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_ARCH).deb
+	PATH=$(SYSPATH) $(DEBROOT) bash tools/build-deb.sh $(DEB_DIR)/motorctl-$(DEB_VERSION)
+	PATH=$(SYSPATH) lintian --fail-on error --display-info $(DEB_FILE)
 	@ls -l $(DEB_DIR)/*.deb
 
-# Install the package on a fresh Debian 12 root (the same cached debootstrap) and check it
-# there: see tests/deb/check-install.sh.
+# Install the package on a fresh root of SUITE on ARCH (the same cached debootstrap) and check
+# it there: see tests/deb/check-install.sh.
 test-deb: deb
-	bash tests/deb/check-install.sh $(DEB_DIR)/motorctl_$(DEB_VERSION)-1_$(DEB_ARCH).deb
+	PATH=$(SYSPATH) $(DEBROOT) bash tests/deb/check-install.sh $(DEB_FILE)
+
+# The test suite in a fresh root of SUITE on ARCH with Debian's python3 and packages only (no
+# venv, nothing from PyPI): all of it where ARCH runs natively, the part that proves what
+# differs on an emulated ARCH otherwise (tests/deb/suite-in-root.sh says which and why;
+# TESTS="..." chooses). E.g. make test-root SUITE=trixie ARCH=arm64: arm64 Python 3.13.
+test-root: deb-deps
+	PATH=$(SYSPATH) $(DEBROOT) bash tests/deb/suite-in-root.sh $(TESTS)
 
 clean:
 	rm -rf build $(VENV) .run .pytest_cache .hypothesis .mypy_cache .ruff_cache *.egg-info \

@@ -26,13 +26,22 @@ def available() -> bool:
     return bool(glob.glob(f"{SIM}/gpiochip*"))
 
 
+def sim_dir(chip: str) -> str:
+    """gpio-sim's sysfs folder of a live chip, whichever gpio-sim device made it (the tier's
+    own banks are gpio-sim.0's; hwtest/boards.py makes one device per chip)."""
+    found = glob.glob(f"/sys/devices/platform/gpio-sim.*/{chip}")
+    if len(found) != 1:
+        raise LookupError(f"gpio-sim chip {chip}: {found or 'not found'}")
+    return found[0]
+
+
 def sim_value(offset: int, chip: str = "gpiochip0") -> bool:
-    with open(f"{SIM}/{chip}/sim_gpio{offset}/value") as f:
+    with open(f"{sim_dir(chip)}/sim_gpio{offset}/value") as f:
         return f.read().strip() == "1"
 
 
 def sim_pull(offset: int, high: bool, chip: str = "gpiochip0") -> None:
-    with open(f"{SIM}/{chip}/sim_gpio{offset}/pull", "w") as f:
+    with open(f"{sim_dir(chip)}/sim_gpio{offset}/pull", "w") as f:
         f.write("pull-up" if high else "pull-down")
 
 

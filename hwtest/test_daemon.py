@@ -9,7 +9,6 @@ every level the daemon set, in order, with CLOCK_MONOTONIC timestamps.
 from __future__ import annotations
 
 import os
-import re
 import subprocess
 import sys
 import time
@@ -19,24 +18,26 @@ from pathlib import Path
 import pytest
 
 from hwtest import gsim
-from hwtest.layout import DC, MOTORS, PINS, in_the_guest, where
+from hwtest.layout import (
+    DC,
+    EXAMPLE,
+    GUEST_READY_TIMEOUT_S,
+    MOTORS,
+    PINS,
+    example_in_the_guest,
+    where,
+)
 from motorctl.client.client import Client
 from tests.support.daemon_proc import DaemonProcess, run_probe
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 
 REPO = Path(__file__).resolve().parent.parent
-EXAMPLE = REPO / "docs" / "examples" / "raspberry-pi.toml"
 API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 
 
 def example_config() -> str:
-    """The documented example as the guest runs it (:func:`hwtest.layout.in_the_guest`),
-    without its [motors.tmc] tables (no TMC chip answers in the guest; the SPI side is checked by
-    hwtest/spi_wire.py and tests/hal/layers/tmc/test_*.py)."""
-    text = re.sub(r"  \[motors\.tmc\][^\n]*\n(  \w+ = [^\n]*\n)*", "", EXAMPLE.read_text())
-    assert not re.search(r"^\s*\[motors\.tmc\]|^\s*driver = ", text, re.M)
-    return in_the_guest(text, API)
+    return example_in_the_guest(API)
 
 
 def gpio(line: str) -> int:
@@ -69,7 +70,9 @@ def end_stops_clear() -> None:
 @pytest.fixture(scope="module")
 def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[DaemonProcess]:
     end_stops_clear()
-    d = DaemonProcess(tmp_path_factory.mktemp("d"), example_config()).start()
+    d = DaemonProcess(
+        tmp_path_factory.mktemp("d"), example_config(), ready_timeout=GUEST_READY_TIMEOUT_S
+    ).start()
     try:
         yield d
     finally:
@@ -261,7 +264,7 @@ def test_a_line_held_by_another_consumer_is_a_clear_error(tmp_path: Path) -> Non
     try:
         assert holder.stdout is not None
         assert holder.stdout.readline().strip() == "holding"
-        d = DaemonProcess(tmp_path, example_config())
+        d = DaemonProcess(tmp_path, example_config(), ready_timeout=GUEST_READY_TIMEOUT_S)
         with pytest.raises(RuntimeError) as err:
             d.start()
         d.kill()
@@ -292,7 +295,7 @@ def test_shutdown_leaves_outputs_at_their_safe_values(tmp_path: Path) -> None:
     """SIGTERM: the last level the daemon set on every pin output is its safe value, the
     bridge brakes; pins set the other way first."""
     end_stops_clear()
-    d = DaemonProcess(tmp_path, example_config()).start()
+    d = DaemonProcess(tmp_path, example_config(), ready_timeout=GUEST_READY_TIMEOUT_S).start()
     try:
         with d.client(timeout=10.0) as c:
             c.set_pin(0, True)  # safe = false

@@ -3,10 +3,12 @@
 #   CACHE_DIR default: $GSIM_CACHE or ${XDG_CACHE_HOME:-$HOME/.cache}/gpio-sim-vm
 # Needs: Debian 12 (bookworm) amd64, root (apt-get install, debootstrap), Debian apt + PyPI access.
 # Env knobs: GSIM_KVER=6.1.0-56-amd64 (default: what linux-image-amd64 depends on), GSIM_ROOTFS=0 (skip the
-#   debootstrap rootfs = libgpiod v1), GSIM_VENV=0 (skip the venv = PyPI gpiod v2 + spidev),
+#   debootstrap bookworm rootfs = libgpiod v1), GSIM_TRIXIE=0 (skip the debootstrap trixie root = Debian's
+#   python3-libgpiod 2.x, the v2 API, python3-spidev, and gcc + python3-dev for the step core), GSIM_VENV=0 (skip the venv = PyPI gpiod v2 + spidev),
 #   GSIM_PIP="gpiod spidev" (pin e.g. "gpiod==2.5.0 spidev==3.8"), GSIM_KEEP=1 (keep debs + extracted trees),
 #   GSIM_PYTHON=/usr/bin/python3 (venv base), GSIM_MIRROR (debootstrap), GSIM_APT_UPDATE=0 (skip apt-get update).
-# Result (~290 MB; ~70 MB without rootfs): vmlinuz + vmlinux, initrd.img, mod/, rootfs/, venv/, VERSIONS.
+# Result (~450 MB; ~70 MB without the roots): vmlinuz + vmlinux, initrd.img, mod/, rootfs/, trixie/, venv/,
+#   VERSIONS.
 # Peak disk use while building ~1.2 GB. Re-running rebuilds kernel/modules/initramfs, keeps rootfs/ and venv/.
 set -euo pipefail
 HERE=$(cd "$(dirname "$0")" && pwd)
@@ -18,7 +20,7 @@ mkdir -p "$C"; C=$(cd "$C" && pwd); X=$C/x; rm -rf "$X"; mkdir -p "$X" "$C/debs"
 step "host packages"
 [ "$(id -u)" = 0 ] && [ "${GSIM_APT_UPDATE:-1}" = 1 ] && apt-get update -qq   # fresh lists -> current kernel ABI
 P="qemu-system-x86 cpio kmod xz-utils gcc make libc6-dev"
-[ "${GSIM_ROOTFS:-1}" = 1 ] && P="$P debootstrap"
+{ [ "${GSIM_ROOTFS:-1}" = 1 ] || [ "${GSIM_TRIXIE:-1}" = 1 ]; } && P="$P debootstrap"
 [ "${GSIM_VENV:-1}" = 1 ] && P="$P python3-venv python3-dev"   # spidev on PyPI is an sdist: needs gcc + Python.h
 miss=; for p in $P; do dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q 'ok installed' || miss="$miss $p"; done
 [ -z "$miss" ] || apt-get install -y --no-install-recommends $miss
@@ -74,6 +76,13 @@ if [ "${GSIM_ROOTFS:-1}" = 1 ] && [ ! -x "$C/rootfs/usr/bin/python3" ]; then
   debootstrap --variant=minbase --include=python3-minimal,python3-libgpiod,gpiod,python3-serial,python3-pytest bookworm "$C/rootfs" "$MIRROR" > "$X/debootstrap.log"
   rm -f "$C/rootfs"/var/cache/apt/archives/*.deb
 fi
+if [ "${GSIM_TRIXIE:-1}" = 1 ] && [ ! -x "$C/trixie/usr/bin/python3" ]; then
+  step "debootstrap trixie rootfs with Debian's python3-libgpiod 2 (libgpiod v2 API) and python3-spidev"
+  rm -rf "$C/trixie"
+  # gcc, python3-dev, python3-setuptools: the guest builds the compiled step core for Python 3.13 (hwtest/run)
+  debootstrap --variant=minbase --include=python3-minimal,python3-libgpiod,gpiod,python3-serial,python3-pytest,python3-spidev,gcc,libc6-dev,python3-dev,python3-setuptools trixie "$C/trixie" "$MIRROR" > "$X/debootstrap-trixie.log"
+  rm -f "$C/trixie"/var/cache/apt/archives/*.deb
+fi
 if [ "${GSIM_VENV:-1}" = 1 ] && [ ! -x "$C/venv/bin/python" ]; then
   step "venv with PyPI gpiod (libgpiod v2 API) + spidev, for the host-root guest"
   "${GSIM_PYTHON:-/usr/bin/python3}" -m venv "$C/venv"
@@ -85,6 +94,7 @@ step "record versions"
   echo "busybox-static: $(dpkg-deb -f "$C"/debs/busybox-static_*.deb Version)"
   echo "qemu: $(qemu-system-x86_64 --version | head -1)"
   [ -d "$C/rootfs" ] && echo "rootfs: bookworm, $(dpkg-query --admindir="$C/rootfs/var/lib/dpkg" -W -f='${Package} ${Version}, ' python3-libgpiod python3.11 gpiod)"
+  [ -d "$C/trixie" ] && echo "trixie: $(dpkg-query --admindir="$C/trixie/var/lib/dpkg" -W -f='${Package} ${Version}, ' python3-libgpiod python3.13 gpiod python3-spidev)"
   [ -d "$C/venv" ] && echo "venv: $("$C/venv/bin/python" --version), $("$C/venv/bin/pip" list --format=freeze 2>/dev/null | grep -Ei '^(gpiod|spidev)=' | tr '\n' ' ')"
 } | tee "$C/VERSIONS"
 [ "${GSIM_KEEP:-0}" = 1 ] || rm -rf "$X" "$C/debs"

@@ -10,16 +10,22 @@ P9=trans=virtio,version=9p2000.L,msize=512000
 mkdir -p /ctl; mount -t 9p -o $P9 gsimctl /ctl || { echo "gsim: no gsimctl share"; poweroff -f; }
 . /ctl/env   # GSIM_BANKS GSIM_NAMES GSIM_SPI GSIM_ROOT GSIM_RWPATH
 # gpio-sim: one chip, one bank (-> /dev/gpiochipN, label sim-bankN) per number in GSIM_BANKS
+# ("none": no chip; the guest's tests make their own, hwtest/boards.py)
 mount -t configfs none /sys/kernel/config
+if [ "$GSIM_BANKS" != none ]; then
 C=/sys/kernel/config/gpio-sim/chip0; mkdir $C; i=0
 for n in ${GSIM_BANKS:-16}; do
   mkdir $C/bank$i; echo $n > $C/bank$i/num_lines; echo sim-bank$i > $C/bank$i/label
-  # GSIM_NAMES: one line-name prefix per bank ("GPIO B1_" -> GPIO0.. on bank0, B1_0.. on bank1; "-" = none)
+  # GSIM_NAMES: one line-name prefix per bank ("GPIO B1_" -> GPIO0.. on bank0, B1_0.. on bank1; "-" = none;
+  # "RPI": a Raspberry Pi's header names, ID_SDA ID_SCL GPIO2 GPIO3 ...)
   set -- ${GSIM_NAMES:-}; shift $i 2>/dev/null && p=${1:--} || p=-
-  [ "$p" != - ] && j=0 && while [ $j -lt $n ]; do mkdir $C/bank$i/line$j; echo $p$j > $C/bank$i/line$j/name; j=$((j+1)); done
+  [ "$p" != - ] && j=0 && while [ $j -lt $n ]; do
+    name=$p$j; [ "$p" = RPI ] && { name=GPIO$j; [ $j = 0 ] && name=ID_SDA; [ $j = 1 ] && name=ID_SCL; }
+    mkdir $C/bank$i/line$j; echo $name > $C/bank$i/line$j/name; j=$((j+1)); done
   i=$((i+1))
 done
 echo 1 > $C/live || echo "gsim: gpio-sim chip0 failed to go live"
+fi
 # optional bit-banged SPI bus 1 on sim-bank0 lines 0..3 (sck mosi miso cs) -> /dev/spidev1.0
 [ "$GSIM_SPI" = 1 ] && for m in $(cat $M/spi.list); do insmod $M/$m || echo "gsim: insmod $m failed"; done
 R=/

@@ -6,10 +6,12 @@
 #   GSIM_CACHE   dir made by build.sh (default ${XDG_CACHE_HOME:-$HOME/.cache}/gpio-sim-vm)
 #   GSIM_ROOT    host   (default) host / shared read-only + tmpfs overlay; $GSIM_CACHE/venv/bin first in PATH (gpiod v2)
 #                rootfs debootstrap bookworm rootfs (python3-libgpiod 1.6.3 = v1 API), read-only + tmpfs overlay
+#                trixie debootstrap trixie rootfs (python3-libgpiod 2.x = v2 API, python3-spidev), likewise
 #                none   busybox initramfs only
 #   GSIM_RW      host dir mounted read-write at the same path in the guest; COMMAND runs there (default: $PWD)
-#   GSIM_BANKS   gpio-sim bank sizes (default "16"; "16 8" -> gpiochip0 with 16 lines + gpiochip1 with 8)
-#   GSIM_NAMES   line-name prefix per bank ("GPIO B1_" -> lines GPIO0.. on bank0, B1_0.. on bank1; "-" = no names)
+#   GSIM_BANKS   gpio-sim bank sizes (default "16"; "16 8" -> gpiochip0 with 16 lines + gpiochip1 with 8; "none": no chip)
+#   GSIM_NAMES   line-name prefix per bank ("GPIO B1_" -> lines GPIO0.. on bank0, B1_0.. on bank1; "-" = no names;
+#                "RPI" = a Raspberry Pi's: ID_SDA ID_SCL GPIO2 GPIO3 ...)
 #   GSIM_SPI=1   spi-gpio on sim-bank0 lines 0..3 = sck,mosi,miso,cs -> /dev/spidev1.0
 #   GSIM_MEM (MiB, 1024)  GSIM_SMP (vCPUs, 1: ~15% faster than 2 under TCG here)  GSIM_TIMEOUT (s, 600)  GSIM_APPEND (extra kernel cmdline)
 set -uo pipefail
@@ -23,8 +25,9 @@ PATHV=/usr/local/sbin:/usr/local/bin:/usr/sbin:/usr/bin:/sbin:/bin
 case $ROOT in
   host)   FS=(-virtfs "local,path=/,mount_tag=root,security_model=none,readonly=on,multidevs=remap"); PATHV=$C/venv/bin:$PATHV;;
   rootfs) FS=(-virtfs "local,path=$C/rootfs,mount_tag=root,security_model=none,readonly=on");;
+  trixie) FS=(-virtfs "local,path=$C/trixie,mount_tag=root,security_model=none,readonly=on");;
   none)   FS=(); PATHV=/bin;;
-  *) echo "run.sh: GSIM_ROOT must be host, rootfs or none" >&2; exit 2;;
+  *) echo "run.sh: GSIM_ROOT must be host, rootfs, trixie or none" >&2; exit 2;;
 esac
 printf 'GSIM_BANKS=%s\nGSIM_NAMES=%s\nGSIM_SPI=%s\nGSIM_ROOT=%s\nGSIM_RWPATH=%s\n' "$(q "${GSIM_BANKS:-16}")" "$(q "${GSIM_NAMES:-}")" "$(q "${GSIM_SPI:-0}")" \
   "$ROOT" "$(q "${RW%/}")" > "$CTL/env"     # RW=/ -> no rw share

@@ -2,10 +2,10 @@
 # Runs inside the booted test root (metrics-report.service; check-install.sh's metrics block):
 # the motorctl-metrics units of docs/service.md write the textfile, Debian's
 # prometheus-node-exporter serves it; what its /metrics says of motorctl goes to the report.
-# Every wait has a deadline.
-wait_for() {  # wait_for UNIT: until it runs (30 s at most)
+# Every wait has a deadline (2 minutes: a root under qemu-user, tools/debroot.sh, is slow).
+wait_for() {  # wait_for UNIT: until it runs (2 minutes at most)
   i=0
-  while [ "$(systemctl show -P SubState "$1")" != running ] && [ $i -lt 60 ]; do
+  while [ "$(systemctl show -P SubState "$1")" != running ] && [ $i -lt 240 ]; do
     sleep 0.5; i=$((i + 1))
   done
 }
@@ -21,7 +21,7 @@ python3 - <<'PY'
 import time
 import urllib.request
 
-for _ in range(60):  # node_exporter may still be binding its port
+for _ in range(240):  # node_exporter may still be binding its port
     try:
         text = urllib.request.urlopen("http://127.0.0.1:9100/metrics", timeout=5).read().decode()
         break

@@ -1,7 +1,8 @@
 #!/bin/sh
-# Runs inside the booted test root (report.service). Every wait has a deadline.
+# Runs inside the booted test root (report.service). Every wait has a deadline: 2 minutes,
+# for a root that runs under qemu-user (tools/debroot.sh); a native one is there in seconds.
 i=0
-while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 60 ]; do
+while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 240 ]; do
   sleep 0.5; i=$((i + 1))
 done
 sleep 3  # let STATUS= arrive
@@ -19,7 +20,7 @@ echo "left-in-run: $(ls -A /run/motorctl | tr '\n' ' ')"
 sed -i 's|^directory = ""|directory = "/var/lib/motorctl"|' /etc/motorctl/motorctl.toml
 systemctl start motorctld
 i=0
-while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 60 ]; do
+while [ "$(systemctl show -P SubState motorctld)" != running ] && [ $i -lt 240 ]; do
   sleep 0.5; i=$((i + 1))
 done
 echo "var-lib: $(systemctl show -P SubState motorctld) $(ls -A /var/lib/motorctl | tr '\n' ' ')"
@@ -45,7 +46,7 @@ echo 'MOTORCTLD_SERVE="--pty /run/motorctl-right/host.pty"' > /etc/default/motor
 systemctl enable --now motorctld@left motorctld@right 2>&1 | sed 's/^/  | /'
 for i in left right; do
   n=0
-  while [ "$(systemctl show -P SubState motorctld@$i)" != running ] && [ $n -lt 60 ]; do
+  while [ "$(systemctl show -P SubState motorctld@$i)" != running ] && [ $n -lt 240 ]; do
     sleep 0.5; n=$((n + 1))
   done
 done
@@ -77,7 +78,7 @@ motorctld --print-default-config > /etc/motorctl/late.toml
 echo "MOTORCTLD_SERVE=\"--port $late\"" > /etc/default/motorctld-late
 systemctl start motorctld@late
 n=0
-while [ "$(systemctl show -P SubState motorctld@late)" != running ] && [ $n -lt 60 ]; do
+while [ "$(systemctl show -P SubState motorctld@late)" != running ] && [ $n -lt 240 ]; do
   sleep 0.5; n=$((n + 1))
 done
 sleep 3  # let STATUS= arrive
@@ -89,8 +90,8 @@ socat "pty,raw,echo=0,link=$late,group=motorctl,perm=0660" pty,raw,echo=0,link=/
   2>/dev/null &
 socat_pid=$!
 n=0
-while [ ! -e /root/late-host ] && [ $n -lt 40 ]; do sleep 0.25; n=$((n + 1)); done
-echo "late client: $(timeout 20 motorctl -p /root/late-host pos 0 2>&1)"
+while [ ! -e /root/late-host ] && [ $n -lt 120 ]; do sleep 0.25; n=$((n + 1)); done
+echo "late client: $(timeout 60 motorctl -p /root/late-host pos 0 2>&1)"
 echo "late after: $(systemctl show -P SubState motorctld@late) NRestarts=$(systemctl show -P \
   NRestarts motorctld@late)"
 said() { journalctl -u motorctld@late --no-pager -o cat | grep -c "$1"; }

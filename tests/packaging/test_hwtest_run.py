@@ -33,7 +33,7 @@ if [ -n "${FAKE_BUILD_FAIL:-}" ]; then echo "fake: the kernel download broke"; e
 mkdir -p "$1" && touch "$1/initrd.img"
 """
 FAKE_RUN = """#!/bin/sh
-echo "boot $GSIM_ROOT" >> "$FAKE_LOG"
+echo "boot $GSIM_ROOT ${GSIM_BANKS:-}" >> "$FAKE_LOG"
 [ -n "${FAKE_GUEST:-}" ] || exit 0
 cd "$FAKE_GUEST" && exec sh -c "$*"
 """
@@ -100,7 +100,7 @@ def test_first_run_with_an_empty_home_makes_the_cache_folder(tier: Tier) -> None
     build_log = tier.home / ".cache" / "motorctl-gpio-sim.build.log"
     assert f"fake build into {cache}" in build_log.read_text()
     assert f"log: {build_log}" in out.stdout
-    assert tier.builds() == 1 and "boot host" in tier.log.read_text()
+    assert tier.builds() == 1 and "boot trixie 32 16" in tier.log.read_text()
 
 
 def test_the_cache_is_built_once_and_again_when_the_recipe_changes(tier: Tier) -> None:
@@ -193,3 +193,26 @@ def test_a_guest_whose_tests_all_skip_fails(tier: Tier) -> None:
     assert f"{PREFIX}: needs gpio-sim (make test-hw)" in out.stdout
     assert " 0 passed" not in out.stdout and " passed" not in out.stdout.splitlines()[-2]
     assert "== hwtest: v2 API: FAILED (1)" in out.stdout
+
+
+def test_each_binding_boots_its_own_root(tier: Tier) -> None:
+    """v2: Debian 13's python3-libgpiod in the trixie root; v1: Debian 12's in the bookworm
+    root; pypi: PyPI's gpiod in the venv on the host's root."""
+    for which, root in (("v2", "trixie"), ("v1", "rootfs"), ("pypi", "host")):
+        out = tier.run(which)
+        assert out.returncode == 0, out.stdout + out.stderr
+        assert tier.log.read_text().splitlines()[-1] == f"boot {root} 32 16"
+        assert f"GSIM_ROOT={root})" in out.stdout
+
+
+def test_layouts_boot_without_chips_and_run_only_the_layout_tests(tier: Tier) -> None:
+    """`hwtest/run layouts`: a guest per binding with no gpio-sim chip of its own (the tests
+    make each board's), running hwtest/test_layouts.py alone; here, where there is no
+    gpio-sim, its tests skip, which the tier reports as failures."""
+    out = tier.run("layouts", env={"FAKE_GUEST": str(ROOT)})
+    assert tier.log.read_text().splitlines()[-2:] == ["boot trixie none", "boot rootfs none"]
+    assert out.returncode == 2, out.stdout[-3000:] + out.stderr[-3000:]
+    assert f"{PREFIX}: needs gpio-sim without chips of its own (hwtest/run layouts)" in out.stdout
+    assert "hwtest/test_layouts.py::test_the_example_runs_unchanged[pi5-2026]" in out.stdout
+    assert "test_backend" not in out.stdout and "test_contract" not in out.stdout
+    assert "== hwtest: board layouts, v1 API: FAILED (1)" in out.stdout

@@ -109,8 +109,10 @@ class DaemonProcess:
         env: dict[str, str] | None = None,
         port: str | None = None,
         as_user: bool = False,
+        ready_timeout: float = READY_TIMEOUT_S,
     ) -> None:
         self.workdir = workdir
+        self.ready_timeout = ready_timeout  # longer in an emulated guest (hwtest/layout.py)
         self.port = port  # serve this serial device (--port) instead of a PTY of its own
         self.pty = workdir / "motorctl.pty"
         self.state_dir = state_dir or workdir / "state"
@@ -159,7 +161,7 @@ class DaemonProcess:
         sel = selectors.DefaultSelector()
         sel.register(self.proc.stdout, selectors.EVENT_READ)
         line = b""
-        deadline = time.monotonic() + READY_TIMEOUT_S
+        deadline = time.monotonic() + self.ready_timeout
         while not line.endswith(b"\n"):
             left = deadline - time.monotonic()
             if left <= 0 or not sel.select(left):

@@ -11,7 +11,8 @@ from __future__ import annotations
 import os
 from typing import TYPE_CHECKING
 
-from motorctl.hal.backends.gpiod.chip import load_api
+from motorctl.hal.backends.gpiod.boards import describe_chip, layout
+from motorctl.hal.backends.gpiod.chip import chip_list, load_api
 from motorctl.hal.backends.gpiod.config import wiring_of
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import Clock, HalError
@@ -19,6 +20,8 @@ from motorctl.hal.spec import HardwareSpec
 
 if TYPE_CHECKING:
     from motorctl.hal.backends.gpiod.backend import GpiodBackend
+    from motorctl.hal.backends.gpiod.chip import ChipInfo, GpioApi
+    from motorctl.hal.backends.gpiod.wiring import ResolvedLine
 
 
 def probe_gpio(
@@ -32,10 +35,8 @@ def probe_gpio(
     wiring = wiring_of(spec)
     api = load_api(wiring.api)
     chips = api.chips()
-    report.add(
-        f"libgpiod Python API {api.name} ({api.version})",
-        [f"{c.name} [{c.label}] {c.num_lines} lines ({c.path})" for c in chips],
-    )
+    report.add(f"libgpiod Python API {api.name} ({api.version})", _chip_rows(api, chips))
+    report.add("board layout", [layout(chips)])
     dup = wiring.duplicates()
     if dup:
         for text in dup:
@@ -46,17 +47,13 @@ def probe_gpio(
     except HalError as exc:
         report.problem(str(exc))
         return
-    rows = []
-    for ln in lines:
-        info = api.line_info(ln.chip_path, ln.offset)
-        held = (f"held by {info.consumer!r}" if info.consumer else "held") if info.used else "free"
-        name = f" {info.name!r}" if info.name else ""
-        mode = "output" if info.output else "input"
-        rows.append(
-            f"{ln.use:<22} {ln.ref!s:<16} -> {os.path.basename(ln.chip_path)}:"
-            f"{ln.offset}{name} ({mode}, {held})"
-        )
+    rows = [_line_row(api, ln) for ln in lines]
     report.add("configured lines (before opening)", rows or ["none"])
+    used = {ln.chip_path for ln in lines}
+    report.add(
+        "chips the config uses",
+        [describe_chip(c) for c in chips if c.path in used] or ["none"],
+    )
     try:
         api.check_free(lines)
         hw = backend.build(spec, clock, for_probe=True)
@@ -98,3 +95,27 @@ def probe_gpio(
     finally:
         io.close()
         hw.close()
+
+
+def _chip_rows(api: GpioApi, chips: list[ChipInfo]) -> list[str]:
+    """Each chip by number, label and line count, with its device and the links to it in /dev
+    (Raspberry Pi OS's gpiochip4 -> gpiochip0); the kernel's lack of chips, said, when none."""
+    links = {path: name for name, path in api.aliases().items()}
+    return [
+        f"{describe_chip(c)} ({c.path}"
+        + (f"; /dev/{links[c.path]} links to it" if c.path in links else "")
+        + ")"
+        for c in chips
+    ] or [chip_list(chips)]
+
+
+def _line_row(api: GpioApi, ln: ResolvedLine) -> str:
+    """One configured line: its use, how the config names it, where it is and who holds it."""
+    info = api.line_info(ln.chip_path, ln.offset)
+    held = (f"held by {info.consumer!r}" if info.consumer else "held") if info.used else "free"
+    name = f" {info.name!r}" if info.name else ""
+    mode = "output" if info.output else "input"
+    return (
+        f"{ln.use:<22} {ln.ref!s:<16} -> {os.path.basename(ln.chip_path)}:"
+        f"{ln.offset}{name} [{ln.chip_label}] ({mode}, {held})"
+    )

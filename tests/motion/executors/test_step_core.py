@@ -137,6 +137,8 @@ def _assert_slid(c: StepCoreRig, times: list[float], t0: float, rate: float, sta
     assert c.cell(WORST_LAG) / LAG_UNIT == pytest.approx(lag, rel=1e-3)
     # the lateness histogram has the step as late as it came against the plan before it slid
     assert c.core.stats.max_s == pytest.approx(c.cell(SHIFT) / 1e9, abs=1e-9)
+    # ... and its lateness summed (the metrics' summary): the other steps came on time
+    assert c.core.stats.sum_s == pytest.approx(c.core.stats.max_s, abs=1e-9)
 
 
 def test_above_the_start_speed_a_lag_within_the_tolerance_slides_the_schedule(

@@ -1,0 +1,91 @@
+#!/usr/bin/env bash
+# The project's test suite in a fresh Debian root, with Debian's python3 and Debian's packages
+# only: no venv, nothing from PyPI (make test-root SUITE=... ARCH=...).
+#   tests/deb/suite-in-root.sh [PYTEST ARGS...]   (default: the selection below)
+# The root is a fresh copy of the cached debootstrap of DEBROOT_SUITE on DEBROOT_ARCH
+# (tools/debroot.sh; arm64 on this amd64 machine runs under qemu-user) plus the packages the
+# suite imports (PACKAGES), and a copy of the files git knows of in /src (the work tree is
+# never written). Log: build/deb/suite-SUITE-ARCH/pytest.log.
+#
+# Which tests (docs/platforms.md has the figures):
+# - where ARCH runs natively: all of them (`make test`'s selection).
+# - under emulation: the part that proves what differs on another architecture, since the
+#   whole suite takes about 26 minutes there (measured on this 2-core machine, trixie arm64,
+#   pytest -n 2, load 7-9) against about 2.5 natively:
+#     tests/motion/executors/test_step_core.py        the compiled step core (built here, for
+#                                                     arm64's Python 3.13) against the Python
+#                                                     reference, on a virtual clock
+#     tests/motion/executors/process/test_rings.py    the shared-memory rings' ordering between
+#                                                     two processes (arm64's weaker memory order)
+#     tests/motion/executors/process/test_parent.py,  the step executor as a process of its own
+#       tests/motion/executors/process/test_child.py  (the daemon's side and the child's)
+#     tests/daemon/test_serve_e2e.py                  motorctld end to end on a PTY
+#     tests/packaging/test_debian.py                  the package build's runs under Debian's
+#                                                     python3
+#     tests/protocol tests/contract                   the frames (byte order, struct) and the
+#                                                     mock backend's contract, cheap
+#   and, inside those, not the tests that judge step lateness with the real motors' rule
+#   (marker real_rule, and [mock] lose_steps = true): an emulated CPU makes every step late,
+#   so they measure the emulator (the make test and bench/ runs judge timing).
+#   The arm64 package itself (installed, started by its unit, answering) is make test-deb
+#   SUITE=trixie ARCH=arm64.
+# Left out everywhere here (they need what this root deliberately lacks, and run in make test):
+#   tests/docs/test_readme.py (the README's walkthrough uses the checkout's .venv),
+#   tests/packaging/test_wheel.py and test_version.py (pip and an installed wheel's metadata).
+set -euo pipefail
+here=$(cd "$(dirname "$0")/../.." && pwd)
+# shellcheck source=tools/debroot.sh
+. "$here/tools/debroot.sh"
+debroot_needs "make test-root"
+# the suite's imports (radon: tests/test_layout.py's complexity; Debian's package of it is
+# named radon), socat and patch (tests it runs), and what building the compiled step core for
+# the root's Python needs (gcc, its headers, setuptools: as debian/control's Build-Depends)
+PACKAGES="python3-pytest python3-pytest-xdist python3-hypothesis python3-serial python3-libgpiod
+  python3-spidev python3-systemd python3-prometheus-client python3-rich radon socat patch
+  gcc libc6-dev python3-dev python3-setuptools"
+EMULATED=(tests/motion/executors/test_step_core.py tests/motion/executors/process/test_rings.py
+  tests/motion/executors/process/test_parent.py tests/motion/executors/process/test_child.py
+  tests/daemon/test_serve_e2e.py tests/packaging/test_debian.py tests/protocol tests/contract
+  -m "not slow and not real_rule" -k "not lose_steps")
+NEEDS_THE_CHECKOUT=(--ignore=tests/docs/test_readme.py --ignore=tests/packaging/test_wheel.py
+  --ignore=tests/packaging/test_version.py)
+if [ $# -gt 0 ]; then
+  selection=("$@")
+elif [ -n "$debroot_qemu" ]; then
+  selection=("${EMULATED[@]}")
+else
+  selection=(tests -m "not slow" "${NEEDS_THE_CHECKOUT[@]}")
+fi
+out=$debroot_build/deb/suite-$debroot_tag
+mkdir -p "$out"
+root=$debroot_build/suite-root-$debroot_tag
+trap 'debroot_remove "$root"' EXIT
+debroot_fresh "$root"
+
+t0=$SECONDS
+echo "== a fresh $debroot_release $debroot_arch root with Debian's packages for the suite"
+# shellcheck disable=SC2086  # a list of package names
+{ debroot_run "$root" apt-get update -q \
+  && debroot_run "$root" apt-get install -y -q --no-install-recommends $PACKAGES
+} > "$out/apt.log" 2>&1 || { tail -20 "$out/apt.log"; debroot_fail "installing the suite's packages (log: $out/apt.log)"; }
+echo "   installed in $((SECONDS - t0)) s: $(debroot_run "$root" python3 --version)," \
+  "$(debroot_run "$root" dpkg-query -W -f='${Package} ${Version}, ' python3-pytest python3-libgpiod)"
+mkdir -p "$root/src"
+git -C "$here" ls-files -z --cached --others --exclude-standard -- . ':!build' \
+  | tar -C "$here" --null -T - -cf - | tar -C "$root/src" -xf -
+
+t1=$SECONDS
+echo "== the compiled step core for the root's $(debroot_run "$root" python3 --version), built in /src"
+debroot_run "$root" sh -c "cd /src && python3 setup.py -q build_ext --inplace --build-temp /tmp/stepcore" \
+  > "$out/stepcore.log" 2>&1 || { tail -20 "$out/stepcore.log"; debroot_fail "building the compiled step core (log: $out/stepcore.log)"; }
+echo "   built in $((SECONDS - t1)) s: $(cd "$root/src/motion/executors" && ls _stepcore*.so)"
+
+t1=$SECONDS
+args=""; for a in "${selection[@]}"; do args="$args '${a//\'/\'\\\'\'}'"; done
+echo "== pytest -n ${JOBS:-2} in /src:${args}"
+status=0
+debroot_run "$root" HOME=/root sh -c "cd /src && python3 -m pytest -q -n ${JOBS:-2} \
+  -p no:cacheprovider -o addopts=-ra --durations=10 $args" 2>&1 | tee "$out/pytest.log" \
+  || status=$?
+echo "== the suite on $debroot_release $debroot_arch: $([ $status = 0 ] && echo passed || echo "FAILED ($status)") in $((SECONDS - t1)) s (log: $out/pytest.log)"
+exit $status
