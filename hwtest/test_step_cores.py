@@ -20,7 +20,7 @@ import pytest
 
 from hwtest import gsim
 from hwtest.gpiod_harness import GpiodHarness
-from hwtest.layout import MOTORS, where
+from hwtest.layout import GUEST_READY_TIMEOUT_S, MOTORS, where
 from hwtest.test_daemon import example_config
 from motorctl.hal.backends.gpiod.chip import load_api
 from motorctl.hal.compiled_lines import ChardevLines
@@ -158,7 +158,7 @@ def test_the_python_core_asked_for_makes_the_same_pulses(tmp_path: Path) -> None
         chip, off = where(m[3])
         gsim.sim_pull(off, True, chip)  # the example's end stops are active low: clear
     text = example_config().replace("[step_thread]", '[step_thread]\ncore = "python"', 1)
-    d = DaemonProcess(tmp_path, text).start()
+    d = DaemonProcess(tmp_path, text, ready_timeout=GUEST_READY_TIMEOUT_S).start()
     try:
         assert "; step core python;" in d.ready_line
         assert d.status()["executor"]["core"] == "python"

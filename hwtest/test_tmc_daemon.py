@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 
 from hwtest import gsim
-from hwtest.layout import MOTORS, in_the_guest, where
+from hwtest.layout import GUEST_READY_TIMEOUT_S, MOTORS, in_the_guest, where
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
 from tests.support.daemon_proc import DaemonProcess, run_probe
@@ -75,7 +75,9 @@ def daemon(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[DaemonPro
         gsim.sim_pull(off, True, chip)
     tmp = tmp_path_factory.mktemp("tmc")
     control = tmp / "control.json"
-    d = DaemonProcess(tmp, example_config(), env=shim_env(control)).start()
+    d = DaemonProcess(
+        tmp, example_config(), env=shim_env(control), ready_timeout=GUEST_READY_TIMEOUT_S
+    ).start()
     try:
         yield d, control
     finally:

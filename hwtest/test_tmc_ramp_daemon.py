@@ -15,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from hwtest import gsim
-from hwtest.layout import MOTORS, where
+from hwtest.layout import GUEST_READY_TIMEOUT_S, MOTORS, where
 from hwtest.test_tmc_daemon import API, REPO, example_config
 from motorctl.hal.backends.gpiod.chip import load_api
 from tests.support.daemon_proc import DaemonProcess
@@ -62,7 +62,7 @@ def test_a_ramp_motor_without_step_dir_leaves_those_lines_alone(
     }
     base = gsim.chip_base("gpiochip0")
     gsim.trace_start()  # every level the daemon sets, from its start to its exit
-    d = DaemonProcess(tmp_path, ramp_config(), env=env).start()
+    d = DaemonProcess(tmp_path, ramp_config(), env=env, ready_timeout=GUEST_READY_TIMEOUT_S).start()
     try:
         api = load_api(API)
         for offset in (5, 6, 20):  # z's STEP, DIR, end stop in the example: not named now
