@@ -75,12 +75,24 @@ def inotify(path: str, mask: int) -> int:
     return fd
 
 
+#: bytes asked of one read of an inotify descriptor
+_READ_SIZE = 65536
+#: a read that returned less than this took every event pending: the next one (16 bytes and a
+#: name of up to NAME_MAX bytes, NUL-padded) would have fitted
+_READ_ALL = _READ_SIZE - (16 + 256)
+
+
 def read_events(fd: int) -> list[tuple[int, int, str]]:
-    """Every event pending on inotify descriptor ``fd``: (watch, mask, name)."""
+    """Every event pending on inotify descriptor ``fd``: (watch, mask, name).
+
+    One read takes them all unless the buffer filled up (a read returns every pending event
+    that fits): then it reads again. An event that comes after the last read makes ``fd``
+    readable again. (No read that can only say EAGAIN: the PTY's watch is asked on every
+    read of the port, and a system call there shows in every round trip.)"""
     out: list[tuple[int, int, str]] = []
     while True:
         try:
-            data = os.read(fd, 65536)
+            data = os.read(fd, _READ_SIZE)
         except BlockingIOError:
             return out
         pos = 0
@@ -88,7 +100,9 @@ def read_events(fd: int) -> list[tuple[int, int, str]]:
             wd, mask, _cookie, size = _EVENT.unpack_from(data, pos)
             name = data[pos + _EVENT.size : pos + _EVENT.size + size].rstrip(b"\0")
             pos += _EVENT.size + size
-            out.append((wd, mask, os.fsdecode(name)))
+            out.append((wd, mask, os.fsdecode(name) if name else ""))
+        if len(data) < _READ_ALL:
+            return out
 
 
 def _libc() -> ctypes.CDLL | None:

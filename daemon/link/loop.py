@@ -382,12 +382,14 @@ class Link:
         processing time of every read that produced answers is recorded."""
         opening = self.peer_gone
         if opening:  # a new host's first bytes (found by a poll or a look)
-            self._open_session()
+            self.peer_gone = False
+            if self.pty is not None:
+                self.pty.release()  # before its answers (PtySlave.release)
         self._received(data, now)
         if self._flush():
             self.processing.record_ns(round((self.clock() - now) * 1e9))
-        if opening and self.pty is not None:  # after its first answers: they come first
-            self.pty.release()
+        if opening:  # the rest of its session's start, after its first answers
+            self._open_session()
 
     def _flush(self) -> bool:
         """Write what the descriptor takes without blocking; True if anything new was queued."""
@@ -448,8 +450,8 @@ class Link:
             self._poller.modify(self._opens, 0)
 
     def _open_session(self) -> None:
-        """A host is there again (a new session): its opens and closes are watched again;
-        the slave held meanwhile is let go once its first bytes are answered (:meth:`_take`)."""
+        """A host is there again (a new session): its opens and closes are watched again
+        (the slave held meanwhile was let go before its first answers, :meth:`_take`)."""
         self.peer_gone = False
         if self._opens is not None:
             self._poller.modify(self._opens, POLLIN)
@@ -487,9 +489,10 @@ class Link:
             return
         if events & POLLGONE and not data:
             return
-        self._open_session()
         if data:
-            self._take(data, now)
+            self._take(data, now)  # its session begins, once they are answered
+        else:
+            self._open_session()
 
     def _received(self, data: bytes, now: float) -> None:
         """A run of bytes read at ``now``: it keeps the link alive, the trace records it,

@@ -173,17 +173,31 @@ class PtySlave:
             except OSError as exc:
                 self._warn(f"cannot open {self.name}: {exc.strerror}")
                 return 0
+        self._fd = fd
         stale = 0
         try:
-            stale = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+            # Read, not just counted: a read that finds nothing waits for what the master
+            # wrote last to reach the slave's input (the kernel moves it there on a worker
+            # thread, a moment later), so an answer written just before the host closed is
+            # counted too. In a canonical mode (a host may leave one set) a partial line is
+            # not readable: counted, then flushed with the rest.
+            while chunk := os.read(fd, 4096):
+                stale += len(chunk)
+        except BlockingIOError:
+            pass
+        except OSError as exc:
+            self._warn(f"cannot read what the last host left unread on {self.name}: {exc}")
+        try:
+            stale += struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
             termios.tcflush(fd, termios.TCIFLUSH)
         except (OSError, termios.error) as exc:
             self._warn(f"cannot flush what the last host left unread on {self.name}: {exc}")
-        self._fd = fd
         return stale
 
     def release(self) -> None:
-        """Let go of the slave (a host has it now: its session begins)."""
+        """Let go of the slave (a host has it now: its session begins). Before the host's
+        first answers are written: a close just after them holds up the host's read of
+        them (by some 25 us here)."""
         self._closed = False
         fd, self._fd = self._fd, -1
         if fd >= 0:

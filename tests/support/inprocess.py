@@ -107,6 +107,7 @@ class LiveDaemon:
         fd: int | None = None,
         gap_s: float = 0.010,
         start: bool = True,
+        slave_watch: bool = True,
         **link_kw: Any,
     ) -> None:
         clock = MonotonicClock() if motion else VirtualClock()
@@ -116,7 +117,7 @@ class LiveDaemon:
         self.path = tmp / "pty"
         if fd is None:
             fd, self.name = open_pty(self.path)
-            link_kw.setdefault("pty", PtySlave(fd, self.name))
+            link_kw.setdefault("pty", PtySlave(fd, self.name, watch=slave_watch))
         self.fd = fd
         self.link = Link(fd, port or self.daemon.dispatcher, OPTS, gap_s, 16, **link_kw)
         self.daemon.link = self.link

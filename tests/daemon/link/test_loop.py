@@ -552,3 +552,153 @@ def test_a_host_that_closes_and_opens_again_before_the_link_looks(tmp_path: Path
     finally:
         gated.gate.set()
         s.close()
+
+
+@pytest.mark.parametrize("watched", [True, False], ids=["watched", "unwatched"])
+def test_a_session_ends_with_its_host_whether_the_slave_is_watched_or_not(
+    tmp_path: Path, watched: bool
+) -> None:
+    """The link holds the slave while no host has the port and lets go of it when a
+    session begins; the master's hang-up says that the host closed it (the slave's watch
+    also tells a reconnect that the master never reports). Either way the host's close
+    ends its session, the answers it owed are dropped, and the next host reads only its
+    own."""
+    s = LiveDaemon(tmp_path, LIVE_CONFIG, motion=True, slave_watch=watched)
+    try:
+        assert s.link.pty is not None and (s.link.pty.events_fd is not None) is watched
+        old = s.host()
+        old.write(frame(MoveTo(0, True, 6000, 250, 0, 0)))
+        assert old.responses(1)[0].ack
+        assert not s.link.pty.held  # while the host has it
+        old.write(frame(WaitMoved(0, 30_000), GetAbsPos(1)))
+        s.until("the WaitMoved held, GetAbsPos kept", lambda: s.link.status()["held"] == 1)
+        old.close()
+        s.until("the session's end", lambda: s.counters()["peer_closed"] == 1)
+        assert s.link.pty.held  # no host: held either way
+        new = s.host()
+        try:
+            new.write(frame(IsReady(1)))
+            assert new.responses(1) == [Response.boolean(True)]
+            assert new.nothing_within(0.1)
+            c = s.counters()  # while the new host is there (its close may be counted next)
+        finally:
+            new.close()
+        assert c["peer_closed"] == 1 and c["responses_dropped"] == 2
+        assert c["responses_dropped_wait"] == 1 and c["responses_dropped_held"] == 1
+        s.until("the new host's close", lambda: s.counters()["peer_closed"] == 2)
+    finally:
+        s.close()
+
+
+@pytest.mark.parametrize("watched", [True, False], ids=["watched", "unwatched"])
+def test_a_frame_sent_just_before_the_close_is_its_hosts(tmp_path: Path, watched: bool) -> None:
+    """A host that writes a command and closes the port at once, not waiting for its answer:
+    the command is its session's, executed, and its answer dropped with the session and
+    counted, however soon after it was written the session ended (the kernel moves it to
+    the slave's input a moment after the write: the daemon reads it out, and a read waits
+    for it); the next host reads only its own."""
+    served = LiveDaemon(tmp_path, LIVE_CONFIG, slave_watch=watched)  # output pin 0
+    try:
+        _write_and_close(served)
+    finally:
+        served.close()
+
+
+def _write_and_close(served: LiveDaemon) -> None:
+    for n in range(1, 21):
+        old = served.host()
+        old.write(frame(SetPin(0, n % 2 == 1)))
+        old.close()
+        served.until("the session's end", lambda k=2 * n - 1: served.counters()["peer_closed"] == k)
+        new = served.host()
+        try:
+            new.write(frame(GetPin(0)))  # the level the old host's SetPin left
+            assert new.responses(1) == [Response.boolean(n % 2 == 1)]
+            assert new.nothing_within(0.02)
+        finally:
+            new.close()
+        served.until("the new host's close", lambda k=2 * n: served.counters()["peer_closed"] == k)
+    c = served.counters()
+    # the SetPin answers never reached anybody: dropped as unsent (left in the kernel, or
+    # still owed when the close was seen)
+    assert c["responses_dropped_unsent"] == 20 and c["responses_dropped"] == 20
+
+
+class GatedRecorder:
+    """A byte recorder (the link's trace hook, called on its thread) that keeps the link
+    waiting on the first bytes it reads, once ``gate`` is cleared, for as long as the test
+    needs."""
+
+    def __init__(self) -> None:
+        self.gate = threading.Event()
+        self.gate.set()
+        self.entered = threading.Event()
+
+    def received(self, data: bytes, t: float) -> None:
+        if not self.gate.is_set():
+            self.entered.set()
+            self.gate.wait(DEADLINE_S)
+
+    def sent(self, data: bytes, t: float) -> None:
+        pass
+
+
+def test_a_partial_frame_of_a_host_gone_before_the_link_looked_is_not_the_next_ones(
+    tmp_path: Path,
+) -> None:
+    """A host's first bytes, 4 of a frame, are read; while the link is still busy with
+    them, the host closes the port and a new host opens it and writes: the new host's bytes
+    are a session of their own (the 4 bytes went with the old one), and its answer is its
+    own. (The slave's watch tells it: without one, the master never says that the old host
+    closed the port, docs/protocol.md.)"""
+    gated = GatedRecorder()
+    s = LiveDaemon(tmp_path, recorder=gated)
+    try:
+        gated.gate.clear()
+        old = s.host()
+        old.write(frame(GetAbsPos(0))[:4])
+        assert gated.entered.wait(DEADLINE_S), "the link never read the old host's bytes"
+        old.close()  # and at once a new host, while the link is busy with the old bytes
+        new = s.host()
+        try:
+            new.write(frame(IsReady(1)))
+            gated.gate.set()
+            assert new.responses(1) == [Response.boolean(True)]
+            assert new.nothing_within(0.1)
+            c = s.counters()
+        finally:
+            new.close()
+        assert c["peer_closed"] == 1 and c["hangup_partial_bytes"] == 4
+        assert c["frames"] == 1 and c["responses_dropped"] == 0
+    finally:
+        gated.gate.set()
+        s.close()
+
+
+def test_another_writer_that_closes_the_port_does_not_end_the_hosts_session(
+    served: LiveDaemon,
+) -> None:
+    """The slave's watch says that a description opened for writing was closed, not whose:
+    a second program that opens the port and closes it (``echo > PORT``) while the host
+    has it does not end the host's session (the master reports no hang-up: the host still
+    has the port). More such programs are opens after a close, as when a host reconnects
+    (the session may end there: docs/protocol.md); the host's commands are answered
+    throughout, and its own close ends its session."""
+    host = served.host()
+    assert served.link.pty is not None
+    try:
+        host.write(frame(IsReady(0)))
+        assert host.responses(1) == [Response.boolean(True)]
+        for n in range(3):
+            other = os.open(served.name, os.O_WRONLY | os.O_NOCTTY)
+            os.close(other)
+            host.write(frame(GetAbsPos(0)))
+            assert host.responses(1) == [Response.position(0)]
+            assert host.nothing_within(0.02)
+            if n == 0:  # the close alone (the watch's news taken with the bytes)
+                assert served.counters()["peer_closed"] == 0
+        closed = served.counters()["peer_closed"]
+    finally:
+        host.close()
+    served.until("the host's close", lambda: served.counters()["peer_closed"] == closed + 1)
+    assert served.link.status()["peer"] == "closed"
