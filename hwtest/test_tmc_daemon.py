@@ -9,10 +9,8 @@ example exactly as on a Pi: every driver identified, configured and read back, t
 
 from __future__ import annotations
 
-import json
 import os
 import re
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -20,9 +18,8 @@ import pytest
 
 from hwtest import gsim
 from hwtest.layout import GUEST_READY_TIMEOUT_S, MOTORS, in_the_guest, where
-from motorctl.client.client import DeviceError
-from motorctl.protocol.codec import ErrorCode
 from tests.support.daemon_proc import DaemonProcess, run_probe
+from tests.support.stand_ins import set_chips, stand_in_env, until_cleared, until_e4
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
 
@@ -30,15 +27,6 @@ REPO = Path(__file__).resolve().parent.parent
 EXAMPLE = REPO / "docs" / "examples" / "raspberry-pi.toml"
 API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
 CHIPS = {"0.0": "tmc5160:step_dir", "0.1": "tmc5160:step_dir", "0.2": "tmc5160:step_dir"}
-
-
-def set_chips(control: Path, state: dict[str, dict[str, object]]) -> None:
-    """Tell the chip models their new state: written beside and renamed into place, since the
-    daemon's poll reads the file whenever it changes (a write in place could be read half
-    done, as an empty file: a JSON error in the stand-in library, not the fault asked for)."""
-    part = control.with_suffix(".part")
-    part.write_text(json.dumps(state))
-    os.replace(part, control)
 
 
 def example_config() -> str:
@@ -50,11 +38,7 @@ def example_config() -> str:
 
 def shim_env(control: Path) -> dict[str, str]:
     """What makes the daemon's ``import spidev`` find the stand-in with the three models."""
-    shim = str(REPO / "tests" / "fakespi")
-    return {
-        "PYTHONPATH": os.pathsep.join(p for p in (shim, os.environ.get("PYTHONPATH")) if p),
-        "MOTORCTL_FAKE_SPI": json.dumps({"chips": CHIPS, "control": str(control)}),
-    }
+    return stand_in_env("spidev", chips=CHIPS, control=control)
 
 
 def test_probe_lists_the_three_drivers(tmp_path: Path) -> None:
@@ -103,24 +87,9 @@ def test_a_driver_fault_on_spi_answers_e4_while_gpio_steps_the_others(
         c.wait_moved(1, timeout_ms=20_000)
         assert c.position(1) == 200
         set_chips(control, {"0.0": {"faults": [25]}})  # x: over-temperature
-        deadline = time.monotonic() + 10.0
-        while True:
-            try:
-                c.move_to(0, 100, speed=250)
-                c.wait_moved(0, timeout_ms=20_000)
-            except DeviceError as exc:
-                assert exc.code is ErrorCode.MOTOR_ERROR
-                break
-            assert time.monotonic() < deadline, "no E4 within 10 s of the fault"
+        until_e4(c, 0, 100, timeout_ms=20_000)
         set_chips(control, {"0.0": {"faults": []}})
-        deadline = time.monotonic() + 10.0
-        while True:
-            try:
-                c.stop(0, hard=True)
-                break
-            except DeviceError:
-                assert time.monotonic() < deadline, "the fault did not clear within 10 s"
-                time.sleep(0.05)
+        until_cleared(c, 0)
         c.move_to(1, 0, speed=250)
         c.wait_moved(1, timeout_ms=20_000)
         assert c.position(1) == 0

@@ -6,9 +6,6 @@ in for py-spidev there, with register-level chip models (tests/support/tmc_model
 
 from __future__ import annotations
 
-import json
-import os
-import time
 from pathlib import Path
 
 import pytest
@@ -16,7 +13,7 @@ import pytest
 from motorctl.client.client import DeviceError
 from motorctl.protocol.codec import ErrorCode
 from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
-from tests.support.stand_ins import stand_in_env
+from tests.support.stand_ins import set_chips, stand_in_env, until_cleared, until_e4
 
 CONFIG = """\
 [[motors]]
@@ -56,12 +53,6 @@ def fake_spi(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return control
 
 
-def set_chips(control: Path, state: dict[str, object]) -> None:
-    tmp = control.with_suffix(".tmp")
-    tmp.write_text(json.dumps(state))
-    os.replace(tmp, control)
-
-
 @pytest.fixture
 def daemon(motorctld: StartDaemon, fake_spi: Path) -> DaemonProcess:
     return motorctld(CONFIG, kill_at_end=True)
@@ -72,28 +63,13 @@ def test_a_driver_fault_answers_e4_until_it_clears(daemon: DaemonProcess, fake_s
         c.move_to(0, 50, speed=250)
         c.wait_moved(0, timeout_ms=10_000)
         set_chips(fake_spi, {"0.0": {"faults": [25]}})  # over-temperature on motor x
-        deadline = time.monotonic() + 10.0
-        while True:  # a move either is refused (E4) or is stopped by the fault (E4)
-            try:
-                c.move_to(0, 0, speed=250)
-                c.wait_moved(0, timeout_ms=10_000)
-            except DeviceError as exc:
-                assert exc.code is ErrorCode.MOTOR_ERROR
-                break
-            assert time.monotonic() < deadline, "no E4 within 10 s of the fault"
+        until_e4(c, 0, 0, timeout_ms=10_000)
         with pytest.raises(DeviceError) as e:
             c.stop(0, hard=True)  # the driver still reports it: the fault stays
         assert e.value.code is ErrorCode.MOTOR_ERROR
         c.move_to(1, 100, speed=250)  # motor y is unaffected
         set_chips(fake_spi, {"0.0": {"faults": []}})
-        deadline = time.monotonic() + 10.0
-        while True:
-            try:
-                c.stop(0, hard=True)
-                break
-            except DeviceError:
-                assert time.monotonic() < deadline, "the fault did not clear within 10 s"
-                time.sleep(0.05)
+        until_cleared(c, 0)
         c.move_to(0, 10, speed=250)
         c.wait_moved(0, timeout_ms=10_000)
     drivers = daemon.status()["drivers"]
