@@ -354,11 +354,30 @@ def run(args: argparse.Namespace) -> int:
     except (TraceFileError, ValueError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 2
+    problems = _problems(recording, len(args.files))
+    warn(problems)
+    convs = [analyse(link.records, info) for link, info in zip(recording.links, infos, strict=True)]
+    starts = [link.records[0].ts_ns for link in recording.links if link.records]
+    t0 = min(starts) if starts else 0
+    if args.json:
+        json.dump(
+            _json_doc(args.files, recording, infos, convs, problems, t0), sys.stdout, indent=1
+        )
+        print()
+        return 0
+    for link, info, conv in zip(recording.links, infos, convs, strict=True):
+        title = f"interface {link.interface}: " if len(recording.links) > 1 else ""
+        print_table(conv, info, problems if link is recording.links[-1] else [], t0, title)
+    return 0
+
+
+def _problems(recording: Recording, files: int) -> list[str]:
+    """What the reader of ``files`` files found, and what was decoded how: said first."""
     problems = list(recording.problems)
     if len(recording.interfaces) > 1:
         problems.insert(
             0,
-            f"the file{'s hold' if len(args.files) > 1 else ' holds'} interfaces "
+            f"the file{'s hold' if files > 1 else ' holds'} interfaces "
             f"{recording.describe_interfaces()}: "
             + (
                 "each decoded as its own link (--interface N reads one)"
@@ -371,52 +390,53 @@ def run(args: argparse.Namespace) -> int:
             problems.append(
                 f"interface {link.interface}: no motorctl header: decoded with the default settings"
             )
-    warn(problems)
-    convs = [analyse(link.records, info) for link, info in zip(recording.links, infos, strict=True)]
-    starts = [link.records[0].ts_ns for link in recording.links if link.records]
-    t0 = min(starts) if starts else 0
-    several = len(args.files) > 1
-    if args.json:
-        rows: list[dict[str, Any]] = []
-        for link, conv in zip(recording.links, convs, strict=True):
-            rows += [row_json(r, t0, link.file_of(r.run) if several else None) for r in conv.rows]
-        rows.sort(key=lambda r: r["ts_ns"])
-        links = [
-            {
-                "interface": link.interface,
-                "name": link.name,
-                "info": info_json(info),
-                "runs": len(link.records),
-                "sessions": link.sessions,
-                "summary": summary(conv),
-            }
-            for link, info, conv in zip(recording.links, infos, convs, strict=True)
-        ]
-        doc: dict[str, Any] = {
-            "files": [str(f) for f in args.files],
-            "formats": recording.formats,
-            "interfaces": [
-                {
-                    "interface": i.number,
-                    "link_type": i.link_type,
-                    "name": i.name,
-                    "role": i.info.role if i.info is not None else None,
-                    "decoded": any(link.interface == i.number for link in recording.links),
-                }
-                for i in recording.interfaces
-            ],
-            "links": links,
-            "t0_ns": t0,
+    return problems
+
+
+def _json_doc(
+    files: list[Path],
+    recording: Recording,
+    infos: list[CaptureInfo],
+    convs: list[Conversation],
+    problems: list[str],
+    t0: int,
+) -> dict[str, Any]:
+    """``motorctl trace --json``'s document (docs/trace.md)."""
+    several = len(files) > 1
+    rows: list[dict[str, Any]] = []
+    for link, conv in zip(recording.links, convs, strict=True):
+        rows += [row_json(r, t0, link.file_of(r.run) if several else None) for r in conv.rows]
+    rows.sort(key=lambda r: r["ts_ns"])
+    links = [
+        {
+            "interface": link.interface,
+            "name": link.name,
+            "info": info_json(info),
+            "runs": len(link.records),
+            "sessions": link.sessions,
+            "summary": summary(conv),
         }
-        if len(links) == 1:
-            doc["info"] = links[0]["info"]
-            doc["summary"] = links[0]["summary"]
-        doc["rows"] = rows
-        doc["problems"] = problems
-        json.dump(doc, sys.stdout, indent=1)
-        print()
-        return 0
-    for link, info, conv in zip(recording.links, infos, convs, strict=True):
-        title = f"interface {link.interface}: " if len(recording.links) > 1 else ""
-        print_table(conv, info, problems if link is recording.links[-1] else [], t0, title)
-    return 0
+        for link, info, conv in zip(recording.links, infos, convs, strict=True)
+    ]
+    doc: dict[str, Any] = {
+        "files": [str(f) for f in files],
+        "formats": recording.formats,
+        "interfaces": [
+            {
+                "interface": i.number,
+                "link_type": i.link_type,
+                "name": i.name,
+                "role": i.info.role if i.info is not None else None,
+                "decoded": any(link.interface == i.number for link in recording.links),
+            }
+            for i in recording.interfaces
+        ],
+        "links": links,
+        "t0_ns": t0,
+    }
+    if len(links) == 1:
+        doc["info"] = links[0]["info"]
+        doc["summary"] = links[0]["summary"]
+    doc["rows"] = rows
+    doc["problems"] = problems
+    return doc
