@@ -146,7 +146,7 @@ def _sign(x: float) -> int:
 
 
 @dataclass
-class Recording:
+class RecordedMotions:
     """The recording's motions, and what each frame is to one (``roles``: frame number ->
     role, episode): "start" (its first motion command), "moving" (a position read while it
     moved, before any stop), "stop" (its StopMove), "after_soft" (a position read after its
@@ -188,7 +188,7 @@ class _Builder:
         self.frames = frames
         self.spans = spans
         self.j = j
-        self.rec = Recording()
+        self.rec = RecordedMotions()
         self.current: dict[int, Episode] = {}
         self.rest_pos: dict[int, int | None] = {}
         self.waiting_rest: dict[int, Episode] = {}  # stopped, where it stands not read yet
@@ -312,7 +312,7 @@ class _Builder:
             self.home[motor] = self.rest_pos.get(motor)
 
 
-def recording(conv: Conversation, spans: dict[int, Span], j: float) -> Recording:
+def recording(conv: Conversation, spans: dict[int, Span], j: float) -> RecordedMotions:
     """The recording's motions: episodes from rest to rest and what each frame is to them.
 
     A motion command's ACK starts one (or joins the running one: queued); IsReady TRUE, a
