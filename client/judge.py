@@ -50,6 +50,7 @@ from motorctl.protocol.codec import (
 )
 
 TIME_TOLERANCE_S = 0.05
+SLIDE_TOLERANCE = 0.05
 POSITION_TOLERANCE = 2
 
 # --- verdicts --------------------------------------------------------------------------------
@@ -59,6 +60,22 @@ POSITION_TOLERANCE = 2
 class Tolerances:
     time_s: float = TIME_TOLERANCE_S
     position: int = POSITION_TOLERANCE
+    #: how far a motion may slide behind its plan, as a share of its time so far: a
+    #: device's late steps slide the rest of a move (docs/timing.md), the more the longer it
+    #: runs, and differently in two runs
+    slide: float = SLIDE_TOLERANCE
+
+    def device_timing(self, j: float, t: float) -> tuple[float, str]:
+        """The device timing allowed ``t`` s into a motion, from ``j`` (the time
+        tolerance, maybe widened by the pacing): j and the slide over t; and its text."""
+        slid = self.slide * max(0.0, t)
+        text = f"device timing +-{j * 1000:.0f} ms"
+        if slid >= 0.0005:
+            text += (
+                f" and a slide of up to {self.slide * 100:g}% of its {t:.3f} s "
+                f"(+-{slid * 1000:.0f} ms)"
+            )
+        return j + slid, text
 
 
 @dataclass
@@ -100,8 +117,12 @@ def _frame_pos(row: Row) -> int:
     return row.response.as_position
 
 
-def judge_position(f: Frame, role: str, ep: Episode, b: Row, ctx: Context, j: float) -> Check:
-    """A position that timing decides (role "moving", "after_soft", "rest")."""
+def judge_position(
+    f: Frame, role: str, ep: Episode, b: Row, ctx: Context, j0: float, j: float, timing: str
+) -> Check:
+    """A position that timing decides (role "moving", "after_soft", "rest"); ``j0``: the
+    time tolerance, ``j``: the device timing allowed, the motion's slide added (``timing``,
+    in words)."""
     assert f.answer is not None
     rp = ctx.episodes[ep.first.number]
     pa, pb = _frame_pos(f.answer), _frame_pos(b)
@@ -109,14 +130,14 @@ def judge_position(f: Frame, role: str, ep: Episode, b: Row, ctx: Context, j: fl
     if role == "moving":
         tau = ctx.rep_spans[f.number].since(rp.start)
         rec_tau = ctx.rec_spans[f.number].since(ep.start)
-        check = positions(ep, rp, "f", tau, j, tol)
+        check = positions(ep, rp, "f", tau, j, tol, j0)
         what = f"read while moving, {gap(rec_tau, tau)} from the recorded read in its time"
     elif rp.stop is None or ep.stop_tau is None:
         return Check(False, "its stop was not answered in the replay")
     else:
         tau = rp.stop.since(rp.start)
         which = "after_soft" if role == "after_soft" else ("f" if ep.hard else "q")
-        check = positions(ep, rp, which, tau, j, tol)
+        check = positions(ep, rp, which, tau, j, tol, j0)
         kind = "hard" if ep.hard else "soft"
         assert ep.stop is not None
         what = (
@@ -131,19 +152,24 @@ def judge_position(f: Frame, role: str, ep: Episode, b: Row, ctx: Context, j: fl
         fits,
         f"{what}: {abs(wrapped(pb - pa))} steps from the recorded; "
         f"{'allowed' if fits else 'outside'} {lo}..{hi} ({check.why}; "
-        f"device timing +-{j * 1000:.0f} ms, +-{tol} steps)",
+        f"{timing}, +-{tol} steps)",
         off=wrapped(pb - pa),
         allowed=check.allowed,
     )
 
 
-def judge_end(f: Frame, ep: Episode, b: Row, ctx: Context, j: float) -> Check:
-    """An answer that says whether the motion had ended, against when it ended recorded."""
+def judge_end(
+    f: Frame, ep: Episode, b: Row, ctx: Context, j0: float, j: float, timing: str
+) -> Check:
+    """An answer that says whether the motion had ended, against when it ended recorded;
+    ``j0``: the time tolerance (when an end is seen, when a stop takes effect), ``j``: the
+    device timing allowed for the end itself, the motion's slide added (``timing``, in
+    words)."""
     rp = ctx.episodes[ep.first.number]
     cmd = f.command
     assert cmd is not None and b.response is not None
-    seen = ends(cmd, b.response, ctx.rep_spans[f.number], rp.start, j)
-    shift, shift_why = end_shift(ep, rp, j)
+    seen = ends(cmd, b.response, ctx.rep_spans[f.number], rp.start, j0)
+    shift, shift_why = end_shift(ep, rp, j0)
     expect = Span(ep.end.lo + shift.lo - j, ep.end.hi + shift.hi + j)
     said = answer_text(cmd, b.response)
     if seen is None:
@@ -153,8 +179,7 @@ def judge_end(f: Frame, ep: Episode, b: Row, ctx: Context, j: float) -> Check:
     return Check(
         fits,
         f"{said}: its end here {seen.text()} into the motion, recorded {ep.end.text()}; "
-        f"{'allowed' if fits else 'outside'} {expect.text()} (device timing "
-        f"+-{j * 1000:.0f} ms{because})",
+        f"{'allowed' if fits else 'outside'} {expect.text()} ({timing}{because})",
     )
 
 
@@ -210,19 +235,23 @@ class Judge:
     def _timed(
         self, f: Frame, role: str, ep: Episode | None, a: Row, b: Row, j: float | None = None
     ) -> Check | None:
-        """The judgment of an answer timing decides; None for the others."""
-        j = self.ctx.tol.time_s if j is None else j
+        """The judgment of an answer timing decides; None for the others. ``j``: the time
+        tolerance (None: the configured one), to which the slide over the motion's time
+        until this answer is added."""
         if ep is None or f.number not in self.ctx.rep_spans:
             return None
         if ep.first.number not in self.ctx.episodes:  # its start was not answered here
             return None
+        t = self.ctx.rep_spans[f.number].since(self.ctx.episodes[ep.first.number].start).hi
+        j0 = self.ctx.tol.time_s if j is None else j
+        j, timing = self.ctx.tol.device_timing(j0, t)
         if role in ("moving", "after_soft", "rest") and _both_ack(a, b):
-            return judge_position(f, role, ep, b, self.ctx, j)
+            return judge_position(f, role, ep, b, self.ctx, j0, j, timing)
         if role == "ended?" and b.response is not None:
             held = isinstance(f.command, WaitMoved) and _both_ack(a, b)
             if a.data == b.data and not held:
                 return None
-            return judge_end(f, ep, b, self.ctx, j)
+            return judge_end(f, ep, b, self.ctx, j0, j, timing)
         return None
 
     def _exact(self, f: Frame, a: Row, b: Row) -> Check | None:

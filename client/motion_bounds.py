@@ -233,15 +233,19 @@ def _rest_range(
     return envelope(pts, tau, v, j, m.start_known, m.cap)
 
 
-def positions(ep: Episode, rp: Replayed, which: str, tau: Span, j: float, tol: int) -> Check:
+def positions(
+    ep: Episode, rp: Replayed, which: str, tau: Span, j: float, tol: int, j0: float | None = None
+) -> Check:
     """Where the replay's motor may be (its own positions) at ``tau`` (the replay's motion
     time): ``which`` "f" the motion itself, "q" where a soft stop at ``tau`` brings it to
-    rest, "after_soft" anywhere between the two."""
+    rest, "after_soft" anywhere between the two. ``j``: the device timing that widens every
+    comparison of two moments (a slide included); ``j0`` (default ``j``): the time tolerance
+    alone, by which the recorded motion's start may lag its answer (the speed bound)."""
     m = _frame_of(ep, rp, tol)
     if isinstance(m, Check):
         return m
     latest = max((p.tau.hi for p in known_points(ep)), default=0.0)
-    speed = speed_bound(ep, max(tau.hi, latest) + j, j)
+    speed = speed_bound(ep, max(tau.hi, latest) + j, j if j0 is None else j0)
     ratio, ratio_why = accel_ratio(ep)
     vq = None if speed.v is None else speed.v * ratio
     lo, hi = _motion_range(ep, m, speed.v, tau, j) if which != "q" else (0.0, 0.0)

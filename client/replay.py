@@ -31,6 +31,7 @@ import serial
 from motorctl.client.conversation import Conversation, analyse
 from motorctl.client.judge import (
     POSITION_TOLERANCE,
+    SLIDE_TOLERANCE,
     TIME_TOLERANCE_S,
     Tolerances,
     Verdict,
@@ -255,7 +256,11 @@ def report_json(args: argparse.Namespace, tol: Tolerances, out: Outcome) -> None
         "file": [str(f) for f in args.files],
         "port": args.port,
         "fast": args.fast,
-        "tolerances": {"time_ms": tol.time_s * 1000, "position_steps": tol.position},
+        "tolerances": {
+            "time_ms": tol.time_s * 1000,
+            "slide_percent": tol.slide * 100,
+            "position_steps": tol.position,
+        },
         "frames": out.frames,
         "exact": out.count("exact"),
         "tolerated": out.count("tolerated"),
@@ -346,6 +351,15 @@ def add_parser(sub: Any) -> None:
         "their plan, when its end is seen (default 50)",
     )
     p.add_argument(
+        "--slide-tolerance",
+        type=float,
+        default=SLIDE_TOLERANCE * 100,
+        metavar="PERCENT",
+        help="how much further a motion may slide behind its plan in one run than in the "
+        "other, as a share of its time so far: a device's late steps slide the rest of a "
+        "move (docs/timing.md; default 5)",
+    )
+    p.add_argument(
         "--position-tolerance",
         type=int,
         default=POSITION_TOLERANCE,
@@ -426,7 +440,9 @@ def run(args: argparse.Namespace) -> int:
         print(f"error: {player}", file=sys.stderr)
         return 2
     replayed = analyse(player.records, info)
-    tol = Tolerances(args.time_tolerance_ms / 1000.0, args.position_tolerance)
+    tol = Tolerances(
+        args.time_tolerance_ms / 1000.0, args.position_tolerance, args.slide_tolerance / 100.0
+    )
     t0 = records[0].ts_ns
     verdicts = compare(
         recorded,
