@@ -536,17 +536,7 @@ def test_a_host_that_closes_and_opens_again_before_the_link_looks(tmp_path: Path
         s.link.wake()
         assert gated.entered.wait(DEADLINE_S), "the link never looked at its WaitMoved"
         old.close()  # and at once a new host: the link is busy meanwhile
-        new = s.host()
-        try:
-            new.write(frame(IsReady(1)))
-            gated.gate.set()
-            assert new.responses(1) == [Response.boolean(True)]
-            assert new.nothing_within(0.1)
-            # read while the new host is still there: its own close, once made, may be
-            # counted at any moment
-            c = s.counters()
-        finally:
-            new.close()
+        c = _new_host_while_busy(s, gated.gate)
         assert c["peer_closed"] == 1
         assert c["responses_dropped_wait"] == 1 and c["responses_dropped_held"] == 1
     finally:
@@ -624,6 +614,22 @@ def _write_and_close(served: LiveDaemon) -> None:
     assert c["responses_dropped_unsent"] == 20 and c["responses_dropped"] == 20
 
 
+def _new_host_while_busy(s: LiveDaemon, gate: threading.Event) -> dict[str, int]:
+    """A new host opens the port and sends IsReady(1) while the link is kept busy (the old
+    host has closed it); ``gate`` set, it must read its own answer and nothing else. The
+    link's counters, read while the new host is still there (its own close, once made, may
+    be counted at any moment)."""
+    new = s.host()
+    try:
+        new.write(frame(IsReady(1)))
+        gate.set()
+        assert new.responses(1) == [Response.boolean(True)]
+        assert new.nothing_within(0.1)
+        return s.counters()
+    finally:
+        new.close()
+
+
 class GatedRecorder:
     """A byte recorder (the link's trace hook, called on its thread) that keeps the link
     waiting on the first bytes it reads, once ``gate`` is cleared, for as long as the test
@@ -659,15 +665,7 @@ def test_a_partial_frame_of_a_host_gone_before_the_link_looked_is_not_the_next_o
         old.write(frame(GetAbsPos(0))[:4])
         assert gated.entered.wait(DEADLINE_S), "the link never read the old host's bytes"
         old.close()  # and at once a new host, while the link is busy with the old bytes
-        new = s.host()
-        try:
-            new.write(frame(IsReady(1)))
-            gated.gate.set()
-            assert new.responses(1) == [Response.boolean(True)]
-            assert new.nothing_within(0.1)
-            c = s.counters()
-        finally:
-            new.close()
+        c = _new_host_while_busy(s, gated.gate)
         assert c["peer_closed"] == 1 and c["hangup_partial_bytes"] == 4
         assert c["frames"] == 1 and c["responses_dropped"] == 0
     finally:
