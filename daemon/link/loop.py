@@ -35,7 +35,8 @@ What the shell does, and why:
   owed to it is dropped and counted by cause (``responses_dropped_*``; logged a moment
   later, session_end.py): the partial frame, the answers not yet written (``unsent``; on a
   PTY also those the kernel still holds for it, counted and flushed by ``pty``, a
-  :class:`~motorctl.daemon.link.ports.PtySlave`), a held WaitMoved's answer (``wait``) and
+  :class:`~motorctl.daemon.link.ports.PtySlave`, unless nothing was written to that host
+  at all), a held WaitMoved's answer (``wait``) and
   the answers of the frames kept behind it (``held``; their commands are never executed:
   :meth:`LinkSession.end`). The next host reads only its own answers, and its first
   command is answered at once: nothing of the old session is left to wait for.
@@ -124,7 +125,9 @@ class Slave(Protocol):
 
     def reopened(self) -> bool: ...  # opened again after a host closed it, since last asked
 
-    def hold(self) -> int: ...  # held from now on; the bytes the last host left, flushed
+    # held from now on; the bytes the last host left, flushed (not looked for when it was
+    # written nothing: ``answered`` False)
+    def hold(self, answered: bool = True) -> int: ...
 
     def release(self) -> None: ...
 
@@ -184,6 +187,7 @@ class Link:
         )
         self.processing = LatencyStats(threshold_s=108e-6)
         self.peer_gone = False
+        self._answered = False  # anything written to the host since its session began
         self._out = bytearray()
         self._reading = True
         self._mask = -1  # the PTY's events registered with serve()'s poller
@@ -277,7 +281,7 @@ class Link:
         # apart). The port's own events are looked at from the next turn on (holding the
         # slave has changed them).
         if opened and self._reopened():
-            self._hangup("closed")
+            self._hangup("closed", reopened=True)
             self._read(None)  # the new host's first bytes, often there already
             return
         if events & POLLIN:
@@ -383,6 +387,7 @@ class Link:
         opening = self.peer_gone
         if opening:  # a new host's first bytes (found by a poll or a look)
             self.peer_gone = False
+            self._answered = False
             if self.pty is not None:
                 self.pty.release()  # before its answers (PtySlave.release)
         self._received(data, now)
@@ -411,13 +416,15 @@ class Link:
             except OSError as exc:
                 self._hangup("closed" if exc.errno == errno.EIO else f"write failed: {exc}")
                 break
+            self._answered = True
             if self.recorder is not None:
                 self.recorder.sent(bytes(out[:n]), self.clock())
             del out[:n]
         return bool(data)
 
-    def _hangup(self, why: str) -> None:
-        """The host's side is gone (``why``: "closed", or the error): its session ends."""
+    def _hangup(self, why: str, reopened: bool = False) -> None:
+        """The host's side is gone (``why``: "closed", or the error): its session ends.
+        ``reopened``: the PTY's slave was opened again since: a new host has it."""
         if self.peer_gone:
             return
         self.peer_gone = True
@@ -435,16 +442,27 @@ class Link:
             if self.device is not None
             else "the host closed the port"
             if why == "closed"
-            else "the port failed"
+            else "the port failed",
+            reopened,
         )
 
-    def _end_session(self, how: str) -> None:
-        """Drop and count what was owed to the host whose session ended (``how``)."""
+    def _end_session(self, how: str, reopened: bool = False) -> None:
+        """Drop and count what was owed to the host whose session ended (``how``).
+        ``reopened``: a new host has the PTY already; when nothing was written to the old
+        one, nothing of it can be in the slave's input, and the new host's session begins
+        at once (no hold to quiet the master: the new host keeps it open)."""
         ended = self.session.end()
         unsent = ended.unsent + -(-len(self._out) // RESPONSE_LEN)  # a part-sent one too
         self._out.clear()
-        if self.pty is not None and self.device is None:
-            unsent += -(-self.pty.hold() // RESPONSE_LEN)  # left unread in the kernel
+        pty = self.pty
+        if pty is not None and self.device is None:
+            if reopened and not self._answered:
+                self.ends.ended(how, ended, unsent)
+                pty.release()  # its closes are accounted for; nothing held
+                self._open_session()  # the new host's (nothing written to it yet)
+                return
+            # left unread in the kernel (not looked for when nothing was written to it)
+            unsent += -(-pty.hold(self._answered) // RESPONSE_LEN)
         self.ends.ended(how, ended, unsent)
         if self._opens is not None:  # no session: a host's open need not wake the loop
             self._poller.modify(self._opens, 0)

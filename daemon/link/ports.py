@@ -13,7 +13,6 @@ import fcntl
 import logging
 import os
 import stat
-import struct
 import termios
 import tty
 from pathlib import Path
@@ -158,9 +157,12 @@ class PtySlave:
                 return True
         return False
 
-    def hold(self) -> int:
+    def hold(self, answered: bool = True) -> int:
         """Open the slave (read-only) and keep it; the bytes the last host left unread,
-        flushed."""
+        flushed. ``answered``: whether anything was written to that host since its session
+        began (:meth:`release`); if not, nothing of the daemon's can be waiting in the
+        slave's input (only the master writes there, and the daemon alone has the master),
+        and it is not looked at."""
         self._closed = False  # the session ended: its closes are accounted for
         if self._fd >= 0:
             return 0
@@ -174,13 +176,16 @@ class PtySlave:
                 self._warn(f"cannot open {self.name}: {exc.strerror}")
                 return 0
         self._fd = fd
+        return self._flush(fd) if answered else 0
+
+    def _flush(self, fd: int) -> int:
+        """Read out and count what is waiting in the slave's input, then flush it."""
         stale = 0
         try:
             # Read, not just counted: a read that finds nothing waits for what the master
             # wrote last to reach the slave's input (the kernel moves it there on a worker
             # thread, a moment later), so an answer written just before the host closed is
-            # counted too. In a canonical mode (a host may leave one set) a partial line is
-            # not readable: counted, then flushed with the rest.
+            # counted too.
             while chunk := os.read(fd, 4096):
                 stale += len(chunk)
         except BlockingIOError:
@@ -188,9 +193,11 @@ class PtySlave:
         except OSError as exc:
             self._warn(f"cannot read what the last host left unread on {self.name}: {exc}")
         try:
-            stale += struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+            # A canonical mode (a host may leave one set) keeps the last partial line
+            # unreadable, and the kernel does not count it either (FIONREAD counts whole
+            # lines): it is flushed uncounted.
             termios.tcflush(fd, termios.TCIFLUSH)
-        except (OSError, termios.error) as exc:
+        except termios.error as exc:
             self._warn(f"cannot flush what the last host left unread on {self.name}: {exc}")
         return stale
 

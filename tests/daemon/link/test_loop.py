@@ -673,6 +673,45 @@ def test_a_partial_frame_of_a_host_gone_before_the_link_looked_is_not_the_next_o
         s.close()
 
 
+def test_answers_left_unread_are_flushed_when_the_next_host_came_before_the_link_looked(
+    tmp_path: Path,
+) -> None:
+    """A host's answers were written and it did not read them; then it sends 4 bytes of a
+    frame and closes the port, and a new host opens it and writes while the link is still
+    busy with those bytes (the master never reports the hang-up). The old answers are
+    still read out of the slave's input, counted and flushed: the new host reads only its
+    own. (A session that was written nothing has nothing there: the link does not look,
+    test_a_partial_frame_of_a_host_gone_before_the_link_looked_is_not_the_next_ones.)"""
+    gated = GatedRecorder()
+    s = LiveDaemon(tmp_path, recorder=gated)
+    try:
+        old = s.host()
+        old.write(frame(GetAbsPos(0), IsReady(0)))
+        s.until("the answers written", lambda: s.counters()["responses"] == 2)
+        gated.gate.clear()
+        old.write(frame(GetAbsPos(0))[:4])
+        assert gated.entered.wait(DEADLINE_S), "the link never read the old host's bytes"
+        old.close()  # and at once a new host, while the link is busy with the old bytes
+        new = s.host()
+        try:
+            new.write(frame(IsReady(1)))
+            gated.gate.set()
+            # read once its answer is there (the old answers went before it was written):
+            # a host that reads before the link saw the close may find them (the race
+            # docs/protocol.md names, "When a host goes away")
+            s.until("the new host's answer", lambda: s.counters()["responses"] == 3)
+            assert new.responses(1) == [Response.boolean(True)]
+            assert new.nothing_within(0.1)
+            c = s.counters()
+        finally:
+            new.close()
+        assert c["peer_closed"] == 1 and c["hangup_partial_bytes"] == 4
+        assert c["responses_dropped_unsent"] == 2 and c["responses_dropped"] == 2
+    finally:
+        gated.gate.set()
+        s.close()
+
+
 def test_another_writer_that_closes_the_port_does_not_end_the_hosts_session(
     served: LiveDaemon,
 ) -> None:
