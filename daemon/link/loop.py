@@ -125,9 +125,7 @@ class Slave(Protocol):
 
     def reopened(self) -> bool: ...  # opened again after a host closed it, since last asked
 
-    # held from now on; the bytes the last host left, flushed (not looked for when it was
-    # written nothing: ``answered`` False)
-    def hold(self, answered: bool = True) -> int: ...
+    def hold(self, answered: bool = True) -> int: ...  # held; what the last host left, flushed
 
     def release(self) -> None: ...
 
@@ -448,9 +446,8 @@ class Link:
 
     def _end_session(self, how: str, reopened: bool = False) -> None:
         """Drop and count what was owed to the host whose session ended (``how``).
-        ``reopened``: a new host has the PTY already; when nothing was written to the old
-        one, nothing of it can be in the slave's input, and the new host's session begins
-        at once (no hold to quiet the master: the new host keeps it open)."""
+        ``reopened``: a new host has the PTY; if the old one was written nothing, nothing
+        of it is in the slave's input, and the new host's session begins at once."""
         ended = self.session.end()
         unsent = ended.unsent + -(-len(self._out) // RESPONSE_LEN)  # a part-sent one too
         self._out.clear()
