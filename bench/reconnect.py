@@ -70,8 +70,8 @@ the new host opens the port.
 that takes a CPU away from a running program for a millisecond or more decides its p99
 (and the ordinary command's) as soon as that happens to about 1 % of the round trips. The
 run ends by measuring it (``stalls``: a process per CPU that only reads the clock, all at
-once, for 3 s; every gap over 1 ms): on this project's 2-vCPU VM, 1-3 a second per CPU,
-up to 9 ms, while both CPUs are busy (none while only one is), and the p99 ratio of a kind
+once, for 3 s; every gap over 1 ms): on this project's 2-vCPU VM, up to 5 a second per CPU,
+up to 9 ms, while both CPUs are busy (almost none while only one is), and the p99 ratio of a kind
 that does no more work than another moves between 0.7 and 3.8 from one run of 3,000 to
 the next. p90 is printed too: the tail those stalls leave alone.
 
