@@ -274,19 +274,8 @@ class Bench:
         --port, its device gone and back) when this returns, the next host's to open."""
         fd = open_port(self.host_path)
         try:
-            # motor 0 moving, for a second at least: off again, 6000 steps away, once near
-            # its target (clear of the end stops, at 1000 step/s; not by ``partial``'s host)
-            position = self.status()["motors"][0]["position"]
-            if kind != "partial" and abs(self.target - position) < 1000:
-                os.write(fd, frames(WaitMoved(0, 10_000)))
-                read_exactly(fd, 5)
-                self.target = 7000 if self.target <= 1000 else 1000
-                os.write(fd, frames(MoveTo(0, True, self.target, 250, 0, 0)))
-                if read_exactly(fd, 5)[0] != 1:
-                    raise RuntimeError(f"MoveTo({self.target}) refused: {self.status()}")
-            elif kind != "partial":  # a session that was written to (see above)
-                os.write(fd, frames(IsReady(0)))
-                read_exactly(fd, 5)
+            if kind != "partial":  # a session that was written to (see above)
+                self.answered_command(fd)
             if kind == "wait":
                 os.write(fd, frames(WaitMoved(0, 30_000), GetAbsPos(2)))
                 self.until("the WaitMoved held", lambda: self.status()["link"]["held"] == 1)
@@ -307,6 +296,22 @@ class Bench:
             self.make_device()
             if kind != "device_back":  # what the old session left, once it is served again
                 self.until("the device served", lambda: self.status()["link"]["peer"] == "open")
+
+    def answered_command(self, fd: int) -> None:
+        """A command whose answer the old host reads: motor 0 moving, for a second at least,
+        off again 6000 steps away once near its target (clear of the end stops, at 1000
+        step/s), else IsReady(0)."""
+        position = self.status()["motors"][0]["position"]
+        if abs(self.target - position) >= 1000:
+            os.write(fd, frames(IsReady(0)))
+            read_exactly(fd, 5)
+            return
+        os.write(fd, frames(WaitMoved(0, 10_000)))
+        read_exactly(fd, 5)
+        self.target = 7000 if self.target <= 1000 else 1000
+        os.write(fd, frames(MoveTo(0, True, self.target, 250, 0, 0)))
+        if read_exactly(fd, 5)[0] != 1:
+            raise RuntimeError(f"MoveTo({self.target}) refused: {self.status()}")
 
     def _count(self, name: str) -> int:
         return int(self.status()["link"]["counters"][name])
@@ -457,9 +462,8 @@ def main() -> int:
         f"wrong answers: {wrong_by_kind}"
     )
     print(
-        "  stalls (after the run, a loop reading the clock on every CPU at once for 3 s: gaps "
-        "over "
-        f"{STALL_S * 1e3:g} ms): "
+        "  stalls (after the run, a loop reading the clock on every CPU at once for 3 s: "
+        f"gaps over {STALL_S * 1e3:g} ms): "
         + ", ".join(
             f"CPU {st['cpu']} {st['per_s']}/s, longest {st['longest_us']} us"
             for st in result["stalls"]
