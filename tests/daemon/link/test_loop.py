@@ -34,7 +34,7 @@ from motorctl.protocol.codec import (
     WaitMoved,
 )
 from tests.support.frames import frame
-from tests.support.inprocess import LIVE_CONFIG, LiveDaemon
+from tests.support.inprocess import LIVE_CONFIG, Host, LiveDaemon
 
 E = ErrorCode
 DEADLINE_S = 20.0  # generous: these tests must pass on a loaded 2-core machine
@@ -614,15 +614,22 @@ def _write_and_close(served: LiveDaemon) -> None:
     assert c["responses_dropped_unsent"] == 20 and c["responses_dropped"] == 20
 
 
-def _new_host_while_busy(s: LiveDaemon, gate: threading.Event) -> dict[str, int]:
+def _new_host_while_busy(
+    s: LiveDaemon, gate: threading.Event, answers: int | None = None
+) -> dict[str, int]:
     """A new host opens the port and sends IsReady(1) while the link is kept busy (the old
     host has closed it); ``gate`` set, it must read its own answer and nothing else. The
     link's counters, read while the new host is still there (its own close, once made, may
-    be counted at any moment)."""
+    be counted at any moment). ``answers``: it reads only once the link has made that many
+    (its own the last): what the old session left went before its answer was written (a
+    host that reads before the link saw the close may find it: the race docs/protocol.md
+    names, "When a host goes away")."""
     new = s.host()
     try:
         new.write(frame(IsReady(1)))
         gate.set()
+        if answers is not None:
+            s.until("the new host's answer", lambda: s.counters()["responses"] == answers)
         assert new.responses(1) == [Response.boolean(True)]
         assert new.nothing_within(0.1)
         return s.counters()
@@ -649,6 +656,15 @@ class GatedRecorder:
         pass
 
 
+def _partial_frame_then_close(old: Host, gated: GatedRecorder) -> None:
+    """Host ``old`` sends 4 bytes of a frame; the link reads them and is kept busy with
+    them (``gated``) while ``old`` closes the port."""
+    gated.gate.clear()
+    old.write(frame(GetAbsPos(0))[:4])
+    assert gated.entered.wait(DEADLINE_S), "the link never read the old host's bytes"
+    old.close()  # and at once a new host, while the link is busy with the old bytes
+
+
 def test_a_partial_frame_of_a_host_gone_before_the_link_looked_is_not_the_next_ones(
     tmp_path: Path,
 ) -> None:
@@ -660,11 +676,7 @@ def test_a_partial_frame_of_a_host_gone_before_the_link_looked_is_not_the_next_o
     gated = GatedRecorder()
     s = LiveDaemon(tmp_path, recorder=gated)
     try:
-        gated.gate.clear()
-        old = s.host()
-        old.write(frame(GetAbsPos(0))[:4])
-        assert gated.entered.wait(DEADLINE_S), "the link never read the old host's bytes"
-        old.close()  # and at once a new host, while the link is busy with the old bytes
+        _partial_frame_then_close(s.host(), gated)
         c = _new_host_while_busy(s, gated.gate)
         assert c["peer_closed"] == 1 and c["hangup_partial_bytes"] == 4
         assert c["frames"] == 1 and c["responses_dropped"] == 0
@@ -688,23 +700,8 @@ def test_answers_left_unread_are_flushed_when_the_next_host_came_before_the_link
         old = s.host()
         old.write(frame(GetAbsPos(0), IsReady(0)))
         s.until("the answers written", lambda: s.counters()["responses"] == 2)
-        gated.gate.clear()
-        old.write(frame(GetAbsPos(0))[:4])
-        assert gated.entered.wait(DEADLINE_S), "the link never read the old host's bytes"
-        old.close()  # and at once a new host, while the link is busy with the old bytes
-        new = s.host()
-        try:
-            new.write(frame(IsReady(1)))
-            gated.gate.set()
-            # read once its answer is there (the old answers went before it was written):
-            # a host that reads before the link saw the close may find them (the race
-            # docs/protocol.md names, "When a host goes away")
-            s.until("the new host's answer", lambda: s.counters()["responses"] == 3)
-            assert new.responses(1) == [Response.boolean(True)]
-            assert new.nothing_within(0.1)
-            c = s.counters()
-        finally:
-            new.close()
+        _partial_frame_then_close(old, gated)
+        c = _new_host_while_busy(s, gated.gate, answers=3)
         assert c["peer_closed"] == 1 and c["hangup_partial_bytes"] == 4
         assert c["responses_dropped_unsent"] == 2 and c["responses_dropped"] == 2
     finally:
