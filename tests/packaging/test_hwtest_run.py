@@ -78,7 +78,8 @@ def tier() -> Iterator[Tier]:
     try:
         vm = top / "repo" / "hwtest" / "vm"
         vm.mkdir(parents=True)
-        shutil.copy(ROOT / "hwtest" / "run", top / "repo" / "hwtest" / "run")
+        for name in ("run", "digest.py"):
+            shutil.copy(ROOT / "hwtest" / name, top / "repo" / "hwtest" / name)
         (vm / "build.sh").write_text(FAKE_BUILD)
         (vm / "run.sh").write_text(FAKE_RUN)
         for name in ("build.sh", "run.sh"):
@@ -216,3 +217,56 @@ def test_layouts_boot_without_chips_and_run_only_the_layout_tests(tier: Tier) ->
     assert "hwtest/test_layouts.py::test_the_example_runs_unchanged[pi5-2026]" in out.stdout
     assert "test_backend" not in out.stdout and "test_contract" not in out.stdout
     assert "== hwtest: board layouts, v1 API: FAILED (1)" in out.stdout
+
+
+HANGS = """
+import threading
+import time
+
+
+def helper() -> None:
+    time.sleep(60)
+
+
+def test_hangs() -> None:
+    threading.Thread(target=helper, name="helper", daemon=True).start()
+    time.sleep(60)
+"""
+
+
+def test_a_test_that_hangs_ends_its_guest_and_is_named_at_the_end(tier: Tier) -> None:
+    """A guest whose test never returns: hwtest/deadline.py ends its pytest after
+    HWTEST_DEADLINE_S with each thread's stack, instead of the whole GSIM_TIMEOUT going by;
+    the run's last lines name the stuck test and where its threads were."""
+    guest = tier.repo.parent / "guest"
+    (guest / "hwtest").mkdir(parents=True)
+    (guest / "tests" / "contract").mkdir(parents=True)
+    for name in ("__init__.py", "no_skips.py", "deadline.py"):
+        shutil.copy(ROOT / "hwtest" / name, guest / "hwtest" / name)
+    (guest / "tests" / "contract" / "test_fine.py").write_text(
+        "def test_fine() -> None:\n    pass\n"
+    )
+    (guest / "hwtest" / "test_stuck.py").write_text(HANGS)
+    out = tier.run("pypi", env={"FAKE_GUEST": str(guest), "HWTEST_DEADLINE_S": "2"})
+    assert out.returncode == 1, out.stdout[-3000:] + out.stderr[-3000:]
+    tail = out.stdout[
+        out.stdout.index("== hwtest: what failed in v2 API, PyPI gpiod:") :
+    ].splitlines()
+    assert tail[1] == (
+        "  hwtest/test_stuck.py::test_hangs ran past its HWTEST_DEADLINE_S "
+        "(hwtest/deadline.py); its threads:"
+    ), tail
+    frames = [line for line in tail if line.startswith("    File ")]
+    assert any('test_stuck.py", line 12 in test_hangs' in line for line in frames), tail
+    assert any('test_stuck.py", line 7 in helper' in line for line in frames), tail
+    assert "tests/contract/test_fine.py::test_fine PASSED" in out.stdout
+
+
+def test_a_bad_deadline_is_named(tier: Tier) -> None:
+    guest = tier.repo.parent / "guest"
+    (guest / "hwtest").mkdir(parents=True)
+    for name in ("__init__.py", "no_skips.py", "deadline.py"):
+        shutil.copy(ROOT / "hwtest" / name, guest / "hwtest" / name)
+    out = tier.run("pypi", env={"FAKE_GUEST": str(guest), "HWTEST_DEADLINE_S": "soon"})
+    assert out.returncode != 0
+    assert "HWTEST_DEADLINE_S='soon': not a number of seconds" in out.stdout + out.stderr
