@@ -452,16 +452,16 @@ class Link:
         unsent = ended.unsent + -(-len(self._out) // RESPONSE_LEN)  # a part-sent one too
         self._out.clear()
         pty = self.pty
+        at_once = False  # the new host's session begins now, nothing held
         if pty is not None and self.device is None:
-            if reopened and not self._answered:
-                self.ends.ended(how, ended, unsent)
-                pty.release()  # its closes are accounted for; nothing held
-                self._open_session()  # the new host's (nothing written to it yet)
-                return
-            # left unread in the kernel (not looked for when nothing was written to it)
-            unsent += -(-pty.hold(self._answered) // RESPONSE_LEN)
+            at_once = reopened and not self._answered
+            if not at_once:  # left unread in the kernel (looked for if anything was written)
+                unsent += -(-pty.hold(self._answered) // RESPONSE_LEN)
         self.ends.ended(how, ended, unsent)
-        if self._opens is not None:  # no session: a host's open need not wake the loop
+        if at_once and pty is not None:
+            pty.release()  # its closes are accounted for
+            self._open_session()  # the new host's (nothing written to it yet)
+        elif self._opens is not None:  # no session: a host's open need not wake the loop
             self._poller.modify(self._opens, 0)
 
     def _open_session(self) -> None:
