@@ -1,7 +1,7 @@
 """pytest plugin of the hardware tier: a test that hangs ends the run at once, with every stack.
 
 hwtest/run loads it (`-p hwtest.deadline`) in its QEMU guests. The guest as a whole has a
-budget (GSIM_TIMEOUT, 600 s); a test stuck on something without a deadline of its own used to
+budget (GSIM_TIMEOUT, 1200 s); a test stuck on something without a deadline of its own used to
 spend all of it, and the host's `timeout` then killed the VM with no word of where it hung.
 Here each test (set-up, call and tear-down) gets HWTEST_DEADLINE_S seconds (default 240: the
 slowest test takes about 30 s under TCG on a loaded host); when they run out,
