@@ -270,3 +270,29 @@ def test_a_bad_deadline_is_named(tier: Tier) -> None:
     out = tier.run("pypi", env={"FAKE_GUEST": str(guest), "HWTEST_DEADLINE_S": "soon"})
     assert out.returncode != 0
     assert "HWTEST_DEADLINE_S='soon': not a number of seconds" in out.stdout + out.stderr
+
+
+def test_the_core_for_the_trixie_root_is_built_once_and_by_the_guest_when_not_here(
+    tier: Tier,
+) -> None:
+    """The compiled core for the trixie root's Python 3.13: as root, hwtest/run builds it in
+    that root on this machine (chroot); where that fails (here: a root with no shell), it
+    says so and the guest builds it, once per run (the layouts' v2 guest does not)."""
+    cache = tier.home / ".cache" / "motorctl-gpio-sim"
+    out = tier.run("v2")  # builds the (fake) VM
+    assert out.returncode == 0, out.stdout + out.stderr
+    (cache / "trixie" / "usr" / "bin").mkdir(parents=True)
+    (cache / "trixie" / "mnt").mkdir()
+    python = cache / "trixie" / "usr" / "bin" / "python3"
+    python.write_text("#!/bin/sh\nexit 0\n")
+    python.chmod(0o755)
+    guest = tier.repo.parent / "guest"
+    guest.mkdir()
+    (guest / "setup.py").write_text("import sys\nprint('the guest builds', sys.argv[1:])\n")
+    out = tier.run("all", env={"FAKE_GUEST": str(guest)})
+    tried = "== hwtest: building the compiled core in"
+    if os.geteuid() == 0:
+        assert out.stdout.count(f"{tried} {cache}/trixie failed here (above)") == 1, out.stdout
+    else:
+        assert tried not in out.stdout, out.stdout
+    assert out.stdout.count("the guest builds ['-q', 'build_ext', '--inplace'") == 1, out.stdout
