@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -152,15 +153,25 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     return p.parse_args(argv)
 
 
+EXIT_PIPE = 128 + 13  # as a program killed by SIGPIPE
+
+
 def main(
     argv: Sequence[str] | None = None, executor_process: WaitingInterpreter | None = None
 ) -> int:
     """motorctld. ``executor_process``: the step executor's process, started before this
     module was imported (``daemon/launch.py``, the ``motorctld`` command): the process
     executor takes it over; ended unused otherwise (another executor, another command, an
-    error)."""
+    error). Output into a pipe whose reader went away (``motorctld --status | head``) ends
+    the command quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
     try:
         return _main(argv, executor_process)
+    except BrokenPipeError:
+        # Python would flush stdout again at exit and complain: point it at /dev/null
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+        return EXIT_PIPE
     finally:
         if executor_process is not None:
             executor_process.dismiss()  # a no-op once taken over

@@ -5,10 +5,13 @@ begin said in one line. Serving itself: test_serve.py, test_serve_e2e.py."""
 
 from __future__ import annotations
 
+import contextlib
+import os
 import socket
 import subprocess
 import sys
 import threading
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -120,6 +123,29 @@ def test_status_without_a_daemon_says_where_it_looked(
     assert "Traceback" not in err
 
 
+@contextlib.contextmanager
+def _status_answered_once(path: Path, answer: bytes) -> Iterator[None]:
+    """A status socket at ``path`` that answers one reader with ``answer``, then goes."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as server:
+        server.bind(str(path))
+        server.listen(1)
+        server.settimeout(60)
+
+        def answer_once() -> None:
+            conn, _ = server.accept()
+            with conn:
+                conn.recv(64)
+                conn.sendall(answer)
+
+        thread = threading.Thread(target=answer_once)
+        thread.start()
+        try:
+            yield
+        finally:
+            thread.join(60)
+    path.unlink()
+
+
 def test_status_prints_what_the_socket_answers(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -127,22 +153,8 @@ def test_status_prints_what_the_socket_answers(
     error (a socket that answers, but not with a status)."""
     path = tmp_path / "status.sock"
     for answer, code in ((b'{"motors": []}', 0), (b'{"error": "status unavailable"}', 1)):
-        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as server:
-            server.bind(str(path))
-            server.listen(1)
-            server.settimeout(60)
-
-            def answer_once(server: socket.socket = server, answer: bytes = answer) -> None:
-                conn, _ = server.accept()
-                with conn:
-                    conn.recv(64)
-                    conn.sendall(answer)
-
-            thread = threading.Thread(target=answer_once)
-            thread.start()
+        with _status_answered_once(path, answer):
             got = main(["--status", "--state-dir", str(tmp_path)])
-            thread.join(60)
-        path.unlink()
         out, err = capsys.readouterr()
         assert got == code, err
         if code == 0:
@@ -165,3 +177,31 @@ def test_a_start_that_cannot_begin_is_one_line_and_exit_1(
     err = capsys.readouterr().err
     assert err.startswith(f"error: {config}: ") and err.count("\n") == 1
     assert not (tmp_path / "pty").exists()  # nothing was opened
+
+
+@pytest.mark.parametrize("status", [False, True], ids=["print-default-config", "status"])
+def test_output_into_a_pipe_nobody_reads_ends_quietly(tmp_path: Path, status: bool) -> None:
+    """motorctld --status | head: the reader is gone before the output (its end of the pipe
+    is closed before motorctld starts): no BrokenPipeError traceback, SIGPIPE's status."""
+    from motorctl.daemon.main import EXIT_PIPE
+
+    args = ["--status", "--state-dir", str(tmp_path)] if status else ["--print-default-config"]
+    answered = (
+        _status_answered_once(tmp_path / "status.sock", b'{"motors": []}')
+        if status
+        else contextlib.nullcontext()
+    )
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        with answered:
+            run = subprocess.run(
+                [sys.executable, "-m", "motorctl.daemon.main", *args],
+                stdout=write,
+                stderr=subprocess.PIPE,
+                text=True,
+                timeout=60,
+            )
+    finally:
+        os.close(write)
+    assert (run.returncode, run.stderr) == (EXIT_PIPE, "")
