@@ -234,15 +234,21 @@ def test_hangs() -> None:
 """
 
 
+def _guest_with_the_plugins(tier: Tier) -> Path:
+    """A guest's checkout (FAKE_GUEST) holding the tier's pytest plugins and no tests."""
+    guest = tier.repo.parent / "guest"
+    (guest / "hwtest").mkdir(parents=True)
+    for name in ("__init__.py", "no_skips.py", "deadline.py"):
+        shutil.copy(ROOT / "hwtest" / name, guest / "hwtest" / name)
+    return guest
+
+
 def test_a_test_that_hangs_ends_its_guest_and_is_named_at_the_end(tier: Tier) -> None:
     """A guest whose test never returns: hwtest/deadline.py ends its pytest after
     HWTEST_DEADLINE_S with each thread's stack, instead of the whole GSIM_TIMEOUT going by;
     the run's last lines name the stuck test and where its threads were."""
-    guest = tier.repo.parent / "guest"
-    (guest / "hwtest").mkdir(parents=True)
+    guest = _guest_with_the_plugins(tier)
     (guest / "tests" / "contract").mkdir(parents=True)
-    for name in ("__init__.py", "no_skips.py", "deadline.py"):
-        shutil.copy(ROOT / "hwtest" / name, guest / "hwtest" / name)
     (guest / "tests" / "contract" / "test_fine.py").write_text(
         "def test_fine() -> None:\n    pass\n"
     )
@@ -263,10 +269,7 @@ def test_a_test_that_hangs_ends_its_guest_and_is_named_at_the_end(tier: Tier) ->
 
 
 def test_a_bad_deadline_is_named(tier: Tier) -> None:
-    guest = tier.repo.parent / "guest"
-    (guest / "hwtest").mkdir(parents=True)
-    for name in ("__init__.py", "no_skips.py", "deadline.py"):
-        shutil.copy(ROOT / "hwtest" / name, guest / "hwtest" / name)
+    guest = _guest_with_the_plugins(tier)
     out = tier.run("pypi", env={"FAKE_GUEST": str(guest), "HWTEST_DEADLINE_S": "soon"})
     assert out.returncode != 0
     assert "HWTEST_DEADLINE_S='soon': not a number of seconds" in out.stdout + out.stderr
