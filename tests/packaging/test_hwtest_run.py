@@ -35,7 +35,7 @@ mkdir -p "$1" && touch "$1/initrd.img"
 FAKE_RUN = """#!/bin/sh
 echo "boot $GSIM_ROOT ${GSIM_BANKS:-}" >> "$FAKE_LOG"
 [ -n "${FAKE_GUEST:-}" ] || exit 0
-cd "$FAKE_GUEST" && exec sh -c "$*"
+cd "$FAKE_GUEST" && exec env -i PATH="$PATH" LANG=C.UTF-8 sh -c "$*"  # as bare as a guest's
 """
 
 
