@@ -68,7 +68,7 @@ found, the problem, and what is accepted:
 /etc/motorctl.toml: unknown key 'link.frame_gap'; accepted keys in [link]: checksum, crc_covers_ack, frame_gap_ms, held_frames, strict_padding
 /etc/motorctl.toml: motors[0].soft_limit_min = -500: soft_limit_max is not set; accepted: set both soft_limit_min and soft_limit_max, or neither
 /etc/motorctl.toml: mock.wires[1] = [1, 2]: pin 2 is not in [[pins]] (configured pins: 0, 1); accepted: every wired pin is listed in [[pins]]
-/etc/motorctl.toml: hal.backend = "gpiod": unknown value; accepted: one of "mock" (the only backend in this version)
+/etc/motorctl.toml: hal.backend = "gpio": unknown value; accepted: one of "mock", "gpiod" (the backends of motorctl.hal.registry)
 /etc/motorctl.toml: motors: missing; accepted: 1..64 [[motors]] tables (a config needs at least one)
 /etc/motorctl.toml: line 3: TOML syntax error: Invalid value (at line 3, column 12)
 /etc/motorctl.toml: config file not found; fix: create it (`motorctld --print-default-config` prints a commented example; docs/config.md describes every key) or give the path of an existing file
