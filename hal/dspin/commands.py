@@ -280,7 +280,7 @@ def decode(chip: Chip, byte: int) -> Decoded:
             return Decoded(
                 op,
                 dir=byte & 1,
-                act=(byte >> 3) & 1,
+                act=(byte >> 3) & 1 if act_bit else 0,
                 argument=3 if op in _ARG_BITS else 0,
             )
     if byte == CODE[Op.GO_TO]:
