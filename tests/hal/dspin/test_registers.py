@@ -15,6 +15,7 @@ from motorctl.hal.dspin.chips import (
     Chip,
 )
 from motorctl.hal.dspin.registers import Access, Field, Register, RegisterMap
+from tests.support import REPO
 
 #: (name, address, bits, reset) of the L6470, from ST's table (X-CUBE-SPN2 L6470.c,
 #: transcribing the datasheet's Table 9 "Register map")
@@ -131,3 +132,46 @@ def test_a_map_names_each_register_and_address_once() -> None:
     with pytest.raises(KeyError, match="no register B"):
         RegisterMap((a,))["B"]
     assert [r.name for r in RegisterMap((a,))] == ["A"]
+
+
+def doc_table(first_header: str) -> list[list[str]]:
+    """The rows of the table of docs/dspin.md whose first header cell is ``first_header``."""
+    lines = (REPO / "docs" / "dspin.md").read_text(encoding="utf-8").splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(f"| {first_header} |"))
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip("|").split("|")])
+    return rows
+
+
+ACCESS_WORDS = {
+    "always": Access.ALWAYS,
+    "stopped": Access.STOPPED,
+    "HiZ": Access.HIZ,
+    "read-only": Access.READ_ONLY,
+}
+DOC_CHIPS = {
+    "L6470": L6470,
+    "L6472": L6472,
+    "L6480": L6480,
+    "powerSTEP01": POWERSTEP01_VOLTAGE,
+    "powerSTEP01-current": POWERSTEP01_CURRENT,
+}
+
+
+def test_docs_register_table_is_the_code_s() -> None:
+    seen: dict[str, set[str]] = {key: set() for key in DOC_CHIPS}
+    rows = doc_table("register")
+    assert len(rows) > 35
+    for name, addr, bits, reset, writable, chips in rows:
+        keys = list(DOC_CHIPS) if chips == "all" else chips.split(", ")
+        for key in keys:
+            reg = DOC_CHIPS[key].registers[name]
+            assert reg.addr == int(addr, 16) and reg.bits == int(bits), (key, name)
+            assert reg.reset == (None if reset == "-" else int(reset, 16)), (key, name)
+            assert reg.access is ACCESS_WORDS[writable], (key, name)
+            seen[key].add(name)
+    for key, chip in DOC_CHIPS.items():
+        assert seen[key] == {r.name for r in chip.registers}, key

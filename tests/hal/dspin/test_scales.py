@@ -8,6 +8,7 @@ from fractions import Fraction
 import pytest
 
 from motorctl.hal.dspin import scales
+from tests.support import REPO
 
 
 @pytest.mark.parametrize(
@@ -42,3 +43,41 @@ def test_floor_is_the_largest_register_not_above_a_value() -> None:
         for reg in (scale.lo, 1, 100, scale.hi):
             assert scale.floor(scale.value(reg)) == reg
             assert scale.floor(scale.value(reg) - Fraction(1, 10**9)) == reg - 1
+
+
+DOC_SCALES = {
+    "SPEED, Run and GoUntil's SPD": scales.SPEED,
+    "ACC, DEC": scales.ACC,
+    "MAX_SPEED": scales.MAX_SPEED,
+    "MIN_SPEED": scales.MIN_SPEED,
+    "FS_SPD": scales.FS_SPD,
+    "INT_SPEED": scales.INT_SPEED,
+}
+
+
+def test_docs_unit_table_is_the_code_s() -> None:
+    units = [r for r in doc_table_after("Units", "register") if r[0] in DOC_SCALES]
+    assert [r[0] for r in units] == list(DOC_SCALES)
+    for name, _format, resolution, reg_range, full_range in units:
+        scale = DOC_SCALES[name]
+        assert float(scale.lsb) == pytest.approx(float(resolution.split()[0]), rel=0.005)
+        lo, hi = (int(x, 16) for x in reg_range.split(".."))
+        assert (lo, hi) == (scale.lo, scale.hi), name
+        small, large = (float(x) for x in full_range.split(".."))
+        assert float(scale.smallest) == pytest.approx(small, abs=0.01), name
+        assert float(scale.largest) == pytest.approx(large, rel=1e-4), name
+
+
+def doc_table_after(section: str, first_header: str) -> list[list[str]]:
+    """The rows of the first table with ``first_header`` after ``## section``."""
+    lines = (REPO / "docs" / "dspin.md").read_text(encoding="utf-8").splitlines()
+    after = lines.index(f"## {section}")
+    start = next(
+        i for i, line in enumerate(lines) if i > after and line.startswith(f"| {first_header} |")
+    )
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([cell.strip() for cell in line.strip("|").split("|")])
+    return rows

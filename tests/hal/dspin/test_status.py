@@ -11,6 +11,7 @@ from motorctl.hal.dspin.status import (
     MotorState,
     ThermalState,
 )
+from tests.hal.dspin.test_registers import doc_table
 
 #: no condition at all: every active-low flag high, BUSY high (not busy)
 L6470_IDLE = 0x7E02  # BUSY, UVLO, TH_WRN, TH_SD, OCD, STEP_LOSS_A, STEP_LOSS_B high
@@ -85,3 +86,18 @@ def test_latched_bits() -> None:
     # SW_EVN, CMD_ERROR, UVLO, UVLO_ADC, TH_STATUS, OCD, STEP_LOSS_A/B
     assert L6480_STATUS.latched_mask == 0xFE88
     assert L6472_STATUS.unused == 0x6000 and L6470_STATUS.unused == 0
+
+
+def test_docs_status_table_is_the_code_s() -> None:
+    rows = doc_table("bit")
+    assert [int(r[0]) for r in rows] == list(range(16))
+    for column, layout in ((1, L6470_STATUS), (2, L6472_STATUS), (3, L6480_STATUS)):
+        for row in rows:
+            bit, cell = int(row[0]), row[column]
+            name = cell.removesuffix(" (low)")
+            covering = [f for f in layout.flags if f.mask >> bit & 1]
+            if name == "-":
+                assert covering == [], (layout.name, bit)
+                continue
+            assert [f.name for f in covering] == [name], (layout.name, bit)
+            assert covering[0].active_low == cell.endswith("(low)"), (layout.name, bit)
