@@ -1,0 +1,137 @@
+"""What each of the protocol's motion commands becomes on a dSPIN: the chip commands, in
+order, with the registers they need (docs/dspin.md, "The protocol's commands on the chip").
+
+- MoveTo (and GoHome, MoveToWayPoint with the saved position): MAX_SPEED, ACC, DEC, then
+  GoTo_DIR towards the target, never GoTo: GoTo takes the shortest way round ABS_POS's 22
+  bits, which for a distance of 2^21 or more is the wrong way on a linear axis.
+- Move: MAX_SPEED (the motor's maximum: Run runs at min(SPD, MAX_SPEED)), ACC and DEC when
+  the motor stands (they are writable only then: a Move that changes a running Move keeps
+  the ramps it has), then Run.
+- InitMove: ACC, DEC, MAX_SPEED (GoUntil runs at min(SPD, MAX_SPEED)), MIN_SPEED (the
+  speed ReleaseSW backs off at, never below 5 full step/s), then GoUntil(ACT = reset ABS_POS)
+  in DIR; once the switch has stopped it, ReleaseSW(ACT = reset ABS_POS) the other way:
+  zero where the switch releases.
+- StopMove: SoftStop (IS_HARDSTOP FALSE) or HardStop.
+
+Each returns the commands and the names of the values that had to be clamped
+(:mod:`~motorctl.hal.layers.dspin.convert`). Pure: any thread.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from motorctl.hal.dspin.chips import Chip
+from motorctl.hal.dspin.commands import (
+    FORWARD,
+    RESET_ABS_POS,
+    REVERSE,
+    Command,
+    Op,
+    go_to_dir,
+    go_until,
+    release_sw,
+    run,
+    set_param,
+    simple,
+)
+from motorctl.hal.layers.dspin import convert
+from motorctl.hal.layers.dspin.convert import Setting
+
+
+@dataclass(frozen=True)
+class Program:
+    """Chip commands in order, and which of the asked values were clamped."""
+
+    commands: tuple[Command, ...]
+    clamped: tuple[str, ...] = ()
+
+
+def _settings(chip: Chip, settings: dict[str, Setting]) -> Program:
+    cmds = tuple(set_param(chip.registers[name], s.register) for name, s in settings.items())
+    return Program(cmds, tuple(name for name, s in settings.items() if s.clamped))
+
+
+def move_to(
+    chip: Chip,
+    microsteps: int,
+    position: int,
+    target: int,
+    speed: float,
+    acc: float,
+    dec: float,
+) -> Program:
+    """MoveTo ``target`` from ``position`` at ``speed`` step/s with ramps ``acc``, ``dec``
+    step/s^2 (a motor at rest); :class:`~convert.OutOfRange` for a target ABS_POS cannot
+    hold (E1)."""
+    convert.check_position(target, "target")
+    setup = _settings(
+        chip,
+        {
+            "MAX_SPEED": convert.max_speed(speed, microsteps),
+            "ACC": convert.ramp(acc, microsteps),
+            "DEC": convert.ramp(dec, microsteps),
+        },
+    )
+    direction = FORWARD if target >= position else REVERSE
+    return Program((*setup.commands, go_to_dir(direction, target)), setup.clamped)
+
+
+def move(
+    chip: Chip,
+    microsteps: int,
+    up: bool,
+    speed: float,
+    acc: float,
+    dec: float,
+    max_speed: float,
+    at_rest: bool,
+) -> Program:
+    """Move (run until stopped) ``up`` or down at ``speed`` step/s; ``max_speed``: the
+    motor's maximum (MAX_SPEED caps Run); the ramps are written only ``at_rest``."""
+    wanted = {"MAX_SPEED": convert.max_speed(max(max_speed, speed), microsteps)}
+    if at_rest:
+        wanted["ACC"] = convert.ramp(acc, microsteps)
+        wanted["DEC"] = convert.ramp(dec, microsteps)
+    setup = _settings(chip, wanted)
+    spd = convert.run_speed(speed, microsteps)
+    clamped = (*setup.clamped, "SPD") if spd.clamped else setup.clamped
+    return Program((*setup.commands, run(FORWARD if up else REVERSE, spd.register)), clamped)
+
+
+def home(
+    chip: Chip,
+    microsteps: int,
+    up: bool,
+    speed: float,
+    acc: float,
+    dec: float,
+    release_speed: float,
+) -> Program:
+    """InitMove's first phase: to the switch ``up`` or down at ``speed`` step/s, ABS_POS
+    reset where it closes; ``release_speed``: the back-off speed (MIN_SPEED) for
+    :func:`release`."""
+    setup = _settings(
+        chip,
+        {
+            "ACC": convert.ramp(acc, microsteps),
+            "DEC": convert.ramp(dec, microsteps),
+            "MAX_SPEED": convert.max_speed(speed, microsteps),
+            "MIN_SPEED": convert.min_speed(release_speed, microsteps),
+        },
+    )
+    spd = convert.run_speed(speed, microsteps)
+    clamped = (*setup.clamped, "SPD") if spd.clamped else setup.clamped
+    direction = FORWARD if up else REVERSE
+    return Program((*setup.commands, go_until(RESET_ABS_POS, direction, spd.register)), clamped)
+
+
+def release(up: bool) -> Program:
+    """InitMove's second phase, after :func:`home` towards ``up``: back off the other way
+    until the switch opens, ABS_POS = 0 there, hard stop."""
+    return Program((release_sw(RESET_ABS_POS, REVERSE if up else FORWARD),))
+
+
+def stop(hard: bool) -> Program:
+    """StopMove: HardStop (IS_HARDSTOP TRUE) or SoftStop along DEC."""
+    return Program((simple(Op.HARD_STOP if hard else Op.SOFT_STOP),))
