@@ -70,7 +70,9 @@ def test_metrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
         c.move_to(1, 200, 250)
         c.wait_moved(1, 20_000)
         c.set_pin(2, True)
-        c.dc_move(True, 5000, False)
+        # 60 s: both formats' --status runs (two interpreter starts each) see it still running
+        # on a loaded machine (5 s was not always enough beside other work)
+        c.dc_move(True, 60_000, False)
         with pytest.raises(Exception, match="E2"):
             c.move_to(7, 1)
     for fmt in ("prometheus", "openmetrics"):
