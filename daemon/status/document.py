@@ -122,13 +122,27 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
         monotonic_s=mono, uptime_s=round(mono - parts.started, 3), unix_s=round(time.time(), 3)
     )
     if parts.link is not None:
-        out["link"] = parts.link.status()
+        out["link"] = link_status(parts.link.status())
     if parts.trace is not None:
         out["trace"] = parts.trace.status()
     drivers = [d for s in parts.hw.steppers if (d := s.driver.stats()) is not None]
     if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
         out["drivers"] = drivers
     return out
+
+
+#: the link's processing summary under names that say what they count: reads (not steps);
+#: reads whose answers took longer than the target (bench/latency.py's p99 target), not
+#: "late" ones: nothing was due
+PROCESSING_NAMES = {"steps": "reads", "late": "over_target", "late_threshold_us": "target_us"}
+
+
+def link_status(link: dict[str, Any]) -> dict[str, Any]:
+    """The link's status with its processing summary's names said (``PROCESSING_NAMES``)."""
+    processing = link.get("processing")
+    if isinstance(processing, dict):
+        link["processing"] = {PROCESSING_NAMES.get(k, k): v for k, v in processing.items()}
+    return link
 
 
 def motor_speed(traj: Trajectory | None, now: float) -> float:

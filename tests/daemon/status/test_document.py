@@ -58,7 +58,7 @@ STEP_KEYS = {
     "late_threshold_us",
     "timing_lost",
     "min_gap_ns",
-    "dropped",
+    "segments_discarded",
     "io_errors",
     "endstops",
     "bad_records",
