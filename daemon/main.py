@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -117,7 +118,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--status",
         action="store_true",
-        help="print the running daemon's status (JSON) from --state-dir and exit",
+        help="print the running daemon's status from --state-dir and exit: on a terminal "
+        "a summary (motors, faults, link, step timing, real time granted or refused), "
+        "else (a pipe, a file) the whole document as JSON (docs/status.md)",
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="with --status: the whole document as JSON, on a terminal too",
     )
     p.add_argument(
         "--histogram",
@@ -207,6 +215,7 @@ def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | Non
     if args.status:
         return status_command(args)
     for given, name in (
+        (args.json, "--json"),
         (args.histogram, "--histogram"),
         (args.watch, "--watch"),
         (args.format != "json", "--format"),
@@ -240,13 +249,14 @@ METRICS_MISSING = (
 
 
 def status_command(args: argparse.Namespace) -> int:
-    """``--status``: the running daemon's status once (JSON or OpenMetrics), or watched."""
+    """``--status``: the running daemon's status once (on a terminal a summary, else the
+    JSON document; or metrics), or watched."""
     path = args.state_dir / "status.sock"
     if args.watch:
-        if args.histogram or args.format != "json":
+        if args.histogram or args.json or args.format != "json":
             print(
-                "error: --watch shows the live view; --histogram and --format go with a "
-                "single --status",
+                "error: --watch shows the live view; --histogram, --json and --format go "
+                "with a single --status",
                 file=sys.stderr,
             )
             return 2
@@ -278,8 +288,12 @@ def status_command(args: argparse.Namespace) -> int:
         return 1
     if metrics is not None:
         sys.stdout.write(metrics.metrics(doc, args.format))
+    elif args.json or args.histogram or not sys.stdout.isatty():
+        print(json.dumps(doc, indent=1))  # scripts and pipes: the document as it is
     else:
-        print(json.dumps(doc, indent=1))
+        from motorctl.daemon.status.summary import summary
+
+        sys.stdout.write(summary(doc, min(shutil.get_terminal_size().columns, 120)))
     return 0
 
 

@@ -110,6 +110,7 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
             "kind": step_executor_kind(parts.config, executor),
             "core": executor.step_core(),
             "pid": getattr(executor, "pid", None),
+            "realtime": None if (rt := executor.realtime()) is None else rt.as_dict(),
         },
         "clamped": dict(parts.dispatcher.clamped),
         "hard_stops": parts.engine.stop_wait_status(),
@@ -183,7 +184,8 @@ def step_executor_kind(config: Config, executor: Executor) -> str:
 
 
 def summary_line(status: dict[str, Any]) -> str:
-    """systemd's STATUS=: motors moving/faulted/lost, frames served, errors, state file."""
+    """systemd's STATUS=: motors moving/faulted/lost, frames served, errors, real time
+    refused, state file."""
     motors = status.get("motors", [])
     moving = sum(1 for m in motors if m.get("state") not in ("idle", "fault"))
     faulted = [str(m.get("index")) for m in motors if m.get("fault")]
@@ -206,6 +208,11 @@ def summary_line(status: dict[str, Any]) -> str:
             parts.append(f"SERIAL DEVICE {device} GONE, reopening it when it is back")
         elif link.get("peer") == "waiting":
             parts.append(f"WAITING FOR SERIAL DEVICE {device} (not there yet)")
+    executor = status.get("executor")
+    rt = executor.get("realtime") if isinstance(executor, dict) else None
+    if isinstance(rt, dict) and rt.get("refused"):
+        what = ", ".join(str(rt.get(n, {}).get("what", n)) for n in rt["refused"])
+        parts.append(f"REAL TIME REFUSED ({what}): steps best effort, see motorctld --status")
     state = status.get("state")
     if isinstance(state, dict) and not state.get("ok", True):
         parts.append("STATE NOT SAVED: " + str(state.get("last_error")))
