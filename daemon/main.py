@@ -34,6 +34,7 @@ from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion.executors import compiled_core
 from motorctl.motion.executors.process.start import WaitingInterpreter
+from motorctl.motion.rt import RealtimeOptions
 
 log = logging.getLogger("motorctl")
 
@@ -327,11 +328,10 @@ def probe(
     found = platform_check.read_platform(roots or platform_check.Roots())
     if latency_s > 0:
         print(f"measuring timer wake-ups for {latency_s:g} s ...", flush=True)
-        latency = platform_check.measure_latency(latency_s, st.priority, st.cpu)
-        skipped = None
-    else:
-        latency, skipped = None, "not measured (--latency-seconds 0)"
-    sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
+    rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
+    got, latency = platform_check.measure_latency(latency_s, rt)
+    skipped = None if latency_s > 0 else "not measured (--latency-seconds 0)"
+    sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped, got))
     return 1 if report.problems else 0
 
 

@@ -217,10 +217,10 @@ def fifo_refused(exc: OSError, priority: int, p: Privileges) -> Outcome:
     elif p.cap_sys_nice or p.rtprio_limit is None or p.rtprio_limit >= priority:
         limit = "unlimited" if p.rtprio_limit is None else p.rtprio_limit
         allowed = "CAP_SYS_NICE" if p.cap_sys_nice else f"RLIMIT_RTPRIO {limit}"
-        where = f" (its cgroup: {p.cgroup})" if p.cgroup else ""
+        where = f" {p.cgroup}" if p.cgroup else ""
         reason = (
             f"{name} ({words}) although {allowed} allows it: the kernel's RT group scheduling "
-            f"(CONFIG_RT_GROUP_SCHED) gives this process's cgroup{where} no real-time time"
+            f"(CONFIG_RT_GROUP_SCHED) gives the process's cgroup{where} no real-time time"
         )
         fix = (
             "give that cgroup a real-time budget (cgroup v1: its cpu.rt_runtime_us, e.g. "

@@ -101,7 +101,7 @@ def test_sched_fifo_refused_although_the_limits_allow_it_is_rt_group_scheduling(
         got = fifo_refused(EPERM, 50, p)
         assert got.error == "EPERM" and got.reason is not None and got.fix is not None
         assert "allows it: the kernel's RT group scheduling (CONFIG_RT_GROUP_SCHED)" in got.reason
-        assert "(its cgroup: /system.slice/motorctld.service)" in got.reason
+        assert "cgroup /system.slice/motorctld.service no real-time time" in got.reason
         assert "cpu.rt_runtime_us" in got.fix and "without CONFIG_RT_GROUP_SCHED" in got.fix
     no_time = fifo_refused(EPERM, 50, Privileges(rtprio_limit=99, rt_runtime_us=0))
     assert no_time.reason is not None and "kernel.sched_rt_runtime_us is 0" in no_time.reason
