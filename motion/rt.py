@@ -120,7 +120,7 @@ class RealtimeReport:
         """The report in one line of the READY line (no "; " in it): what was granted, what
         refused and by which error, the kernel's preemption model."""
         parts: list[str] = []
-        for o in self.outcomes().values():
+        for o in (self.sched_fifo, self.memory_lock, self.cpu_affinity):  # weightiest first
             if o.state == GRANTED:
                 parts.append("memory locked" if o.what == "mlockall" else o.what)
             elif o.state == REFUSED:

@@ -30,7 +30,7 @@ name = "a"
 def test_real_time_the_kernel_refuses_is_said_everywhere(motorctld: StartDaemon) -> None:
     d = motorctld(ASKING, prefix=without_real_time())
     ready = d.ready_line.rstrip()
-    assert "; real time mlockall REFUSED (ENOMEM), SCHED_FIFO 50 REFUSED (EPERM), " in ready
+    assert "; real time SCHED_FIFO 50 REFUSED (EPERM), mlockall REFUSED (ENOMEM), " in ready
     assert ready.endswith(": steps best effort, 'motorctld --status' says why and the fix")
     doc = d.status()
     rt = doc["executor"]["realtime"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import errno
 import logging
 import os
+from dataclasses import replace
 
 import pytest
 
@@ -29,6 +30,7 @@ from motorctl.motion.rt import (
     memory_refused,
     read_privileges,
 )
+from tests.support import REPO
 
 EPERM = PermissionError(errno.EPERM, "Operation not permitted")
 
@@ -163,7 +165,7 @@ def test_the_report_crosses_as_a_document_and_back() -> None:
 
 def test_the_report_in_one_line() -> None:
     assert REPORT.words() == (
-        "real time CPU 3, mlockall REFUSED (ENOMEM), SCHED_FIFO 50 REFUSED (EPERM), kernel "
+        "real time SCHED_FIFO 50 REFUSED (EPERM), mlockall REFUSED (ENOMEM), CPU 3, kernel "
         "not PREEMPT_RT: steps best effort, 'motorctld --status' says why and the fix"
     )
     granted = RealtimeReport(
@@ -173,7 +175,7 @@ def test_the_report_in_one_line() -> None:
         "6.12.62+rpt-rpi-v8-rt",
         True,
     )
-    assert granted.words() == "real time memory locked, SCHED_FIFO 50, PREEMPT_RT kernel"
+    assert granted.words() == "real time SCHED_FIFO 50, memory locked, PREEMPT_RT kernel"
     assert "; " not in REPORT.words() + granted.words()  # one field of the READY line
     nothing = RealtimeReport(
         Outcome(NOT_ASKED, "[step_thread] cpu = -1"),
@@ -183,6 +185,33 @@ def test_the_report_in_one_line() -> None:
     assert nothing.words() == (
         "real time not asked ([step_thread] cpu = -1, lock_memory = false, priority = 0)"
     )
+
+
+def test_the_docs_quote_the_report_as_it_reads() -> None:
+    """The READY line's real-time field as docs/timing.md and docs/raspberry-pi.md quote
+    it (their line breaks aside): each quote is the words of a report."""
+    default = RealtimeReport(  # the embedded default, granted
+        Outcome(NOT_ASKED, "[step_thread] cpu = -1"),
+        Outcome(GRANTED, "mlockall"),
+        Outcome(GRANTED, "SCHED_FIFO 50"),
+    )
+    refused = replace(default, memory_lock=REPORT.memory_lock, sched_fifo=REPORT.sched_fifo)
+    fifo_only = replace(default, sched_fifo=REPORT.sched_fifo)
+    nothing = RealtimeReport(
+        Outcome(NOT_ASKED, "[step_thread] cpu = -1"),
+        Outcome(NOT_ASKED, "[step_thread] lock_memory = false"),
+        Outcome(NOT_ASKED, "[step_thread] priority = 0"),
+    )
+    pages = {
+        "timing.md": (default, refused, nothing),
+        "raspberry-pi.md": (default, fifo_only),
+    }
+    for page, reports in pages.items():
+        text = " ".join((REPO / "docs" / page).read_text().split())
+        for report in reports:
+            assert f"{report.words()}`" in text, (page, report.words())
+    readme = (REPO / "README.md").read_text()
+    assert f"; {refused.words()}\n" in readme
 
 
 # ---------------------------------------------------------------- the kernel
