@@ -1,22 +1,25 @@
 """``motorctld --probe``'s platform check: what decides step timing on this board, measured
 and read from the kernel, ending with plain advice (docs/timing.md, "Checking a platform").
 
-Facts come from files under two roots, ``/proc`` and ``/sys`` (:class:`Roots`), so tests
-point them at a fake tree: the kernel's preemption model (``/sys/kernel/realtime``, the
-version string, ``/sys/kernel/debug/sched/preempt`` or ``preempt=`` on the command line for
-a PREEMPT_DYNAMIC kernel), ``kernel.sched_rt_runtime_us``, each CPU's cpufreq governor, the
-isolated and nohz_full CPUs, the board's model (device tree), and where the board reports
-them under-voltage and throttling: a Raspberry Pi's ``rpi_volt`` hwmon device
-(``in0_lcrit_alarm``: under-voltage seen in the driver's last poll, every 2 s) and, on
-kernels that still have it, its firmware's ``get_throttled`` (hex bits: 0 under-voltage
-now, 1 ARM frequency capped, 2 throttled, 3 soft temperature limit; 16-19 the same "has
-occurred", since boot or since the hwmon driver last cleared them).
+Facts come from files under three roots, ``/proc``, ``/sys`` and ``/etc`` (:class:`Roots`),
+so tests point them at a fake tree: the kernel's preemption model (its version string, i.e.
+``uname -v``, or ``/sys/kernel/realtime``; ``/sys/kernel/debug/sched/preempt`` or
+``preempt=`` on the command line for a PREEMPT_DYNAMIC kernel), the OS release (for the way
+to an RT kernel on it: daemon/platform_kernel.py), ``kernel.sched_rt_runtime_us``, each
+CPU's cpufreq governor, the isolated and nohz_full CPUs, the board's model (device tree),
+and where the board reports them under-voltage and throttling: a Raspberry Pi's ``rpi_volt``
+hwmon device (``in0_lcrit_alarm``: under-voltage seen in the driver's last poll, every 2 s)
+and, on kernels that still have it, its firmware's ``get_throttled`` (hex bits: 0
+under-voltage now, 1 ARM frequency capped, 2 throttled, 3 soft temperature limit; 16-19 the
+same "has occurred", since boot or since the hwmon driver last cleared them).
 
-The latency measurement runs timed sleeps for a few seconds on a thread of its own, at the
-executor's SCHED_FIFO priority and on its CPU when those are configured and permitted (it
-says so when they are not, and measures at normal priority: never an error). It measures
-what the executor's timer wake-ups see: the step executor sleeps until ``spin_us`` before a
-step and busy-waits the rest, so a wake-up later than that makes the step late.
+On a thread of its own the check asks for the real time the executor asks for (its CPU,
+mlockall, SCHED_FIFO: motion/rt.py) and reports what it got, each refusal with its reason
+and fix; the latency measurement then runs timed sleeps for a few seconds on that thread, at
+what was granted (it says so when something was not, and measures at normal priority: never
+an error). It measures what the executor's timer wake-ups see: the step executor sleeps
+until ``spin_us`` before a step and busy-waits the rest, so a wake-up later than that makes
+the step late.
 
 Threads: :func:`measure_latency` starts and joins its own thread; the rest is pure reading.
 """

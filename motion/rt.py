@@ -300,15 +300,6 @@ def unlock_memory() -> None:
     ctypes.CDLL(None, use_errno=True).munlockall()
 
 
-def set_realtime(priority: int) -> str | None:
-    """SCHED_FIFO at ``priority`` for the calling thread; returns why not, or None."""
-    try:
-        os.sched_setscheduler(0, os.SCHED_FIFO, os.sched_param(priority))
-    except OSError as exc:
-        return str(exc)
-    return None
-
-
 def enter_realtime(
     opts: RealtimeOptions,
     who: str,
