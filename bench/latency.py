@@ -196,7 +196,7 @@ def main() -> int:
         f"  CPU per round trip: echo peer {result['echo_cpu_per_round_trip_us']} us, "
         f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us"
     )
-    print(f"daemon processing (last byte read -> reply written), {p['steps']} commands:")
+    print(f"daemon processing (last byte read -> reply written), {p['reads']} commands:")
     print(
         f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "
         f"max {p['max_us']} us  (target p99 <= 108 us)"

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import shutil
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -33,6 +34,7 @@ from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion.executors import compiled_core
 from motorctl.motion.executors.process.start import WaitingInterpreter
+from motorctl.motion.rt import RealtimeOptions
 
 log = logging.getLogger("motorctl")
 
@@ -117,7 +119,14 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--status",
         action="store_true",
-        help="print the running daemon's status (JSON) from --state-dir and exit",
+        help="print the running daemon's status from --state-dir and exit: on a terminal "
+        "a summary (motors, faults, link, step timing, real time granted or refused), "
+        "else (a pipe, a file) the whole document as JSON (docs/status.md)",
+    )
+    p.add_argument(
+        "--json",
+        action="store_true",
+        help="with --status: the whole document as JSON, on a terminal too",
     )
     p.add_argument(
         "--histogram",
@@ -207,6 +216,7 @@ def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | Non
     if args.status:
         return status_command(args)
     for given, name in (
+        (args.json, "--json"),
         (args.histogram, "--histogram"),
         (args.watch, "--watch"),
         (args.format != "json", "--format"),
@@ -240,13 +250,14 @@ METRICS_MISSING = (
 
 
 def status_command(args: argparse.Namespace) -> int:
-    """``--status``: the running daemon's status once (JSON or OpenMetrics), or watched."""
+    """``--status``: the running daemon's status once (on a terminal a summary, else the
+    JSON document; or metrics), or watched."""
     path = args.state_dir / "status.sock"
     if args.watch:
-        if args.histogram or args.format != "json":
+        if args.histogram or args.json or args.format != "json":
             print(
-                "error: --watch shows the live view; --histogram and --format go with a "
-                "single --status",
+                "error: --watch shows the live view; --histogram, --json and --format go "
+                "with a single --status",
                 file=sys.stderr,
             )
             return 2
@@ -278,8 +289,12 @@ def status_command(args: argparse.Namespace) -> int:
         return 1
     if metrics is not None:
         sys.stdout.write(metrics.metrics(doc, args.format))
+    elif args.json or args.histogram or not sys.stdout.isatty():
+        print(json.dumps(doc, indent=1))  # scripts and pipes: the document as it is
     else:
-        print(json.dumps(doc, indent=1))
+        from motorctl.daemon.status.summary import summary
+
+        sys.stdout.write(summary(doc, min(shutil.get_terminal_size().columns, 120)))
     return 0
 
 
@@ -313,11 +328,10 @@ def probe(
     found = platform_check.read_platform(roots or platform_check.Roots())
     if latency_s > 0:
         print(f"measuring timer wake-ups for {latency_s:g} s ...", flush=True)
-        latency = platform_check.measure_latency(latency_s, st.priority, st.cpu)
-        skipped = None
-    else:
-        latency, skipped = None, "not measured (--latency-seconds 0)"
-    sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped))
+    rt = RealtimeOptions(st.priority, st.lock_memory, st.cpu)
+    got, latency = platform_check.measure_latency(latency_s, rt)
+    skipped = None if latency_s > 0 else "not measured (--latency-seconds 0)"
+    sys.stdout.write(platform_check.report(found, latency, timing, motors, skipped, got))
     return 1 if report.problems else 0
 
 

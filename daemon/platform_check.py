@@ -1,22 +1,25 @@
 """``motorctld --probe``'s platform check: what decides step timing on this board, measured
 and read from the kernel, ending with plain advice (docs/timing.md, "Checking a platform").
 
-Facts come from files under two roots, ``/proc`` and ``/sys`` (:class:`Roots`), so tests
-point them at a fake tree: the kernel's preemption model (``/sys/kernel/realtime``, the
-version string, ``/sys/kernel/debug/sched/preempt`` or ``preempt=`` on the command line for
-a PREEMPT_DYNAMIC kernel), ``kernel.sched_rt_runtime_us``, each CPU's cpufreq governor, the
-isolated and nohz_full CPUs, the board's model (device tree), and where the board reports
-them under-voltage and throttling: a Raspberry Pi's ``rpi_volt`` hwmon device
-(``in0_lcrit_alarm``: under-voltage seen in the driver's last poll, every 2 s) and, on
-kernels that still have it, its firmware's ``get_throttled`` (hex bits: 0 under-voltage
-now, 1 ARM frequency capped, 2 throttled, 3 soft temperature limit; 16-19 the same "has
-occurred", since boot or since the hwmon driver last cleared them).
+Facts come from files under three roots, ``/proc``, ``/sys`` and ``/etc`` (:class:`Roots`),
+so tests point them at a fake tree: the kernel's preemption model (its version string, i.e.
+``uname -v``, or ``/sys/kernel/realtime``; ``/sys/kernel/debug/sched/preempt`` or
+``preempt=`` on the command line for a PREEMPT_DYNAMIC kernel), the OS release (for the way
+to an RT kernel on it: daemon/platform_kernel.py), ``kernel.sched_rt_runtime_us``, each
+CPU's cpufreq governor, the isolated and nohz_full CPUs, the board's model (device tree),
+and where the board reports them under-voltage and throttling: a Raspberry Pi's ``rpi_volt``
+hwmon device (``in0_lcrit_alarm``: under-voltage seen in the driver's last poll, every 2 s)
+and, on kernels that still have it, its firmware's ``get_throttled`` (hex bits: 0
+under-voltage now, 1 ARM frequency capped, 2 throttled, 3 soft temperature limit; 16-19 the
+same "has occurred", since boot or since the hwmon driver last cleared them).
 
-The latency measurement runs timed sleeps for a few seconds on a thread of its own, at the
-executor's SCHED_FIFO priority and on its CPU when those are configured and permitted (it
-says so when they are not, and measures at normal priority: never an error). It measures
-what the executor's timer wake-ups see: the step executor sleeps until ``spin_us`` before a
-step and busy-waits the rest, so a wake-up later than that makes the step late.
+On a thread of its own the check asks for the real time the executor asks for (its CPU,
+mlockall, SCHED_FIFO: motion/rt.py) and reports what it got, each refusal with its reason
+and fix; the latency measurement then runs timed sleeps for a few seconds on that thread, at
+what was granted (it says so when something was not, and measures at normal priority: never
+an error). It measures what the executor's timer wake-ups see: the step executor sleeps
+until ``spin_us`` before a step and busy-waits the rest, so a wake-up later than that makes
+the step late.
 
 Threads: :func:`measure_latency` starts and joins its own thread; the rest is pure reading.
 """
@@ -31,9 +34,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from motorctl.daemon.config.model import MICROSTEPS_UNSAID
+from motorctl.daemon.platform_kernel import OsRelease, read_os_release, rt_kernel_advice
+from motorctl.daemon.status.summary import realtime_lines
 from motorctl.motion.executors.base import LagRule, lag_full_steps
 from motorctl.motion.latency import LatencyStats
-from motorctl.motion.rt import set_realtime
+from motorctl.motion.rt import (
+    GRANTED,
+    REFUSED,
+    RealtimeOptions,
+    RealtimeReport,
+    enter_realtime,
+    kernel_preempt_rt,
+    unlock_memory,
+)
 
 #: get_throttled's bits (the Raspberry Pi firmware's)
 THROTTLED_BITS = {
@@ -51,10 +64,11 @@ INTERVAL_S = 0.001  # one timed sleep per millisecond
 
 @dataclass(frozen=True)
 class Roots:
-    """Where the kernel's files are (tests: a fake tree)."""
+    """Where the kernel's files and the OS release are (tests: a fake tree)."""
 
     proc: Path = Path("/proc")
     sys: Path = Path("/sys")
+    etc: Path = Path("/etc")
 
 
 @dataclass
@@ -74,6 +88,8 @@ class Platform:
     model: str | None = None
     undervoltage: bool | None = None
     throttled: int | None = None
+    os_release: OsRelease | None = None
+    machine: str = ""  # uname -m
 
 
 @dataclass
@@ -143,11 +159,15 @@ def _preempt_unreadable(roots: Roots, euid: int) -> str:
     return "missing: a kernel without CONFIG_SCHED_DEBUG"
 
 
-def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
-    """What the kernel and the board say (``euid``: whose eyes read it; default: this
-    process's, which decides what a missing debugfs file means)."""
+def read_platform(
+    roots: Roots = Roots(), euid: int | None = None, machine: str | None = None
+) -> Platform:
+    """What the kernel, the board and the OS release say (``euid``: whose eyes read it;
+    default: this process's, which decides what a missing debugfs file means; ``machine``:
+    ``uname -m``, default this machine's)."""
     euid = os.geteuid() if euid is None else euid
-    p = Platform()
+    p = Platform(machine=os.uname().machine if machine is None else machine)
+    p.os_release = read_os_release(roots.etc)
     kernel = roots.proc / "sys" / "kernel"
     p.kernel = _read(kernel / "osrelease")
     p.version = _read(kernel / "version")
@@ -174,10 +194,11 @@ def read_platform(roots: Roots = Roots(), euid: int | None = None) -> Platform:
 
 
 def _read_preemption(p: Platform, roots: Roots, cmdline: str, euid: int) -> None:
-    """The kernel's preemption model (``p.rt``, ``p.preempt``), from its version, its
-    realtime flag, debugfs's preempt mode or the command line's ``preempt=``."""
+    """The kernel's preemption model (``p.rt``, ``p.preempt``), from its version (``uname
+    -v``), its realtime flag (the RT patch set's; mainline PREEMPT_RT has none), debugfs's
+    preempt mode or the command line's ``preempt=``."""
     version_words = (p.version or "").split()
-    p.rt = _read(roots.sys / "kernel" / "realtime") == "1" or "PREEMPT_RT" in version_words
+    p.rt = kernel_preempt_rt(p.version or "", _read(roots.sys / "kernel" / "realtime"))
     if p.rt:
         p.preempt = "PREEMPT_RT"
     elif "PREEMPT_DYNAMIC" in version_words:
@@ -228,38 +249,24 @@ def throttled_text(bits: int) -> list[str]:
 
 def measure_latency(
     seconds: float,
-    priority: int,
-    cpu: int,
-    realtime: Callable[[int], str | None] = set_realtime,
+    opts: RealtimeOptions,
+    enter: Callable[[RealtimeOptions], RealtimeReport] = lambda o: enter_realtime(
+        o, "the probe's thread", quiet=True
+    ),
     interval_s: float = INTERVAL_S,
-) -> Latency:
-    """``seconds`` of timed sleeps of ``interval_s`` on a new thread, at SCHED_FIFO
-    ``priority`` (0: normal priority) on ``cpu`` (-1: any); refusals are noted, never
-    raised."""
+) -> tuple[RealtimeReport, Latency | None]:
+    """On a new thread: ask for the real time the step executor asks for (``opts``, the
+    config's [step_thread]; ``enter`` asks) and say what it got, then (``seconds`` > 0)
+    time sleeps of ``interval_s`` for ``seconds`` at whatever was granted. A refusal is
+    noted, never raised; memory locked for the measurement is unlocked after it."""
     stats = LatencyStats(threshold_s=1.0)
-    notes: list[str] = []
-    policy: list[str] = ["normal priority"]
+    got: list[RealtimeReport] = []
 
     def run() -> None:
-        if cpu >= 0:
-            try:
-                os.sched_setaffinity(0, {cpu})
-                policy.append(f"on CPU {cpu}")
-            except OSError as exc:
-                notes.append(f"cannot pin to CPU {cpu} ({exc}): measured on any CPU")
-        if priority > 0:
-            why = realtime(priority)
-            if why is None:
-                policy[0] = f"SCHED_FIFO {priority}"
-            else:
-                notes.append(
-                    f"SCHED_FIFO {priority} refused ({why}): measured at normal "
-                    "priority; run the probe as root, or as the service's user with "
-                    "its LimitRTPRIO, to measure what the executor gets"
-                )
+        got.append(enter(opts))
         step = round(interval_s * 1e9)
         end = time.perf_counter_ns() + round(seconds * 1e9)
-        while True:
+        while seconds > 0:
             due = time.perf_counter_ns() + step
             if due > end:
                 break
@@ -269,15 +276,31 @@ def measure_latency(
     thread = threading.Thread(target=run, name="motorctl-probe-latency", daemon=True)
     thread.start()
     thread.join()
+    report = got[0]
+    if report.memory_lock.state == GRANTED:
+        unlock_memory()
+    if seconds <= 0:
+        return report, None
     summary = stats.summary()
-    return Latency(
+    fifo, cpu = report.sched_fifo, report.cpu_affinity
+    policy = fifo.what if fifo.state == GRANTED else "normal priority"
+    if cpu.state == GRANTED:
+        policy += f" on {cpu.what}"
+    notes = [
+        f"{o.what} refused (see 'real time' above): measured "
+        f"{'at normal priority' if o is fifo else 'on any CPU'}"
+        for o in (fifo, cpu)
+        if o.state == REFUSED
+    ]
+    latency = Latency(
         samples=stats.count,
         p50_us=float(summary["p50_us"]),
         p99_us=float(summary["p99_us"]),
         max_us=float(summary["max_us"]),
-        policy=" ".join(policy),
+        policy=policy,
         notes=notes,
     )
+    return report, latency
 
 
 @dataclass(frozen=True)
@@ -334,10 +357,8 @@ def board_advice(p: Platform) -> list[str]:
             "the board has seen under-voltage or throttling since boot: check the power supply"
         )
     if p.version is not None and not p.rt:
-        out.append(
-            "the kernel is not PREEMPT_RT: an RT kernel (Debian: linux-image-rt-arm64;"
-            " Raspberry Pi OS: a PREEMPT_RT build) bounds the executor's wake-ups"
-        )
+        way = rt_kernel_advice(p.model, p.os_release, p.kernel, p.machine)
+        out.append(f"the kernel is not PREEMPT_RT, which bounds the executor's wake-ups: {way}")
     if p.rt_runtime_us is not None and p.rt_runtime_us != -1:
         period = p.rt_period_us or 1_000_000
         parked = max(0, period - p.rt_runtime_us) / 1000
@@ -436,8 +457,10 @@ def report(
     cfg: TimingConfig,
     motors: Sequence[MotorRate],
     skipped: str | None = None,
+    rt: RealtimeReport | None = None,
 ) -> str:
-    """The platform section of ``--probe``."""
+    """The platform section of ``--probe``; ``rt``: what the probe got when it asked for
+    the step executor's real time."""
     lines = ["platform (what decides step timing):"]
     lines.append(f"  board: {p.model or 'not reported (no device-tree model)'}")
     lines.append(f"  kernel: {p.kernel or '?'}; preemption: {p.preempt}")
@@ -476,6 +499,12 @@ def report(
         if p.throttled is not None:
             what = ", ".join(throttled_text(p.throttled)) or "nothing"
             lines.append(f"  firmware get_throttled: 0x{p.throttled:x} ({what})")
+    if rt is not None:
+        lines.append(
+            "  real time as [step_thread] asks, tried by the probe as its user (the "
+            "service's: motorctld --status):"
+        )
+        lines += realtime_lines(rt.as_dict(), 96, "    ", label="")
     if lat is None:
         lines.append(f"  latency: {skipped or 'not measured'}")
     else:

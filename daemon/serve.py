@@ -121,11 +121,16 @@ def run(served: Served, stop: StopSignals) -> int:
     daemon.gc_policy.ready()
     if served.watchdog is not None:
         served.watchdog.start()
+    executor = daemon.engine.executor
+    realtime, core = executor.realtime(), executor.step_core()
+    if realtime is not None:
+        words = realtime.words()
+    else:
+        words = "real time not reported" if core else "real time none (no step executor)"
     print(
         f"motorctld ready: serving {served.where}; config {config.source}; "
         f"{len(config.motors)} motors; {config.hal.backend} hardware; "
-        f"step core {daemon.engine.executor.step_core() or 'none'}; "
-        f"state in {daemon.state_dir}",
+        f"step core {core or 'none'}; state in {daemon.state_dir}; {words}",
         flush=True,
     )
     if os.environ.get("NOTIFY_SOCKET"):

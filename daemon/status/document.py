@@ -110,6 +110,7 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
             "kind": step_executor_kind(parts.config, executor),
             "core": executor.step_core(),
             "pid": getattr(executor, "pid", None),
+            "realtime": None if (rt := executor.realtime()) is None else rt.as_dict(),
         },
         "clamped": dict(parts.dispatcher.clamped),
         "hard_stops": parts.engine.stop_wait_status(),
@@ -122,13 +123,27 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
         monotonic_s=mono, uptime_s=round(mono - parts.started, 3), unix_s=round(time.time(), 3)
     )
     if parts.link is not None:
-        out["link"] = parts.link.status()
+        out["link"] = link_status(parts.link.status())
     if parts.trace is not None:
         out["trace"] = parts.trace.status()
     drivers = [d for s in parts.hw.steppers if (d := s.driver.stats()) is not None]
     if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
         out["drivers"] = drivers
     return out
+
+
+#: the link's processing summary under names that say what they count: reads (not steps);
+#: reads whose answers took longer than the target (bench/latency.py's p99 target), not
+#: "late" ones: nothing was due
+PROCESSING_NAMES = {"steps": "reads", "late": "over_target", "late_threshold_us": "target_us"}
+
+
+def link_status(link: dict[str, Any]) -> dict[str, Any]:
+    """The link's status with its processing summary's names said (``PROCESSING_NAMES``)."""
+    processing = link.get("processing")
+    if isinstance(processing, dict):
+        link["processing"] = {PROCESSING_NAMES.get(k, k): v for k, v in processing.items()}
+    return link
 
 
 def motor_speed(traj: Trajectory | None, now: float) -> float:
@@ -169,7 +184,8 @@ def step_executor_kind(config: Config, executor: Executor) -> str:
 
 
 def summary_line(status: dict[str, Any]) -> str:
-    """systemd's STATUS=: motors moving/faulted/lost, frames served, errors, state file."""
+    """systemd's STATUS=: motors moving/faulted/lost, frames served, errors, real time
+    refused, state file."""
     motors = status.get("motors", [])
     moving = sum(1 for m in motors if m.get("state") not in ("idle", "fault"))
     faulted = [str(m.get("index")) for m in motors if m.get("fault")]
@@ -192,6 +208,11 @@ def summary_line(status: dict[str, Any]) -> str:
             parts.append(f"SERIAL DEVICE {device} GONE, reopening it when it is back")
         elif link.get("peer") == "waiting":
             parts.append(f"WAITING FOR SERIAL DEVICE {device} (not there yet)")
+    executor = status.get("executor")
+    rt = executor.get("realtime") if isinstance(executor, dict) else None
+    if isinstance(rt, dict) and rt.get("refused"):
+        what = ", ".join(str(rt.get(n, {}).get("what", n)) for n in rt["refused"])
+        parts.append(f"REAL TIME REFUSED ({what}): steps best effort, see motorctld --status")
     state = status.get("state")
     if isinstance(state, dict) and not state.get("ok", True):
         parts.append("STATE NOT SAVED: " + str(state.get("last_error")))

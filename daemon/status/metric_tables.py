@@ -36,7 +36,13 @@ SCALARS: tuple[Field, ...] = (
         "Motors stopped because a late step's lag was beyond the motor's max_lag_full_steps "
         "(E4 step timing lost).",
     ),
-    Field("steps.dropped", "motorctl_steps_dropped", "counter", "Steps the executor dropped."),
+    Field(
+        "steps.segments_discarded",
+        "motorctl_step_segments_discarded",
+        "counter",
+        "Planned step segments the executor discarded unstepped because a re-plan or a stop "
+        "replaced them (normal: not lost steps).",
+    ),
     Field("steps.io_errors", "motorctl_step_io_errors", "counter", "STEP/DIR line errors."),
     Field("steps.endstops", "motorctl_step_endstops", "counter", "End-stop triggers acted on."),
     Field(
@@ -308,7 +314,7 @@ SUMMARIES: tuple[Summary, ...] = (
         "link.processing",
         "motorctl_link_processing_seconds",
         "From a read to its answers being written (since start).",
-        "steps",
+        "reads",
         "sum_us",
         (("p50_us", "0.5"), ("p99_us", "0.99"), ("p999_us", "0.999")),
     ),

@@ -248,14 +248,12 @@ def _steps(doc: Mapping[str, Any]) -> Text:
     late = s.get("late")
     text.append(f"  late (>{_num(s.get('late_threshold_us'), '{:.0f}')} us) ")
     text.append(_num(late), style="yellow" if late else "")
-    for key, label in (
-        ("timing_lost", "timing lost"),
-        ("dropped", "dropped"),
-        ("io_errors", "io errors"),
-    ):
+    for key, label in (("timing_lost", "timing lost"), ("io_errors", "io errors")):
         value = s.get(key)
         text.append(f"  {label} ")
         text.append(_num(value), style="bold red" if value else "")
+    # planned segments a re-plan or stop replaced before they ran: normal, no alarm
+    text.append(f"  segments discarded {_num(s.get('segments_discarded'))}")
     stops = _d(doc.get("hard_stops"))
     if stops:
         text.append(
@@ -300,7 +298,8 @@ def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
         return text
     c = _d(link.get("counters"))
     text.append(f"host port {link.get('peer', '?')}  frames {_num(c.get('frames'))}")
-    text.append(f" ({_num(rate, '{:,.1f}', '?')}/s)")
+    if rate is not None:  # none from a single document (--once) or a stale view
+        text.append(f" ({rate:,.1f}/s)")
     bad = {
         k.removesuffix("_errors"): v
         for k, v in c.items()

@@ -33,6 +33,7 @@ from typing import Any
 
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Trajectory
+from motorctl.motion.rt import RealtimeReport
 from motorctl.motion.types import Ramp
 
 #: Integer time of the step path: nanoseconds of the executor's clock.
@@ -284,6 +285,11 @@ class Executor(ABC):
     def step_core(self) -> str | None:
         """Which step core times this executor's STEP edges: "compiled" or "python"
         (``[step_thread] core``); None for an executor that makes none, or before it runs."""
+        return None
+
+    def realtime(self) -> RealtimeReport | None:
+        """What real time the thread or process that times the STEP edges asked for and got
+        (motion/rt.py); None for an executor that makes none, or before it runs."""
         return None
 
     # -- a virtual clock (tests): executors that run on their own refuse ----------------

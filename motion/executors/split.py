@@ -27,6 +27,7 @@ from motorctl.motion.executors.base import (
 from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Trajectory
+from motorctl.motion.rt import RealtimeReport
 from motorctl.motion.types import Ramp
 
 K = ExecEventKind
@@ -159,6 +160,10 @@ class SplitExecutor(Executor):
     def step_core(self) -> str | None:
         """The step executor's (the ramp executor has none)."""
         return next((c for ex in self.parts if (c := ex.step_core()) is not None), None)
+
+    def realtime(self) -> RealtimeReport | None:
+        """The step executor's (the ramp executor has no real-time part)."""
+        return next((r for ex in self.parts if (r := ex.realtime()) is not None), None)
 
     def next_deadline(self) -> float | None:
         found = [d for ex in self.parts if (d := ex.next_deadline()) is not None]

@@ -78,14 +78,14 @@ from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.latency import Cells, LatencyStats
 
 # counters cells
-PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DROPPED, MIN_GAP, BAD_RECORDS = range(8)
+PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DISCARDED, MIN_GAP, BAD_RECORDS = range(8)
 COUNTER_NAMES = (
     "progress",
     "steps",
     "timing_lost",
     "io_errors",
     "endstops",
-    "dropped",
+    "segments_discarded",  # segments of a replaced or stopped plan, never stepped
     "min_gap_ns",
     "bad_records",
 )
@@ -245,7 +245,7 @@ class StepCore:
         q = self.inbox.queues[m]
         while q and q[0].gen <= self.stopped_gen[m]:
             q.popleft()
-            self.counters[DROPPED] += 1
+            self.counters[DISCARDED] += 1
 
     def _load(self, m: int) -> bool:
         """Take the motor's next segment; True when one is loaded."""
@@ -260,7 +260,7 @@ class StepCore:
             gen = seg.gen
             cuts = self.cuts[m]
             if gen <= self.stopped_gen[m] or (cuts and self._cut_off(m, seg)):
-                self.counters[DROPPED] += 1
+                self.counters[DISCARDED] += 1
                 continue
             if cuts and cuts[0][0] < gen:  # no segment of those plans comes any more
                 cuts[:] = [c for c in cuts if c[0] >= gen]

@@ -37,7 +37,7 @@ from motorctl.motion.executors.planner import StepExecutor
 from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.executors.step_core import COUNTER_NAMES, CoreInbox, StepCore
 from motorctl.motion.latency import CELLS, LatencyStats
-from motorctl.motion.rt import RealtimeOptions, enter_realtime
+from motorctl.motion.rt import RealtimeOptions, RealtimeReport, enter_realtime
 
 log = logging.getLogger("motorctl.executor")
 
@@ -102,7 +102,8 @@ class ThreadStepExecutor(StepExecutor):
         self._running = False
         self._thread: threading.Thread | None = None
         self.died: str | None = None
-        self.warnings: list[str] = []
+        #: what real time the step thread got (None until it runs)
+        self.realtime_report: RealtimeReport | None = None
 
     @property
     def virtual(self) -> bool:
@@ -152,7 +153,7 @@ class ThreadStepExecutor(StepExecutor):
         started.wait()
 
     def _run(self, started: threading.Event) -> None:
-        self.warnings = enter_realtime(self.rt, "the step thread")
+        self.realtime_report = enter_realtime(self.rt, "the step thread")
         started.set()
         wake = self._wake
 
@@ -201,6 +202,9 @@ class ThreadStepExecutor(StepExecutor):
 
     def step_core(self) -> str:
         return "python"  # a thread of the daemon keeps the Python core
+
+    def realtime(self) -> RealtimeReport | None:
+        return self.realtime_report
 
     # -- the virtual clock ---------------------------------------------------------------
     def next_deadline(self) -> float | None:

@@ -6,6 +6,7 @@ begin said in one line. Serving itself: test_serve.py, test_serve_e2e.py."""
 from __future__ import annotations
 
 import contextlib
+import json
 import os
 import socket
 import subprocess
@@ -19,7 +20,7 @@ import pytest
 from motorctl.daemon.config import default_config_text
 from motorctl.daemon.main import main
 from tests.support import REPO
-from tests.support.daemon_proc import StartDaemon, for_tests
+from tests.support.daemon_proc import StartDaemon, for_tests, run_on_pty
 
 ROOT = REPO
 
@@ -93,13 +94,14 @@ def test_the_compiled_core_where_it_cannot_run_is_a_probe_problem_and_a_start_er
     ("argv", "says"),
     [
         (["--pty", "x", "--histogram"], "error: --histogram goes with --status"),
+        (["--pty", "x", "--json"], "error: --json goes with --status"),
         (["--pty", "x", "--watch"], "error: --watch goes with --status"),
         (["--pty", "x", "--format", "openmetrics"], "error: --format goes with --status"),
         ([], "error: say where to serve: --pty PATH (a pseudo-terminal) or --port DEVICE"),
         (
             ["--status", "--watch", "--histogram"],
-            "error: --watch shows the live view; --histogram and --format go with a single "
-            "--status",
+            "error: --watch shows the live view; --histogram, --json and --format go with a "
+            "single --status",
         ),
         (
             ["--status", "--histogram", "--format", "openmetrics"],
@@ -205,3 +207,40 @@ def test_output_into_a_pipe_nobody_reads_ends_quietly(tmp_path: Path, status: bo
     finally:
         os.close(write)
     assert (run.returncode, run.stderr) == (EXIT_PIPE, "")
+
+
+def test_status_on_a_terminal_is_a_summary_and_in_a_pipe_the_document(
+    motorctld: StartDaemon,
+) -> None:
+    """``motorctld --status`` as a person runs it (a real terminal: a pseudo-terminal) prints
+    a screen of summary; into a pipe, as scripts read it, and with --json on the terminal,
+    the whole document as JSON, as before."""
+    d = motorctld()
+    with d.client() as c:
+        c.move_to(0, 300)
+        c.wait_moved(0, 10_000)
+    cmd = [
+        sys.executable,
+        "-m",
+        "motorctl.daemon.main",
+        "--status",
+        "--state-dir",
+        str(d.state_dir),
+    ]
+    code, out = run_on_pty(cmd)
+    assert code == 0, out
+    lines = out.splitlines()
+    assert lines[0].startswith("motorctld ") and ": step executor process (pid " in lines[0]
+    assert "  0 x: idle, position 300, speed 0 step/s" in lines
+    assert any(
+        line.startswith("real time: SCHED_FIFO not asked ([step_thread] priority = 0)")
+        for line in lines
+    )
+    assert any(line.startswith("step timing: 300 step edges, late by p50 ") for line in lines)
+    assert lines[-1] == "everything: motorctld --status --json (docs/status.md)"
+    assert "{" not in out and len(lines) <= 24  # one screen
+    piped = subprocess.run(cmd, capture_output=True, text=True, timeout=30, cwd=REPO)
+    doc = json.loads(piped.stdout)
+    assert doc["motors"][0]["position"] == 300 and doc["executor"]["realtime"]["refused"] == []
+    code, out = run_on_pty([*cmd, "--json"])
+    assert code == 0 and json.loads(out)["motors"][0]["position"] == 300

@@ -5,6 +5,8 @@ anyway); the probe of a real daemon config end to end."""
 
 from __future__ import annotations
 
+import errno
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -13,6 +15,7 @@ import pytest
 
 from motorctl.daemon.platform_check import (
     Latency,
+    Platform,
     Roots,
     TimingConfig,
     advice,
@@ -23,6 +26,7 @@ from motorctl.daemon.platform_check import (
     throttled_text,
 )
 from motorctl.motion.executors.base import lag_full_steps
+from motorctl.motion.rt import GRANTED, NOT_ASKED, Outcome, RealtimeOptions, RealtimeReport
 from tests.support import REPO
 from tests.support.daemon_proc import for_tests
 from tests.support.motor_defaults import motor_rate
@@ -35,7 +39,7 @@ def tree(base: Path, files: dict[str, str]) -> Roots:
         path = base / rel
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text(text)
-    return Roots(proc=base / "proc", sys=base / "sys")
+    return Roots(proc=base / "proc", sys=base / "sys", etc=base / "etc")
 
 
 #: a Raspberry Pi 4 on a stock kernel, unhappy power supply, nothing tuned
@@ -122,6 +126,36 @@ def test_a_raspberry_pi_on_a_stock_kernel(tmp_path: Path) -> None:
     assert text.splitlines()[-len(tips) - 1] == "advice:"
 
 
+#: the Pi of ``PI`` on Raspberry Pi OS trixie's stock kernel (as recorded on one)
+PI_TRIXIE = {
+    **PI,
+    "proc/sys/kernel/osrelease": "6.12.75+rpt-rpi-v8\n",
+    "proc/sys/kernel/version": "#1 SMP PREEMPT Debian 1:6.12.75-1+rpt1 (2026-03-11)\n",
+    "sys/class/hwmon/hwmon1/in0_lcrit_alarm": "0\n",
+    "sys/devices/platform/soc/soc:firmware/get_throttled": "0\n",
+    "etc/os-release": 'PRETTY_NAME="Debian GNU/Linux 13 (trixie)"\nID=debian\n'
+    "VERSION_CODENAME=trixie\n",
+}
+
+
+def test_the_probe_example_in_docs_timing_is_what_the_probe_prints(tmp_path: Path) -> None:
+    """docs/timing.md's example: the report of the fake trixie Pi above, its real time
+    granted (the probe run as root) and the figures of ``LATENCY``, exactly."""
+    p = read_platform(tree(tmp_path, PI_TRIXIE), machine="aarch64")
+    rt = RealtimeReport(
+        Outcome(NOT_ASKED, "[step_thread] cpu = -1"),
+        Outcome(GRANTED, "mlockall"),
+        Outcome(GRANTED, "SCHED_FIFO 50"),
+        "6.12.75+rpt-rpi-v8",
+        False,
+    )
+    lat = Latency(2950, 14.0, 38.0, 160.0, "SCHED_FIFO 50")
+    text = report(p, lat, TimingConfig(), MOTORS[:2], rt=rt)
+    doc = (REPO / "docs" / "timing.md").read_text()
+    block = doc.split("## Checking a platform", 1)[1].split("```\n", 2)[1]
+    assert block.split("measuring timer wake-ups for 3 s ...\n", 1)[1] == text
+
+
 def test_a_tuned_rt_board_needs_nothing_but_the_lag_figures(tmp_path: Path) -> None:
     p = read_platform(tree(tmp_path, RT))
     assert p.rt and p.preempt == "PREEMPT_RT" and p.rt_runtime_us == -1
@@ -161,6 +195,59 @@ def test_a_tuned_rt_board_needs_nothing_but_the_lag_figures(tmp_path: Path) -> N
     spun = Latency(samples=10, p50_us=10.0, p99_us=300.0, max_us=400.0, policy="x")
     assert "more than step_thread.spin_us (200)" in advice(p, spun, cfg, [])[0]
     assert "priority = 0" in advice(p, None, TimingConfig(cpu=3, priority=0), [])[0]
+
+
+#: ``uname -r`` and ``uname -v`` as recorded on real machines, and whether each is PREEMPT_RT
+#: (its /sys/kernel/realtime: the RT patch set's flag, which mainline PREEMPT_RT lacks)
+KERNELS = [
+    # mainline PREEMPT_RT (6.12 on): Debian trixie's rt flavour, no /sys/kernel/realtime
+    ("6.12.43+deb13-rt-amd64", "#1 SMP PREEMPT_RT Debian 6.12.43-1 (2025-08-27)", None, True),
+    # Raspberry Pi OS trixie's linux-image-rpi-v8-rt (mainline RT: no flag either)
+    ("6.12.62+rpt-rpi-v8-rt", "#1 SMP PREEMPT_RT Debian 1:6.12.62-1+rpt1 (2025-12-18)", None, True),
+    # Debian bookworm's -rt kernel (the RT patch set: its flag is there)
+    ("6.1.0-18-rt-amd64", "#1 SMP PREEMPT_RT Debian 6.1.76-1 (2024-02-01)", "1", True),
+    # Debian buster's -rt kernel: the RT patch set of 4.19 wrote "PREEMPT RT"
+    ("4.19.0-23-rt-amd64", "#1 SMP PREEMPT RT Debian 4.19.269-1 (2022-12-20)", None, True),
+    # Raspberry Pi OS's stock kernels: full preemption, not RT
+    ("6.6.31+rpt-rpi-v8", "#1 SMP PREEMPT Debian 1:6.6.31-1+rpt1 (2024-05-29)", None, False),
+    ("6.12.75+rpt-rpi-v8", "#1 SMP PREEMPT Debian 1:6.12.75-1+rpt1 (2026-03-11)", None, False),
+    # Debian's generic kernel
+    ("6.12.43+deb13-amd64", "#1 SMP PREEMPT_DYNAMIC Debian 6.12.43-1 (2025-08-27)", None, False),
+]
+
+
+@pytest.mark.parametrize(("release", "version", "flag", "rt"), KERNELS, ids=[k[0] for k in KERNELS])
+def test_preempt_rt_is_read_from_the_kernel_version_too(
+    tmp_path: Path, release: str, version: str, flag: str | None, rt: bool
+) -> None:
+    files = {"proc/sys/kernel/osrelease": f"{release}\n", "proc/sys/kernel/version": version}
+    if flag is not None:
+        files["sys/kernel/realtime"] = f"{flag}\n"
+    p = read_platform(tree(tmp_path, files), machine="x86_64")
+    assert p.kernel == release and p.rt is rt
+    tips = advice(p, None, TimingConfig(cpu=1), [])
+    assert any(t.startswith("the kernel is not PREEMPT_RT") for t in tips) is not rt
+
+
+def test_a_raspberry_pi_is_told_the_way_to_an_rt_kernel_on_its_os_release(tmp_path: Path) -> None:
+    """A Pi 5 on Raspberry Pi OS trixie's stock kernel: the package, the config.txt line,
+    as docs/raspberry-pi.md says (its model from /sys/firmware/devicetree here)."""
+    files = {
+        "proc/sys/kernel/osrelease": "6.12.47+rpt-rpi-2712\n",
+        "proc/sys/kernel/version": "#1 SMP PREEMPT Debian 1:6.12.47-1+rpt1 (2025-09-16)\n",
+        "sys/firmware/devicetree/base/model": "Raspberry Pi 5 Model B Rev 1.0\x00",
+        "etc/os-release": 'PRETTY_NAME="Debian GNU/Linux 13 (trixie)"\nID=debian\n'
+        "VERSION_CODENAME=trixie\n",
+    }
+    p = read_platform(tree(tmp_path, files), machine="aarch64")
+    assert p.model == "Raspberry Pi 5 Model B Rev 1.0" and not p.rt
+    tip = next(t for t in advice(p, None, TimingConfig(cpu=3), []) if "PREEMPT_RT" in t)
+    assert tip.startswith(
+        "the kernel is not PREEMPT_RT, which bounds the executor's wake-ups: Raspberry Pi 5 "
+        "Model B Rev 1.0, Raspberry Pi OS trixie: 'sudo apt install linux-image-rpi-v8-rt', "
+        "then 'kernel=kernel8_rt.img' in /boot/firmware/config.txt and reboot; on a Pi 5 too"
+    )
+    assert tip.endswith("; docs/raspberry-pi.md, 'A real-time kernel'")
 
 
 def test_a_bare_tree_reports_what_it_cannot_see(tmp_path: Path) -> None:
@@ -217,22 +304,48 @@ def test_small_parsers() -> None:
     assert lag_full_steps(200e-6, 1 / 25_000, 16) == pytest.approx(0.3125)
 
 
-def test_the_measurement_goes_on_without_sched_fifo() -> None:
-    lat = measure_latency(0.05, 50, -1, realtime=lambda priority: "Operation not permitted")
-    assert lat.samples > 0 and lat.max_us >= lat.p99_us >= lat.p50_us >= 0
+def test_the_measurement_goes_on_without_sched_fifo(monkeypatch: pytest.MonkeyPatch) -> None:
+    """SCHED_FIFO refused (the kernel's EPERM, injected at os.sched_setscheduler): the
+    probe says so, with the reason, and measures at normal priority."""
+
+    def refuse(pid: int, policy: int, param: os.sched_param) -> None:
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    got, lat = measure_latency(0.05, RealtimeOptions(priority=50, lock_memory=False))
+    assert got.sched_fifo.state == "refused" and got.sched_fifo.error == "EPERM"
+    assert got.memory_lock.state == got.cpu_affinity.state == "not asked"
+    assert lat is not None and lat.samples > 0 and lat.max_us >= lat.p99_us >= lat.p50_us >= 0
     assert lat.policy == "normal priority"
     assert lat.notes == [
-        "SCHED_FIFO 50 refused (Operation not permitted): measured at normal "
-        "priority; run the probe as root, or as the service's user with its "
-        "LimitRTPRIO, to measure what the executor gets"
+        "SCHED_FIFO 50 refused (see 'real time' above): measured at normal priority"
     ]
     asked: list[int] = []
 
-    def grant(priority: int) -> None:
-        asked.append(priority)
+    def grant(pid: int, policy: int, param: os.sched_param) -> None:
+        asked.append(param.sched_priority)
 
-    granted = measure_latency(0.02, 7, -1, realtime=grant)
-    assert asked == [7] and granted.policy == "SCHED_FIFO 7" and not granted.notes
+    monkeypatch.setattr(os, "sched_setscheduler", grant)
+    got, granted = measure_latency(0.02, RealtimeOptions(priority=7, lock_memory=False))
+    assert asked == [7] and got.sched_fifo.state == "granted"
+    assert granted is not None and granted.policy == "SCHED_FIFO 7" and not granted.notes
+    got, none = measure_latency(0, RealtimeOptions(priority=7, lock_memory=False))
+    assert none is None and got.sched_fifo.state == "granted"  # asked, not measured
+
+
+def test_the_probe_shows_what_real_time_it_got(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The report's real-time lines: a refusal with its reason and its fix."""
+
+    def refuse(pid: int, policy: int, param: os.sched_param) -> None:
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    got, _ = measure_latency(0, RealtimeOptions(priority=50, lock_memory=False))
+    text = report(Platform(), None, TimingConfig(), [], "skipped", got)
+    assert "  real time as [step_thread] asks, tried by the probe as its user (" in text
+    assert "\n    REFUSED, steps best effort\n" in text
+    assert "      SCHED_FIFO 50 REFUSED: EPERM (Operation not permitted)" in text
+    assert "\n        fix: " in text and "CPU pinning not asked" in text
 
 
 def test_probe_prints_the_platform_section(tmp_path: Path) -> None:
@@ -260,5 +373,6 @@ def test_probe_prints_the_platform_section(tmp_path: Path) -> None:
     assert "platform (what decides step timing):" in text
     assert "latency: " in text and "timed sleeps of 1 ms at normal priority" in text
     assert "[step_thread] priority = 0" in text
+    assert "SCHED_FIFO not asked ([step_thread] priority = 0)" in text  # what it would get
     assert "max lag at 20,000 step/s with 16 microsteps would be" in text
     assert "Traceback" not in out.stderr

@@ -9,6 +9,7 @@ fails.
 from __future__ import annotations
 
 import os
+import select
 import selectors
 import signal
 import subprocess
@@ -110,6 +111,7 @@ class DaemonProcess:
         port: str | None = None,
         as_user: bool = False,
         ready_timeout: float = READY_TIMEOUT_S,
+        prefix: list[str] | None = None,
     ) -> None:
         self.workdir = workdir
         self.ready_timeout = ready_timeout  # longer in an emulated guest (hwtest/layout.py)
@@ -130,6 +132,7 @@ class DaemonProcess:
             self.config.write_text(for_tests(config_text))
         self.extra = extra or []
         self.env = env  # added to this process's environment (e.g. NOTIFY_SOCKET)
+        self.prefix = prefix or []  # a command that runs motorctld (e.g. prlimit ... --)
         self.proc: subprocess.Popen[bytes] | None = None
         self.ready_line = ""
         self.stderr_path = workdir / "motorctld.stderr"
@@ -140,6 +143,7 @@ class DaemonProcess:
         where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
         # the motorctld command's entry point (its executor process starts first)
         cmd = [
+            *self.prefix,
             sys.executable,
             "-m",
             "motorctl.daemon.launch",
@@ -267,3 +271,46 @@ def memfd_holders(labels: set[str]) -> list[int]:
         if held:
             holders.append(int(entry.name))
     return holders
+
+
+def without_real_time() -> list[str]:
+    """A command prefix under which the kernel refuses motorctld real time, for real:
+    RLIMIT_RTPRIO 0 and RLIMIT_MEMLOCK 64 KiB (prlimit), and, for root, no CAP_SYS_NICE
+    nor CAP_IPC_LOCK, which would override them (setpriv drops them from the bounding set
+    before the exec: root keeps every other capability). What a user without the unit's
+    LimitRTPRIO and LimitMEMLOCK gets."""
+    prefix = ["prlimit", "--rtprio=0", f"--memlock={64 * 1024}", "--"]
+    if os.geteuid() == 0:
+        prefix += ["setpriv", "--bounding-set=-sys_nice,-ipc_lock", "--"]
+    return prefix
+
+
+def run_on_pty(cmd: list[str], timeout: float = 30.0) -> tuple[int, str]:
+    """``cmd`` with a real pseudo-terminal as its stdin, stdout and stderr (as a person runs
+    it in a terminal): its exit status and everything it wrote."""
+    master, slave = os.openpty()
+    try:
+        proc = subprocess.Popen(cmd, stdin=slave, stdout=slave, stderr=slave, cwd=REPO)
+    finally:
+        os.close(slave)
+    out = b""
+    deadline = time.monotonic() + timeout
+    try:
+        while True:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                proc.kill()
+                raise AssertionError(f"{cmd} still writing after {timeout} s: {out!r}")
+            ready, _, _ = select.select([master], [], [], left)
+            if not ready:
+                continue
+            try:
+                chunk = os.read(master, 65536)
+            except OSError:  # EIO: every end of the terminal's other side is closed
+                break
+            if not chunk:
+                break
+            out += chunk
+        return proc.wait(timeout), out.decode().replace("\r\n", "\n")
+    finally:
+        os.close(master)

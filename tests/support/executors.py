@@ -6,7 +6,12 @@ consumer)."""
 
 from __future__ import annotations
 
+import os
+import pickle
+import socket
 import struct
+import subprocess
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -25,7 +30,9 @@ from motorctl.motion.executors.base import (
 from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.executors.process.rings import Ring, ring_size
+from motorctl.motion.executors.process.start import BOOTSTRAP, WaitingInterpreter
 from motorctl.motion.profile import Trajectory
+from motorctl.motion.rt import RealtimeOptions
 from motorctl.motion.types import Ramp
 from tests.support.motor_defaults import motor_limits
 from tests.support.spi_bench import SpiBench
@@ -151,16 +158,53 @@ class RampRig:
 
 
 def process_executor(
-    backend: str = "mock", *, motors: int = 1, core: str = "auto", start_timeout_s: float = 30.0
+    backend: str = "mock",
+    *,
+    motors: int = 1,
+    core: str = "auto",
+    start_timeout_s: float = 30.0,
+    rt: RealtimeOptions | None = None,
+    process: WaitingInterpreter | None = None,
 ) -> tuple[Hardware, ProcessStepExecutor]:
     """The process step executor for ``motors`` motors of ``backend`` (on the real clock,
-    not started: the caller starts it and closes both)."""
+    not started: the caller starts it and closes both); ``rt``: the real time it asks for
+    (none by default); ``process``: its interpreter (else one started as the daemon does)."""
     spec = HardwareSpec(axes=(AxisSpec(),) * motors)
     hw = build(spec, MonotonicClock())
     limits = [motor_limits(1e-4)] * motors
     return hw, ProcessStepExecutor(
-        hw, backend, spec, limits, start_timeout_s=start_timeout_s, core=core
+        hw,
+        backend,
+        spec,
+        limits,
+        start_timeout_s=start_timeout_s,
+        core=core,
+        rt=rt,
+        process=process,
     )
+
+
+#: A prelude for the executor's interpreter: the kernel refuses SCHED_FIFO there (EPERM at
+#: os.sched_setscheduler, the syscall's own Python API), as a kernel without the limit, or
+#: with RT group scheduling, does; nothing else of the executor is changed.
+REFUSE_SCHED_FIFO = """\
+import errno, os
+def _refused(pid, policy, param):
+    raise PermissionError(errno.EPERM, "Operation not permitted")
+os.sched_setscheduler = _refused
+"""
+
+
+def interpreter_with(prelude: str) -> WaitingInterpreter:
+    """The step executor's interpreter started as start.py starts it (its bootstrap, the
+    daemon's PID and sys.path first), ``prelude`` run before the bootstrap."""
+    ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", prelude + BOOTSTRAP], stdin=theirs.fileno())
+    finally:
+        theirs.close()
+    ours.send(pickle.dumps((os.getpid(), list(sys.path))))
+    return WaitingInterpreter(proc, ours)
 
 
 # ---------------------------------------------------------------- the rings' slots by hand

@@ -4,7 +4,9 @@ The child is a fresh interpreter with its own GIL (``python -c`` through :mod:`s
 ``start.py``: it imports this module and what the step core needs, nothing of the daemon;
 ``motorctld`` starts it before the daemon's own imports). :func:`child_main` receives its
 parameters and descriptors over a Unix socket, then :func:`run_child` enters SCHED_FIFO,
-mlockall and its CPU (``RealtimeOptions``), opens its OWN step/dir and end-stop lines from
+mlockall and its CPU (``RealtimeOptions``) and writes what it got (the real-time report,
+each request granted, refused with its reason and fix, or not asked) into the shared
+block for the daemon, opens its OWN step/dir and end-stop lines from
 the picklable spec (``hal.registry.open_step_io``), maps the shared block (``rings.py``)
 and runs a step core over it until the daemon clears the run cell or is gone: the compiled
 one (``compiled_core.py``) or the Python one (``step_core.py`` over :class:`RingInbox`), as
@@ -22,6 +24,7 @@ Owner: the process's main thread, the only one it runs.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import select
@@ -45,6 +48,7 @@ from motorctl.motion.executors.process.rings import (
     NOTE,
     PID_CELL,
     READY_CELL,
+    REALTIME,
     RUN_CELL,
     Layout,
     Ring,
@@ -197,10 +201,12 @@ def run_child(
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=logging.INFO, format="motorctld executor %(levelname)s: %(message)s")
-    enter_realtime(rt, "the step executor process")
+    got = enter_realtime(rt, "the step executor process")
     layout = Layout(motors, lines)
     shm = SharedBlock.attach(shm_fd, layout.size, "motorctl-executor")
     shared = Shared(shm, layout)
+    report = json.dumps(got.as_dict()).encode()  # TEXT_MAX keeps it within REALTIME
+    shared.realtime[: len(report)] = report[: REALTIME - 1]
     io = open_step_io(backend, spec, MonotonicClock(), None)
     if len(io.inputs.names) > lines:
         raise HalError(f"the step IO has {len(io.inputs.names)} inputs, room for {lines}")

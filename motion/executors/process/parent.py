@@ -5,9 +5,10 @@ process of its own (``child.py``), over a block of shared memory (``rings.py``).
 whose transport to the core is the shared block: it makes the block, hands it with its
 parameters and descriptors to an interpreter started for it (``start.py``: started early by
 ``motorctld``, or here), writes the segment and stop rings, drains the event ring and reads
-the child's cells as snapshots. Segments that do not fit a full ring wait in ``pending``
-and go at the next top-up; a full stop ring raises :class:`~motorctl.hal.interfaces.HalError`
-(stops are few: the child is not taking them).
+the child's cells as snapshots; once the child is ready, what real time it got (its
+real-time report in the block: :meth:`ProcessStepExecutor.realtime`). Segments that do not
+fit a full ring wait in ``pending`` and go at the next top-up; a full stop ring raises
+:class:`~motorctl.hal.interfaces.HalError` (stops are few: the child is not taking them).
 
 Two pipes carry only wake-up bytes, never messages: the daemon's wake-up pipe (a byte after
 new work: one per planner pass) and the child's event pipe, which the event thread waits
@@ -23,6 +24,7 @@ wakes the planner.
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import select
@@ -53,7 +55,7 @@ from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.executors.step_core import COUNTER_NAMES
 from motorctl.motion.latency import CELLS, LatencyStats
-from motorctl.motion.rt import RealtimeOptions
+from motorctl.motion.rt import RealtimeOptions, RealtimeReport
 
 log = logging.getLogger("motorctl.executor")
 
@@ -100,6 +102,8 @@ class ProcessStepExecutor(StepExecutor):
         #: its note (why not the compiled one)
         self.core_name: str | None = None
         self.core_note = ""
+        #: what real time the process got (None until started)
+        self.realtime_report: RealtimeReport | None = None
         motors = len(limits)
         self.lines = 2 * len(spec.axes)
         self.layout = Layout(motors, self.lines)
@@ -208,6 +212,7 @@ class ProcessStepExecutor(StepExecutor):
                 break
         self.core_name = CORES[self.shared.header[CORE_CELL]] or None
         self.core_note = self._note()
+        self.realtime_report = self._realtime()
         if self.core_name == "python" and self.core != "python":
             log.warning("step core: python (%s)", self.core_note)
         else:
@@ -221,8 +226,21 @@ class ProcessStepExecutor(StepExecutor):
         """The child's note (written before READY or before it exited)."""
         return bytes(self.shared.note).rstrip(b"\0").decode(errors="replace")
 
+    def _realtime(self) -> RealtimeReport | None:
+        """The child's real-time report (written before READY); None, logged, when it is
+        not one (a child of another version)."""
+        text = bytes(self.shared.realtime).rstrip(b"\0")
+        try:
+            return RealtimeReport.from_dict(json.loads(text))
+        except ValueError as exc:
+            log.error("the step executor's real-time report cannot be read: %s", exc)
+            return None
+
     def step_core(self) -> str | None:
         return self.core_name
+
+    def realtime(self) -> RealtimeReport | None:
+        return self.realtime_report
 
     def _forget_child_fds(self) -> None:
         """Close this process's copies of the child's descriptors (its pipe ends, the block's

@@ -12,7 +12,8 @@ dies with the daemon, ``PR_SET_PDEATHSIG``), so no resource-tracker process runs
 (:class:`Layout`, seen through :class:`Shared`) holds:
 
 - header cells: run flag, READY, the child's PID, which step core it runs (the child's
-  note beside them: why not the compiled core, or why it cannot start);
+  note beside them: why not the compiled core, or why it cannot start), and what real
+  time it got (its :class:`~motorctl.motion.rt.RealtimeReport` as JSON);
 - counters, positions, end-stop levels and map, the latency histogram, the per-motor cells
   (the child writes; the daemon reads snapshots, no lock);
 - per motor a single-producer single-consumer ring of step segments (daemon -> child);
@@ -43,9 +44,10 @@ out of order, so nothing here relies on hardware store or load order:
   an x register): a single-copy atomic store on ARM64 and x86-64, so a reader sees the
   old or the new value, never a torn one. Counters and the histogram are snapshots, not
   records; nothing depends on their order.
-- The one thing read in an order is the start-up: the child writes the end-stop map, then
-  READY, then a byte on the event pipe, and the daemon reads READY (and later the map) only
-  after reading that byte; the pipe orders them as it orders the rings' wake-ups.
+- The one thing read in an order is the start-up: the child writes the end-stop map, its
+  real-time report, its note and core cell, then READY, then a byte on the event pipe, and
+  the daemon reads READY (and then the rest) only after reading that byte; the pipe orders
+  them as it orders the rings' wake-ups.
 
 A torn slot is taken only if its CRC-32 matches by chance: never for a difference within
 32 consecutive bits (a previous lap's sequence number), 1 in 2**32 for any other mix, and
@@ -94,6 +96,8 @@ HEADER_CELLS = 8
 CORES = ("", "python", "compiled")
 #: bytes of the child's note to the daemon: why it runs the Python core, or cannot start
 NOTE = 256
+#: bytes of the child's real-time report (JSON, NUL-padded): what it asked for and got
+REALTIME = 4096
 #: the executor process's exit status when it cannot run the step core the config asks for
 #: (the daemon reads the note then)
 EXIT_NO_CORE = 3
@@ -216,6 +220,8 @@ class Layout:
         off += HEADER_CELLS * 8
         self.note = off
         off += NOTE
+        self.realtime = off
+        off += REALTIME
         self.counters = off
         off += len(COUNTER_NAMES) * 8
         self.positions = off
@@ -351,6 +357,7 @@ class Shared:
         self.layout = lay = layout
         self.header = buf[lay.header : lay.header + HEADER_CELLS * 8].cast("q")
         self.note = buf[lay.note : lay.note + NOTE]
+        self.realtime = buf[lay.realtime : lay.realtime + REALTIME]
         self.counters = buf[lay.counters : lay.counters + len(COUNTER_NAMES) * 8].cast("q")
         self.positions = buf[lay.positions : lay.positions + lay.motors * 8].cast("q")
         self.levels = buf[lay.levels : lay.levels + max(lay.lines, 1) * 8].cast("q")
@@ -374,6 +381,7 @@ class Shared:
         views = (
             self.header,
             self.note,
+            self.realtime,
             self.counters,
             self.positions,
             self.levels,

@@ -6,8 +6,10 @@ is a figure, not a test: bench/status_rate.py.)"""
 
 from __future__ import annotations
 
+import errno
 import itertools
 import math
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -18,7 +20,7 @@ from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.server import StatusServer
 from motorctl.motion.latency import BINS
 from motorctl.protocol.codec import Move, StopMove, WaitMoved
-from tests.support.inprocess import LIVE_CONFIG, LiveDaemon
+from tests.support.inprocess import LIVE_CONFIG, TWO_MOTORS, LiveDaemon
 from tests.support.wait import until
 
 READ_DEADLINE_S = 10.0  # a loaded 2-core machine; a read waiting for the lock never ends
@@ -58,7 +60,7 @@ STEP_KEYS = {
     "late_threshold_us",
     "timing_lost",
     "min_gap_ns",
-    "dropped",
+    "segments_discarded",
     "io_errors",
     "endstops",
     "bad_records",
@@ -112,6 +114,7 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
     assert last["command"] == "GetAbsPos(motor=0)" and last["result"].startswith("pos=")
     assert set(doc["steps"]) >= STEP_KEYS and doc["steps"]["steps"] > 0
     assert "histogram_us" not in doc["steps"]  # bounded cost unless asked
+    realtime = doc["executor"].pop("realtime")
     assert doc["executor"] == {
         "alive": True,
         "reason": None,
@@ -119,7 +122,19 @@ def test_status_is_complete_and_the_histogram_comes_when_asked(
         "core": "python",
         "pid": None,
     }
+    # a test daemon asks for no real time: each request "not asked", with the setting
+    assert realtime["refused"] == [] and realtime["kernel"]["release"] == os.uname().release
+    assert realtime["sched_fifo"] == {
+        "state": "not asked",
+        "what": "[step_thread] priority = 0",
+        "error": None,
+        "reason": None,
+        "fix": None,
+    }
     assert {"counters", "processing"} <= set(doc["link"])
+    # the link's processing: reads, and those over the target (nothing late: nothing is due)
+    assert {"reads", "over_target", "target_us"} <= set(doc["link"]["processing"])
+    assert not {"steps", "late"} & set(doc["link"]["processing"])
     assert doc["state"]["ok"] is True
     assert live.code(StopMove(0, True)) is None
     assert live.code(WaitMoved(0, 20_000)) is None
@@ -180,6 +195,33 @@ def test_a_soft_stop_reports_how_soon_the_deceleration_took_over(
     # when the command came (no real-time priority here: up to its worst lateness)
     behind_ms = doc["steps"]["max_us"] / 1000
     assert 0 < soft["takeover_steps"][0] <= (bound_ms + behind_ms) / 1000 * speed + 1
+
+
+def test_real_time_refused_is_in_the_document_and_in_systemds_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The step thread asks for SCHED_FIFO 50 and the kernel refuses (EPERM, injected at
+    os.sched_setscheduler): the document says so, why and the fix; so does STATUS=."""
+
+    def refuse(pid: int, policy: int, param: os.sched_param) -> None:
+        raise PermissionError(errno.EPERM, "Operation not permitted")
+
+    monkeypatch.setattr(os, "sched_setscheduler", refuse)
+    config = '[step_thread]\nexecutor = "thread"\npriority = 50\nlock_memory = false\n'
+    live = LiveDaemon(tmp_path, config + TWO_MOTORS, motion=True)
+    try:
+        doc = live.daemon.status()
+    finally:
+        live.close()
+    rt = doc["executor"]["realtime"]
+    assert rt["refused"] == ["sched_fifo"]
+    fifo = rt["sched_fifo"]
+    assert (fifo["state"], fifo["what"], fifo["error"]) == ("refused", "SCHED_FIFO 50", "EPERM")
+    assert fifo["reason"].startswith("EPERM (Operation not permitted)") and fifo["fix"]
+    assert rt["memory_lock"]["state"] == "not asked"
+    assert summary_line(doc).endswith(
+        "; REAL TIME REFUSED (SCHED_FIFO 50): steps best effort, see motorctld --status"
+    )
 
 
 def test_summary_line() -> None:

@@ -74,7 +74,7 @@ DOC: dict[str, Any] = {
         "late_threshold_us": 100.0,
         "timing_lost": 2,
         "min_gap_ns": 479635,
-        "dropped": 0,
+        "segments_discarded": 0,
         "io_errors": 0,
         "endstops": 1,
         "progress": 55,
@@ -96,7 +96,7 @@ DOC: dict[str, Any] = {
             "link_timeout_stops": 2,
         },
         "processing": {
-            "steps": 9,
+            "reads": 9,
             "p50_us": 20.0,
             "p99_us": 40.0,
             "p999_us": 41.0,
@@ -295,6 +295,17 @@ def test_the_renamed_metrics_of_issue_27_and_the_trace_state() -> None:
     untraced = samples(parse_prometheus(metrics({k: v for k, v in DOC.items() if k != "trace"})))
     assert untraced[("motorctl_trace_enabled", none)] == 0
     assert not any(name.startswith("motorctl_trace_runs") for name, _ in untraced)
+
+
+def test_the_renamed_metrics_of_issue_35() -> None:
+    """Discarded planned segments are not dropped steps: the counter says so, under its new
+    name only; the processing summary counts reads."""
+    doc = {**DOC, "steps": {**DOC["steps"], "segments_discarded": 24}}
+    got = samples(parse_prometheus(metrics(doc)))
+    none: frozenset[tuple[str, str]] = frozenset()
+    assert got[("motorctl_step_segments_discarded_total", none)] == 24
+    assert not any(name.startswith("motorctl_steps_dropped") for name, _ in got)
+    assert got[("motorctl_link_processing_seconds_count", none)] == 9
 
 
 def test_what_is_missing_is_left_out() -> None:

@@ -104,7 +104,7 @@ def test_a_soft_stop_takes_over_within_lead_and_span_not_after_the_horizon(
     after = sum(1 for t in times if t > t_cmd)
     assert 250 <= after <= 250 + 5000 * 0.0045
     assert m.state is MotorState.IDLE and ex.position(0) == len(times)
-    assert ex.core.counters[COUNTER_NAMES.index("dropped")] >= 1
+    assert ex.core.counters[COUNTER_NAMES.index("segments_discarded")] >= 1
     assert ex.health().counters["timing_lost"] == 0
     assert min(g for g, _ in gaps) >= 1 / 10_000 - 5e-6
 

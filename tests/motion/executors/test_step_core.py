@@ -212,7 +212,7 @@ def test_a_hard_stop_takes_effect_before_the_next_step(core_rig: Rig) -> None:
     c.run_until(t0 + 1.0)
     assert len(c.times()) == 10 and max(c.times()) <= t0 + 0.0105
     assert [e.kind for e in c.events] == [K.STOPPED] and c.events[0].position == 10
-    assert c.counter("dropped") == 0  # the segment was running: unloaded, not dropped
+    assert c.counter("segments_discarded") == 0  # it was running: unloaded, not discarded
 
 
 def test_two_motors_due_on_the_same_tick_share_one_pulse_call(core_rig: Rig) -> None:

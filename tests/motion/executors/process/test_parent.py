@@ -10,6 +10,7 @@ checks: test_child.py.)"""
 from __future__ import annotations
 
 import itertools
+import os
 import signal
 import time
 from collections.abc import Callable, Iterator
@@ -26,8 +27,16 @@ from motorctl.motion.executors.base import ExecEvent, ExecEventKind
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.executors.process.rings import EVENT_KINDS, EVENT_RECORD, READY_CELL
+from motorctl.motion.rt import RealtimeOptions
 from motorctl.motion.types import MotorState, MoveToCmd, Ramp, RunCmd
-from tests.support.executors import process_executor, show_slot, slot_bytes, slot_offset
+from tests.support.executors import (
+    REFUSE_SCHED_FIFO,
+    interpreter_with,
+    process_executor,
+    show_slot,
+    slot_bytes,
+    slot_offset,
+)
 from tests.support.motor_defaults import motor_limits, motor_params
 from tests.support.rigs import FAR
 from tests.support.wait import until
@@ -309,3 +318,54 @@ def test_retries_of_both_directions_are_in_the_process_executors_health(step_cor
         hw.close()
     after = ex.health().counters  # plain copies once closed
     assert after["ring_retries_segments"] >= 1 and after["ring_retries_reports"] == 2
+
+
+# ---------------------------------------------------------------- what real time it got
+
+
+def vm_locked_kib(pid: int) -> int:
+    """The process's locked memory (``VmLck`` of /proc/PID/status), in KiB."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmLck:"):
+            return int(line.split()[1])
+    raise AssertionError(f"no VmLck for {pid}")
+
+
+def test_the_daemon_learns_what_real_time_the_executor_process_got() -> None:
+    """The executor process asks for SCHED_FIFO 50, which its kernel refuses (EPERM,
+    injected at os.sched_setscheduler in its interpreter), for CPU 1023, which the kernel
+    refuses for real, and for mlockall, which the kernel grants or refuses as this test's
+    limits say: the daemon's side reads each back, with the reason and the fix, and each
+    is what the kernel did to that process."""
+    rt = RealtimeOptions(priority=50, lock_memory=True, cpu=1023)
+    hw, ex = process_executor("mock", rt=rt, process=interpreter_with(REFUSE_SCHED_FIFO))
+    try:
+        assert ex.realtime() is None  # not started yet
+        ex.start()
+        got = ex.realtime()
+        assert got is not None and ex.pid is not None
+        assert "sched_fifo" in got.refused() and "cpu_affinity" in got.refused()
+        fifo, cpu, memory = got.sched_fifo, got.cpu_affinity, got.memory_lock
+        assert (fifo.what, fifo.error) == ("SCHED_FIFO 50", "EPERM") and fifo.fix
+        assert (cpu.what, cpu.error) == ("CPU 1023", "EINVAL") and cpu.fix
+        assert os.sched_getscheduler(ex.pid) == os.SCHED_OTHER  # refused indeed
+        assert os.sched_getaffinity(ex.pid) != {1023}
+        locked = vm_locked_kib(ex.pid) > 0
+        assert memory.state == ("granted" if locked else "refused"), (memory, locked)
+        assert got.kernel == os.uname().release
+    finally:
+        ex.close()
+        hw.close()
+
+
+def test_an_executor_asking_for_nothing_says_so() -> None:
+    hw, ex = process_executor("mock")  # RealtimeOptions(priority=0, lock_memory=False)
+    try:
+        ex.start()
+        got = ex.realtime()
+        assert got is not None and got.refused() == []
+        assert {o.state for o in got.outcomes().values()} == {"not asked"}
+        assert got.words().startswith("real time not asked ([step_thread] cpu = -1")
+    finally:
+        ex.close()
+        hw.close()
