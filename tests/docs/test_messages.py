@@ -210,7 +210,6 @@ QUOTES = [
     ),
     Quote("docs/protocol.md", "link timeout: no byte from the host for N ms", "served", ("N",)),
     Quote("docs/service.md", "SCHED_FIFO ... not permitted", "served"),
-    Quote("docs/raspberry-pi.md", "SCHED_FIFO ... not permitted", "served"),
     Quote(
         "docs/service.md",
         "3 motors: 1 moving, none faulted; 1234 frames served, 0 errors",
