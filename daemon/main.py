@@ -167,9 +167,6 @@ def baud_rate(text: str) -> int:
         raise argparse.ArgumentTypeError(str(exc)) from None
 
 
-baud_rate.__name__ = "baud rate"
-
-
 def pty_folder_problem(pty: Path) -> str | None:
     """Why ``--pty PATH`` cannot be served: its folder (where the PTY's link and its lock
     go) is missing, not a folder, or not writable; None when it can be tried."""
