@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
 import re
 import sys
@@ -12,9 +13,18 @@ from pathlib import Path
 import serial
 
 from motorctl import __version__
-from motorctl.client import replay, tap, trace
+from motorctl.client import reasons, replay, tap, trace
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
-from motorctl.protocol.codec import FRAME_LEN, POS_MAX, POS_MIN, CodecOptions
+from motorctl.client.port_errors import not_a_port, open_error
+from motorctl.protocol.codec import (
+    FRAME_LEN,
+    POS_MAX,
+    POS_MIN,
+    CodecOptions,
+    Command,
+    FrameError,
+    decode_command,
+)
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
 
 __all__ = ["build_parser", "main"]
@@ -28,8 +38,14 @@ waypoint speed = SPEED x 4 step/s, ramps = ACC/DEC x 16 step/s^2. POS is a signe
 step count ({POS_MIN}..{POS_MAX}). Times are milliseconds (0..65535). Integers may be given
 in decimal or with a 0x/0o/0b prefix.
 
-exit status: 0 ok, 1 the device answered with an error (printed by name, e.g.
-"error: E3 motor not ready"), 2 usage error or link error (no/short/corrupt response)."""
+An error answer is printed with its reason: the daemon's, when its status socket is
+readable from here (beside the port, in .run/state beside it, in /run/motorctl, or in
+${reasons.STATE_DIR_ENV}; docs/status.md), e.g. "error: E2 invalid address: no motor 5
+(this machine has motors 0..2)", else what the code means for that command ("error: E2
+invalid address: no motor 5").
+
+exit status: 0 ok, 1 the device answered with an error, 2 usage error or link error
+(no/short/corrupt response), 130 interrupted (Ctrl-C)."""
 
 
 def _int_in(lo: int, hi: int, what: str) -> Callable[[str], int]:
@@ -87,6 +103,10 @@ _highlow = _choice({"high": True, "low": False}, "level")
 _inout = _choice({"in": False, "input": False, "out": True, "output": True}, "pin mode")
 
 
+_MOTOR = "motor number: 0 is the first motor of the daemon's config"
+_PIN = "pin number, as the daemon's config numbers its IO pins"
+
+
 def _add_ramp(p: argparse.ArgumentParser) -> None:
     p.add_argument("--speed", type=_byte, default=0, metavar="N", help="SPEED byte (0=default)")
     p.add_argument("--acc", type=_byte, default=0, metavar="N", help="ACC byte (0=default)")
@@ -109,7 +129,13 @@ def build_parser() -> argparse.ArgumentParser:
         default=os.environ.get("MOTORCTL_PORT"),
         help="serial port (default: $MOTORCTL_PORT)",
     )
-    parser.add_argument("--baud", type=int, default=115200, help="baud rate (default 115200)")
+    parser.add_argument(
+        "--baud",
+        type=tap.baud_rate,
+        default=115200,
+        help="baud rate (default 115200; any whole number of baud the port's driver can "
+        "make; a PTY ignores it)",
+    )
     parser.add_argument(
         "--timeout",
         type=_seconds,
@@ -135,19 +161,28 @@ def build_parser() -> argparse.ArgumentParser:
         return sub.add_parser(
             name,
             help=help_text,
-            description=help_text,
-            epilog=_UNITS,
-            formatter_class=argparse.RawDescriptionHelpFormatter,
+            description=f"{help_text.rstrip('?.')}{'?' if help_text.endswith('?') else '.'} "
+            "Numbers are the protocol's raw values (motorctl --help).",
         )
 
     p = add("init", "InitMove: home MOTOR towards its end stop (position becomes 0)")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
-    p.add_argument("direction", type=_updown, metavar="up|down")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
+    p.add_argument(
+        "direction",
+        type=_updown,
+        metavar="up|down",
+        help="where its end stop is: up (counting up) or down",
+    )
     _add_ramp(p)
 
     p = add("moveto", "MoveTo: queue a move of MOTOR to the absolute step position POS")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
-    p.add_argument("position", type=_pos, metavar="POS")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
+    p.add_argument(
+        "position",
+        type=_pos,
+        metavar="POS",
+        help=f"absolute target in steps, {POS_MIN}..{POS_MAX}",
+    )
     _add_ramp(p)
     p.add_argument(
         "--dir",
@@ -159,7 +194,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = add("wait", "WaitMoved: wait until MOTOR is idle (E3 after TIMEOUT_MS)")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
     p.add_argument(
         "timeout_ms",
         type=_u16,
@@ -170,45 +205,47 @@ def build_parser() -> argparse.ArgumentParser:
     )
 
     p = add("ready", "IsReady: is MOTOR idle with an empty queue?")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
 
     p = add("move", "Move: run MOTOR continuously until stopped")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
-    p.add_argument("direction", type=_updown, metavar="up|down")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
+    p.add_argument("direction", type=_updown, metavar="up|down", help="up (counting up) or down")
     _add_ramp(p)
 
     p = add("stop", "StopMove: stop MOTOR and empty its queue")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
     p.add_argument("--hard", action="store_true", help="stop without a ramp")
 
     p = add("pos", "GetAbsPos: print the position of MOTOR")
-    p.add_argument("motor", type=_byte, metavar="MOTOR")
+    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
 
     p = add("pin", "SetPin / GetPin / ConfigPin")
     pin_sub = p.add_subparsers(dest="pin_command", metavar="ACTION", required=True)
     q = pin_sub.add_parser("set", help="drive output PIN high or low")
-    q.add_argument("pin", type=_byte, metavar="PIN")
-    q.add_argument("level", type=_highlow, metavar="high|low")
+    q.add_argument("pin", type=_byte, metavar="PIN", help=_PIN)
+    q.add_argument("level", type=_highlow, metavar="high|low", help="the level to drive")
     q = pin_sub.add_parser("get", help="read PIN")
-    q.add_argument("pin", type=_byte, metavar="PIN")
+    q.add_argument("pin", type=_byte, metavar="PIN", help=_PIN)
     q = pin_sub.add_parser("config", help="make PIN an input or an output")
-    q.add_argument("pin", type=_byte, metavar="PIN")
-    q.add_argument("output", type=_inout, metavar="in|out")
+    q.add_argument("pin", type=_byte, metavar="PIN", help=_PIN)
+    q.add_argument("output", type=_inout, metavar="in|out", help="in: an input, out: an output")
 
     p = add("home", "SaveHome / GoHome")
     home_sub = p.add_subparsers(dest="home_command", metavar="ACTION", required=True)
     q = home_sub.add_parser("save", help="store the current position of MOTOR as home")
-    q.add_argument("motor", type=_byte, metavar="MOTOR")
+    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
     q = home_sub.add_parser("go", help="queue a move of MOTOR to its home")
-    q.add_argument("motor", type=_byte, metavar="MOTOR")
+    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
 
     p = add("waypoint", "SaveWayPoint / MoveToWayPoint")
     wp_sub = p.add_subparsers(dest="waypoint_command", metavar="ACTION", required=True)
     q = wp_sub.add_parser("save", help="store the current position of MOTOR as a waypoint")
-    q.add_argument("motor", type=_byte, metavar="MOTOR")
+    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
     q = wp_sub.add_parser("go", help="queue a move of MOTOR to waypoint N")
-    q.add_argument("motor", type=_byte, metavar="MOTOR")
-    q.add_argument("waypoint", type=_byte, metavar="N")
+    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
+    q.add_argument(
+        "waypoint", type=_byte, metavar="N", help="waypoint number, as SaveWayPoint gave it"
+    )
     _add_ramp(q)
 
     p = add("dc", "DcMove: run the DC motor TIME_MS, then brake (default) or coast")
@@ -216,6 +253,7 @@ def build_parser() -> argparse.ArgumentParser:
         "direction",
         type=_choice({"forward": True, "reverse": False}, "direction"),
         metavar="forward|reverse",
+        help="the DC motor's direction",
     )
     p.add_argument("time_ms", type=_u16, metavar="TIME_MS", help="run time in ms (0 = stop)")
     end = p.add_mutually_exclusive_group()
@@ -348,6 +386,29 @@ def _run(client: Client, args: argparse.Namespace) -> str:
     return "ok"
 
 
+def _why(exc: DeviceError, client: Client, options: CodecOptions, port: str) -> str:
+    """An error answer with its reason (client/reasons.py): the daemon's, or the code's
+    meaning for the command (a frame sent as hex: its command, if it is one)."""
+    command: Command | None = exc.command
+    frame: bytes | None = None
+    if command is None:
+        frame = client.last_request
+        with contextlib.suppress(FrameError):  # a frame that is no command: its bytes
+            command = decode_command(frame, options)
+    return reasons.explain(exc.code, command, port, client.sent_at, frame)
+
+
+def _interrupted(args: argparse.Namespace) -> str:
+    """Ctrl-C: for a WaitMoved, the motor does not stop with the command."""
+    if args.command == "wait":
+        n = args.motor
+        return (
+            f"interrupted: motor {n} keeps moving (only the wait ended); stop it with "
+            f"'motorctl stop {n}' ('--hard' for at once)"
+        )
+    return "interrupted"
+
+
 def _print_raw(client: Client) -> None:
     if client.last_request:
         print(f"-> {hex_bytes(client.last_request)}")
@@ -407,23 +468,27 @@ def _main(argv: list[str] | None) -> int:
         else:
             parser.error(f"send: need {FRAME_LEN - 1} or {FRAME_LEN} bytes, got {len(data)}")
 
+    problem = not_a_port(args.port)
+    if problem is not None:
+        print(f"error: {problem}", file=sys.stderr)
+        return 2
     try:
         client = Client(args.port, args.baud, args.timeout, options)
     except (serial.SerialException, OSError, ValueError) as exc:
-        print(f"error: cannot open {args.port}: {exc}", file=sys.stderr)
+        print(f"error: {open_error(args.port, exc, args.baud)}", file=sys.stderr)
         return 2
     with client:
         try:
             line = _send(client, frame) if frame is not None else _run(client, args)
             status = 0
         except DeviceError as exc:
-            line, status = f"error: {exc}", 1
+            line, status = f"error: {_why(exc, client, options, args.port)}", 1
         except LinkError as exc:
             line, status = f"error: {exc}", 2
         except ValueError as exc:  # a field the codec refuses
             line, status = f"error: {exc}", 2
         except KeyboardInterrupt:
-            line, status = "interrupted", 130
+            line, status = _interrupted(args), 130
         if args.raw:
             _print_raw(client)
         sys.stdout.flush()

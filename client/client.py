@@ -9,6 +9,7 @@ pipeline frames, send broken frames or split a frame.
 
 from __future__ import annotations
 
+import time
 from types import TracebackType
 
 import serial
@@ -84,6 +85,7 @@ class Client:
         self.options = options if options is not None else CodecOptions()
         self.last_request: bytes = b""
         self.last_response: bytes = b""
+        self.sent_at = 0.0  # time.monotonic() when last_request was written
         self._serial = serial.Serial(port, baud, timeout=timeout, write_timeout=timeout)
 
     # -- lifetime -------------------------------------------------------------------------
@@ -108,6 +110,7 @@ class Client:
     def send_bytes(self, data: bytes) -> None:
         """Write ``data`` as is (any length); it becomes ``last_request``."""
         self.last_request = bytes(data)
+        self.sent_at = time.monotonic()
         try:
             self._serial.write(data)
         except (serial.SerialException, OSError) as exc:

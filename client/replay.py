@@ -328,7 +328,13 @@ def add_parser(sub: Any) -> None:
         "answers could not be judged because the replay kept the recording's timing less "
         "closely than their tolerance assumes.",
     )
-    p.add_argument("files", nargs="+", type=Path, metavar="FILE")
+    p.add_argument(
+        "files",
+        nargs="+",
+        type=Path,
+        metavar="FILE",
+        help="the recording (motorctld --trace, motorctl tap; rotated parts in any order)",
+    )
     p.add_argument(
         "-p",
         "--port",

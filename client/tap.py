@@ -34,6 +34,7 @@ from motorctl import __version__
 from motorctl.protocol.capture.format import CaptureInfo, Direction
 from motorctl.protocol.capture.writer import RecordEncoder, header
 from motorctl.protocol.crc import CHECKSUM_DEFAULT
+from motorctl.protocol.line import parse_baud
 
 FLUSH_S = 0.2
 READ_MAX = 4096
@@ -208,6 +209,14 @@ class Tap:
         }
 
 
+def baud_rate(text: str) -> int:
+    """argparse type: a baud rate (motorctl.protocol.line's rule)."""
+    try:
+        return parse_baud(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def add_parser(sub: Any) -> None:
     p = sub.add_parser(
         "tap",
@@ -230,7 +239,7 @@ def add_parser(sub: Any) -> None:
     p.add_argument("--out", required=True, type=Path, metavar="FILE", help="the recording")
     p.add_argument(
         "--baud",
-        type=int,
+        type=baud_rate,
         default=argparse.SUPPRESS,
         help="baud rate of both ports (default 115200)",
     )

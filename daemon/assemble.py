@@ -389,7 +389,13 @@ def build_served(
         status = open_status(options.state_dir, daemon)
         undo.pop_all()  # built: from here on, Served.close closes it
     events = MotorEventLog()
-    line = StatusLine(lambda: summary_line(daemon.status()), before=events.flush)
+    refusals = daemon.dispatcher.refusals
+
+    def journal() -> None:  # off the link and step threads: their queued journal lines
+        events.flush()
+        refusals.flush()  # what the error answers' rate limit held back
+
+    line = StatusLine(lambda: summary_line(daemon.status()), before=journal)
     daemon.events, daemon.status_line, daemon.status_server = events, line, status
     daemon.writer.on_change = line.poke
     interval = watchdog_interval()

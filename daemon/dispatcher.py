@@ -3,7 +3,9 @@
 Protocol units are converted here (and only here) to steps, step/s and step/s^2,
 with the factors from config; out-of-range values are clamped to the motor's
 maximum and counted. Error precedence is PROTOCOL.md section 5:
-E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5.
+E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5. Each check says why it
+refuses, in words, where it decides (:class:`Reject`): the error answers and their reasons are
+kept, shown and journalled by :class:`~motorctl.daemon.refusals.Refusals` (``refusals``).
 
 Threads: the link thread calls :meth:`Dispatcher.handle`, :meth:`Dispatcher.wait_begin` and
 :meth:`Dispatcher.wait_poll`. They block on the engine lock (short work), on the state file
@@ -16,11 +18,12 @@ from __future__ import annotations
 
 import logging
 from collections import Counter
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
 from motorctl.daemon.config import Config, MotorConfig
+from motorctl.daemon.refusals import Refusals
 from motorctl.hal.interfaces import BridgeState, HalError, Pin
 from motorctl.motion.engine import MotionEngine, Settled
 from motorctl.motion.motor import Motor
@@ -51,6 +54,8 @@ log = logging.getLogger("motorctl.dispatcher")
 
 E = ErrorCode
 OK = Response.ok()
+#: why a motion command answers E4 when "moving" cannot be made durable
+UNRECORDED = "the state file cannot be written, so a motion cannot be recorded before it starts"
 
 
 class Persist(Protocol):
@@ -80,19 +85,45 @@ class NoPersistence:
 
 
 class Reject(Exception):
-    """Raised inside a handler to answer with an error code."""
+    """Raised inside a handler to answer with an error code: why, in words (the reason the
+    status and the journal show, and ``motorctl`` prints), the motor it concerns (None: not
+    a motor of this machine) and the commands that fix it, in order."""
 
-    def __init__(self, code: ErrorCode) -> None:
-        super().__init__(code.short)
+    def __init__(
+        self, code: ErrorCode, reason: str, motor: int | None = None, fix: tuple[str, ...] = ()
+    ) -> None:
+        super().__init__(f"{code.short}: {reason}")
         self.code = code
+        self.reason = reason
+        self.motor = motor
+        self.fix = fix
 
 
 @dataclass
 class Wait:
-    """A held WaitMoved: the motor and the time its timeout expires."""
+    """A held WaitMoved: the motor, the time its timeout expires, and the command."""
 
     motor: Motor
     deadline: float
+    cmd: WaitMoved
+
+
+def numbers(values: Iterable[int]) -> str:
+    """``[0, 1, 2, 5]`` as "0..2, 5" (what a machine has, in a reason)."""
+    runs: list[list[int]] = []
+    for v in sorted(values):
+        if runs and v == runs[-1][1] + 1:
+            runs[-1][1] = v
+        else:
+            runs.append([v, v])
+    return ", ".join(str(a) if a == b else f"{a}..{b}" for a, b in runs)
+
+
+def _fault(m: Motor) -> Reject:
+    """E4 for a latched fault: its reason as latched; StopMove clears it (and InitMove homes
+    a motor whose position went with it)."""
+    fix = ("StopMove", "InitMove") if m.position_lost else ("StopMove",)
+    return Reject(E.MOTOR_ERROR, m.fault or "fault", m.index, fix)
 
 
 class Dispatcher:
@@ -112,6 +143,7 @@ class Dispatcher:
         self._settle: Motor | None = None  # a hard stop whose answer waits for the executor
         self.clamped: Counter[str] = Counter()
         self.hardware_errors = 0
+        self.refusals = Refusals([m.name for m in config.motors])
         self.table: dict[type[Any], Callable[[Any], Response]] = {
             InitMove: self.init_move,
             MoveTo: self.move_to,
@@ -134,7 +166,7 @@ class Dispatcher:
         """Execute any command but WaitMoved (see :meth:`wait_begin`)."""
         handler = self.table.get(type(cmd))
         if handler is None:
-            return Response.error(E.INVALID_COMMAND)
+            return self._refuse(cmd, Reject(E.INVALID_COMMAND, "not a command of this daemon"))
         # Motion: "moving" is durable before the motor can start (PROTOCOL.md section 4),
         # written outside the engine lock so the step thread never waits for a disk.
         journalled: int | None = None
@@ -149,38 +181,56 @@ class Dispatcher:
                 engine.process_events(engine.clock.now())
                 resp = handler(cmd)
         except Reject as r:
-            resp = Response.error(r.code)
+            resp = self._refuse(cmd, r)
         except (HalError, OSError) as exc:  # a line or device that failed: never an ACK
-            self.hardware_errors += 1
-            log.error("%s: hardware error: %s", type(cmd).__name__, exc)
-            index = getattr(cmd, "motor", None)
-            if isinstance(index, int) and 0 <= index < len(self.engine.motors):
-                with self.engine.lock:  # a motion half started: stop it, latched
-                    m = self.engine.motors[index]
-                    m.latch_fault(
-                        f"hardware error: {exc}", self.engine.clock.now(), cause="io_error"
-                    )
-            resp = Response.error(E.MOTOR_ERROR)
+            resp = self._hardware_error(cmd, exc)
         finally:
             if journalled is not None:
                 self.persist.after_motion(journalled)
         settle, self._settle = self._settle, None
         if settle is not None and resp.ack:
-            resp = self._settled(settle)  # outside the lock: the planner goes on meanwhile
+            resp = self._settled(cmd, settle)  # outside the lock: the planner goes on meanwhile
         undo, self._undo = self._undo, None
         if undo is not None and not self.persist.save():
             # SaveHome/SaveWayPoint: no ACK for a change that is not on disk.
             with self.engine.lock:
                 undo()
-            name = type(cmd).__name__
-            log.warning(
-                "motor %d: %s not saved (the state file cannot be written): E4",
-                getattr(cmd, "motor", -1),
-                name,
-                extra={"MOTOR": getattr(cmd, "motor", None), "COMMAND": name, "ERROR_CODE": "E4"},
-            )
-            return Response.error(E.MOTOR_ERROR)
+            why = "not saved: the state file cannot be written"
+            return self._refuse(cmd, Reject(E.MOTOR_ERROR, why, getattr(cmd, "motor", None)))
         return resp
+
+    def _refuse(self, cmd: Command | None, r: Reject) -> Response:
+        """The error answer of ``r``, recorded with its reason (status, journal)."""
+        self.refusals.add(r.code, cmd, r.motor, r.reason, r.fix)
+        return Response.error(r.code)
+
+    def refused(
+        self,
+        code: ErrorCode,
+        reason: str,
+        command: Command | None = None,
+        frame: bytes | None = None,
+    ) -> None:
+        """An error the link session answered itself (a frame that failed its checks, the
+        held-frame buffer full, a command that failed): recorded like the others, for its
+        motor when it names one of this machine."""
+        index = getattr(command, "motor", None)
+        motor = index if isinstance(index, int) and 0 <= index < len(self.engine.motors) else None
+        self.refusals.add(code, command, motor, reason, frame=frame)
+
+    def _hardware_error(self, cmd: Command, exc: Exception) -> Response:
+        """A line or device failed under ``cmd``: E4, and a motor's motion half started is
+        stopped, latched with the same reason."""
+        self.hardware_errors += 1
+        reason = f"hardware error: {exc}"
+        index = getattr(cmd, "motor", None)
+        motor: int | None = None
+        if isinstance(index, int) and 0 <= index < len(self.engine.motors):
+            motor = index
+            with self.engine.lock:  # a motion half started: stop it, latched
+                m = self.engine.motors[index]
+                m.latch_fault(reason, self.engine.clock.now(), cause="io_error")
+        return self._refuse(cmd, Reject(E.MOTOR_ERROR, reason, motor))
 
     def _unrecorded_motion(self, handler: Callable[[Any], Response], cmd: Command) -> Response:
         """A motion command whose start cannot be recorded: E4 in E4's place in the order of
@@ -193,12 +243,12 @@ class Dispatcher:
                 engine.process_events(engine.clock.now())
                 handler(cmd)  # every motion handler ends in _submit, which raises
         except Reject as r:
-            return Response.error(r.code)
+            return self._refuse(cmd, r)
         finally:
             self._unrecorded = False
-        return Response.error(E.MOTOR_ERROR)
+        return self._refuse(cmd, Reject(E.MOTOR_ERROR, UNRECORDED, getattr(cmd, "motor", None)))
 
-    def _settled(self, m: Motor) -> Response:
+    def _settled(self, cmd: Command, m: Motor) -> Response:
         """A StopMove that stopped ``m`` hard: its answer once the executor confirmed it
         (the position is final and IsReady answers 1 at once). E4 if the executor died
         meanwhile or the motor latched a fault while stopping. After
@@ -207,14 +257,10 @@ class Dispatcher:
         """
         outcome = self.engine.settle_stop(m)
         if outcome is Settled.DIED:
-            log.error(
-                "motor %d: StopMove: the step executor died before confirming the stop: E4",
-                m.index,
-                extra={"MOTOR": m.index, "COMMAND": "StopMove", "ERROR_CODE": "E4"},
-            )
-            return Response.error(E.MOTOR_ERROR)
+            why = "the step executor died before confirming the stop"
+            return self._refuse(cmd, Reject(E.MOTOR_ERROR, why, m.index))
         if m.fault is not None:  # latched while the stop took effect (a driver fault): it
-            return Response.error(E.MOTOR_ERROR)  # remains, as for a StopMove on a faulted motor
+            return self._refuse(cmd, _fault(m))  # remains, as for a StopMove on a faulted motor
         if outcome is Settled.TIMED_OUT:
             log.warning(
                 "motor %d: the step executor did not confirm the hard stop within "
@@ -245,10 +291,11 @@ class Dispatcher:
                 if m.idle:
                     return OK
         except Reject as r:
-            return Response.error(r.code)
+            return self._refuse(cmd, r)
         if cmd.timeout_ms == 0:
-            return Response.error(E.MOTOR_NOT_READY)
-        return Wait(m, now + cmd.timeout_ms / 1000.0)
+            why = "still moving; TIMEOUT 0 answers at once"
+            return self._refuse(cmd, Reject(E.MOTOR_NOT_READY, why, m.index))
+        return Wait(m, now + cmd.timeout_ms / 1000.0, cmd)
 
     def wait_poll(self, wait: Wait, now: float) -> Response | None:
         """The held WaitMoved's answer once it has one: ACK, E4 on a fault, E3 at timeout."""
@@ -256,52 +303,61 @@ class Dispatcher:
             self.engine.process_events(now)
             m = wait.motor
             if m.fault is not None:
-                return Response.error(E.MOTOR_ERROR)
+                return self._refuse(wait.cmd, _fault(m))
             if m.idle:
                 return OK
         if now >= wait.deadline:
-            return Response.error(E.MOTOR_NOT_READY)
+            why = f"still moving after {wait.cmd.timeout_ms} ms (WaitMoved's TIMEOUT)"
+            return self._refuse(wait.cmd, Reject(E.MOTOR_NOT_READY, why, m.index))
         return None
 
     # -- checks, in precedence order ----------------------------------------------
     def _motor(self, index: int) -> Motor:
-        if not 0 <= index < len(self.engine.motors):
-            raise Reject(E.INVALID_ADDRESS)
-        return self.engine.motors[index]
+        motors = self.engine.motors
+        if not 0 <= index < len(motors):
+            has = f"motors {numbers(range(len(motors)))}" if motors else "no motors"
+            raise Reject(E.INVALID_ADDRESS, f"no motor {index} (this machine has {has})")
+        return motors[index]
 
     def _pin(self, number: int) -> Pin:
         pin = self.pins.get(number)
         if pin is None:
-            raise Reject(E.INVALID_ADDRESS)
+            has = f"pins {numbers(self.pins)}" if self.pins else "no pins"
+            raise Reject(E.INVALID_ADDRESS, f"no pin {number} (this machine has {has})")
         return pin
 
     @staticmethod
     def _not_faulted(m: Motor) -> None:
         if m.fault is not None:
-            raise Reject(E.MOTOR_ERROR)
+            raise _fault(m)
 
     @staticmethod
     def _position_known(m: Motor) -> None:
         if m.position_lost:
-            raise Reject(E.MOTOR_ERROR)
+            why = "its position is lost (not homed since it was last known)"
+            raise Reject(E.MOTOR_ERROR, why, m.index, ("InitMove",))
 
     @staticmethod
     def _idle(m: Motor) -> None:
         if not m.idle:
-            raise Reject(E.MOTOR_NOT_READY)
+            why = f"not idle ({m.state.value}, {len(m.queue)} queued): it must be at rest"
+            raise Reject(E.MOTOR_NOT_READY, why, m.index)
 
     def _submit(self, m: Motor, cmd: MotionCmd) -> Response:
         if self._unrecorded:
-            raise Reject(E.MOTOR_ERROR)  # before E0: E4 comes first
+            raise Reject(E.MOTOR_ERROR, UNRECORDED, m.index)  # before E0: E4 comes first
         if m.queue_full:
-            raise Reject(E.FULL_BUFFER)
+            why = f"motion queue full ({m.params.queue_depth} commands behind the running one)"
+            raise Reject(E.FULL_BUFFER, why, m.index)
         m.submit(cmd, self.engine.clock.now())
         self.engine.wake.set()
         return OK
 
     def _target(self, m: Motor, position: int) -> None:
         if not m.target_allowed(position):
-            raise Reject(E.INVALID_COMMAND)
+            p = m.params
+            why = f"target {position} is outside the soft limits {p.soft_min}..{p.soft_max}"
+            raise Reject(E.INVALID_COMMAND, why, m.index)
 
     # -- unit conversion --------------------------------------------------------------
     def _ramp(
@@ -363,10 +419,13 @@ class Dispatcher:
 
     def stop_move(self, c: StopMove) -> Response:
         m = self._motor(c.motor)
-        if self.engine.executor_died is not None:
-            raise Reject(E.MOTOR_ERROR)  # nothing moves any more: the fault stays latched
+        died = self.engine.executor_died
+        if died is not None:  # nothing moves any more: the fault stays latched
+            why = f"the step executor died ({died}): the daemon must be restarted"
+            raise Reject(E.MOTOR_ERROR, why, m.index)
         if not m.stop(c.hard, self.engine.clock.now()):
-            raise Reject(E.MOTOR_ERROR)
+            why = f"{m.fault}: the driver still reports it"
+            raise Reject(E.MOTOR_ERROR, why, m.index)
         self.engine.wake.set()
         if m.stopping:  # stopped hard (also a soft stop that had no ramp to follow)
             self._settle = m
@@ -378,7 +437,7 @@ class Dispatcher:
     def set_pin(self, c: SetPin) -> Response:
         pin = self._pin(c.pin)
         if not pin.is_output:
-            raise Reject(E.INVALID_COMMAND)
+            raise Reject(E.INVALID_COMMAND, f"pin {c.pin} is an input", None, ("ConfigPin",))
         pin.write(c.high)
         return OK
 
@@ -418,7 +477,8 @@ class Dispatcher:
         self._position_known(m)
         self._idle(m)
         if len(m.waypoints) >= m.params.max_waypoints:
-            raise Reject(E.FULL_WAYPOINT_BUFFER)
+            why = f"waypoint table full ({m.params.max_waypoints} waypoints)"
+            raise Reject(E.FULL_WAYPOINT_BUFFER, why, m.index)
         m.waypoints.append(m.position)
         count = len(m.waypoints)
 
@@ -431,7 +491,10 @@ class Dispatcher:
     def move_to_waypoint(self, c: MoveToWayPoint) -> Response:
         m = self._motor(c.motor)
         if c.waypoint >= len(m.waypoints):
-            raise Reject(E.INVALID_WAYPOINT)
+            saved = len(m.waypoints)
+            has = f"saved: {numbers(range(saved))}" if saved else "none saved"
+            why = f"no waypoint {c.waypoint}; {has}"
+            raise Reject(E.INVALID_WAYPOINT, why, m.index)
         target = m.waypoints[c.waypoint]
         self._target(m, target)
         self._not_faulted(m)
@@ -442,7 +505,7 @@ class Dispatcher:
     def dc_move(self, c: DcMove) -> Response:
         dc = self.config.dc
         if dc is None or self.engine.dc is None:
-            raise Reject(E.INVALID_ADDRESS)
+            raise Reject(E.INVALID_ADDRESS, "no DC motor configured")
         hiz = c.hiz != dc.invert_hiz
         end = BridgeState.COAST if hiz else BridgeState.BRAKE
         time_ms = min(c.time_ms, dc.max_time_ms)

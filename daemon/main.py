@@ -15,6 +15,7 @@ import argparse
 import logging
 import os
 import shutil
+import stat
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -35,6 +36,7 @@ from motorctl.hal.registry import motors_lose_steps, probe_hardware
 from motorctl.motion.executors import compiled_core
 from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.rt import RealtimeOptions
+from motorctl.protocol.line import parse_baud
 
 log = logging.getLogger("motorctl")
 
@@ -68,10 +70,11 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     )
     p.add_argument(
         "--baud",
-        type=int,
+        type=baud_rate,
         default=115200,
-        help="UART baud rate (default 115200); [link] timeout_ms must be at least one "
-        "frame's time at it (also checked by --check-config)",
+        help="UART baud rate (default 115200; any whole number of baud the UART's driver "
+        "can make); [link] timeout_ms must be at least one frame's time at it (also "
+        "checked by --check-config)",
     )
     p.add_argument(
         "--config",
@@ -165,6 +168,35 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
 EXIT_PIPE = 128 + 13  # as a program killed by SIGPIPE
 
 
+def baud_rate(text: str) -> int:
+    """argparse type: a baud rate (motorctl.protocol.line, the client's rule too)."""
+    try:
+        return parse_baud(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def pty_folder_problem(pty: Path) -> str | None:
+    """Why ``--pty PATH`` cannot be served: its folder (where the PTY's link and its lock
+    go) is missing, not a folder, or not writable; None when it can be tried."""
+    folder = Path(os.path.abspath(pty)).parent
+    fix = f"create it ('mkdir -p {folder}') or give --pty a path in an existing folder"
+    try:
+        st = folder.stat()
+    except FileNotFoundError:
+        return f"--pty {pty}: the folder {folder} does not exist; {fix}"
+    except OSError as exc:
+        return f"--pty {pty}: cannot look at the folder {folder}: {exc.strerror}"
+    if not stat.S_ISDIR(st.st_mode):
+        return f"--pty {pty}: {folder} is not a folder; give --pty a path in a folder"
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return (
+            f"--pty {pty}: the folder {folder} is not writable for this user (the PTY's "
+            "link and its lock are made there); give --pty a path in a folder it may write"
+        )
+    return None
+
+
 def main(
     argv: Sequence[str] | None = None, executor_process: WaitingInterpreter | None = None
 ) -> int:
@@ -230,6 +262,9 @@ def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | Non
             file=sys.stderr,
         )
         return 2
+    if args.pty is not None and (why := pty_folder_problem(args.pty)) is not None:
+        print(f"error: {why}", file=sys.stderr)
+        return 1
     log.debug("logging to %s", logs_to)
     options = ServeOptions(args.state_dir, args.pty, args.port, args.baud, args.trace)
     try:

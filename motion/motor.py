@@ -258,7 +258,9 @@ class Motor:
             ):
                 self._homing_triggered(max(ev.t, now))
             else:
-                self.latch_fault("end stop hit", now, stopped=True, cause="endstop")
+                when = "while homing" if self.state is MotorState.HOMING else "outside homing"
+                reason = f"end stop hit at {self.position} {when}"
+                self.latch_fault(reason, now, stopped=True, cause="endstop")
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed
             self.latch_fault(

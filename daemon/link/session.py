@@ -111,6 +111,16 @@ class CommandPort(Protocol):
 
     def wait_poll(self, wait: Wait, now: float) -> Response | None: ...
 
+    def refused(
+        self,
+        code: ErrorCode,
+        reason: str,
+        command: Command | None = None,
+        frame: bytes | None = None,
+    ) -> None:
+        """An error the session answers itself, with its reason (kept and journalled)."""
+        ...
+
 
 class LinkSession:
     """Frames in, responses out, in order; WaitMoved holding and the held-frame buffer."""
@@ -316,6 +326,7 @@ class LinkSession:
                 cmd = decode_command(frame, self.options)
             except FrameError as exc:
                 counters[f"{exc.reason}_errors"] += 1
+                self.port.refused(exc.code, f"bad frame: {exc}", frame=frame)
             else:
                 if len(self._decoded) >= CACHE_LIMIT:
                     self._decoded.clear()
@@ -343,6 +354,7 @@ class LinkSession:
         """The answer to a command whose execution raised (called in its except block)."""
         self.counters["internal_errors"] += 1
         log.exception("%r failed", cmd)
+        self.port.refused(ErrorCode.MOTOR_ERROR, "internal error (a bug: see the log)", cmd)
         return Response.error(ErrorCode.MOTOR_ERROR)
 
     def _hold(self, cmd: Command | None, now: float) -> None:
@@ -355,6 +367,9 @@ class LinkSession:
             self.counters["held_overflow"] += 1
             # No place left: E0, or E1 for a frame that failed its checks (E1 comes first).
             code = ErrorCode.FULL_BUFFER if cmd is not None else ErrorCode.INVALID_COMMAND
+            if cmd is not None:
+                why = f"held-frame buffer full ({self.held_limit} frames behind a WaitMoved)"
+                self.port.refused(code, why, cmd)
             self._held.append(self._encode(Response.error(code)))
         else:
             self._held.append(cmd)

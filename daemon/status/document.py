@@ -22,6 +22,7 @@ from motorctl.daemon.config import Config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.recorder import TraceRecorder
+from motorctl.daemon.refusals import Refusals
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.hal.interfaces import HalError, Hardware, Pin
 from motorctl.motion.dc import DcMotor
@@ -129,6 +130,7 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
     drivers = [d for s in parts.hw.steppers if (d := s.driver.stats()) is not None]
     if drivers:  # SPI driver chips: polls, SPI status flag counts, faults, warnings
         out["drivers"] = drivers
+    add_errors(out, parts.dispatcher.refusals)
     return out
 
 
@@ -144,6 +146,15 @@ def link_status(link: dict[str, Any]) -> dict[str, Any]:
     if isinstance(processing, dict):
         link["processing"] = {PROCESSING_NAMES.get(k, k): v for k, v in processing.items()}
     return link
+
+
+def add_errors(doc: dict[str, Any], refusals: Refusals) -> None:
+    """The error answers with their reasons (daemon/refusals.py): each motor's last one,
+    ``motors[].last_error``, and ``errors``: how many, how many the journal's limit held
+    back, the last one and the last one not tied to a motor (docs/status.md)."""
+    for motor in doc["motors"]:
+        motor["last_error"] = refusals.motor_status(motor["index"])
+    doc["errors"] = refusals.status()
 
 
 def motor_speed(traj: Trajectory | None, now: float) -> float:

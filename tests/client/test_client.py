@@ -457,7 +457,10 @@ def test_cli_device_error(peer: Peer, capsys: pytest.CaptureFixture[str]) -> Non
     assert cli.main(["-p", peer.port, "home", "save", "0"]) == 1
     captured = capsys.readouterr()
     assert captured.out == ""
-    assert captured.err == "error: E3 motor not ready\n"
+    # no daemon's status socket here: the code's meaning for the command (client/reasons.py)
+    assert captured.err == (
+        "error: E3 motor not ready: motor 0 is moving or has commands queued; it must be at rest\n"
+    )
 
 
 def test_cli_raw(peer: Peer, capsys: pytest.CaptureFixture[str]) -> None:
@@ -473,14 +476,17 @@ def test_cli_raw_on_device_error(peer: Peer, capsys: pytest.CaptureFixture[str])
     assert cli.main(["--raw", "-p", peer.port, "ready", "9"]) == 1
     captured = capsys.readouterr()
     assert captured.out == f"-> {raw_frame('03 09').hex(' ')}\n<- {resp('00 e2 00 00').hex(' ')}\n"
-    assert captured.err == "error: E2 invalid address\n"
+    assert captured.err == "error: E2 invalid address: no motor 9\n"
 
 
 def test_cli_send_ten_bytes_as_is(peer: Peer, capsys: pytest.CaptureFixture[str]) -> None:
     # A wrong checksum is sent unchanged; the peer answers E1 as the device would.
     assert cli.main(["-p", peer.port, "send", "03 00 00 00 00 00 00 00 00 00"]) == 1
     assert peer.next_frame() == bytes.fromhex("03 00 00 00 00 00 00 00 00 00")
-    assert capsys.readouterr().err == "error: E1 invalid command\n"
+    assert capsys.readouterr().err == (
+        "error: E1 invalid command: the frame was refused: a wrong checksum, an unknown "
+        "command or non-zero padding\n"
+    )
 
 
 def test_cli_send_ten_bytes_good_checksum(peer: Peer, capsys: pytest.CaptureFixture[str]) -> None:
@@ -575,6 +581,11 @@ def test_cli_unopenable_port(tmp_path: Path, capsys: pytest.CaptureFixture[str])
 
 def test_cli_help_states_raw_units(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:
-        cli.main(["moveto", "--help"])
+        cli.main(["--help"])
     assert info.value.code == 0
     assert "raw protocol values" in capsys.readouterr().out
+    with pytest.raises(SystemExit) as info:
+        cli.main(["moveto", "--help"])
+    assert "Numbers are the protocol's raw values (motorctl --help)." in " ".join(
+        capsys.readouterr().out.split()
+    )

@@ -181,3 +181,37 @@ def test_a_daemon_behind_the_port_has_its_listener_too(tmp_path: Path) -> None:
     finally:
         daemon.engine.executor.close()
         daemon.hw.close()
+
+
+def test_the_status_lines_turn_says_what_the_error_journal_held_back(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    """The error answers' rate limit (daemon/refusals.py) says what it held back on the
+    STATUS= line's turn, off the link thread, even when no further error comes."""
+    from motorctl.daemon.refusals import BURST, EVERY_S
+    from motorctl.protocol.codec import ErrorCode
+
+    owned = Owned()
+    config = parse_config(IN_PROCESS_CONFIG, "t.toml")
+    served = build_served(config, ServeOptions(tmp_path / "state", pty=tmp_path / "pty"), owned)
+    daemon = served.daemon
+    now = [1000.0]
+    refusals = daemon.dispatcher.refusals
+    refusals.clock = lambda: now[0]
+    try:
+        caplog.set_level(logging.INFO, "motorctl.errors")
+        for _ in range(BURST + 5):
+            daemon.dispatcher.refused(ErrorCode.INVALID_COMMAND, "bad frame: checksum")
+        served.line.update()
+        assert len(caplog.records) == BURST  # nothing to say yet: the budget is spent
+        now[0] += EVERY_S
+        served.line.update()
+        assert (
+            caplog.records[-1]
+            .getMessage()
+            .startswith("link: 5 more error answers not logged in the last ")
+        )
+    finally:
+        shutdown(daemon)
+        served.close()
+        owned.cleanup()

@@ -244,3 +244,42 @@ def test_status_on_a_terminal_is_a_summary_and_in_a_pipe_the_document(
     assert doc["motors"][0]["position"] == 300 and doc["executor"]["realtime"]["refused"] == []
     code, out = run_on_pty([*cmd, "--json"])
     assert code == 0 and json.loads(out)["motors"][0]["position"] == 300
+
+
+def _motorctld(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.main", *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
+    )
+
+
+def test_a_pty_in_a_missing_folder_names_the_folder_and_the_fix(tmp_path: Path) -> None:
+    """Not the PTY's lock file, an internal name: the folder the user gave, and what to do."""
+    pty = tmp_path / "nonexistent" / "dir" / "x.pty"
+    out = _motorctld("--pty", str(pty), "--state-dir", str(tmp_path / "state"))
+    folder = pty.parent
+    assert out.returncode == 1
+    assert out.stderr == (
+        f"error: --pty {pty}: the folder {folder} does not exist; create it "
+        f"('mkdir -p {folder}') or give --pty a path in an existing folder\n"
+    )
+    assert not (tmp_path / "state").exists()  # said before anything was made
+    assert not os.path.lexists("/nonexistent")
+    out = _motorctld("--pty", "/nonexistent/dir/x.pty", "--state-dir", str(tmp_path / "state"))
+    service = " ".join((REPO / "docs" / "service.md").read_text().split())
+    assert f"`{out.stderr.strip()}`" in service  # as docs/service.md quotes it
+    (tmp_path / "file").write_text("")
+    out = _motorctld("--pty", str(tmp_path / "file" / "x.pty"), "--state-dir", str(tmp_path))
+    assert out.returncode == 1 and f"{tmp_path / 'file'} is not a folder" in out.stderr
+
+
+@pytest.mark.parametrize("baud", ["0", "-5", "fast"])
+def test_a_baud_rate_that_is_none_is_refused_not_a_traceback(tmp_path: Path, baud: str) -> None:
+    out = _motorctld("--pty", str(tmp_path / "x.pty"), "--baud", baud)
+    assert out.returncode == 2 and "Traceback" not in out.stderr
+    assert "motorctld: error: argument --baud: " in out.stderr
+    assert "is not a baud rate" in out.stderr and "e.g. 115200" in out.stderr
+    assert not (tmp_path / "x.pty").exists()

@@ -41,6 +41,7 @@ from pathlib import Path
 
 import pytest
 
+from motorctl.client import reasons
 from motorctl.client.cli import main as cli
 from motorctl.daemon import launch
 from motorctl.daemon.assemble import motor_identities
@@ -48,7 +49,7 @@ from motorctl.daemon.config import parse_config
 from motorctl.hal.backends.gpiod.chip import busy_message
 from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
 from motorctl.protocol.capture.format import CaptureInfo
-from motorctl.protocol.codec import MoveTo, WaitMoved
+from motorctl.protocol.codec import ErrorCode, MoveTo, WaitMoved
 from tests.docs.quotes import PAGES, Quote, candidates, on_page, rel, squash
 from tests.support import REPO, traces
 from tests.support.daemon_proc import run_probe
@@ -210,6 +211,22 @@ QUOTES = [
     ),
     Quote("docs/protocol.md", "link timeout: no byte from the host for N ms", "served", ("N",)),
     Quote("docs/service.md", "SCHED_FIFO ... not permitted", "served"),
+    Quote(
+        "docs/service.md",
+        "error: --pty /nonexistent/dir/x.pty: the folder /nonexistent/dir does not exist; create"
+        " it ('mkdir -p /nonexistent/dir') or give --pty a path in an existing folder",
+        "start: --pty in a missing folder",
+    ),
+    Quote("README.md", "error: E2 invalid address: no motor 5", "client: errors"),
+    Quote(
+        "README.md",
+        "error: cannot open /dev/ttyNOPE: no such file (is motorctld running? its default port"
+        " is /run/motorctl/motorctl.pty)",
+        "client: errors",
+    ),
+    Quote(
+        "README.md", "error: /etc/passwd: not a serial device (a regular file)", "client: errors"
+    ),
     Quote(
         "docs/service.md",
         "3 motors: 1 moving, none faulted; 1234 frames served, 0 errors",
@@ -649,6 +666,23 @@ def served(tmp: Path, capsys: pytest.CaptureFixture[str]) -> str:
         s.close()
 
 
+def client_errors(tmp: Path, capsys: pytest.CaptureFixture[str]) -> str:
+    """``motorctl`` (the CLI's entry point) on a port that does not exist and on a file that
+    is no serial device, and an error answer explained where no daemon's status socket is
+    found: the code's meaning for that command (client/reasons.py, as the CLI calls it)."""
+    out = []
+    for argv in [["-p", "/dev/ttyNOPE", "pos", "0"], ["-p", "/etc/passwd", "pos", "0"]]:
+        status = cli(argv)
+        said = capsys.readouterr()
+        out.append(f"$ motorctl {' '.join(argv)}\n{said.err}exit status {status}\n")
+    nowhere = {reasons.STATE_DIR_ENV: str(tmp / "no-state")}
+    line = reasons.explain(
+        ErrorCode.INVALID_ADDRESS, MoveTo(5, True, 0, 0, 0, 0), "", 0.0, env=nowhere
+    )
+    out.append(f"error: {line}\n")
+    return "".join(out)
+
+
 def trace_files(tmp: Path, capsys: pytest.CaptureFixture[str]) -> str:
     """``motorctl trace`` and ``motorctl replay`` (the CLI's entry point) on recordings
     made as tests/support/traces.py makes them: rotated parts with a hole and without
@@ -687,6 +721,8 @@ def trace_files(tmp: Path, capsys: pytest.CaptureFixture[str]) -> str:
 
 RUNS: dict[str, Callable[[Path, pytest.CaptureFixture[str]], str]] = {
     "trace files": trace_files,
+    "client: errors": client_errors,
+    "start: --pty in a missing folder": start_refused(["--pty", "/nonexistent/dir/x.pty"], MOTOR),
     **{f"check: {name}": check_snippet(name) for name in SNIPPETS},
     "check: no file": check_missing,
     "check: a FIFO": check_fifo,

@@ -138,7 +138,7 @@ def test_an_end_stop_outside_homing_is_answered_with_a_stop_and_latches_a_fault(
     m.on_event(ex.report(K.ENDSTOP, 0, 1, direction=1, speed=2000.0), 0.3)
     # the answer lifts the executor's block on the axis, before anything else is planned
     assert ex.of("stop") == [("stop", 0, 2)] and m.gen == 2
-    assert m.state is MotorState.FAULT and m.fault == "end stop hit"
+    assert m.state is MotorState.FAULT and m.fault == "end stop hit at 120 outside homing"
     assert m.faults == {"endstop": 1} and not m.position_lost and notes[-1] == "fault"
     assert m.position == 120 and not m.stopping  # its position is final
 
@@ -611,7 +611,7 @@ def test_endstop_hit_with_debounce_outside_homing() -> None:
     rig.world.force_endstop(0, "min", True)
     t_on = rig.clock.now()
     rig.advance(0.1)
-    assert rig.m.fault == "end stop hit"
+    assert rig.m.fault == f"end stop hit at {rig.m.position} outside homing"
     after = [t for t in rig.times() if t > t_on]  # the steps that read it active
     # debounced from the edge's own time (the kernel's timestamp on real lines)
     assert 0.0105 - TICK <= after[-1] - t_on < 0.0105 + 1e-3
@@ -654,7 +654,7 @@ def test_endstop_hit_outside_homing_is_a_hard_stop_and_fault() -> None:
     rig.submit(MoveToCmd(1500, RAMP))
     rig.submit(MoveToCmd(0, RAMP))
     rig.engine.run_until_idle()
-    assert rig.state() is MotorState.FAULT and rig.m.fault == "end stop hit"
+    assert rig.state() is MotorState.FAULT and rig.m.fault == "end stop hit at 1000 outside homing"
     assert rig.axis() == 1000 == rig.m.position
     t_hit = rig.times()[-1]
     assert rig.event_times("fault") == [t_hit]
@@ -676,7 +676,7 @@ def test_leaving_an_active_endstop_is_fine() -> None:
     assert rig.m.fault is None and rig.axis() == -300
     rig.submit(MoveToCmd(-299, RAMP))  # one step towards it: that hits it
     rig.engine.run_until_idle()
-    assert rig.m.fault == "end stop hit"
+    assert rig.m.fault == f"end stop hit at {rig.m.position} outside homing"
 
 
 def test_driver_fault_while_moving_stops_at_once_and_latches() -> None:

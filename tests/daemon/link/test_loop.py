@@ -57,6 +57,15 @@ class SlowPort:
     def wait_poll(self, wait: Wait, now: float) -> Response | None:
         return self.inner.wait_poll(wait, now)
 
+    def refused(
+        self,
+        code: ErrorCode,
+        reason: str,
+        command: Command | None = None,
+        frame: bytes | None = None,
+    ) -> None:
+        self.inner.refused(code, reason, command, frame)
+
 
 class GatedPort(SlowPort):
     """The dispatcher, whose held WaitMoved's next look waits for the test: the link is

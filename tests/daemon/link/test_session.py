@@ -448,6 +448,18 @@ def test_save_waypoint_on_lost_position_is_e4(w: SessionRig) -> None:
 class Broken:
     """A dispatcher with a bug: every command raises."""
 
+    def __init__(self) -> None:
+        self.refusals: list[tuple[ErrorCode, str, Command | None]] = []
+
+    def refused(
+        self,
+        code: ErrorCode,
+        reason: str,
+        command: Command | None = None,
+        frame: bytes | None = None,
+    ) -> None:
+        self.refusals.append((code, reason, command))
+
     def handle(self, cmd: Command) -> Response:
         raise ZeroDivisionError("a bug")
 
@@ -459,7 +471,8 @@ class Broken:
 
 
 def test_a_command_that_raises_is_e4_and_the_session_goes_on() -> None:
-    session = LinkSession(Broken(), OPTS, GAP)
+    port = Broken()
+    session = LinkSession(port, OPTS, GAP)
     session.receive(frame(IsReady(0)) + frame(WaitMoved(0, 10)), 0.0)
     data = session.take_output()
     assert [decode_response(data[i : i + 5], OPTS).error_code for i in (0, 5)] == [
@@ -467,6 +480,8 @@ def test_a_command_that_raises_is_e4_and_the_session_goes_on() -> None:
         None,
     ]
     assert session.counters["internal_errors"] == 1
+    # its reason is kept like any other error answer's (daemon/refusals.py)
+    assert port.refusals == [(E.MOTOR_ERROR, "internal error (a bug: see the log)", IsReady(0))]
 
 
 def test_a_command_that_raises_in_a_read_of_its_own_is_e4_each_time() -> None:

@@ -560,8 +560,11 @@ def test_read_only_directory_save_answers_e4(
         assert not d.persistence.close()  # the final write fails without a traceback
     assert saved(tmp_path) == before
     assert caplog.text.count("cannot write state file") == 1  # logged once, not per write
-    assert "motor 0: SaveWayPoint not saved" in caplog.text
-    rec = next(r for r in caplog.records if "SaveHome not saved" in r.getMessage())
+    assert (
+        "motor 0 (a): SaveWayPoint(motor=0) answered E4 Motor Error: not saved: the state "
+        "file cannot be written" in caplog.text
+    )
+    rec = next(r for r in caplog.records if "SaveHome(motor=0) answered E4" in r.getMessage())
     assert (rec.MOTOR, rec.COMMAND, rec.ERROR_CODE) == (0, "SaveHome", "E4")  # type: ignore[attr-defined]
     assert d.writer.write_now()
     assert d.persistence.status()["ok"] is True
