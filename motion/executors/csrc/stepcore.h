@@ -5,7 +5,8 @@
  * lateness histogram out (the block's cells), the same slide, lag, spacing, DIR settle,
  * shared-pulse and end-stop rules. What each file holds:
  *
- *   core.c       the loop and its rules (mirrors step_core.py function by function)
+ *   core.c       the rules of the loop (mirrors step_core.py function by function)
+ *   drive.c      what drives it: a virtual clock, the real clock's loop; the lines by kind
  *   rings.c      CRC-32, the rings' records (motion/executors/process/rings.py Ring), checks
  *   lines_gpio.c STEP/DIR writes and end-stop edge reads as GPIO character-device ioctls
  *   lines_sim.c  the mock backend's counterpart: the same timeline of edges, the same
@@ -179,8 +180,13 @@ struct core {
     char err[256]; /* the last line error's text (HalIOError's message) */
 };
 
+int64_t core_mono(void);
 int64_t core_now(struct core *c);
 void core_spin_until(struct core *c, int64_t t);
+void core_take(struct core *c);
+void core_edges(struct core *c);
+void core_step(struct core *c, int64_t now);
+void core_halt(struct core *c, int m);
 void core_refill(struct core *c);
 int64_t core_deadline(const struct core *c);
 void core_advance(struct core *c, int64_t now);
