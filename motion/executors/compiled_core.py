@@ -178,6 +178,7 @@ class CompiledStepCore:
                 lines.cells,
                 [lo for lo, _ in lines.endstops],
                 [hi for _, hi in lines.endstops],
+                [int(sw) for sw in lines.switches],
                 list(lines.axis_of),
                 -1 if lines.timeline_len is None else lines.timeline_len,
             )

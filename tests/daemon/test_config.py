@@ -154,7 +154,7 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert motor.homing == HomingConfig(HomingSource.ENDSTOP, 2000.0, 40000, 0, 250.0)
     assert motor.endstop == EndstopConfig(False, 0.0)
     assert motor.homing.source is HomingSource.ENDSTOP
-    assert motor.section(MockAxisConfig) == MockAxisConfig(-10000, 10000)
+    assert motor.section(MockAxisConfig) == MockAxisConfig(-10000, 10000, True)
     assert config.pins == ()
     assert config.dc is None
     assert config.section(MockConfig) == MockConfig(lose_steps=False, wires=())
@@ -818,7 +818,7 @@ def test_backends_get_their_sections_in_the_hardware_spec() -> None:
     )
     spec = hardware_spec(config)
     assert spec.section(MockConfig).wires == ((0, 1),)
-    assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000)
+    assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000, True)
     assert all(pin.section(GpiodPinConfig) is None for pin in spec.pins)  # not wired
 
 

@@ -472,7 +472,8 @@ def test_two_phase_homing_with_second_speed_above_the_ramp_uses_the_ramp() -> No
 
 
 # A stall is read from the driver by the monitor, never on the step path: it is seen within
-# one driver poll, so stall homing runs on for up to speed * POLL steps after the stall.
+# one driver poll, so stall homing runs on for up to speed * POLL steps after the stall
+# (pulses lost against the mock's hard stop).
 STALL_OVERRUN = int(RAMP.speed * POLL) + 1
 
 
@@ -480,9 +481,11 @@ def test_stall_homing() -> None:
     rig = engine_rig(motor_params(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
-    # The mock stalls once it is pushed past its end stop.
+    # The mock stalls once it is pushed against its hard stop (at its end stop): the pulses
+    # after that are lost, the axis stays there; zero is where it stalled.
     assert rig.m.fault is None and rig.m.position == 0
-    assert 1001 <= rig.axis() <= 1001 + STALL_OVERRUN
+    assert rig.axis() == 1000 and 1001 <= len(rig.times()) <= 1001 + STALL_OVERRUN
+    assert direction_runs(rig.dirs())[-1][0] is True  # no back-off: it zeroes where it stalled
     assert rig.event_times("homed")
 
 
@@ -495,8 +498,8 @@ def test_two_phase_stall_homing() -> None:
     runs = direction_runs(rig.dirs())
     assert [d for d, _ in runs] == [False, True, False] and runs[1] == (True, 30)
     assert 1001 <= runs[0][1] <= 1001 + STALL_OVERRUN
-    # the re-approach stalls again once past the stop (seen within a poll at 300 step/s)
-    assert -1001 - int(300 * POLL) - 1 <= rig.axis() <= -1001
+    # the re-approach stalls again at the stop (seen within a poll at 300 step/s)
+    assert 31 <= runs[2][1] <= 31 + int(300 * POLL) + 1 and rig.axis() == -1000
 
 
 def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None:

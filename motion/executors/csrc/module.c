@@ -332,7 +332,8 @@ static PyMethodDef Core_methods[] = {
     {"gpio", (PyCFunction)Core_gpio, METH_VARARGS,
      "gpio(outputs, step, dir, inputs, active_low): GPIO chardev line requests"},
     {"sim", (PyCFunction)Core_sim, METH_VARARGS,
-     "sim(cells, endstop_min, endstop_max, axis_of, timeline_len): the mock's mechanics"},
+     "sim(cells, endstop_min, endstop_max, switches, axis_of, timeline_len): the mock's "
+     "mechanics"},
     {"sim_error", (PyCFunction)Core_sim_error, METH_VARARGS,
      "sim_error(kind, axis, text or None): writes to that simulated line fail with text"},
     {"start", (PyCFunction)Core_start, METH_VARARGS, "start(virtual, now_ns)"},

@@ -146,10 +146,13 @@ struct tl_entry {
     int32_t kind, axis, value, pad;
 };
 
+/* a simulated axis' cells (hal/backends/mock/world.py's MockAxis) */
+enum { AX_POS, AX_HEADING, AX_FMIN, AX_FMAX, AX_STALL, AX_GEN, AX_PUSHED, AX_FIELDS };
+
 struct sim {
-    int64_t *cells; /* per world axis: position, heading, forced min, forced max, stall, gen */
+    int64_t *cells; /* per world axis: AX_FIELDS cells */
     int naxes;
-    int64_t *emin, *emax, *seen_gen, *seen_pos;
+    int64_t *emin, *emax, *switches, *seen_gen, *seen_pos;
     int8_t *level;     /* per line (2 per world axis): the sensed level */
     char **step_err;   /* per world axis: the injected error's text, or NULL */
     char **dir_err;
