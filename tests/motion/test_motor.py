@@ -71,7 +71,7 @@ def state(m: Motor) -> MotorState:
 
 def followed(ex: RecordingExecutor) -> list[tuple[int, Trajectory, bool]]:
     """(generation, plan, end stops watched) of each follow()."""
-    return [(gen, traj, watch) for _, _, gen, traj, watch in ex.of("follow")]  # type: ignore[misc]
+    return [(gen, traj, watch) for _, _, gen, traj, watch, _ in ex.of("follow")]  # type: ignore[misc]
 
 
 def test_a_plan_starts_where_the_executor_committed_with_a_new_generation() -> None:

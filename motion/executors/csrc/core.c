@@ -13,7 +13,8 @@
  * stops (TIMING_LOST) where the lag it caused, in full steps, is one a real motor may not
  * survive; raise the STEP lines of every due motor in one call per GPIO request,
  * account while they are high, lower them after the pulse width, read end-stop edges,
- * look at the end stop ahead of each motor that stepped. A line that fails is a FAULT of
+ * look at the end stop ahead of each motor that stepped (and, in a plan that watches for
+ * it, whether the end stop behind has released: RELEASED). A line that fails is a FAULT of
  * the motors concerned, a record that is not whole or not sane a FAULT of its motor
  * (every motor for a stop record whose motor is unknown); the loop never dies of either.
  *
@@ -51,10 +52,10 @@ void core_spin_until(struct core *c, int64_t t) {
 
 /* ---------------------------------------------------------------- reports */
 
-static void emit(struct core *c, int kind, int m, int64_t gen, int64_t pos, int64_t t,
-                 int64_t dir, double speed, const char *text) {
-    uint8_t rec[7 * 8 + 8 + TEXT_LEN];
-    int64_t f[7] = {0, kind, m, gen, pos, t, dir};
+static void emit_at(struct core *c, int kind, int m, int64_t gen, int64_t pos, int64_t t,
+                    int64_t dir, double speed, const char *text, int64_t mark) {
+    uint8_t rec[EVENT_BYTES];
+    int64_t f[8] = {0, kind, m, gen, pos, t, dir, mark};
     memcpy(rec, f, sizeof f);
     memcpy(rec + sizeof f, &speed, 8);
     memset(rec + sizeof f + 8, 0, TEXT_LEN);
@@ -67,6 +68,11 @@ static void emit(struct core *c, int kind, int m, int64_t gen, int64_t pos, int6
         ssize_t w = write(c->event_fd, "e", 1); /* EAGAIN: a byte is there already */
         (void)w;
     }
+}
+
+static void emit(struct core *c, int kind, int m, int64_t gen, int64_t pos, int64_t t,
+                 int64_t dir, double speed, const char *text) {
+    emit_at(c, kind, m, gen, pos, t, dir, speed, text, 0);
 }
 
 static double speed_of(const struct motor *mo, int64_t planned) {
@@ -295,9 +301,12 @@ static int load(struct core *c, int m) {
         mo->add = f[4];
         mo->left = mo->seg_count = f[3];
         mo->seg_first = first; /* plan ticks, as the planner's cuts */
+        if (gen != mo->gen)
+            mo->rel_at = NEVER; /* a new plan sees the release for itself */
         mo->gen = gen;
         mo->last = (f[7] & SEG_LAST) != 0;
         mo->watch = (f[7] & SEG_WATCH) != 0;
+        mo->release = (f[7] & SEG_RELEASE) != 0;
         if (f[5] != mo->dir) {
             set_dir(c, m, (int)f[5]);
             if (mo->next_t == NEVER)
@@ -323,10 +332,10 @@ void core_take(struct core *c) {
     }
 }
 
+/* a line's level and since when (its last edge) */
 void core_apply_edge(struct core *c, int line, int active, int64_t t) {
     CELL_SET(&c->levels[line], active);
-    if (active)
-        c->since[line] = t;
+    c->since[line] = t;
 }
 
 void core_edges(struct core *c) {
@@ -365,15 +374,43 @@ static void record_ns(struct core *c, int64_t ns) {
     CELL_ADD(&l[L_BLOCK0 + (us >> L_BLOCK_SHIFT)], 1);
 }
 
-static void check_endstop(struct core *c, int m, int line) {
+/* 1: stopped at the active end stop ahead, debounced */
+static int check_endstop(struct core *c, int m, int line) {
     struct motor *mo = &c->m[m];
     int64_t since = c->since[line];
     if (core_now(c) - since < mo->debounce)
-        return;
+        return 0;
     int64_t gen = mo->gen;
     core_halt(c, m);
     CELL_ADD(&c->counters[C_ENDSTOPS], 1);
     emit(c, EV_ENDSTOP, m, gen, c->positions[m], since > 0 ? since : 0, mo->dir, 0.0, NULL);
+    return 1;
+}
+
+/* motor m stepped away from the end stop behind it (homing's back-off): stop once that has
+ * been inactive for the debounce time; RELEASED says where it released (the first position
+ * seen off it; an unwired line is off it at the first step) */
+static void check_release(struct core *c, int m) {
+    struct motor *mo = &c->m[m];
+    int line = mo->end[mo->dir > 0 ? 0 : 1];
+    int64_t since = 0;
+    if (line >= 0) {
+        if (c->levels[line]) {
+            mo->rel_at = NEVER; /* still on it, or on it again (a bounce) */
+            return;
+        }
+        since = c->since[line];
+    }
+    if (mo->rel_at == NEVER || mo->rel_since != since) { /* released by a new edge */
+        mo->rel_at = c->positions[m];
+        mo->rel_since = since;
+    }
+    if (core_now(c) - since < mo->debounce)
+        return;
+    int64_t gen = mo->gen;
+    core_halt(c, m);
+    emit_at(c, EV_RELEASED, m, gen, c->positions[m], since > 0 ? since : 0, -mo->dir, 0.0,
+            NULL, mo->rel_at);
 }
 
 /* motor m's step is late: slide the rest of its schedule, or stop it where the lag is one a
@@ -481,21 +518,28 @@ void core_step(struct core *c, int64_t now) {
     }
     for (int i = 0; i < ndue; i++)
         c->m[due[i]].last_fall = fall;
-    for (int i = 0; i < ndone; i++) {
-        int m = done[i];
-        struct motor *mo = &c->m[m];
-        if (mo->last) /* before the next segment (a marker reports its own DONE) */
-            emit(c, EV_DONE, m, mo->gen, c->positions[m], rise, 0, 0.0, NULL);
-        load(c, m);
-    }
+    /* the end stops after this step, in its direction and generation, before a motor whose
+     * segment it ended reports DONE or goes on: a last step onto the switch is an end stop
+     * hit, not a move done */
     core_edges(c);
     for (int i = 0; i < ndue; i++) {
         int m = due[i];
         struct motor *mo = &c->m[m];
         if (mo->watch) {
             int line = mo->end[mo->dir > 0 ? 1 : 0];
-            if (line >= 0 && c->levels[line])
-                check_endstop(c, m, line);
+            if (line >= 0 && c->levels[line] && check_endstop(c, m, line))
+                continue;
         }
+        if (mo->release)
+            check_release(c, m);
+    }
+    for (int i = 0; i < ndone; i++) {
+        int m = done[i];
+        struct motor *mo = &c->m[m];
+        if (mo->stopped_gen == BLOCKED)
+            continue; /* stopped on its own account: nothing more until the answer */
+        if (mo->last) /* before the next segment (a marker reports its own DONE) */
+            emit(c, EV_DONE, m, mo->gen, c->positions[m], rise, 0, 0.0, NULL);
+        load(c, m);
     }
 }

@@ -55,7 +55,9 @@ enum { H_RUN = 0 };
 #define L_BLOCKS ((L_BINS + 1 + (1 << L_BLOCK_SHIFT) - 1) >> L_BLOCK_SHIFT)
 #define L_CELLS (L_BLOCK0 + L_BLOCKS)
 /* event kinds (list(ExecEventKind)) */
-enum { EV_DONE, EV_STOPPED, EV_ENDSTOP, EV_TIMING_LOST, EV_FAULT, EV_DIED };
+enum { EV_DONE, EV_STOPPED, EV_ENDSTOP, EV_TIMING_LOST, EV_FAULT, EV_DIED, EV_RELEASED };
+/* an event record: seq, kind, motor, gen, position, t, direction, mark; speed; text */
+#define EVENT_BYTES (8 * 8 + 8 + TEXT_LEN)
 
 /* One aligned 8-byte cell of the block, stored whole (single-copy atomic) for readers in
  * another process; only the core stores to its cells, so plain loads read them back. */
@@ -67,6 +69,7 @@ enum { EV_DONE, EV_STOPPED, EV_ENDSTOP, EV_TIMING_LOST, EV_FAULT, EV_DIED };
 #define STOP_FIELDS 4 /* seq, motor, gen, cut */
 #define SEG_LAST 1
 #define SEG_WATCH 2
+#define SEG_RELEASE 4
 
 struct ring {
     int64_t *cells; /* head (the producer's), tail, retries (the consumer's) */
@@ -109,7 +112,8 @@ struct motor {
     /* the segment being made */
     int64_t next_t, due_t, iv, add, left, seg_first, seg_count, gen, prev_t, last_edge;
     int64_t stopped_gen, ready, slid;
-    int dir, last, watch;
+    int64_t rel_at, rel_since; /* where the end stop behind was seen released (NEVER: not) */
+    int dir, last, watch, release;
     struct cut *cuts;
     int ncuts, cap_cuts;
     /* the outputs' own state (StepOutputs: direction, ready_at, last_fall) */

@@ -93,6 +93,33 @@ def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped(
     assert rig.ex.position(0) == 0
 
 
+@pytest.mark.parametrize("side", [-1, 1])
+def test_a_back_off_stops_the_chip_where_the_switch_behind_releases(side: int) -> None:
+    """Homing's back-off (``release``): the switch it leaves latches the position at its
+    inactive edge; once a poll sees it released the executor stops the chip and reports
+    RELEASED with that position (``mark``), the chip standing a little further on."""
+    rig = RampRig()
+    model = rig.models[0]
+    if side < 0:
+        model.ref_l_at = 5.0  # REFL active at and below 5: the chip is on it, at 0
+    else:
+        model.ref_r_at = -5.0
+    away = plan_run(rig.clock.now(), 0.0, 0.0, -250.0 * side, 4e4, 4e4, -5000.0 * side)
+    assert rig.ex.follow(0, away, RAMP, gen=1, release=True)
+    sw = model.regs[0x34]
+    assert sw & (1 << (6 if side < 0 else 8))  # SW_MODE.latch_l/r_inactive
+    assert sw & (0b10 if side < 0 else 0b01)  # and the stop switch ahead, as any move's
+    rig.run(lambda: K.RELEASED in rig.kinds(), 5.0)
+    ev = rig.seen[-1]
+    # XLATCH: the first microstep off the switch
+    assert (ev.direction, ev.mark, ev.detail) == (side, -6 * side, "reference switch")
+    assert side * (ev.mark - ev.position) >= 0  # it stood at or past the release
+    assert not rig.ex.endstop_active(0, side)
+    rig.ex.stop(0, gen=2)  # the answer
+    rig.run(lambda: rig.seen[-1].kind is K.STOPPED, 1.0)
+    assert 0 <= side * (ev.mark - rig.ex.position(0)) <= 3  # a few steps on at 250 step/s
+
+
 def test_a_plan_without_end_stops_arms_stallguard_and_a_stop_reads_as_a_stall() -> None:
     rig = RampRig()
     rig.models[0].wall_at = 2500.0
