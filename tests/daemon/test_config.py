@@ -135,7 +135,7 @@ def test_default_config_text_loads_back_to_the_embedded_default() -> None:
         written = [ln for ln in lines if ln.startswith((f"{name} = ", f"# {name} = (unset)"))]
         assert written, f"{path} is not written out"
     # every value is commented with what it accepts
-    assert "# Steps; no trigger within this distance -> the motor faults. Accepted: an" in text
+    assert "# Steps; no trigger (or release) within them -> fault. Accepted: an integer" in text
 
 
 # --- defaults and values ----------------------------------------------------------------------

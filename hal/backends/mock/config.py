@@ -54,7 +54,8 @@ The simulated axis starts at position 0; its end stops sit at `endstop_min` and
 of the start. Each end stop is
 
 - a switch (its end-stop input), active at that position and every position beyond it, with
-  no hysteresis: one step back from it releases it;
+  no hysteresis: one step back from it releases it. Homing on it (InitMove) makes the first
+  position off it 0: `endstop_min + 1` homing down, `endstop_max - 1` homing up;
 - and a hard stop at the same position: a step pulse that would take the axis further out is
   lost (the daemon still counts it), and the motor's driver reports a stall while it keeps
   pushing that way; what stall homing (`homing.source = "stall"`) finds. Coming back to the
