@@ -11,7 +11,15 @@ with the address and undefined-behaviour sanitizers).
 
 from setuptools import Extension, setup
 
-SOURCES = ["core.c", "rings.c", "lines_gpio.c", "lines_sim.c", "module.c", "module_lines.c"]
+SOURCES = [
+    "core.c",
+    "drive.c",
+    "rings.c",
+    "lines_gpio.c",
+    "lines_sim.c",
+    "module.c",
+    "module_lines.c",
+]
 
 setup(
     ext_modules=[

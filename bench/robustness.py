@@ -763,8 +763,6 @@ def part_kill(workdir: Path, cycles: int, seed: int, report: Report) -> None:
         port = Port(d.pty)
         try:
             lost_seen += check_after_restart(d, port, models, report, cycle)
-            if cycle == 0:
-                set_homes_clear_of_end_stops(port, models, report)
             moment = rng.choice(
                 [
                     "motion_start",
@@ -789,16 +787,6 @@ def part_kill(workdir: Path, cycles: int, seed: int, report: Report) -> None:
         "waypoints_acknowledged": [len(m.waypoints) for m in models],
     }
     print(f"  kill -9: {cycle + 1} cycles, {lost_seen} motors restarted lost (homed again)")
-
-
-def set_homes_clear_of_end_stops(port: Port, models: list[MotorModel], report: Report) -> None:
-    """Homing puts position 0 on the end stop: a home of 0 would run into it. Home at 1000."""
-    for i, m in enumerate(models):
-        exchange(port, [cmd(MOVE_TO, i, 1, 1000, 0, 0, 0)], report, [ok()], "MoveTo")
-        wait_idle(port, i, report)
-        exchange(port, [cmd(SAVE_HOME, i)], report, [ok()], "SaveHome")
-        m.home = 1000
-        m.position = {1000}
 
 
 def check_after_restart(
@@ -845,7 +833,8 @@ def check_after_restart(
                 report.violation(f"{what}: InitMove refused")
             if wait_idle(port, i, report) != ok():
                 report.violation(f"{what}: homing failed")
-        # Home is there and holds its value (a pending SaveHome may or may not have landed).
+        # Home is there and holds its value (a pending SaveHome may or may not have landed);
+        # a home of 0 right after homing is just off the end stop (GoHome must not hit it).
         if ask(port, cmd(GO_HOME, i), report, what) != ok():
             report.violation(f"{what}: GoHome refused")
             continue

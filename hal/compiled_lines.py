@@ -58,15 +58,17 @@ class ChardevLines:
 @dataclass(frozen=True)
 class SimulatedLines:
     """Lines a compiled core may drive, of a simulated machine (the mock backend): its
-    mechanics' cells (six int64 per axis: position, heading, forced min end stop, forced max,
-    forced stall, generation; :class:`~motorctl.hal.backends.mock.world.MockAxis`), where
-    each axis' end stops sit, the axis of each motor, and where the edges go: ``record`` takes
+    mechanics' cells (seven int64 per axis: position, heading, forced min end stop, forced
+    max, forced stall, generation, pushed against a hard stop;
+    :class:`~motorctl.hal.backends.mock.world.MockAxis`), where each axis' end stops sit and
+    whether they have switches, the axis of each motor, and where the edges go: ``record`` takes
     them as (t ns, kind 0 step / 1 dir, axis, value, rise call) into the machine's timeline;
     ``line_errors`` gives the writes that fail now, (``"step"``/``"dir"``, axis) -> the
     HalIOError text. The compiled counterpart records the same timeline as the Python parts."""
 
     cells: memoryview
     endstops: tuple[tuple[int, int], ...]
+    switches: tuple[bool, ...]
     axis_of: tuple[int, ...]
     timeline_len: int | None
     record: Callable[[list[tuple[int, int, int, int, int]]], None]

@@ -392,7 +392,8 @@ class RampStatus:
     ``velocity``: step/s, signed. Its reference switches, by side (``min``: below, direction
     -1; ``max``: above, +1): ``active``, the switch's level now; ``stopped``, the switch
     stopped the motor (an event, kept until the next :meth:`RampDriver.watch`);
-    ``latched``, the position at the switch's active edge is latched
+    ``latched``, the position at the switch's edge that :meth:`RampDriver.watch` armed (its
+    active edge, or its inactive one for a release) is latched
     (:meth:`RampDriver.latched_position`). ``stall_stopped``: stallGuard stopped the motor.
     """
 
@@ -443,13 +444,16 @@ class RampDriver(ABC):
 
     @abstractmethod
     def latched_position(self) -> int:
-        """The position the reference switch latched at its active edge."""
+        """The position the reference switch latched at the edge :meth:`watch` armed."""
 
     @abstractmethod
-    def watch(self, direction: int, stall: bool = False) -> None:
+    def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
         """Arm the stops for the next motion: the reference switch ahead in ``direction``
         (+1, -1; 0: none) stops the motor at once and latches the position at its active
-        edge; ``stall``: stallGuard stops it. Old events and latches are cleared."""
+        edge; ``stall``: stallGuard stops it; ``release`` (+1, -1; 0: none): the switch on
+        that side latches the position at its inactive edge, where it releases (it stops
+        nothing: homing's back-off, whose executor stops there). Old events and latches are
+        cleared."""
 
     @abstractmethod
     def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:

@@ -155,9 +155,11 @@ def test_step_pulses_in_the_trace_equal_the_position(client: Client) -> None:
     assert len([e for e in rises if e.ts < down[0].ts]) == 300
 
 
-def test_end_stop_raised_by_the_sim_stops_homing_at_the_trigger(client: Client) -> None:
+def test_end_stop_raised_by_the_sim_stops_homing_and_zero_is_where_it_releases(
+    client: Client,
+) -> None:
     motor, endstop = 1, MOTORS[1][3]
-    step = gpio(MOTORS[1][0])
+    step, dir_ = gpio(MOTORS[1][0]), gpio(MOTORS[1][1])
     pull(endstop, True)
     start = client.position(motor)
     gsim.trace_start()
@@ -165,22 +167,42 @@ def test_end_stop_raised_by_the_sim_stops_homing_at_the_trigger(client: Client) 
     wait_for("100 homing steps", lambda: start - client.position(motor) >= 100)
     trigger = time.monotonic()
     pull(endstop, False)  # pressed: active low
+    # stopped at the trigger, homing backs off (DIR up: high) at second_speed (250 step/s)
+    # while the switch stays pressed, and goes on until it is released
+    wait_for("the back-off", lambda: level(MOTORS[1][1]) is True)
+    backing = client.position(motor)
+    wait_for("5 back-off steps", lambda: client.position(motor) - backing >= 5)
+    assert not client.is_ready(motor)  # still on the switch: still homing
+    release = time.monotonic()
+    pull(endstop, True)
     client.wait_moved(motor, 30_000)
     gsim.trace_stop()
-    rises = [e for e in gsim.sets(gsim.trace_read(), step) if e.value == 1]
-    after = [e for e in rises if e.ts > trigger]
+    events = gsim.trace_read()
+    rises = [e for e in gsim.sets(events, step) if e.value == 1]
+    up = [e.ts for e in gsim.changes(gsim.sets(events, dir_)) if e.value == 1 and e.ts > trigger]
+    seek = [e for e in rises if trigger < e.ts < up[0]]
     # The step thread sees the kernel's edge event at its next step and stops once the
     # debounce (0.5 ms) has passed. On v2 the kernel debounces too, with a timer of jiffy
     # resolution (4 ms at HZ=250), and under TCG on a loaded host the guest's clock runs in
     # bursts: measured 1-14 steps, up to 45 ms. Without the end stop the run would go on for
     # max_travel (250000 steps).
-    late = after[-1].ts - trigger if after else 0.0
-    print(f"homing: {len(after)} steps in {late * 1000:.2f} ms after the trigger")
-    assert len(after) <= 40 and late <= 0.2, (
-        f"{len(after)} steps, the last {late * 1000:.2f} ms after the trigger"
+    late = seek[-1].ts - trigger if seek else 0.0
+    print(f"homing: {len(seek)} steps in {late * 1000:.2f} ms after the trigger")
+    assert len(seek) <= 40 and late <= 0.2, (
+        f"{len(seek)} steps, the last {late * 1000:.2f} ms after the trigger"
     )
-    assert client.position(motor) == 0  # homed: the trigger is the new zero
-    pull(endstop, True)
+    # The release the same way, at 250 step/s (4 ms a step): zero is the first step that
+    # saw it released, and the steps made until the debounce had passed count from there
+    off = [e for e in rises if e.ts > release]
+    print(f"homing: {len(off)} back-off steps after the release")
+    assert off and len(off) <= 12 and off[-1].ts - release <= 0.2
+    homed = client.position(motor)
+    assert 0 <= homed < len(off)  # homed: zero where the switch released
+    client.move_to(motor, 300)
+    client.wait_moved(motor, 30_000)
+    client.move_to(motor, 0)  # a host's first program after homing: back to zero
+    client.wait_moved(motor, 30_000)
+    assert client.position(motor) == 0
 
 
 def test_dc_bridge_levels_through_a_run_and_its_end_state(client: Client) -> None:

@@ -30,7 +30,7 @@ from motorctl.hal.shm import SharedBlock
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
 from motorctl.motion.executors.compiled_core import CompiledStepCore
 from motorctl.motion.executors.planner import axis_limits
-from motorctl.motion.executors.process.rings import Layout, Shared
+from motorctl.motion.executors.process.rings import Layout, Shared, segment_fields
 from motorctl.motion.executors.segments import StepSegment
 from tests.support.daemon_proc import DaemonProcess
 from tests.support.motor_defaults import motor_params
@@ -49,10 +49,7 @@ class Rig:
     events: list[ExecEvent]
 
     def push(self, motor: int, seg: StepSegment) -> None:
-        flags = (1 if seg.last else 0) | (2 if seg.watch else 0)
-        assert self.shared.segs[motor].put(
-            seg.first, seg.interval, seg.count, seg.add, seg.direction, seg.gen, flags
-        )
+        assert self.shared.segs[motor].put(*segment_fields(seg))
 
 
 def gpio(line: str) -> int:
@@ -149,6 +146,28 @@ def test_an_end_stop_edge_from_the_kernel_stops_the_motor_stepping_toward_it(rig
     line = rig.io.endstops[0][0]
     assert line is not None and rig.shared.levels[line] == 1  # published for the daemon
     assert to_ticks(stop.t) <= rig.core.clock.now_ns()
+
+
+def test_a_release_edge_from_the_kernel_stops_the_back_off_where_it_released(rig: Rig) -> None:
+    """Homing's back-off (a plan that watches for the release): motor 0 leaves its pressed
+    min end stop upward; the kernel's edge when the sim lets go of it stops the motor at the
+    next step, RELEASED with where it was first seen off it."""
+    chip, off = where(MOTORS[0][3])
+    gsim.sim_pull(off, True, chip)  # motor 0's min end stop (active high) is pressed
+    time.sleep(0.05)  # the kernel's edge event is queued by then
+    t0 = rig.core.clock.now_ns() + 1_000_000
+    rig.push(0, StepSegment(t0, 1_000_000, 100, 0, 1, 1, True, True, True))
+    rig.core.run_until(t0 + 10 * 1_000_000)
+    assert rig.events == []  # still on it: backing off
+    gsim.sim_pull(off, False, chip)  # released
+    time.sleep(0.05)
+    rig.core.run_until(t0 + 200 * 1_000_000)
+    assert [(e.kind, e.motor) for e in rig.events] == [(K.RELEASED, 0)]
+    ev = rig.events[0]
+    assert ev.direction == -1 and 11 <= ev.mark <= 13  # the next step saw it
+    assert ev.position == ev.mark == rig.shared.positions[0]  # no debounce: stopped there
+    line = rig.io.endstops[0][0]
+    assert line is not None and rig.shared.levels[line] == 0
 
 
 def test_the_python_core_asked_for_makes_the_same_pulses(tmp_path: Path) -> None:

@@ -295,7 +295,9 @@ class MotionEngine:
     def poll_drivers(self, now: float) -> None:
         """Read every driver (outside the lock: SPI may block), then act under the lock."""
         statuses: list[DriverStatus | None] = []
+        steps: list[int] = []  # each motor's step counter just before its driver was read
         for m in self.motors:
+            steps.append(m.abs_steps)
             try:
                 statuses.append(m.driver.status())
             except HalError as exc:
@@ -304,9 +306,9 @@ class MotionEngine:
                 log.error("motor %d: driver status read failed: %s", m.index, exc)
         acted = False
         with self.lock:
-            for m, st in zip(self.motors, statuses, strict=True):
+            for m, st, n in zip(self.motors, statuses, steps, strict=True):
                 if st is not None and (st.fault is not None or st.stall):
-                    m.on_driver_status(st, now)
+                    m.on_driver_status(st, now, n)
                     acted = True
             if acted:  # a fault or stall acted on: its events now; else the planner's pass
                 self.service(now)

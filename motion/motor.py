@@ -6,6 +6,12 @@ axis; the daemon passes the protocol's 24-bit wrap) or taken modulo ``steps_per_
 (rotary axis). Trajectories are planned in
 ``abs_steps`` coordinates, so wrapping never reaches the profile math.
 
+Homing (InitMove, docs/protocol.md): run toward the end stop until it triggers (with
+``pull_off``: back off that far, re-approach at ``second_speed``), then back off at
+``second_speed`` until it releases (the executor stops there and says where: RELEASED) and
+make that position 0, so that a MoveTo 0 never touches the switch; at most ``max_travel``
+steps each way. Stall homing makes 0 where the motor stalled.
+
 Owner: the motion engine's lock; every method is called with it held (dispatcher, planner
 thread, driver monitor). The step path never takes it: motion goes to the executor as
 plans, and what the executor did comes back as events (:meth:`Motor.on_event`).
@@ -15,6 +21,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable
+from functools import partial
 
 from motorctl.hal.interfaces import DriverStatus, StepperDriver
 from motorctl.motion.executors.base import Committed, ExecEvent, ExecEventKind, Executor
@@ -63,6 +70,10 @@ class Motor:
         self._then: Callable[[float], None] | None = None
         self._ramp = Ramp(1.0, 1.0, 1.0)
         self._phase: HomingPhase | None = None  # while homing
+        # the step counter when the motor last started from rest: a stall flag read before
+        # it stepped again is the last motion's (a driver measures stalls only while the
+        # motor steps; right after stall homing it may still say so)
+        self._started_at = 0
         self._home_cmd: HomeCmd | None = None
         self.faults: dict[str, int] = {}  # faults latched, by cause
         # soft StopMoves: how long after the command, and how many steps on, the deceleration
@@ -244,6 +255,14 @@ class Motor:
         # the executor stopped the axis itself: answer (lifts its block), then decide
         if self._awaiting is not None and ev.gen < self._awaiting:
             return  # a stop of ours overtook it; that stop's answer settles the position
+        if k is K.RELEASED:  # homing's back-off left the switch (it alone watches for that)
+            if self.state is MotorState.HOMING and self._phase is HomingPhase.RELEASE:
+                # zero where it released, once it stands (the answer; a chip that runs its
+                # own ramp may still be braking)
+                self._hard_stop(now, partial(self._homed, ev.mark))
+            else:  # the back-off was being stopped (a soft StopMove): it stands now
+                self._hard_stop(now, self._become_idle)
+            return
         self.gen += 1
         self.executor.stop(self.index, self.gen)
         self.traj = None
@@ -272,13 +291,18 @@ class Motor:
                 ev.detail or "step executor fault", now, lost=lost, stopped=True, cause="io_error"
             )
 
-    def on_driver_status(self, status: DriverStatus, now: float) -> None:
-        """A driver poll's result (read outside the engine lock, by the monitor)."""
+    def on_driver_status(self, status: DriverStatus, now: float, steps: int | None = None) -> None:
+        """A driver poll's result (read outside the engine lock, by the monitor); ``steps``:
+        the step counter just before the read (default: now). A stall read before the motor
+        stepped in its current motion is the last motion's (what a driver still says right
+        after stall homing), not this one's."""
         if self.state is MotorState.FAULT:
             return
+        if steps is None:
+            steps = self.abs_steps
         if status.fault is not None:
             self.latch_fault(f"driver fault: {status.fault}", now, cause="driver")
-        elif status.stall and self.active and self._awaiting is None:
+        elif status.stall and self.active and self._awaiting is None and steps != self._started_at:
             if self._stall_homing:
                 if self._phase in (HomingPhase.SEEK, HomingPhase.APPROACH):
                     self._hard_stop(now, self._homing_triggered)
@@ -308,13 +332,17 @@ class Motor:
             self._awaiting = None
             self.stops_settled += 1
 
-    def _follow(self, traj: Trajectory, state: MotorState, now: float) -> None:
+    def _follow(
+        self, traj: Trajectory, state: MotorState, now: float, *, release: bool = False
+    ) -> None:
         was_active = self.active
         self.gen += 1
         self.traj = traj
         self.state = state
         watch = not self._stall_homing
-        moves = self.executor.follow(self.index, traj, self._ramp, self.gen, watch)
+        if not was_active:
+            self._started_at = self.abs_steps
+        moves = self.executor.follow(self.index, traj, self._ramp, self.gen, watch, release)
         if not was_active:
             self._notify(self, "start")
         if not moves:
@@ -406,6 +434,7 @@ class Motor:
         return self.params.debounce_s == 0 and self.executor.endstop_active(self.index, direction)
 
     def _homing_triggered(self, now: float) -> None:
+        """The end stop triggered (or the motor stalled) toward it: back off, or zero."""
         cmd = self._home_cmd
         assert cmd is not None
         self.traj = None
@@ -422,7 +451,27 @@ class Motor:
                 now,
             )
             return
-        self.set_position(0)
+        if h.source is HomingSource.ENDSTOP:
+            self._back_off_to_release(cmd, now)
+            return
+        self._homed(self.abs_steps, now)  # a stall: zero where it stalled
+
+    def _back_off_to_release(self, cmd: HomeCmd, now: float) -> None:
+        """Leave the switch at the slow speed until it releases (at most max_travel): the
+        executor stops there and reports where it released (RELEASED), zero there."""
+        self._phase = HomingPhase.RELEASE
+        h = self.params.homing
+        c = self.executor.committed(self.index, now)
+        counter = c.counter
+        limit = float(counter - cmd.direction * h.max_travel)
+        r = cmd.ramp
+        speed = min(h.second_speed, r.speed)
+        traj = plan_run(c.t, float(counter), 0.0, -cmd.direction * speed, r.acc, r.dec, limit)
+        self._follow(traj, MotorState.HOMING, now, release=True)
+
+    def _homed(self, zero: int, now: float) -> None:
+        """Position 0 at step counter ``zero``; homing is done."""
+        self.offset = zero
         self.position_lost = False
         self._notify(self, "homed")
         self._become_idle(now)
@@ -452,6 +501,14 @@ class Motor:
                     c.t, float(counter), 0.0, cmd.direction * speed, r.acc, r.dec, limit
                 )
                 self._follow(traj, MotorState.HOMING, now)
+                return
+            if self._phase is HomingPhase.RELEASE:
+                self.latch_fault(
+                    f"homing failed: end stop still active after backing off {h.max_travel} steps",
+                    now,
+                    stopped=True,
+                    cause="homing",
+                )
                 return
             travel = h.max_travel if self._phase is HomingPhase.SEEK else 2 * h.pull_off
             self.latch_fault(

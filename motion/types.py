@@ -33,7 +33,8 @@ class RunCmd:
 
 @dataclass(frozen=True)
 class HomeCmd:
-    """Seek the end stop in ``direction``; position 0 there."""
+    """Seek the end stop in ``direction``; position 0 where it releases again when backed off
+    (a stall: where it stalled)."""
 
     direction: int
     ramp: Ramp
@@ -59,11 +60,13 @@ class HomingSource(enum.StrEnum):
 
 
 class HomingPhase(enum.Enum):
-    """Where a homing run is: towards the end stop, backing off it, or re-approaching it."""
+    """Where a homing run is: towards the end stop, backing off it (pull_off), re-approaching
+    it, or backing off slowly until it releases (position 0 there)."""
 
     SEEK = "seek"
     BACKOFF = "backoff"
     APPROACH = "approach"
+    RELEASE = "release"
 
 
 @dataclass(frozen=True)
@@ -71,6 +74,7 @@ class HomingParams:
     source: HomingSource = HomingSource.ENDSTOP
     max_travel: int = 40_000
     pull_off: int = 0  # 0 = one-phase homing
+    # step/s of the slow phases: the re-approach (pull_off > 0) and the back-off to release
     second_speed: float = 250.0
 
 

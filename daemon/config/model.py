@@ -283,7 +283,7 @@ class DcConfig:
     max_time_ms: int = integer(65535, 1, 65535, "Cap for the TIME of one run.")
 
 
-@section("How InitMove finds the end stop.")
+@section("How InitMove finds the end stop, and zero off it (docs/protocol.md, Homing).")
 @dataclass(frozen=True)
 class HomingConfig:
     """[motors.homing]: how InitMove finds the end stop."""
@@ -297,7 +297,7 @@ class HomingConfig:
         2000.0, 0, "max_speed", "step/s used when InitMove's SPEED = 0.", lo_open=True
     )
     max_travel: int = integer(
-        40000, 1, POS_MAX - POS_MIN, "Steps; no trigger within this distance -> the motor faults."
+        40000, 1, POS_MAX - POS_MIN, "Steps; no trigger (or release) within them -> fault."
     )
     pull_off: int = integer(
         0,
@@ -307,7 +307,7 @@ class HomingConfig:
         "and re-approach at second_speed.",
     )
     second_speed: float = number(
-        250.0, 0, "max_speed", "step/s of the slow re-approach.", lo_open=True
+        250.0, 0, "max_speed", "step/s of the slow re-approach and release.", lo_open=True
     )
 
 
@@ -390,7 +390,9 @@ Notes:
   reachable).
 - `homing.max_travel` counts the steps of one homing run; without a trigger by then the
   motor faults (E4 until StopMove clears it). With `pull_off > 0` homing backs off that far
-  after the first trigger and approaches again at `second_speed`.
+  after the first trigger and approaches again at `second_speed`. After the (last) trigger it
+  backs off at `second_speed` (at most InitMove's speed; it ends with a stop without ramp)
+  until the end stop releases, at most `max_travel` steps, else it faults: 0 is there.
 - `microsteps`, `max_lag_full_steps`, `start_speed`: how a late step is judged
   (docs/timing.md). A step the executor makes late slides the rest of that motor's move by
   its lateness; it stops the motor with E4 "step timing lost" (position lost) only when the

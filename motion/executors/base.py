@@ -55,6 +55,9 @@ class ExecEventKind(enum.Enum):
     TIMING_LOST = "timing_lost"  # a late step would have lagged beyond the tolerance: stopped
     FAULT = "fault"  # the axis's hardware failed (HalIOError): stopped
     DIED = "died"  # the executor itself is gone (motor -1: every motor)
+    # the executor stopped the axis itself where the end stop it backed off released
+    # (a plan followed with ``release``): ``mark`` is where it released
+    RELEASED = "released"
 
 
 @dataclass(frozen=True)
@@ -62,9 +65,11 @@ class ExecEvent:
     """Something the executor did on its own or finished.
 
     ``gen`` is the generation of the plan the event belongs to; ``position`` the executed
-    step counter when it happened; ``t`` its time (for ENDSTOP the kernel's timestamp of the
-    edge); ``direction`` the end stop's side (+1 max, -1 min) or the motion's direction;
-    ``speed`` the step rate (step/s) the motor had then; ``detail`` a human reason.
+    step counter when it happened; ``t`` its time (for ENDSTOP and RELEASED the kernel's
+    timestamp of the edge); ``direction`` the end stop's side (+1 max, -1 min) or the
+    motion's direction; ``speed`` the step rate (step/s) the motor had then; ``detail`` a
+    human reason; ``mark`` (RELEASED only) the step counter where the end stop released: the
+    first position off it, at or before ``position``.
     """
 
     kind: ExecEventKind
@@ -75,6 +80,7 @@ class ExecEvent:
     direction: int = 0
     speed: float = 0.0
     detail: str = ""
+    mark: int = 0
 
 
 @dataclass(frozen=True)
@@ -83,8 +89,8 @@ class AxisLimits:
 
     ``min_interval_s``: no two steps are ever emitted closer than this (the profile's bound:
     1 / the motor's maximum speed, less the planner's step error). ``pulse_s``: STEP high
-    time. ``debounce_s``: an end stop counts once active this long (by the kernel's edge
-    timestamps).
+    time. ``debounce_s``: an end stop counts once active this long, and released once
+    inactive this long (by the kernel's edge timestamps).
 
     Lateness (docs/timing.md): a step later than ``slide_after_s`` after its planned time
     makes the rest of that motor's schedule slide by its lateness (the move takes that much
@@ -197,8 +203,12 @@ class Executor(ABC):
     - :meth:`follow` starts executing ``traj`` (which begins at :meth:`committed`), replacing
       whatever was planned after that point. ``ramp`` is the ramp it was planned with, for
       executors that re-plan themselves (a chip's own ramp). ``endstops`` False: do not
-      watch the end stops (stall homing drives into the stop). Never blocks. Returns False
-      when the plan makes no step (nothing to do: no DONE follows).
+      watch the end stops (stall homing drives into the stop). ``release`` True: also watch
+      the end stop behind, the one the motion leaves (homing's back-off): once it has been
+      inactive for ``debounce_s`` the executor stops the axis itself and reports RELEASED,
+      with ``mark`` the step counter where it released (the first position off it; the
+      axis may stand a few steps further on). Never blocks. Returns False when the plan
+      makes no step (nothing to do: no DONE follows).
     - :meth:`stop` is a hard stop: after at most one step period nothing of older
       generations moves the motor. Returns the final position when already known, else None
       and a STOPPED event of ``gen`` follows with it. It is also the answer to an event by
@@ -210,7 +220,8 @@ class Executor(ABC):
     - End stops: the executor watches the end stop ahead of each step and stops the axis
       itself when it has been active for ``debounce_s``; it reports ENDSTOP with the position
       and time of the trigger. Whether that ends a homing run or is a fault is the caller's
-      business.
+      business. A plan followed with ``release`` ends the same way where the end stop behind
+      releases (RELEASED).
     - Fail safe: steps are never closer than ``min_interval_s``; a late step slides the rest
       of the motor's schedule, unless the lag it causes is one a real motor may not survive
       (:class:`AxisLimits`): then the motor stops (TIMING_LOST, with the speed it had).
@@ -235,7 +246,13 @@ class Executor(ABC):
     # -- commands (engine lock held) ----------------------------------------------
     @abstractmethod
     def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+        self,
+        motor: int,
+        traj: Trajectory,
+        ramp: Ramp,
+        gen: int,
+        endstops: bool = True,
+        release: bool = False,
     ) -> bool:
         """Start ``traj``; False when it makes no step at all (then nothing is reported)."""
 

@@ -7,8 +7,11 @@ a soft limit) becomes a trapezoid to the plan's end at the plan's peak speed wit
 (``move_to``); an endless run becomes ``run`` at its speed. A hard stop is ``stop(None)``:
 the chip's largest deceleration. Positions are the chip's step counter. End stops are the
 chip's reference switches: the one ahead stops the motor in the chip and latches the
-position, reported as ENDSTOP at the latched position; stall homing (a plan without end
-stops) lets stallGuard stop the motor, and that stop is reported as the driver's stall flag.
+position, reported as ENDSTOP at the latched position; homing's back-off (a plan followed
+with ``release``) has the switch behind latch the position where it releases, and once a
+poll sees it released the executor stops the chip (its hard stop) and reports RELEASED with
+that latched position; stall homing (a plan without end stops) lets stallGuard stop the
+motor, and that stop is reported as the driver's stall flag.
 
 A machine that mixes such motors with STEP/DIR ones runs both executors behind one seam
 (``split.py``).
@@ -52,6 +55,7 @@ class _Axis:
     plan: str = ""  # "move", "run", "stop" or "" (nothing planned)
     target: int = 0
     watch: int = 0  # the stop switch armed: +1 REFR, -1 REFL, 0 none
+    release: int = 0  # the switch whose release ends the plan: +1 REFR, -1 REFL, 0 none
     stop_gen: int = 0
     blocked: bool = False  # stopped on its own: plans dropped until the caller's stop()
     position: int = 0
@@ -135,7 +139,13 @@ class RampExecutor(Executor):
 
     # -- commands ------------------------------------------------------------------------
     def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+        self,
+        motor: int,
+        traj: Trajectory,
+        ramp: Ramp,
+        gen: int,
+        endstops: bool = True,
+        release: bool = False,
     ) -> bool:
         ax, chip = self._axes[motor], self.chips[motor]
         if ax.blocked:
@@ -146,19 +156,22 @@ class RampExecutor(Executor):
             if math.isinf(traj.end_time):
                 v = traj.segments[-1].v0
                 direction = 1 if v > 0 else -1
-                chip.watch(direction if endstops else 0, stall=not endstops)
+                ahead, behind = direction if endstops else 0, -direction if release else 0
+                chip.watch(ahead, stall=not endstops, release=behind)
                 chip.run(direction, abs(v), ramp.acc)
-                ax.plan, ax.watch = "run", direction if endstops else 0
+                ax.plan = "run"
             else:
                 target = round(traj.end_position)
                 if target == ax.position and ax.velocity == 0:
                     ax.plan = ""
                     return False
                 direction = 1 if target > ax.position else -1
-                chip.watch(direction if endstops else 0, stall=not endstops)
+                ahead, behind = direction if endstops else 0, -direction if release else 0
+                chip.watch(ahead, stall=not endstops, release=behind)
                 speed = max(peak_speed(traj), abs(ax.velocity), 1.0)
                 chip.move_to(target, speed, ramp.acc, ramp.dec)
-                ax.plan, ax.target, ax.watch = "move", target, direction if endstops else 0
+                ax.plan, ax.target = "move", target
+            ax.watch, ax.release = ahead, behind
         except HalError as exc:
             self._fault(motor, now, exc)
             return True
@@ -264,9 +277,36 @@ class RampExecutor(Executor):
                 )
             )
             return
+        if ax.release and (st.latched(ax.release) or not st.switch_active(ax.release)):
+            self._released(i, ax, chip, st, now)
+            return
         if ax.plan == "move" and st.velocity == 0 and ax.position == ax.target:
             ax.plan = ""
             self._emit(ExecEvent(K.DONE, i, ax.gen, ax.position, now))
+
+    def _released(self, i: int, ax: _Axis, chip: RampDriver, st: RampStatus, now: float) -> None:
+        """The switch behind released: stop the chip (hard) and report where (its latch;
+        without one, the switch read inactive already: where the chip is)."""
+        try:
+            where = chip.latched_position() if st.latched(ax.release) else ax.position
+            chip.stop(None)
+        except HalError as exc:
+            self._fault(i, now, exc)
+            return
+        ax.plan, ax.blocked = "", True
+        self._emit(
+            ExecEvent(
+                K.RELEASED,
+                i,
+                ax.gen,
+                ax.position,
+                now,
+                direction=ax.release,
+                speed=abs(ax.velocity),
+                detail="reference switch",
+                mark=where,
+            )
+        )
 
     # -- snapshots ----------------------------------------------------------------------------
     def position(self, motor: int) -> int:

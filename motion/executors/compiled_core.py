@@ -41,8 +41,11 @@ from motorctl.hal.interfaces import StepIO, VirtualClock
 from motorctl.motion.executors.base import TICKS_PER_S, AxisLimits, ExecEvent, to_ticks
 from motorctl.motion.executors.process.rings import (
     BAD_RECORD_S,
+    EVENT_RECORD,
     EVENT_RING,
+    SEG_RECORD,
     SEG_RING,
+    STOP_RECORD,
     STOP_RING,
     Shared,
     decode_event,
@@ -67,7 +70,14 @@ def load() -> ModuleType:
         spec.loader.exec_module(mod)
     else:
         mod = importlib.import_module(_MODULE)
-    want = {"COUNTERS": len(COUNTER_NAMES), "MOTOR_CELLS": MOTOR_CELLS, "LATENCY_CELLS": CELLS}
+    want = {
+        "COUNTERS": len(COUNTER_NAMES),
+        "MOTOR_CELLS": MOTOR_CELLS,
+        "LATENCY_CELLS": CELLS,
+        "SEGMENT_RECORD": SEG_RECORD.size,
+        "STOP_RECORD": STOP_RECORD.size,
+        "EVENT_RECORD": EVENT_RECORD.size,
+    }
     have = {k: getattr(mod, k, None) for k in want}
     if have != want:
         raise ImportError(f"{_MODULE} was built from other sources ({have}, expected {want})")
@@ -178,6 +188,7 @@ class CompiledStepCore:
                 lines.cells,
                 [lo for lo, _ in lines.endstops],
                 [hi for _, hi in lines.endstops],
+                [int(sw) for sw in lines.switches],
                 list(lines.axis_of),
                 -1 if lines.timeline_len is None else lines.timeline_len,
             )

@@ -58,7 +58,7 @@ K = ExecEventKind
 #: caches, one hold of the GIL against the link thread) 50 times a second; every 5 ms made
 #: the IsReady round trip's p99 worse (docs/timing.md)
 REFILL_S = 0.020
-_SELF_STOPS = (K.ENDSTOP, K.TIMING_LOST, K.FAULT)
+_SELF_STOPS = (K.ENDSTOP, K.RELEASED, K.TIMING_LOST, K.FAULT)
 
 
 def axis_limits(
@@ -100,6 +100,7 @@ class _Plan:
         self.last_t = float("-inf")  # time of the last step handed over
         self.busy = False  # handed-over steps of this plan may remain to be executed
         self.watch = True  # the core watches the end stop ahead
+        self.release = False  # and the end stop behind for its release
 
     def forget(self) -> None:
         """Nothing of the current plan is left to cut (stopped, done, replaced)."""
@@ -218,7 +219,13 @@ class StepExecutor(Executor):
         return Committed(t, min(max(s, lo), hi), p.traj.velocity(t), p.counter)
 
     def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+        self,
+        motor: int,
+        traj: Trajectory,
+        ramp: Ramp,
+        gen: int,
+        endstops: bool = True,
+        release: bool = False,
     ) -> bool:
         p = self.plans[motor]
         busy = p.busy  # steps of the plan being replaced may remain to be made
@@ -246,6 +253,7 @@ class StepExecutor(Executor):
             return False
         p.busy = True
         p.watch = endstops
+        p.release = release
         self._feed(motor, self.motor_time(motor, self.clock.now()))
         return True
 
@@ -273,7 +281,7 @@ class StepExecutor(Executor):
         if cutter is None:
             return
         horizon = now + self.ahead_s
-        out = cutter.cut(horizon, p.gen, p.watch, p.bounds if self.ahead_s else None)
+        out = cutter.cut(horizon, p.gen, p.watch, p.bounds if self.ahead_s else None, p.release)
         p.counter = cutter.counter
         p.last_t = from_ticks(to_ticks(cutter.last_t))  # on the step path's ticks
         done = out[-1].last if out else cutter.done

@@ -22,6 +22,7 @@ class StepSegment(NamedTuple):
 
     ``last``: the final segment of a finite plan (the executor reports DONE after it).
     ``watch``: the executor stops at the end stop ahead (off for stall homing).
+    ``release``: the executor stops where the end stop behind releases (homing's back-off).
     """
 
     first: int
@@ -32,6 +33,7 @@ class StepSegment(NamedTuple):
     gen: int
     last: bool = False
     watch: bool = True
+    release: bool = False
 
     def times(self) -> list[int]:
         out = []
@@ -117,9 +119,15 @@ class SegmentCutter:
         return self._next_step_distance() is None
 
     def cut(
-        self, horizon: float, gen: int, watch: bool, bounds: MutableSequence[Boundary] | None = None
+        self,
+        horizon: float,
+        gen: int,
+        watch: bool,
+        bounds: MutableSequence[Boundary] | None = None,
+        release: bool = False,
     ) -> list[StepSegment]:
-        """Segments of every step up to ``horizon`` (seconds; at least the next step)."""
+        """Segments of every step up to ``horizon`` (seconds; at least the next step), their
+        flags ``watch`` and ``release`` (:class:`StepSegment`)."""
         out: list[StepSegment] = []
         while True:
             nxt = self._next_step_distance()
@@ -127,7 +135,7 @@ class SegmentCutter:
                 break
             seg, sigma, d = nxt
             if seg.a == 0 and d > 0:  # a cruise: its runs in one tight loop
-                more = self._cruise(seg, sigma, d, horizon, gen, watch, out, bounds)
+                more = self._cruise(seg, sigma, d, horizon, gen, watch, release, out, bounds)
                 if more is False:
                     return out  # a step beyond the horizon is left: not the last segment
                 if more:
@@ -137,7 +145,7 @@ class SegmentCutter:
                 break
             if bounds is not None:
                 bounds.append(Boundary(first, t_first, self.counter, self.last_t))
-            out.append(StepSegment(first, interval, n, add, sigma, gen, False, watch))
+            out.append(StepSegment(first, interval, n, add, sigma, gen, False, watch, release))
             self.counter += sigma * n
             self.last_t = t_last
         if out and self.done:
@@ -152,6 +160,7 @@ class SegmentCutter:
         horizon: float,
         gen: int,
         watch: bool,
+        release: bool,
         out: list[StepSegment],
         bounds: MutableSequence[Boundary] | None,
     ) -> bool | None:
@@ -208,7 +217,8 @@ class SegmentCutter:
                         return None
                 if bounds is not None:
                     bounds.append(new(Boundary, (first, t_d, counter, last_t)))
-                out.append(new(StepSegment, (first, interval, n, 0, sigma, gen, False, watch)))
+                seg_fields = (first, interval, n, 0, sigma, gen, False, watch, release)
+                out.append(new(StepSegment, seg_fields))
                 counter += sigma * n
                 last_t = t_end
                 d = sigma * (counter + sigma - s0)  # as _next_step_distance has it

@@ -14,6 +14,7 @@ motor (the snapshots too: they are the parts' own).
 from __future__ import annotations
 
 from collections.abc import Sequence
+from dataclasses import replace
 from typing import Any
 
 from motorctl.hal.interfaces import Clock, RampDriver
@@ -76,10 +77,16 @@ class SplitExecutor(Executor):
             ex.close()
 
     def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+        self,
+        motor: int,
+        traj: Trajectory,
+        ramp: Ramp,
+        gen: int,
+        endstops: bool = True,
+        release: bool = False,
     ) -> bool:
         ex, local = self.routes[motor]
-        return ex.follow(local, traj, ramp, gen, endstops)
+        return ex.follow(local, traj, ramp, gen, endstops, release)
 
     def stop(self, motor: int, gen: int) -> int | None:
         ex, local = self.routes[motor]
@@ -105,11 +112,7 @@ class SplitExecutor(Executor):
                     continue
                 m = self._back.get((id(ex), ev.motor))
                 if m is not None:  # events of unrouted motors concern nobody
-                    out.append(
-                        ExecEvent(
-                            ev.kind, m, ev.gen, ev.position, ev.t, ev.direction, ev.speed, ev.detail
-                        )
-                    )
+                    out.append(replace(ev, motor=m))
         return out
 
     def position(self, motor: int) -> int:

@@ -45,14 +45,15 @@ the rest of its schedule slid by that lateness (its ``shift``: the planner reads
 plans on the motor's own slid time), unless the lag it caused, in full steps, is one a real
 motor may not survive (:class:`~motorctl.motion.executors.base.AxisLimits`): then it stops
 (TIMING_LOST). Never step sooner than ``min_interval`` after the previous step nor before
-DIR has settled, raise the STEP lines of every due motor in one call, account while they
-are high, lower them, then look at the end stop ahead of each
-motor that stepped. Each motor's next due time is kept up to date as its state changes, so
+DIR has settled, raise the STEP lines of every due motor in one call, account while they are
+high, lower them, then look at the end stop ahead of each motor that stepped (and, in a plan
+that watches for it, whether the end stop behind has released: homing's back-off stops
+there, RELEASED). Each motor's next due time is kept up to date as its state changes, so
 finding the next edge is one ``min`` over the motors. Times are integer ns (ticks); a
-segment's ticks are plan ticks, made at plan tick + the motor's shift. A motor
-whose step is planned within ``coalesce_s`` after the edge being made (and that nothing
-else holds back) shares its pulse: up to ``coalesce_s`` early, within the planner's own step
-error bound, instead of queueing a few microseconds behind it.
+segment's ticks are plan ticks, made at plan tick + the motor's shift. A motor whose step is
+planned within ``coalesce_s`` after the edge being made (and that nothing else holds back)
+shares its pulse: up to ``coalesce_s`` early, within the planner's own step error bound,
+instead of queueing a few microseconds behind it.
 
 Stops from the planner: ``(motor, gen, -1)`` drops every segment of ``gen`` and older and
 reports STOPPED (a hard stop); ``(motor, gen, cut)`` drops only those of ``gen`` and older
@@ -175,6 +176,10 @@ class StepCore:
         self.gen = [-1] * n
         self.last = [False] * n
         self.watch = [True] * n
+        self.release = [False] * n  # stop where the end stop behind releases
+        # where it was seen released (NEVER: not seen) and the edge it was seen by
+        self.rel_at = [NEVER] * n
+        self.rel_since = [0] * n
         self.seg_first = [0] * n
         self.seg_count = [0] * n
         self.prev_t = [0] * n  # planned time of the last step emitted
@@ -274,9 +279,12 @@ class StepCore:
             self.add[m] = seg.add
             self.left[m] = self.seg_count[m] = seg.count
             self.seg_first[m] = seg.first  # plan ticks, as the planner's cuts
+            if gen != self.gen[m]:
+                self.rel_at[m] = NEVER  # a new plan sees the release for itself
             self.gen[m] = gen
             self.last[m] = seg.last
             self.watch[m] = seg.watch
+            self.release[m] = seg.release
             if seg.direction != self.dir[m]:
                 self._set_dir(m, seg.direction)
                 if self.next_t[m] == NEVER:
@@ -392,17 +400,24 @@ class StepCore:
         except HalError as exc:
             self._io_fault(due, exc)
             return
-        for m in done:
-            if self.last[m]:  # before the next segment (a marker reports its own DONE)
-                self.emit(ExecEvent(K.DONE, m, self.gen[m], pos[m], from_ticks(rise)))
-            self._load(m)
+        # the end stops after this step, in its direction and generation, before a motor
+        # whose segment it ended reports DONE or goes on: a last step onto the switch is
+        # an end stop hit, not a move done
         self._edges()
-        levels, ends, watch = self.levels, self.ends, self.watch
+        levels, ends, watch, release = self.levels, self.ends, self.watch, self.release
         for m in due:
             if watch[m]:
                 line = ends[m][1 if dirs[m] > 0 else 0]
-                if line is not None and levels[line]:
-                    self._check_endstop(m, line)
+                if line is not None and levels[line] and self._check_endstop(m, line):
+                    continue
+            if release[m]:
+                self._check_release(m)
+        for m in done:
+            if self.stopped_gen[m] == BLOCKED:
+                continue  # stopped on its own account: nothing more until the answer
+            if self.last[m]:  # before the next segment (a marker reports its own DONE)
+                self.emit(ExecEvent(K.DONE, m, self.gen[m], pos[m], from_ticks(rise)))
+            self._load(m)
 
     def _edges(self) -> None:
         try:
@@ -410,20 +425,44 @@ class StepCore:
         except HalError as exc:
             self._io_fault(tuple(self.motors), exc)
             return
-        for e in edges:
+        for e in edges:  # a line's level and since when (its last edge)
             self.levels[e.line] = int(e.active)
-            if e.active:
-                self.since[e.line] = to_ticks(e.t)
+            self.since[e.line] = to_ticks(e.t)
 
-    def _check_endstop(self, m: int, line: int) -> None:
-        """Motor m stepped toward ``line``, which is active: stop once it is debounced."""
+    def _check_endstop(self, m: int, line: int) -> bool:
+        """Motor m stepped toward ``line``, which is active: stop once it is debounced
+        (True: stopped)."""
         since = self.since[line]
         if self.clock.now_ns() - since < self.debounce[m]:
-            return
+            return False
         gen = self.gen[m]
         self._halt(m)
         self.counters[ENDSTOPS] += 1
         self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)), self.dir[m]))
+        return True
+
+    def _check_release(self, m: int) -> None:
+        """Motor m stepped away from the end stop behind it (homing's back-off): stop once
+        that has been inactive for the debounce time; RELEASED says where it released (the
+        first position seen off it; an unwired line is off it at the first step)."""
+        line = self.ends[m][0 if self.dir[m] > 0 else 1]
+        since = 0
+        if line is not None:
+            if self.levels[line]:
+                self.rel_at[m] = NEVER  # still on it, or on it again (a bounce)
+                return
+            since = self.since[line]
+        if self.rel_at[m] == NEVER or self.rel_since[m] != since:  # released by a new edge
+            self.rel_at[m] = self.pos[m]
+            self.rel_since[m] = since
+        if self.clock.now_ns() - since < self.debounce[m]:
+            return
+        gen = self.gen[m]
+        self._halt(m)
+        t = from_ticks(max(since, 0))
+        self.emit(
+            ExecEvent(K.RELEASED, m, gen, self.pos[m], t, -self.dir[m], 0.0, "", self.rel_at[m])
+        )
 
     def _speed(self, m: int, planned: int) -> float:
         gap = planned - self.prev_t[m]

@@ -135,7 +135,7 @@ def test_default_config_text_loads_back_to_the_embedded_default() -> None:
         written = [ln for ln in lines if ln.startswith((f"{name} = ", f"# {name} = (unset)"))]
         assert written, f"{path} is not written out"
     # every value is commented with what it accepts
-    assert "# Steps; no trigger within this distance -> the motor faults. Accepted: an" in text
+    assert "# Steps; no trigger (or release) within them -> fault. Accepted: an integer" in text
 
 
 # --- defaults and values ----------------------------------------------------------------------
@@ -154,7 +154,7 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert motor.homing == HomingConfig(HomingSource.ENDSTOP, 2000.0, 40000, 0, 250.0)
     assert motor.endstop == EndstopConfig(False, 0.0)
     assert motor.homing.source is HomingSource.ENDSTOP
-    assert motor.section(MockAxisConfig) == MockAxisConfig(-10000, 10000)
+    assert motor.section(MockAxisConfig) == MockAxisConfig(-10000, 10000, True)
     assert config.pins == ()
     assert config.dc is None
     assert config.section(MockConfig) == MockConfig(lose_steps=False, wires=())
@@ -818,7 +818,7 @@ def test_backends_get_their_sections_in_the_hardware_spec() -> None:
     )
     spec = hardware_spec(config)
     assert spec.section(MockConfig).wires == ((0, 1),)
-    assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000)
+    assert spec.axes[0].section(MockAxisConfig) == MockAxisConfig(-5, 10000, True)
     assert all(pin.section(GpiodPinConfig) is None for pin in spec.pins)  # not wired
 
 

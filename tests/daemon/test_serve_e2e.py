@@ -545,10 +545,10 @@ def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
             c.wait_moved(1, 10_000)
             assert (c.position(0), c.position(1)) == (300, -200)
             c.init_move(2, False, speed=2)  # homing: the end stop at -10000 stops it
-            c.wait_moved(2, 20_000)
+            c.wait_moved(2, 20_000)  # and one step back up releases it: zero there
             assert c.position(2) == 0
         steps = d.status()["steps"]
-        assert steps["steps"] == 500 + 10_000 and steps["timing_lost"] == 0
+        assert steps["steps"] == 500 + 10_000 + 1 and steps["timing_lost"] == 0
     finally:
         assert d.terminate() == 0
 

@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 
 from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.backends.mock.world import EventKind, MockWorld, mock_axis, world_of
-from motorctl.hal.interfaces import VirtualClock
+from motorctl.hal.interfaces import DriverStatus, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind
 from motorctl.motion.motor import Motor
@@ -71,7 +71,7 @@ def state(m: Motor) -> MotorState:
 
 def followed(ex: RecordingExecutor) -> list[tuple[int, Trajectory, bool]]:
     """(generation, plan, end stops watched) of each follow()."""
-    return [(gen, traj, watch) for _, _, gen, traj, watch in ex.of("follow")]  # type: ignore[misc]
+    return [(gen, traj, watch) for _, _, gen, traj, watch, _ in ex.of("follow")]  # type: ignore[misc]
 
 
 def test_a_plan_starts_where_the_executor_committed_with_a_new_generation() -> None:
@@ -200,6 +200,56 @@ def test_stall_homing_follows_without_end_stops() -> None:
     m2, ex2, _, _ = alone()
     m2.submit(HomeCmd(-1, RAMP), 0.0)
     assert followed(ex2)[0][2] is True
+
+
+def test_after_the_trigger_homing_backs_off_slowly_and_zeroes_where_it_released() -> None:
+    m, ex, notes, _ = alone(stops_at_once=False)
+    m.submit(HomeCmd(-1, Ramp(2000.0, 8000.0, 8000.0)), 0.0)
+    ex.positions[0] = -700
+    m.on_event(ex.report(K.ENDSTOP, 0, 1, direction=-1), 0.4)
+    assert ex.of("stop") == [("stop", 0, 2)]  # the trigger answered, then the back-off:
+    _, _, gen, traj, watch, release = ex.of("follow")[-1]
+    assert isinstance(traj, Trajectory) and (gen, watch, release) == (3, True, True)
+    assert traj.velocity(10.0) == 250.0  # up, at second_speed, at most max_travel
+    assert traj.end_position == -700 + 40_000
+    assert m.state is MotorState.HOMING and "homed" not in notes
+    ex.positions[0] = -695  # where the executor stopped the axis: two steps past the release
+    m.on_event(ex.report(K.RELEASED, 0, 3, direction=-1, mark=-697), 0.5)
+    assert ex.of("stop")[-1] == ("stop", 0, 4) and m.stopping  # answered; zero once it stands
+    m.on_event(ex.report(K.STOPPED, 0, 4), 0.51)
+    assert m.idle and m.position == 2 and notes[-2:] == ["homed", "idle"]
+    ex.positions[0] = -697
+    assert m.position == 0  # where the switch released
+
+
+def test_a_release_after_a_soft_stop_of_the_back_off_ends_it_without_homing() -> None:
+    m, ex, notes, _ = alone()
+    m.submit(HomeCmd(1, RAMP), 0.0)
+    m.on_event(ex.report(K.ENDSTOP, 0, 1, direction=1), 0.4)
+    assert m.stop(hard=False, now=0.45)  # StopMove while backing off
+    m.on_event(ex.report(K.RELEASED, 0, 3, direction=1, mark=-3), 0.46)  # it came first
+    assert ex.of("stop")[-1] == ("stop", 0, 5)  # answered
+    assert m.idle and m.fault is None and "homed" not in notes
+
+
+def test_a_stall_read_before_the_motor_stepped_again_is_the_last_motions() -> None:
+    """Right after stall homing the driver may still say "stall" (a real one until it sees
+    standstill, the mock while DIR still points into the hard stop): a host's first MoveTo
+    away must not fault on that reading; one read once the motor has stepped counts."""
+    m, ex, _, _ = alone(motor_params(homing=HomingParams(source=HomingSource.STALL)))
+    stalled = DriverStatus(stall=True)
+    m.submit(HomeCmd(1, RAMP), 0.0)
+    ex.positions[0] = 1200
+    m.on_driver_status(stalled, 0.5, steps=1200)
+    assert m.idle and m.position == 0  # homed where it stalled
+    m.submit(MoveToCmd(-500, RAMP), 0.6)
+    m.on_driver_status(stalled, 0.61, steps=1200)  # read before its first step
+    assert m.fault is None and state(m) is MotorState.MOVING
+    ex.positions[0] = 1190
+    m.on_driver_status(stalled, 0.62, steps=1200)  # read before it, acted on after: the same
+    assert m.fault is None
+    m.on_driver_status(stalled, 0.63, steps=1190)  # read while it steps: a stall
+    assert state(m) is MotorState.FAULT and m.fault == "stall"
 
 
 def test_the_host_sees_a_wrapped_linear_counter_or_a_rotary_angle() -> None:
@@ -422,14 +472,15 @@ def test_one_phase_homing() -> None:
     rig.submit(MoveToCmd(300, RAMP))
     rig.submit(HomeCmd(-1, Ramp(1000.0, 5000.0, 5000.0)))
     rig.engine.run_until_idle()
-    assert rig.axis() == -1000  # the switch closes at -1000
+    # the switch closes at -1000 and opens again one step back at -999: zero there
+    assert rig.axis() == -999
     assert rig.m.position == 0 and rig.m.idle and rig.m.fault is None
-    assert direction_runs(rig.dirs()) == [(True, 300), (False, 1300)]
+    assert direction_runs(rig.dirs()) == [(True, 300), (False, 1300), (True, 1)]
     assert len(rig.event_times("homed")) == 1
-    # Homed means: the next move counts from the switch.
+    # Homed means: the next move counts from where the switch released.
     rig.submit(MoveToCmd(250, RAMP))
     rig.engine.run_until_idle()
-    assert rig.m.position == 250 and rig.axis() == -750
+    assert rig.m.position == 250 and rig.axis() == -749
 
 
 def test_homing_clears_a_lost_position() -> None:
@@ -437,7 +488,7 @@ def test_homing_clears_a_lost_position() -> None:
     rig.m.position_lost = True
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
-    assert not rig.m.position_lost and rig.axis() == 1000 and rig.m.position == 0
+    assert not rig.m.position_lost and rig.axis() == 999 and rig.m.position == 0
 
 
 def test_two_phase_homing_backs_off_and_reapproaches_slowly() -> None:
@@ -447,10 +498,10 @@ def test_two_phase_homing_backs_off_and_reapproaches_slowly() -> None:
     rig.submit(HomeCmd(-1, ramp))
     assert rig.state() is MotorState.HOMING
     rig.engine.run_until_idle()
-    assert rig.m.position == 0 and rig.axis() == -1000 and rig.m.fault is None
+    assert rig.m.position == 0 and rig.axis() == -999 and rig.m.fault is None
     steps = rig.steps()
-    assert direction_runs(rig.dirs()) == [(False, 1000), (True, 50), (False, 50)]
-    seek, approach = steps[:1000], steps[1050:]
+    assert direction_runs(rig.dirs()) == [(False, 1000), (True, 50), (False, 50), (True, 1)]
+    seek, approach = steps[:1000], steps[1050:1100]
     seek_gaps = [b.t - a.t for a, b in itertools.pairwise(seek)]
     approach_gaps = [b.t - a.t for a, b in itertools.pairwise(approach)]
     assert min(seek_gaps) == pytest.approx(1 / 1500, abs=TICK)
@@ -464,15 +515,16 @@ def test_two_phase_homing_with_second_speed_above_the_ramp_uses_the_ramp() -> No
     rig = engine_rig(motor_params(homing=homing))
     rig.submit(HomeCmd(1, Ramp(400.0, 100_000.0, 100_000.0)))
     rig.engine.run_until_idle()
-    approach = rig.steps()[1020:]
-    assert len(approach) == 20
+    approach = rig.steps()[1020:1040]
+    assert direction_runs(rig.dirs())[-2:] == [(True, 20), (False, 1)]
     gaps = [b.t - a.t for a, b in itertools.pairwise(approach)]
     assert min(gaps) >= 1 / 400 - TICK
-    assert rig.axis() == 1000 and rig.m.position == 0
+    assert rig.axis() == 999 and rig.m.position == 0
 
 
 # A stall is read from the driver by the monitor, never on the step path: it is seen within
-# one driver poll, so stall homing runs on for up to speed * POLL steps after the stall.
+# one driver poll, so stall homing runs on for up to speed * POLL steps after the stall
+# (pulses lost against the mock's hard stop).
 STALL_OVERRUN = int(RAMP.speed * POLL) + 1
 
 
@@ -480,9 +532,11 @@ def test_stall_homing() -> None:
     rig = engine_rig(motor_params(homing=HomingParams(source=HomingSource.STALL)))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
-    # The mock stalls once it is pushed past its end stop.
+    # The mock stalls once it is pushed against its hard stop (at its end stop): the pulses
+    # after that are lost, the axis stays there; zero is where it stalled.
     assert rig.m.fault is None and rig.m.position == 0
-    assert 1001 <= rig.axis() <= 1001 + STALL_OVERRUN
+    assert rig.axis() == 1000 and 1001 <= len(rig.times()) <= 1001 + STALL_OVERRUN
+    assert direction_runs(rig.dirs())[-1][0] is True  # no back-off: it zeroes where it stalled
     assert rig.event_times("homed")
 
 
@@ -495,8 +549,8 @@ def test_two_phase_stall_homing() -> None:
     runs = direction_runs(rig.dirs())
     assert [d for d, _ in runs] == [False, True, False] and runs[1] == (True, 30)
     assert 1001 <= runs[0][1] <= 1001 + STALL_OVERRUN
-    # the re-approach stalls again once past the stop (seen within a poll at 300 step/s)
-    assert -1001 - int(300 * POLL) - 1 <= rig.axis() <= -1001
+    # the re-approach stalls again at the stop (seen within a poll at 300 step/s)
+    assert 31 <= runs[2][1] <= 31 + int(300 * POLL) + 1 and rig.axis() == -1000
 
 
 def test_after_stall_homing_the_motor_moves_away_without_a_stall_fault() -> None:
@@ -563,13 +617,14 @@ def test_homing_fails_when_the_switch_stays_active_after_pull_off() -> None:
     assert direction_runs(rig.dirs())[-1] == (False, 40)
 
 
-def test_homing_that_starts_on_the_switch_does_not_move() -> None:
+def test_homing_that_starts_on_the_switch_only_backs_off_it() -> None:
     rig = engine_rig()
-    rig.world.axes[0].position = -1000  # resting on the min switch
+    rig.world.axes[0].position = -1002  # resting on the min switch, 3 steps from its edge
     rig.submit(HomeCmd(-1, RAMP))
-    assert rig.m.idle and rig.m.position == 0
-    rig.advance(0.5)
-    assert rig.times() == [] and rig.m.fault is None
+    assert rig.state() is MotorState.HOMING
+    rig.engine.run_until_idle()
+    assert direction_runs(rig.dirs()) == [(True, 3)]  # never further toward it
+    assert rig.axis() == -999 and rig.m.position == 0 and rig.m.fault is None
     assert len(rig.event_times("homed")) == 1
 
 
@@ -579,11 +634,14 @@ def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
     rig.submit(HomeCmd(1, RAMP))
     assert rig.state() is MotorState.HOMING
     rig.engine.run_until_idle()
-    assert direction_runs(rig.dirs()) == [(False, 25), (True, 25)]
-    assert rig.axis() == 1000 and rig.m.position == 0 and rig.m.fault is None
+    assert direction_runs(rig.dirs()) == [(False, 25), (True, 25), (False, 1)]
+    assert rig.axis() == 999 and rig.m.position == 0 and rig.m.fault is None
 
 
 def test_homing_with_debounce_ignores_short_glitches() -> None:
+    """Both ways: a trigger counts once active for the debounce time, and so does a release
+    (a bounce open while backing off is no release); zero is where it released for good,
+    and the steps made while that was debounced count from there."""
     far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
     rig = engine_rig(motor_params(debounce_s=0.02), axes=[far])
     ramp = Ramp(1000.0, 1e6, 1e6)  # 1 ms per step almost at once
@@ -596,11 +654,29 @@ def test_homing_with_debounce_ignores_short_glitches() -> None:
     assert rig.state() is MotorState.HOMING
     t_on = rig.clock.now()
     rig.world.force_endstop(0, "max", True)
+    rig.advance(0.1)  # triggered, now backing off at second_speed (250 step/s) on the switch
+    ups = [e.t for e in rig.steps() if e.value]
+    first_active = min(t for t in ups if t >= t_on)
+    assert first_active + 0.02 <= ups[-1] < first_active + 0.02 + 1.5e-3
+    assert not rig.steps()[-1].value and rig.state() is MotorState.HOMING
+    rig.world.force_endstop(0, "max", False)  # a 10 ms bounce open: no release yet
+    rig.advance(0.01)
+    rig.world.force_endstop(0, "max", True)
+    rig.advance(0.05)
+    assert rig.state() is MotorState.HOMING
+    t_off = rig.clock.now()
+    rig.world.force_endstop(0, "max", False)  # released for good
     rig.engine.run_until_idle()
-    assert rig.m.fault is None and rig.m.position == 0
-    first_active = min(t for t in rig.times() if t >= t_on)
-    t_trigger = rig.times()[-1]
-    assert first_active + 0.02 <= t_trigger < first_active + 0.02 + 1.5e-3
+    assert rig.m.fault is None and rig.m.idle
+    after = [e for e in rig.steps() if e.t > t_off]
+    assert not any(e.value for e in after)  # backing off, 4 ms a step
+    assert after[-2].t < t_off + 0.02 <= after[-1].t  # stopped once debounced
+    # zero at the first step that saw it released; the steps since count from there
+    assert rig.m.position == -(len(after) - 1)
+    released_at = rig.axis() + len(after) - 1
+    rig.submit(MoveToCmd(0, Ramp(1000.0, 5000.0, 5000.0)))
+    rig.engine.run_until_idle()
+    assert rig.m.fault is None and rig.m.position == 0 and rig.axis() == released_at
 
 
 def test_endstop_hit_with_debounce_outside_homing() -> None:
@@ -643,7 +719,79 @@ def test_homing_with_active_low_end_stops() -> None:
     rig = engine_rig(axes=[axis], lows=[True])
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
-    assert rig.axis() == 400 and rig.m.position == 0 and rig.m.fault is None
+    assert rig.axis() == 399 and rig.m.position == 0 and rig.m.fault is None
+
+
+#: the homing kinds: on the end stop (with and without the second approach), by stall (the
+#: mock axis without switches: a stall-homed axis has none)
+HOMING_KINDS = {
+    "endstop": HomingParams(),
+    "endstop_pull_off": HomingParams(pull_off=30, second_speed=300.0),
+    "stall": HomingParams(source=HomingSource.STALL),
+    "stall_pull_off": HomingParams(source=HomingSource.STALL, pull_off=30, second_speed=300.0),
+}
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("kind", list(HOMING_KINDS))
+def test_after_homing_moveto_0_comes_back_without_touching_the_end_stop(
+    kind: str, direction: int
+) -> None:
+    homing = HOMING_KINDS[kind]
+    endstop = homing.source is HomingSource.ENDSTOP
+    axis = mock_axis(endstop_min=-1000, endstop_max=1000, switches=endstop)
+    rig = engine_rig(motor_params(homing=homing), axes=[axis])
+    rig.submit(MoveToCmd(-direction * 200, RAMP))
+    rig.submit(HomeCmd(direction, RAMP))
+    rig.engine.run_until_idle()
+    assert rig.m.fault is None and rig.m.idle and rig.m.position == 0
+    side = "max" if direction > 0 else "min"
+    home = rig.axis()
+    # zero: the first position off the switch; for a stall, the hard stop where it stalled
+    assert home == direction * (999 if endstop else 1000)
+    assert not rig.world.axes[0].endstop_active(side)
+    rig.submit(MoveToCmd(-direction * 700, RAMP))  # away
+    rig.submit(MoveToCmd(0, RAMP))  # and back
+    rig.engine.run_until_idle()  # WaitMoved
+    assert rig.m.fault is None and rig.m.idle  # no E4
+    assert rig.m.position == 0 and rig.axis() == home  # GetAbsPos 0, where it homed
+    assert direction_runs(rig.dirs())[-1] == (direction > 0, 700)  # the way back
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_after_homing_a_step_beyond_0_toward_the_switch_is_an_end_stop_hit(
+    direction: int,
+) -> None:
+    """Zero is the first position off the switch: one step further is on it, and an end stop
+    hit outside homing still faults (E4)."""
+    rig = engine_rig()
+    rig.submit(HomeCmd(direction, RAMP))
+    rig.engine.run_until_idle()
+    assert rig.m.position == 0 and rig.m.fault is None
+    rig.submit(MoveToCmd(direction, RAMP))
+    rig.engine.run_until_idle()
+    assert rig.state() is MotorState.FAULT and rig.m.fault == "end stop hit"
+    assert rig.m.faults == {"endstop": 1} and rig.axis() == direction * 1000
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_homing_fails_when_the_switch_does_not_release_within_max_travel(
+    direction: int,
+) -> None:
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
+    rig = engine_rig(motor_params(homing=HomingParams(max_travel=300)), axes=[far])
+    side = "max" if direction > 0 else "min"
+    rig.world.force_endstop(0, side, True)  # a switch stuck active
+    rig.submit(HomeCmd(direction, RAMP))
+    rig.submit(MoveToCmd(0, RAMP))
+    rig.engine.run_until_idle()
+    assert rig.state() is MotorState.FAULT and rig.m.faults == {"homing": 1}
+    assert rig.m.fault == "homing failed: end stop still active after backing off 300 steps"
+    assert direction_runs(rig.dirs()) == [(direction < 0, 300)]  # at the slow speed, and no
+    gaps = [b - a for a, b in itertools.pairwise(rig.times())]  # further
+    assert min(gaps) >= 1 / 250 - TICK
+    assert rig.axis() == -direction * 300 and not rig.m.queue
+    assert rig.stop(hard=False) and rig.m.idle  # StopMove clears it
 
 
 # ---------------------------------------------------------------- end stops and faults
@@ -774,10 +922,10 @@ def test_rotary_homing_sets_zero() -> None:
     rig = engine_rig(motor_params(steps_per_rev=360))
     rig.submit(HomeCmd(1, RAMP))
     rig.engine.run_until_idle()
-    assert rig.m.position == 0 and rig.axis() == 1000
+    assert rig.m.position == 0 and rig.axis() == 999
     rig.submit(MoveToCmd(10, RAMP, -1))
     rig.engine.run_until_idle()
-    assert rig.m.position == 10 and rig.axis() == 650
+    assert rig.m.position == 10 and rig.axis() == 649
 
 
 # ---------------------------------------------------------------- soft limits
@@ -1031,8 +1179,8 @@ def test_a_move_queued_behind_homing_counts_from_the_switch() -> None:
     rig.submit(HomeCmd(1, RAMP))
     rig.submit(MoveToCmd(-300, RAMP))
     rig.engine.run_until_idle()
-    assert rig.m.position == -300 and rig.axis() == 700
-    assert direction_runs(rig.dirs()) == [(True, 1000), (False, 300)]
+    assert rig.m.position == -300 and rig.axis() == 699
+    assert direction_runs(rig.dirs()) == [(True, 1000), (False, 301)]
 
 
 def test_rotary_run_wraps_and_agrees_with_the_mechanics() -> None:

@@ -42,7 +42,7 @@ from tests.support.tmc_model import TmcModel
 class RecordingExecutor(Executor):
     """A stand-in executor that records every command and answers from its own state.
 
-    ``calls``: ("follow", motor, gen, traj, endstops), ("stop", motor, gen), ("committed",
+    ``calls``: ("follow", motor, gen, traj, endstops, release), ("stop", motor, gen), ("committed",
     motor, now), in order. Positions (``positions``) and end-stop levels (``endstops``:
     (motor, direction) -> active) are the test's to set; a follow returns ``moves`` (False:
     the plan makes no step). ``stop`` returns the position at once (the position is final)
@@ -61,9 +61,15 @@ class RecordingExecutor(Executor):
         self.progress = 0
 
     def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+        self,
+        motor: int,
+        traj: Trajectory,
+        ramp: Ramp,
+        gen: int,
+        endstops: bool = True,
+        release: bool = False,
     ) -> bool:
-        self.calls.append(("follow", motor, gen, traj, endstops))
+        self.calls.append(("follow", motor, gen, traj, endstops, release))
         return self.moves
 
     def stop(self, motor: int, gen: int) -> int | None:
@@ -92,9 +98,10 @@ class RecordingExecutor(Executor):
         direction: int = 0,
         speed: float = 0.0,
         detail: str = "",
+        mark: int = 0,
     ) -> ExecEvent:
         """An event of ``motor`` at its position, queued for :meth:`events`."""
-        ev = ExecEvent(kind, motor, gen, self.positions[motor], t, direction, speed, detail)
+        ev = ExecEvent(kind, motor, gen, self.positions[motor], t, direction, speed, detail, mark)
         self.pending.append(ev)
         return ev
 

@@ -218,6 +218,7 @@ class StepCoreRig:
         dir_setup_s: float | None = None,
         dir_hold_s: float | None = None,
         late_threshold_s: float = 100e-6,
+        debounce_s: float = 0.0,
     ) -> None:
         self.kind = core
         self.clock = VirtualClock()
@@ -236,6 +237,7 @@ class StepCoreRig:
             start_speed=start_speed,
             microsteps=microsteps,
             max_lag_full_steps=max_lag,
+            debounce_s=debounce_s,
         )
         self.limits = axis_limits([params] * motors, 0.0, lag_faults=lag_faults)
         self.layout = Layout(motors, len(io.inputs.names))

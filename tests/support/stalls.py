@@ -121,9 +121,15 @@ class SlowToConfirm(Executor):
             self.on_event()
 
     def follow(
-        self, motor: int, traj: Trajectory, ramp: Ramp, gen: int, endstops: bool = True
+        self,
+        motor: int,
+        traj: Trajectory,
+        ramp: Ramp,
+        gen: int,
+        endstops: bool = True,
+        release: bool = False,
     ) -> bool:
-        return self.inner.follow(motor, traj, ramp, gen, endstops)
+        return self.inner.follow(motor, traj, ramp, gen, endstops, release)
 
     def committed(self, motor: int, now: float) -> Committed:
         return self.inner.committed(motor, now)

@@ -14,7 +14,10 @@ positions are written out here again on purpose, so that a mistake in hal/layers
 - TMC5160 ramp generator on a virtual clock: RAMPMODE 0 (position: accelerate with AMAX to
   VMAX, decelerate with DMAX to stop at XTARGET), 1/2 (velocity +/- with AMAX), 3 (hold);
   v[steps/s] = VMAX * fCLK / 2^24, a[steps/s^2] = AMAX * fCLK^2 / 2^41; reference switches
-  with polarity, stop enables, latching XACTUAL into XLATCH, sg_stop.
+  with polarity, stop enables, latching XACTUAL into XLATCH on the active or the inactive
+  edge (SW_MODE latch_l/r_active, bits 5/7; latch_l/r_inactive, bits 6/8), sg_stop; hard
+  stops (``wall_at``, ``wall_low_at``): the motor gets no further (XACTUAL counts the lost
+  steps on) and stallGuard flags a stall while it pushes into one.
 - Units of the ramp generator (TMC5160A datasheet Rev. 1.14, 12.1 "Real World Unit
   Conversion", p. 81, and CHOPCONF.MRES, 6.5.2, p. 51): XACTUAL/XTARGET count the
   sequencer's input steps, each 2^MRES entries of the 1024-entry sine table (256 per full
@@ -81,7 +84,10 @@ class TmcModel:
     stall: bool = False  # stallGuard flag in step/dir mode
     step_rate: float = 0.0  # step/s arriving on STEP (step/dir mode): stst and TSTEP
     # physical positions (steps from where the motor was at power-up), ramp mode only:
-    wall_at: float | None = None  # stall when pushing beyond this position
+    # hard stops: the motor gets no further (the steps are lost: XACTUAL counts on) and
+    # stalls while it pushes into one
+    wall_at: float | None = None  # above
+    wall_low_at: float | None = None  # below
     ref_l_at: float | None = None  # REFL active at or below this position
     ref_r_at: float | None = None  # REFR active at or above this position
     dead: bool = False  # no power: MISO floats high
@@ -200,8 +206,11 @@ class TmcModel:
         return min((1 << 20) - 1, int(self.clock_hz / (rate * 2**mres)))
 
     def stalled(self) -> bool:
-        if self.kind == "tmc5160" and self.sd_mode == 0 and self.wall_at is not None:
-            return (self.v > 0 and self.physical >= self.wall_at) or self.stall
+        if self.kind == "tmc5160" and self.sd_mode == 0:
+            hi, lo = self.wall_at, self.wall_low_at
+            pushing_up = hi is not None and self.v > 0 and self.physical >= hi
+            pushing_down = lo is not None and self.v < 0 and self.physical <= lo
+            return pushing_up or pushing_down or self.stall
         return self.stall
 
     def drv_status(self) -> int:
@@ -233,11 +242,18 @@ class TmcModel:
     def physical(self) -> float:
         return self.x + self.shift
 
+    @property
+    def microstep(self) -> float:
+        """The physical position of the microstep XACTUAL reads (the rotor sits on whole
+        microsteps): what the reference switches see."""
+        return round(self.x) + self.shift
+
     def switch_active(self, left: bool) -> bool:
         at = self.ref_l_at if left else self.ref_r_at
         if at is None:
             return False
-        return self.physical <= at if left else self.physical >= at
+        p = self.microstep
+        return p <= at if left else p >= at
 
     def ramp_stat_now(self) -> int:
         rs = self.ramp_stat & ~0b111_0000_0011
@@ -309,9 +325,14 @@ class TmcModel:
             if sw >> enable & 1 and self.switch_active(left) and (toward or self.v == 0):
                 self.v = 0.0  # held at the stop switch while it is active and enabled
                 return
-        old = self.physical
+        old = self.microstep
         self.x += self.v * dt
-        # reference switches: latch on the active edge, stop when enabled
+        if self.wall_at is not None and self.physical > self.wall_at:
+            self.shift -= self.physical - self.wall_at  # against the hard stop: steps lost
+        if self.wall_low_at is not None and self.physical < self.wall_low_at:
+            self.shift += self.wall_low_at - self.physical
+        # reference switches: latch on the active edge (latch_x_active) or the inactive one
+        # (latch_x_inactive, the next bit), stop when enabled
         for left, enable, latch, stat_latch in ((True, 0, 5, 2), (False, 1, 7, 3)):
             at = self.ref_l_at if left else self.ref_r_at
             if at is None:
@@ -320,6 +341,11 @@ class TmcModel:
             now_active = self.switch_active(left)
             if now_active and not was and sw >> latch & 1:
                 self.regs[A_XLATCH] = round(at - self.shift) & 0xFFFFFFFF  # in XACTUAL terms
+                self.ramp_stat |= 1 << stat_latch
+            if was and not now_active and sw >> (latch + 1) & 1:
+                # XACTUAL at the inactive edge: the first microstep off the switch
+                off = math.floor(at - self.shift) + 1 if left else math.ceil(at - self.shift) - 1
+                self.regs[A_XLATCH] = off & 0xFFFFFFFF
                 self.ramp_stat |= 1 << stat_latch
             toward = self.v < 0 if left else self.v > 0
             if now_active and sw >> enable & 1 and toward:

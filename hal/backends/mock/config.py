@@ -51,7 +51,19 @@ def _endstops_ordered(v: Mapping[str, Any]) -> Violation | None:
     notes="""\
 The simulated axis starts at position 0; its end stops sit at `endstop_min` and
 `endstop_max`. Only `endstop_min < endstop_max` is required, so both may lie on the same side
-of the start.""",
+of the start. Each end stop is
+
+- a switch (its end-stop input), active at that position and every position beyond it, with
+  no hysteresis: one step back from it releases it. Homing on it (InitMove) makes the first
+  position off it 0: `endstop_min + 1` homing down, `endstop_max - 1` homing up;
+- and a hard stop at the same position: a step pulse that would take the axis further out is
+  lost (the daemon still counts it), and the motor's driver reports a stall while it keeps
+  pushing that way; what stall homing (`homing.source = "stall"`) finds. Coming back to the
+  hard stop without pushing is no stall.
+
+`switches = false` leaves out the switches (the inputs never activate): an axis homed by
+stall, which has no switch, else a MoveTo back to the stall's position 0 ends on the switch
+there: an end stop hit (E4).""",
 )
 @dataclass(frozen=True)
 class MockAxisConfig:
@@ -68,6 +80,11 @@ class MockAxisConfig:
         POSITION_MIN,
         POSITION_MAX,
         "Position of the simulated end stop above, relative to the start position 0.",
+    )
+    switches: bool = boolean(
+        True,
+        "false: the end stops are hard stops only, with no switch (the end-stop inputs never "
+        "activate): an axis homed by stall.",
     )
 
 

@@ -108,15 +108,19 @@ class Timeline:
         return [e.t for e in self.of(EventKind.STEP, motor)]
 
 
-_POSITION, _HEADING, _FORCED_MIN, _FORCED_MAX, _FORCED_STALL, _GEN = range(6)
-_FIELDS = 6
+_POSITION, _HEADING, _FORCED_MIN, _FORCED_MAX, _FORCED_STALL, _GEN, _PUSHED = range(7)
+_FIELDS = 7
 _UNSET, _OFF, _ON = 0, 1, 2
 
 
 class MockAxis:
-    """The mechanics behind one motor: a position counted from the step pulses it got.
+    """The mechanics behind one motor: a position moved by the step pulses it got, between
+    two end stops (``[motors.mock]``, docs/config.md): at ``endstop_min`` and ``endstop_max``
+    a switch, active there and beyond, none without ``switches``; a hard stop there too: a
+    pulse that would take the axis further out is lost, and the driver reports a stall
+    while the motor keeps pushing that way (what stall homing finds).
 
-    The state lives in six int64 slots of ``cells``: a private buffer, or a slice of a
+    The state lives in seven int64 slots of ``cells``: a private buffer, or a slice of a
     shared-memory block when the step executor runs in a process of its own (the machine
     is one physical thing that both processes touch). Writes are single 8-byte stores.
     """
@@ -126,12 +130,13 @@ class MockAxis:
         ends = spec.sections.get(MockAxisConfig)  # [motors.mock]: where the end stops sit
         self.endstop_min: int = ENDSTOP_MIN if ends is None else ends.endstop_min
         self.endstop_max: int = ENDSTOP_MAX if ends is None else ends.endstop_max
+        self.switches: bool = True if ends is None else ends.switches
         self._c = cells
         self.fault: str | None = None  # the driver chip's fault: the daemon's process only
 
     @property
     def cells(self) -> memoryview:
-        """The six int64 slots (the step path reads them directly)."""
+        """The seven int64 slots (the step path reads them directly)."""
         return self._c
 
     def detach(self) -> None:
@@ -149,9 +154,15 @@ class MockAxis:
         self._c[_POSITION] = value
 
     def step(self, delta: int) -> None:
-        """A STEP pulse moved the axis by ``delta`` (the step path: one 8-byte store)."""
+        """A STEP pulse moves the axis by ``delta`` (the step path: two 8-byte stores), unless
+        it pushes it against a hard stop: then it is lost, and the axis pushed."""
         c = self._c
-        c[_POSITION] += delta
+        p = c[_POSITION]
+        if p >= self.endstop_max if delta > 0 else p <= self.endstop_min:
+            c[_PUSHED] = 1
+            return
+        c[_POSITION] = p + delta
+        c[_PUSHED] = 0
 
     @property
     def heading(self) -> bool | None:
@@ -185,20 +196,24 @@ class MockAxis:
         forced = self._c[_FORCED_MIN if which == "min" else _FORCED_MAX]
         if forced != _UNSET:
             return bool(forced == _ON)
+        if not self.switches:
+            return False
         if which == "min":
             return self.position <= self.endstop_min
         return self.position >= self.endstop_max
 
     @property
     def stalled(self) -> bool:
-        """Pushing past a simulated end stop stalls the motor (as sensorless homing sees it).
-
-        Only while DIR points further past it: a motor backing out is not stalled.
-        """
-        return (
-            self.forced_stall
-            or (self.position > self.endstop_max and self.heading is True)
-            or (self.position < self.endstop_min and self.heading is False)
+        """Pushing against a hard stop stalls the motor (as sensorless homing sees it): a
+        pulse was lost there and DIR still points into it (a motor backing out, or one that
+        came back to the stop without pushing, is not stalled)."""
+        if self.forced_stall:
+            return True
+        if not self._c[_PUSHED]:
+            return False
+        p = self.position
+        return (p >= self.endstop_max and self.heading is True) or (
+            p <= self.endstop_min and self.heading is False
         )
 
 
@@ -489,6 +504,7 @@ class MockWorld:
         return SimulatedLines(
             self._cells,
             tuple((a.endstop_min, a.endstop_max) for a in self.axes),
+            tuple(a.switches for a in self.axes),
             stepped,
             self.timeline.events.maxlen,
             self._record_compiled,
@@ -540,14 +556,15 @@ def read_timeline(path: str) -> Timeline:
 
 
 def mock_axis(
-    endstop_min: int = ENDSTOP_MIN, endstop_max: int = ENDSTOP_MAX, **axis: Any
+    endstop_min: int = ENDSTOP_MIN,
+    endstop_max: int = ENDSTOP_MAX,
+    switches: bool = True,
+    **axis: Any,
 ) -> AxisSpec:
     """An axis for the mock built by hand (tests, benchmarks): ``axis`` as AxisSpec takes
     it, the simulated end stops where its ``[motors.mock]`` table would put them."""
-    sections = {
-        **axis.pop("sections", {}),
-        MockAxisConfig: MockAxisConfig(endstop_min=endstop_min, endstop_max=endstop_max),
-    }
+    ends = MockAxisConfig(endstop_min=endstop_min, endstop_max=endstop_max, switches=switches)
+    sections = {**axis.pop("sections", {}), MockAxisConfig: ends}
     return AxisSpec(**axis, sections=sections)
 
 

@@ -9,8 +9,10 @@ between steps/s, steps/s^2 and the ramp generator's units.
 :class:`Tmc5160` is the shared driver (``driver.py``; started, configured and verified like
 every driver, its DRV_STATUS polled by the monitor thread) that also sets up and drives the
 chip's ramp generator: positioning and velocity mode, hard and soft stops, the reference
-switches REFL/REFR (stop and latch XACTUAL into XLATCH), stallGuard stops, and homing on
-them: the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability. A TMC5160 moved by
+switches REFL/REFR (stop and latch XACTUAL into XLATCH on the active edge, or latch it on
+the inactive edge: where the switch releases), stallGuard stops, and homing on them (zero
+where the switch releases again, or where it stalled: docs/protocol.md, InitMove): the HAL's
+:class:`~motorctl.hal.interfaces.RampDriver` capability. A TMC5160 moved by
 STEP/DIR is the shared driver alone.
 
 Threads: the data and formulas, any thread. A :class:`Tmc5160`'s ramp calls come from the
@@ -78,7 +80,9 @@ class F(fields.F):
     POL_STOP_L: Final = Field(Reg.SW_MODE, 2)
     POL_STOP_R: Final = Field(Reg.SW_MODE, 3)
     LATCH_L_ACTIVE: Final = Field(Reg.SW_MODE, 5)
+    LATCH_L_INACTIVE: Final = Field(Reg.SW_MODE, 6)
     LATCH_R_ACTIVE: Final = Field(Reg.SW_MODE, 7)
+    LATCH_R_INACTIVE: Final = Field(Reg.SW_MODE, 8)
     SG_STOP: Final = Field(Reg.SW_MODE, 10)
     EN_SOFTSTOP: Final = Field(Reg.SW_MODE, 11)
     STATUS_STOP_L: Final = Field(Reg.RAMP_STAT, 0)
@@ -319,15 +323,21 @@ class Tmc5160(TmcDriver, RampDriver):
                 f"(RAMPMODE={mode}, XTARGET={signed32(target)}, SW_MODE=0x{sw:x})"
             )
 
-    def watch(self, direction: int, stall: bool = False) -> None:
+    def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
         """Stop switches for the next motion: the one ahead in ``direction`` (+1: REFR,
         -1: REFL, 0: none) stops the motor hard and latches XACTUAL into XLATCH on its active
-        edge; ``stall``: stallGuard stops it (sg_stop). Old latches and events are cleared."""
+        edge; ``stall``: stallGuard stops it (sg_stop); ``release`` (+1: REFR, -1: REFL, 0:
+        none): that switch latches XACTUAL on its inactive edge (it stops nothing). Old
+        latches and events are cleared."""
         sw = self._sw_mode_base()
         if direction > 0:
             sw = F.LATCH_R_ACTIVE.put(F.STOP_R_ENABLE.put(sw, 1), 1)
         elif direction < 0:
             sw = F.LATCH_L_ACTIVE.put(F.STOP_L_ENABLE.put(sw, 1), 1)
+        if release > 0:
+            sw = F.LATCH_R_INACTIVE.put(sw, 1)
+        elif release < 0:
+            sw = F.LATCH_L_INACTIVE.put(sw, 1)
         if stall:
             sw = F.SG_STOP.put(sw, 1)
         with self.device.session():
@@ -398,7 +408,7 @@ class Tmc5160(TmcDriver, RampDriver):
         )
 
     def latched_position(self) -> int:
-        """XLATCH: XACTUAL at the reference switch's active edge."""
+        """XLATCH: XACTUAL at the reference switch's edge that :meth:`watch` armed."""
         return signed32(self.link.read(Reg.XLATCH))
 
     def report_stall_stop(self) -> bool:
@@ -421,7 +431,7 @@ class Tmc5160(TmcDriver, RampDriver):
 
     def home_start(self, direction: int, speed: float, acc: float, source: str) -> None:
         """Run toward the reference switch (REFR for +, REFL for -) or until stallGuard stops
-        the chip; the switch's active edge latches XACTUAL into XLATCH."""
+        the chip; the switch's active edge stops it."""
         with self.device.session():
             self.watch(0 if source == "stall" else direction, stall=source == "stall")
             self.run(direction, speed, acc)
@@ -432,17 +442,43 @@ class Tmc5160(TmcDriver, RampDriver):
             return state.flag(F.EVENT_STOP_SG)
         return state.flag(F.EVENT_STOP_R if direction > 0 else F.EVENT_STOP_L)
 
-    def home_finish(self, source: str) -> int:
-        """After the stop: make the trigger point position 0; returns the overshoot (steps).
+    def home_release(self, direction: int, speed: float, acc: float) -> None:
+        """After the switch stopped homing in ``direction``: back off it at ``speed`` (the
+        homing's slow speed) until it releases; its inactive edge latches XACTUAL into XLATCH
+        (:meth:`home_released`). The switch on the far side stops the back-off."""
+        with self.device.session():
+            self.link.write(Reg.VMAX, 0)  # else disarming the stop would start it again
+            self.watch(-direction, release=direction)
+            self.run(-direction, speed, acc)
 
-        The switch latched XACTUAL at its active edge (XLATCH); for a stall, the stop
-        position is the reference. Stop switches and sg_stop are disabled again so that
-        the motor can leave the switch.
+    def home_released(self, state: RampState, direction: int) -> bool:
+        """True once the switch that homing in ``direction`` ran into has released again
+        (its inactive edge latched the position): then :meth:`stop`, and once it stands,
+        :meth:`home_finish`."""
+        return state.flag(F.STATUS_LATCH_R if direction > 0 else F.STATUS_LATCH_L)
+
+    def home_finish(self, source: str) -> int:
+        """With the motor standing: make the reference position 0; returns where the motor
+        stands then (steps past the reference).
+
+        The reference: where the switch released (XLATCH, latched on :meth:`home_release`),
+        so that position 0 is off the switch; for a stall, where it stalled. Stop switches,
+        latches and sg_stop are disarmed again so that the motor can leave.
         """
+        sw_inactive = F.LATCH_L_INACTIVE.mask | F.LATCH_R_INACTIVE.mask
         with self.device.session():
             self.link.write(Reg.VMAX, 0)  # else clearing the stop would start it again
             self.link.write(Reg.RAMPMODE, RampMode.HOLD)
-            x, latch = (signed32(v) for v in self.link.read_many([Reg.XACTUAL, Reg.XLATCH]))
+            x, latch, sw, rs = (
+                signed32(v)
+                for v in self.link.read_many([Reg.XACTUAL, Reg.XLATCH, Reg.SW_MODE, Reg.RAMP_STAT])
+            )
+            latched = rs & (F.STATUS_LATCH_L.mask | F.STATUS_LATCH_R.mask)
+            if source != "stall" and not (sw & sw_inactive and latched):
+                raise TmcError(
+                    f"{self.device.path} ({self.name}): homing on the reference switch ends "
+                    "where it releases: back off with home_release until home_released"
+                )
             ref = x if source == "stall" else latch
             self.link.write(Reg.SW_MODE, self._sw_mode_base())
             self.link.write(Reg.RAMP_STAT, RAMP_STAT_WC)

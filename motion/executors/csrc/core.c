@@ -1,4 +1,5 @@
-/* The compiled step core's loop: motion/executors/step_core.py in C, function by function.
+/* The compiled step core's rules: motion/executors/step_core.py in C, function by function
+ * (what drives it, a virtual clock or the real clock's loop, is drive.c's).
  *
  * THE HOT LOOP, as step_core.py is: read that module's rules at its top; they hold here.
  * One owner (the thread that runs it), no locks, no allocation per step (a re-plan's cut
@@ -12,15 +13,14 @@
  * stops (TIMING_LOST) where the lag it caused, in full steps, is one a real motor may not
  * survive; raise the STEP lines of every due motor in one call per GPIO request,
  * account while they are high, lower them after the pulse width, read end-stop edges,
- * look at the end stop ahead of each motor that stepped. A line that fails is a FAULT of
+ * look at the end stop ahead of each motor that stepped (and, in a plan that watches for
+ * it, whether the end stop behind has released: RELEASED). A line that fails is a FAULT of
  * the motors concerned, a record that is not whole or not sane a FAULT of its motor
  * (every motor for a stop record whose motor is unknown); the loop never dies of either.
  *
  * Time: integer ns of CLOCK_MONOTONIC (Python's time.perf_counter_ns, the kernel's edge
  * timestamps), or a virtual clock that only the caller moves (tests). */
 #define _GNU_SOURCE
-#include <errno.h>
-#include <poll.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -32,13 +32,13 @@
 #define SEG_BYTES (SEG_FIELDS * 8 + 8)
 #define STOP_BYTES (STOP_FIELDS * 8 + 8)
 
-static int64_t mono(void) {
+int64_t core_mono(void) {
     struct timespec ts;
     clock_gettime(CLOCK_MONOTONIC, &ts);
     return (int64_t)ts.tv_sec * TICKS_PER_S + ts.tv_nsec;
 }
 
-int64_t core_now(struct core *c) { return c->virt ? c->vnow : mono(); }
+int64_t core_now(struct core *c) { return c->virt ? c->vnow : core_mono(); }
 
 void core_spin_until(struct core *c, int64_t t) {
     if (c->virt) {
@@ -46,16 +46,16 @@ void core_spin_until(struct core *c, int64_t t) {
             c->vnow = t;
         return;
     }
-    while (mono() < t)
+    while (core_mono() < t)
         ;
 }
 
 /* ---------------------------------------------------------------- reports */
 
-static void emit(struct core *c, int kind, int m, int64_t gen, int64_t pos, int64_t t,
-                 int64_t dir, double speed, const char *text) {
-    uint8_t rec[7 * 8 + 8 + TEXT_LEN];
-    int64_t f[7] = {0, kind, m, gen, pos, t, dir};
+static void emit_at(struct core *c, int kind, int m, int64_t gen, int64_t pos, int64_t t,
+                    int64_t dir, double speed, const char *text, int64_t mark) {
+    uint8_t rec[EVENT_BYTES];
+    int64_t f[8] = {0, kind, m, gen, pos, t, dir, mark};
     memcpy(rec, f, sizeof f);
     memcpy(rec + sizeof f, &speed, 8);
     memset(rec + sizeof f + 8, 0, TEXT_LEN);
@@ -68,6 +68,11 @@ static void emit(struct core *c, int kind, int m, int64_t gen, int64_t pos, int6
         ssize_t w = write(c->event_fd, "e", 1); /* EAGAIN: a byte is there already */
         (void)w;
     }
+}
+
+static void emit(struct core *c, int kind, int m, int64_t gen, int64_t pos, int64_t t,
+                 int64_t dir, double speed, const char *text) {
+    emit_at(c, kind, m, gen, pos, t, dir, speed, text, 0);
 }
 
 static double speed_of(const struct motor *mo, int64_t planned) {
@@ -99,7 +104,7 @@ static void drop(struct core *c, int m) {
     }
 }
 
-static void halt(struct core *c, int m) {
+void core_halt(struct core *c, int m) {
     c->m[m].stopped_gen = BLOCKED;
     drop(c, m);
 }
@@ -111,7 +116,7 @@ static void fault(struct core *c, const int *motors, int n, const char *text) {
         struct motor *mo = &c->m[m];
         int64_t gen = mo->gen;
         double speed = mo->next_t == NEVER ? 0.0 : speed_of(mo, mo->next_t);
-        halt(c, m);
+        core_halt(c, m);
         emit(c, EV_FAULT, m, gen, c->positions[m], core_now(c), mo->dir, speed, text);
     }
 }
@@ -145,7 +150,7 @@ static void lost(struct core *c, int m, int64_t now, const char *text, int64_t p
     struct motor *mo = &c->m[m];
     int64_t gen = mo->gen;
     double speed = speed_of(mo, have_planned ? planned : mo->next_t);
-    halt(c, m);
+    core_halt(c, m);
     CELL_ADD(&c->counters[C_TIMING_LOST], 1);
     emit(c, EV_TIMING_LOST, m, gen, c->positions[m], now, mo->dir, speed, text);
 }
@@ -296,9 +301,12 @@ static int load(struct core *c, int m) {
         mo->add = f[4];
         mo->left = mo->seg_count = f[3];
         mo->seg_first = first; /* plan ticks, as the planner's cuts */
+        if (gen != mo->gen)
+            mo->rel_at = NEVER; /* a new plan sees the release for itself */
         mo->gen = gen;
         mo->last = (f[7] & SEG_LAST) != 0;
         mo->watch = (f[7] & SEG_WATCH) != 0;
+        mo->release = (f[7] & SEG_RELEASE) != 0;
         if (f[5] != mo->dir) {
             set_dir(c, m, (int)f[5]);
             if (mo->next_t == NEVER)
@@ -313,7 +321,7 @@ static int load(struct core *c, int m) {
 
 /* new work: stops, then the idle motors' next segments (every record announced is read
  * again, so a torn one is taken once whole, or found bad) */
-static void take(struct core *c) {
+void core_take(struct core *c) {
     if (c->stops.cells[1] < __atomic_load_n(&c->stops.cells[0], __ATOMIC_ACQUIRE))
         apply_stops(c);
     for (int m = 0; m < c->n; m++) {
@@ -324,20 +332,20 @@ static void take(struct core *c) {
     }
 }
 
+/* a line's level and since when (its last edge) */
 void core_apply_edge(struct core *c, int line, int active, int64_t t) {
     CELL_SET(&c->levels[line], active);
-    if (active)
-        c->since[line] = t;
+    c->since[line] = t;
 }
 
-static void edges(struct core *c) {
+void core_edges(struct core *c) {
     if (lines_edges(c) < 0)
         io_fault(c, c->all, c->n);
 }
 
 void core_refill(struct core *c) {
-    take(c);
-    edges(c);
+    core_take(c);
+    core_edges(c);
 }
 
 int64_t core_deadline(const struct core *c) {
@@ -366,15 +374,43 @@ static void record_ns(struct core *c, int64_t ns) {
     CELL_ADD(&l[L_BLOCK0 + (us >> L_BLOCK_SHIFT)], 1);
 }
 
-static void check_endstop(struct core *c, int m, int line) {
+/* 1: stopped at the active end stop ahead, debounced */
+static int check_endstop(struct core *c, int m, int line) {
     struct motor *mo = &c->m[m];
     int64_t since = c->since[line];
     if (core_now(c) - since < mo->debounce)
-        return;
+        return 0;
     int64_t gen = mo->gen;
-    halt(c, m);
+    core_halt(c, m);
     CELL_ADD(&c->counters[C_ENDSTOPS], 1);
     emit(c, EV_ENDSTOP, m, gen, c->positions[m], since > 0 ? since : 0, mo->dir, 0.0, NULL);
+    return 1;
+}
+
+/* motor m stepped away from the end stop behind it (homing's back-off): stop once that has
+ * been inactive for the debounce time; RELEASED says where it released (the first position
+ * seen off it; an unwired line is off it at the first step) */
+static void check_release(struct core *c, int m) {
+    struct motor *mo = &c->m[m];
+    int line = mo->end[mo->dir > 0 ? 0 : 1];
+    int64_t since = 0;
+    if (line >= 0) {
+        if (c->levels[line]) {
+            mo->rel_at = NEVER; /* still on it, or on it again (a bounce) */
+            return;
+        }
+        since = c->since[line];
+    }
+    if (mo->rel_at == NEVER || mo->rel_since != since) { /* released by a new edge */
+        mo->rel_at = c->positions[m];
+        mo->rel_since = since;
+    }
+    if (core_now(c) - since < mo->debounce)
+        return;
+    int64_t gen = mo->gen;
+    core_halt(c, m);
+    emit_at(c, EV_RELEASED, m, gen, c->positions[m], since > 0 ? since : 0, -mo->dir, 0.0,
+            NULL, mo->rel_at);
 }
 
 /* motor m's step is late: slide the rest of its schedule, or stop it where the lag is one a
@@ -412,7 +448,7 @@ static int late(struct core *c, int m, int64_t now) {
     return 1;
 }
 
-static void step(struct core *c, int64_t now) {
+void core_step(struct core *c, int64_t now) {
     int64_t soon = now + c->coalesce;
     int *due = c->due, *done = c->done;
     int ndue = 0, ndone = 0, slid = 0;
@@ -482,108 +518,28 @@ static void step(struct core *c, int64_t now) {
     }
     for (int i = 0; i < ndue; i++)
         c->m[due[i]].last_fall = fall;
-    for (int i = 0; i < ndone; i++) {
-        int m = done[i];
-        struct motor *mo = &c->m[m];
-        if (mo->last) /* before the next segment (a marker reports its own DONE) */
-            emit(c, EV_DONE, m, mo->gen, c->positions[m], rise, 0, 0.0, NULL);
-        load(c, m);
-    }
-    edges(c);
+    /* the end stops after this step, in its direction and generation, before a motor whose
+     * segment it ended reports DONE or goes on: a last step onto the switch is an end stop
+     * hit, not a move done */
+    core_edges(c);
     for (int i = 0; i < ndue; i++) {
         int m = due[i];
         struct motor *mo = &c->m[m];
         if (mo->watch) {
             int line = mo->end[mo->dir > 0 ? 1 : 0];
-            if (line >= 0 && c->levels[line])
-                check_endstop(c, m, line);
+            if (line >= 0 && c->levels[line] && check_endstop(c, m, line))
+                continue;
         }
+        if (mo->release)
+            check_release(c, m);
     }
-}
-
-/* ---------------------------------------------------------------- drivers */
-
-void core_advance(struct core *c, int64_t now) {
-    if (now > c->vnow)
-        c->vnow = now;
-    core_refill(c);
-    step(c, now);
-    core_refill(c);
-}
-
-void core_run_until(struct core *c, int64_t until) {
-    core_refill(c);
-    int64_t d;
-    while ((d = core_deadline(c)) != NEVER && d <= until) {
-        if (d > c->vnow)
-            c->vnow = d; /* never backwards: after a stall, "now" is later */
-        core_advance(c, c->vnow);
+    for (int i = 0; i < ndone; i++) {
+        int m = done[i];
+        struct motor *mo = &c->m[m];
+        if (mo->stopped_gen == BLOCKED)
+            continue; /* stopped on its own account: nothing more until the answer */
+        if (mo->last) /* before the next segment (a marker reports its own DONE) */
+            emit(c, EV_DONE, m, mo->gen, c->positions[m], rise, 0, 0.0, NULL);
+        load(c, m);
     }
-    if (until > c->vnow)
-        c->vnow = until;
-}
-
-void core_halt_all(struct core *c) {
-    for (int m = 0; m < c->n; m++)
-        halt(c, m);
-}
-
-static void wait_for(struct core *c, int64_t timeout) {
-    if (c->parent > 0 && getppid() != c->parent) { /* the daemon is gone */
-        CELL_SET(&c->header[H_RUN], 0);
-        return;
-    }
-    struct pollfd p = {.fd = c->wake_fd, .events = POLLIN, .revents = 0};
-    struct timespec ts = {.tv_sec = timeout / TICKS_PER_S, .tv_nsec = timeout % TICKS_PER_S};
-    if (ppoll(&p, 1, &ts, NULL) > 0) {
-        char buf[4096];
-        if (read(c->wake_fd, buf, sizeof buf) == 0) /* the daemon's end is closed: gone */
-            CELL_SET(&c->header[H_RUN], 0);
-    }
-}
-
-/* the real clock: the loop, until the header's run cell is 0 (the daemon's close) or the
- * daemon is gone; end-stop edges are read after each step and before each wait */
-void core_run(struct core *c) {
-    int64_t *run = &c->header[H_RUN];
-    while (__atomic_load_n(run, __ATOMIC_ACQUIRE)) {
-        CELL_ADD(&c->counters[C_PROGRESS], 1);
-        take(c);
-        int64_t d = core_deadline(c);
-        if (d == NEVER) {
-            edges(c);
-            wait_for(c, c->idle);
-            continue;
-        }
-        int64_t now = mono();
-        if (d - now > c->spin) {
-            edges(c);
-            int64_t t = d - c->spin - now;
-            wait_for(c, t < c->idle ? t : c->idle);
-            continue;
-        }
-        while (now < d && !ring_pending(&c->stops))
-            now = mono();
-        if (ring_pending(&c->stops))
-            continue;
-        step(c, now);
-    }
-}
-
-/* ---------------------------------------------------------------- lines */
-
-int lines_dir(struct core *c, int m, int level) {
-    return c->kind == LINES_GPIO ? gpio_dir(c, m, level) : sim_dir(c, m, level);
-}
-
-int lines_steps(struct core *c, const int *motors, int n, int level) {
-    return c->kind == LINES_GPIO ? gpio_steps(c, motors, n, level)
-                                 : sim_steps(c, motors, n, level);
-}
-
-int lines_edges(struct core *c) {
-    if (c->kind == LINES_GPIO)
-        return gpio_edges(c);
-    sim_edges(c);
-    return 0;
 }

@@ -1,10 +1,12 @@
 /* The mock backend's lines for the compiled core: hal/backends/mock/backend.py's
  * MockStepOutputs and MockEdgeInputs in C, on the same simulated mechanics.
  *
- * The mechanics are the mock world's cells (six int64 per axis: position, heading, forced
- * min, forced max, forced stall, generation), in shared memory when the executor runs in
- * a process of its own, so the daemon's world sees every step. A STEP rise moves each due
- * motor's axis by one and records a "step" event (the logical direction) in the timeline,
+ * The mechanics are the mock world's cells (seven int64 per axis: position, heading, forced
+ * min, forced max, forced stall, generation, pushed), in shared memory when the executor
+ * runs in a process of its own, so the daemon's world sees every step. A STEP rise moves
+ * each due motor's axis by one, unless that pushes it against a hard stop (the end stop's
+ * position: the pulse is lost and the axis pushed, what the mock's driver reports as a
+ * stall), and records a "step" event (the logical direction) in the timeline,
  * a DIR write records a "dir" event (the physical level) and sets the heading; a step
  * onto or off a simulated end stop is an edge at the step's time; an end stop forced by a
  * test, or a position set by hand, is seen at the next read, with that read's time. The
@@ -18,7 +20,6 @@
 
 #include "stepcore.h"
 
-enum { AX_POS, AX_HEADING, AX_FMIN, AX_FMAX, AX_STALL, AX_GEN, AX_FIELDS };
 enum { F_UNSET, F_OFF, F_ON };
 enum { TL_STEP, TL_DIR };
 
@@ -28,6 +29,8 @@ int sim_sense(const struct sim *s, int line) {
     int64_t forced = a[max ? AX_FMAX : AX_FMIN];
     if (forced != F_UNSET)
         return forced == F_ON;
+    if (!s->switches[axis])
+        return 0;
     return max ? a[AX_POS] >= s->emax[axis] : a[AX_POS] <= s->emin[axis];
 }
 
@@ -108,8 +111,14 @@ int sim_steps(struct core *c, const int *motors, int n, int level) {
     }
     for (int i = 0; i < n; i++) {
         const struct motor *mo = &c->m[motors[i]];
-        int64_t *pos = &s->cells[AX_FIELDS * mo->axis + AX_POS];
-        CELL_SET(pos, *pos + (mo->out_dir == 1 ? 1 : -1));
+        int64_t *a = &s->cells[AX_FIELDS * mo->axis];
+        int up = mo->out_dir == 1;
+        if (up ? a[AX_POS] >= s->emax[mo->axis] : a[AX_POS] <= s->emin[mo->axis]) {
+            CELL_SET(&a[AX_PUSHED], 1); /* against the hard stop: the pulse is lost */
+        } else {
+            CELL_SET(&a[AX_POS], a[AX_POS] + (up ? 1 : -1));
+            CELL_SET(&a[AX_PUSHED], 0);
+        }
         moved(c, mo->axis, t);
     }
     return 0;
@@ -136,6 +145,7 @@ void sim_free(struct sim *s) {
     free(s->dir_err);
     free(s->emin);
     free(s->emax);
+    free(s->switches);
     free(s->seen_gen);
     free(s->seen_pos);
     free(s->level);

@@ -101,7 +101,7 @@ static int Core_init(CoreObject *self, PyObject *args, PyObject *kw) {
         return core_fail(PyExc_ValueError, "one segment ring per motor");
     }
     struct core *c = &self->c;
-    const size_t seg_rec = SEG_FIELDS * 8, stop_rec = STOP_FIELDS * 8, ev_rec = 7 * 8 + 8 + TEXT_LEN;
+    const size_t seg_rec = SEG_FIELDS * 8, stop_rec = STOP_FIELDS * 8, ev_rec = EVENT_BYTES;
     int bad = region(self, o[0], 8 * 8, "the header") ||
               region(self, o[1], N_COUNTERS * 8, "the counters") ||
               region(self, o[2], (Py_ssize_t)motors * 8, "the positions") ||
@@ -158,6 +158,7 @@ static int Core_init(CoreObject *self, PyObject *args, PyObject *kw) {
         mo->ready = mo->ready_at = mo->last_fall = -(INT64_C(1) << 62);
         mo->out_dir = -1;
         mo->watch = 1;
+        mo->rel_at = NEVER;
         mo->end[0] = mo->end[1] = -1;
     }
     return 0;
@@ -332,7 +333,8 @@ static PyMethodDef Core_methods[] = {
     {"gpio", (PyCFunction)Core_gpio, METH_VARARGS,
      "gpio(outputs, step, dir, inputs, active_low): GPIO chardev line requests"},
     {"sim", (PyCFunction)Core_sim, METH_VARARGS,
-     "sim(cells, endstop_min, endstop_max, axis_of, timeline_len): the mock's mechanics"},
+     "sim(cells, endstop_min, endstop_max, switches, axis_of, timeline_len): the mock's "
+     "mechanics"},
     {"sim_error", (PyCFunction)Core_sim_error, METH_VARARGS,
      "sim_error(kind, axis, text or None): writes to that simulated line fail with text"},
     {"start", (PyCFunction)Core_start, METH_VARARGS, "start(virtual, now_ns)"},
@@ -384,7 +386,7 @@ PyMODINIT_FUNC PyInit__stepcore(void) {
         PyModule_AddIntConstant(mod, "LATENCY_CELLS", L_CELLS) < 0 ||
         PyModule_AddIntConstant(mod, "SEGMENT_RECORD", SEG_FIELDS * 8) < 0 ||
         PyModule_AddIntConstant(mod, "STOP_RECORD", STOP_FIELDS * 8) < 0 ||
-        PyModule_AddIntConstant(mod, "EVENT_RECORD", 7 * 8 + 8 + TEXT_LEN) < 0) {
+        PyModule_AddIntConstant(mod, "EVENT_RECORD", EVENT_BYTES) < 0) {
         Py_DECREF(&CoreType);
         Py_DECREF(mod);
         return NULL;

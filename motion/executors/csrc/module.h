@@ -1,6 +1,6 @@
 /* The compiled step core's Python type (module.c), as module_lines.c shares it: the object
  * and the checks every method makes first. Apart from stepcore.h on purpose: the core's own
- * files (core.c, rings.c, lines_gpio.c, lines_sim.c) know nothing of Python. */
+ * files (core.c, drive.c, rings.c, lines_gpio.c, lines_sim.c) know nothing of Python. */
 #ifndef MOTORCTL_STEPCORE_MODULE_H
 #define MOTORCTL_STEPCORE_MODULE_H
 

@@ -136,9 +136,9 @@ static int int64_list(PyObject *seq, Py_ssize_t n, int64_t *out) {
 }
 
 PyObject *Core_sim(CoreObject *self, PyObject *args) {
-    PyObject *cells, *emin, *emax, *axis_of;
+    PyObject *cells, *emin, *emax, *switches, *axis_of;
     long long tl_max;
-    if (!PyArg_ParseTuple(args, "OOOOL", &cells, &emin, &emax, &axis_of, &tl_max))
+    if (!PyArg_ParseTuple(args, "OOOOOL", &cells, &emin, &emax, &switches, &axis_of, &tl_max))
         return NULL;
     struct core *c = &self->c;
     struct sim *s = &c->sim;
@@ -152,25 +152,26 @@ PyObject *Core_sim(CoreObject *self, PyObject *args) {
     if (PyObject_GetBuffer(cells, &self->cells, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) < 0)
         return NULL;
     self->have_cells = 1;
-    if (self->cells.len < (Py_ssize_t)naxes * 6 * 8 || (uintptr_t)self->cells.buf % 8)
+    if (self->cells.len < (Py_ssize_t)naxes * AX_FIELDS * 8 || (uintptr_t)self->cells.buf % 8)
         return PyErr_Format(PyExc_ValueError, "sim: the cells hold fewer than %d axes", naxes);
     s->cells = self->cells.buf;
     s->naxes = naxes;
     s->tl_max = tl_max < 0 ? -1 : tl_max;
     s->emin = calloc((size_t)naxes, 8);
     s->emax = calloc((size_t)naxes, 8);
+    s->switches = calloc((size_t)naxes, 8);
     s->seen_gen = calloc((size_t)naxes, 8);
     s->seen_pos = calloc((size_t)naxes, 8);
     s->level = calloc((size_t)c->nlines, 1);
     s->step_err = calloc((size_t)naxes, sizeof(char *));
     s->dir_err = calloc((size_t)naxes, sizeof(char *));
     int64_t *axes = calloc((size_t)c->n, 8);
-    int bad = !s->emin || !s->emax || !s->seen_gen || !s->seen_pos || !s->level ||
-              !s->step_err || !s->dir_err || !axes;
+    int bad = !s->emin || !s->emax || !s->switches || !s->seen_gen || !s->seen_pos ||
+              !s->level || !s->step_err || !s->dir_err || !axes;
     if (bad)
         PyErr_NoMemory();
     bad = bad || int64_list(emin, naxes, s->emin) < 0 || int64_list(emax, naxes, s->emax) < 0 ||
-          int64_list(axis_of, c->n, axes) < 0;
+          int64_list(switches, naxes, s->switches) < 0 || int64_list(axis_of, c->n, axes) < 0;
     for (int m = 0; !bad && m < c->n; m++) {
         if (axes[m] < 0 || axes[m] >= naxes) {
             PyErr_Format(PyExc_ValueError, "sim: motor %d has no axis %lld", m,
@@ -187,8 +188,8 @@ PyObject *Core_sim(CoreObject *self, PyObject *args) {
         return NULL;
     }
     for (int a = 0; a < naxes; a++) {
-        s->seen_gen[a] = s->cells[6 * a + 5];
-        s->seen_pos[a] = s->cells[6 * a];
+        s->seen_gen[a] = s->cells[AX_FIELDS * a + AX_GEN];
+        s->seen_pos[a] = s->cells[AX_FIELDS * a + AX_POS];
     }
     for (int line = 0; line < c->nlines; line++) {
         s->level[line] = (int8_t)sim_sense(s, line);

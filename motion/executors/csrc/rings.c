@@ -119,7 +119,7 @@ const char *segment_problem(const int64_t *f, char *buf, size_t n) {
             flags = f[7];
     if (gen < 0 || gen >= LIM_GEN)
         snprintf(buf, n, "generation %lld", (long long)gen);
-    else if (flags & ~(int64_t)(SEG_LAST | SEG_WATCH))
+    else if (flags & ~(int64_t)(SEG_LAST | SEG_WATCH | SEG_RELEASE))
         snprintf(buf, n, "flags %lld", (long long)flags);
     else if (count < 0 || count > LIM_COUNT)
         snprintf(buf, n, "count %lld", (long long)count);

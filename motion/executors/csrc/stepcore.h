@@ -5,7 +5,8 @@
  * lateness histogram out (the block's cells), the same slide, lag, spacing, DIR settle,
  * shared-pulse and end-stop rules. What each file holds:
  *
- *   core.c       the loop and its rules (mirrors step_core.py function by function)
+ *   core.c       the rules of the loop (mirrors step_core.py function by function)
+ *   drive.c      what drives it: a virtual clock, the real clock's loop; the lines by kind
  *   rings.c      CRC-32, the rings' records (motion/executors/process/rings.py Ring), checks
  *   lines_gpio.c STEP/DIR writes and end-stop edge reads as GPIO character-device ioctls
  *   lines_sim.c  the mock backend's counterpart: the same timeline of edges, the same
@@ -54,7 +55,9 @@ enum { H_RUN = 0 };
 #define L_BLOCKS ((L_BINS + 1 + (1 << L_BLOCK_SHIFT) - 1) >> L_BLOCK_SHIFT)
 #define L_CELLS (L_BLOCK0 + L_BLOCKS)
 /* event kinds (list(ExecEventKind)) */
-enum { EV_DONE, EV_STOPPED, EV_ENDSTOP, EV_TIMING_LOST, EV_FAULT, EV_DIED };
+enum { EV_DONE, EV_STOPPED, EV_ENDSTOP, EV_TIMING_LOST, EV_FAULT, EV_DIED, EV_RELEASED };
+/* an event record: seq, kind, motor, gen, position, t, direction, mark; speed; text */
+#define EVENT_BYTES (8 * 8 + 8 + TEXT_LEN)
 
 /* One aligned 8-byte cell of the block, stored whole (single-copy atomic) for readers in
  * another process; only the core stores to its cells, so plain loads read them back. */
@@ -66,6 +69,7 @@ enum { EV_DONE, EV_STOPPED, EV_ENDSTOP, EV_TIMING_LOST, EV_FAULT, EV_DIED };
 #define STOP_FIELDS 4 /* seq, motor, gen, cut */
 #define SEG_LAST 1
 #define SEG_WATCH 2
+#define SEG_RELEASE 4
 
 struct ring {
     int64_t *cells; /* head (the producer's), tail, retries (the consumer's) */
@@ -108,7 +112,8 @@ struct motor {
     /* the segment being made */
     int64_t next_t, due_t, iv, add, left, seg_first, seg_count, gen, prev_t, last_edge;
     int64_t stopped_gen, ready, slid;
-    int dir, last, watch;
+    int64_t rel_at, rel_since; /* where the end stop behind was seen released (NEVER: not) */
+    int dir, last, watch, release;
     struct cut *cuts;
     int ncuts, cap_cuts;
     /* the outputs' own state (StepOutputs: direction, ready_at, last_fall) */
@@ -145,10 +150,13 @@ struct tl_entry {
     int32_t kind, axis, value, pad;
 };
 
+/* a simulated axis' cells (hal/backends/mock/world.py's MockAxis) */
+enum { AX_POS, AX_HEADING, AX_FMIN, AX_FMAX, AX_STALL, AX_GEN, AX_PUSHED, AX_FIELDS };
+
 struct sim {
-    int64_t *cells; /* per world axis: position, heading, forced min, forced max, stall, gen */
+    int64_t *cells; /* per world axis: AX_FIELDS cells */
     int naxes;
-    int64_t *emin, *emax, *seen_gen, *seen_pos;
+    int64_t *emin, *emax, *switches, *seen_gen, *seen_pos;
     int8_t *level;     /* per line (2 per world axis): the sensed level */
     char **step_err;   /* per world axis: the injected error's text, or NULL */
     char **dir_err;
@@ -179,8 +187,13 @@ struct core {
     char err[256]; /* the last line error's text (HalIOError's message) */
 };
 
+int64_t core_mono(void);
 int64_t core_now(struct core *c);
 void core_spin_until(struct core *c, int64_t t);
+void core_take(struct core *c);
+void core_edges(struct core *c);
+void core_step(struct core *c, int64_t now);
+void core_halt(struct core *c, int m);
 void core_refill(struct core *c);
 int64_t core_deadline(const struct core *c);
 void core_advance(struct core *c, int64_t now);

@@ -84,10 +84,10 @@ STOP_RING = 256
 EVENT_RING = 1024
 SEG_RECORD = struct.Struct("<qqqqqqqq")  # seq, first, interval, count, add, direction, gen, flags
 STOP_RECORD = struct.Struct("<qqqq")  # seq, motor, gen, cut (-1: a hard stop)
-# seq, kind, motor, gen, position, t_ns, direction, speed, text
-EVENT_RECORD = struct.Struct("<qqqqqqqd120s")
+# seq, kind, motor, gen, position, t_ns, direction, mark, speed, text
+EVENT_RECORD = struct.Struct("<qqqqqqqqd120s")
 EVENT_KINDS = list(ExecEventKind)
-FLAG_LAST, FLAG_WATCH = 1, 2
+FLAG_LAST, FLAG_WATCH, FLAG_RELEASE = 1, 2, 4
 
 # header cells (int64)
 RUN_CELL, READY_CELL, PID_CELL, CORE_CELL = 0, 1, 2, 3
@@ -120,7 +120,7 @@ def segment_problem(
     intervals below 2**34 ns that never go negative (csrc/rings.c, the same rule)."""
     if not 0 <= gen < _LIM_GEN:
         return f"generation {gen}"
-    if flags & ~(FLAG_LAST | FLAG_WATCH):
+    if flags & ~(FLAG_LAST | FLAG_WATCH | FLAG_RELEASE):
         return f"flags {flags}"
     if not 0 <= count <= _LIM_COUNT:
         return f"count {count}"
@@ -161,7 +161,7 @@ def torn_problem(bad_after_s: float = BAD_RECORD_S) -> str:
 
 def decode_event(rec: tuple[Any, ...]) -> ExecEvent:
     """An event record's fields (after the sequence number) as the event."""
-    kind, motor, gen, position, t_ns, direction, speed, text = rec
+    kind, motor, gen, position, t_ns, direction, mark, speed, text = rec
     return ExecEvent(
         EVENT_KINDS[kind],
         motor,
@@ -171,12 +171,17 @@ def decode_event(rec: tuple[Any, ...]) -> ExecEvent:
         direction,
         speed,
         text.rstrip(b"\0").decode(errors="replace"),
+        mark,
     )
 
 
 def segment_fields(seg: StepSegment) -> tuple[int, ...]:
     """A segment as a record's fields (after the sequence number), as the daemon puts it."""
-    flags = (FLAG_LAST if seg.last else 0) | (FLAG_WATCH if seg.watch else 0)
+    flags = (
+        (FLAG_LAST if seg.last else 0)
+        | (FLAG_WATCH if seg.watch else 0)
+        | (FLAG_RELEASE if seg.release else 0)
+    )
     return (seg.first, seg.interval, seg.count, seg.add, seg.direction, seg.gen, flags)
 
 
@@ -192,6 +197,7 @@ def segment_of(rec: tuple[Any, ...]) -> StepSegment:
         gen,
         bool(flags & FLAG_LAST),
         bool(flags & FLAG_WATCH),
+        bool(flags & FLAG_RELEASE),
     )
 
 
@@ -205,6 +211,7 @@ def event_fields(ev: ExecEvent) -> tuple[Any, ...]:
         ev.position,
         to_ticks(ev.t),
         ev.direction,
+        ev.mark,
         ev.speed,
         ev.detail.encode()[:120],
     )

@@ -93,6 +93,33 @@ def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped(
     assert rig.ex.position(0) == 0
 
 
+@pytest.mark.parametrize("side", [-1, 1])
+def test_a_back_off_stops_the_chip_where_the_switch_behind_releases(side: int) -> None:
+    """Homing's back-off (``release``): the switch it leaves latches the position at its
+    inactive edge; once a poll sees it released the executor stops the chip and reports
+    RELEASED with that position (``mark``), the chip standing a little further on."""
+    rig = RampRig()
+    model = rig.models[0]
+    if side < 0:
+        model.ref_l_at = 5.0  # REFL active at and below 5: the chip is on it, at 0
+    else:
+        model.ref_r_at = -5.0
+    away = plan_run(rig.clock.now(), 0.0, 0.0, -250.0 * side, 4e4, 4e4, -5000.0 * side)
+    assert rig.ex.follow(0, away, RAMP, gen=1, release=True)
+    sw = model.regs[0x34]
+    assert sw & (1 << (6 if side < 0 else 8))  # SW_MODE.latch_l/r_inactive
+    assert sw & (0b10 if side < 0 else 0b01)  # and the stop switch ahead, as any move's
+    rig.run(lambda: K.RELEASED in rig.kinds(), 5.0)
+    ev = rig.seen[-1]
+    # XLATCH: the first microstep off the switch
+    assert (ev.direction, ev.mark, ev.detail) == (side, -6 * side, "reference switch")
+    assert side * (ev.mark - ev.position) >= 0  # it stood at or past the release
+    assert not rig.ex.endstop_active(0, side)
+    rig.ex.stop(0, gen=2)  # the answer
+    rig.run(lambda: rig.seen[-1].kind is K.STOPPED, 1.0)
+    assert 0 <= side * (ev.mark - rig.ex.position(0)) <= 3  # a few steps on at 250 step/s
+
+
 def test_a_plan_without_end_stops_arms_stallguard_and_a_stop_reads_as_a_stall() -> None:
     rig = RampRig()
     rig.models[0].wall_at = 2500.0
@@ -162,35 +189,70 @@ def test_engine_moveto_and_getabspos_through_the_chip() -> None:
     assert m.position == rig.chips[0].position()
 
 
-def test_engine_homing_on_the_chips_reference_switch() -> None:
-    rig, engine = ramp_engine(HomingParams(max_travel=20_000))
-    rig.models[0].ref_l_at = -3000.0
+#: the homing kinds on the chip: its reference switch (with and without the second
+#: approach), its stallGuard stop (the re-approach above the chip's stall_min_speed)
+CHIP_HOMING = {
+    "endstop": HomingParams(max_travel=20_000),
+    "endstop_pull_off": HomingParams(max_travel=20_000, pull_off=200, second_speed=300.0),
+    "stall": HomingParams(source=HomingSource.STALL, max_travel=20_000),
+    "stall_pull_off": HomingParams(
+        source=HomingSource.STALL, max_travel=20_000, pull_off=200, second_speed=1000.0
+    ),
+}
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+@pytest.mark.parametrize("kind", list(CHIP_HOMING))
+def test_engine_homing_through_the_chip_then_moveto_0_stays_off_the_switch(
+    kind: str, direction: int
+) -> None:
+    homing = CHIP_HOMING[kind]
+    rig, engine = ramp_engine(homing)
+    model = rig.models[0]
+    endstop = homing.source is HomingSource.ENDSTOP
+    if endstop and direction < 0:
+        model.ref_l_at = -3000.0
+    elif endstop:
+        model.ref_r_at = 3000.0
+    elif direction < 0:
+        model.wall_low_at = -3000.0
+    else:
+        model.wall_at = 3000.0
+    m = engine.motors[0]
+    with engine.lock:
+        m.submit(HomeCmd(direction, RAMP), rig.clock.now())
+    deadline = rig.clock.now() + 20.0
+    while not m.idle and m.fault is None:
+        assert rig.clock.now() < deadline, "homing did not finish"
+        poll_drivers(rig, engine, 0.01)
+    assert m.fault is None
+    # the chip stands where it stopped: at the stall, or braked a few steps past the release
+    assert 0 <= -direction * m.position <= (3 if endstop else 0)
+    for target in (-direction * 1500, 0):  # away, and back (WaitMoved)
+        with engine.lock:
+            m.submit(MoveToCmd(target, RAMP), rig.clock.now())
+        while not m.idle and m.fault is None:
+            assert rig.clock.now() < deadline + 20.0, "the move did not finish"
+            poll_drivers(rig, engine, 0.01)
+    assert m.fault is None  # no E4: neither the switch nor a stall on the way back
+    assert m.position == 0  # GetAbsPos
+    if endstop:  # zero: the first microstep off the switch (the model's positions are real)
+        assert 0 < direction * (direction * 3000 - model.physical) <= 1
+        assert not model.switch_active(direction < 0)
+    else:  # zero: where it stalled, at the hard stop
+        assert model.physical == pytest.approx(direction * 3000, abs=0.5)
+
+
+def test_engine_homing_fails_when_the_chips_switch_does_not_release() -> None:
+    rig, engine = ramp_engine(HomingParams(max_travel=2000))
+    rig.models[0].ref_l_at = 10_000.0  # REFL active everywhere this homing reaches
     m = engine.motors[0]
     with engine.lock:
         m.submit(HomeCmd(-1, RAMP), rig.clock.now())
-    engine.run_until_idle(10.0)
-    assert m.fault is None and m.state is MotorState.IDLE
-    assert m.position == pytest.approx(0, abs=2)  # at the switch
-    with engine.lock:
-        m.submit(MoveToCmd(1000, RAMP), rig.clock.now())
-    engine.run_until_idle(10.0)
-    assert rig.models[0].physical == pytest.approx(-3000 + 1000, abs=3)
-
-
-def test_engine_stall_homing_with_the_chips_stallguard_stop() -> None:
-    homing = HomingParams(source=HomingSource.STALL, max_travel=20_000)
-    rig, engine = ramp_engine(homing)
-    rig.models[0].wall_at = 2200.0
-    m = engine.motors[0]
-    with engine.lock:
-        m.submit(HomeCmd(1, RAMP), rig.clock.now())
-    deadline = rig.clock.now() + 10.0
-    while m.state is not MotorState.IDLE:
-        assert rig.clock.now() < deadline, "stall homing did not finish"
-        poll_drivers(rig, engine, 0.01)
-    assert m.fault is None
-    assert rig.models[0].physical == pytest.approx(2200, abs=10)
-    assert m.position == 0
+    engine.run_until(rig.clock.now() + 20.0)
+    assert m.state is MotorState.FAULT and m.faults == {"homing": 1}
+    assert m.fault == "homing failed: end stop still active after backing off 2000 steps"
+    assert rig.chips[0].position() == 2000  # backed off max_travel, and no further
 
 
 def test_engine_faults_on_spi_failure_without_raising() -> None:

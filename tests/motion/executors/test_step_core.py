@@ -302,6 +302,70 @@ def test_the_core_stops_a_motor_at_the_end_stop_ahead_and_reports_where(core_rig
     assert c.positions[0] == 40 - 5 and c.shared.levels[0] == 1  # 4 steps, then the one after
 
 
+def test_a_last_step_onto_the_switch_is_an_end_stop_hit_not_a_move_done(core_rig: Rig) -> None:
+    c = core_rig(axes=[mock_axis(endstop_min=-1000, endstop_max=40)])
+    t0 = c.clock.now()
+    c.push(0, StepSegment(to_ticks(t0 + 0.001), 500_000, 40, 0, 1, 1, True))  # ends on it
+    c.push(0, StepSegment(to_ticks(t0 + 0.1), 500_000, 5, 0, -1, 2, True))  # (a next plan)
+    c.run_until(t0 + 1.0)
+    assert [e.kind for e in c.events] == [K.ENDSTOP]  # no DONE before it: E4 for WaitMoved
+    ev = c.events[0]
+    assert (ev.gen, ev.position, ev.direction) == (1, 40, 1) and len(c.times()) == 40
+
+
+def test_backing_off_an_end_stop_the_core_stops_where_it_releases(core_rig: Rig) -> None:
+    """A plan that watches for the release (homing's back-off) stops at the first step that
+    leaves the switch behind it and says where (``mark``); until answered, nothing moves."""
+    c = core_rig(axes=[mock_axis(endstop_min=-1000, endstop_max=40)])
+    c.world.axes[0].position = 43  # on the max switch, 4 steps from its edge
+    t0 = c.clock.now()
+    c.push(0, StepSegment(to_ticks(t0 + 0.001), 1_000_000, 20, 0, -1, 1, True, True, True))
+    c.run_until(t0 + 1.0)
+    assert [e.kind for e in c.events] == [K.RELEASED]
+    ev = c.events[0]
+    assert (ev.position, ev.mark, ev.direction) == (-4, -4, 1)  # max side, off it at -4
+    assert ev.t == c.times()[-1] and len(c.times()) == 4  # the edge: the 4th step's
+    assert c.world.axes[0].position == 39 and c.shared.levels[1] == 0
+    assert c.counter("endstops") == 0
+    # blocked until the planner answers: a segment planned before it saw the event is dropped
+    c.push(0, StepSegment(to_ticks(c.clock.now() + 0.001), 1_000_000, 5, 0, -1, 1))
+    c.run_until(c.clock.now() + 0.1)
+    assert len(c.times()) == 4
+    c.stop(0, 2)
+    c.push(0, StepSegment(to_ticks(c.clock.now() + 0.001), 1_000_000, 3, 0, -1, 3))
+    c.run_until(c.clock.now() + 0.1)
+    assert len(c.times()) == 7 and [e.kind for e in c.events] == [K.RELEASED, K.STOPPED]
+
+
+def test_a_release_counts_once_debounced_and_a_bounce_starts_it_again(core_rig: Rig) -> None:
+    """Debounced as a trigger is: the switch must stay released ``debounce_s``; a bounce back
+    on restarts the wait, and ``mark`` is where it released for good; the steps made while
+    that was debounced are on top (``position``)."""
+    c = core_rig(axes=[mock_axis(endstop_min=-1000, endstop_max=40)], debounce_s=0.005)
+    c.world.axes[0].position = 43
+    t0 = c.clock.now()
+    c.push(0, StepSegment(to_ticks(t0 + 0.001), 1_000_000, 30, 0, -1, 1, True, True, True))
+    c.run_until(t0 + 0.0065)  # released at the 4th step (4 ms), 6 steps made
+    assert c.events == [] and len(c.times()) == 6
+    c.world.force_endstop(0, "max", True)  # it bounces back on: steps 7 and 8 see it
+    c.run_until(t0 + 0.0085)
+    c.world.force_endstop(0, "max", None)  # off again for good: seen at 8.5 ms
+    c.run_until(t0 + 1.0)
+    assert [e.kind for e in c.events] == [K.RELEASED]
+    ev = c.events[0]
+    # the 9th step is the first off it for good; 5 ms after 8.5 ms: the 14th stops
+    assert (ev.mark, ev.position, len(c.times())) == (-9, -14, 14)
+    assert ev.t == pytest.approx(t0 + 0.0085, abs=1e-9)
+
+
+def test_a_plan_without_release_watching_goes_on_past_the_release(core_rig: Rig) -> None:
+    c = core_rig(axes=[mock_axis(endstop_min=-1000, endstop_max=40)])
+    c.world.axes[0].position = 43
+    c.push(0, StepSegment(to_ticks(c.clock.now() + 0.001), 1_000_000, 20, 0, -1, 1, True))
+    c.run_until(c.clock.now() + 1.0)
+    assert [e.kind for e in c.events] == [K.DONE] and len(c.times()) == 20
+
+
 def test_a_failing_step_line_faults_its_motor_and_the_other_goes_on(core_rig: Rig) -> None:
     c = core_rig(motors=2)
     t0 = c.clock.now()
@@ -439,8 +503,9 @@ def test_fuzzed_stop_records_stop_or_fault_without_a_crash(
 
 
 def _program(seed: int, c: StepCoreRig) -> None:
-    """A random program on 3 motors: cruises and ramps in both directions, markers, hard
-    stops and re-plan cuts, stalls of the core, answers to its own stops."""
+    """A random program on 3 motors between near end stops: cruises and ramps in both
+    directions, some watching for the release of the end stop behind, markers, hard stops
+    and re-plan cuts, stalls of the core, answers to its own stops (end stops, releases)."""
     rng = random.Random(seed)
     gens = [1, 1, 1]
     for _ in range(40):
@@ -454,12 +519,9 @@ def _program(seed: int, c: StepCoreRig) -> None:
             add = rng.choice([0, 0, rng.randrange(-1000, 1000)])
             if iv + add * count < 60_000:
                 add = 0
-            c.push(
-                m,
-                StepSegment(
-                    start, iv, count, add, rng.choice([1, -1]), gens[m], rng.random() < 0.3
-                ),
-            )
+            last, release = rng.random() < 0.3, rng.random() < 0.25
+            direction = rng.choice([1, -1])
+            c.push(m, StepSegment(start, iv, count, add, direction, gens[m], last, True, release))
         elif what < 0.65:
             c.push(m, StepSegment(now + rng.randrange(0, 2_000_000), 0, 0, 0, 0, gens[m], True))
         elif what < 0.75:
@@ -479,13 +541,15 @@ def _program(seed: int, c: StepCoreRig) -> None:
 
 def _outcome(c: StepCoreRig) -> tuple[object, ...]:
     def event(e: ExecEvent) -> tuple[object, ...]:
-        return (e.kind, e.motor, e.gen, e.position, to_ticks(e.t), e.direction, e.speed, e.detail)
+        t = to_ticks(e.t)
+        return (e.kind, e.motor, e.gen, e.position, t, e.direction, e.speed, e.detail, e.mark)
 
     timeline = [(to_ticks(e.t), e.kind, e.index, e.value) for e in c.world.timeline.snapshot()]
     return (
         timeline,
         [event(e) for e in c.events],
         list(c.positions),
+        [a.position for a in c.world.axes],  # the mechanics (pulses lost at the hard stops)
         list(c.shared.counters)[1:],  # not the loop counter
         list(c.cells),
         c.core.stats.bins,
@@ -498,7 +562,12 @@ def test_both_cores_make_the_same_steps_events_and_figures_from_one_program(seed
     outcomes = []
     for core in ("python", "compiled"):
         c = StepCoreRig(
-            motors=3, max_speed=20_000.0, core=core, coalesce_s=5e-6, lag_faults=seed % 2 == 0
+            motors=3,
+            max_speed=20_000.0,
+            core=core,
+            coalesce_s=5e-6,
+            lag_faults=seed % 2 == 0,
+            axes=[mock_axis(endstop_min=-25 - 5 * m, endstop_max=30 + 5 * m) for m in range(3)],
         )
         try:
             _program(seed, c)
@@ -506,10 +575,12 @@ def test_both_cores_make_the_same_steps_events_and_figures_from_one_program(seed
         finally:
             c.close()
     py, cc = outcomes
-    names = ("timeline", "events", "positions", "counters", "motor cells", "histogram")
+    names = ("timeline", "events", "positions", "axes", "counters", "motor cells", "histogram")
     for name, a, b in zip(names, py, cc, strict=True):
         assert a == b, f"seed {seed}: the cores' {name} differ"
     assert py[0] and py[1], "the program made steps and events"
+    kinds = {e[0] for e in py[1]}  # type: ignore[attr-defined]
+    assert {K.ENDSTOP, K.RELEASED} & kinds, "the program came upon the end stops"
 
 
 # ---------------------------------------------------------------- re-plan cuts

@@ -96,18 +96,32 @@ def test_hard_stop_uses_the_chips_largest_deceleration(spi_bench: SpiBench) -> N
     assert took <= 0.02
 
 
-def test_homing_on_the_reference_switch_zeroes_at_the_trigger(spi_bench: SpiBench) -> None:
+@pytest.mark.parametrize("direction", [-1, 1])
+def test_homing_on_the_reference_switch_zeroes_where_it_releases(
+    spi_bench: SpiBench, direction: int
+) -> None:
     drv, model = spi_bench.ramp_driver()
-    model.ref_l_at = -2500.0
-    drv.home_start(-1, 4000.0, 40_000.0, "endstop")
-    run_until(spi_bench, drv, lambda s: drv.home_event(s, -1, "endstop"), 5.0)
-    overshoot = drv.home_finish("endstop")
-    assert overshoot <= 0  # stopped at or beyond the switch, which is now position 0
-    assert drv.position() == overshoot
-    assert model.regs[tm.A_SW_MODE] & 0b11 == 0  # stop switches off again: it may leave
-    drv.move_to(1000, 2000.0, 20_000.0, 20_000.0)
-    run_until(spi_bench, drv, lambda s: s.xactual == 1000 and s.vactual == 0, 5.0)
-    assert model.physical == pytest.approx(-2500 + 1000, abs=1)  # positions count from the switch
+    if direction < 0:
+        model.ref_l_at = -2500.0  # REFL active at and below -2500
+    else:
+        model.ref_r_at = 2500.0  # REFR active at and above 2500
+    drv.home_start(direction, 4000.0, 40_000.0, "endstop")
+    run_until(spi_bench, drv, lambda s: drv.home_event(s, direction, "endstop"), 5.0)
+    with pytest.raises(TmcError, match="ends where it releases"):
+        drv.home_finish("endstop")  # at the trigger: still on the switch
+    drv.home_release(direction, 250.0, 40_000.0)
+    run_until(spi_bench, drv, lambda s: drv.home_released(s, direction), 5.0)
+    drv.stop(None)
+    run_until(spi_bench, drv, lambda s: s.stopped, 1.0)
+    past = drv.home_finish("endstop")
+    assert 0 <= past <= 3  # stands at or a little past the release, which is now 0
+    assert drv.position() == -direction * past
+    assert model.regs[tm.A_SW_MODE] & 0b1_1110_0011 == 0  # stops and latches off again
+    drv.move_to(0, 2000.0, 20_000.0, 20_000.0)
+    run_until(spi_bench, drv, lambda s: s.xactual == 0 and s.vactual == 0, 5.0)
+    # position 0 is the first microstep off the switch (the model's positions are real)
+    assert 0 < direction * (direction * 2500 - model.physical) <= 1
+    assert not model.switch_active(direction < 0)
 
 
 def test_homing_by_stallguard_stops_at_the_wall(spi_bench: SpiBench) -> None:

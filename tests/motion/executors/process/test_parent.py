@@ -305,7 +305,7 @@ def test_retries_of_both_directions_are_in_the_process_executors_health(step_cor
         index = events.cells[0]
         at = slot_offset(events, index)
         old = bytes(events.buf[at : at + events.slot])
-        fields = (EVENT_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0.0, b"torn")
+        fields = (EVENT_KINDS.index(ExecEventKind.STOPPED), 0, 9, 0, 0, 1, 0, 0.0, b"torn")
         whole = slot_bytes(events, index, fields)
         show_slot(events, index, whole[: EVENT_RECORD.size] + old[EVENT_RECORD.size :])
         assert ex.events() == [] and ex.events() == []
