@@ -770,7 +770,8 @@ def test_after_homing_a_step_beyond_0_toward_the_switch_is_an_end_stop_hit(
     assert rig.m.position == 0 and rig.m.fault is None
     rig.submit(MoveToCmd(direction, RAMP))
     rig.engine.run_until_idle()
-    assert rig.state() is MotorState.FAULT and rig.m.fault == "end stop hit"
+    assert rig.state() is MotorState.FAULT
+    assert rig.m.fault == f"end stop hit at {direction} outside homing"
     assert rig.m.faults == {"endstop": 1} and rig.axis() == direction * 1000
 
 
