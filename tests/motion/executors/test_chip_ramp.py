@@ -10,9 +10,9 @@ import pytest
 
 from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.layers.tmc.tmc5160 import RefSwitches, Tmc5160
 from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spi import SpiAddress, SpiBus, SpiSettings
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import ExecEventKind
 from motorctl.motion.executors.chip_ramp import RampExecutor, peak_speed
@@ -137,14 +137,6 @@ def ramp_engine(homing: HomingParams | None = None) -> tuple[RampRig, MotionEngi
     return rig, engine
 
 
-def poll_drivers(rig: RampRig, engine: MotionEngine, seconds: float) -> None:
-    """Run the engine with the driver monitor's polls (virtual time)."""
-    end = rig.clock.now() + seconds
-    while rig.clock.now() < end:
-        rig.chips[0].poll()
-        engine.run_until(rig.clock.now() + 0.005)
-
-
 def test_engine_moveto_and_getabspos_through_the_chip() -> None:
     rig, engine = ramp_engine()
     m = engine.motors[0]
@@ -187,7 +179,7 @@ def test_engine_stall_homing_with_the_chips_stallguard_stop() -> None:
     deadline = rig.clock.now() + 10.0
     while m.state is not MotorState.IDLE:
         assert rig.clock.now() < deadline, "stall homing did not finish"
-        poll_drivers(rig, engine, 0.01)
+        engine.run_until(rig.clock.now() + 0.01)  # the driver poller's reads among the rest
     assert m.fault is None
     assert rig.models[0].physical == pytest.approx(2200, abs=10)
     assert m.position == 0
@@ -212,9 +204,7 @@ def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
         m.submit(MoveToCmd(8000, RAMP), rig.clock.now())
     engine.run_until(rig.clock.now() + 0.3)
     rig.models[0].power_cycle()
-    for _ in range(20):
-        rig.chips[0].poll()  # the driver monitor notices, reconfigures the chip
-        engine.run_until(rig.clock.now() + 0.01)
+    engine.run_until(rig.clock.now() + 0.2)  # the driver poller notices, reconfigures the chip
     assert m.state is MotorState.FAULT and m.position_lost
     assert m.fault is not None and "reset" in m.fault
 
@@ -241,13 +231,13 @@ def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(
     kernel = FakeKernel()
     model = TmcModel("tmc5160", clock=clock)
     kernel.chips[(0, 0)] = model
-    dev = SpiDevice(SpiAddress(0, 0), SpiBuses(), kernel.factory(), 1_000_000)
+    dev = SpiBus(SpiAddress(0, 0), SpiSettings(1_000_000), kernel.factory())
     chip = Tmc5160("m", dev, replace(RAMP_SETTINGS, microsteps=microsteps), RefSwitches())
     chip.start()
     assert model.reg(A_CHOPCONF) >> 24 & 0xF == mres
     hw = build(HardwareSpec((AxisSpec(),)), clock)
     hw.steppers[0].driver = chip
-    engine = MotionEngine(hw, [motor_params()], RampExecutor([chip], clock), driver_poll_s=0.005)
+    engine = MotionEngine(hw, [motor_params()], RampExecutor([chip], clock))
     m = engine.motors[0]
     target = 2 * microsteps  # two full steps
     with engine.lock:
