@@ -189,11 +189,14 @@ class DriverPoller:
         return thread is None or thread.is_alive()
 
     def start(self) -> None:
-        """Run the ``motorctl-drivers`` thread (nothing to poll: no thread)."""
+        """Run the ``motorctl-drivers`` thread (nothing to poll: no thread). What is due
+        (every chip, the first time) is polled first on the caller's thread, so the
+        chips have been read once when this returns (before the daemon says READY)."""
         if self._thread is not None or not self.entries:
             return
         if self.clock.is_virtual:
             raise ValueError("the driver poller's thread runs on a real clock; tests use poll_due")
+        self.poll_due(self.clock.now())
         self._stopping = False
         self._kick.clear()
         self._thread = threading.Thread(target=self._run, name="motorctl-drivers", daemon=True)

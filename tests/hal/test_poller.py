@@ -139,6 +139,7 @@ def test_the_thread_polls_until_stopped_and_survives_a_failing_poll() -> None:
     poller.watch(good, "good")
     poller.start()
     try:
+        assert good.reads >= 1  # read once before start returned
         assert poller.running and poller.alive
         assert got.wait(10.0), "no push within 10 s"
         deadline = time.monotonic() + 10.0
