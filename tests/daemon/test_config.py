@@ -874,7 +874,7 @@ def test_a_retired_key_still_loads_with_a_notice_naming_it(
     ],
 )
 def test_the_old_driver_poll_keys_load_with_a_notice_naming_the_new_one(old: str, key: str) -> None:
-    """The two pollers' periods of 0.2.0 (the engine's and the TMC monitor's) became the
+    """The two pollers' periods up to f8b0dbb (the engine's, the TMC monitor's) became the
     one poller's, [drivers] poll_ms: an old file still loads, its value ignored, and the
     notice (a warning at start and from --check-config) says what to write instead."""
     config = parse_config(old, SOURCE)
