@@ -229,7 +229,6 @@ class Daemon:
                 hw,
                 params,
                 executor,
-                driver_poll_s=config.step_thread.driver_poll_ms / 1000.0,
                 stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
             )
             files_dir = state_files_dir(config, state_dir)

@@ -8,8 +8,10 @@ Two parts, kept apart in the tree so that the rule is visible:
   may drive), ``contract.py`` (what a backend and a layer are: typed classes with their
   optional parts defaulted; what ``--probe`` reports), ``spec.py`` (what a backend is asked
   to build: plain, picklable data), ``registry.py`` (backends and layers by name: the only
-  way to get one) and ``shm.py`` (anonymous shared memory, which the process executor and
-  the mock both use);
+  way to get one), ``shm.py`` (anonymous shared memory, which the process executor and
+  the mock both use), and what the backends and layers share: ``poller.py`` (the one driver
+  poller, and its ``[drivers]`` section) and ``spi.py`` (one SPI bus per device node,
+  py-spidev);
 - the backends, one package each under ``backends/`` (``mock``, ``gpiod``), and the layers,
   which work with any backend, under ``layers/`` (``tmc``: the TMC driver chips over SPI).
   Each has the same pattern: ``config.py`` holds its declaration (its config sections and

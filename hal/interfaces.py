@@ -25,7 +25,7 @@ import time
 from abc import ABC, abstractmethod
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motorctl.hal.compiled_lines import (
     NO_COMPILED_LINES,
@@ -33,6 +33,10 @@ from motorctl.hal.compiled_lines import (
     CompiledLines,
     SimulatedLines,
 )
+
+if TYPE_CHECKING:  # they import this module; a backend makes them for its Hardware
+    from motorctl.hal.poller import DriverPoller
+    from motorctl.hal.spi import SpiBuses
 
 
 class HalError(RuntimeError):
@@ -370,12 +374,18 @@ class DriverStatus:
 class StepperDriver(ABC):
     """A stepper driver chip's status (over SPI on real hardware).
 
-    :meth:`status` may block (two SPI transfers): it is called only from the driver monitor
-    thread, never on the step path. Failures raise :class:`HalIOError`.
+    :meth:`status` is the latest reading, without I/O (any thread); :meth:`refresh` reads
+    the chip, on the HAL's driver poller's thread (hal/poller.py), never on the step path.
     """
 
     @abstractmethod
     def status(self) -> DriverStatus: ...
+
+    def refresh(self) -> DriverStatus:
+        """Read the chip now and return what :meth:`status` then says (the driver poller's
+        thread; may block on its bus; a failed read is a fault in the status, not an
+        exception). Default: :meth:`status`, for a driver with nothing to read."""
+        return self.status()
 
     def stats(self) -> dict[str, object] | None:
         """The driver's figures for the status document's ``drivers`` list (docs/status.md:
@@ -508,7 +518,10 @@ class StepperHardware:
 
 @dataclass
 class Hardware:
-    """The machine as the daemon's process sees it: drivers, pins, DC bridge.
+    """The machine as the daemon's process sees it: drivers, pins, DC bridge, and what its
+    parts share: the driver poller (``poller``: every layer and backend registers the chips
+    it reads there, the motion engine takes what they report) and the SPI buses (``spi``:
+    one per device node, whichever layer uses it).
 
     The step/dir/end-stop lines are not here: the step executor opens them itself
     (:func:`motorctl.hal.registry.open_step_io`).
@@ -518,6 +531,8 @@ class Hardware:
     steppers: list[StepperHardware]
     pins: dict[int, Pin]
     dc: DcBridge | None
+    poller: DriverPoller
+    spi: SpiBuses
     closers: list[Callable[[], None]] = field(default_factory=list)
     #: what an executor in another process must add to the spec's options to open its
     #: step IO consistently with this hardware (the mock: its shared mechanics)
@@ -541,6 +556,8 @@ class Hardware:
         return None
 
     def close(self) -> None:
+        """Stop the poller (nothing reads a chip any more), then close the parts."""
+        self.poller.stop()
         for close in reversed(self.closers):
             close()
         self.closers.clear()

@@ -47,6 +47,7 @@ from motorctl.hal.contract import (
     ProblemKind,
 )
 from motorctl.hal.interfaces import Clock, HalError, Hardware, StepIO
+from motorctl.hal.poller import DriversConfig
 from motorctl.hal.spec import DriverSpec, HardwareSpec
 from motorctl.schema import Extension
 
@@ -150,9 +151,17 @@ def layer(name: str) -> Layer:
     return found
 
 
+#: the HAL's own sections, beside its backends' and layers': [drivers] (hal/poller.py)
+HAL_SECTIONS: tuple[Extension, ...] = (
+    Extension("", "drivers", DriversConfig, owner="the HAL's driver poller"),
+)
+
+
 def config_sections() -> list[tuple[str, tuple[Extension, ...]]]:
-    """(backend or layer name, its config sections) of every backend and layer."""
-    found = [(name, backend_declaration(name).sections(driver_spec)) for name in BACKENDS]
+    """(the HAL, a backend or a layer name, its config sections): the HAL's own
+    (``HAL_SECTIONS``), every backend's and every layer's."""
+    found = [("hal", HAL_SECTIONS)]
+    found += [(name, backend_declaration(name).sections(driver_spec)) for name in BACKENDS]
     return found + [(name, d.sections()) for name, d in layer_declarations().items()]
 
 
@@ -182,8 +191,12 @@ def _applying(spec: HardwareSpec) -> list[str]:
 
 def open_hardware(name: str, spec: HardwareSpec, clock: Clock) -> Hardware:
     """The daemon's part of the machine (drivers, pins, DC bridge), with the layers the
-    config uses attached (its driver chips)."""
+    config uses attached (its driver chips), its driver poller at ``[drivers] poll_ms``
+    (not started: its consumer starts it)."""
     hw = backend(name).build(spec, clock)
+    drivers = spec.sections.get(DriversConfig)
+    if drivers is not None:
+        hw.poller.period_s = drivers.poll_ms / 1000.0
     try:
         for layer_name in _applying(spec):
             layer(layer_name).attach(hw, spec, clock)

@@ -2,11 +2,12 @@
 
 spi-gpio bit-bangs /dev/spidev1.0 over gpio-sim bank 0 lines 0..3 (SCK, MOSI, MISO, CS); the
 kernel's gpio:gpio_value trace events record every edge. This script drives motorctl's own
-SPI layer (py-spidev from the guest's venv, ``motorctl.hal.layers.tmc``'s SPI link and
-driver) and decodes the trace: each datagram must be one chip-select window of exactly 40 clocks,
-SCK must idle high (SPI mode 3) and the MOSI bits sampled on SCK's rising edges must be the
-datagrams the driver means to send. MISO has no chip behind it (it reads the sim's pull), so
-the driver must also say that no chip answers, naming the device.
+SPI code (py-spidev from the guest's venv, the HAL's bus ``motorctl.hal.spi``, the TMC
+layer's SPI link and driver) and decodes the trace: each datagram must be one chip-select
+window of exactly 40 clocks, SCK must idle high (SPI mode 3) and the MOSI bits sampled on
+SCK's rising edges must be the datagrams the driver means to send. MISO has no chip behind
+it (it reads the sim's pull), so the driver must also say that no chip answers, naming the
+device.
 
 Usage (guest): python3 hwtest/spi_wire.py; exit status 0 when every check passed.
 """
@@ -27,8 +28,8 @@ from motorctl.hal.layers.tmc.driver import TmcDriver  # noqa: E402
 from motorctl.hal.layers.tmc.fields import Reg  # noqa: E402
 from motorctl.hal.layers.tmc.link import TmcError, TmcLink  # noqa: E402
 from motorctl.hal.layers.tmc.settings import TmcSettings  # noqa: E402
-from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice, spidev_factory  # noqa: E402
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130  # noqa: E402
+from motorctl.hal.spi import SpiAddress, SpiBuses, SpiSettings, spidev_factory  # noqa: E402
 
 SCK, MOSI, MISO, CS = 0, 1, 2, 3
 TRACE = "/sys/kernel/tracing"
@@ -115,7 +116,7 @@ def check(name: str, ok: bool, detail: str) -> bool:
 def main() -> int:
     buses = SpiBuses()
     factory = spidev_factory()
-    dev = SpiDevice(SpiAddress(1, 0), buses, factory, 500_000)
+    dev = buses.bus(SpiAddress(1, 0), SpiSettings(500_000), "spi_wire", factory)
     good = True
 
     # 1. start-up against a bus with no chip: MISO pulled high reads 0xffffffff

@@ -1,17 +1,20 @@
 """The motion engine: every motor's state machine, the DC motor and one executor.
 
-Owner: ``engine.lock`` (the motion lock), taken by the dispatcher, the planner thread and
-the driver monitor for short, bounded work (state machines, planning a few ms of steps).
-The step path never takes it: it is the executor's, fed through queues.
+Owner: ``engine.lock`` (the motion lock), taken by the dispatcher and the planner thread
+for short, bounded work (state machines, planning a few ms of steps). The step path never
+takes it: it is the executor's, fed through queues.
 
-Threads on a real clock (:meth:`start`): the planner thread (events from the executor,
-refilling step segments, DC run ends; normal priority) and the driver monitor (reads
-every driver's status outside the lock, then latches faults under it). Tests on a virtual
-clock call :meth:`run_until` instead: executor steps, planner, DC and polls in time order.
+Threads on a real clock (:meth:`start`): the planner thread (events from the executor and
+the drivers, refilling step segments, DC run ends; normal priority), and the HAL's driver
+poller's (``Hardware.poller``, hal/poller.py: it reads the driver chips outside the lock
+and pushes a fault or a stall here, :meth:`_on_driver_news`: queued, the planner woken, and
+acted on under the lock by :meth:`process_events` at once, or by the dispatcher's call of it
+before it answers a command). Tests on a virtual clock call :meth:`run_until` instead:
+executor steps, planner, DC and driver polls in time order.
 
 :meth:`settle_stop` is called by the link thread WITHOUT the lock: it waits, bounded by
 ``stop_confirm_s``, for the executor to confirm a hard stop, taking the lock only to process
-events, so the planner and the driver monitor go on meanwhile. What wakes it is
+events, so the planner and the driver poller go on meanwhile. What wakes it is
 ``_reports``, a condition notified on every executor report (``Executor.on_event``: the
 executor's event thread, or the step thread of the ``thread`` kind, for a moment).
 """
@@ -25,13 +28,7 @@ from collections import Counter, deque
 from collections.abc import Callable, Sequence
 from functools import partial
 
-from motorctl.hal.interfaces import (
-    BridgeState,
-    DriverStatus,
-    HalError,
-    Hardware,
-    VirtualClock,
-)
+from motorctl.hal.interfaces import BridgeState, DriverStatus, Hardware, StepperDriver, VirtualClock
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, Executor, from_ticks, to_ticks
 from motorctl.motion.motor import Motor
@@ -77,7 +74,6 @@ class MotionEngine:
         params: Sequence[MotorParams],
         executor: Executor,
         *,
-        driver_poll_s: float = 0.01,
         stop_confirm_s: float = STOP_CONFIRM_S,
     ) -> None:
         if len(params) != len(hw.steppers):
@@ -94,14 +90,17 @@ class MotionEngine:
             Motor(i, p, hw.steppers[i].driver, executor, self._notify) for i, p in enumerate(params)
         ]
         self.dc = DcMotor(hw.dc) if hw.dc is not None else None
-        self.driver_poll_s = driver_poll_s
         self.stop_confirm_s = stop_confirm_s
-        self._next_poll = self.clock.now() + driver_poll_s
         self._next_plan = float("inf")
         self.executor_died: str | None = None
         self.planner_progress = 0
-        self.monitor_progress = 0
-        self.driver_errors = 0
+        # what the driver poller pushed (its thread appends, process_events takes: a deque's
+        # append and popleft are atomic, no lock between them)
+        self.poller = hw.poller
+        # each reading with every motor's step counter just before its pass read the drivers
+        self._driver_news: deque[tuple[StepperDriver, DriverStatus, tuple[int, ...]]] = deque()
+        self._steps_before_poll: tuple[int, ...] = ()
+        self.poller.connect(self._on_driver_news, self._before_poll)
         # executor reports (on_event calls) so far: what wakes a waiting settle_stop
         self._reports = threading.Condition(threading.Lock())
         self._report_count = 0
@@ -124,6 +123,18 @@ class MotionEngine:
         with self._reports:
             self._report_count += 1
             self._reports.notify_all()
+
+    def _before_poll(self) -> None:
+        """The poller is about to read the drivers (its thread): each motor's step counter
+        now, for the readings of this pass (a lock-free read of the executor's count)."""
+        self._steps_before_poll = tuple(m.abs_steps for m in self.motors)
+
+    def _on_driver_news(self, readings: Sequence[tuple[StepperDriver, DriverStatus]]) -> None:
+        """A driver read a fault or a stall (the poller's thread; never the engine lock):
+        queued, and the planner woken to act on it now."""
+        steps = self._steps_before_poll
+        self._driver_news.extend((driver, status, steps) for driver, status in readings)
+        self.wake.set()
 
     def _notify(self, motor: Motor, event: str) -> None:
         for listener in self.listeners:
@@ -264,7 +275,13 @@ class MotionEngine:
 
     # -- the planner's side (lock held) ------------------------------------------
     def process_events(self, now: float) -> None:
-        """Hand what the executor reported to the motors."""
+        """Hand what the drivers and the executor reported to the motors."""
+        news = self._driver_news
+        while news:
+            driver, status, steps = news.popleft()
+            for m in self.motors:
+                if m.driver is driver:
+                    m.on_driver_status(status, now, steps[m.index] if steps else None)
         for ev in self.executor.events():
             self._dispatch(ev, now)
 
@@ -292,41 +309,21 @@ class MotionEngine:
         self._next_plan = nxt
         return nxt
 
-    def poll_drivers(self, now: float) -> None:
-        """Read every driver (outside the lock: SPI may block), then act under the lock."""
-        statuses: list[DriverStatus | None] = []
-        steps: list[int] = []  # each motor's step counter just before its driver was read
-        for m in self.motors:
-            steps.append(m.abs_steps)
-            try:
-                statuses.append(m.driver.status())
-            except HalError as exc:
-                self.driver_errors += 1
-                statuses.append(None)
-                log.error("motor %d: driver status read failed: %s", m.index, exc)
-        acted = False
-        with self.lock:
-            for m, st, n in zip(self.motors, statuses, steps, strict=True):
-                if st is not None and (st.fault is not None or st.stall):
-                    m.on_driver_status(st, now, n)
-                    acted = True
-            if acted:  # a fault or stall acted on: its events now; else the planner's pass
-                self.service(now)
-
     # -- a virtual clock ------------------------------------------------------------
     def next_deadline(self) -> float:
-        best = min(self._next_plan, self._next_poll)
+        best = min(self._next_plan, self.poller.next_due())
         step = self.executor.next_deadline()
         if step is not None and step < best:
             best = step
         return best
 
     def _tick(self, now: float) -> None:
+        """What is due at ``now``: steps, the driver polls (what they read is acted on in
+        the service that follows), the planner."""
         self.executor.advance(now)
+        if self.poller.is_due(now):
+            self.poller.poll_due(now)
         self.service(now)
-        if now >= self._next_poll:
-            self._next_poll = now + self.driver_poll_s
-            self.poll_drivers(now)
 
     def run_until(self, t: float) -> None:
         """Drive a virtual clock to ``t``, doing everything due on the way, in time order."""
@@ -359,19 +356,20 @@ class MotionEngine:
                 clock.advance_to(_on_tick(d))
                 self._tick(clock.now())
 
-    # -- a real clock: the planner thread and the driver monitor ------------------------
+    # -- a real clock: the planner thread and the driver poller's -----------------------
     def start(self) -> None:
         if self.clock.is_virtual:
             raise ValueError("the engine's threads run on a real clock; tests use run_until")
         self._running = True
         self._threads = [
             threading.Thread(target=self._planner, name="motorctl-planner", daemon=True),
-            threading.Thread(target=self._monitor, name="motorctl-drivers", daemon=True),
         ]
         for t in self._threads:
             t.start()
+        self.poller.start()
 
     def stop_threads(self) -> None:
+        self.poller.stop()
         self._running = False
         self.wake.set()
         for t in self._threads:
@@ -380,12 +378,15 @@ class MotionEngine:
 
     @property
     def hardware_errors(self) -> int:
-        """Backend calls that failed: driver reads here, STEP/DIR/end-stop I/O in the executor."""
-        return self.driver_errors + self.executor.health().counters.get("io_errors", 0)
+        """Backend calls that failed: driver polls that raised (the poller's), STEP/DIR/end-stop
+        I/O in the executor."""
+        return self.poller.failures + self.executor.health().counters.get("io_errors", 0)
 
     @property
     def threads_alive(self) -> bool:
-        return bool(self._threads) and all(t.is_alive() for t in self._threads)
+        return (
+            bool(self._threads) and all(t.is_alive() for t in self._threads) and self.poller.alive
+        )
 
     def _planner(self) -> None:
         clock, wake = self.clock, self.wake
@@ -396,13 +397,6 @@ class MotionEngine:
             wait = min(nxt - clock.now(), PLANNER_TICK_S)
             if wait > 0 and wake.wait(wait):
                 wake.clear()
-
-    def _monitor(self) -> None:
-        stop = threading.Event()
-        while self._running:
-            self.monitor_progress += 1
-            self.poll_drivers(self.clock.now())
-            stop.wait(self.driver_poll_s)
 
     def shutdown(self) -> None:
         """Soft-stop every motor (callers then wait until idle), brake the DC motor."""

@@ -115,6 +115,7 @@ PURE_MAY_IMPORT = ("motorctl.protocol", "motorctl.daemon.dispatcher")
 OPTIONAL = {
     "rich": "motorctl.daemon.status.monitor_view",
     "prometheus_client": "motorctl.daemon.status.metrics",
+    "spidev": "motorctl.hal.spi",  # py-spidev: the HAL's SPI buses, for every layer
 }
 
 

@@ -104,6 +104,22 @@ name = "x"
 
 One linear motor, every other key at its default: no DC motor, no pins, no wires, mock
 backend, CRC-8/SMBUS checksums.
+
+## Keys of earlier releases
+
+A key that an earlier release had and this one no longer reads is *retired*, not unknown:
+a file that writes it still loads, the value is ignored, and a warning names the key, why
+and what to write instead (`motorctld --check-config` prints it; the daemon logs it at
+start). A warning rather than an error, so that a daemon upgraded in place starts with the
+file it had (one written by `--print-default-config` writes every key), while its owner
+learns what changed; the reference below lists each retired key under its table. So
+`[step_thread] driver_poll_ms` and `[motors.tmc] poll_ms`, the periods of the two pollers
+a driver fault used to pass through, load with a warning that names the one poller's
+period that replaced them, `[drivers] poll_ms`:
+
+```
+warning: /etc/motorctl.toml: 'step_thread.driver_poll_ms' is retired and ignored: the HAL's one driver poller reads every driver chip now and hands a fault to the motors as it reads it, with nothing to do with the step thread; its period is [drivers] poll_ms; fix: remove it
+```
 """
 
 HOW_TO: Final = """\
@@ -153,17 +169,31 @@ def _row(row: Row) -> str:
     return f"| `{path}` | {type_} | {default} | {what} |"
 
 
-def _notes(child: Child, path: str) -> list[str]:
-    """The notes of the tables nested in `child`, each as a paragraph naming its table."""
+def _notes(child: Child, path: str, keys: str) -> list[str]:
+    """The notes of the tables nested in `child` (at `path`, its keys written `keys`.name),
+    each as a paragraph naming its table, and their retired keys."""
     found = []
     for sub in child.table.children:
         sub_path = f"{path}.{sub.name}"
+        sub_keys = f"{keys}.{sub.name}" + ("[]" if sub.array else "")
         if sub.table.notes:
             owner = f" ({sub.owner})" if sub.owner else ""
             text = f"`{header(sub_path, sub.array)}`{owner}: " + " ".join(sub.table.notes.split())
             found.append(textwrap.fill(text, WIDTH, break_on_hyphens=False))
-        found += _notes(sub, sub_path)
+        found += _retired(sub.table, sub_keys)
+        found += _notes(sub, sub_path, sub_keys)
     return found
+
+
+def _retired(table: Table, keys: str) -> list[str]:
+    """A paragraph for each retired key of `table` (its keys written `keys`.name)."""
+    return [
+        _fill(
+            f"Retired: `{keys}.{name}` (any value) still loads, with a warning, and means "
+            f"nothing: {why}."
+        )
+        for name, why in table.retired
+    ]
 
 
 def _fill(text: str) -> str:
@@ -196,19 +226,13 @@ def render() -> str:
         rows = describe_child(child, "", notes)
         table = ["| key | type | default | accepted values and meaning |", "|---|---|---|---|"]
         parts.append("\n".join(table + [_row(r) for r in rows]) + "\n")
-        for name, why in child.table.retired:
-            parts.append(
-                _fill(
-                    f"Retired: `{child.name}.{name}` (any value) still loads, with "
-                    f"a warning, and means nothing: {why}."
-                )
-                + "\n"
-            )
+        keys = child.name + ("[]" if child.array else "")
+        parts += [paragraph + "\n" for paragraph in _retired(child.table, keys)]
         if child.table.notes:
             names = _fill(checksum_names() + ".")
             aliases = ", ".join(sorted(ALIASES))
             parts.append(child.table.notes.format(crc_names=names, crc_aliases=aliases) + "\n")
-        for note in _notes(child, child.name):
+        for note in _notes(child, child.name, keys):
             parts.append(note + "\n")
     parts += [HOW_TO, API]
     return "\n".join(parts)

@@ -194,6 +194,9 @@ most hosts; change them only if the step-timing statistics report late edges."""
         "max_lateness_us": "a late step is judged by the lag it causes, in full steps "
         "(each motor's max_lag_full_steps and start_speed; docs/timing.md), not by a fixed "
         "number of microseconds",
+        "driver_poll_ms": "the HAL's one driver poller reads every driver chip now and hands "
+        "a fault to the motors as it reads it, with nothing to do with the step thread; its "
+        "period is [drivers] poll_ms",
     },
 )
 @dataclass(frozen=True)
@@ -218,12 +221,6 @@ class StepThreadConfig:
     lock_memory: bool = boolean(True, "mlockall() when permitted.")
     switch_interval_us: float = number(
         100.0, 10, 100000, "sys.setswitchinterval() for the daemon process."
-    )
-    driver_poll_ms: float = number(
-        10.0,
-        0.1,
-        10000,
-        "How often driver status (faults, stall) is polled while a motor moves.",
     )
     cpu: int = integer(
         -1,

@@ -41,6 +41,7 @@ from motorctl.hal.backends.gpiod.config import (
 )
 from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
 from motorctl.hal.layers.tmc.config import SpidevConfig, TmcAxisConfig
+from motorctl.hal.poller import DriversConfig
 from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import CodecOptions
 from motorctl.protocol.crc import SMBUS, crc8_by_name
@@ -162,7 +163,7 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
     assert config.hal == HalConfig("mock")
     assert config.step_thread == StepThreadConfig(
-        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, 10.0, -1, "process", 50.0, 50.0, "auto"
+        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, -1, "process", 50.0, 50.0, "auto"
     )
     assert load_config(str(path)) == config
 
@@ -221,6 +222,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         ("pins[].gpiod", GpiodPinConfig),
         ("motors[].tmc", TmcAxisConfig),
         ("spidev", SpidevConfig),
+        ("drivers", DriversConfig),
     ]
     expected = {
         f"{prefix}.{f.name}"
@@ -233,6 +235,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
     expected |= {"mock", "motors[].mock"}  # the mock backend's tables, in `sections`
     expected |= {"gpiod", "motors[].gpiod", "pins[].gpiod"}  # the gpiod backend's
     expected |= {"spidev", "motors[].tmc"}  # the TMC layer's tables
+    expected |= {"drivers"}  # the HAL's own (its driver poller)
     assert expected == paths
 
 
@@ -787,6 +790,7 @@ def test_table_of_the_whole_file() -> None:
         "dc",
         "motors",
         "pins",
+        "drivers",
         "mock",
         "gpiod",
         "spidev",
@@ -857,6 +861,29 @@ def test_a_retired_key_still_loads_with_a_notice_naming_it(
     assert "unknown key 'link.max_lateness_us'" in message
     message = error_of("[step_thread]\nbogus = 1\n" + MOTOR)
     assert "max_lateness_us" not in message
+
+
+@pytest.mark.parametrize(
+    ("old", "key"),
+    [
+        ("[step_thread]\ndriver_poll_ms = 5.0\n" + MOTOR, "step_thread.driver_poll_ms"),
+        (
+            MOTOR + '[motors.tmc]\nspi = "/dev/spidev0.1"\npoll_ms = 5.0\n',
+            "motors[0].tmc.poll_ms",
+        ),
+    ],
+)
+def test_the_old_driver_poll_keys_load_with_a_notice_naming_the_new_one(old: str, key: str) -> None:
+    """The two pollers' periods up to f8b0dbb (the engine's, the TMC monitor's) became the
+    one poller's, [drivers] poll_ms: an old file still loads, its value ignored, and the
+    notice (a warning at start and from --check-config) says what to write instead."""
+    config = parse_config(old, SOURCE)
+    (notice,) = config.notices
+    assert notice.startswith(f"{SOURCE}: '{key}' is retired and ignored: ")
+    assert "its period" in notice and "is [drivers] poll_ms; fix: remove it" in notice
+    assert config.section(DriversConfig) == parse_config(MOTOR, SOURCE).section(DriversConfig)
+    new = parse_config("[drivers]\npoll_ms = 5.0\n" + MOTOR, SOURCE)
+    assert new.section(DriversConfig).poll_ms == 5.0 and not new.notices
 
 
 @pytest.mark.parametrize(

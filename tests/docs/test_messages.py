@@ -78,6 +78,7 @@ SNIPPETS = {
     + MOTOR
     + '[motors.gpiod]\nstep = "GPIO17"\ndir = "GPIO27"\n'
     + '[[motors]]\nname = "y"\n[motors.gpiod]\ndir = "GPIO23"\n',
+    "driver_poll_ms": "[step_thread]\ndriver_poll_ms = 10.0\n" + MOTOR,
 }
 
 #: a motor with a TMC2130 where a TMC5160 answers (tests/fakespi/ stands in for py-spidev)
@@ -125,6 +126,13 @@ QUOTES = [
             (
                 "TOML syntax",
                 f"{ETC}: line 3: TOML syntax error: Invalid value (at line 3, column 12)",
+            ),
+            (
+                "driver_poll_ms",
+                f"warning: {ETC}: 'step_thread.driver_poll_ms' is retired and ignored: the "
+                "HAL's one driver poller reads every driver chip now and hands a fault to the "
+                "motors as it reads it, with nothing to do with the step thread; its period is "
+                "[drivers] poll_ms; fix: remove it",
             ),
             (
                 "default above max",

@@ -39,7 +39,7 @@ def test_every_name_maps_to_the_contracts_classes() -> None:
         assert type(declaration) is type(DECLARATIONS[name])
         found_layer = registry.layer(name)
         assert type(found_layer) is IMPLEMENTATIONS[name] and found_layer.name == name
-    assert [name for name, _ in registry.config_sections()] == ["mock", "gpiod", "tmc"]
+    assert [name for name, _ in registry.config_sections()] == ["hal", "mock", "gpiod", "tmc"]
 
 
 def test_an_unknown_backend_names_the_ones_there_are() -> None:

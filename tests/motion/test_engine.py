@@ -228,7 +228,9 @@ def test_deadlines() -> None:
     rig = engine_rig(dc=True)
     e = rig.engine
     assert rig.executor.next_deadline() is None
-    assert e.next_deadline() == rig.clock.now() + POLL
+    assert e.next_deadline() == rig.clock.now()  # the driver poller's first reads: at once
+    e.run_until(rig.clock.now())
+    assert e.next_deadline() == rig.clock.now() + POLL  # then every period
     with e.lock:
         e.dc_run(True, 0.001, BridgeState.BRAKE)
         e.service(rig.clock.now())
@@ -241,6 +243,24 @@ def test_deadlines() -> None:
     rig.advance(0.002)
     assert rig.executor.next_deadline() == first  # handed to the step core
     assert e.next_deadline() == min(first, rig.clock.now() - 0.002 + POLL)
+
+
+def test_a_driver_fault_is_acted_on_as_soon_as_the_poller_pushes_it() -> None:
+    """What the driver poller read is not left for a tick of the engine's own: the planner
+    is woken, and whoever processes the engine's events next (the dispatcher, before it
+    answers a command) acts on it, under the lock."""
+    rig = engine_rig()
+    e, m = rig.engine, rig.m
+    e.run_until(rig.clock.now())
+    rig.world.inject_fault(0, "over-temperature")
+    e.wake.clear()
+    e.poller.poll_due(e.poller.next_due())  # the poller's thread reads the drivers
+    assert e.wake.is_set()
+    assert m.fault is None  # queued: the engine acts on its own thread, under its lock
+    with e.lock:
+        e.process_events(rig.clock.now())
+    assert m.state is MotorState.FAULT and m.fault == "driver fault: over-temperature"
+    assert e.hardware_errors == 0  # a fault the chip reports is no failed call
 
 
 # ---------------------------------------------------------------- properties

@@ -165,8 +165,9 @@ def engine_rig(
     ``axes``: the mock's axes (default: end stops at -1000 and 1000); ``lows``: their end
     stops active low or not; ``clock``: a virtual clock unless given; ``max_error_s``,
     ``lag_faults`` (None: the mock's own rule, simulated motors slide), ``ahead_s`` and
-    ``lead_s``: the thread step executor's; ``drivers``: the first motors' drivers instead
-    of the mock's; ``executor``: another executor instead.
+    ``lead_s``: the thread step executor's; ``driver_poll_s``: the driver poller's period;
+    ``drivers``: the first motors' drivers instead of the mock's (the poller reads them, as
+    a layer registers its chips); ``executor``: another executor instead.
     """
     if not params:
         params = (motor_params(),)
@@ -177,15 +178,18 @@ def engine_rig(
     clock = clock or VirtualClock()
     spec = HardwareSpec(axes=tuple(axes), dc=dc, options={"timeline_len": None})
     hw = build(spec, clock)
-    for stepper, driver in zip(hw.steppers, drivers, strict=False):
+    hw.poller.period_s = driver_poll_s
+    for i, (stepper, driver) in enumerate(zip(hw.steppers, drivers, strict=False)):
+        hw.poller.forget(stepper.driver)
         stepper.driver = driver
+        hw.poller.watch(driver, f"motor {i}'s driver")
     if executor is not None:
         ex = executor(hw, spec, list(params))
     else:
         faults = hw.motors_lose_steps if lag_faults is None else lag_faults
         limits = axis_limits(params, max_error_s, lag_faults=faults)
         ex = ThreadStepExecutor(hw, "mock", spec, limits, ahead_s=ahead_s, lead_s=lead_s)
-    engine = MotionEngine(hw, list(params), ex, driver_poll_s=driver_poll_s)
+    engine = MotionEngine(hw, list(params), ex)
     rig = EngineRig(clock, hw, world_of(hw), engine)
 
     def record(m: Motor, e: str) -> None:

@@ -1,6 +1,6 @@
 """TMC chips on a fake SPI bus: register-level models (tests/support/tmc_model.py) behind
-the fake kernel's /dev/spidev0.x, motorctl's own SPI devices, bus locks and drivers over it,
-on a virtual clock. The ``spi_bench`` fixture (tests/conftest.py) hands one to a test."""
+the fake kernel's /dev/spidev0.x, motorctl's own SPI buses (hal/spi.py) and drivers over
+them, on a virtual clock. The ``spi_bench`` fixture (tests/conftest.py) hands one to a test."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.layers.tmc.config import CHIPS
 from motorctl.hal.layers.tmc.driver import TmcDriver
 from motorctl.hal.layers.tmc.settings import TmcSettings
-from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
 from motorctl.hal.layers.tmc.tmc5160 import TMC5160, RefSwitches, Tmc5160
+from motorctl.hal.spi import SpiAddress, SpiBus, SpiBuses, SpiSettings
 from tests.support.tmc_model import FakeKernel, TmcModel
 
 #: The SPI clock the drivers are opened with (Hz).
@@ -41,7 +41,7 @@ S5160 = TmcSettings(
 
 
 class SpiBench:
-    """A fake kernel with chips on /dev/spidev0.x and the bus locks."""
+    """A fake kernel with chips on /dev/spidev0.x and the machine's SPI buses."""
 
     def __init__(self) -> None:
         self.kernel = FakeKernel()
@@ -54,8 +54,11 @@ class SpiBench:
         self.kernel.chips[(0, cs)] = model
         return model
 
-    def device(self, cs: int = 0, bus: int = 0, speed: int = SPEED) -> SpiDevice:
-        return SpiDevice(SpiAddress(bus, cs), self.buses, self.kernel.factory(), speed)
+    def device(self, cs: int = 0, bus: int = 0, speed: int = SPEED) -> SpiBus:
+        """The bus of /dev/spidev<bus>.<cs> (the same object each time), opened through the
+        fake kernel."""
+        address = SpiAddress(bus, cs)
+        return self.buses.bus(address, SpiSettings(speed), f"test {address}", self.kernel.factory())
 
     def driver(self, settings: TmcSettings, cs: int = 0) -> TmcDriver:
         """A driver named ``m<cs>``, not started, that names every chip the layer knows."""

@@ -385,6 +385,7 @@ class FakeSpiDev:
         self._fd = -1
         self._mode = 0
         self._speed = 0
+        self._bits = 8
         self._chip: TmcModel | None = None
 
     def open(self, bus: int, device: int) -> None:
@@ -418,6 +419,20 @@ class FakeSpiDev:
         if self._fd < 0:
             raise OSError(errno.EBADF, "Bad file descriptor")
         self._mode = value
+
+    @property
+    def bits_per_word(self) -> int:
+        return self._bits
+
+    @bits_per_word.setter
+    def bits_per_word(self, value: int) -> None:
+        if not isinstance(value, int):
+            raise TypeError("The bits_per_word attribute must be an integer")
+        if value < 8 or value > 16:
+            raise TypeError("invalid bits_per_word (8 to 16)")
+        if self._fd < 0:
+            raise OSError(errno.EBADF, "Bad file descriptor")
+        self._bits = value
 
     @property
     def max_speed_hz(self) -> int:

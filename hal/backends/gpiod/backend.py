@@ -48,7 +48,9 @@ from motorctl.hal.interfaces import (
     StepIO,
     StepperHardware,
 )
+from motorctl.hal.poller import DriverPoller
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import SpiBuses
 
 log = logging.getLogger("motorctl.gpiod")
 
@@ -293,9 +295,11 @@ class GpiodBackend(Backend):
         consumer = wiring.consumer
         hw = GpiodHardware(
             clock,
-            [StepperHardware(NoDriver()) for _ in spec.axes],
+            [StepperHardware(NoDriver()) for _ in spec.axes],  # no status: nothing to poll
             {},
             None,
+            DriverPoller(clock),
+            SpiBuses(),
             api=api,
             lines=list(found.values()),
         )

@@ -44,8 +44,10 @@ from motorctl.hal.interfaces import (
     StepperDriver,
     StepperHardware,
 )
+from motorctl.hal.poller import DriverPoller
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spi import SpiBuses
 
 
 class EventKind(enum.StrEnum):
@@ -480,8 +482,15 @@ class MockWorld:
                 axis.position = pos
 
     def hardware(self) -> Hardware:
+        """The daemon's part; each simulated driver is read by the driver poller (a fault
+        or stall injected here reaches the motors at its next poll)."""
         steppers = [StepperHardware(driver=MockDriver(axis)) for axis in self.axes]
-        hw = MockHardware(self.clock, steppers, dict(self.pins), self.bridge, world=self)
+        poller = DriverPoller(self.clock)
+        for i, (stepper, axis) in enumerate(zip(steppers, self.spec.axes, strict=True)):
+            poller.watch(stepper.driver, f"{axis.name or f'motor {i}'} (mock driver)")
+        hw = MockHardware(
+            self.clock, steppers, dict(self.pins), self.bridge, poller, SpiBuses(), world=self
+        )
         hw.motors_lose_steps = motors_lose_steps(self.spec)
         if self.mechanics is not None:
             hw.step_io_fds["mechanics"] = self.mechanics

@@ -10,8 +10,7 @@ attached to the motors of whichever backend built the machine (``[motors.tmc]``,
   its whole driver: ``tmc2130.py`` (its registers, fields and current scaling),
   ``tmc5160.py`` (the same, and :class:`~motorctl.hal.layers.tmc.tmc5160.Tmc5160`: the
   driver of its own ramp generator, the HAL's RampDriver);
-- ``driver.py``: the driver both chips share (start-up, DRV_STATUS, ``--probe``'s reading),
-  ``settings.py``: a driver's settings and register values, ``spi.py``: the SPI bus
-  (py-spidev), ``link.py``: the chips' 40-bit datagrams, ``monitor.py``: the thread that
-  polls them.
+- ``driver.py``: the driver both chips share (start-up, DRV_STATUS read by the HAL's driver
+  poller, ``--probe``'s reading), ``settings.py``: a driver's settings and register values,
+  ``link.py``: the chips' 40-bit datagrams over the HAL's SPI bus (hal/spi.py).
 """

@@ -47,14 +47,19 @@ CHIPS: Final[Mapping[str, Chip]] = {"tmc2130": TMC2130, "tmc5160": TMC5160}
 The chip is checked at start: IOIN's version must match `driver` (else the daemon refuses to
 start, naming the device and what it found); GCONF, CHOPCONF (TOFF, MRES, ...), IHOLD_IRUN,
 TPOWERDOWN, TCOOLTHRS and COOLCONF (stallGuard threshold) are written, each write is
-verified by the chip's echo and the readable ones are read back. While running, a monitor
-thread reads DRV_STATUS every `poll_ms`: over-temperature, shorts to ground or supply and
-(while moving) open load fault the motor (E4); a short also switches the bridges off until
-motorctld restarts. The stall flag counts only while moving faster than `stall_min_speed`.
-`mode = "ramp"` (TMC5160 only, SD_MODE tied low) lets the chip's own ramp generator move the
-motor: no STEP/DIR lines, positions are XACTUAL, homing uses the chip's REFL/REFR inputs
-(`homing.source = "endstop"`) or stallGuard (`"stall"`, needs `stall_min_speed > 0`).
-Currents are RMS amperes, converted with the sense resistor by the datasheet's formula.""",
+verified by the chip's echo and the readable ones are read back. While running, the HAL's
+driver poller reads DRV_STATUS every `[drivers] poll_ms`: over-temperature, shorts to ground
+or supply and (while moving) open load fault the motor (E4); a short also switches the
+bridges off until motorctld restarts. The stall flag counts only while moving faster than
+`stall_min_speed`. `mode = "ramp"` (TMC5160 only, SD_MODE tied low) lets the chip's own
+ramp generator move the motor: no STEP/DIR lines, positions are XACTUAL, homing uses the
+chip's REFL/REFR inputs (`homing.source = "endstop"`) or stallGuard (`"stall"`, needs
+`stall_min_speed > 0`). Currents are RMS amperes, converted with the sense resistor by the
+datasheet's formula.""",
+    retired={
+        "poll_ms": "the HAL's one driver poller reads every driver chip now and hands a "
+        "fault to the motors as it reads it; its period, for every chip, is [drivers] poll_ms",
+    },
 )
 @dataclass(frozen=True)
 class TmcAxisConfig:
@@ -105,7 +110,6 @@ class TmcAxisConfig:
     open_load: str = choice(
         "fault", ("fault", "warn", "ignore"), "What open load (checked in motion) does."
     )
-    poll_ms: float = number(50.0, 1.0, 10000.0, "DRV_STATUS poll period of the monitor.")
     ref_left_active_low: bool = boolean(False, "ramp mode: REFL is active when low.")
     ref_right_active_low: bool = boolean(False, "ramp mode: REFR is active when low.")
     disable_at_exit: bool = boolean(True, "TOFF = 0 when motorctld exits (motor unpowered).")
@@ -132,7 +136,6 @@ def _settings(v: TmcAxisConfig, invert_dir: bool) -> TmcSettings:
         clock_hz=v.clock_hz,
         invert_dir=invert_dir and v.mode == "ramp",  # step/dir: the DIR line is inverted
         open_load=v.open_load,
-        poll_ms=v.poll_ms,
     )
 
 

@@ -11,9 +11,10 @@ by STEP/DIR; what differs between the chips is asked of their
 subclass in ``tmc5160.py``. (As Klipper's tmc.py, this module names no chip.)
 
 Threads: a :class:`TmcDriver` is started by the thread that builds the hardware; from then on
-:meth:`TmcDriver.poll` runs in the monitor thread only (``monitor.py``), and the step thread
-calls :meth:`TmcDriver.status`, which returns the monitor's last result without any I/O
-(a reference read under a short lock: never blocks on SPI).
+:meth:`TmcDriver.poll` runs on the HAL's driver poller's thread only (hal/poller.py, through
+:meth:`TmcDriver.refresh`), and any other thread calls :meth:`TmcDriver.status`, which
+returns the poller's last result without any I/O (a reference read under a short lock:
+never blocks on SPI).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ from motorctl.hal.interfaces import DriverStatus, StepperDriver
 from motorctl.hal.layers.tmc.fields import Chip, F, Field, Reg, decode_spi_status
 from motorctl.hal.layers.tmc.link import TmcError, TmcLink, identify
 from motorctl.hal.layers.tmc.settings import TmcSettings, register_values
-from motorctl.hal.layers.tmc.spi import SpiDevice, SpiError
+from motorctl.hal.spi import SpiBus, SpiError
 
 log = logging.getLogger("motorctl.tmc")
 
@@ -123,13 +124,13 @@ class ChipReading:
 
 
 class TmcDriver(StepperDriver):
-    """One TMC2130 or TMC5160: started once, polled by the monitor, read by the step path.
+    """One TMC2130 or TMC5160: started once, polled by the driver poller, read by the rest.
 
     ``known``: the other chips to name when one of them answers where ``settings.chip`` was
     configured (the layer passes every chip it knows: ``chips.CHIPS``)."""
 
     def __init__(
-        self, name: str, device: SpiDevice, settings: TmcSettings, known: Iterable[Chip] = ()
+        self, name: str, device: SpiBus, settings: TmcSettings, known: Iterable[Chip] = ()
     ) -> None:
         self.name = name
         self.settings = settings
@@ -221,9 +222,9 @@ class TmcDriver(StepperDriver):
             log.warning("%s: could not disable the driver at shutdown: %s", self.name, exc)
         self.device.close()
 
-    # -- the step path ---------------------------------------------------------------
+    # -- any thread ------------------------------------------------------------------
     def status(self) -> DriverStatus:
-        """The monitor's latest verdict, without I/O. A transient fault is then forgotten
+        """The latest poll's verdict, without I/O. A transient fault is then forgotten
         once the chip is healthy again (so StopMove can clear it)."""
         with self._lock:
             if self._transient_out:  # the reader sees it now: forget it from the next poll
@@ -231,7 +232,13 @@ class TmcDriver(StepperDriver):
                 self._transient_out = False
             return self._status
 
-    # -- the monitor thread ------------------------------------------------------------
+    # -- the driver poller's thread -------------------------------------------------------
+    def refresh(self) -> DriverStatus:
+        """A poll, read as the motors read it (:meth:`status`): the driver poller's call,
+        which hands a fault or a stall on to the motion engine."""
+        self.poll()
+        return self.status()
+
     def poll(self) -> DriverStatus:
         """Read DRV_STATUS and TSTEP, decode, latch; SPI errors become a latched fault."""
         self.polls += 1

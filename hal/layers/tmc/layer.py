@@ -2,17 +2,19 @@
 attached to hardware that any backend built, and probed.
 
 A motor's STEP/DIR lines, end stops and pins come from the hardware backend (``mock``,
-``gpiod``); its driver chip, when the config names one, is opened here: each chip is
-identified, configured and verified before anything moves, and one :class:`DriverMonitor`
-thread polls their DRV_STATUS from then on. py-spidev is imported only when a driver is
-configured (through :func:`motorctl.hal.layers.tmc.spi.spidev_factory`). The registry
+``gpiod``); its driver chip, when the config names one, is opened here, on the machine's
+SPI bus of its device node (``Hardware.spi``, hal/spi.py): each chip is identified,
+configured and verified before anything moves, and registered with the HAL's driver poller
+(``Hardware.poller``, hal/poller.py), which reads its DRV_STATUS from then on. py-spidev is
+imported only when a driver is configured (by hal/spi.py). The registry
 (``hal/registry.py``, ``LAYERS``) attaches and probes it when its declaration
 (``config.py``) says the config gives a motor a driver.
 
 Threads: :meth:`TmcLayer.attach` runs on the thread that opens the hardware; afterwards the
-drivers belong to the monitor thread (polls) and are read lock-free by the step path. The
-closer registered in ``Hardware.closers`` stops the monitor (bounded join) and leaves each
-driver disabled (TOFF = 0) when so configured. ``--probe`` reads on the probing thread.
+drivers are polled on the driver poller's thread and read lock-free by the others. The
+closer registered in ``Hardware.closers`` (run after the Hardware stopped its poller)
+leaves each driver disabled (TOFF = 0) when so configured. ``--probe`` reads on the
+probing thread.
 """
 
 from __future__ import annotations
@@ -24,17 +26,10 @@ from motorctl.hal.interfaces import Clock, HalError, Hardware
 from motorctl.hal.layers.tmc.config import CHIPS, SpidevConfig
 from motorctl.hal.layers.tmc.driver import TmcDriver
 from motorctl.hal.layers.tmc.link import TmcError
-from motorctl.hal.layers.tmc.monitor import DriverMonitor
 from motorctl.hal.layers.tmc.settings import TmcSpec
-from motorctl.hal.layers.tmc.spi import (
-    SpiAddress,
-    SpiBuses,
-    SpiDevice,
-    SpiFactory,
-    spidev_factory,
-)
 from motorctl.hal.layers.tmc.tmc5160 import RefSwitches, Tmc5160
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import SpiAddress, SpiBuses, SpiFactory, SpiSettings, spidev_factory
 
 log = logging.getLogger("motorctl.tmc")
 
@@ -43,17 +38,20 @@ def open_driver(
     name: str,
     spec: TmcSpec,
     buses: SpiBuses,
-    factory: SpiFactory,
+    factory: SpiFactory | None,
     layer: SpidevConfig | None = None,
 ) -> TmcDriver:
-    """A driver object for ``spec`` (not started); ValueError for an impossible setting.
-    ``layer``: the ``[spidev]`` settings (a ramp chip's poll periods; None: the driver's
-    defaults, the keys' defaults too)."""
+    """A driver object for ``spec`` (not started) on its device node's bus of ``buses``
+    (``factory``: py-spidev's API to open it with; None: py-spidev); ValueError for an
+    impossible setting. ``layer``: the ``[spidev]`` settings (a ramp chip's poll periods;
+    None: the driver's defaults, the keys' defaults too)."""
     try:
         address = SpiAddress.parse(spec.spi)
     except ValueError as exc:
         raise TmcError(f"{name}: {exc}") from exc
-    device = SpiDevice(address, buses, factory, spec.spi_speed_hz)
+    chip = spec.settings.chip.name
+    settings = SpiSettings(spec.spi_speed_hz)  # mode 3, 8-bit words: both chips' SPI
+    device = buses.bus(address, settings, f"{name} ({chip})", factory)
     known = CHIPS.values()
     if spec.ramp:
         switches = RefSwitches(spec.ref_left_active_low, spec.ref_right_active_low)
@@ -72,11 +70,12 @@ def open_driver(
 
 
 def attach_drivers(
-    hw: Hardware, spec: HardwareSpec, clock: Clock, factory: SpiFactory | None = None
+    hw: Hardware, spec: HardwareSpec, factory: SpiFactory | None = None
 ) -> list[TmcDriver]:
-    """Open, check and configure every driver the spec's axes name, put each in place of its
-    motor's driver, start the monitor. On any error the drivers already opened are closed
-    again and a TmcError/SpiError (HalError) names the device and the fix."""
+    """Open, check and configure every driver the spec's axes name (on the machine's SPI
+    buses), put each in place of its motor's driver and register it with the machine's
+    driver poller. On any error the drivers already opened are closed again and a
+    TmcError/SpiError (HalError) names the device and the fix."""
     specs = [a.driver if isinstance(a.driver, TmcSpec) else None for a in spec.axes]
     if not any(specs):
         return []
@@ -84,14 +83,12 @@ def attach_drivers(
         raise TmcError(f"{len(specs)} drivers configured for {len(hw.steppers)} motors")
     names = [a.name or f"motor {i}" for i, a in enumerate(spec.axes)]
     layer = spec.sections.get(SpidevConfig)
-    factory = factory or spidev_factory()
-    buses = SpiBuses()
     started: list[tuple[int, TmcDriver, TmcSpec]] = []
     try:
         for i, tmc in enumerate(specs):
             if tmc is None:
                 continue
-            driver = open_driver(names[i], tmc, buses, factory, layer)
+            driver = open_driver(names[i], tmc, hw.spi, factory, layer)
             driver.start()
             started.append((i, driver, tmc))
     except BaseException:
@@ -100,12 +97,10 @@ def attach_drivers(
         raise
     for i, driver, _tmc in started:
         hw.steppers[i].driver = driver
+        hw.poller.watch(driver, f"{driver.name} ({driver.chip.name} on {driver.device.path})")
     drivers = [d for _, d, _ in started]
-    monitor = DriverMonitor(drivers, clock.now)
-    monitor.start()
 
-    def close() -> None:
-        monitor.stop()
+    def close() -> None:  # the Hardware's close stopped the poller first
         for _, driver, tmc in started:
             if tmc.disable_at_exit:
                 driver.close()
@@ -120,7 +115,7 @@ def attach_drivers(
 
 
 def _probe_one(
-    report: ProbeReport, name: str, tmc: TmcSpec, buses: SpiBuses, factory: SpiFactory
+    report: ProbeReport, name: str, tmc: TmcSpec, buses: SpiBuses, factory: SpiFactory | None
 ) -> list[str]:
     """One configured driver's lines for ``--probe``; its problems go to ``report``."""
     try:
@@ -158,7 +153,8 @@ class TmcLayer(Layer):
         self.factory = factory
 
     def attach(self, hw: Hardware, spec: HardwareSpec, clock: Clock) -> None:
-        attach_drivers(hw, spec, clock, self.factory)
+        del clock  # the poller reads the Hardware's
+        attach_drivers(hw, spec, self.factory)
 
     def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         """Each configured driver's chip and version, DRV_STATUS decoded, SPI status; reads

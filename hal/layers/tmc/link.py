@@ -10,8 +10,8 @@ The datasheets' SPI protocol (both chips):
 - The version sits in IOIN bits 31..24: 0x11 for the TMC2130, 0x30 for the TMC5160.
 
 Threads: a link belongs to its driver and is used by whichever thread the driver's caller
-is (see ``driver.py``); all SPI traffic of one bus is serialised by its bus lock
-(:class:`~motorctl.hal.layers.tmc.spi.SpiBuses`), and a pipelined read holds it for all its
+is (see ``driver.py``); all SPI traffic of its device node is serialised by the node's
+lock (:class:`~motorctl.hal.spi.SpiBus`), and a pipelined read holds it for all its
 datagrams.
 """
 
@@ -22,7 +22,7 @@ from typing import Final
 
 from motorctl.hal.interfaces import HalError
 from motorctl.hal.layers.tmc.fields import SPI_STATUS_BITS, Chip, F, Reg
-from motorctl.hal.layers.tmc.spi import SpiDevice
+from motorctl.hal.spi import SpiBus
 
 WRITE: Final = 0x80
 
@@ -38,7 +38,7 @@ class TmcLink:
     most recent status byte.
     """
 
-    def __init__(self, device: SpiDevice, chip: Chip) -> None:
+    def __init__(self, device: SpiBus, chip: Chip) -> None:
         self.device = device
         self.chip = chip
         self.last_status = 0

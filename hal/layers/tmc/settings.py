@@ -38,7 +38,6 @@ class TmcSettings:
     clock_hz: float = 12e6  # fCLK: the internal clock unless CLK is driven
     invert_dir: bool = False  # GCONF.shaft (used by the ramp generator)
     open_load: str = "fault"  # "fault", "warn" or "ignore"
-    poll_ms: float = 50.0  # DRV_STATUS poll period of the monitor thread
 
     @property
     def sense_ohm(self) -> float:

@@ -7,7 +7,7 @@ reference switch configuration (SW_MODE) and status (RAMP_STAT), and the convers
 between steps/s, steps/s^2 and the ramp generator's units.
 
 :class:`Tmc5160` is the shared driver (``driver.py``; started, configured and verified like
-every driver, its DRV_STATUS polled by the monitor thread) that also sets up and drives the
+every driver, its DRV_STATUS polled by the HAL's driver poller) that also sets up and drives the
 chip's ramp generator: positioning and velocity mode, hard and soft stops, the reference
 switches REFL/REFR (stop and latch XACTUAL into XLATCH on the active edge, or latch it on
 the inactive edge: where the switch releases), stallGuard stops, and homing on them (zero
@@ -43,7 +43,7 @@ from motorctl.hal.layers.tmc.fields import (
 )
 from motorctl.hal.layers.tmc.link import TmcError
 from motorctl.hal.layers.tmc.settings import TmcSettings
-from motorctl.hal.layers.tmc.spi import SpiDevice
+from motorctl.hal.spi import SpiBus
 
 
 class Reg(fields.Reg):
@@ -262,7 +262,7 @@ class Tmc5160(TmcDriver, RampDriver):
     def __init__(
         self,
         name: str,
-        device: SpiDevice,
+        device: SpiBus,
         settings: TmcSettings,
         switches: RefSwitches | None = None,
         *,
@@ -414,7 +414,7 @@ class Tmc5160(TmcDriver, RampDriver):
     def report_stall_stop(self) -> bool:
         if self.sg_stopped:
             return False
-        self.sg_stopped = True  # status() reports the stall: the engine's monitor acts on it
+        self.sg_stopped = True  # status() reports the stall: the driver poller hands it on
         return True
 
     def position(self) -> int:

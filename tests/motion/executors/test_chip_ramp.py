@@ -10,9 +10,9 @@ import pytest
 
 from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.interfaces import VirtualClock
-from motorctl.hal.layers.tmc.spi import SpiAddress, SpiBuses, SpiDevice
 from motorctl.hal.layers.tmc.tmc5160 import RefSwitches, Tmc5160
 from motorctl.hal.spec import AxisSpec, HardwareSpec
+from motorctl.hal.spi import SpiAddress, SpiBus, SpiSettings
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import ExecEventKind
 from motorctl.motion.executors.chip_ramp import RampExecutor, peak_speed
@@ -164,14 +164,6 @@ def ramp_engine(homing: HomingParams | None = None) -> tuple[RampRig, MotionEngi
     return rig, engine
 
 
-def poll_drivers(rig: RampRig, engine: MotionEngine, seconds: float) -> None:
-    """Run the engine with the driver monitor's polls (virtual time)."""
-    end = rig.clock.now() + seconds
-    while rig.clock.now() < end:
-        rig.chips[0].poll()
-        engine.run_until(rig.clock.now() + 0.005)
-
-
 def test_engine_moveto_and_getabspos_through_the_chip() -> None:
     rig, engine = ramp_engine()
     m = engine.motors[0]
@@ -224,7 +216,7 @@ def test_engine_homing_through_the_chip_then_moveto_0_stays_off_the_switch(
     deadline = rig.clock.now() + 20.0
     while not m.idle and m.fault is None:
         assert rig.clock.now() < deadline, "homing did not finish"
-        poll_drivers(rig, engine, 0.01)
+        engine.run_until(rig.clock.now() + 0.01)  # the driver poller's reads among the rest
     assert m.fault is None
     # the chip stands where it stopped: at the stall, or braked a few steps past the release
     assert 0 <= -direction * m.position <= (3 if endstop else 0)
@@ -233,7 +225,7 @@ def test_engine_homing_through_the_chip_then_moveto_0_stays_off_the_switch(
             m.submit(MoveToCmd(target, RAMP), rig.clock.now())
         while not m.idle and m.fault is None:
             assert rig.clock.now() < deadline + 20.0, "the move did not finish"
-            poll_drivers(rig, engine, 0.01)
+            engine.run_until(rig.clock.now() + 0.01)  # the driver poller's reads among the rest
     assert m.fault is None  # no E4: neither the switch nor a stall on the way back
     assert m.position == 0  # GetAbsPos
     if endstop:  # zero: the first microstep off the switch (the model's positions are real)
@@ -274,9 +266,7 @@ def test_a_chip_reset_faults_the_axis_with_its_position_lost() -> None:
         m.submit(MoveToCmd(8000, RAMP), rig.clock.now())
     engine.run_until(rig.clock.now() + 0.3)
     rig.models[0].power_cycle()
-    for _ in range(20):
-        rig.chips[0].poll()  # the driver monitor notices, reconfigures the chip
-        engine.run_until(rig.clock.now() + 0.01)
+    engine.run_until(rig.clock.now() + 0.2)  # the driver poller notices, reconfigures the chip
     assert m.state is MotorState.FAULT and m.position_lost
     assert m.fault is not None and "reset" in m.fault
 
@@ -303,13 +293,13 @@ def test_a_protocol_step_is_one_xactual_microstep_at_the_configured_resolution(
     kernel = FakeKernel()
     model = TmcModel("tmc5160", clock=clock)
     kernel.chips[(0, 0)] = model
-    dev = SpiDevice(SpiAddress(0, 0), SpiBuses(), kernel.factory(), 1_000_000)
+    dev = SpiBus(SpiAddress(0, 0), SpiSettings(1_000_000), kernel.factory())
     chip = Tmc5160("m", dev, replace(RAMP_SETTINGS, microsteps=microsteps), RefSwitches())
     chip.start()
     assert model.reg(A_CHOPCONF) >> 24 & 0xF == mres
     hw = build(HardwareSpec((AxisSpec(),)), clock)
     hw.steppers[0].driver = chip
-    engine = MotionEngine(hw, [motor_params()], RampExecutor([chip], clock), driver_poll_s=0.005)
+    engine = MotionEngine(hw, [motor_params()], RampExecutor([chip], clock))
     m = engine.motors[0]
     target = 2 * microsteps  # two full steps
     with engine.lock:

@@ -140,7 +140,10 @@ def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
     config = parse_config(MIXED, "mixed.toml")
     spec = hardware_spec(config)
     hw = build(spec, rig.clock)
+    hw.poller.forget(hw.steppers[1].driver)
     hw.steppers[1].driver = rig.chips[0]  # what attach_drivers does with the real chip
+    hw.poller.watch(rig.chips[0], "z")
+    hw.poller.period_s = 0.005
     params = motor_params(config)
     ex = build_executor(config, hw, spec, params)
     assert isinstance(ex, SplitExecutor)
@@ -149,7 +152,7 @@ def test_the_daemon_gives_the_step_executor_only_the_stepped_motors() -> None:
     assert steps.io.outputs.motors == 1 and len(steps.positions) == 1  # no slot for z
     ramp_ex, local = ex.routes[1]
     assert isinstance(ramp_ex, RampExecutor) and local == 0
-    engine = MotionEngine(hw, params, ex, driver_poll_s=0.005)
+    engine = MotionEngine(hw, params, ex)
     x, z = engine.motors
     with engine.lock:
         x.submit(MoveToCmd(300, RAMP), rig.clock.now())

@@ -204,7 +204,7 @@ def engine_with_tmc(
     model = spi_bench.chip("tmc2130")
     drv = spi_bench.driver(S2130)
     drv.start()
-    # the mock's STEP/DIR, a TMC2130 for the status
+    # the mock's STEP/DIR, a TMC2130 for the status, read by the engine's driver poller
     engine = engine_rig(
         motor_params(homing=homing),
         axes=[AxisSpec()],
@@ -213,20 +213,20 @@ def engine_with_tmc(
         drivers=[drv],
     ).engine
 
-    def monitor_tick() -> None:  # what the monitor thread does, in virtual time
+    def chip_tick() -> None:  # the chip model sees the motor's motion (STEP/DIR are mock's)
         moving = engine.motors[0].active
         model.step_rate = 2000.0 if moving else 0.0
-        drv.poll()
 
-    return engine, model, monitor_tick
+    return engine, model, chip_tick
 
 
 def run_engine(spi_bench: SpiBench, engine: MotionEngine, tick: Tick, seconds: float) -> None:
-    """Run the engine on the virtual clock with a monitor poll every 10 ms."""
+    """Run the engine on the virtual clock (its driver poller reads the chip every 5 ms),
+    the chip model told the motor's motion every 10 ms."""
     end = spi_bench.clock.now() + seconds
     while spi_bench.clock.now() < end:
-        engine.run_until(spi_bench.clock.now() + 0.01)
         tick()
+        engine.run_until(spi_bench.clock.now() + 0.01)
 
 
 def test_a_driver_fault_stops_the_motor_and_latches_e4(spi_bench: SpiBench) -> None:

@@ -26,29 +26,33 @@ def spec_with(*drivers: TmcSpec | None) -> HardwareSpec:
     return HardwareSpec(tuple(AxisSpec(name=f"m{i}", driver=d) for i, d in enumerate(drivers)))
 
 
-def test_open_hardware_starts_configured_drivers_and_their_monitor(
+def test_open_hardware_starts_configured_drivers_and_registers_them_with_the_poller(
     spi_bench: SpiBench, mock_factory: MockFactory, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     model = spi_bench.chip("tmc2130", cs=1)
     spi_bench.as_spidev_module(monkeypatch)
-    settings_ = TmcSettings(poll_ms=1.0)
-    spec = spec_with(None, TmcSpec("/dev/spidev0.1", settings_))
+    spec = spec_with(None, TmcSpec("/dev/spidev0.1", TmcSettings()))
     hw = mock_factory.hardware(spec, MonotonicClock())
     try:
         drv = hw.steppers[1].driver
         assert isinstance(drv, TmcDriver) and drv.name == "m1"
         assert not isinstance(hw.steppers[0].driver, TmcDriver)
         assert model.regs[tm.A_CHOPCONF] & 0xF == 3  # configured, energised
+        assert [e.drivers for e in hw.poller.entries if drv in e.drivers] == [(drv,)]
+        assert [b.path for b in hw.spi] == ["/dev/spidev0.1"]  # the machine's bus of its node
+        hw.poller.period_s = 0.001
+        hw.poller.start()  # what the motion engine does when it starts
         deadline = time.monotonic() + 10.0
         while drv.polls < 3:
-            assert time.monotonic() < deadline, "the monitor did not poll within 10 s"
+            assert time.monotonic() < deadline, "the poller did not read the chip within 10 s"
             time.sleep(0.005)
     finally:
         hw.close()
     polls = drv.polls
     assert model.regs[tm.A_CHOPCONF] & 0xF == 0  # disabled at exit
+    assert not hw.poller.running
     time.sleep(0.02)
-    assert drv.polls == polls  # the monitor stopped
+    assert drv.polls == polls  # the poller stopped before the chip was closed
 
 
 def test_a_failing_driver_closes_the_ones_already_opened(

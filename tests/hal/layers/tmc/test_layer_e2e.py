@@ -16,12 +16,14 @@ from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_unti
 from tests.support.stand_ins import set_chips, stand_in_env, until_cleared, until_e4
 
 CONFIG = """\
+[drivers]
+poll_ms = 5.0
+
 [[motors]]
 name = "x"
 [motors.tmc]
 driver = "tmc2130"
 spi = "/dev/spidev0.0"
-poll_ms = 5.0
 
 [[motors]]
 name = "y"

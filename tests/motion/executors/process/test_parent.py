@@ -60,7 +60,8 @@ def proc(
     ex = ProcessStepExecutor(
         hw, "mock", spec, axis_limits(params, 5e-6, lag_faults=real), core=step_core
     )
-    engine = MotionEngine(hw, params, ex, driver_poll_s=0.01)
+    hw.poller.period_s = 0.01
+    engine = MotionEngine(hw, params, ex)
     ex.start()
     assert ex.step_core() == step_core
     engine.start()
