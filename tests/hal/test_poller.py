@@ -192,7 +192,12 @@ def test_before_is_called_once_before_each_pass_that_reads() -> None:
     poller = DriverPoller(clock, period_s=0.01)
     chip = Chip()
     order: list[str] = []
-    poller.add("chip", lambda: (order.append("read"), ((chip, chip.refresh()),))[1], (chip,))
+
+    def read() -> Sequence[Reading]:
+        order.append("read")
+        return ((chip, chip.refresh()),)
+
+    poller.add("chip", read, (chip,))
     poller.connect(Sink(), lambda: order.append("before"))
     poller.poll_due(0.0)
     poller.poll_due(0.005)  # nothing due
