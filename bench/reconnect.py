@@ -188,7 +188,9 @@ def stalls(cpus: list[int], seconds: float) -> list[dict[str, Any]]:
     ``STALL_S`` between two readings is a stall. Per second, and the longest."""
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", STALL_LOOP, str(cpu), str(seconds), str(STALL_S)],
+            # isolated (-I): the current folder, wherever the bench was started, is not on
+            # its import path
+            [sys.executable, "-I", "-c", STALL_LOOP, str(cpu), str(seconds), str(STALL_S)],
             stdout=subprocess.PIPE,
             text=True,
         )
