@@ -43,19 +43,20 @@ class Ending:
 
     As the signals' handler (:func:`end_on_signals`) it only notes the request: the drawing
     loop looks at :attr:`requested` at least every 0.1 s and ends in order (the terminal's
-    screen restored, exit status 0). It raises nothing: a KeyboardInterrupt raised into
-    whatever the main thread runs at that moment can be lost (one raised inside a weakref
-    callback of the import system is printed as "Exception ignored" and the import goes on:
-    the monitor kept running). An end not done ``grace_s`` after the first signal (the
-    signal came while the modules were still being imported, or the end is stuck writing
-    to a pipe nobody reads) is cut short: the terminal put back if the monitor's screen is
-    on (:attr:`screen`, kept by the view), then exit status 0 at once. Main thread only
-    (signal handlers); :attr:`requested` and :attr:`screen` are plain flags the main
-    thread reads."""
+    screen restored, then :meth:`finished`: exit status 0 at once). It raises nothing: a
+    KeyboardInterrupt raised into whatever the main thread runs at that moment can be lost
+    (one raised inside a weakref callback of the import system is printed as "Exception
+    ignored" and the import goes on: the monitor kept running). An end not done
+    ``grace_s`` after the first signal (the signal came while the modules were still being
+    imported, or the end is stuck writing to a pipe nobody reads) is cut short: the
+    terminal put back if the monitor's screen is on (:attr:`screen`, kept by the view),
+    then exit status 0 at once. Main thread only (signal handlers); :attr:`requested` and
+    :attr:`screen` are plain flags the main thread reads."""
 
     def __init__(self, grace_s: float = GRACE_S) -> None:
         self.grace_s = grace_s
         self.requested = False
+        self.signalled = False  # requested by SIGINT or SIGTERM
         self.screen = False
 
     def request(self) -> None:
@@ -63,21 +64,20 @@ class Ending:
         self.requested = True
 
     def __call__(self, signum: int, frame: FrameType | None) -> None:
-        if not self.requested:
-            self.requested = True
+        if not self.signalled:
+            self.requested = self.signalled = True
             signal.signal(signal.SIGALRM, self._cut_short)
             signal.setitimer(signal.ITIMER_REAL, self.grace_s)
 
     def finished(self) -> None:
-        """The monitor ended in order: what it drew is flushed (a pipe nobody reads may hold
-        that up: the grace still runs), and then nothing is cut short: what is left is the
-        interpreter's own exit, which resets the signals' handlers (an alarm then would end
-        it with SIGALRM's status)."""
-        try:
+        """The monitor ended in order. Asked by a signal: what it drew is flushed (a pipe
+        nobody reads may hold that up: the grace still runs) and the process exits at once,
+        status 0: the interpreter's own exit (its modules torn down one by one) would take
+        up most of the second on a busy machine, and there is nothing else to end."""
+        if self.signalled:
             sys.stdout.flush()
-        finally:
-            if self.requested:
-                signal.setitimer(signal.ITIMER_REAL, 0)
+            sys.stderr.flush()
+            os._exit(0)
 
     def _cut_short(self, signum: int, frame: FrameType | None) -> None:
         if self.screen and os.isatty(sys.stdout.fileno()):

@@ -101,7 +101,7 @@ def test_the_monitor_ends_on_sigint_and_sigterm_at_any_moment(
 ) -> None:
     runs = [(signal.SIGINT, t) for t in SIGINT_AT_S] + [(signal.SIGTERM, t) for t in SIGTERM_AT_S]
     logs = [tmp_path / f"{sig.name}-{t * 1000:.0f}ms.log" for sig, t in runs]
-    with ThreadPoolExecutor(max_workers=3) as pool:
+    with ThreadPoolExecutor(max_workers=2) as pool:
         outcomes = list(
             pool.map(
                 lambda run, log: watch_and_signal(daemon.state_dir, run[0], run[1], log),
