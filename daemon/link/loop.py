@@ -362,7 +362,7 @@ class Link:
             self._hangup("closed")
             return
         if self._reopened():  # these bytes came after a host closed the port and another
-            self._hangup("closed")  # opened it: the next session's (see turn())
+            self._hangup("closed", reopened=True)  # opened it: the next session's (turn())
         self._take(data, now)
 
     def _reopened(self) -> bool:
@@ -442,9 +442,9 @@ class Link:
         """Drop and count what was owed to the host whose session ended (``how``).
         ``reopened``: a new host has the PTY; if the old one was written nothing, nothing
         of it is in the slave's input, and the new host's session begins at once."""
-        pty, unread = self.pty, b""
+        pty, unread, rest = self.pty, b"", b""
         if pty is not None and self.device is None and not reopened:  # what it wrote, unread
-            unread, reopened = read_out(self.fd, pty.reopened)
+            unread, rest, reopened = read_out(self.fd, pty.reopened)
         ended = self.session.end(unread)
         unsent = len(self._out)  # bytes; a part-sent answer's first ones in the kernel
         self._out.clear()
@@ -459,6 +459,8 @@ class Link:
             self._open_session()  # the new host's (nothing written to it yet)
         elif self._opens is not None:  # no session: a host's open need not wake the loop
             self._poller.modify(self._opens, 0)
+        if rest:  # read out after a new host opened the port: its session's
+            self._take(rest, self.clock())
 
     def _open_session(self) -> None:
         """A host is there again (a new session): its opens and closes are watched again

@@ -51,33 +51,40 @@ UNREAD_MAX = 1 << 20
 UNREAD_READ = 1 << 16
 
 
-def read_out(master: int, reopened: Callable[[], bool]) -> tuple[bytes, bool]:
+def read_out(master: int, reopened: Callable[[], bool]) -> tuple[bytes, bytes, bool]:
     """What the host that closed the PTY wrote and the daemon had not read: the kernel keeps
     it for the master, read out here until none is left. A read that finds nothing first
     waits for what the kernel is still moving into the master's input; it then fails with
     EIO when nobody has the slave open (all of it was the old host's), or with EAGAIN when
-    somebody opened it since (a new host). ``reopened()`` (the slave's watch: a new host
-    opened the port) is asked before each read: what is left then may hold the new host's
-    first bytes, and is its session's. The bytes read, and whether a new host has the port;
-    at most :data:`UNREAD_MAX` bytes (a new host writing all the while)."""
+    somebody opened it since (a new host).
+
+    ``reopened()`` (the slave's watch: a new host opened the port since the close) is asked
+    before the first read and after each: a host's open is reported before anything it
+    writes can be read, so a read after which no open is reported holds the old host's
+    bytes only; the read after which one is, may hold the new host's first bytes too (they
+    cannot be told apart, docs/protocol.md): it is the new session's. Returns the old
+    host's bytes, the new session's, and whether a new host has the port; at most
+    :data:`UNREAD_MAX` bytes (a new host writing all the while, unseen)."""
     out = bytearray()
+    if reopened():
+        return b"", b"", True
     while len(out) < UNREAD_MAX:
-        if reopened():
-            return bytes(out), True
         try:
             chunk = os.read(master, UNREAD_READ)
         except InterruptedError:
             continue
         except BlockingIOError:
-            return bytes(out), True
+            return bytes(out), b"", True
         except OSError as exc:  # EIO: nothing left, and nobody has the slave
             if exc.errno != errno.EIO:
                 log.warning("cannot read what the last host left unread: %s", exc)
-            return bytes(out), False
+            return bytes(out), b"", False
         if not chunk:
             break
+        if reopened():
+            return bytes(out), chunk, True
         out += chunk
-    return bytes(out), False
+    return bytes(out), b"", False
 
 
 class SessionEnds:

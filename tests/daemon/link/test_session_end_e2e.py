@@ -21,7 +21,6 @@ import os
 import select
 import threading
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -143,8 +142,7 @@ def test_a_stop_move_left_unread_behind_back_pressure_is_carried_out(tmp_path: P
         before = counters(d)
         old = os.open(port, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
         try:
-            held_back = before["backpressure"]
-            written = write_frames(old, lambda: counters(d)["backpressure"] > held_back)
+            written = write_frames(old, d, before)
             after = frame(StopMove(0, False)) + frame(GetAbsPos(2)) * 100
             written += write_all(old, after)
         finally:
@@ -164,24 +162,28 @@ def test_a_stop_move_left_unread_behind_back_pressure_is_carried_out(tmp_path: P
         d.close()
 
 
-def write_frames(fd: int, stop: Callable[[], bool]) -> int:
-    """GetAbsPos(2) frames, some 100 at a time as the kernel takes them, until ``stop()``
-    (asked after each write), then the rest of the frame begun; the bytes written."""
-    stream = frame(GetAbsPos(2)) * 100
+def write_frames(fd: int, d: DaemonProcess, before: dict[str, int]) -> int:
+    """GetAbsPos(2) frames, 100 at a time, each lot once the daemon has read the last one,
+    until it stops reading (back pressure): the kernel then holds at most the last lot,
+    with room to spare. The bytes written."""
+
+    def held_back() -> bool:
+        return counters(d)["backpressure"] > before["backpressure"]
+
+    lot = frame(GetAbsPos(2)) * 100
     written = 0
-    end = time.monotonic() + WAIT_S
-    while not stop():
-        assert time.monotonic() < end, "the daemon never stopped reading"
-        if select.select([], [fd], [], 0.05)[1]:
-            with contextlib.suppress(BlockingIOError):
-                written += os.write(fd, stream[written % 10 :])
-    begun = written % 10
-    return written + (write_all(fd, stream[begun:10]) if begun else 0)
+    while not held_back():
+        written += write_all(fd, lot)
+
+        def taken_or_held(n: int = written) -> bool:
+            return counters(d)["bytes_in"] - before["bytes_in"] >= n or held_back()
+
+        until("the daemon to read the host's frames, or to stop reading", taken_or_held)
+    return written
 
 
 def write_all(fd: int, data: bytes) -> int:
-    """All of ``data``, waiting for room (the kernel's: there is some after a stop of the
-    daemon's reading that ``write_frames`` saw at once)."""
+    """All of ``data``, waiting for room in the kernel (``write_frames`` leaves some)."""
     view = memoryview(data)
     end = time.monotonic() + WAIT_S
     while view:
@@ -206,11 +208,11 @@ def test_what_a_host_left_on_its_way_behind_back_pressure_goes_with_its_serial_d
         old = serial.Serial(port, timeout=10)
         writer = Writer(old, frame(GetAbsPos(2)) * FRAMES)
         writer.start()
-        # the daemon has taken a part, and the rest is held back (socat stops relaying once
-        # the host's input is full of answers it does not read; the daemon, once 4096 are owed)
+        # the daemon has taken a part; the rest is on its way or held back (socat stops
+        # relaying once the host's input is full of answers it does not read, at some 4,500)
         until(
-            "the daemon to take the host's first 4000 frames",
-            lambda: counters(d)["frames"] - before["frames"] >= 4000,
+            "the daemon to take the host's first 100 frames",
+            lambda: counters(d)["frames"] - before["frames"] >= 100,
         )
         pair.stop()  # unplugged while the host's frames are on their way
         until("the device's loss counted", lambda: counters(d)["device_lost"] == 1)
