@@ -427,7 +427,7 @@ def main() -> int:
         "counters": {
             k: v
             for k, v in status["counters"].items()
-            if k.startswith(("responses_dropped", "peer_", "device_", "held_discarded"))
+            if k.startswith(("responses_dropped", "peer_", "device_", "held_discarded", "unread_"))
         },
         "processing": status["processing"],
         "target_p99_ratio": 1.5,
