@@ -188,7 +188,9 @@ def stalls(cpus: list[int], seconds: float) -> list[dict[str, Any]]:
     ``STALL_S`` between two readings is a stall. Per second, and the longest."""
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", STALL_LOOP, str(cpu), str(seconds), str(STALL_S)],
+            # isolated (-I): the current folder, wherever the bench was started, is not on
+            # its import path
+            [sys.executable, "-I", "-c", STALL_LOOP, str(cpu), str(seconds), str(STALL_S)],
             stdout=subprocess.PIPE,
             text=True,
         )
@@ -425,7 +427,7 @@ def main() -> int:
         "counters": {
             k: v
             for k, v in status["counters"].items()
-            if k.startswith(("responses_dropped", "peer_", "device_", "held_discarded"))
+            if k.startswith(("responses_dropped", "peer_", "device_", "held_discarded", "unread_"))
         },
         "processing": status["processing"],
         "target_p99_ratio": 1.5,

@@ -9,6 +9,11 @@ second CPU can run it; the daemon takes it over once it has read its config, or 
 once when the config has no use for it (the thread executor, no stepped motor) or the start
 fails. ``python -m motorctl.daemon.main`` runs the same daemon without this head start.
 
+``motorctld --status --watch`` (the live monitor) ends on SIGINT and SIGTERM from this
+command's first instruction on (``daemon/status/monitor.py``, ``end_on_signals``): they are
+taken over before anything else is imported, and an end while the daemon's modules are
+still being imported is as quiet as one while the monitor draws.
+
 Owners: the main thread, before anything else runs.
 """
 
@@ -17,8 +22,6 @@ from __future__ import annotations
 import os
 import sys
 from collections.abc import Sequence
-
-from motorctl.motion.executors.process.start import WaitingInterpreter
 
 #: Options after which motorctld prints something and exits instead of serving.
 ONE_SHOT = frozenset(
@@ -41,8 +44,22 @@ def serves(argv: Sequence[str]) -> bool:
     return bool(options & {"--pty", "--port"}) and not options & ONE_SHOT
 
 
+def watches(argv: Sequence[str]) -> bool:
+    """Whether this command line is the live monitor's (``--status --watch``)."""
+    return {"--status", "--watch"} <= set(argv)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
+    if watches(args):
+        from motorctl.daemon.status import monitor
+
+        monitor.end_on_signals()
+        from motorctl.daemon.main import main as watch_main
+
+        return watch_main(args)
+    from motorctl.motion.executors.process.start import WaitingInterpreter
+
     early = None
     if serves(args) and len(os.sched_getaffinity(0)) > 1:
         try:

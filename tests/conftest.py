@@ -25,7 +25,8 @@ tests' mirror, modules' and functions' sizes) and test_imports.py (the import gr
                 stand_ins (the environment for tests/fakegpiod/ and tests/fakespi/), fsutil,
                 tamper (a forwarder that changes one answer: the replay's tests), traces
                 (made-up trace files: the trace format's, its readers' and the recorder's
-                tests)
+                tests), socat (socat's PTY pair: a serial device that goes away and
+                comes back)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports

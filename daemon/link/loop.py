@@ -36,10 +36,10 @@ What the shell does, and why:
   later, session_end.py): the partial frame, the answers not yet written (``unsent``; on a
   PTY also those the kernel still holds for it, counted and flushed by ``pty``, a
   :class:`~motorctl.daemon.link.ports.PtySlave`, unless nothing was written to that host
-  at all), a held WaitMoved's answer (``wait``) and
-  the answers of the frames kept behind it (``held``; their commands are never executed:
-  :meth:`LinkSession.end`). The next host reads only its own answers, and its first
-  command is answered at once: nothing of the old session is left to wait for.
+  at all), a held WaitMoved's answer (``wait``) and the answers of the frames kept behind
+  it (``held``; their commands are never executed: :meth:`LinkSession.end`); on a PTY, what
+  it wrote and the link had not read (back pressure leaves it in the kernel) is read out and
+  dropped, a StopMove in it carried out (session_end.py): the next host reads only its own.
 - **No host on the PTY**: ``pty`` holds the slave side open, so that the master does not
   report POLLHUP over and over; ``poll()`` sleeps until a host writes, and its first bytes
   are read like any others. Any other read or write error (or a PTY whose slave cannot be
@@ -84,7 +84,7 @@ from typing import Protocol
 from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
 from motorctl.daemon.link.serialport import Backoff
 from motorctl.daemon.link.session import CommandPort, LinkSession
-from motorctl.daemon.link.session_end import CAUSES, SessionEnds
+from motorctl.daemon.link.session_end import END_COUNTERS, SessionEnds, read_out
 from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
@@ -103,9 +103,7 @@ SHELL_COUNTERS = (
     "link_errors",
     "peer_closed",
     "peer_reopened",
-    "hangup_partial_bytes",
-    "responses_dropped",
-    *(f"responses_dropped_{cause}" for cause in CAUSES),
+    *END_COUNTERS,
     "backpressure",
     "device_lost",
     "device_reopened",
@@ -364,7 +362,7 @@ class Link:
             self._hangup("closed")
             return
         if self._reopened():  # these bytes came after a host closed the port and another
-            self._hangup("closed")  # opened it: the next session's (see turn())
+            self._hangup("closed", reopened=True)  # opened it: the next session's (turn())
         self._take(data, now)
 
     def _reopened(self) -> bool:
@@ -422,47 +420,47 @@ class Link:
 
     def _hangup(self, why: str, reopened: bool = False) -> None:
         """The host's side is gone (``why``: "closed", or the error): its session ends.
-        ``reopened``: the PTY's slave was opened again since: a new host has it."""
+        ``reopened``: the PTY's slave was opened again since: a new host has it. A close
+        is counted (``peer_closed``) once the session's end is done: a status reader that
+        sees it sees what the end dropped, and a new host that opens the port then finds
+        nothing of the old session left."""
         if self.peer_gone:
             return
         self.peer_gone = True
+        how = "the host closed the port" if why == "closed" else "the port failed"
         if self.device is not None:
-            if why != "closed":
-                self.counters["link_errors"] += 1
+            how = "its serial device went away"
+            self.counters["link_errors"] += int(why != "closed")
             self._lose_device("it hung up" if why == "closed" else why)
-        elif why == "closed":
-            self.counters["peer_closed"] += 1
-        else:
+        elif why != "closed":
             self.counters["link_errors"] += 1
             log.error("link: %s; retrying every %.0f ms", why, self.retry_s * 1000)
-        self._end_session(
-            "its serial device went away"
-            if self.device is not None
-            else "the host closed the port"
-            if why == "closed"
-            else "the port failed",
-            reopened,
-        )
+        self._end_session(how, reopened)
+        self.counters["peer_closed"] += int(self.device is None and why == "closed")
 
     def _end_session(self, how: str, reopened: bool = False) -> None:
         """Drop and count what was owed to the host whose session ended (``how``).
         ``reopened``: a new host has the PTY; if the old one was written nothing, nothing
         of it is in the slave's input, and the new host's session begins at once."""
-        ended = self.session.end()
-        unsent = ended.unsent + -(-len(self._out) // RESPONSE_LEN)  # a part-sent one too
+        pty, unread, rest = self.pty, b"", b""
+        if pty is not None and self.device is None and not reopened:  # what it wrote, unread
+            unread, rest, reopened = read_out(self.fd, pty.reopened)
+        ended = self.session.end(unread)
+        unsent = len(self._out)  # bytes; a part-sent answer's first ones in the kernel
         self._out.clear()
-        pty = self.pty
         at_once = False  # the new host's session begins now, nothing held
         if pty is not None and self.device is None:
             at_once = reopened and not self._answered
             if not at_once:  # left unread in the kernel (looked for if anything was written)
-                unsent += -(-pty.hold(self._answered) // RESPONSE_LEN)
-        self.ends.ended(how, ended, unsent)
+                unsent += pty.hold(self._answered)
+        self.ends.ended(how, ended, ended.unsent + -(-unsent // RESPONSE_LEN))
         if at_once and pty is not None:
             pty.release()  # its closes are accounted for
             self._open_session()  # the new host's (nothing written to it yet)
         elif self._opens is not None:  # no session: a host's open need not wake the loop
             self._poller.modify(self._opens, 0)
+        if rest:  # read out after a new host opened the port: its session's
+            self._take(rest, self.clock())
 
     def _open_session(self) -> None:
         """A host is there again (a new session): its opens and closes are watched again

@@ -96,6 +96,8 @@ class Ended:
     wait: int  # 1 when a WaitMoved's answer was held
     held: int  # answers owed to the frames kept behind it (decided or not)
     discarded: int  # of those, commands never executed
+    unread_frames: int = 0  # frames the host wrote and the daemon had not read, dropped
+    unread_stops: int = 0  # of those, StopMoves, carried out
 
     @property
     def answers(self) -> int:
@@ -288,25 +290,36 @@ class LinkSession:
         self._emit(result)
         self._release(now)
 
-    def end(self) -> Ended:
+    def end(self, unread: bytes = b"") -> Ended:
         """The host's session ended (it closed the port, or its device went away): what is
         owed to it is dropped, so that the next host reads only its own answers. The partial
         frame, the answers not yet taken, a held WaitMoved and the frames kept behind it go;
-        the kept commands are never executed (a StopMove among them already was). The next
-        frame starts a session with nothing held."""
+        the kept commands are never executed (a StopMove among them already was). ``unread``:
+        what the host wrote that had not been read when its session ended (back pressure
+        leaves up to the kernel's buffers of it), read out by the shell: its frames
+        (framed on from the partial frame) are dropped unanswered and never executed, but
+        a StopMove among them, carried out now (a StopMove is never lost). The next frame
+        starts a session with nothing held."""
         held = self._held
         discarded = sum(1 for item in held if not isinstance(item, bytes) and item is not None)
-        ended = Ended(
-            partial_bytes=self.framer.reset(),
-            unsent=len(self._out) // RESPONSE_LEN,
-            wait=int(self.wait is not None),
-            held=len(held),
-            discarded=discarded,
-        )
+        kept, unsent, wait = len(held), len(self._out) // RESPONSE_LEN, int(self.wait is not None)
         self.wait = None
         held.clear()
         self._held_places = 0
         self._out.clear()
+        unread_frames = self.framer.feed(unread)
+        stops = [cmd for cmd in map(self._command_of, unread_frames) if isinstance(cmd, StopMove)]
+        for stop in stops:
+            self._execute(stop)  # its answer goes nowhere
+        ended = Ended(
+            partial_bytes=self.framer.reset(),
+            unsent=unsent,
+            wait=wait,
+            held=kept,
+            discarded=discarded,
+            unread_frames=len(unread_frames),
+            unread_stops=len(stops),
+        )
         self.counters["held_discarded"] += discarded
         # the frames whose answers go are marked as such (the status's last frames)
         frames = self.counters["frames"]
@@ -316,6 +329,13 @@ class LinkSession:
         return ended
 
     # -- frames -----------------------------------------------------------------------------
+    def _command_of(self, frame: bytes) -> Command | None:
+        """The command of ``frame``, None if it fails its checks (not counted)."""
+        try:
+            return self._decoded.get(frame) or decode_command(frame, self.options)
+        except FrameError:
+            return None
+
     def _on_frame(self, frame: bytes, now: float) -> None:
         counters = self.counters
         counters["frames"] += 1

@@ -30,10 +30,12 @@ from rich.styled import Styled
 from rich.table import Table
 from rich.text import Text
 
+from motorctl.daemon.status.monitor import Ending
 from motorctl.daemon.status.reader import StatusError, read_status, subscribe
 
 RECENT_SHOWN = 8
 RETRY_S = 1.0
+STOP_POLL_S = 0.1  # how often the drawing loop looks whether it is to end (SIGINT, SIGTERM)
 
 
 @dataclass
@@ -463,13 +465,17 @@ def watch(
     path: Path,
     period_ms: int,
     console: Console | None = None,
-    stop: threading.Event | None = None,
+    ending: Ending | None = None,
 ) -> int:
-    """Refresh in the terminal until Ctrl-C (exit 0) or ``stop`` is set. Not on a terminal:
-    one drawing per update, one after another. Once the daemon is gone (or cannot be
-    reached), the whole view is marked as the last state seen until updates come again."""
+    """Refresh in the terminal until ``ending`` is requested (SIGINT, SIGTERM: exit 0; it
+    is looked at every ``STOP_POLL_S``; it is told while the monitor's screen is on). Not
+    on a terminal: one drawing per update, one after another. Once the daemon is gone (or
+    cannot be reached), the whole view is marked as the last state seen until updates come
+    again."""
     console = _console(console)
+    ending = ending or Ending()
     period_s = max(20, min(60_000, period_ms)) / 1000.0
+    redraw_s = max(0.1, period_s / 2)  # a terminal's "updated N s ago" without an update
     updates: queue.Queue[Seen | str] = queue.Queue()
     reader_stop = threading.Event()
     reader = threading.Thread(
@@ -487,15 +493,18 @@ def watch(
         if console.is_terminal
         else None
     )
+    redraw_at = time.monotonic() + redraw_s
     try:
         with live if live is not None else contextlib.nullcontext():
-            while stop is None or not stop.is_set():
+            ending.screen = live is not None
+            while not ending.requested:
                 try:
-                    item = updates.get(timeout=max(0.1, period_s / 2))
+                    item = updates.get(timeout=STOP_POLL_S)
                 except queue.Empty:
-                    item = None
-                    if live is None:
+                    if live is None or time.monotonic() < redraw_at:
                         continue
+                    item = None
+                redraw_at = time.monotonic() + redraw_s
                 if isinstance(item, Seen):
                     before, last, stale = last, item, ""
                 elif isinstance(item, str):
@@ -506,9 +515,8 @@ def watch(
                 elif item is not None:
                     console.print(view)
                     console.print(RULE)
-    except KeyboardInterrupt:
-        pass
     finally:
+        ending.screen = False
         reader_stop.set()
     return 0
 

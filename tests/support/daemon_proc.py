@@ -99,7 +99,9 @@ class DaemonProcess:
     """motorctld in a process of its own, as the motorctld command starts it. A test daemon
     (the default) gets the test settings (``TEST_STEP_THREAD``) and, without
     ``config_text``, the embedded default written out; ``as_user``: started as a user starts
-    it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default)."""
+    it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default).
+    ``command``: what runs before the options (``python -m motorctl.daemon.launch``, the
+    motorctld command's entry point); ``cwd``: the folder it starts in (the checkout)."""
 
     def __init__(
         self,
@@ -112,8 +114,12 @@ class DaemonProcess:
         as_user: bool = False,
         ready_timeout: float = READY_TIMEOUT_S,
         prefix: list[str] | None = None,
+        command: list[str] | None = None,
+        cwd: Path = REPO,
     ) -> None:
         self.workdir = workdir
+        self.command = command or [sys.executable, "-m", "motorctl.daemon.launch"]
+        self.cwd = cwd
         self.ready_timeout = ready_timeout  # longer in an emulated guest (hwtest/layout.py)
         self.port = port  # serve this serial device (--port) instead of a PTY of its own
         self.pty = workdir / "motorctl.pty"
@@ -144,9 +150,7 @@ class DaemonProcess:
         # the motorctld command's entry point (its executor process starts first)
         cmd = [
             *self.prefix,
-            sys.executable,
-            "-m",
-            "motorctl.daemon.launch",
+            *self.command,
             *where,
             "--state-dir",
             str(self.state_dir),
@@ -159,7 +163,9 @@ class DaemonProcess:
         stderr = open(self.stderr_path, "ab")  # noqa: SIM115
         self._log_from = stderr.tell()
         env = {**os.environ, **self.env} if self.env is not None else None
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=stderr, env=env, cwd=REPO)
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.PIPE, stderr=stderr, env=env, cwd=self.cwd
+        )
         stderr.close()
         assert self.proc.stdout is not None
         sel = selectors.DefaultSelector()

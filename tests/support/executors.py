@@ -30,7 +30,12 @@ from motorctl.motion.executors.base import (
 from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.executors.process.parent import ProcessStepExecutor
 from motorctl.motion.executors.process.rings import Ring, ring_size
-from motorctl.motion.executors.process.start import BOOTSTRAP, WaitingInterpreter
+from motorctl.motion.executors.process.start import (
+    BOOTSTRAP,
+    WaitingInterpreter,
+    import_path,
+    package_location,
+)
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import RealtimeOptions
 from motorctl.motion.types import Ramp
@@ -207,10 +212,12 @@ def interpreter_with(prelude: str) -> WaitingInterpreter:
     daemon's PID and sys.path first), ``prelude`` run before the bootstrap."""
     ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
     try:
-        proc = subprocess.Popen([sys.executable, "-c", prelude + BOOTSTRAP], stdin=theirs.fileno())
+        proc = subprocess.Popen(
+            [sys.executable, "-I", "-c", prelude + BOOTSTRAP], stdin=theirs.fileno()
+        )
     finally:
         theirs.close()
-    ours.send(pickle.dumps((os.getpid(), list(sys.path))))
+    ours.send(pickle.dumps((os.getpid(), import_path(), package_location())))
     return WaitingInterpreter(proc, ours)
 
 

@@ -151,11 +151,12 @@ def _die_with_parent(parent: int) -> None:
         raise SystemExit("motorctld executor: the daemon is gone")
 
 
-def child_main(channel: socket.socket, parent: int) -> None:
+def child_main(channel: socket.socket, parent: int, title_note: str = "") -> None:
     """The executor process's entry (``start.py``'s bootstrap, once this module is
-    imported; ``parent``: the daemon's PID): wait for the parameters of
-    :func:`run_child` and the descriptors named in them (``fds``: their names, in the
-    order they came), then run. Dismissed (the socket ended without them): exit quietly."""
+    imported; ``parent``: the daemon's PID; ``title_note``: what naming the process for
+    ``ps`` could not do, logged once it runs): wait for the parameters of :func:`run_child`
+    and the descriptors named in them (``fds``: their names, in the order they came), then
+    run. Dismissed (the socket ended without them): exit quietly."""
     _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
@@ -168,7 +169,11 @@ def child_main(channel: socket.socket, parent: int) -> None:
     spec = params.pop("spec")
     options = {key: named.pop(key) for key in params.pop("step_io_fds")}
     run_child(
-        parent=parent, spec=replace(spec, options={**spec.options, **options}), **named, **params
+        parent=parent,
+        spec=replace(spec, options={**spec.options, **options}),
+        title_note=title_note,
+        **named,
+        **params,
     )
 
 
@@ -187,6 +192,7 @@ def run_child(
     wake_fd: int,
     event_fd: int,
     core: str = "auto",
+    title_note: str = "",
 ) -> None:
     """The executor process: real-time set-up, own lines, then the step loop on the step
     core ``core`` asks for (:func:`choose_core`). ``shm_fd``, ``wake_fd`` and ``event_fd``
@@ -201,6 +207,10 @@ def run_child(
     for sig in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
         signal.signal(sig, signal.SIG_IGN)
     logging.basicConfig(level=logging.INFO, format="motorctld executor %(levelname)s: %(message)s")
+    if title_note:  # ps shows the interpreter's command line or name instead
+        logging.getLogger("motorctl.executor").warning(
+            "%s not named in ps: %s", process_start.TITLE, title_note
+        )
     got = enter_realtime(rt, "the step executor process")
     layout = Layout(motors, lines)
     shm = SharedBlock.attach(shm_fd, layout.size, "motorctl-executor")

@@ -12,12 +12,13 @@ import signal
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 
 from motorctl.daemon.dispatcher import Dispatcher, Wait
+from motorctl.daemon.link import loop, session_end
 from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.daemon.signals import StopSignals
 from motorctl.protocol.codec import (
@@ -644,6 +645,43 @@ def _new_host_while_busy(
         return s.counters()
     finally:
         new.close()
+
+
+def test_a_new_hosts_bytes_read_out_with_the_old_ones_are_its_own(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The link saw the old host's close and reads out what it left; a new host opens the
+    port and writes between the slave's watch saying "no new host" and the read (made so
+    here, in the watch's first answer): the read holds its frame, the watch says so after
+    it, and the frame is the new session's, answered, not dropped with the old one's."""
+    s = LiveDaemon(tmp_path)
+    hosts: list[Host] = []
+    real = session_end.read_out
+
+    def read_out(master: int, reopened: Callable[[], bool]) -> tuple[bytes, bytes, bool]:
+        def racing() -> bool:
+            answer = reopened()
+            if not hosts:  # the new host, just after the watch's first answer
+                hosts.append(s.host())
+                hosts[0].write(frame(IsReady(1)))
+            return answer
+
+        return real(master, racing)
+
+    try:
+        old = s.host()
+        old.write(frame(IsReady(0)))
+        assert old.responses(1) == [Response.boolean(True)]
+        monkeypatch.setattr(loop, "read_out", read_out)
+        old.close()
+        s.until("the new host", lambda: bool(hosts))
+        assert hosts[0].responses(1) == [Response.boolean(True)]
+        c = s.counters()
+        assert c["peer_closed"] == 1 and c["unread_frames_dropped"] == 0
+    finally:
+        for host in hosts:
+            host.close()
+        s.close()
 
 
 class GatedRecorder:

@@ -11,9 +11,6 @@ from __future__ import annotations
 import contextlib
 import os
 import select
-import shutil
-import signal
-import subprocess
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -35,17 +32,11 @@ from motorctl.protocol.codec import (
 )
 from tests.support.daemon_proc import DaemonProcess
 from tests.support.frames import answers
+from tests.support.socat import PtyPair, needs_socat
 from tests.support.wait import until
 
 E = ErrorCode
 OPTS = CodecOptions()
-SOCAT = shutil.which("socat")
-needs_socat = pytest.mark.skipif(
-    SOCAT is None,
-    reason="SOCAT IS MISSING, so the serial device reconnect tests did NOT run: "
-    "apt-get install socat (make test installs it when run as root)",
-)
-
 CONFIG = """
 [[motors]]
 name = "a"
@@ -55,33 +46,6 @@ default_speed = 400
 [[motors]]
 name = "b"
 """
-
-
-class PtyPair:
-    """socat's two linked PTYs at fixed paths: ``device`` (the daemon's) and ``host``."""
-
-    def __init__(self, device: Path, host: Path, log: Path) -> None:
-        self.device, self.host, self.log = device, host, log
-        self.proc: subprocess.Popen[bytes] | None = None
-
-    def start(self) -> PtyPair:
-        assert SOCAT is not None
-        with open(self.log, "ab") as err:
-            self.proc = subprocess.Popen(
-                [SOCAT, f"pty,raw,echo=0,link={self.device}", f"pty,raw,echo=0,link={self.host}"],
-                stderr=err,
-            )
-        until("socat's PTYs", lambda: self.device.exists() and self.host.exists())
-        return self
-
-    def stop(self) -> None:
-        """Tear the pair down, as a USB adapter is pulled out: its PTYs are gone."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.send_signal(signal.SIGTERM)
-            self.proc.wait(10)
-        self.proc = None
-        for link in (self.device, self.host):  # socat removes them; a SIGKILLed one would not
-            link.unlink(missing_ok=True)
 
 
 @pytest.fixture

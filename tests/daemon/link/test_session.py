@@ -556,6 +556,39 @@ def test_the_end_of_a_session_drops_what_was_owed_and_runs_nothing_kept(w: Sessi
     ]
 
 
+def test_what_the_host_wrote_and_was_not_read_is_dropped_but_its_stop_carried_out(
+    w: SessionRig,
+) -> None:
+    """The bytes the shell reads out at a session's end (its host wrote them; back pressure
+    left them unread): framed on from the partial frame, never executed and never answered,
+    but a StopMove among them is carried out; a frame that fails its checks is dropped
+    alike, and what does not make a whole frame is counted as the partial frame."""
+    w.send(Move(0, True, 1, 0, 0), Move(1, True, 1, 0, 0))
+    assert codes(w.responses()) == [None, None]
+    first = frame(SetPin(0, True))
+    w.session.receive(first[:4], w.now)  # read before the end: the partial frame
+    unread = (
+        first[4:]
+        + frame(MoveTo(1, True, 100, 0, 0, 0), StopMove(0, True))
+        + corrupt(frame(StopMove(1, True)), 3)  # fails its checksum: not a StopMove
+        + frame(SaveWayPoint(1), IsReady(1))[:-2]
+    )
+    frames_before = w.session.counters["frames"]
+    ended = w.session.end(unread)
+    assert ended == Ended(
+        partial_bytes=8, unsent=0, wait=0, held=0, discarded=0, unread_frames=5, unread_stops=1
+    )
+    assert w.session.counters["frames"] == frames_before  # not taken as the session's
+    w.run(1.0)
+    assert w.responses() == []  # nothing answered, to anybody
+    assert w.engine.motors[0].idle  # the StopMove carried out
+    assert not w.engine.motors[1].idle  # the bad frame was no StopMove; no MoveTo ran
+    w.send(GetPin(0))
+    assert w.responses() == [Response.boolean(False)]  # the SetPin never ran
+    w.send(IsReady(1))
+    assert w.responses() == [Response.boolean(False)]
+
+
 def test_answers_not_yet_taken_go_with_the_session(w: SessionRig) -> None:
     w.send(IsReady(0), GetAbsPos(0))
     assert w.session.end() == Ended(partial_bytes=0, unsent=2, wait=0, held=0, discarded=0)

@@ -1,18 +1,29 @@
 """The ends of hosts' sessions in the counters and the log (daemon/link/session_end.py), on a
 clock the test sets: every dropped answer counted by its cause, a session that left
 something said at INFO only once the line was quiet ``SAY_AFTER_S``, the poll's timeout
-shortened to that moment, one that left nothing at DEBUG at once. (The loop ending real
-hosts' sessions on a PTY: test_loop.py.)"""
+shortened to that moment, one that left nothing at DEBUG at once; what a host that closed
+the PTY wrote and was not read, read out of a real PTY's master. (The loop ending real
+hosts' sessions on a PTY: test_loop.py; motorctld's, after back pressure:
+test_session_end_e2e.py.)"""
 
 from __future__ import annotations
 
 import logging
+import os
+import tty
 from collections import Counter
+from collections.abc import Iterator
 
 import pytest
 
 from motorctl.daemon.link.session import Ended
-from motorctl.daemon.link.session_end import SAY_AFTER_S, SessionEnds, describe_ended
+from motorctl.daemon.link.session_end import (
+    SAY_AFTER_S,
+    UNREAD_MAX,
+    SessionEnds,
+    describe_ended,
+    read_out,
+)
 
 
 class Clock:
@@ -80,3 +91,111 @@ def test_say_logs_every_end_not_said_yet() -> None:
     assert describe_ended(Ended(0, 0, 0, 2, 0), 1) == (
         "1 answers written or due, 2 frames kept behind it"
     )
+
+
+def test_frames_the_host_wrote_and_were_not_read_are_counted_and_said() -> None:
+    counters: Counter[str] = Counter()
+    ends = SessionEnds(counters, Clock())
+    ended = Ended(2, 0, 0, 0, 0, unread_frames=1129, unread_stops=1)
+    ends.ended("the host closed the port", ended, unsent=7372)
+    assert counters == Counter(
+        hangup_partial_bytes=2,
+        unread_frames_dropped=1129,
+        unread_stops_executed=1,
+        responses_dropped=7372,
+        responses_dropped_unsent=7372,
+    )
+    assert describe_ended(ended, 7372) == (
+        "7372 answers written or due, 1129 frames it wrote that were not read yet (1 StopMoves "
+        "among them carried out), 2 bytes of an incomplete frame"
+    )
+
+
+@pytest.fixture
+def pty() -> Iterator[tuple[int, str]]:
+    """A PTY's master (non-blocking, as the daemon's) and its slave's name; nobody has the
+    slave open."""
+    master, slave = os.openpty()
+    tty.setraw(slave)
+    name = os.ttyname(slave)
+    os.close(slave)
+    os.set_blocking(master, False)
+    yield master, name
+    os.close(master)
+
+
+def host_wrote(name: str, data: bytes) -> bytes:
+    """A host that opens the slave, writes ``data`` (as much of it as the kernel takes while
+    nobody reads: some 4 KiB in the line discipline, more in its flip buffers) and closes
+    it (never reading); what it wrote."""
+    fd = os.open(name, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    view = memoryview(data)
+    try:
+        while view:
+            view = view[os.write(fd, view[:1024]) :]
+    except BlockingIOError:
+        pass
+    finally:
+        os.close(fd)
+    return data[: len(data) - len(view)]
+
+
+def test_what_a_host_that_closed_wrote_is_read_out_to_the_last_byte(
+    pty: tuple[int, str],
+) -> None:
+    """More than the line discipline's 4 KiB: the rest waits in the kernel's flip buffers,
+    moved on as the master reads; all of it is read out, and then the master says that
+    nobody has the slave (no new host)."""
+    master, name = pty
+    wrote = host_wrote(name, bytes(range(256)) * 256)
+    assert len(wrote) > 8192
+    asked = []
+
+    def no_new_host() -> bool:
+        asked.append(True)
+        return False
+
+    assert read_out(master, no_new_host) == (wrote, b"", False)
+    assert len(asked) > 1  # before the first read and after each
+
+
+def test_a_new_host_that_has_the_port_stops_the_read_out(pty: tuple[int, str]) -> None:
+    """Told by the slave's watch before anything is read: nothing is read (what is there
+    may be the new host's, and is its session's); told after a read: that read's bytes are
+    the new session's (a host's open is reported before it can write, so the reads before
+    hold only the old host's); without a watch, by the master itself once nothing is left:
+    the slave is open again."""
+    master, name = pty
+    host_wrote(name, b"old")
+    assert read_out(master, lambda: True) == (b"", b"", True)
+    asked = iter([False, True])
+    assert read_out(master, lambda: next(asked)) == (b"", b"old", True)
+    host_wrote(name, b"old")
+    new = os.open(name, os.O_RDWR | os.O_NOCTTY)
+    try:
+        assert read_out(master, lambda: False) == (b"old", b"", True)
+    finally:
+        os.close(new)
+
+
+def test_the_read_out_is_bounded(pty: tuple[int, str]) -> None:
+    """A writer that never stops (a new host the watch did not see) cannot keep the link
+    reading: at most UNREAD_MAX bytes."""
+    master, name = pty
+    new = os.open(name, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    chunk = bytes(4096)
+    total = 0
+
+    def keep_writing() -> bool:
+        nonlocal total
+        while True:  # fill what the kernel takes, every time the link asks
+            try:
+                total += os.write(new, chunk)
+            except BlockingIOError:
+                return False
+
+    try:
+        got, rest, reopened = read_out(master, keep_writing)
+    finally:
+        os.close(new)
+    assert len(got) >= UNREAD_MAX and rest == b"" and not reopened and total > UNREAD_MAX

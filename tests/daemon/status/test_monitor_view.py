@@ -20,6 +20,7 @@ from typing import Any
 import pytest
 from rich.console import Console
 
+from motorctl.daemon.status.monitor import Ending
 from motorctl.daemon.status.monitor_view import (
     Seen,
     _follow,
@@ -204,8 +205,8 @@ def test_once_off_a_terminal_keeps_each_line_whole(
 def test_watch_marks_the_whole_view_stale_once_the_daemon_is_gone(served: StatusServer) -> None:
     out = io.StringIO()
     console = Console(file=out, width=200, color_system=None)
-    stop = threading.Event()
-    thread = threading.Thread(target=watch, args=(served.path, 50, console, stop), daemon=True)
+    ending = Ending()
+    thread = threading.Thread(target=watch, args=(served.path, 50, console, ending), daemon=True)
     thread.start()
     try:
         until(
@@ -215,8 +216,9 @@ def test_watch_marks_the_whole_view_stale_once_the_daemon_is_gone(served: Status
         served.close()
         until("the stale drawing", lambda: "NOT LIVE" in out.getvalue())
     finally:
-        stop.set()
+        ending.request()
         thread.join(10)
+    assert not thread.is_alive()
     stale = out.getvalue().split("NOT LIVE", 1)[1]
     assert stale.startswith(f": motorctld at {served.path} stopped. Everything below")
     assert "(last seen)" in stale and "state unknown" in stale and " alive" not in stale
