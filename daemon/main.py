@@ -206,7 +206,9 @@ def main(
     error). Output into a pipe whose reader went away (``motorctld --status | head``) ends
     the command quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
     try:
-        return _main(argv, executor_process)
+        code = _main(argv, executor_process)
+        sys.stdout.flush()  # here, not at exit: a reader gone is a broken pipe caught below
+        return code
     except BrokenPipeError:
         # Python would flush stdout again at exit and complain: point it at /dev/null
         devnull = os.open(os.devnull, os.O_WRONLY)
