@@ -4,7 +4,9 @@
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
 #               builds its VM on first use, as root, into $XDG_CACHE_HOME/motorctl-gpio-sim,
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
-#               is made when missing; in the guests a skipped test fails)
+#               is made when missing; built again when its recipe changes or Debian's archive
+#               offers another kernel tuple than it was built from, printed each run; in the
+#               guests a skipped test fails)
 # Each creates .venv from PyPI on first use (and installs python3-venv via apt when root and missing).
 # The venv's install builds the compiled step core (setup.py: motion/executors/csrc/ ->
 # motion/executors/_stepcore*.so, in place); that needs gcc and the Python headers, installed

@@ -11,7 +11,8 @@ tests' mirror, modules' and functions' sizes) and test_imports.py (the import gr
     protocol/   client/   daemon/   motion/   hal/    the rooms' tests
     contract/   the backend contract (the mock here; gpiod on gpio-sim in hwtest/run)
     docs/       the README's walkthrough run as written; every path the pages name exists
-    packaging/  debian/, the wheel, the systemd units, --version, hwtest/run
+    packaging/  debian/, the wheel, the systemd units, --version, hwtest/run and its VM's
+                build (madison/: the Debian archive's kernel packages as recorded)
     support/    the shared rigs, one module each: wait (``until``, the deadline wait),
                 frames, rigs (the engine or the step core on a virtual clock), executors (a
                 stand-in executor that records, the ramp executor over TMC5160 models, the
@@ -26,7 +27,8 @@ tests' mirror, modules' and functions' sizes) and test_imports.py (the import gr
                 tamper (a forwarder that changes one answer: the replay's tests), traces
                 (made-up trace files: the trace format's, its readers' and the recorder's
                 tests), socat (socat's PTY pair: a serial device that goes away and
-                comes back)
+                comes back), apt_archive (apt-cache and apt-get answering from recorded
+                `apt-cache madison` output: the hardware tier's kernel choice)
     deb/        make test-deb's install check; fakegpiod/, fakespi/: stand-in modules
 
 This file is also loaded for tests/contract in the hardware tier's guests: it imports

@@ -2,9 +2,12 @@
 when it rebuilds, what it says when it cannot, and that a guest whose tests skip fails.
 
 The real hwtest/run is copied into a throwaway repository whose hwtest/vm/build.sh and run.sh
-are stand-ins: build.sh records the build and makes the folder, run.sh records the boot and,
+are stand-ins: build.sh records the build and makes the folder (with the KERNEL record the
+real one writes last: hwtest/vm/kernel_tuple.py's choice), run.sh records the boot and,
 when asked, runs the guest's command on this machine in the real checkout, which has no
-gpio-sim chip: exactly a guest whose gpio-sim failed to load.
+gpio-sim chip: exactly a guest whose gpio-sim failed to load. The real kernel_tuple.py reads
+a recorded archive through stand-ins for apt-cache and apt-get (tests/support/apt_archive.py),
+first on PATH; the tests move that archive on between runs.
 """
 
 from __future__ import annotations
@@ -22,15 +25,18 @@ import pytest
 
 from hwtest.no_skips import PREFIX
 from tests.support import REPO
+from tests.support.apt_archive import TODAY, FakeArchive, fake_archive, replace_version, without
 
 ROOT = REPO
 TIMEOUT_S = 120.0
+SYSTEM_PATH = "/usr/sbin:/usr/bin:/sbin:/bin"
 
 FAKE_BUILD = """#!/bin/sh
 echo "fake build into $1"
-echo build >> "$FAKE_LOG"
+echo "build GSIM_APT_UPDATE=${GSIM_APT_UPDATE:-}" >> "$FAKE_LOG"
 if [ -n "${FAKE_BUILD_FAIL:-}" ]; then echo "fake: the kernel download broke"; exit 1; fi
 mkdir -p "$1" && touch "$1/initrd.img"
+/usr/bin/python3 -I "$(dirname "$0")/kernel_tuple.py" > "$1/KERNEL"
 """
 FAKE_RUN = """#!/bin/sh
 echo "boot $GSIM_ROOT ${GSIM_BANKS:-}" >> "$FAKE_LOG"
@@ -44,12 +50,19 @@ class Tier:
     repo: Path
     home: Path
     log: Path
+    archive: FakeArchive
 
     def run(
-        self, *args: str, env: dict[str, str | None] | None = None, as_nobody: bool = False
+        self,
+        *args: str,
+        env: dict[str, str | None] | None = None,
+        as_nobody: bool = False,
+        script: str = "hwtest/run",
     ) -> subprocess.CompletedProcess[str]:
         base = {
-            "PATH": f"{Path(sys.executable).parent}:/usr/sbin:/usr/bin:/sbin:/bin",
+            "PATH": ":".join(
+                (str(self.archive.bin), str(Path(sys.executable).parent), SYSTEM_PATH)
+            ),
             "HOME": str(self.home),
             "FAKE_LOG": str(self.log),
             "LANG": "C.UTF-8",
@@ -59,7 +72,7 @@ class Tier:
                 base.pop(key, None)
             else:
                 base[key] = value
-        cmd = [str(self.repo / "hwtest" / "run"), *args]
+        cmd = [str(self.repo / script), *args]
         if as_nobody:
             cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
         return subprocess.run(
@@ -78,7 +91,7 @@ def tier() -> Iterator[Tier]:
     try:
         vm = top / "repo" / "hwtest" / "vm"
         vm.mkdir(parents=True)
-        for name in ("run", "digest.py"):
+        for name in ("run", "digest.py", "vm/kernel_tuple.py"):
             shutil.copy(ROOT / "hwtest" / name, top / "repo" / "hwtest" / name)
         (vm / "build.sh").write_text(FAKE_BUILD)
         (vm / "run.sh").write_text(FAKE_RUN)
@@ -88,7 +101,7 @@ def tier() -> Iterator[Tier]:
             (vm / name).write_text(f"# {name}\n")
         home = top / "home"  # exists and is empty: no ~/.cache
         home.mkdir()
-        yield Tier(top / "repo", home, top / "calls.log")
+        yield Tier(top / "repo", home, top / "calls.log", fake_archive(top / "archive"))
     finally:
         shutil.rmtree(top)
 
@@ -113,6 +126,163 @@ def test_the_cache_is_built_once_and_again_when_the_recipe_changes(tier: Tier) -
     out = tier.run("v2")
     assert out.returncode == 0 and "recipe changed" in out.stdout
     assert tier.builds() == 2
+
+
+TUPLE_TODAY = (
+    "linux-image-6.1.0-56-amd64=6.1.192-2 linux-headers-6.1.0-56-amd64=6.1.192-2 "
+    "linux-headers-6.1.0-56-common=6.1.192-2 linux-kbuild-6.1=6.1.192-3 "
+    "linux-source-6.1=6.1.192-3"
+)
+
+
+def _cache(tier: Tier) -> Path:
+    return tier.home / ".cache" / "motorctl-gpio-sim"
+
+
+def test_the_tuple_and_whether_the_vm_was_built_now_are_said(tier: Tier) -> None:
+    out = tier.run("v2")
+    assert out.returncode == 0, out.stdout + out.stderr
+    lines = out.stdout.splitlines()
+    lists = "updated now" if os.geteuid() == 0 else "as apt-get update last left them"
+    assert lines[0] == f"hwtest: kernel tuple (apt lists {lists}): {TUPLE_TODAY}"
+    assert lines[1].startswith(f"hwtest: building the VM into {_cache(tier)} (no VM there; ")
+    assert lines[2].startswith("hwtest: VM built now, in ")
+    assert lines[2].endswith(f" s, from: {TUPLE_TODAY}")
+    assert (_cache(tier) / "KERNEL").read_text().split() == TUPLE_TODAY.split()
+    out = tier.run("v2")
+    assert out.stdout.splitlines()[1].startswith(
+        f"hwtest: VM taken from the cache in {_cache(tier)} (built "
+    )
+    assert tier.builds() == 1
+
+
+def test_a_vm_built_from_another_tuple_is_rebuilt_once(tier: Tier) -> None:
+    """The archive moves on (a new revision of linux-kbuild-6.1 and linux-source-6.1): the VM
+    cached with the old tuple is built again, once, saying from what."""
+    assert tier.run("v2").returncode == 0
+    moved = TODAY
+    for name in ("linux-kbuild-6.1", "linux-source-6.1"):
+        moved = replace_version(moved, name, "6.1.192-3", "6.1.192-4")
+    tier.archive.record(moved)
+    out = tier.run("v2")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert (
+        "(built from another kernel tuple: linux-image-6.1.0-56-amd64=6.1.192-2 "
+        "linux-headers-6.1.0-56-amd64=6.1.192-2 linux-headers-6.1.0-56-common=6.1.192-2 "
+        "linux-kbuild-6.1=6.1.192-3 linux-source-6.1=6.1.192-3; log: "
+    ) in out.stdout
+    assert "linux-kbuild-6.1=6.1.192-4" in (_cache(tier) / "KERNEL").read_text()
+    assert tier.builds() == 2
+    assert "VM taken from the cache" in tier.run("v2").stdout
+    assert tier.builds() == 2
+
+
+def test_a_vm_without_its_kernel_record_is_rebuilt(tier: Tier) -> None:
+    """build.sh removes KERNEL before it changes the VM and writes it last: a VM it did not
+    finish (build.sh run by hand into the cache) is never taken as built."""
+    assert tier.run("v2").returncode == 0
+    (_cache(tier) / "KERNEL").unlink()
+    out = tier.run("v2")
+    assert "(built from another kernel tuple: none recorded; log: " in out.stdout
+    assert tier.builds() == 2
+
+
+def test_when_nothing_fits_the_run_fails_cache_or_not(tier: Tier) -> None:
+    """An archive with no complete tuple: a fresh machine could not build the VM, so a
+    machine with a cached one does not pass either."""
+    assert tier.run("v2").returncode == 0
+    tier.archive.record(
+        without(without(TODAY, "linux-source-6.1", "6.1.192"), "linux-kbuild-6.1", "6.1.176")
+    )
+    out = tier.run("v2")
+    assert out.returncode == 1
+    first, second = out.stderr.splitlines()
+    assert first.startswith("kernel_tuple: no complete kernel tuple: linux-image-6.1.0-56-amd64 ")
+    assert second.startswith("hwtest: no VM can be built from the archive as it is now")
+    assert tier.builds() == 1 and tier.log.read_text().count("boot") == 1  # the first run's
+
+
+def test_the_lists_are_updated_first_as_root(tier: Tier) -> None:
+    if os.geteuid() != 0:
+        pytest.skip("apt-get update is run as root only")
+    assert tier.run("vm").returncode == 0
+    assert tier.archive.calls() == ["apt-get update -qq -o DPkg::Lock::Timeout=600"]
+    # build.sh uses the lists the choice saw: it does not update them again
+    assert "build GSIM_APT_UPDATE=0" in tier.log.read_text()
+    out = tier.run("vm", env={"GSIM_APT_UPDATE": "0"})
+    assert "(apt lists as apt-get update last left them)" in out.stdout
+    assert len(tier.archive.calls()) == 1
+    (tier.archive.folder / "update-fails").touch()
+    out = tier.run("v2")
+    assert out.returncode == 1
+    assert "E: Failed to fetch" in out.stderr
+    assert "GSIM_APT_UPDATE=0 takes the lists as they are" in out.stderr
+    assert "boot" not in tier.log.read_text()
+
+
+def test_vm_builds_or_takes_the_vm_and_boots_nothing(tier: Tier) -> None:
+    out = tier.run("vm")
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "hwtest: VM built now" in out.stdout
+    out = tier.run("vm")
+    assert out.returncode == 0 and "hwtest: VM taken from the cache" in out.stdout
+    assert tier.builds() == 1 and "boot" not in tier.log.read_text()
+
+
+FAKE_MAKE = """#!/bin/sh
+echo "make $*" >> "$FAKE_LOG"
+"""
+
+
+def test_ci_says_before_its_parts_which_kernel_and_whether_the_vm_was_built_now(
+    tier: Tier,
+) -> None:
+    """.ci/run (its parts stood in for by a make that records): `hwtest/run vm` before the
+    parts, the tuple and built-now or cached in its output and in its summary; with
+    CI_VM_CACHE, a VM built from another tuple than the archive's is built again."""
+    if os.geteuid() != 0:
+        pytest.skip(".ci/run builds the VM only as root")
+    (tier.repo / ".ci").mkdir()
+    shutil.copy(ROOT / ".ci" / "run", tier.repo / ".ci" / "run")
+    make = tier.archive.bin / "make"
+    make.write_text(FAKE_MAKE)
+    make.chmod(0o755)
+    cache = tier.home.parent / "ci-vm"
+
+    def ci(tuple_line: str = TUPLE_TODAY) -> list[str]:
+        """What `hwtest/run vm` said after the tuple, before the parts."""
+        out = tier.run(script=".ci/run", env={"CI_VM_CACHE": str(cache), "CI_SERIAL": "1"})
+        assert out.returncode == 0, out.stdout + out.stderr
+        lines = out.stdout.splitlines()
+        assert lines[0] == "== .ci/run: hwtest/run vm", lines
+        assert lines[1] == f"hwtest: kernel tuple (apt lists updated now): {tuple_line}"
+        parts = lines.index("== .ci/run: make test")
+        vm_part = "== .ci/run: hwtest/run vm: passed in "
+        assert lines[parts - 1].startswith(vm_part), lines
+        said = lines[2 : parts - 1]
+        # the summary: each part's result and, after the VM's, the tuple and its last line
+        summary = lines[max(i for i, line in enumerate(lines) if line.startswith(vm_part)) :]
+        assert summary[1:3] == [f"== .ci/run: {lines[1]}", f"== .ci/run: {said[-1]}"], summary
+        assert summary[-1].startswith("== .ci/run: all parts in "), summary
+        return said
+
+    first = ci()
+    assert first[0].startswith(f"hwtest: building the VM into {cache} (no VM there; ")
+    assert first[1].startswith("hwtest: VM built now, in ") and len(first) == 2
+    cached = ci()
+    assert len(cached) == 1
+    assert cached[0].startswith(f"hwtest: VM taken from the cache in {cache} (built ")
+    moved = replace_version(TODAY, "linux-source-6.1", "6.1.192-3", "6.1.192-4")
+    tier.archive.record(moved)
+    again = ci(TUPLE_TODAY.replace("source-6.1=6.1.192-3", "source-6.1=6.1.192-4"))
+    assert again[0].startswith(
+        f"hwtest: building the VM into {cache} (built from another kernel tuple: "
+        f"{TUPLE_TODAY}; log: "
+    )
+    assert again[1].startswith("hwtest: VM built now, in ")
+    assert tier.builds() == 2
+    out = tier.run("vm", env={"MOTORCTL_GSIM_CACHE": str(cache)})
+    assert "hwtest: VM taken from the cache" in out.stdout
 
 
 def test_xdg_cache_home_is_honoured_and_created(tier: Tier) -> None:
