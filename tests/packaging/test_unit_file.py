@@ -204,3 +204,15 @@ def test_limits_alone_give_realtime_without_capabilities() -> None:
         pytest.skip(f"this machine cannot raise the limits (no CAP_SYS_RESOURCE): {out}")
     assert code == 0, out
     assert out.replace(" ", "") == "ok|ok"
+
+
+def test_the_metrics_command_docs_service_md_shows_is_the_units() -> None:
+    """docs/service.md, "Metrics", quotes the command of motorctl-metrics.service: the same
+    words as the unit's ExecStart runs (its sh -c script)."""
+    unit = METRICS.read_text().replace("\\\n", " ")
+    exec_start = re.search(r"^ExecStart=/bin/sh -c '(.*)'$", unit, re.M)
+    assert exec_start, "ExecStart=/bin/sh -c '...'"
+    page = (ROOT / "docs" / "service.md").read_text()
+    quoted = re.search(r"a oneshot that runs\n\n```sh\n(.*?)```", page, re.S)
+    assert quoted, "docs/service.md quotes no metrics command"
+    assert quoted.group(1).replace("\\\n", " ").split() == exec_start.group(1).split()
