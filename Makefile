@@ -16,7 +16,9 @@
 # make test also installs socat via apt when root and missing (the serial device reconnect tests
 # tear a socat PTY pair down and make it again; without socat they skip, saying so loudly), and
 # tshark the same way (the Wireshark dissector's tests; without it they skip, saying so loudly),
-# and Debian's prometheus package for its promtool (the metrics' lint; skipped loudly without it).
+# quietly: one line each, apt's output only when it fails. It never installs Debian's
+# prometheus server for its promtool: the metrics are linted by promtool's rules in Python,
+# and by promtool itself where it is installed already and in make test-deb.
 # The editable install filters setuptools' informational "Editable installation" note only: the
 # checkout's motorctl/ folder (symlinks to the rooms) is meant to be importable; see pyproject.toml.
 
@@ -32,17 +34,26 @@ BIN     = $(VENV)/bin
 
 venv: $(VENV)/.installed
 
+# apt_quiet WHAT WHY PACKAGE...: what the make targets install from Debian when root and it is
+# missing, quietly: one line says which and why, apt's output goes to a temporary log that is
+# shown (its last 20 lines) only when the install fails.
+APT_QUIET = apt_quiet() { \
+  log=$$(mktemp) && echo "make: installing $$1 with apt-get (as root: $$2)" && shift 2 && \
+  { apt-get update -q && DEBIAN_FRONTEND=noninteractive apt-get install -y -q \
+      -o DPkg::Lock::Timeout=600 --no-install-recommends "$$@"; } > "$$log" 2>&1; \
+  status=$$?; [ $$status = 0 ] || tail -n 20 "$$log" >&2; rm -f "$$log"; return $$status; }
+
 # What building the compiled step core needs: a C compiler and $(PYTHON)'s headers.
 HAVE_CC = command -v gcc >/dev/null && $(PYTHON) -c 'import os, sysconfig; \
   raise SystemExit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"], "Python.h")))'
 
 $(VENV)/.installed: pyproject.toml setup.py
-	@$(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && apt-get install -y -q python3-venv; \
+	@$(APT_QUIET); $(PYTHON) -c 'import ensurepip, venv' 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt_quiet python3-venv "the venv needs it" python3-venv; \
 	  else echo "python3-venv is missing: run 'sudo apt-get install python3-venv'" >&2; exit 1; fi; }
-	@$(HAVE_CC) 2>/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && DEBIAN_FRONTEND=noninteractive \
-	    apt-get install -y -q -o DPkg::Lock::Timeout=600 --no-install-recommends gcc libc6-dev python3-dev; \
+	@$(APT_QUIET); $(HAVE_CC) 2>/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then apt_quiet "gcc and python3-dev" \
+	    "the compiled step core is built with them" gcc libc6-dev python3-dev; \
 	  else echo "the compiled step core needs gcc and the Python headers: run" \
 	    "'sudo apt-get install gcc python3-dev'" >&2; exit 1; fi; \
 	  $(HAVE_CC) || { echo "gcc or Python.h of $(PYTHON) still missing: install gcc and" \
@@ -84,31 +95,25 @@ run: venv stepcore
 # What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
 # tshark and mergecap (tests/client/test_trace_files.py: the Lua dissector, merged files), with
 # wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
+# As root, each missing one is installed quietly (apt_quiet above). Nothing else: the metrics'
+# promtool lint runs on prometheus_client's parser (tests/support/promlint.py), promtool itself
+# where it is installed already and in make test-deb; Debian's prometheus server package is
+# never installed for it (tests/packaging/test_makefile.py holds this recipe to that).
 test-deps:
-	@command -v socat >/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
-	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends socat; \
+	@$(APT_QUIET); command -v socat >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    apt_quiet socat "the serial device reconnect tests need it" socat \
+	    || echo "socat could not be installed: the serial device reconnect tests are SKIPPED" >&2; \
 	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
 	    "device reconnect tests are SKIPPED" >&2; fi; }
-	@command -v tshark >/dev/null && command -v mergecap >/dev/null || { \
+	@$(APT_QUIET); command -v tshark >/dev/null && command -v mergecap >/dev/null || { \
 	  if [ "$$(id -u)" = 0 ]; then \
 	    { echo 'wireshark-common wireshark-common/install-setuid boolean false' \
-	      | debconf-set-selections && apt-get update -q && DEBIAN_FRONTEND=noninteractive \
-	      apt-get install -y -q -o DPkg::Lock::Timeout=600 --no-install-recommends tshark; } \
+	      | debconf-set-selections && apt_quiet tshark \
+	      "the Wireshark dissector's tests need it" tshark; } \
 	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
 	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
 	    "dissector's tests are SKIPPED" >&2; fi; }
-# ... and promtool, from Debian's prometheus package (tests/daemon/status/test_metrics.py lints the
-# metrics with `promtool check metrics`; installing it starts no server where systemd does
-# not run, and where it does the package's prometheus.service is stopped and disabled again)
-	@command -v promtool >/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then apt-get update -q && \
-	    DEBIAN_FRONTEND=noninteractive apt-get install -y -q -o DPkg::Lock::Timeout=600 \
-	      --no-install-recommends prometheus && \
-	    { ! command -v systemctl >/dev/null || systemctl disable --now prometheus 2>/dev/null \
-	      || true; }; \
-	  else echo "promtool is missing: run 'sudo apt-get install prometheus'; until then the" \
-	    "metrics' promtool check is SKIPPED" >&2; fi; }
 
 test: venv stepcore test-deps
 	$(BIN)/ruff check .
@@ -193,6 +198,8 @@ test-deb: deb
 # venv, nothing from PyPI): all of it where ARCH runs natively, the part that proves what
 # differs on an emulated ARCH otherwise (tests/deb/suite-in-root.sh says which and why;
 # TESTS="..." chooses). E.g. make test-root SUITE=trixie ARCH=arm64: arm64 Python 3.13.
+# It builds the compiled step core for the root's Python first and says which core the suite
+# runs; it fails, before the tests, when the compiled one would not run.
 test-root: deb-deps
 	PATH=$(SYSPATH) $(DEBROOT) bash tests/deb/suite-in-root.sh $(TESTS)
 

@@ -7,9 +7,34 @@ executors' modules), ``make stepcore`` after a change to
 its sources, the wheel and the Debian package (dh-python, python3-all-dev). Warnings are
 errors. ``CFLAGS``/``LDFLAGS`` from the environment are added (``make test-asan`` builds it
 with the address and undefined-behaviour sanitizers).
+
+And the licence, MIT, the one part of the metadata pyproject.toml cannot declare for every
+setuptools the project builds with: ``license = "MIT"`` there (an SPDX expression, PEP 639)
+needs setuptools >= 77, and Debian 12's is 66 (make deb and make test-root SUITE=bookworm build
+with it), which refuses that form and knows only the table ``license = { text = "MIT" }``,
+which setuptools >= 77 deprecates (setuptools 84: builds that use it "will no longer be
+supported" after 2027-02-18). So
+pyproject.toml names ``license`` dynamic and it is given here, as the SPDX expression
+(``License-Expression: MIT``) to a setuptools that knows them, as the older ``License: MIT``
+field to one that does not. Either way the LICENSE file goes with it (setuptools' default
+license-files patterns). tests/packaging/test_debian.py checks both with the setuptools at
+hand and Debian's.
 """
 
+import setuptools
 from setuptools import Extension, setup
+
+LICENSE = "MIT"
+#: the first setuptools that takes an SPDX expression (``license_expression``, PEP 639)
+EXPRESSIONS_FROM = 77
+
+
+def license_metadata() -> dict[str, str]:
+    """The licence, in the form the setuptools at hand reads."""
+    if int(setuptools.__version__.split(".")[0]) >= EXPRESSIONS_FROM:
+        return {"license_expression": LICENSE}
+    return {"license": LICENSE}
+
 
 SOURCES = [
     "core.c",
@@ -22,6 +47,7 @@ SOURCES = [
 ]
 
 setup(
+    **license_metadata(),
     ext_modules=[
         Extension(
             "motorctl.motion.executors._stepcore",
@@ -29,5 +55,5 @@ setup(
             depends=[f"motion/executors/csrc/{name}" for name in ("stepcore.h", "module.h")],
             extra_compile_args=["-std=gnu11", "-Wall", "-Wextra", "-Werror", "-O2"],
         )
-    ]
+    ],
 )

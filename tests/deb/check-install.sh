@@ -8,16 +8,22 @@
 # /proc and /dev there), so it holds no package that make deb's Build-Depends brought in.
 # apt installs the package with its dependencies from Debian's archive, then this script
 # checks, the same on every release and architecture:
-#   the user and groups (sysusers.d), the conffiles, the udev rules, --check-config on the
-#   example config, the compiled step core installed and chosen (--probe; the booted
-#   service's status and journal say it runs); the daemon started as the unit starts it (user motorctl, the unit's
-#   ExecStart, a fake NOTIFY_SOCKET) reaching READY=1 via systemd-python, answering a
-#   command on its PTY (mode 0660, group motorctl), sending STATUS= and STOPPING=1;
-#   the installed unit scored by `systemd-analyze security --offline=true` (<= 2.0) and
-#   `systemd-analyze verify` clean, both against this root; the root booted with
-#   systemd-nspawn, so the service runs under a real systemd with its whole sandbox
-#   (Type=notify, STATUS=, journal fields, PTY 0660, a clean stop), a --port device that
-#   appears 30 s after its service started served with no manual step; and a clean purge.
+#   installed with its Depends alone (--no-install-recommends): the user and groups
+#   (sysusers.d), the conffiles, the udev rules, --check-config on the example config, the
+#   compiled step core installed and chosen (--probe; the booted service's status and
+#   journal say it runs); every document of README.md and docs/ installed uncompressed,
+#   their links between each other resolving, every Documentation= target of every unit
+#   opening (check_docs.py); motorctld.service enabled, the metrics timer not; the installed
+#   units scored by `systemd-analyze security --offline=true` (<= 2.0) and `systemd-analyze
+#   verify` clean, both against this root; the daemon started as the unit starts it (user
+#   motorctl, the unit's ExecStart, a fake NOTIFY_SOCKET) reaching READY=1, answering a
+#   command on its PTY (mode 0660, group motorctl), sending STATUS= and STOPPING=1: with
+#   the Depends alone (notifications through the built-in sender), then with the package's
+#   Recommends installed (through systemd-python); the root booted with systemd-nspawn, so
+#   the service runs under a real systemd with its whole sandbox (Type=notify, STATUS=,
+#   journal fields, PTY 0660, a clean stop), a --port device that appears 30 s after its
+#   service started served with no manual step; the package's metrics timer, enabled, feeding
+#   Debian's node_exporter, and `promtool check metrics` on what it wrote; and a clean purge.
 # Logs: build/deb/check-SUITE-ARCH/.
 set -euo pipefail
 deb=$(realpath "${1:?usage: tests/deb/check-install.sh PACKAGE.deb}")
@@ -63,6 +69,14 @@ grep -E "$complaints" "$build/deb-install.log" && fail "apt or a maintainer scri
 in_root dpkg-query -W -f='${db:Status-Status}\n' motorctl | grep -qx installed || fail "not installed"
 [ -z "$(in_root dpkg --audit)" ] || fail "dpkg --audit: $(in_root dpkg --audit)"
 echo "installed: $(in_root dpkg-query -W -f='${Package} ${Version}' motorctl)"
+# what the package recommends (the code runs without each): not installed yet
+recommends=$(dpkg-deb -f "$deb" Recommends | tr ',' '\n' | sed 's/[|(].*//; s/[[:space:]]//g' | grep . | tr '\n' ' ')
+[ -n "$recommends" ] || fail "the package recommends nothing"
+for p in $recommends; do
+  in_root dpkg-query -W -f='${db:Status-Status}\n' "$p" 2>/dev/null | grep -qx installed \
+    && fail "$p is installed with --no-install-recommends: something the package depends on pulls it in"
+done
+echo "with its Depends alone; not installed: $recommends(the Recommends, installed further down)"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --reinstall \
   /tmp/motorctl.deb > "$build/deb-reinstall.log" 2>&1 || { tail -30 "$build/deb-reinstall.log"; fail "reinstall"; }
 grep -E "$complaints" "$build/deb-reinstall.log" && fail "reinstall complained"
@@ -104,34 +118,80 @@ lua=/usr/lib/$triplet/wireshark/plugins/motorctl.lua
   || fail "the Wireshark dissector is not linked as $lua"
 echo "Wireshark dissector: $lua"
 
-step "the installed units: systemd-analyze security --offline=true and verify"
-# each unit by the name it runs under: the template as an instance of it
-for name in motorctld.service motorctld@left.service; do
-  systemd-analyze security --offline=true --root="$root" "$name" --no-pager \
-    > "$build/deb-security.txt" 2>&1 || true
-  score=$(sed -n "s/.*Overall exposure level for $name: \([0-9.]*\).*/\1/p" \
-    "$build/deb-security.txt")
-  [ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score for $name"; }
-  echo "$name exposure: $score (at most $max_exposure)"
-  awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
-  systemd-analyze verify --root="$root" "usr/lib/systemd/system/$name" || fail "systemd-analyze verify $name"
+step "the documents, and every Documentation= target of every installed unit, opened"
+# the repository's documents (as make deb took them: the files git knows of) beside the root's
+mkdir -p "$root/tmp/motorctl-src"
+git -C "$here" ls-files -z --cached --others --exclude-standard -- README.md docs \
+  | tar -C "$here" --null -T - -cf - | tar -C "$root/tmp/motorctl-src" -xf -
+docs=$(cd "$root/tmp/motorctl-src" && find README.md docs -type f | sort)
+units=$(in_root dpkg -L motorctl | grep -E '^/usr/lib/systemd/system/[^/]+\.(service|timer)$' | sort)
+want=$(cd "$here/systemd" && ls -- *.service *.timer | sed 's,^,/usr/lib/systemd/system/,' | sort)
+[ "$units" = "$want" ] || fail "the package's units: $(echo $units), not those of systemd/: $(echo $want)"
+cp "$here/tests/deb/check_docs.py" "$root/tmp/"
+# shellcheck disable=SC2046,SC2086  # lists of paths without spaces
+in_root python3 /tmp/check_docs.py --source /tmp/motorctl-src $(printf -- '--unit %s ' $units) \
+  -- $docs > "$build/deb-docs.txt" 2>&1 || { cat "$build/deb-docs.txt"; fail "documents or Documentation= targets"; }
+grep 'Documentation=' "$build/deb-docs.txt"
+echo "$(grep -c '^doc: ' "$build/deb-docs.txt") documents installed uncompressed, as in the" \
+  "repository; $(grep -c '^link: ' "$build/deb-docs.txt") links between them resolve (log: $build/deb-docs.txt)"
+
+step "the installed units: enabled or not, systemd-analyze security --offline=true and verify"
+# motorctld runs on install; the metrics timer waits for the admin (it needs node_exporter)
+for unit_state in motorctld.service:enabled motorctl-metrics.timer:disabled \
+  motorctl-metrics.service:static; do
+  name=${unit_state%%:*}
+  state=$(in_root systemctl is-enabled "$name" 2>&1 || true)
+  [ "$state" = "${unit_state#*:}" ] || fail "$name is '$state' after install, not ${unit_state#*:}"
+  echo "$name: $state"
+done
+# each unit by the name it runs under: the template as an instance of it. verify's own look
+# for man: pages (with the host's man, which cannot see the root's) is off: check_docs.py
+# opened them in the root above
+for name in motorctld.service motorctld@left.service motorctl-metrics.service motorctl-metrics.timer; do
+  if [ "${name##*.}" = service ]; then
+    systemd-analyze security --offline=true --root="$root" "$name" --no-pager \
+      > "$build/deb-security.txt" 2>&1 || true
+    score=$(sed -n "s/.*Overall exposure level for $name: \([0-9.]*\).*/\1/p" \
+      "$build/deb-security.txt")
+    [ -n "$score" ] || { cat "$build/deb-security.txt"; fail "no security score for $name"; }
+    echo "$name exposure: $score (at most $max_exposure)"
+    awk -v s="$score" -v m="$max_exposure" 'BEGIN { exit !(s <= m) }' || fail "exposure $score"
+  fi
+  systemd-analyze verify --man=no --root="$root" "usr/lib/systemd/system/$name" \
+    || fail "systemd-analyze verify $name"
   echo "$name verify: clean"
 done
 [ -f "$root/usr/lib/systemd/system/motorctld@.service" ] || fail "the template unit is not installed"
 unit=usr/lib/systemd/system/motorctld.service
 
-step "the daemon as the unit starts it: user motorctl, fake NOTIFY_SOCKET, systemd-python"
-mkdir -p "$root/run/motorctl" && in_root chown motorctl:motorctl /run/motorctl
-in_root chmod 0750 /run/motorctl
 cp "$here/tests/deb/notify_listener.py" "$root/tmp/"
 exec_start=$(sed -n 's/^ExecStart=//p' "$root/$unit")
 serve=$(sed -n 's/^MOTORCTLD_SERVE="\(.*\)"$/\1/p' "$root/etc/default/motorctld")
 cmd=${exec_start//\$MOTORCTLD_SERVE/$serve}
-echo "ExecStart: $cmd"
-in_root env NOTIFY_DEADLINE_S=$((boot_timeout / 6)) \
-  python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
-  setpriv --reuid=motorctl --regid=motorctl --init-groups $cmd \
-  || { cat "$root/run/motorctl/notify.log" 2>/dev/null; fail "daemon under a fake NOTIFY_SOCKET"; }
+as_the_unit() {  # as_the_unit SENDER: the daemon started as the unit starts it
+  mkdir -p "$root/run/motorctl" && in_root chown motorctl:motorctl /run/motorctl
+  in_root chmod 0750 /run/motorctl
+  echo "ExecStart: $cmd"
+  # shellcheck disable=SC2086  # the unit's command line, split as systemd splits it
+  in_root env NOTIFY_DEADLINE_S=$((boot_timeout / 6)) NOTIFY_SENDER="$1" \
+    python3 /tmp/notify_listener.py /run/motorctl/notify.sock motorctl -- \
+    setpriv --reuid=motorctl --regid=motorctl --init-groups $cmd \
+    || fail "daemon under a fake NOTIFY_SOCKET ($1 notifications)"
+}
+
+step "the daemon as the unit starts it, with the Depends alone: user motorctl, fake NOTIFY_SOCKET"
+as_the_unit built-in
+
+step "the package's Recommends installed: $recommends"
+# shellcheck disable=SC2086  # a list of package names
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+  $recommends > "$build/deb-recommends.log" 2>&1 \
+  || { tail -30 "$build/deb-recommends.log"; fail "apt-get install $recommends"; }
+grep -E "$complaints" "$build/deb-recommends.log" && fail "installing the Recommends complained"
+echo "installed: $recommends"
+
+step "the daemon as the unit starts it, with the Recommends: notifications through systemd-python"
+as_the_unit systemd-python
 
 if [ "$boot" = 1 ]; then
 step "boot the root with systemd-nspawn: the service under real systemd, whole sandbox"
@@ -196,25 +256,15 @@ debroot_mount "$root"
 
 # ---- metrics through Debian's node_exporter (issue 26: this block and
 # tests/deb/metrics-report.*) ----------------------------------------------------------------
-# docs/service.md's motorctl-metrics units, taken from the page as written, write the
-# textfile (--format prometheus); Debian's prometheus-node-exporter, installed with
-# python3-prometheus-client (which the package suggests), serves it. A second boot of the
-# root, on a network of its own, reports what node_exporter's /metrics says of motorctl.
-step "metrics: docs/service.md's timer feeds Debian's prometheus-node-exporter"
+# The package's motorctl-metrics units (installed disabled) write the textfile (--format
+# prometheus); Debian's prometheus-node-exporter, installed with python3-prometheus-client
+# (both suggested by the package), serves it. A second boot of the root, on a network of its
+# own, enables the timer as docs/service.md says and reports what node_exporter's /metrics
+# says of motorctl; then promtool lints the file the timer wrote.
+step "metrics: the package's timer, enabled, feeds Debian's prometheus-node-exporter"
 in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
   prometheus-node-exporter python3-prometheus-client > "$build/deb-metrics.log" 2>&1 \
   || { tail -30 "$build/deb-metrics.log"; fail "apt-get install prometheus-node-exporter"; }
-python3 - "$here/docs/service.md" "$root/etc/systemd/system" <<'PY' || fail "units from docs/service.md"
-import re, sys
-from pathlib import Path
-page, units = Path(sys.argv[1]).read_text(), Path(sys.argv[2])
-for name in ("motorctl-metrics.service", "motorctl-metrics.timer"):
-    m = re.search(rf"`/etc/systemd/system/{re.escape(name)}`:\n\n```ini\n(.*?)```", page, re.S)
-    if m is None:
-        raise SystemExit(f"docs/service.md shows no {name}")
-    (units / name).write_text(m.group(1))
-    print(f"{name}: from docs/service.md")
-PY
 version=$(in_root dpkg-query -W -f='${Version}' motorctl)
 debroot_umount "$root"
 rm -f "$root/etc/systemd/system/multi-user.target.wants/report.service"
@@ -228,6 +278,7 @@ timeout "$boot_timeout" systemd-nspawn -D "$root" --boot --register=no --keep-un
 report=$root/root/metrics-report.txt
 [ -f "$report" ] || { tail -20 "$build/deb-nspawn-metrics.log"; fail "no metrics report"; }
 cat "$report"
+expect "timer before: disabled"
 expect "timer: active"
 expect "metrics-service: success"
 expect "node_textfile_scrape_error 0"
@@ -239,10 +290,28 @@ for typed in "motorctl_link_frames_total counter" "motorctl_steps_total counter"
   "motorctl_motor_position_steps gauge"; do
   expect "type $typed"
 done
+[ ! -e "$root/etc/systemd/system/timers.target.wants/motorctl-metrics.timer" ] \
+  || fail "the metrics timer is still enabled after the report disabled it"
 rm -f "$root/etc/systemd/system/metrics-report.service" \
   "$root/etc/systemd/system/multi-user.target.wants/metrics-report.service" \
-  "$root/etc/systemd/system/motorctl-metrics."* "$root/root/metrics-report."*
+  "$root/root/metrics-report."*
 debroot_mount "$root"
+
+# promtool comes with Debian's prometheus (the server; a package of its own where the release
+# has one), installed in this root only: make test never installs it (issue 32)
+step "promtool check metrics on what the timer wrote"
+prom=/var/lib/prometheus/node-exporter/motorctl.prom
+[ -s "$root$prom" ] || fail "the timer wrote no $prom"
+promtool_pkg=prometheus
+in_root apt-cache show promtool > /dev/null 2>&1 && promtool_pkg=promtool
+in_root env DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends \
+  "$promtool_pkg" > "$build/deb-promtool.log" 2>&1 \
+  || { tail -30 "$build/deb-promtool.log"; fail "apt-get install $promtool_pkg (for promtool)"; }
+lint=$(in_root promtool check metrics < "$root$prom" 2>&1) \
+  || fail "promtool check metrics $prom: $lint"
+[ -z "$lint" ] || fail "promtool check metrics $prom: $lint"
+echo "promtool ($promtool_pkg $(in_root dpkg-query -W -f='${Version}' "$promtool_pkg")):" \
+  "$prom ($(grep -c '^motorctl_' "$root$prom") samples) passes, nothing to say"
 # ---- end of the metrics block ---------------------------------------------------------------
 else
   step "NOT booted with systemd-nspawn: $debroot_arch runs under qemu-user, where Debian 13's systemd as PID 1 starts no unit (docs/platforms.md)"

@@ -1,7 +1,7 @@
 #!/bin/sh
 # Runs inside the booted test root (metrics-report.service; check-install.sh's metrics block):
-# the motorctl-metrics units of docs/service.md write the textfile, Debian's
-# prometheus-node-exporter serves it; what its /metrics says of motorctl goes to the report.
+# the package's motorctl-metrics units write the textfile, Debian's prometheus-node-exporter
+# serves it; what its /metrics says of motorctl goes to the report.
 # Every wait has a deadline (2 minutes: a root under qemu-user, tools/debroot.sh, is slow).
 wait_for() {  # wait_for UNIT: until it runs (2 minutes at most)
   i=0
@@ -11,6 +11,8 @@ wait_for() {  # wait_for UNIT: until it runs (2 minutes at most)
 }
 wait_for motorctld
 wait_for prometheus-node-exporter
+# installed disabled by the package; enabled as docs/service.md says
+echo "timer before: $(systemctl is-enabled motorctl-metrics.timer)"
 systemctl enable --now motorctl-metrics.timer 2>&1 | sed 's/^/  | /'
 echo "timer: $(systemctl show -P ActiveState motorctl-metrics.timer)"
 systemctl start motorctl-metrics.service  # at once, not 30 s after boot

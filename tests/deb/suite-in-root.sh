@@ -5,7 +5,9 @@
 # The root is a fresh copy of the cached debootstrap of DEBROOT_SUITE on DEBROOT_ARCH
 # (tools/debroot.sh; arm64 on this amd64 machine runs under qemu-user) plus the packages the
 # suite imports (PACKAGES), and a copy of the files git knows of in /src (the work tree is
-# never written). Log: build/deb/suite-SUITE-ARCH/pytest.log.
+# never written). It says which step core the suite runs (the compiled one, built in the root
+# for its Python; the run fails when that one would not run). Log:
+# build/deb/suite-SUITE-ARCH/pytest.log.
 #
 # Which tests (docs/platforms.md has the figures):
 # - where ARCH runs natively: all of them (`make test`'s selection).
@@ -38,10 +40,10 @@ here=$(cd "$(dirname "$0")/../.." && pwd)
 . "$here/tools/debroot.sh"
 debroot_needs "make test-root"
 # the suite's imports (radon: tests/test_layout.py's complexity; Debian's package of it is
-# named radon), socat and patch (tests it runs), and what building the compiled step core for
+# named radon), socat (tests it runs), and what building the compiled step core for
 # the root's Python needs (gcc, its headers, setuptools: as debian/control's Build-Depends)
 PACKAGES="python3-pytest python3-pytest-xdist python3-hypothesis python3-serial python3-libgpiod
-  python3-spidev python3-systemd python3-prometheus-client python3-rich radon socat patch
+  python3-spidev python3-systemd python3-prometheus-client python3-rich radon socat
   gcc libc6-dev python3-dev python3-setuptools"
 EMULATED=(tests/motion/executors/test_step_core.py tests/motion/executors/process/test_rings.py
   tests/motion/executors/process/test_parent.py tests/motion/executors/process/test_child.py
@@ -79,6 +81,16 @@ echo "== the compiled step core for the root's $(debroot_run "$root" python3 --v
 debroot_run "$root" sh -c "cd /src && python3 setup.py -q build_ext --inplace --build-temp /tmp/stepcore" \
   > "$out/stepcore.log" 2>&1 || { tail -20 "$out/stepcore.log"; debroot_fail "building the compiled step core (log: $out/stepcore.log)"; }
 echo "   built in $((SECONDS - t1)) s: $(cd "$root/src/motion/executors" && ls _stepcore*.so)"
+# The step core the suite runs, as the daemon chooses it (--probe, [step_thread] core =
+# "auto"): the compiled one, built above. Any other answer fails the run here, before the
+# tests: a suite on the Python core would pass with the compiled core untested (as it once
+# did on bookworm, whose setuptools could not read pyproject.toml's licence).
+debroot_run "$root" sh -c "cd /src && python3 -m motorctl.daemon.main --probe --latency-seconds 0" \
+  > "$out/probe.txt" 2>&1 || { cat "$out/probe.txt"; debroot_fail "motorctld --probe in the root (log: $out/probe.txt)"; }
+runs=$(sed -n 's/^  runs: //p' "$out/probe.txt")
+echo "== the step core the suite runs: ${runs:-none} (motorctld --probe in the root)"
+[ "$runs" = compiled ] || { sed -n '/^step core:/,/^  runs:/p' "$out/probe.txt"
+  debroot_fail "the compiled step core was built for the root's python3 but would not run: the suite is NOT run on the Python core in its place"; }
 
 t1=$SECONDS
 args=""; for a in "${selection[@]}"; do args="$args '${a//\'/\'\\\'\'}'"; done

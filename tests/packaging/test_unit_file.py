@@ -1,10 +1,11 @@
 """The systemd units: hardening score, `systemd-analyze verify`, and real-time priority without
 capabilities (LimitRTPRIO/LimitMEMLOCK only) measured on this kernel.
 
-Two units, both installed verbatim by the package (debian/rules): motorctld.service (one
+Four units, all installed verbatim by the package (debian/rules): motorctld.service (one
 daemon) and the template motorctld@.service (one daemon per instance name, each with its own
-config, serving place and state directory); the template is the single unit line for line
-but for the lines that name those. `make test-deb` checks both again as installed on a
+config, serving place and state directory), the template the single unit line for line but
+for the lines that name those; motorctl-metrics.timer and the service it starts (the metrics
+for node_exporter; installed disabled). `make test-deb` checks both again as installed on a
 fresh Debian 12 root, and runs two instances of the template under a booted systemd.
 """
 
@@ -24,11 +25,14 @@ from tests.support import REPO
 ROOT = REPO
 UNIT = ROOT / "systemd" / "motorctld.service"
 TEMPLATE = ROOT / "systemd" / "motorctld@.service"
+METRICS = ROOT / "systemd" / "motorctl-metrics.service"
+TIMER = ROOT / "systemd" / "motorctl-metrics.timer"
 MAX_EXPOSURE = 2.0
-#: each unit with the name it is checked under (a template as one of its instances)
+#: each service with the name it is checked under (a template as one of its instances)
 UNITS = [
     pytest.param(UNIT, "motorctld.service", id="single"),
     pytest.param(TEMPLATE, "motorctld@left.service", id="template"),
+    pytest.param(METRICS, "motorctl-metrics.service", id="metrics"),
 ]
 
 analyze = shutil.which("systemd-analyze")
@@ -56,6 +60,8 @@ def installed_root(tmp_path: Path, unit: Path) -> Path:
     daemon = tmp_path / "usr" / "bin" / "motorctld"
     daemon.write_text(f"#!{sys.executable}\nfrom motorctl.daemon.main import main\nmain()\n")
     daemon.chmod(0o755)
+    (tmp_path / "bin").mkdir()
+    shutil.copy(os.path.realpath("/bin/sh"), tmp_path / "bin" / "sh")  # the metrics' ExecStart
     return tmp_path
 
 
@@ -73,12 +79,19 @@ def test_the_template_is_exposed_no_more_than_the_single_unit(tmp_path: Path) ->
 
 
 @needs_analyze
-@pytest.mark.parametrize(("unit", "name"), UNITS)
+@pytest.mark.parametrize(
+    ("unit", "name"), [*UNITS, pytest.param(TIMER, "motorctl-metrics.timer", id="timer")]
+)
 def test_verify_clean(unit: Path, name: str, tmp_path: Path) -> None:
+    """verify, without its look for the man: pages of Documentation= (it asks this machine's
+    man, which has not the package's pages: tests/packaging/test_deb_docs.py and make test-deb
+    open every Documentation= target)."""
     root = installed_root(tmp_path, unit)
+    if unit == TIMER:  # a timer without its service is refused
+        shutil.copy(METRICS, root / "lib" / "systemd" / "system" / METRICS.name)
     assert analyze is not None
     out = subprocess.run(
-        [analyze, "verify", f"--root={root}", f"lib/systemd/system/{name}"],
+        [analyze, "verify", "--man=no", f"--root={root}", f"lib/systemd/system/{name}"],
         capture_output=True,
         text=True,
         timeout=60,
@@ -191,3 +204,15 @@ def test_limits_alone_give_realtime_without_capabilities() -> None:
         pytest.skip(f"this machine cannot raise the limits (no CAP_SYS_RESOURCE): {out}")
     assert code == 0, out
     assert out.replace(" ", "") == "ok|ok"
+
+
+def test_the_metrics_command_docs_service_md_shows_is_the_units() -> None:
+    """docs/service.md, "Metrics", quotes the command of motorctl-metrics.service: the same
+    words as the unit's ExecStart runs (its sh -c script)."""
+    unit = METRICS.read_text().replace("\\\n", " ")
+    exec_start = re.search(r"^ExecStart=/bin/sh -c '(.*)'$", unit, re.M)
+    assert exec_start, "ExecStart=/bin/sh -c '...'"
+    page = (ROOT / "docs" / "service.md").read_text()
+    quoted = re.search(r"a oneshot that runs\n\n```sh\n(.*?)```", page, re.S)
+    assert quoted, "docs/service.md quotes no metrics command"
+    assert quoted.group(1).replace("\\\n", " ").split() == exec_start.group(1).split()

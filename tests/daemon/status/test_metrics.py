@@ -4,9 +4,12 @@ Prometheus text format 0.0.4, which node_exporter's textfile collector reads; Op
 strictly), every counter typed counter in both, summaries with ``_count`` and ``_sum``, no
 quantile on a gauge, the build's version, the trace's state, the renamed metrics of issue
 27, names and base units, nothing but ``motorctl_up`` (and the version) from an empty
-document; ``promtool check metrics`` (Debian's prometheus package; make test installs it)
-on the Prometheus format. Against a live daemon: tests/daemon/status/test_document_e2e.py; read by
-Debian's node_exporter: make test-deb (tests/deb/check-install.sh)."""
+document; promtool's lint (``promtool check metrics``'s rules, tests/support/promlint.py, on
+prometheus_client's parser) on the Prometheus format, and promtool itself where it is
+installed: ``make test`` never installs it (it comes with Debian's whole ``prometheus``
+server package); ``make test-deb`` runs it on the installed package's timer output. Against a
+live daemon: tests/daemon/status/test_document_e2e.py; read by Debian's node_exporter: make
+test-deb (tests/deb/check-install.sh)."""
 
 from __future__ import annotations
 
@@ -23,6 +26,7 @@ from prometheus_client.parser import text_string_to_metric_families as _promethe
 from motorctl.daemon.status.metric_tables import LINK_COUNTERS, MOTOR_FIELDS, SCALARS
 from motorctl.daemon.status.metrics import down, metrics
 from tests.support import REPO
+from tests.support.promlint import lint
 
 DOC: dict[str, Any] = {
     "version": "9.8.7",
@@ -328,15 +332,79 @@ def test_what_is_missing_is_left_out() -> None:
         assert samples(parse(down(fmt))) == {up: 0}
 
 
+EXPOSITIONS = {"document": metrics(DOC), "empty": metrics({}), "down": down()}
+
+
+@pytest.mark.parametrize("which", EXPOSITIONS)
+def test_promtools_lint_passes(which: str) -> None:
+    """promtool's rules (tests/support/promlint.py) on what node_exporter reads."""
+    assert lint(EXPOSITIONS[which]) == []
+
+
+# Expositions promtool refuses (checked against Debian 12's promtool 2.42), with what the lint
+# says of each: the lint can fail, and fails where promtool does.
+MALFORMED = {
+    '# HELP x h\n# TYPE x gauge\nx{a="1} 1\n': "text format parsing error",
+    "# HELP x h\n# TYPE x gauge\nx 1 abc\n": "text format parsing error",
+    "# TYPE x gauge\nx 1\n": "x no help text",
+    "# HELP x h\n# TYPE x counter\nx 1\n": 'x counter metrics should have "_total" suffix',
+    "# HELP x_total h\n# TYPE x_total gauge\nx_total 1\n": "x_total non-counter metrics should",
+    "# HELP x h\n# TYPE x counter\nx_total 1\n# HELP x h\n# TYPE x counter\nx_total 2\n": (
+        "x has 2 HELP lines"
+    ),
+    "# HELP fooBar h\n# TYPE fooBar gauge\nfooBar 1\n": "fooBar metric names should be written",
+    '# HELP x h\n# TYPE x gauge\nx{fooBar="1"} 1\n': "x label names should be written",
+    "# HELP x:y h\n# TYPE x:y gauge\nx:y 1\n": "x:y metric names should not contain ':'",
+    "# HELP x_ms h\n# TYPE x_ms gauge\nx_ms 1\n": "x_ms metric names should not contain abbre",
+    "# HELP x_sec_total h\n# TYPE x_sec_total counter\nx_sec_total 1\n": (
+        "x_sec_total metric names should not contain abbreviated units"
+    ),
+    "# HELP x_hours h\n# TYPE x_hours gauge\nx_hours 1\n": 'x_hours use base unit "seconds"',
+    "# HELP x_kilobytes h\n# TYPE x_kilobytes gauge\nx_kilobytes 1\n": "x_kilobytes use base unit",
+    "# HELP x_count h\n# TYPE x_count gauge\nx_count 1\n": "x_count non-histogram and non-summ",
+    "# HELP x_bucket h\n# TYPE x_bucket gauge\nx_bucket 1\n": "x_bucket non-histogram metrics",
+    '# HELP x h\n# TYPE x gauge\nx{le="1"} 1\n': 'x non-histogram metrics should not have "le"',
+    '# HELP x h\n# TYPE x gauge\nx{quantile="1"} 1\n': "x non-summary metrics should not",
+    "# HELP x_gauge h\n# TYPE x_gauge untyped\nx_gauge 1\n": "x_gauge metric name should not",
+    "# HELP x_counter_total h\n# TYPE x_counter_total counter\nx_counter_total 1\n": (
+        "x_counter_total metric name should not include type 'counter'"
+    ),
+}
+
+
+@pytest.mark.parametrize("text", MALFORMED)
+def test_the_lint_finds_what_promtool_finds(text: str) -> None:
+    problems = lint(text)
+    assert any(problem.startswith(MALFORMED[text]) for problem in problems), problems
+    promtool = shutil.which("promtool")
+    if promtool is not None:  # the same verdict as promtool's, where it is installed
+        run = subprocess.run(
+            [promtool, "check", "metrics"], input=text, capture_output=True, text=True, timeout=60
+        )
+        assert run.returncode != 0, run.stdout + run.stderr
+
+
+def test_the_lint_is_stricter_than_promtool_where_a_scrape_is() -> None:
+    """A family or a series given twice passes promtool 2.42; a scrape refuses it."""
+    again = "# HELP x h\n# TYPE x gauge\nx 1\n# HELP y h\n# TYPE y gauge\ny 1\nx 2\n"
+    assert "x is given in more than one place" in lint(again)
+    twice = '# HELP x h\n# TYPE x gauge\nx{a="1"} 1\nx{a="1"} 2\n'
+    assert "x{'a': '1'} is given twice" in lint(twice)
+    good = '# HELP x h\n# TYPE x summary\nx{quantile="0.5"} 1\nx_sum 1\nx_count 1\n'
+    assert lint(good) == []
+
+
 def test_promtool_check_metrics_passes() -> None:
-    """promtool's lint of what node_exporter reads (the Prometheus format)."""
+    """promtool's own lint of what node_exporter reads (the Prometheus format), where promtool
+    is installed; make test-deb runs it on the installed package's timer output."""
     promtool = shutil.which("promtool")
     if promtool is None:
         pytest.skip(
-            "promtool is not installed (apt-get install prometheus; make test does it as "
-            "root): the metrics' lint is NOT checked"
+            "promtool is not installed (make test never installs Debian's prometheus server "
+            "package for it): its rules are checked by tests/support/promlint.py, promtool "
+            "itself by make test-deb"
         )
-    for text in (metrics(DOC), down()):
+    for text in EXPOSITIONS.values():
         run = subprocess.run(
             [promtool, "check", "metrics"], input=text, capture_output=True, text=True, timeout=60
         )
