@@ -59,10 +59,11 @@ def fix_words(name: str, n: int) -> str | None:
     if cls is None or not cls.spec.remedy:
         return None
     spec = cls.spec
+    given = dict(spec.remedy_args)
     words = ["motorctl", *spec.cli]
     for i, p in enumerate(q for q in spec.params if not q.option):
-        if p.name in spec.remedy_args:
-            words.append(p.typed(spec.remedy_args[p.name]))
+        if p.name in given:
+            words.append(p.typed(given[p.name]))
         elif i == 0:
             words.append(str(n))  # the motor or pin it is about
         else:

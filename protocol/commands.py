@@ -306,7 +306,7 @@ class ConfigPin(Command):
             "in: an input, out: an output",
             shown="flag",
             words=("out", "in"),
-            aliases={"output": True, "input": False},
+            aliases=(("output", True), ("input", False)),
             names=("output", "input"),
         )
     )

@@ -96,6 +96,7 @@ PRECEDENCE = (
 
 Wire = Literal["u8", "u16", "s24", "bool"]
 SIZE: dict[Wire, int] = {"u8": 1, "u16": 2, "s24": 3, "bool": 1}
+_HIGHEST: dict[Wire, int] = {"u8": 0xFF, "u16": 0xFFFF, "s24": POS_MAX, "bool": 1}
 #: how a value is shown in text, in ``motorctl trace --json`` and in Wireshark: a number,
 #: a flag (true/false), a level (1/0 in JSON, true/false in text), a word (up/down)
 Shown = Literal["number", "flag", "level", "word"]
@@ -136,7 +137,7 @@ class Param:
     zero: str = ""
     shown: Shown = "number"
     words: tuple[str, str] | None = None
-    aliases: Mapping[str, bool] = dataclasses.field(default_factory=dict)
+    aliases: tuple[tuple[str, bool], ...] = ()
     names: tuple[str, str] | None = None
     metavar: str = ""
     option: str = ""
@@ -155,7 +156,7 @@ class Param:
 
     @property
     def hi(self) -> int:
-        return {"u8": 0xFF, "u16": 0xFFFF, "s24": POS_MAX, "bool": 1}[self.wire]
+        return _HIGHEST[self.wire]
 
     @property
     def field(self) -> str:
@@ -206,7 +207,7 @@ class Param:
         """A boolean's words as typed on the command line (case-insensitive)."""
         if self.words is None:
             return {}
-        return {self.words[0]: True, self.words[1]: False, **self.aliases}
+        return {self.words[0]: True, self.words[1]: False, **dict(self.aliases)}
 
     def range_text(self) -> str:
         """What it takes, for the docs and ``--help``: "0..255 x 4 step/s ([units]
@@ -286,7 +287,7 @@ class Spec:
     motion: Motion | None
     cli: tuple[str, ...]
     remedy: str
-    remedy_args: Mapping[str, int | bool]
+    remedy_args: tuple[tuple[str, int | bool], ...]
 
     @property
     def handler(self) -> str:
@@ -368,7 +369,7 @@ def command(
             motion,
             cli,
             remedy,
-            remedy_args or {},
+            tuple((remedy_args or {}).items()),
         )
         return made
 

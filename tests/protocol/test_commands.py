@@ -138,7 +138,7 @@ def test_the_remedies() -> None:
         "ConfigPin": "ConfigPin makes it an output",
     }
     for cls in COMMANDS:
-        assert set(cls.spec.remedy_args) <= {p.name for p in cls.spec.params}
+        assert {n for n, _ in cls.spec.remedy_args} <= {p.name for p in cls.spec.params}
 
 
 def test_the_command_line_words_are_unique_and_grouped() -> None:

@@ -49,7 +49,8 @@ def test_a_declared_command_is_a_frozen_dataclass_with_its_entry() -> None:
         ("flag", "bool", 1),
     ]
     assert spec.used_bytes == 2 and spec.param("flag") is not None and spec.param("x") is None
-    assert spec.motion is None and spec.remedy_args == {}
+    assert spec.motion is None and spec.remedy_args == ()
+    assert hash(spec) == hash(dataclasses.replace(spec))  # immutable through and through
     assert spec.gives_code(ErrorCode.INVALID_ADDRESS) is spec.gives[0]
     assert spec.gives_code(ErrorCode.MOTOR_ERROR) is None
     assert N.name == ""  # the declaration is left as it was; the entry holds a named copy
