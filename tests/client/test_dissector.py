@@ -31,15 +31,17 @@ OPTS = CodecOptions()
 TEMPLATE = dissector.TEMPLATE.read_text(encoding="utf-8")
 
 ECHO = Param("u8", "Echo", "the byte to echo", metavar="N")
+#: the made-up commands' codes: the first the table does not have
+FREE = max(c.code for c in COMMANDS) + 1
 
 
 @command(
-    0x0F,
+    FREE,
     Answer("the byte", Param("u8", "Echo", "the byte echoed", name="echo")),
     (Gives(ErrorCode.INVALID_ADDRESS, "nobody to echo"),),
-    cli=("ping",),
+    cli=("made-up",),
 )
-class Ping(Command):
+class MadeUp(Command):
     """Echo N (a made-up command: not the protocol's)."""
 
     echo: int = param(ECHO)
@@ -116,15 +118,15 @@ def test_the_mark_must_be_there_once() -> None:
 
 
 def test_a_field_declared_twice_differently_is_refused() -> None:
-    @command(0x10, Answer("ACK"), (), cli=("other",))
+    @command(FREE + 1, Answer("ACK"), (), cli=("other",))
     class Other(Command):
         """A made-up command whose ``echo`` is two bytes."""
 
         echo: int = param(Param("u16", "Echo", "two bytes"))
 
-    assert set(dissector.fields([Ping])) == {"echo"}
+    assert set(dissector.fields([MadeUp])) == {"echo"}
     with pytest.raises(ValueError, match="'echo' is declared twice differently"):
-        dissector.fields([Ping, Other])
+        dissector.fields([MadeUp, Other])
 
 
 def test_main_writes_the_plugin_or_says_why_not(
@@ -139,21 +141,21 @@ def test_main_writes_the_plugin_or_says_why_not(
 
 @pytest.mark.skipif(TSHARK is None, reason="TSHARK IS MISSING: apt-get install tshark")
 def test_a_command_added_to_the_table_is_dissected(tmp_path: Path) -> None:
-    """The table plus a made-up Ping (0x0F; its frames made by hand: the codec knows the
+    """The table plus a made-up command (its frames made by hand: the codec knows the
     protocol's table only): tshark names it, its field and its answer."""
     plugin = tmp_path / "motorctl.lua"
-    plugin.write_text(dissector.render(TEMPLATE, (*COMMANDS, Ping)), encoding="utf-8")
+    plugin.write_text(dissector.render(TEMPLATE, (*COMMANDS, MadeUp)), encoding="utf-8")
     records = [
-        Record(0, Direction.TO_DEVICE, raw_frame("0F 07")),
+        Record(0, Direction.TO_DEVICE, raw_frame(bytes([FREE, 7]))),
         Record(1_000_000, Direction.TO_HOST, encode_response(Response.ok(b"\x07"), OPTS)),
-        Record(2_000_000, Direction.TO_DEVICE, raw_frame("0F 09")),
+        Record(2_000_000, Direction.TO_DEVICE, raw_frame(bytes([FREE, 9]))),
         Record(
             3_000_000,
             Direction.TO_HOST,
             encode_response(Response.error(ErrorCode.INVALID_ADDRESS), OPTS),
         ),
     ]
-    capture = tmp_path / "ping.pcapng"
+    capture = tmp_path / "made-up.pcapng"
     capture.write_bytes(encode(CaptureInfo(role="daemon"), records))
     fields = ["motorctl.kind", "motorctl.command", "motorctl.echo", "motorctl.answer"]
     args = [TSHARK or "tshark", "-X", f"lua_script:{plugin}", "-r", str(capture), "-T", "fields"]
@@ -166,8 +168,8 @@ def test_a_command_added_to_the_table_is_dissected(tmp_path: Path) -> None:
     assert run.returncode == 0 and "lua" not in run.stderr.lower(), run.stderr
     rows = [line.split("\t") for line in run.stdout.splitlines()]
     assert rows == [
-        ["command", "Ping", "7", ""],
-        ["answer", "Ping", "7", "echo=7"],
-        ["command", "Ping", "9", ""],
-        ["answer", "Ping", "", "E2 Invalid Address"],
+        ["command", "MadeUp", "7", ""],
+        ["answer", "MadeUp", "7", "echo=7"],
+        ["command", "MadeUp", "9", ""],
+        ["answer", "MadeUp", "", "E2 Invalid Address"],
     ]
