@@ -1,4 +1,9 @@
-"""``motorctl``: send one protocol command to a motorctl device and print the answer."""
+"""``motorctl``: send one protocol command to a motorctl device and print the answer.
+
+Its commands are the command table's (motorctl.protocol.commands): each command's words, its
+arguments (each parameter's range, unit and default, positional or an option) and the line
+printed for its answer come from there; ``tap``, ``trace``, ``replay``, ``monitor`` and
+``send`` are the tool's own."""
 
 from __future__ import annotations
 
@@ -7,8 +12,10 @@ import contextlib
 import os
 import re
 import sys
+import textwrap
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 import serial
 
@@ -17,26 +24,24 @@ from motorctl.client import reasons, replay, tap, trace
 from motorctl.client.client import Client, DeviceError, LinkError, hex_bytes
 from motorctl.client.port_errors import not_a_port, open_error
 from motorctl.protocol.codec import (
+    COMMANDS,
     FRAME_LEN,
-    POS_MAX,
-    POS_MIN,
     CodecOptions,
     Command,
     FrameError,
     decode_command,
 )
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, CHECKSUM_TEXT, checksum_by_name
+from motorctl.protocol.spec import Param, Spec
 
 __all__ = ["build_parser", "main"]
 
 
 _UNITS = f"""\
-All numbers are the raw protocol values the host sends, not physical units: MOTOR, PIN,
-waypoint N and --speed/--acc/--dec are single bytes (0..255; 0 = the motor's configured
-default); with the default factors InitMove/Move speed = SPEED x 4096 step/s, MoveTo and
-waypoint speed = SPEED x 4 step/s, ramps = ACC/DEC x 16 step/s^2. POS is a signed 24-bit
-step count ({POS_MIN}..{POS_MAX}). Times are milliseconds (0..65535). Integers may be given
-in decimal or with a 0x/0o/0b prefix.
+All numbers are the raw protocol values the host sends, not physical units: each command's
+--help gives each value's range, and its unit with the protocol's default factor (a daemon's
+[units] may set others); a speed, ACC or DEC of 0 means the motor's configured default.
+Integers may be given in decimal or with a 0x/0o/0b prefix.
 
 An error answer is printed with its reason: the daemon's, when its status socket is
 readable from here (beside the port, in .run/state beside it, in /run/motorctl, or in
@@ -68,11 +73,6 @@ def _int_in(lo: int, hi: int, what: str) -> Callable[[str], int]:
     return parse
 
 
-_byte = _int_in(0, 255, "byte")
-_u16 = _int_in(0, 0xFFFF, "milliseconds")
-_pos = _int_in(POS_MIN, POS_MAX, "position")
-
-
 def _seconds(text: str) -> float:
     """argparse type: a positive number of seconds."""
     try:
@@ -98,19 +98,86 @@ def _choice(mapping: dict[str, bool], what: str) -> Callable[[str], bool]:
     return parse
 
 
-_updown = _choice({"up": True, "down": False}, "direction")
-_highlow = _choice({"high": True, "low": False}, "level")
-_inout = _choice({"in": False, "input": False, "out": True, "output": True}, "pin mode")
+def _said(text: str) -> str:
+    """A command's summary as a help line ends: a question keeps its mark."""
+    return text if text.endswith("?") else f"{text}."
 
 
-_MOTOR = "motor number: 0 is the first motor of the daemon's config"
-_PIN = "pin number, as the daemon's config numbers its IO pins"
+def param_help(p: Param) -> str:
+    """An argument's help: what it is, its range and unit, its default (the table's)."""
+    text = p.help
+    if p.wire != "bool":
+        text += f"; {p.range_text()}"
+    if p.default is not None and p.option and p.wire != "bool" and p.default != 0:
+        text += f"; default {p.default}"
+    elif p.default is not None and (p.words is not None or not p.option):
+        text += f"; default {p.typed(p.default)}"
+    return text
 
 
-def _add_ramp(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--speed", type=_byte, default=0, metavar="N", help="SPEED byte (0=default)")
-    p.add_argument("--acc", type=_byte, default=0, metavar="N", help="ACC byte (0=default)")
-    p.add_argument("--dec", type=_byte, default=0, metavar="N", help="DEC byte (0=default)")
+def _add_param(parser: argparse.ArgumentParser, p: Param) -> None:
+    """One parameter of the command table as an argument (see :class:`Param`)."""
+    what = p.label.lower()
+    if p.wire == "bool" and p.words is None:  # a flag, maybe with its opposite
+        if not p.option:
+            raise ValueError(f"{p.name}: a boolean without words must be an option")
+        if p.off_option:
+            group = parser.add_mutually_exclusive_group()
+            group.add_argument(
+                p.off_option, dest=p.name, action="store_false", default=p.default, help=p.off_help
+            )
+            group.add_argument(p.option, dest=p.name, action="store_true", help=param_help(p))
+        else:
+            parser.add_argument(p.option, dest=p.name, action="store_true", help=param_help(p))
+        return
+    kind: Callable[[str], int] | Callable[[str], bool]
+    if p.wire == "bool":
+        kind, metavar = _choice(p.choices(), what), p.placeholder
+    else:
+        kind, metavar = _int_in(p.lo, p.hi, what), p.placeholder
+    if p.option:
+        parser.add_argument(
+            p.option, dest=p.name, type=kind, default=p.default, metavar=metavar, help=param_help(p)
+        )
+    elif p.default is not None:
+        parser.add_argument(
+            p.name, type=kind, nargs="?", default=p.default, metavar=metavar, help=param_help(p)
+        )
+    else:
+        parser.add_argument(p.name, type=kind, metavar=metavar, help=param_help(p))
+
+
+def _errors(spec: Spec) -> str:
+    """The errors a command can give, in the contract's precedence, with what each means."""
+    names = {p.name: p.placeholder for p in spec.params}
+    lines = [f"  {g.code.short} {g.means.format_map(names)}" for g in spec.gives]
+    lines.append("  (and for any frame: E1 when it fails its checksum, code or padding)")
+    return "errors it can give (PROTOCOL.md section 5, first wins):\n" + "\n".join(lines)
+
+
+def _add_commands(sub: Any, add: Callable[..., argparse.ArgumentParser]) -> None:
+    """The command table's commands: one subcommand each, by its words (``pin set``: a
+    group of commands under its first word)."""
+    groups: dict[str, Any] = {}
+    for cls in COMMANDS:
+        spec = cls.spec
+        help_text = f"{spec.name}: {spec.summary[0].lower()}{spec.summary[1:]}"
+        if len(spec.cli) == 1:
+            p = add(sub, spec.cli[0], help_text, _errors(spec))
+        elif len(spec.cli) == 2:
+            word, action = spec.cli
+            if word not in groups:
+                names = " / ".join(c.spec.name for c in COMMANDS if c.spec.cli[:1] == (word,))
+                group = add(sub, word, names)
+                groups[word] = group.add_subparsers(
+                    dest=f"{word}_command", metavar="ACTION", required=True
+                )
+            p = add(groups[word], action, help_text, _errors(spec))
+        else:
+            raise ValueError(f"{spec.name}: command-line words {spec.cli} (one or two)")
+        p.set_defaults(table_command=cls)
+        for param in spec.params:
+            _add_param(p, param)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -157,119 +224,19 @@ def build_parser() -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
 
-    def add(name: str, help_text: str) -> argparse.ArgumentParser:
-        return sub.add_parser(
+    def add(where: Any, name: str, help_text: str, epilog: str = "") -> argparse.ArgumentParser:
+        return where.add_parser(  # type: ignore[no-any-return]
             name,
             help=help_text,
-            description=f"{help_text.rstrip('?.')}{'?' if help_text.endswith('?') else '.'} "
-            "Numbers are the protocol's raw values (motorctl --help).",
+            description=textwrap.fill(
+                f"{_said(help_text)} Numbers are the protocol's raw values (motorctl --help).",
+                width=80,
+            ),
+            epilog=epilog or None,
+            formatter_class=argparse.RawDescriptionHelpFormatter,
         )
 
-    p = add("init", "InitMove: home MOTOR towards its end stop (position becomes 0)")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    p.add_argument(
-        "direction",
-        type=_updown,
-        metavar="up|down",
-        help="where its end stop is: up (counting up) or down",
-    )
-    _add_ramp(p)
-
-    p = add("moveto", "MoveTo: queue a move of MOTOR to the absolute step position POS")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    p.add_argument(
-        "position",
-        type=_pos,
-        metavar="POS",
-        help=f"absolute target in steps, {POS_MIN}..{POS_MAX}",
-    )
-    _add_ramp(p)
-    p.add_argument(
-        "--dir",
-        dest="direction",
-        type=_updown,
-        default=True,
-        metavar="up|down",
-        help="DIR byte (used on rotary axes only; default up)",
-    )
-
-    p = add("wait", "WaitMoved: wait until MOTOR is idle (E3 after TIMEOUT_MS)")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    p.add_argument(
-        "timeout_ms",
-        type=_u16,
-        nargs="?",
-        default=60000,
-        metavar="TIMEOUT_MS",
-        help="device-side timeout in ms (default 60000)",
-    )
-
-    p = add("ready", "IsReady: is MOTOR idle with an empty queue?")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-
-    p = add("move", "Move: run MOTOR continuously until stopped")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    p.add_argument("direction", type=_updown, metavar="up|down", help="up (counting up) or down")
-    _add_ramp(p)
-
-    p = add("stop", "StopMove: stop MOTOR and empty its queue")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    p.add_argument("--hard", action="store_true", help="stop without a ramp")
-
-    p = add("pos", "GetAbsPos: print the position of MOTOR")
-    p.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-
-    p = add("pin", "SetPin / GetPin / ConfigPin")
-    pin_sub = p.add_subparsers(dest="pin_command", metavar="ACTION", required=True)
-    q = pin_sub.add_parser("set", help="drive output PIN high or low")
-    q.add_argument("pin", type=_byte, metavar="PIN", help=_PIN)
-    q.add_argument("level", type=_highlow, metavar="high|low", help="the level to drive")
-    q = pin_sub.add_parser("get", help="read PIN")
-    q.add_argument("pin", type=_byte, metavar="PIN", help=_PIN)
-    q = pin_sub.add_parser("config", help="make PIN an input or an output")
-    q.add_argument("pin", type=_byte, metavar="PIN", help=_PIN)
-    q.add_argument("output", type=_inout, metavar="in|out", help="in: an input, out: an output")
-
-    p = add("home", "SaveHome / GoHome")
-    home_sub = p.add_subparsers(dest="home_command", metavar="ACTION", required=True)
-    q = home_sub.add_parser("save", help="store the current position of MOTOR as home")
-    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    q = home_sub.add_parser("go", help="queue a move of MOTOR to its home")
-    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-
-    p = add("waypoint", "SaveWayPoint / MoveToWayPoint")
-    wp_sub = p.add_subparsers(dest="waypoint_command", metavar="ACTION", required=True)
-    q = wp_sub.add_parser("save", help="store the current position of MOTOR as a waypoint")
-    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    q = wp_sub.add_parser("go", help="queue a move of MOTOR to waypoint N")
-    q.add_argument("motor", type=_byte, metavar="MOTOR", help=_MOTOR)
-    q.add_argument(
-        "waypoint", type=_byte, metavar="N", help="waypoint number, as SaveWayPoint gave it"
-    )
-    _add_ramp(q)
-
-    p = add("dc", "DcMove: run the DC motor TIME_MS, then brake (default) or coast")
-    p.add_argument(
-        "direction",
-        type=_choice({"forward": True, "reverse": False}, "direction"),
-        metavar="forward|reverse",
-        help="the DC motor's direction",
-    )
-    p.add_argument("time_ms", type=_u16, metavar="TIME_MS", help="run time in ms (0 = stop)")
-    end = p.add_mutually_exclusive_group()
-    end.add_argument(
-        "--brake",
-        dest="hiz",
-        action="store_false",
-        default=False,
-        help="end with the bridge braking (GO_HiZ FALSE, default)",
-    )
-    end.add_argument(
-        "--hiz",
-        dest="hiz",
-        action="store_true",
-        help="end with the bridge in high impedance (GO_HiZ TRUE, coasting)",
-    )
+    _add_commands(sub, add)
 
     tap.add_parser(sub)
     replay.add_parser(sub)
@@ -301,7 +268,7 @@ def build_parser() -> argparse.ArgumentParser:
         "--once", action="store_true", help="print the view once and exit (scripts, logs)"
     )
 
-    p = add("send", "send an arbitrary frame given as hex and print the decoded response")
+    p = add(sub, "send", "send an arbitrary frame given as hex and print the decoded response")
     p.add_argument(
         "hex",
         nargs="+",
@@ -345,45 +312,12 @@ def _send(client: Client, frame: bytes) -> str:
 
 
 def _run(client: Client, args: argparse.Namespace) -> str:
-    """Execute the subcommand; return the line to print."""
-    cmd: str = args.command
-    if cmd == "init":
-        client.init_move(args.motor, args.direction, args.speed, args.acc, args.dec)
-    elif cmd == "moveto":
-        client.move_to(args.motor, args.position, args.speed, args.acc, args.dec, args.direction)
-    elif cmd == "wait":
-        client.wait_moved(args.motor, args.timeout_ms)
-    elif cmd == "ready":
-        state = "ready" if client.is_ready(args.motor) else "busy"
-        return f"motor {args.motor} {state}"
-    elif cmd == "move":
-        client.move(args.motor, args.direction, args.speed, args.acc, args.dec)
-    elif cmd == "stop":
-        client.stop(args.motor, args.hard)
-    elif cmd == "pos":
-        return f"motor {args.motor} at {client.position(args.motor)}"
-    elif cmd == "pin":
-        if args.pin_command == "set":
-            client.set_pin(args.pin, args.level)
-        elif args.pin_command == "get":
-            return f"pin {args.pin} {'high' if client.get_pin(args.pin) else 'low'}"
-        else:
-            client.config_pin(args.pin, args.output)
-    elif cmd == "home":
-        if args.home_command == "save":
-            client.save_home(args.motor)
-        else:
-            client.go_home(args.motor)
-    elif cmd == "waypoint":
-        if args.waypoint_command == "save":
-            number = client.save_waypoint(args.motor)
-            return f"waypoint {number} saved on motor {args.motor}"
-        client.move_to_waypoint(args.motor, args.waypoint, args.speed, args.acc, args.dec)
-    elif cmd == "dc":
-        client.dc_move(args.direction, args.time_ms, args.hiz)
-    else:  # pragma: no cover - argparse only yields the commands above
-        raise AssertionError(cmd)
-    return "ok"
+    """Execute the subcommand (a command of the table); return the line to print."""
+    cls: type[Command] = args.table_command
+    spec = cls.spec
+    values = {p.name: getattr(args, p.name) for p in spec.params}
+    reading = client.call(cls(**values))
+    return spec.answer.line.format(**values, value=reading.value, text=reading.text)
 
 
 def _why(exc: DeviceError, client: Client, options: CodecOptions, port: str) -> str:
@@ -400,7 +334,8 @@ def _why(exc: DeviceError, client: Client, options: CodecOptions, port: str) -> 
 
 def _interrupted(args: argparse.Namespace) -> str:
     """Ctrl-C: for a WaitMoved, the motor does not stop with the command."""
-    if args.command == "wait":
+    cls = getattr(args, "table_command", None)
+    if cls is not None and cls.spec.answer.held:  # the wait ends, not the motion
         n = args.motor
         return (
             f"interrupted: motor {n} keeps moving (only the wait ended); stop it with "

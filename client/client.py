@@ -1,8 +1,10 @@
 """Host-side client for the motorctl device protocol over a serial port.
 
 One :class:`Client` talks to one port. :meth:`Client.transact` sends one command frame and
-reads one response; the typed methods (``is_ready``, ``position`` ...) wrap it, raise
-:class:`DeviceError` on an error response and return the payload as a Python value. The low
+reads one response; :meth:`Client.call` sends any command of the command table
+(motorctl.protocol.commands), raises :class:`DeviceError` on an error response and returns the
+answer read for it (its value, its text); the typed methods (``is_ready``, ``position`` ...)
+wrap it and return the value as a Python value. The low
 level methods (``send_frame``, ``send_bytes``, ``read_response``, ``read_raw``) let tests
 pipeline frames, send broken frames or split a frame.
 """
@@ -30,6 +32,7 @@ from motorctl.protocol.codec import (
     Move,
     MoveTo,
     MoveToWayPoint,
+    Reading,
     Response,
     ResponseError,
     SaveHome,
@@ -37,6 +40,7 @@ from motorctl.protocol.codec import (
     SetPin,
     StopMove,
     WaitMoved,
+    decode_answer,
     decode_response,
     describe,
     encode_command,
@@ -169,6 +173,15 @@ class Client:
 
     # -- typed commands -------------------------------------------------------------------
 
+    def call(self, cmd: Command) -> Reading:
+        """Send ``cmd`` and return its answer read for it (the table's reading: ``value``,
+        ``text``); :class:`DeviceError` on an error answer. An answer the table says may be
+        held (WaitMoved) is waited for as long as the command says, plus the client's
+        timeout."""
+        held = cmd.spec.answer.held
+        timeout = getattr(cmd, held) / 1000.0 + self.timeout if held else None
+        return decode_answer(cmd, self._call(cmd, timeout))
+
     def _call(self, cmd: Command, timeout: float | None = None) -> Response:
         resp = self.transact(cmd, timeout)
         if not resp.ack:
@@ -199,7 +212,7 @@ class Client:
 
         The read waits ``timeout_ms`` plus the client's own timeout.
         """
-        self._call(WaitMoved(motor, timeout_ms), timeout_ms / 1000.0 + self.timeout)
+        self.call(WaitMoved(motor, timeout_ms))
 
     def is_ready(self, motor: int) -> bool:
         """IsReady: True when ``motor`` is idle with an empty queue."""

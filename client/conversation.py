@@ -1,6 +1,7 @@
 """A recorded conversation, frame by frame (docs/trace.md): :func:`analyse` turns byte runs
 (from the daemon's trace or the tap) into rows: each command frame with its decoded command
-or its frame error, each answer decoded for the command it answers (error codes by name)
+or its frame error, each answer decoded for the command it answers (error codes by name;
+the one reading of an answer, :func:`motorctl.protocol.codec.decode_answer`)
 with its round-trip time, partial frames the gap rule dropped, runs a writer left out.
 Inbound runs are cut into frames as the daemon cuts them
 (:class:`motorctl.protocol.framing.Framer`, with the recording's ``frame_gap_ms``; the
@@ -24,15 +25,12 @@ from motorctl.protocol.codec import (
     CodecOptions,
     Command,
     FrameError,
-    GetAbsPos,
-    GetPin,
-    IsReady,
     Response,
     ResponseError,
-    SaveWayPoint,
     decode_command,
     decode_response,
     describe,
+    describe_answer,
 )
 from motorctl.protocol.framing import Framer
 
@@ -88,26 +86,6 @@ class Conversation:
     @property
     def unanswered(self) -> list[Frame]:
         return [f for f in self.frames if f.answer is None]
-
-
-def answer_text(cmd: Command | None, resp: Response) -> str:
-    """What an answer says, for the command it answers: "ready", "pos=1200", "E3 ..."."""
-    if not resp.ack:
-        code = resp.error_code
-        return (
-            f"{code.short} {code.label}"
-            if code is not None
-            else f"error 0x{resp.payload[0]:02x} (unknown code)"
-        )
-    if isinstance(cmd, IsReady):
-        return "ready" if resp.as_bool else "busy"
-    if isinstance(cmd, GetAbsPos):
-        return f"pos={resp.as_position}"
-    if isinstance(cmd, GetPin):
-        return "high" if resp.as_bool else "low"
-    if isinstance(cmd, SaveWayPoint):
-        return f"waypoint {resp.payload[0]}"
-    return "ok" if resp.payload == bytes(3) else f"ok, payload {resp.payload.hex(' ')}"
 
 
 def analyse(records: Sequence[Record], info: CaptureInfo) -> Conversation:
@@ -250,7 +228,7 @@ def _answer(t_ns: int, data: bytes, frame: Frame | None, opts: CodecOptions) -> 
             Direction.TO_HOST,
             ANSWER,
             data,
-            f"#{frame.number} {answer_text(frame.command, resp)}",
+            f"#{frame.number} {describe_answer(frame.command, resp)}",
             frame.number,
             frame.command,
             resp,

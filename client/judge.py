@@ -36,17 +36,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from motorctl.client.conversation import ANSWER, Conversation, Frame, Row, answer_text
+from motorctl.client.conversation import ANSWER, Conversation, Frame, Row
 from motorctl.client.motion_bounds import Check, Replayed, end_shift, gap, positions
-from motorctl.client.motions import Episode, Span, ends, recording, wrapped
+from motorctl.client.motions import Episode, Span, ends, motion, recording, wrapped
 from motorctl.protocol.codec import (
     GetAbsPos,
-    GoHome,
-    MoveToWayPoint,
     SaveHome,
     SaveWayPoint,
     WaitMoved,
     describe,
+    describe_answer,
 )
 
 TIME_TOLERANCE_S = 0.05
@@ -171,7 +170,7 @@ def judge_end(
     seen = ends(cmd, b.response, ctx.rep_spans[f.number], rp.start, j0)
     shift, shift_why = end_shift(ep, rp, j0)
     expect = Span(ep.end.lo + shift.lo - j, ep.end.hi + shift.hi + j)
-    said = answer_text(cmd, b.response)
+    said = describe_answer(cmd, b.response)
     if seen is None:
         return Check(False, f"{said}: says nothing of the motion's end")
     fits = seen.meets(expect)
@@ -189,7 +188,7 @@ def judge_end(
 def _show(row: Row | None, f: Frame | None) -> str:
     if row is None:
         return "no answer"
-    text = answer_text(f.command if f else None, row.response) if row.response else row.text
+    text = describe_answer(f.command if f else None, row.response) if row.response else row.text
     return f"{row.data.hex(' ')} ({text})"
 
 
@@ -338,11 +337,12 @@ class Judge:
         if ep.ended != "done" or len(ep.commands) != 1:
             return None
         cmd = ep.commands[0]
-        if isinstance(cmd, MoveToWayPoint):
-            return self.ctx.waypoints.get((ep.motor, cmd.waypoint), 0)
-        if isinstance(cmd, GoHome):
+        ends = motion(cmd).ends
+        if ends == "waypoint":
+            return self.ctx.waypoints.get((ep.motor, getattr(cmd, "waypoint")), 0)  # noqa: B009
+        if ends == "home":
             return self.ctx.home.get(ep.motor, 0)
-        return 0  # MoveTo, InitMove (Move never ends by itself)
+        return 0  # at an absolute target, or homed (a motion that never ends has not ended)
 
     def _after(
         self, f: Frame, role: str, ep: Episode | None, a: Row, b: Row, differed: bool

@@ -17,20 +17,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from motorctl.client.motions import INF, Episode, Point, Span, wrapped
-from motorctl.protocol.codec import (
-    POS_MAX,
-    POS_MIN,
-    Command,
-    InitMove,
-    Move,
-    MoveTo,
-    MoveToWayPoint,
-)
-
-#: the protocol's unit factors (PROTOCOL.md section 3; a device's [units] may differ, which
-#: the recording then shows: see :func:`speed_bound`)
-MOVE_SPEED_FACTOR = 4.0  # MoveTo, MoveToWayPoint: step/s per SPEED
-RUN_SPEED_FACTOR = 4096.0  # InitMove, Move
+from motorctl.protocol.codec import POS_MAX, POS_MIN, Command
 
 
 @dataclass
@@ -55,11 +42,14 @@ class Speed:
 
 
 def _nominal(cmd: Command) -> float | None:
-    if isinstance(cmd, MoveTo | MoveToWayPoint) and cmd.speed:
-        return cmd.speed * MOVE_SPEED_FACTOR
-    if isinstance(cmd, Move | InitMove) and cmd.speed:
-        return cmd.speed * RUN_SPEED_FACTOR
-    return None
+    """The speed a motion command asks for (step/s), by the protocol's unit factor the
+    command table names for its SPEED (PROTOCOL.md section 3; a device's [units] may differ,
+    which the recording then shows: see :func:`speed_bound`); None: its default."""
+    p = cmd.spec.param("speed")
+    speed = getattr(cmd, "speed", 0)
+    if p is None or p.scale is None or not speed:
+        return None
+    return float(speed * p.scale.default)
 
 
 def known_points(ep: Episode, with_rest: bool = True) -> list[Point]:

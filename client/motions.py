@@ -18,23 +18,18 @@ from dataclasses import dataclass, field
 
 from motorctl.client.conversation import Conversation, Frame
 from motorctl.protocol.codec import (
-    MOTION_COMMANDS,
     POS_MAX,
     POS_MIN,
     Command,
     GetAbsPos,
-    GoHome,
-    InitMove,
     IsReady,
-    Move,
-    MoveTo,
-    MoveToWayPoint,
     Response,
     SaveHome,
     SaveWayPoint,
     StopMove,
     WaitMoved,
 )
+from motorctl.protocol.spec import Motion
 
 INF = math.inf
 _POS_SPAN = POS_MAX - POS_MIN + 1
@@ -119,11 +114,11 @@ class Episode:
     @property
     def simple(self) -> bool:
         """One command from rest: its speed rises, holds and falls (a trapezoid), once."""
-        return len(self.commands) == 1 and not isinstance(self.commands[0], InitMove)
+        return len(self.commands) == 1 and not motion(self.commands[0]).homes
 
     @property
     def homing(self) -> bool:
-        return any(isinstance(c, InitMove) for c in self.commands)
+        return any(motion(c).homes for c in self.commands)
 
     @property
     def direction(self) -> int:
@@ -131,14 +126,23 @@ class Episode:
         if len(self.commands) != 1:
             return 0
         cmd = self.commands[0]
-        if isinstance(cmd, Move | InitMove):
-            return 1 if cmd.direction else -1
+        if motion(cmd).in_direction:
+            return 1 if getattr(cmd, "direction", True) else -1
         if self.target is not None and self.p0 is not None:
             return _sign(wrapped(self.target - self.p0))
         known = [p.pos for p in self.reads] + ([self.rest.pos] if self.rest else [])
         if self.p0 is not None:
             known.insert(0, self.p0)
         return _sign(wrapped(known[-1] - known[0])) if len(known) >= 2 else 0
+
+
+def motion(cmd: Command) -> Motion:
+    """What the command table says of a motion command's motion (which commands move, where
+    each ends, which way it runs: protocol/commands.py)."""
+    m = cmd.spec.motion
+    if m is None:
+        raise ValueError(f"{cmd.spec.name} is not a motion command")
+    return m
 
 
 def _sign(x: float) -> int:
@@ -209,7 +213,7 @@ class _Builder:
         elif ep is not None and not resp.ack and resp.payload[0] == 0xE4:
             self.rec.roles[f.number] = ("ended?", ep)
             self._finish(ep, "fault")
-        elif isinstance(cmd, MOTION_COMMANDS) and resp.ack:
+        elif cmd.spec.motion is not None and resp.ack:
             self._motion(f, cmd, motor, ep, span)
         elif isinstance(cmd, StopMove) and ep is not None and resp.ack:
             self._stop(f, cmd, ep, span)
@@ -245,15 +249,19 @@ class _Builder:
         self.rest_pos[motor] = None
 
     def _target(self, cmd: Command, motor: int) -> int | None:
-        if isinstance(cmd, MoveTo):
-            return cmd.position
-        if isinstance(cmd, InitMove):
+        """Where ``cmd`` ends when it runs to its end (None: unknown, or it runs until
+        stopped), as the table's ``motion.ends`` says."""
+        ends = motion(cmd).ends
+        if ends == "zero":
             return 0
-        if isinstance(cmd, MoveToWayPoint):
-            return self.waypoints.get((motor, cmd.waypoint))
-        if isinstance(cmd, GoHome):
+        if ends == "waypoint":
+            return self.waypoints.get((motor, getattr(cmd, "waypoint")))  # noqa: B009
+        if ends == "home":
             return self.home.get(motor)
-        return None  # Move: runs until stopped
+        if ends:
+            value = getattr(cmd, ends)
+            return value if isinstance(value, int) else None
+        return None  # it runs until stopped
 
     def _stop(self, f: Frame, cmd: StopMove, ep: Episode, span: Span) -> None:
         self.rec.roles[f.number] = ("stop", ep)

@@ -36,21 +36,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
-from motorctl.protocol.codec import (
-    MOTION_COMMANDS,
-    Command,
-    ConfigPin,
-    DcMove,
-    ErrorCode,
-    GetPin,
-    MoveToWayPoint,
-    SaveHome,
-    SaveWayPoint,
-    SetPin,
-    StopMove,
-    WaitMoved,
-    describe,
-)
+from motorctl.protocol.codec import BY_NAME, Command, ErrorCode, describe
 
 __all__ = ["STATE_DIR_ENV", "explain", "find_record", "meaning", "socket_paths"]
 
@@ -63,12 +49,26 @@ STATUS_TIMEOUT_S = 1.0
 MAX_BYTES = 4 << 20
 
 E = ErrorCode
-#: what the commands a record's ``fix`` names are on this command line
-FIX_WORDS = {
-    "StopMove": "clear it with 'motorctl stop {n}'",
-    "InitMove": "home it with 'motorctl init {n} up|down'",
-    "ConfigPin": "make it an output with 'motorctl pin config {n} out'",
-}
+
+
+def fix_words(name: str, n: int) -> str | None:
+    """What the command ``name`` (a record's or the table's ``fix``) does for motor or pin
+    ``n``, on this command line: "clear it with 'motorctl stop 0'" (its remedy and its
+    words, from the command table); None for a command that is not a remedy."""
+    cls = BY_NAME.get(name)
+    if cls is None or not cls.spec.remedy:
+        return None
+    spec = cls.spec
+    given = dict(spec.remedy_args)
+    words = ["motorctl", *spec.cli]
+    for i, p in enumerate(q for q in spec.params if not q.option):
+        if p.name in given:
+            words.append(p.typed(given[p.name]))
+        elif i == 0:
+            words.append(str(n))  # the motor or pin it is about
+        else:
+            words.append(p.placeholder)
+    return f"{spec.remedy} with '{' '.join(words)}'"
 
 
 def socket_paths(port: str, state_dir: str | None) -> list[Path]:
@@ -174,10 +174,10 @@ def with_reason(record: Mapping[str, Any], command: Command | None) -> str:
     fixes = record.get("fix")
     steps = []
     for name in fixes if isinstance(fixes, list) else []:
-        words = FIX_WORDS.get(str(name))
         target = _number(command) if not isinstance(motor, int) else motor
-        if words is not None and target is not None:
-            steps.append(words.format(n=target))
+        words = fix_words(str(name), target) if target is not None else None
+        if words is not None:
+            steps.append(words)
     if steps:
         text += " — " + ", then ".join(steps)
     return text
@@ -193,37 +193,20 @@ def _number(command: Command | None) -> int | None:
 
 
 def meaning(code: ErrorCode, command: Command | None) -> str:
-    """What ``code`` means as the answer to ``command`` (PROTOCOL.md §5; None: a frame
-    that is not a command)."""
+    """What ``code`` means as the answer to ``command`` (None: a frame that is not a
+    command): the command table's meaning for that command, with the commands that clear it
+    on this command line, else the code's own (PROTOCOL.md §5)."""
+    if command is None:
+        return code.means[1]
+    values = {p.name: getattr(command, p.name) for p in command.spec.params}
+    gives = command.spec.gives_code(code)
+    if gives is None:
+        template, plain = code.means
+        try:
+            return template.format_map(values)
+        except KeyError:  # the command has no such parameter (a motor, a waypoint)
+            return plain
+    text = gives.means.format_map(values)
     n = _number(command)
-    pin = isinstance(command, (SetPin, GetPin, ConfigPin))
-    if code is E.INVALID_ADDRESS:
-        if isinstance(command, DcMove):
-            return "no DC motor configured"
-        return f"no {'pin' if pin else 'motor'} {n}" if n is not None else "no such motor or pin"
-    if code is E.INVALID_COMMAND:
-        if isinstance(command, SetPin):
-            return f"pin {n} is an input — make it an output with 'motorctl pin config {n} out'"
-        if isinstance(command, MOTION_COMMANDS):
-            return f"invalid parameter, e.g. a target outside motor {n}'s soft limits"
-        return "the frame was refused: a wrong checksum, an unknown command or non-zero padding"
-    if code is E.MOTOR_NOT_READY:
-        if isinstance(command, WaitMoved):
-            return f"motor {n} still moving when TIMEOUT_MS ran out"
-        if isinstance(command, (SaveHome, SaveWayPoint)):
-            return f"motor {n} is moving or has commands queued; it must be at rest"
-        return f"motor {n} not ready"
-    if code is E.MOTOR_ERROR:
-        if isinstance(command, StopMove):
-            return f"motor {n}'s fault remains (its driver still reports it)"
-        return (
-            f"motor {n} has a latched fault or has lost its position — 'motorctl stop {n}' "
-            f"clears a fault, 'motorctl init {n} up|down' homes it"
-        )
-    if code is E.FULL_BUFFER:
-        return f"motor {n}'s motion queue is full" if n is not None else "buffer full"
-    if code is E.FULL_WAYPOINT_BUFFER:
-        return f"motor {n}'s waypoint table is full"
-    if isinstance(command, MoveToWayPoint):
-        return f"no waypoint {command.waypoint} saved on motor {n}"
-    return "no such waypoint"
+    fixes = [w for w in (fix_words(f, n) for f in gives.fix if n is not None) if w]
+    return f"{text} — {', or '.join(fixes)}" if fixes else text

@@ -10,7 +10,6 @@ the replay's reader too), the rest is computation.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import sys
 from collections.abc import Sequence
@@ -36,15 +35,7 @@ from motorctl.client.recording import Link, Recording
 from motorctl.client.recording import TraceFileError as TraceFileError
 from motorctl.client.recording import load as load
 from motorctl.protocol.capture.format import CaptureInfo, Direction
-from motorctl.protocol.codec import (
-    Command,
-    DcMove,
-    GetAbsPos,
-    GetPin,
-    IsReady,
-    Response,
-    SaveWayPoint,
-)
+from motorctl.protocol.codec import COMMANDS, Command, Response, decode_answer
 
 
 def _pct(values: list[int], q: float) -> int:
@@ -62,7 +53,7 @@ def summary(conv: Conversation) -> dict[str, Any]:
             name = f"{code.short} {code.label}" if code else f"0x{row.response.payload[0]:02x}"
             errors[name] = errors.get(name, 0) + 1
         if row.kind == ANSWER and row.rtt_ns is not None:
-            name = type(row.command).__name__ if row.command is not None else "bad frame"
+            name = row.command.spec.name if row.command is not None else "bad frame"
             rtts.setdefault(name, []).append(row.rtt_ns)
     return {
         "frames": len(conv.frames),
@@ -89,87 +80,63 @@ def summary(conv: Conversation) -> dict[str, Any]:
     }
 
 
+def _keys() -> tuple[str, ...]:
+    """The command table's fields as ``--json`` names them: each command's parameters and
+    each answer's value, in the table's order, each once."""
+    keys: dict[str, None] = {}
+    for cls in COMMANDS:
+        value = cls.spec.answer.value
+        for p in (*cls.spec.params, *([value] if value is not None else [])):
+            keys[p.field] = None
+    return tuple(keys)
+
+
 #: the typed keys of every row of ``motorctl trace --json`` (docs/trace.md, "JSON"), null
-#: where they do not apply
-FIELDS = (
-    "command",
-    "code",
-    "motor",
-    "direction",
-    "position",
-    "speed",
-    "acc",
-    "dec",
-    "pin",
-    "value",
-    "output",
-    "hard",
-    "timeout_ms",
-    "time_ms",
-    "hiz",
-    "waypoint",
-    "ack",
-    "ready",
-    "error_code",
-    "error_name",
-)
+#: where they do not apply: the command's name and code, the table's fields, R0, the error
+FIELDS = ("command", "code", *_keys(), "ack", "error_code", "error_name")
 
 
 def direction_word(cmd: Command) -> str | None:
     """A command's direction byte as the CLI names it: up/down, forward/reverse (DcMove)."""
-    value = getattr(cmd, "direction", None)
-    if value is None:
-        return None
-    if isinstance(cmd, DcMove):
-        return "forward" if value else "reverse"
-    return "up" if value else "down"
+    p = cmd.spec.param("direction")
+    return None if p is None else p.text(getattr(cmd, "direction"))  # noqa: B009
 
 
 def command_fields(cmd: Command | None) -> dict[str, Any]:
-    """A command's fields, typed: ``command`` (its name), ``code`` (B0), the parameters
-    (``direction`` as a word, SetPin's level as ``value`` 1/0); None where absent."""
+    """A command's fields, typed as the table shows them: ``command`` (its name), ``code``
+    (B0), the parameters (``direction`` as a word, SetPin's level as ``value`` 1/0); None
+    where absent."""
     out: dict[str, Any] = dict.fromkeys(FIELDS)
     if cmd is None:
         return out
-    out["command"] = type(cmd).__name__
-    out["code"] = int(cmd.code)
-    for f in dataclasses.fields(cmd):
-        value = getattr(cmd, f.name)
-        if f.name == "direction":
-            out["direction"] = direction_word(cmd)
-        elif f.name == "high":
-            out["value"] = int(value)
-        elif f.name in out:
-            out[f.name] = value
+    out["command"] = cmd.spec.name
+    out["code"] = cmd.code
+    for p in cmd.spec.params:
+        out[p.field] = p.json(getattr(cmd, p.name))
     return out
 
 
 def answer_fields(cmd: Command | None, resp: Response | None) -> dict[str, Any]:
     """An answer's fields, typed, for the command it answers: ``command``, ``code``,
-    ``motor``, ``pin`` of that command; ``ack``; ``ready`` (IsReady), ``position``
-    (GetAbsPos), ``value`` 1/0 (GetPin), ``waypoint`` (SaveWayPoint); ``error_code`` (0xE3
-    = 227) and ``error_name`` ("Motor not ready") of an error answer."""
+    ``motor``, ``pin`` of that command; ``ack``; the value the table says it carries
+    (``ready`` for IsReady, ``position`` for GetAbsPos, ``value`` 1/0 for GetPin,
+    ``waypoint`` for SaveWayPoint); ``error_code`` (0xE3 = 227) and ``error_name`` ("Motor
+    not ready") of an error answer."""
     out: dict[str, Any] = dict.fromkeys(FIELDS)
     if cmd is not None:
-        out["command"] = type(cmd).__name__
-        out["code"] = int(cmd.code)
+        out["command"] = cmd.spec.name
+        out["code"] = cmd.code
         out["motor"] = getattr(cmd, "motor", None)
         out["pin"] = getattr(cmd, "pin", None)
     if resp is None:
         return out
-    out["ack"] = resp.ack
-    if not resp.ack:
-        out["error_code"] = resp.payload[0]
-        code = resp.error_code
-        out["error_name"] = code.label if code is not None else "unknown error code"
-    elif isinstance(cmd, IsReady):
-        out["ready"] = resp.as_bool
-    elif isinstance(cmd, GetAbsPos):
-        out["position"] = resp.as_position
-    elif isinstance(cmd, GetPin):
-        out["value"] = int(resp.as_bool)
-    elif isinstance(cmd, SaveWayPoint):
-        out["waypoint"] = resp.payload[0]
+    reading = decode_answer(cmd, resp)
+    out["ack"] = reading.ack
+    if reading.error_byte is not None:
+        out["error_code"] = reading.error_byte
+        out["error_name"] = reading.error.label if reading.error else "unknown error code"
+    elif reading.param is not None and reading.value is not None:
+        out[reading.param.field] = reading.param.json(reading.value)
     return out
 
 

@@ -1,8 +1,13 @@
-"""The dispatcher: one explicit command table from typed commands to responses.
+"""The dispatcher: each command of the command table (motorctl.protocol.commands) to its
+handler, the method named after it (MoveToWayPoint: :meth:`Dispatcher.move_to_way_point`),
+found by the table's :attr:`~motorctl.protocol.spec.Spec.handler` when the dispatcher is made
+(a command without one stops the start); a motion command of the table (its ``motion``) is
+made durable before it may start. WaitMoved, whose answer the table says is held, is the
+link's: :meth:`Dispatcher.wait_begin`.
 
-Protocol units are converted here (and only here) to steps, step/s and step/s^2,
-with the factors from config; out-of-range values are clamped to the motor's
-maximum and counted. Error precedence is PROTOCOL.md section 5:
+Protocol units are converted here (and only here) to steps, step/s and step/s^2, with the
+factors the table names for each parameter ([units]); out-of-range values are clamped to the
+motor's maximum and counted. Error precedence is PROTOCOL.md section 5:
 E1 (frame) -> E2 -> E1 (parameters) -> E6 -> E4 -> E3 -> E0/E5. Each check says why it
 refuses, in words, where it decides (:class:`Reject`): the error answers and their reasons are
 kept, shown and journalled by :class:`~motorctl.daemon.refusals.Refusals` (``refusals``).
@@ -22,14 +27,14 @@ from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from motorctl.daemon.config import Config, MotorConfig
+from motorctl.daemon.config import Config
 from motorctl.daemon.refusals import Refusals
 from motorctl.hal.interfaces import BridgeState, HalError, Pin
 from motorctl.motion.engine import MotionEngine, Settled
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import HomeCmd, MotionCmd, MoveToCmd, Ramp, RunCmd
 from motorctl.protocol.codec import (
-    MOTION_COMMANDS,
+    COMMANDS,
     Command,
     ConfigPin,
     DcMove,
@@ -144,22 +149,33 @@ class Dispatcher:
         self.clamped: Counter[str] = Counter()
         self.hardware_errors = 0
         self.refusals = Refusals([m.name for m in config.motors])
-        self.table: dict[type[Any], Callable[[Any], Response]] = {
-            InitMove: self.init_move,
-            MoveTo: self.move_to,
-            IsReady: self.is_ready,
-            Move: self.move,
-            StopMove: self.stop_move,
-            GetAbsPos: self.get_abs_pos,
-            SetPin: self.set_pin,
-            GetPin: self.get_pin,
-            ConfigPin: self.config_pin,
-            SaveHome: self.save_home,
-            GoHome: self.go_home,
-            SaveWayPoint: self.save_waypoint,
-            MoveToWayPoint: self.move_to_waypoint,
-            DcMove: self.dc_move,
-        }
+        self.table = self._handlers()
+        self.factors = self._factors()
+
+    def _handlers(self) -> dict[type[Command], Callable[[Any], Response]]:
+        """Each command's handler, the method the table names (WaitMoved, whose answer is
+        held: :meth:`wait_begin`); TypeError for a command of the table without one."""
+        out: dict[type[Command], Callable[[Any], Response]] = {}
+        for cls in COMMANDS:
+            if cls.spec.answer.held:
+                continue
+            handler = getattr(self, cls.spec.handler, None)
+            if not callable(handler):
+                raise TypeError(f"no handler for {cls.spec.name}: Dispatcher.{cls.spec.handler}")
+            out[cls] = handler
+        return out
+
+    def _factors(self) -> dict[type[Command], tuple[float, float, float]]:
+        """The unit factors of each command's SPEED, ACC and DEC bytes: the [units] settings
+        the table names for them (a command with all three)."""
+        out: dict[type[Command], tuple[float, float, float]] = {}
+        for cls in COMMANDS:
+            params = [cls.spec.param(name) for name in ("speed", "acc", "dec")]
+            scales = [p.scale for p in params if p is not None and p.scale is not None]
+            if len(scales) == 3:
+                speed, acc, dec = (float(getattr(self.config.units, s.setting)) for s in scales)
+                out[cls] = (speed, acc, dec)
+        return out
 
     # -- entry points -----------------------------------------------------------
     def handle(self, cmd: Command) -> Response:
@@ -172,10 +188,12 @@ class Dispatcher:
         journalled: int | None = None
         self._settle = None
         engine = self.engine
-        if isinstance(cmd, MOTION_COMMANDS) and 0 <= cmd.motor < len(engine.motors):
-            if not self.persist.before_motion(cmd.motor):
-                return self._unrecorded_motion(handler, cmd)
-            journalled = cmd.motor
+        if cmd.spec.motion is not None:
+            index: int = getattr(cmd, "motor")  # noqa: B009 (a motion command has one)
+            if 0 <= index < len(engine.motors):
+                if not self.persist.before_motion(index):
+                    return self._unrecorded_motion(handler, cmd)
+                journalled = index
         try:
             with engine.lock:
                 engine.process_events(engine.clock.now())
@@ -360,14 +378,17 @@ class Dispatcher:
             raise Reject(E.INVALID_COMMAND, why, m.index)
 
     # -- unit conversion --------------------------------------------------------------
-    def _ramp(
-        self, mc: MotorConfig, speed: int, acc: int, dec: int, factor: float, default_speed: float
-    ) -> Ramp:
-        u = self.config.units
+    def _ramp(self, m: Motor, c: Command, raw: tuple[int, int, int], default_speed: float) -> Ramp:
+        """A command's SPEED, ACC and DEC bytes (``raw``) in step/s and step/s^2, by the unit
+        factors the table names for them; 0: the default (``default_speed``, the motor's
+        ramps)."""
+        mc = self.config.motors[m.index]
+        f_speed, f_acc, f_dec = self.factors[type(c)]
+        speed, acc, dec = raw
         return Ramp(
-            self._scale("speed", speed, factor, default_speed, mc.max_speed),
-            self._scale("acc", acc, u.accel_factor, mc.default_accel, mc.max_accel),
-            self._scale("dec", dec, u.accel_factor, mc.default_decel, mc.max_accel),
+            self._scale("speed", speed, f_speed, default_speed, mc.max_speed),
+            self._scale("acc", acc, f_acc, mc.default_accel, mc.max_accel),
+            self._scale("dec", dec, f_dec, mc.default_decel, mc.max_accel),
         )
 
     def _scale(self, what: str, raw: int, factor: float, default: float, limit: float) -> float:
@@ -379,21 +400,12 @@ class Dispatcher:
             return limit
         return value
 
-    def _move_ramp(self, m: Motor, speed: int, acc: int, dec: int) -> Ramp:
-        mc = self.config.motors[m.index]
-        return self._ramp(
-            mc, speed, acc, dec, self.config.units.move_speed_factor, mc.default_speed
-        )
-
-    def _run_ramp(self, m: Motor, speed: int, acc: int, dec: int, default: float) -> Ramp:
-        mc = self.config.motors[m.index]
-        return self._ramp(mc, speed, acc, dec, self.config.units.run_speed_factor, default)
-
-    # -- the command table's handlers ---------------------------------------------------
+    # -- the handlers, one per command of the table (named by it) ---------------------------
     def init_move(self, c: InitMove) -> Response:
         m = self._motor(c.motor)
         self._not_faulted(m)  # a lost position is what homing is for
-        ramp = self._run_ramp(m, c.speed, c.acc, c.dec, self.config.motors[m.index].homing.speed)
+        homing = self.config.motors[m.index].homing.speed
+        ramp = self._ramp(m, c, (c.speed, c.acc, c.dec), homing)
         return self._submit(m, HomeCmd(1 if c.direction else -1, ramp))
 
     def move_to(self, c: MoveTo) -> Response:
@@ -401,7 +413,7 @@ class Dispatcher:
         self._target(m, c.position)
         self._not_faulted(m)
         self._position_known(m)
-        ramp = self._move_ramp(m, c.speed, c.acc, c.dec)
+        ramp = self._ramp(m, c, (c.speed, c.acc, c.dec), self.config.motors[m.index].default_speed)
         return self._submit(m, MoveToCmd(c.position, ramp, 1 if c.direction else -1))
 
     def is_ready(self, c: IsReady) -> Response:
@@ -413,8 +425,7 @@ class Dispatcher:
         m = self._motor(c.motor)
         self._not_faulted(m)
         self._position_known(m)
-        mc = self.config.motors[m.index]
-        ramp = self._run_ramp(m, c.speed, c.acc, c.dec, mc.default_speed)
+        ramp = self._ramp(m, c, (c.speed, c.acc, c.dec), self.config.motors[m.index].default_speed)
         return self._submit(m, RunCmd(1 if c.direction else -1, ramp))
 
     def stop_move(self, c: StopMove) -> Response:
@@ -471,7 +482,7 @@ class Dispatcher:
         ramp = Ramp(mc.default_speed, mc.default_accel, mc.default_decel)
         return self._submit(m, MoveToCmd(m.home, ramp, 1))
 
-    def save_waypoint(self, c: SaveWayPoint) -> Response:
+    def save_way_point(self, c: SaveWayPoint) -> Response:
         m = self._motor(c.motor)
         self._not_faulted(m)
         self._position_known(m)
@@ -488,7 +499,7 @@ class Dispatcher:
         self._undo = undo
         return Response.ok(bytes([len(m.waypoints) - 1]))
 
-    def move_to_waypoint(self, c: MoveToWayPoint) -> Response:
+    def move_to_way_point(self, c: MoveToWayPoint) -> Response:
         m = self._motor(c.motor)
         if c.waypoint >= len(m.waypoints):
             saved = len(m.waypoints)
@@ -499,7 +510,7 @@ class Dispatcher:
         self._target(m, target)
         self._not_faulted(m)
         self._position_known(m)
-        ramp = self._move_ramp(m, c.speed, c.acc, c.dec)
+        ramp = self._ramp(m, c, (c.speed, c.acc, c.dec), self.config.motors[m.index].default_speed)
         return self._submit(m, MoveToCmd(target, ramp, 1))
 
     def dc_move(self, c: DcMove) -> Response:

@@ -33,7 +33,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from motorctl.protocol.codec import Command, ErrorCode, describe
+from motorctl.protocol.codec import BY_NAME, Command, ErrorCode, describe
 
 log = logging.getLogger("motorctl.errors")
 
@@ -43,12 +43,12 @@ EVERY_S = 6.0
 #: the link's source (errors not tied to a motor)
 LINK = -1
 
-#: what each command named in a fix does, for the journal ("StopMove clears it")
-FIX_WORDS = {
-    "StopMove": "StopMove clears it",
-    "InitMove": "InitMove homes it",
-    "ConfigPin": "ConfigPin makes it an output",
-}
+
+def fix_words(name: str) -> str:
+    """What the command ``name`` does when named in a fix, for the journal: "StopMove clears
+    it" (the command table's remedy)."""
+    cls = BY_NAME.get(name)
+    return cls.spec.remedy_said if cls is not None and cls.spec.remedy else name
 
 
 @dataclass(frozen=True)
@@ -91,7 +91,7 @@ class Refusal:
             what = "a frame" if self.frame is None else f"frame {self.frame.hex(' ')}"
         text = f"{what} answered {self.code.short} {self.code.label}: {self.reason}"
         if self.fix:
-            text += "; " + ", then ".join(FIX_WORDS.get(name, name) for name in self.fix)
+            text += "; " + ", then ".join(fix_words(name) for name in self.fix)
         return text
 
 
@@ -199,7 +199,7 @@ class Refusals:
         level = logging.INFO if r.code is ErrorCode.MOTOR_NOT_READY else logging.WARNING
         fields: dict[str, object] = {"ERROR_CODE": r.code.short}
         if r.command is not None:
-            fields["COMMAND"] = type(r.command).__name__
+            fields["COMMAND"] = r.command.spec.name
         if r.motor is not None:
             fields["MOTOR"] = r.motor
         if held:

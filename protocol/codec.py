@@ -1,8 +1,9 @@
-"""Pure encoder/decoder for command frames and response frames (PROTOCOL.md sections 1, 3, 5).
+"""Pure encoder/decoder for command frames and response frames (PROTOCOL.md sections 1, 3, 5),
+and the one decoder of an answer for the command it answers (:func:`decode_answer`).
 
-Over 500 lines on purpose: the whole wire format in one place, both directions, so
-that the encoder and the decoder of a frame sit side by side; each command is a small
-dataclass.
+The commands themselves, their parameters' wire sizes and their answers are the command
+table's (:mod:`motorctl.protocol.commands`); this module reads the table and re-exports its
+names (``from motorctl.protocol.codec import MoveTo`` keeps working).
 
 Command frame: B0 = code, B1..B8 = parameters then 0x00 padding, B9 = checksum over B0..B8.
 Response frame: R0 = ACK, R1..R3 = payload, R4 = checksum over R1..R3 (R0..R3 with
@@ -11,298 +12,37 @@ Response frame: R0 = ACK, R1..R3 = payload, R4 = checksum over R1..R3 (R0..R3 wi
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
-from enum import IntEnum
-from typing import Any, ClassVar, Literal, TypeAlias
+from typing import Any, Literal, NamedTuple
 
+from motorctl.protocol.commands import *  # noqa: F403 (the table's names, re-exported)
+from motorctl.protocol.commands import BY_CODE, Command
 from motorctl.protocol.crc import SMBUS, Crc8
+from motorctl.protocol.spec import POS_MAX as POS_MAX
+from motorctl.protocol.spec import POS_MIN as POS_MIN
+from motorctl.protocol.spec import WAYPOINTS as WAYPOINTS
+from motorctl.protocol.spec import ErrorCode as ErrorCode
+from motorctl.protocol.spec import Param, Wire
 
 FRAME_LEN = 10
 RESPONSE_LEN = 5
 PAYLOAD_LEN = RESPONSE_LEN - 2
-#: a position's range: 24-bit two's complement (PROTOCOL.md section 3)
-POS_MIN = -8_388_608
-POS_MAX = 8_388_607
 _POS_MOD = 1 << 24
-#: the most waypoints a motor's table holds (a motor's configured table may be smaller): E5
-#: beyond it (PROTOCOL.md, "SaveHome / SaveWayPoint")
-WAYPOINTS = 255
 
-
-class ErrorCode(IntEnum):
-    """Error codes sent in R1 of an error response."""
-
-    FULL_BUFFER = 0xE0
-    INVALID_COMMAND = 0xE1
-    INVALID_ADDRESS = 0xE2
-    MOTOR_NOT_READY = 0xE3
-    MOTOR_ERROR = 0xE4
-    FULL_WAYPOINT_BUFFER = 0xE5
-    INVALID_WAYPOINT = 0xE6
-
-    @property
-    def label(self) -> str:
-        """The name the original specification uses."""
-        return _ERROR_LABELS[self]
-
-    @property
-    def short(self) -> str:
-        """Short form E0..E6."""
-        return f"E{self.value - 0xE0}"
-
-
-_ERROR_LABELS: dict[ErrorCode, str] = {
-    ErrorCode.FULL_BUFFER: "Full Buffer",
-    ErrorCode.INVALID_COMMAND: "Invalid Command",
-    ErrorCode.INVALID_ADDRESS: "Invalid Address",
-    ErrorCode.MOTOR_NOT_READY: "Motor not ready",
-    ErrorCode.MOTOR_ERROR: "Motor Error",
-    ErrorCode.FULL_WAYPOINT_BUFFER: "Full Way Point Buffer",
-    ErrorCode.INVALID_WAYPOINT: "Invalid Way Point",
+#: each command's parameters in wire order: (name, wire, size), by code
+_LAYOUT: dict[int, tuple[tuple[str, Wire, int], ...]] = {
+    code: tuple((p.name, p.wire, p.size) for p in cls.spec.params) for code, cls in BY_CODE.items()
+}
+#: and their ranges: (name, wire, size, lowest, highest)
+_RANGES: dict[int, tuple[tuple[str, Wire, int, int, int], ...]] = {
+    code: tuple((p.name, p.wire, p.size, p.lo, p.hi) for p in cls.spec.params)
+    for code, cls in BY_CODE.items()
 }
 
 
-class CommandCode(IntEnum):
-    """Command codes (B0)."""
-
-    INIT_MOVE = 0x00
-    MOVE_TO = 0x01
-    WAIT_MOVED = 0x02
-    IS_READY = 0x03
-    MOVE = 0x04
-    STOP_MOVE = 0x05
-    GET_ABS_POS = 0x06
-    SET_PIN = 0x07
-    GET_PIN = 0x08
-    CONFIG_PIN = 0x09
-    SAVE_HOME = 0x0A
-    GO_HOME = 0x0B
-    SAVE_WAY_POINT = 0x0C
-    MOVE_TO_WAY_POINT = 0x0D
-    DC_MOVE = 0x0E
-
-
-# Field order in every command dataclass is the wire order of its parameters (B1 onwards).
-
-
-@dataclass(frozen=True)
-class InitMove:
-    """0x00: run in `direction` to the end stop, then set the position to 0."""
-
-    code: ClassVar[CommandCode] = CommandCode.INIT_MOVE
-    motor: int
-    direction: bool
-    speed: int
-    acc: int
-    dec: int
-
-
-@dataclass(frozen=True)
-class MoveTo:
-    """0x01: move to an absolute position (signed 24-bit)."""
-
-    code: ClassVar[CommandCode] = CommandCode.MOVE_TO
-    motor: int
-    direction: bool
-    position: int
-    speed: int
-    acc: int
-    dec: int
-
-
-@dataclass(frozen=True)
-class WaitMoved:
-    """0x02: answer when the motor is idle, or E3 after `timeout_ms`."""
-
-    code: ClassVar[CommandCode] = CommandCode.WAIT_MOVED
-    motor: int
-    timeout_ms: int
-
-
-@dataclass(frozen=True)
-class IsReady:
-    """0x03: TRUE when the motor is idle with an empty queue."""
-
-    code: ClassVar[CommandCode] = CommandCode.IS_READY
-    motor: int
-
-
-@dataclass(frozen=True)
-class Move:
-    """0x04: run continuously until stopped."""
-
-    code: ClassVar[CommandCode] = CommandCode.MOVE
-    motor: int
-    direction: bool
-    speed: int
-    acc: int
-    dec: int
-
-
-@dataclass(frozen=True)
-class StopMove:
-    """0x05: stop at once (hard) or along the deceleration ramp."""
-
-    code: ClassVar[CommandCode] = CommandCode.STOP_MOVE
-    motor: int
-    hard: bool
-
-
-@dataclass(frozen=True)
-class GetAbsPos:
-    """0x06: current position."""
-
-    code: ClassVar[CommandCode] = CommandCode.GET_ABS_POS
-    motor: int
-
-
-@dataclass(frozen=True)
-class SetPin:
-    """0x07: drive an output pin."""
-
-    code: ClassVar[CommandCode] = CommandCode.SET_PIN
-    pin: int
-    high: bool
-
-
-@dataclass(frozen=True)
-class GetPin:
-    """0x08: read a pin."""
-
-    code: ClassVar[CommandCode] = CommandCode.GET_PIN
-    pin: int
-
-
-@dataclass(frozen=True)
-class ConfigPin:
-    """0x09: switch a pin between input and output."""
-
-    code: ClassVar[CommandCode] = CommandCode.CONFIG_PIN
-    pin: int
-    output: bool
-
-
-@dataclass(frozen=True)
-class SaveHome:
-    """0x0A: store the current position as home."""
-
-    code: ClassVar[CommandCode] = CommandCode.SAVE_HOME
-    motor: int
-
-
-@dataclass(frozen=True)
-class GoHome:
-    """0x0B: move to the stored home position."""
-
-    code: ClassVar[CommandCode] = CommandCode.GO_HOME
-    motor: int
-
-
-@dataclass(frozen=True)
-class SaveWayPoint:
-    """0x0C: store the current position as the next waypoint."""
-
-    code: ClassVar[CommandCode] = CommandCode.SAVE_WAY_POINT
-    motor: int
-
-
-@dataclass(frozen=True)
-class MoveToWayPoint:
-    """0x0D: move to a stored waypoint."""
-
-    code: ClassVar[CommandCode] = CommandCode.MOVE_TO_WAY_POINT
-    motor: int
-    waypoint: int
-    speed: int
-    acc: int
-    dec: int
-
-
-@dataclass(frozen=True)
-class DcMove:
-    """0x0E: run the DC motor for `time_ms`, then coast (hiz) or brake."""
-
-    code: ClassVar[CommandCode] = CommandCode.DC_MOVE
-    direction: bool
-    time_ms: int
-    hiz: bool
-
-
-Command: TypeAlias = (
-    InitMove
-    | MoveTo
-    | WaitMoved
-    | IsReady
-    | Move
-    | StopMove
-    | GetAbsPos
-    | SetPin
-    | GetPin
-    | ConfigPin
-    | SaveHome
-    | GoHome
-    | SaveWayPoint
-    | MoveToWayPoint
-    | DcMove
-)
-
-COMMAND_TYPES: tuple[type[Command], ...] = (
-    InitMove,
-    MoveTo,
-    WaitMoved,
-    IsReady,
-    Move,
-    StopMove,
-    GetAbsPos,
-    SetPin,
-    GetPin,
-    ConfigPin,
-    SaveHome,
-    GoHome,
-    SaveWayPoint,
-    MoveToWayPoint,
-    DcMove,
-)
-#: the motion commands: they go into the motor's queue (E0 when it is full) and their ACK
-#: waits for "moving" to be durable (PROTOCOL.md, "Motion commands")
-MOTION_COMMANDS = (InitMove, MoveTo, Move, GoHome, MoveToWayPoint)
-"""All command classes, in code order."""
-
-_BY_CODE: dict[int, type[Command]] = {cls.code: cls for cls in COMMAND_TYPES}
-
-_Kind = Literal["u8", "bool", "u16", "s24"]
-_SIZE: dict[_Kind, int] = {"u8": 1, "bool": 1, "u16": 2, "s24": 3}
-_FIELD_KIND: dict[str, _Kind] = {
-    "motor": "u8",
-    "pin": "u8",
-    "speed": "u8",
-    "acc": "u8",
-    "dec": "u8",
-    "waypoint": "u8",
-    "direction": "bool",
-    "hard": "bool",
-    "high": "bool",
-    "output": "bool",
-    "hiz": "bool",
-    "timeout_ms": "u16",
-    "time_ms": "u16",
-    "position": "s24",
-}
-
-
-def _layout(cls: type[Command]) -> tuple[tuple[str, _Kind], ...]:
-    return tuple((f.name, _FIELD_KIND[f.name]) for f in dataclasses.fields(cls))
-
-
-_LAYOUT: dict[int, tuple[tuple[str, _Kind], ...]] = {
-    cls.code: _layout(cls) for cls in COMMAND_TYPES
-}
-
-
-def used_bytes(code: CommandCode) -> int:
+def used_bytes(code: int) -> int:
     """Number of parameter bytes after B0 for `code` (the rest of B1..B8 is padding)."""
-    return sum(_SIZE[kind] for _, kind in _LAYOUT[code])
+    return BY_CODE[code].spec.used_bytes
 
 
 # --- 24-bit positions -------------------------------------------------------------------
@@ -374,18 +114,17 @@ def decode_command(frame: bytes, opts: CodecOptions) -> Command:
                 "checksum",
                 f"checksum 0x{frame[FRAME_LEN - 1]:02X}, expected 0x{expected:02X}",
             )
-    cls = _BY_CODE.get(frame[0])
+    cls = BY_CODE.get(frame[0])
     if cls is None:
         raise FrameError("unknown", f"unknown command code 0x{frame[0]:02X}")
     values: dict[str, Any] = {}
     pos = 1
-    for name, kind in _LAYOUT[cls.code]:
-        size = _SIZE[kind]
+    for name, wire, size in _LAYOUT[cls.code]:
         chunk = frame[pos : pos + size]
         pos += size
-        if kind == "bool":
+        if wire == "bool":
             values[name] = chunk[0] != 0
-        elif kind == "s24":
+        elif wire == "s24":
             values[name] = pos24_from_bytes(chunk)
         else:
             values[name] = int.from_bytes(chunk, "big")
@@ -402,48 +141,30 @@ def encode_command(cmd: Command, opts: CodecOptions) -> bytes:
 
     True is sent as 0x01; padding is 0x00; the checksum is 0x00 when `opts.crc` is None.
     """
-    if not isinstance(cmd, COMMAND_TYPES):
+    if not isinstance(cmd, Command) or BY_CODE.get(cmd.code) is not type(cmd):
         raise TypeError(f"not a command: {cmd!r}")
     body = bytearray([cmd.code])
-    for name, kind in _LAYOUT[cmd.code]:
+    for name, wire, size, low, high in _RANGES[cmd.code]:
         value = getattr(cmd, name)
-        if kind == "bool":
+        if wire == "bool":
             body.append(0x01 if value else 0x00)
             continue
-        if kind == "s24":
-            low, high = POS_MIN, POS_MAX
-        else:
-            low, high = 0, (1 << (8 * _SIZE[kind])) - 1
         if not isinstance(value, int) or not low <= value <= high:
             raise ValueError(f"{type(cmd).__name__}.{name} = {value!r} outside {low}..{high}")
-        if kind == "s24":
+        if wire == "s24":
             body += pos24_to_bytes(value)
         else:
-            body += value.to_bytes(_SIZE[kind], "big")
+            body += value.to_bytes(size, "big")
     body += bytes(FRAME_LEN - 1 - len(body))
     body.append(opts.crc.compute(bytes(body)) if opts.crc is not None else 0x00)
     return bytes(body)
 
 
-_SHORT_NAMES = {"direction": "dir", "position": "pos"}
-
-
 def describe(cmd: Command) -> str:
     """Short human text, e.g. "MoveTo(motor=0, dir=up, pos=1200, speed=250, acc=0, dec=0)",
     "DcMove(dir=forward, time_ms=500, hiz=false)"."""
-    parts: list[str] = []
-    for name, kind in _LAYOUT[cmd.code]:
-        value = getattr(cmd, name)
-        if name == "direction" and cmd.code is CommandCode.DC_MOVE:
-            text = "forward" if value else "reverse"  # as the CLI says it (motorctl dc)
-        elif name == "direction":
-            text = "up" if value else "down"
-        elif kind == "bool":
-            text = "true" if value else "false"
-        else:
-            text = str(value)
-        parts.append(f"{_SHORT_NAMES.get(name, name)}={text}")
-    return f"{type(cmd).__name__}({', '.join(parts)})"
+    parts = [f"{p.said}={p.text(getattr(cmd, p.name))}" for p in cmd.spec.params]
+    return f"{cmd.spec.name}({', '.join(parts)})"
 
 
 # --- responses --------------------------------------------------------------------------
@@ -508,29 +229,59 @@ class Response:
         return pos24_from_bytes(self.payload)
 
 
+class Reading(NamedTuple):
+    """An answer read for the command it answers (:func:`decode_answer`): its ``text``
+    ("ready", "pos=1200", "waypoint=0", "ok", "E3 Motor not ready"), the error of an error
+    answer (``error_byte``: R1; ``error``: its code, None for a code the protocol does not
+    have), and the value an ACK carries for its command (``param``: what it is, by the
+    table; ``value``: as read, None when it carries none)."""
+
+    ack: bool
+    text: str
+    error_byte: int | None = None
+    error: ErrorCode | None = None
+    param: Param | None = None
+    value: int | bool | None = None
+
+
+def decode_answer(cmd: Command | None, resp: Response) -> Reading:
+    """``resp`` read as the answer to ``cmd`` (None: a frame that failed its checks), by the
+    command table: the one reading of an answer, which the daemon's status, ``motorctl``,
+    ``motorctl trace`` and the replay show (the Wireshark dissector is generated from the
+    same table and reads it the same way). On the link thread for every answer (the status's
+    last frames): no more than a lookup or two."""
+    payload = resp.payload
+    if not resp.ack:
+        byte = payload[0]
+        known = _ERROR_READINGS.get(byte)
+        return known or Reading(False, f"error 0x{byte:02x} (unknown code)", byte)
+    answer = cmd.spec.answer if cmd is not None else None
+    p = answer.value if answer is not None else None
+    if answer is None or p is None:
+        return _OK if payload == _ZERO else Reading(True, f"ok, payload {payload.hex(' ')}")
+    value: int | bool
+    if p.wire == "bool":
+        value = payload[0] != 0
+    elif p.wire == "s24":
+        value = pos24_from_bytes(payload)
+    else:
+        value = int.from_bytes(payload[: p.size], "big")
+    return Reading(True, answer.text(value), None, None, p, value)
+
+
 def describe_answer(cmd: Command | None, resp: Response) -> str:
     """Short human text of ``resp`` as the answer to ``cmd`` (None: a frame that failed its
     checks), e.g. "E3 Motor not ready", "pos=1200", "ready", "high", "waypoint=0", "ok"."""
-    if not resp.ack:
-        code = resp.error_code
-        return (
-            f"{code.short} {code.label}" if code is not None else f"error 0x{resp.payload[0]:02X}"
-        )
-    if isinstance(cmd, GetAbsPos):
-        return f"pos={resp.as_position}"
-    if isinstance(cmd, IsReady):
-        return "ready" if resp.as_bool else "busy"
-    if isinstance(cmd, GetPin):
-        return "high" if resp.as_bool else "low"
-    if isinstance(cmd, SaveWayPoint):
-        return f"waypoint={resp.payload[0]}"
-    return "ok"
+    return decode_answer(cmd, resp).text
 
 
 # Responses are immutable: the frequent ones exist once.
 _TRUE = Response(True, b"\x01\x00\x00")
 _FALSE = Response(True, b"\x00\x00\x00")
 _ERRORS = {code: Response(False, bytes([code, 0, 0])) for code in ErrorCode}
+_ZERO = bytes(PAYLOAD_LEN)
+_OK = Reading(True, "ok")
+_ERROR_READINGS = {int(c): Reading(False, f"{c.short} {c.label}", int(c), c) for c in ErrorCode}
 
 
 def _response_crc(r0: int, payload: bytes, opts: CodecOptions) -> int:

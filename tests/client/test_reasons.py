@@ -192,7 +192,7 @@ def test_without_the_socket_the_codes_meaning_for_the_command(tmp_path: Path) ->
         "E2 invalid address: no motor 5"
     )
     assert explain(E.INVALID_COMMAND, MoveTo(0, True, 9, 0, 0, 0), "p", 0.0, env=env) == (
-        "E1 invalid command: invalid parameter, e.g. a target outside motor 0's soft limits"
+        "E1 invalid command: target 9 is outside motor 0's soft limits"
     )
     assert explain(0x42, None, "p", 0.0, env=env) == "unknown error code 0x42"
 
@@ -211,8 +211,17 @@ def test_without_the_socket_the_codes_meaning_for_the_command(tmp_path: Path) ->
          "be at rest"),
         (E.MOTOR_ERROR, StopMove(2, False), "motor 2's fault remains (its driver still "
          "reports it)"),
-        (E.MOTOR_ERROR, InitMove(2, True, 0, 0, 0), "motor 2 has a latched fault or has lost "
-         "its position — 'motorctl stop 2' clears a fault, 'motorctl init 2 up|down' homes it"),
+        (E.MOTOR_ERROR, InitMove(2, True, 0, 0, 0), "motor 2 has a latched fault — clear it "
+         "with 'motorctl stop 2'"),
+        (E.MOTOR_ERROR, MoveTo(2, True, 0, 0, 0, 0), "motor 2 has a latched fault or has lost "
+         "its position — clear it with 'motorctl stop 2', or home it with 'motorctl init 2 "
+         "up|down'"),
+        (E.MOTOR_ERROR, IsReady(1), "motor 1 has a latched fault — clear it with "
+         "'motorctl stop 1'"),
+        (E.MOTOR_ERROR, GetPin(3), "pin 3's line failed (hardware error)"),
+        (E.INVALID_COMMAND, InitMove(0, True, 0, 0, 0), "the frame was refused: a wrong "
+         "checksum, an unknown command or non-zero padding"),
+        (E.INVALID_WAYPOINT, IsReady(0), "no such waypoint"),
         (E.FULL_BUFFER, MoveTo(0, True, 0, 0, 0, 0), "motor 0's motion queue is full"),
         (E.FULL_WAYPOINT_BUFFER, IsReady(0), "motor 0's waypoint table is full"),
         (E.INVALID_WAYPOINT, MoveToWayPoint(0, 4, 0, 0, 0), "no waypoint 4 saved on motor 0"),

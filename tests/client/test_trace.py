@@ -4,10 +4,13 @@ tests/client/test_trace_files.py."""
 
 from __future__ import annotations
 
+import re
+
 from motorctl.client.conversation import analyse
 from motorctl.client.trace import FIELDS, row_json
 from motorctl.protocol.capture.format import Record
 from motorctl.protocol.codec import DcMove, ErrorCode, GetAbsPos, GetPin, MoveTo, Response
+from tests.support import REPO
 from tests.support.traces import IN, INFO, MS, OUT, ans, cmd
 
 
@@ -45,3 +48,18 @@ def test_rows_carry_typed_fields() -> None:
         "E3",
     )
     assert (pin["pin"], high["pin"], high["value"]) == (5, 5, 1)
+
+
+def test_the_docs_list_every_key_of_a_row() -> None:
+    """docs/trace.md's table of a row's keys names each of :data:`FIELDS` (the command
+    table's fields among them)."""
+    text = (REPO / "docs" / "trace.md").read_text(encoding="utf-8")
+    section = text[text.index("Every row has every key below") : text.index("## Wireshark")]
+    keys = {
+        key
+        for line in section.splitlines()
+        if line.startswith("| `")
+        for key in re.findall(r"`(\w+)`", line.split("|")[1])
+    }
+    assert set(FIELDS) <= keys, set(FIELDS) - keys
+    assert {"ready", "waypoint", "hiz", "timeout_ms"} <= set(FIELDS)

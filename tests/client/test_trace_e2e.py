@@ -127,7 +127,7 @@ def test_the_reader_shows_the_session_decoded(recorded: Path) -> None:
     assert s["errors"] == {"E1 Invalid Command": 2, "E2 Invalid Address": 1}
     texts = [r["text"] for r in doc["rows"]]
     assert "#2 MoveTo(motor=0, dir=up, pos=400, speed=250, acc=0, dec=0)" in texts
-    assert "#4 pos=400" in texts and "#5 waypoint 0" in texts
+    assert "#4 pos=400" in texts and "#5 waypoint=0" in texts
     wait = next(r for r in doc["rows"] if r["text"] == "#3 ok")
     assert wait["rtt_us"] > 300_000  # 400 steps at 1000 step/s, held until done
     table = motorctl("trace", str(recorded))

@@ -25,7 +25,7 @@ from typing import Any
 
 import pytest
 
-from motorctl.client import cli, replay, trace
+from motorctl.client import cli, dissector, replay, trace
 from motorctl.client.client import Client
 from motorctl.client.recording import TraceFileError, links_of, load, read
 from motorctl.protocol.capture.format import LINKTYPE_USER0, Direction
@@ -53,7 +53,7 @@ from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess
 
 OPTS = CodecOptions()
-PLUGIN = REPO / "client" / "wireshark" / "motorctl.lua"
+TEMPLATE = REPO / "client" / "wireshark" / "motorctl.lua.in"
 TSHARK = shutil.which("tshark")
 MERGECAP = shutil.which("mergecap")
 needs_tshark = pytest.mark.skipif(
@@ -118,9 +118,17 @@ def trace_json(*args: str) -> dict[str, Any]:
     return doc
 
 
-def tshark(path: Path, *fields: str) -> list[list[str]]:
+@pytest.fixture(scope="module")
+def plugin(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The dissector as the package builds it from the command table (client/dissector.py)."""
+    path = tmp_path_factory.mktemp("wireshark") / "motorctl.lua"
+    assert dissector.main(["--output", str(path)]) == 0
+    return path
+
+
+def tshark(plugin: Path, path: Path, *fields: str) -> list[list[str]]:
     assert TSHARK is not None
-    args = [TSHARK, "-X", f"lua_script:{PLUGIN}", "-r", str(path), "-T", "fields"]
+    args = [TSHARK, "-X", f"lua_script:{plugin}", "-r", str(path), "-T", "fields"]
     for f in fields:
         args += ["-e", f]
     run = subprocess.run(args, capture_output=True, text=True, timeout=120)
@@ -163,8 +171,8 @@ def per_packet_from_tshark(rows: list[list[str]]) -> dict[int, Any]:
 
 
 def test_the_dissector_knows_the_checksums_protocol_crc_knows() -> None:
-    """client/wireshark/motorctl.lua carries its own copy of the CRC-8 catalogue."""
-    lua = PLUGIN.read_text()
+    """client/wireshark/motorctl.lua.in carries its own copy of the CRC-8 catalogue."""
+    lua = TEMPLATE.read_text()
     found = {
         m["name"]: (
             int(m["poly"], 16),
@@ -189,35 +197,41 @@ def test_the_dissector_knows_the_checksums_protocol_crc_knows() -> None:
 
 
 def test_the_debian_package_installs_the_dissector_where_its_scripts_link_it() -> None:
-    """debian/motorctl.install puts it in /usr/share/motorctl/wireshark, postinst links it
-    into the Lua plugin folder of the machine's architecture, prerm removes that link (make
-    test-deb checks both on a fresh Debian root; pyproject.toml ships it in the wheel)."""
+    """debian/rules builds it from the command table into /usr/share/motorctl/wireshark,
+    postinst links it into the Lua plugin folder of the machine's architecture, prerm removes
+    that link (make test-deb checks both on a fresh Debian root; pyproject.toml ships the
+    template in the wheel, which ``python3 -m motorctl.client.dissector`` fills)."""
     debian = REPO / "debian"
-    install = (debian / "motorctl.install").read_text().split()
-    assert install[:2] == ["client/wireshark/motorctl.lua", "usr/share/motorctl/wireshark/"]
     target = "/usr/share/motorctl/wireshark/motorctl.lua"
+    rules = " ".join((debian / "rules").read_text().replace("\\\n", " ").split())
+    assert f"python3 -m motorctl.client.dissector --output debian/motorctl{target}" in rules
     postinst = (debian / "motorctl.postinst").read_text()
     assert f"motorctl_lua={target}" in postinst and 'get_config_var("MULTIARCH")' in postinst
     assert '"/usr/lib/$triplet/wireshark/plugins/motorctl.lua"' in postinst
     prerm = (debian / "motorctl.prerm").read_text()
     assert "/usr/lib/*/wireshark/plugins/motorctl.lua" in prerm and target in prerm
-    assert '"motorctl.client" = ["wireshark/*.lua"]' in (REPO / "pyproject.toml").read_text()
+    assert '"motorctl.client" = ["wireshark/*.lua.in"]' in (REPO / "pyproject.toml").read_text()
 
 
 @needs_tshark
-def test_tshark_shows_what_motorctl_trace_json_shows_for_every_frame(recorded: Path) -> None:
+def test_tshark_shows_what_motorctl_trace_json_shows_for_every_frame(
+    recorded: Path, plugin: Path
+) -> None:
     doc = trace_json(str(recorded))
     assert doc["summary"]["frames"] > 20 and doc["summary"]["gap_discards"] == 1
     expected = per_packet_from_json(doc)
-    got = per_packet_from_tshark(tshark(recorded, *FIELDS))
+    got = per_packet_from_tshark(tshark(plugin, recorded, *FIELDS))
     assert got == expected
     commands = [c for cells in got.values() for c in cells[1]]
     assert {"MoveTo", "WaitMoved", "GetAbsPos", "SetPin", "DcMove", "StopMove"} <= set(commands)
 
 
 @needs_tshark
-def test_tshark_checks_checksums_pairs_answers_and_names_errors(recorded: Path) -> None:
+def test_tshark_checks_checksums_pairs_answers_and_names_errors(
+    recorded: Path, plugin: Path
+) -> None:
     rows = tshark(
+        plugin,
         recorded,
         "frame.number",
         "motorctl.kind",
@@ -317,9 +331,11 @@ def test_the_replay_of_a_merged_file_asks_which_link_and_plays_the_one_named(
 
 
 @needs_tshark
-def test_tshark_decodes_each_interface_of_a_merged_file_on_its_own(merged: Path) -> None:
+def test_tshark_decodes_each_interface_of_a_merged_file_on_its_own(
+    merged: Path, plugin: Path
+) -> None:
     doc = trace_json(str(merged))
-    got = per_packet_from_tshark(tshark(merged, *FIELDS))
+    got = per_packet_from_tshark(tshark(plugin, merged, *FIELDS))
     assert got == per_packet_from_json(doc)
 
 

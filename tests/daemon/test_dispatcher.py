@@ -7,10 +7,11 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.assemble import Daemon
-from motorctl.daemon.dispatcher import Wait
+from motorctl.daemon.dispatcher import Dispatcher, Wait
 from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import BridgeState
 from motorctl.protocol.codec import (
+    COMMANDS,
     ConfigPin,
     DcMove,
     ErrorCode,
@@ -128,6 +129,30 @@ def test_units_defaults_and_clamping(d: Daemon) -> None:
     assert d.dispatcher.clamped["speed"] == 1
     d.engine.run_until(d.clock.now() + 1.0)  # default accel 8000: 1000 more in 0.125 s
     assert m.traj.velocity(d.clock.now()) == pytest.approx(3000.0)
+
+
+def test_a_handler_for_each_command_of_the_table(d: Daemon) -> None:
+    """The command table's commands, each to the method it names (WaitMoved: the link's),
+    with the unit factors the table names for its SPEED, ACC and DEC ([units])."""
+    table = d.dispatcher.table
+    assert (
+        set(table) == {c for c in COMMANDS if c.spec.answer.held == ""} and WaitMoved not in table
+    )
+    assert {cls: getattr(h, "__name__", "") for cls, h in table.items()} == {
+        cls: cls.spec.handler for cls in table
+    }
+    factors = d.dispatcher.factors
+    assert set(factors) == {InitMove, MoveTo, Move, MoveToWayPoint}
+    assert factors[Move] == factors[InitMove] == (1000.0, 16.0, 16.0)  # run_speed_factor here
+    assert factors[MoveTo] == factors[MoveToWayPoint] == (4.0, 16.0, 16.0)
+
+
+def test_a_command_without_its_handler_stops_the_start(d: Daemon) -> None:
+    class Missing(Dispatcher):
+        dc_move = None  # type: ignore[assignment]
+
+    with pytest.raises(TypeError, match=r"no handler for DcMove: Dispatcher\.dc_move"):
+        Missing(d.config, d.engine, d.dispatcher.pins)
 
 
 def test_stop_clears_fault_only_when_driver_is_healthy(d: Daemon) -> None:

@@ -56,8 +56,10 @@ def w(tmp_path: Path) -> SessionRig:
 
 
 def refused(w: SessionRig, cmd: Command, code: ErrorCode) -> dict[str, Any]:
-    """``cmd``'s answer is ``code``; the record the status keeps of it."""
+    """``cmd``'s answer is ``code``, one the command table says it can give; the record the
+    status keeps of it."""
     assert w.call(cmd).error_code is code, cmd
+    assert code in [g.code for g in cmd.spec.gives], f"{cmd}: {code.short} is not in the table"
     last = w.daemon.dispatcher.refusals.status()["last"]
     assert last is not None and last["code"] == code.short
     return dict(last)

@@ -38,9 +38,11 @@ from motorctl.protocol.codec import (
     SetPin,
     StopMove,
     WaitMoved,
+    decode_answer,
     decode_command,
     decode_response,
     describe,
+    describe_answer,
     encode_command,
     encode_response,
     pos24_from_bytes,
@@ -617,3 +619,53 @@ def test_the_protocols_facts_are_declared_in_protocol_only() -> None:
 )
 def test_a_fact_written_again_is_seen(source: str) -> None:
     assert any(pattern.search(source) for pattern in FACTS.values())
+
+
+# --- the one reading of an answer ------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("cmd", "resp", "text"),
+    [
+        (IsReady(0), Response.boolean(True), "ready"),
+        (IsReady(0), Response.boolean(False), "busy"),
+        (GetAbsPos(1), Response.position(-300), "pos=-300"),
+        (GetPin(5), Response.boolean(True), "high"),
+        (GetPin(5), Response.boolean(False), "low"),
+        (SaveWayPoint(0), Response.ok(b"\x00"), "waypoint=0"),
+        (SaveWayPoint(0), Response.ok(b"\xfe"), "waypoint=254"),
+        (MoveTo(0, True, 5, 0, 0, 0), Response.ok(), "ok"),
+        (StopMove(0, False), Response.ok(b"\x01\x02\x03"), "ok, payload 01 02 03"),
+        (None, Response.ok(), "ok"),
+        (IsReady(0), Response.error(ErrorCode.MOTOR_NOT_READY), "E3 Motor not ready"),
+        (None, Response(False, b"\xe9\x00\x00"), "error 0xe9 (unknown code)"),
+        (GetAbsPos(0), Response(False, b"\xab\x00\x00"), "error 0xab (unknown code)"),
+    ],
+    ids=lambda v: str(v),
+)
+def test_an_answer_reads_one_way(cmd: Command | None, resp: Response, text: str) -> None:
+    """codec.describe_answer: the daemon's status, motorctl trace and the replay's text."""
+    assert describe_answer(cmd, resp) == text
+    assert decode_answer(cmd, resp).text == text
+
+
+def test_an_answer_carries_its_value_typed() -> None:
+    pos = decode_answer(GetAbsPos(1), Response.position(-300))
+    assert pos.ack and pos.value == -300 and pos.param is not None
+    assert pos.param.field == "position"
+    level = decode_answer(GetPin(5), Response.boolean(True))
+    assert level.value is True and level.param is not None and level.param.json(True) == 1
+    ready = decode_answer(IsReady(0), Response.boolean(False))
+    assert ready.param is not None and (ready.param.field, ready.param.json(False)) == (
+        "ready",
+        False,
+    )
+    e3 = decode_answer(WaitMoved(0, 5), Response.error(ErrorCode.MOTOR_NOT_READY))
+    assert (e3.ack, e3.error, e3.error_byte, e3.value) == (
+        False,
+        ErrorCode.MOTOR_NOT_READY,
+        0xE3,
+        None,
+    )
+    plain = decode_answer(MoveTo(0, True, 5, 0, 0, 0), Response.ok())
+    assert plain.param is None and plain.value is None
