@@ -123,10 +123,22 @@ def test_the_example_runs_unchanged(board: Board, tmp_path: Path) -> None:
             while home_start - c.position(1) < 50:
                 assert time.monotonic() < deadline, "motor 1 did not start homing"
                 time.sleep(0.01)
-            pull(b, MOTORS[1][3], False)
+            pull(b, MOTORS[1][3], False)  # pressed (active low)
+            # homing stops on the switch, backs off (DIR high) while it stays pressed and
+            # zeroes where it releases (PROTOCOL.md, InitMove)
+            deadline = time.monotonic() + 30
+            while not level(b, MOTORS[1][1]):
+                assert time.monotonic() < deadline, "motor 1 did not back off the end stop"
+                time.sleep(0.01)
+            backing = c.position(1)
+            while c.position(1) - backing < 3:
+                assert time.monotonic() < deadline, "motor 1 did not step off the end stop"
+                time.sleep(0.01)
+            assert not c.is_ready(1), "homing ended with the end stop still pressed"
+            pull(b, MOTORS[1][3], True)  # released
             c.wait_moved(1, 60_000)
-            assert c.position(1) == 0, "homing did not stop at the end stop"
-            pull(b, MOTORS[1][3], True)
+            homed = c.position(1)
+            assert 0 <= homed <= 40, f"homing zeroed {homed} steps from where it released"
 
             # pins: outputs on the header chip follow SetPin, inputs read the outside
             for n in range(4):
