@@ -182,6 +182,8 @@ def name_process(title: str = TITLE, comm: str = COMM) -> str:
         with open("/proc/self/stat", "rb") as f:
             # after the name (in parentheses, any bytes): fields 3 on; arg_start is 48
             fields = f.read().rsplit(b")", 1)[1].split()
+        if len(fields) < 47:  # qemu-user's own /proc/self/stat ends before arg_start
+            raise ValueError(f"/proc/self/stat has {len(fields) + 2} fields, no arg_start")
         start, end = int(fields[45]), int(fields[46])
         with open("/proc/self/mem", "r+b", buffering=0) as mem:
             mem.seek(start)

@@ -90,3 +90,27 @@ def test_an_interpreter_not_needed_is_ended_and_reaped() -> None:
     early.dismiss()
     assert not early.waiting and early.proc.returncode is not None
     early.dismiss()  # twice: nothing
+
+
+def test_a_short_proc_stat_is_said_not_indexed(monkeypatch: pytest.MonkeyPatch) -> None:
+    """qemu-user (the arm64 lane) answers /proc/self/stat itself, with fewer fields than the
+    kernel's: the note says so, and nothing of the process's memory is touched."""
+    import builtins
+    import io
+
+    from motorctl.motion.executors.process import start
+
+    real_open = builtins.open
+
+    def short_stat(path: object, *args: object, **kw: object) -> object:
+        if path == "/proc/self/stat":
+            return io.BytesIO(b"42 (python3) S " + b"0 " * 40)
+        if path == "/proc/self/mem":
+            raise AssertionError("the memory was opened")
+        return real_open(path, *args, **kw)  # type: ignore[call-overload]
+
+    with real_open("/proc/self/comm") as f:
+        comm = f.read().strip()  # this process keeps its name
+    monkeypatch.setattr(start, "open", short_stat, raising=False)
+    note = start.name_process("motorctld: step executor", comm)
+    assert note == "command line: /proc/self/stat has 43 fields, no arg_start", note
