@@ -42,7 +42,10 @@ with warnings.catch_warnings(record=True) as caught:
 print(json.dumps({"setuptools": setuptools.__version__, "name": m.get_name(),
     "version": m.get_version(), "license": m.license,
     "license_expression": getattr(m, "license_expression", None),
-    "warnings": [f"{w.category.__name__}: {w.message}" for w in caught]}))
+    "warnings": [f"{w.category.__name__}: {w.message}" for w in caught
+        # setuptools' own: 78 (Debian 13) loads every command to check [tool.distutils],
+        # and its develop command imports pkg_resources, which warns that it is deprecated
+        if not str(w.message).startswith("pkg_resources is deprecated as an API")]}))
 """
 
 
