@@ -462,6 +462,8 @@ def running_daemon(tmp_path: Path) -> DaemonProcess:
 def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
     d = running_daemon(tmp_path)
     assert d.terminate() == 0
+    first = d.stderr()  # the next daemon writes its log in the same place
+    assert "position lost" not in first, first
     d2 = DaemonProcess(tmp_path, state_dir=d.state_dir).start()
     try:
         with d2.client() as c:
