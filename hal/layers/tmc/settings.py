@@ -17,7 +17,8 @@ from motorctl.hal.spec import DriverSpec
 
 @dataclass(frozen=True)
 class TmcSettings:
-    """One driver's configuration: plain values, checked by the config schema."""
+    """One driver's configuration: plain values, checked by the config schema. The defaults
+    are [motors.tmc]'s: config.py declares each key with the default written here."""
 
     chip: Chip = TMC2130  # tmc2130.TMC2130 or tmc5160.TMC5160
     sense_resistor: float = 0.0  # ohm; 0 = the chip's usual board value
@@ -75,7 +76,8 @@ def register_values(s: TmcSettings) -> dict[int, int]:
 
 @dataclass(frozen=True)
 class TmcSpec(DriverSpec):
-    """What the TMC layer needs to open one motor's driver: where, how fast, how configured."""
+    """What the TMC layer needs to open one motor's driver: where, how fast, how configured
+    (the defaults, as :class:`TmcSettings`'s, are [motors.tmc]'s)."""
 
     spi: str  # "/dev/spidevB.C"
     settings: TmcSettings

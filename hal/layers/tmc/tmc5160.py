@@ -195,7 +195,7 @@ class RampUnits:
     resolution (one step = what one STEP pulse would move).
     """
 
-    clock_hz: float = 12e6
+    clock_hz: float  # fCLK: the [motors.tmc] clock_hz of the chip
 
     VMAX_MAX: Final = (1 << 23) - 512
     AMAX_MAX: Final = (1 << 16) - 1
