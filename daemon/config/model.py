@@ -23,6 +23,11 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from motorctl.motion.engine import STOP_CONFIRM_S
+from motorctl.motion.executors.planner import AHEAD_S
+from motorctl.motion.executors.process.rings import STEP_CORES
+from motorctl.motion.executors.step_core import SPIN_S
+from motorctl.motion.latency import LATE_THRESHOLD_S
+from motorctl.motion.rt import RealtimeOptions
 from motorctl.motion.types import HomingSource
 from motorctl.protocol.codec import POS_MAX, POS_MIN, WAYPOINTS
 from motorctl.protocol.crc import (
@@ -153,6 +158,16 @@ class UnitsConfig:
     accel_factor: float = number(16.0, 0, 1e7, "step/s^2 per ACC / DEC unit.", lo_open=True)
 
 
+def _us(seconds: float) -> float:
+    """A default motion declares in seconds, in the key's microseconds."""
+    return round(seconds * 1e6, 6)
+
+
+def _ms(seconds: float) -> float:
+    """A default motion declares in seconds, in the key's milliseconds."""
+    return round(seconds * 1e3, 6)
+
+
 def _backend_names() -> tuple[str, ...]:
     from motorctl.hal.registry import BACKENDS
 
@@ -206,24 +221,27 @@ class StepThreadConfig:
     dir_setup_us: float = number(5.0, 0, 10000, "DIR is set this long before the next step edge.")
     step_pulse_us: float = number(2.0, 0.1, 10000, "Minimum step pulse width.")
     late_threshold_us: float = number(
-        100.0,
+        _us(LATE_THRESHOLD_S),
         1,
         1e6,
         "A step edge later than this counts as late: the rest of its motor's move slides by "
         "its lateness (or, beyond the motor's max_lag_full_steps, the motor stops).",
     )
     spin_us: float = number(
-        200.0, 0, 100000, "Sleep until this long before a deadline, busy-wait the rest."
+        _us(SPIN_S), 0, 100000, "Sleep until this long before a deadline, busy-wait the rest."
     )
     priority: int = integer(
-        50, 0, 99, "SCHED_FIFO priority of the step thread; 0 = do not ask for real-time."
+        RealtimeOptions.priority,
+        0,
+        99,
+        "SCHED_FIFO priority of the step thread; 0 = do not ask for real-time.",
     )
-    lock_memory: bool = boolean(True, "mlockall() when permitted.")
+    lock_memory: bool = boolean(RealtimeOptions.lock_memory, "mlockall() when permitted.")
     switch_interval_us: float = number(
         100.0, 10, 100000, "sys.setswitchinterval() for the daemon process."
     )
     cpu: int = integer(
-        -1,
+        RealtimeOptions.cpu,
         -1,
         1023,
         "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
@@ -236,7 +254,7 @@ class StepThreadConfig:
         "boards, tests).",
     )
     ahead_ms: float = number(
-        50.0,
+        _ms(AHEAD_S),
         2,
         1000,
         "Steps are planned and handed to the executor this far ahead, topped up every 20 ms "
@@ -245,7 +263,7 @@ class StepThreadConfig:
         "segment boundary after the executor's lead time; docs/timing.md).",
     )
     stop_confirm_ms: float = number(
-        STOP_CONFIRM_S * 1000.0,
+        _ms(STOP_CONFIRM_S),
         1,
         10000,
         "A hard StopMove is answered once the executor confirms the motor stopped (normally "
@@ -253,8 +271,8 @@ class StepThreadConfig:
         "is answered all the same (a stalled executor; docs/protocol.md, StopMove).",
     )
     core: str = choice(
-        "auto",
-        ("auto", "compiled", "python"),
+        STEP_CORES[0],
+        STEP_CORES,
         "The step core of the process executor: 'auto' = the compiled one where it is built "
         "and the backend hands its lines over (GPIO character devices, the mock), else the "
         "Python one with a warning; 'compiled' = that one, or a start error that says why "
