@@ -33,10 +33,11 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from motorctl.daemon.config.model import MICROSTEPS_UNSAID, StepThreadConfig
+from motorctl.daemon.config.model import MICROSTEPS_UNSAID
 from motorctl.daemon.platform_kernel import OsRelease, read_os_release, rt_kernel_advice
 from motorctl.daemon.status.summary import realtime_lines
 from motorctl.motion.executors.base import LagRule, lag_full_steps
+from motorctl.motion.executors.config import StepThreadConfig
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.rt import (
     GRANTED,

@@ -80,8 +80,8 @@ class RampExecutor(Executor):
         self,
         chips: Sequence[RampDriver],
         clock: Clock,
-        poll_s: float = 0.005,
-        idle_poll_s: float = 0.05,
+        poll_s: float = RampDriver.poll_s,
+        idle_poll_s: float = RampDriver.idle_poll_s,
     ) -> None:
         super().__init__(len(chips))
         self.chips = list(chips)

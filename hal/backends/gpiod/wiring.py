@@ -17,6 +17,8 @@ import re
 from dataclasses import dataclass
 from typing import Final
 
+from motorctl.hal.spec import AxisSpec
+
 #: a line's bias left as the kernel has it: the default of every bias key
 AS_IS: Final = "as-is"
 BIASES: Final = (AS_IS, "pull-up", "pull-down", "disabled")
@@ -79,7 +81,7 @@ class MotorWiring:
     enable_active_low: bool = True
     endstop_min: EndstopWiring | None = None
     endstop_max: EndstopWiring | None = None
-    dir_hold_us: float = 0.0
+    dir_hold_us: float = AxisSpec.dir_hold_s * 1e6
     own_ramp: bool = False
 
 

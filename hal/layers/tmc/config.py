@@ -22,6 +22,7 @@ from dataclasses import dataclass, fields
 from typing import Any, Final
 
 from motorctl.hal.contract import LayerDeclaration, MotorEntry
+from motorctl.hal.interfaces import RampDriver
 from motorctl.hal.layers.tmc.fields import Chip, mres_of
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
@@ -249,10 +250,16 @@ class SpidevConfig:
     """[spidev]: how the TMC5160 ramp executor watches its chips."""
 
     ramp_poll_ms: float = number(
-        5.0, 0.5, 1000.0, "ramp mode: XACTUAL/RAMP_STAT poll period while a motor moves."
+        RampDriver.poll_s * 1e3,
+        0.5,
+        1000.0,
+        "ramp mode: XACTUAL/RAMP_STAT poll period while a motor moves.",
     )
     ramp_idle_poll_ms: float = number(
-        50.0, 1.0, 10000.0, "ramp mode: the same at rest (GetAbsPos reads the last poll)."
+        RampDriver.idle_poll_s * 1e3,
+        1.0,
+        10000.0,
+        "ramp mode: the same at rest (GetAbsPos reads the last poll).",
     )
 
 

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 from motorctl.hal.layers.tmc.fields import Chip, F, Reg, mres_of, tstep_for
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
-from motorctl.hal.spec import DriverSpec
+from motorctl.hal.spec import AxisSpec, DriverSpec
 
 
 @dataclass(frozen=True)
@@ -37,7 +37,7 @@ class TmcSettings:
     stall_filter: bool = False
     stall_min_speed: float = 0.0  # step/s below which the stall flag is ignored (TCOOLTHRS)
     clock_hz: float = 12e6  # fCLK: the internal clock unless CLK is driven
-    invert_dir: bool = False  # GCONF.shaft (used by the ramp generator)
+    invert_dir: bool = AxisSpec.invert_dir  # GCONF.shaft (used by the ramp generator)
     open_load: str = "fault"  # "fault", "warn" or "ignore"
 
     @property
