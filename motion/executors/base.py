@@ -300,6 +300,13 @@ class Executor(ABC):
         an executor that times no steps of that motor."""
         return {}
 
+    @property
+    def times_steps(self) -> bool:
+        """True when this executor times STEP edges (a step executor, or a split with one);
+        False for one whose every motor its driver chip moves on its own ramp. What readers
+        outside motion (the status) ask instead of the executor's class."""
+        return True
+
     def step_lateness(self) -> LatencyStats | None:
         """The lateness histogram of the STEP edges this executor makes (read without a lock);
         None for an executor that makes none (a chip running its own ramp)."""

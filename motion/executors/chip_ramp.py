@@ -316,6 +316,11 @@ class RampExecutor(Executor):
         st = self._axes[motor].status
         return st is not None and st.switch_active(direction)
 
+    @property
+    def times_steps(self) -> bool:
+        """False: the chips make their motors' steps, on their own ramps."""
+        return False
+
     def health(self) -> ExecutorHealth:
         return ExecutorHealth(alive=True, progress=self._progress, counters=dict(self.counters))
 
