@@ -37,6 +37,7 @@ from motorctl.daemon.config.model import MICROSTEPS_UNSAID
 from motorctl.daemon.platform_kernel import OsRelease, read_os_release, rt_kernel_advice
 from motorctl.daemon.status.summary import realtime_lines
 from motorctl.motion.executors.base import LagRule, lag_full_steps
+from motorctl.motion.executors.config import StepThreadConfig
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.rt import (
     GRANTED,
@@ -47,6 +48,7 @@ from motorctl.motion.rt import (
     kernel_preempt_rt,
     unlock_memory,
 )
+from motorctl.schema import default_of
 
 #: get_throttled's bits (the Raspberry Pi firmware's)
 THROTTLED_BITS = {
@@ -319,12 +321,12 @@ class MotorRate:
 
 @dataclass(frozen=True)
 class TimingConfig:
-    """What of [step_thread] the advice needs."""
+    """What of [step_thread] the advice needs (its defaults: the config's)."""
 
-    cpu: int = -1
-    priority: int = 50
-    spin_us: float = 200.0
-    executor: str = "process"
+    cpu: int = default_of(StepThreadConfig, "cpu")
+    priority: int = default_of(StepThreadConfig, "priority")
+    spin_us: float = default_of(StepThreadConfig, "spin_us")
+    executor: str = default_of(StepThreadConfig, "executor")
 
 
 def advice(

@@ -442,7 +442,8 @@ class RampDriver(ABC):
     """
 
     name: str
-    #: how often its executor reads it while a motion runs, and at rest (s)
+    #: how often its executor reads it while a motion runs, and at rest (s): the defaults of
+    #: [spidev] ramp_poll_ms and ramp_idle_poll_ms
     poll_s: float = 0.005
     idle_poll_s: float = 0.05
     #: resets of the chip seen while running: each one lost the position

@@ -30,7 +30,14 @@ from functools import partial
 
 from motorctl.hal.interfaces import BridgeState, DriverStatus, Hardware, StepperDriver, VirtualClock
 from motorctl.motion.dc import DcMotor
-from motorctl.motion.executors.base import ExecEvent, ExecEventKind, Executor, from_ticks, to_ticks
+from motorctl.motion.executors.base import (
+    STOP_CONFIRM_S,
+    ExecEvent,
+    ExecEventKind,
+    Executor,
+    from_ticks,
+    to_ticks,
+)
 from motorctl.motion.motor import Motor
 from motorctl.motion.types import MotorParams
 
@@ -48,12 +55,6 @@ Listener = Callable[[Motor, str], None]
 #: an empty one, costs about 20 us of a cold interpreter against the link thread: every 5 ms
 #: they were 200 a second for nothing
 PLANNER_TICK_S = 0.05
-#: How long a hard StopMove's answer waits for the executor to confirm that the motor has
-#: stopped (its position final), by default (config: step_thread.stop_confirm_ms). The step
-#: core applies a stop within one loop iteration, so this is normally well under a
-#: millisecond; the bound only matters for an executor that is stalled (not scheduled,
-#: SIGSTOPped) or dead. See docs/protocol.md, "StopMove".
-STOP_CONFIRM_S = 0.05
 #: the status's percentiles of those waits are over the latest this many
 STOP_WAITS_KEPT = 1024
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-from typing import Any, Protocol
+from typing import Any, Final, Protocol
 
 
 class Cells(Protocol):
@@ -38,8 +38,13 @@ _BLOCKS = _BINS + BINS + 1
 CELLS = _BLOCKS + BLOCKS
 
 
+#: a step edge later than this counts as late ([step_thread] late_threshold_us declares it
+#: with this value)
+LATE_THRESHOLD_S: Final = 100e-6
+
+
 class LatencyStats:
-    def __init__(self, threshold_s: float = 100e-6, cells: Cells | None = None) -> None:
+    def __init__(self, threshold_s: float = LATE_THRESHOLD_S, cells: Cells | None = None) -> None:
         self.threshold_s = threshold_s
         self._threshold_ns = int(threshold_s * 1e9)
         self._c: Cells = cells if cells is not None else [0] * CELLS

@@ -430,6 +430,15 @@ def table_of(cls: type[Any]) -> Table:
     return spec
 
 
+def default_of(cls: type[Any], name: str) -> Any:
+    """The declared default of key ``name`` of the table ``cls``: for a record outside the
+    config that takes the same value, so that it is written once."""
+    for key in table_of(cls).keys:
+        if key.name == name:
+            return key.default
+    raise KeyError(f"{cls.__name__} declares no key {name!r}")
+
+
 # --------------------------------------------------------------------------------------------
 # Formatting
 

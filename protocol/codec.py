@@ -13,7 +13,7 @@ Response frame: R0 = ACK, R1..R3 = payload, R4 = checksum over R1..R3 (R0..R3 wi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal, NamedTuple
+from typing import Any, Final, Literal, NamedTuple
 
 from motorctl.protocol.commands import *  # noqa: F403 (the table's names, re-exported)
 from motorctl.protocol.commands import BY_CODE, Command
@@ -68,6 +68,10 @@ def pos24_from_bytes(b: bytes) -> int:
 
 
 # --- options and errors -----------------------------------------------------------------
+
+
+#: the longest silence between two bytes of one frame, by default ([link] frame_gap_ms)
+FRAME_GAP_MS: Final = 10.0
 
 
 @dataclass(frozen=True)

@@ -36,10 +36,10 @@ from motorctl.daemon.config.model import (
     MotorConfig,
     PinConfig,
     StateConfig,
-    StepThreadConfig,
     TraceConfig,
     UnitsConfig,
 )
+from motorctl.motion.executors.config import StepThreadConfig
 from motorctl.schema import ConfigError, Row, describe
 
 __all__ = [

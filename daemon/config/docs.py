@@ -140,6 +140,13 @@ the doc; the same dataclass is what the code reads. This page, the checks and
   `choice(default, SomeStrEnum, doc)` for a fixed set of names: the code then gets the enum.
   The dataclass may live with the code that owns it (an executor's table in `motion/`, which
   may import `motorctl.schema` but not the daemon); only the `Config` field is in model.py.
+  `[step_thread]` is one: `motion/executors/config.py`.
+- **A default that code outside the config needs too** (a record's field, a parameter's
+  default): write the value once. Either the record (or a constant beside it) holds it and
+  the key's helper reads it (`number(TmcSettings.run_current, ...)`,
+  `integer(PwmWiring.period_ns, ...)`, `SPIN_S` shown in microseconds), or the record reads
+  the key's (`default_of(LinkConfig, "held_frames")`). `tests/daemon/test_config_defaults.py`
+  reads the source and fails on a default written in two places.
 - **A hardware backend's tables** (say `[gpiod]` and `[motors.gpiod]`): declare them in
   `hal/backends/<backend>/config.py`, a module that imports no hardware library, whose
   declaration (a `BackendDeclaration`, `hal/contract.py`) returns them from `sections()`:

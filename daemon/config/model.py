@@ -5,7 +5,8 @@ dataclass per table; it is declarations only, and the length is their documentat
 
 Each dataclass below is both the schema of its table and the frozen value the code reads
 (`motorctl.schema`): a field's helper call holds the key's default, bounds and doc. Sections
-owned elsewhere (a HAL backend's tables) are not here: they are declared next to their owner
+owned elsewhere (a HAL backend's tables; [step_thread], the step executors', in
+motion/executors/config.py) are not here: they are declared next to their owner
 and attached at load time (`motorctl.daemon.config.loader.schema`).
 
 Adding a key: add one field to the dataclass of its table, then regenerate the docs
@@ -20,11 +21,12 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
-from motorctl.motion.engine import STOP_CONFIRM_S
+from motorctl.hal.spec import AxisSpec, PinSpec
+from motorctl.motion.executors.config import StepThreadConfig
 from motorctl.motion.types import HomingSource
-from motorctl.protocol.codec import POS_MAX, POS_MIN, WAYPOINTS
+from motorctl.protocol.codec import FRAME_GAP_MS, POS_MAX, POS_MIN, WAYPOINTS, CodecOptions
 from motorctl.protocol.crc import (
     CHECKSUM_DEFAULT,
     CHECKSUM_TEXT,
@@ -47,9 +49,6 @@ from motorctl.schema import (
     tables,
     text,
 )
-
-if TYPE_CHECKING:
-    from motorctl.protocol.codec import CodecOptions
 
 
 def _check_checksum(value: str) -> str | None:
@@ -79,7 +78,7 @@ class LinkConfig:
     """[link]: framing and checksum of the UART protocol."""
 
     frame_gap_ms: float = number(
-        10.0,
+        FRAME_GAP_MS,
         0,
         10000,
         "Longest silence between two bytes of one frame; a longer gap discards the "
@@ -92,9 +91,12 @@ class LinkConfig:
         check_listing=checksum_names,
         check_text=CHECKSUM_TEXT,
     )
-    crc_covers_ack: bool = boolean(False, "true: the response CRC covers R0..R3, not R1..R3.")
+    crc_covers_ack: bool = boolean(
+        CodecOptions.crc_covers_ack, "true: the response CRC covers R0..R3, not R1..R3."
+    )
     strict_padding: bool = boolean(
-        True, "true: a non-zero padding byte gets E1; false accepts any padding."
+        CodecOptions.strict_padding,
+        "true: a non-zero padding byte gets E1; false accepts any padding.",
     )
     held_frames: int = integer(
         16,
@@ -182,83 +184,6 @@ class HalConfig:
         _backend_names,
         'Hardware backend; "mock" simulates motors, end stops and wired pins.',
         note=_backend_note,
-    )
-
-
-@section(
-    "Timing of the thread that generates step pulses.",
-    prose="""\
-Timing of the thread that generates step pulses. The defaults suit the mock backend and
-most hosts; change them only if the step-timing statistics report late edges.""",
-    retired={
-        "max_lateness_us": "a late step is judged by the lag it causes, in full steps "
-        "(each motor's max_lag_full_steps and start_speed; docs/timing.md), not by a fixed "
-        "number of microseconds",
-        "driver_poll_ms": "the HAL's one driver poller reads every driver chip now and hands "
-        "a fault to the motors as it reads it, with nothing to do with the step thread; its "
-        "period is [drivers] poll_ms",
-    },
-)
-@dataclass(frozen=True)
-class StepThreadConfig:
-    """[step_thread]: timing of the step-generating thread."""
-
-    dir_setup_us: float = number(5.0, 0, 10000, "DIR is set this long before the next step edge.")
-    step_pulse_us: float = number(2.0, 0.1, 10000, "Minimum step pulse width.")
-    late_threshold_us: float = number(
-        100.0,
-        1,
-        1e6,
-        "A step edge later than this counts as late: the rest of its motor's move slides by "
-        "its lateness (or, beyond the motor's max_lag_full_steps, the motor stops).",
-    )
-    spin_us: float = number(
-        200.0, 0, 100000, "Sleep until this long before a deadline, busy-wait the rest."
-    )
-    priority: int = integer(
-        50, 0, 99, "SCHED_FIFO priority of the step thread; 0 = do not ask for real-time."
-    )
-    lock_memory: bool = boolean(True, "mlockall() when permitted.")
-    switch_interval_us: float = number(
-        100.0, 10, 100000, "sys.setswitchinterval() for the daemon process."
-    )
-    cpu: int = integer(
-        -1,
-        -1,
-        1023,
-        "Pin the step thread to this CPU (the other threads avoid it); -1 = no pinning.",
-    )
-    executor: str = choice(
-        "process",
-        ("process", "thread"),
-        "Where steps are timed: 'process' = a process of its own (own interpreter and GIL, "
-        "SCHED_FIFO, mlockall; the default), 'thread' = a thread of the daemon (single-core "
-        "boards, tests).",
-    )
-    ahead_ms: float = number(
-        50.0,
-        2,
-        1000,
-        "Steps are planned and handed to the executor this far ahead, topped up every 20 ms "
-        "(every half of it when shorter); a soft stop or a new speed still takes over within "
-        "a few ms (the handed-over plan is cut at the first "
-        "segment boundary after the executor's lead time; docs/timing.md).",
-    )
-    stop_confirm_ms: float = number(
-        STOP_CONFIRM_S * 1000.0,
-        1,
-        10000,
-        "A hard StopMove is answered once the executor confirms the motor stopped (normally "
-        "well under 1 ms), so IsReady right after it answers 1; at most this long, then it "
-        "is answered all the same (a stalled executor; docs/protocol.md, StopMove).",
-    )
-    core: str = choice(
-        "auto",
-        ("auto", "compiled", "python"),
-        "The step core of the process executor: 'auto' = the compiled one where it is built "
-        "and the backend hands its lines over (GPIO character devices, the mock), else the "
-        "Python one with a warning; 'compiled' = that one, or a start error that says why "
-        "not; 'python' = the Python reference. The thread executor runs the Python core.",
     )
 
 
@@ -414,7 +339,9 @@ class MotorConfig(Sectioned):
     steps_per_rev: int = integer(
         0, 0, POS_MAX, "0 = linear axis; > 0 = rotary axis, position kept in [0, steps_per_rev)."
     )
-    invert_dir: bool = boolean(False, "Swap the DIR wiring (not the protocol's direction).")
+    invert_dir: bool = boolean(
+        AxisSpec.invert_dir, "Swap the DIR wiring (not the protocol's direction)."
+    )
     max_speed: float = number(
         25000.0, 0, 200000, "step/s; faster requests are clamped.", lo_open=True
     )
@@ -497,7 +424,7 @@ class PinConfig(Sectioned):
 
     number: int = integer(REQUIRED, 0, 255, "The host's PIN_NR.", unique=True)
     mode: str = choice("output", ("output", "input"), "Direction at start (ConfigPin changes it).")
-    initial: bool = boolean(False, "Output level at start (true = high).")
+    initial: bool = boolean(PinSpec.initial, "Output level at start (true = high).")
     safe: bool = boolean(False, "Output level set at shutdown (true = high).")
     sections: Mapping[type[Any], Any] = extension_sections()
 

@@ -81,6 +81,7 @@ from collections import Counter
 from collections.abc import Callable
 from typing import Protocol
 
+from motorctl.daemon.config.model import LinkConfig
 from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
 from motorctl.daemon.link.serialport import Backoff
 from motorctl.daemon.link.session import CommandPort, LinkSession
@@ -88,6 +89,7 @@ from motorctl.daemon.link.session_end import END_COUNTERS, SessionEnds, read_out
 from motorctl.daemon.link.silence import SilenceWatch
 from motorctl.motion.latency import LatencyStats
 from motorctl.protocol.codec import RESPONSE_LEN, CodecOptions
+from motorctl.schema import default_of
 
 log = logging.getLogger("motorctl.link")
 
@@ -146,7 +148,7 @@ class Link:
         dispatcher: CommandPort,
         options: CodecOptions,
         frame_gap_s: float,
-        held_frames: int = 16,
+        held_frames: int = default_of(LinkConfig, "held_frames"),
         clock: Callable[[], float] = time.monotonic,
         *,
         backlog_limit: int = 4096,

@@ -28,7 +28,6 @@ from motorctl.hal.interfaces import HalError, Hardware, Pin
 from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import Executor
-from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.profile import Trajectory
 
 
@@ -190,8 +189,8 @@ def dc_status(dc: DcMotor | None, now: float) -> dict[str, Any] | None:
 
 def step_executor_kind(config: Config, executor: Executor) -> str:
     """``[step_thread] executor``, or "none" on a machine whose every motor runs on its
-    TMC5160's own ramp (no step executor at all)."""
-    return "none" if isinstance(executor, RampExecutor) else config.step_thread.executor
+    TMC5160's own ramp (no step executor at all: none that times STEP edges)."""
+    return config.step_thread.executor if executor.times_steps else "none"
 
 
 def summary_line(status: dict[str, Any]) -> str:

@@ -34,10 +34,16 @@ from typing import Any
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.rt import RealtimeReport
-from motorctl.motion.types import Ramp
+from motorctl.motion.types import MotorParams, Ramp
 
 #: Integer time of the step path: nanoseconds of the executor's clock.
 TICKS_PER_S = 1_000_000_000
+#: How long a hard StopMove's answer waits (in the engine) for the executor to confirm that
+#: the motor has stopped (its position final), by default (config: step_thread.stop_confirm_ms).
+#: The step core applies a stop within one loop iteration, so this is normally well under a
+#: millisecond; the bound only matters for an executor that is stalled (not scheduled,
+#: SIGSTOPped) or dead. See docs/protocol.md, "StopMove".
+STOP_CONFIRM_S = 0.05
 
 
 def to_ticks(t: float) -> int:
@@ -103,7 +109,7 @@ class AxisLimits:
 
     min_interval_s: float
     pulse_s: float = 2e-6
-    debounce_s: float = 0.0
+    debounce_s: float = MotorParams.debounce_s
     slide_after_s: float = 100e-6
     # the motor's own, always given (their defaults are the config model's: [[motors]])
     microsteps: int = field(kw_only=True)
@@ -293,6 +299,13 @@ class Executor(ABC):
         absorbed by sliding its schedule, the worst lateness and lag, lag faults. Empty for
         an executor that times no steps of that motor."""
         return {}
+
+    @property
+    def times_steps(self) -> bool:
+        """True when this executor times STEP edges (a step executor, or a split with one);
+        False for one whose every motor its driver chip moves on its own ramp. What readers
+        outside motion (the status) ask instead of the executor's class."""
+        return True
 
     def step_lateness(self) -> LatencyStats | None:
         """The lateness histogram of the STEP edges this executor makes (read without a lock);

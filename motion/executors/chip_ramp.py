@@ -80,8 +80,8 @@ class RampExecutor(Executor):
         self,
         chips: Sequence[RampDriver],
         clock: Clock,
-        poll_s: float = 0.005,
-        idle_poll_s: float = 0.05,
+        poll_s: float = RampDriver.poll_s,
+        idle_poll_s: float = RampDriver.idle_poll_s,
     ) -> None:
         super().__init__(len(chips))
         self.chips = list(chips)
@@ -315,6 +315,11 @@ class RampExecutor(Executor):
     def endstop_active(self, motor: int, direction: int) -> bool:
         st = self._axes[motor].status
         return st is not None and st.switch_active(direction)
+
+    @property
+    def times_steps(self) -> bool:
+        """False: the chips make their motors' steps, on their own ramps."""
+        return False
 
     def health(self) -> ExecutorHealth:
         return ExecutorHealth(alive=True, progress=self._progress, counters=dict(self.counters))

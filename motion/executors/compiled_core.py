@@ -50,8 +50,8 @@ from motorctl.motion.executors.process.rings import (
     Shared,
     decode_event,
 )
-from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS
-from motorctl.motion.latency import CELLS, LatencyStats
+from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, SPIN_S
+from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
 
 NAME = "compiled"
 ENV = "MOTORCTL_STEPCORE"
@@ -110,8 +110,8 @@ class CompiledStepCore:
         limits: Sequence[AxisLimits],
         shared: Shared,
         *,
-        late_threshold_s: float = 100e-6,
-        spin_s: float = 200e-6,
+        late_threshold_s: float = LATE_THRESHOLD_S,
+        spin_s: float = SPIN_S,
         coalesce_s: float = 0.0,
         idle_s: float = 0.05,
         bad_record_s: float = BAD_RECORD_S,

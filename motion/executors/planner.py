@@ -26,7 +26,7 @@ from abc import abstractmethod
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
+from typing import Any, Final
 
 from motorctl.hal.interfaces import Clock
 from motorctl.motion.executors.base import (
@@ -58,6 +58,13 @@ K = ExecEventKind
 #: caches, one hold of the GIL against the link thread) 50 times a second; every 5 ms made
 #: the IsReady round trip's p99 worse (docs/timing.md)
 REFILL_S = 0.020
+#: how far ahead steps are handed to the core ([step_thread] ahead_ms declares it with this
+#: value). 50 ms, not 20: the planner is a normal thread of the daemon, and a pass that comes
+#: late (the GIL held by the link thread, a busy core, a collection) must not leave the
+#: core without steps, which would stop a motor with "step timing lost"; with a top-up every
+#: REFILL_S, 30 ms of such lateness are covered, and a soft stop or a new speed still takes
+#: over within lead_s + span_s, as the handed-over plan is cut (docs/timing.md)
+AHEAD_S: Final = 0.05
 _SELF_STOPS = (K.ENDSTOP, K.RELEASED, K.TIMING_LOST, K.FAULT)
 
 
@@ -126,7 +133,7 @@ class StepExecutor(Executor):
         clock: Clock,
         limits: Sequence[AxisLimits],
         *,
-        ahead_s: float = 0.02,
+        ahead_s: float = AHEAD_S,
         lead_s: float = 0.002,
         max_error_s: float = 5e-6,
         span_s: float = 0.002,

@@ -156,6 +156,11 @@ class SplitExecutor(Executor):
         ex, local = self.routes[motor]
         return ex.motor_timing(local)
 
+    @property
+    def times_steps(self) -> bool:
+        """True when a part does (the step executor; the ramp executor makes no STEP edges)."""
+        return any(ex.times_steps for ex in self.parts)
+
     def step_lateness(self) -> LatencyStats | None:
         """The step executor's (the ramp executor makes no STEP edges)."""
         return next((s for ex in self.parts if (s := ex.step_lateness()) is not None), None)

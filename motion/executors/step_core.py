@@ -65,6 +65,7 @@ from __future__ import annotations
 
 from collections import deque
 from collections.abc import Callable, Sequence
+from typing import Final
 
 from motorctl.hal.interfaces import HalError, StepIO
 from motorctl.motion.executors.base import (
@@ -77,6 +78,10 @@ from motorctl.motion.executors.base import (
 )
 from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.latency import Cells, LatencyStats
+
+#: the core sleeps until this long before its next edge and spins the rest ([step_thread]
+#: spin_us declares it with this value)
+SPIN_S: Final = 200e-6
 
 # counters cells
 PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DISCARDED, MIN_GAP, BAD_RECORDS = range(8)
@@ -137,7 +142,7 @@ class StepCore:
         counters: Cells,
         stats: LatencyStats,
         motor_cells: Cells | None = None,
-        spin_s: float = 200e-6,
+        spin_s: float = SPIN_S,
         coalesce_s: float = 0.0,
     ) -> None:
         n = len(limits)

@@ -33,10 +33,10 @@ from motorctl.motion.executors.base import (
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.executors.planner import StepExecutor
+from motorctl.motion.executors.planner import AHEAD_S, StepExecutor
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES, CoreInbox, StepCore
-from motorctl.motion.latency import CELLS, LatencyStats
+from motorctl.motion.executors.step_core import COUNTER_NAMES, SPIN_S, CoreInbox, StepCore
+from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, RealtimeReport, enter_realtime
 
 log = logging.getLogger("motorctl.executor")
@@ -63,15 +63,15 @@ class ThreadStepExecutor(StepExecutor):
         ahead_s: float | None = None,
         lead_s: float | None = None,
         max_error_s: float = 5e-6,
-        spin_s: float = 200e-6,
-        late_threshold_s: float = 100e-6,
+        spin_s: float = SPIN_S,
+        late_threshold_s: float = LATE_THRESHOLD_S,
         rt: RealtimeOptions | None = None,
     ) -> None:
         virtual = hw.clock.is_virtual
         super().__init__(
             hw.clock,
             limits,
-            ahead_s=(0.0 if virtual else 0.02) if ahead_s is None else ahead_s,
+            ahead_s=(0.0 if virtual else AHEAD_S) if ahead_s is None else ahead_s,
             lead_s=(0.0 if virtual else 0.002) if lead_s is None else lead_s,
             max_error_s=max_error_s,
         )

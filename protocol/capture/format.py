@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from enum import IntEnum
 
-from motorctl.protocol.codec import CodecOptions
+from motorctl.protocol.codec import FRAME_GAP_MS, CodecOptions
 from motorctl.protocol.crc import CHECKSUM_DEFAULT, checksum_by_name
 
 FORMAT = "motorctl-trace/1"
@@ -89,9 +89,9 @@ class CaptureInfo:
 
     role: str = "daemon"  # "daemon" (motorctld --trace) or "tap" (motorctl tap)
     checksum: str = CHECKSUM_DEFAULT
-    crc_covers_ack: bool = False
-    strict_padding: bool = True
-    frame_gap_ms: float = 10.0
+    crc_covers_ack: bool = CodecOptions.crc_covers_ack
+    strict_padding: bool = CodecOptions.strict_padding
+    frame_gap_ms: float = FRAME_GAP_MS
     port: str = ""  # the port recorded (the daemon's) or "host <-> device" (the tap's)
     application: str = "motorctl"
     session: str = ""  # names one recording (no spaces); "" in files of older versions

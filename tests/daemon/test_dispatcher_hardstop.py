@@ -24,8 +24,8 @@ from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import open_pty
 from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import MonotonicClock, VirtualClock
-from motorctl.motion.engine import STOP_CONFIRM_S
 from motorctl.motion.executors.base import (
+    STOP_CONFIRM_S,
     ExecEventKind,
     from_ticks,
     to_ticks,

@@ -16,8 +16,9 @@ from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.hal.interfaces import Clock, Hardware, VirtualClock
 from motorctl.hal.registry import open_hardware
-from motorctl.motion.engine import STOP_CONFIRM_S, MotionEngine
+from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import (
+    STOP_CONFIRM_S,
     Committed,
     ExecEvent,
     ExecEventKind,

@@ -21,7 +21,7 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 
 from motorctl.hal.backends.gpiod.boards import board_of, chip_number, describe_chip
-from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
+from motorctl.hal.backends.gpiod.wiring import AS_IS, LineRef, ResolvedLine
 from motorctl.hal.compiled_lines import ChardevRequest
 from motorctl.hal.interfaces import HalError
 
@@ -34,7 +34,7 @@ class LineSettings:
 
     output: bool = False
     value: bool = False
-    bias: str = "as-is"
+    bias: str = AS_IS
     edges: bool = False
     debounce_us: int = 0
 

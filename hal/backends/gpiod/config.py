@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from typing import Any, TypeVar, cast
 
 from motorctl.hal.backends.gpiod.wiring import (
+    AS_IS,
     BIASES,
     BRIDGE_STOPS,
     DcWiring,
@@ -81,9 +82,11 @@ class GpiodPwmConfig:
 
     chip: int = integer(REQUIRED, 0, 255, "N of /sys/class/pwm/pwmchipN.")
     channel: int = integer(REQUIRED, 0, 255, "M of pwmchipN/pwmM.")
-    period_ns: int = integer(50_000, 1_000, 1_000_000_000, "PWM period in ns (50000 = 20 kHz).")
-    duty: float = number(1.0, 0.0, 1.0, "Duty cycle while the motor runs (the speed).")
-    sysfs: str = text("/sys/class/pwm", "Where the kernel's PWM class is.")
+    period_ns: int = integer(
+        PwmWiring.period_ns, 1_000, 1_000_000_000, "PWM period in ns (50000 = 20 kHz)."
+    )
+    duty: float = number(PwmWiring.duty, 0.0, 1.0, "Duty cycle while the motor runs (the speed).")
+    sysfs: str = text(PwmWiring.sysfs, "Where the kernel's PWM class is.")
 
 
 @section(
@@ -100,8 +103,12 @@ class GpiodDcConfig:
     in1: str = _line_key(REQUIRED, "The bridge's IN1 line.")
     in2: str = _line_key(REQUIRED, "The bridge's IN2 line.")
     en: str = _line_key("", "The bridge's EN line; empty: not wired (EN tied high).")
-    dead_time_ms: float = number(0.0, 0, 10_000, "A reversal passes through reverse_via this long.")
-    reverse_via: str = choice("coast", BRIDGE_STOPS, "The state a reversal passes through.")
+    dead_time_ms: float = number(
+        DcWiring.dead_time_ms, 0, 10_000, "A reversal passes through reverse_via this long."
+    )
+    reverse_via: str = choice(
+        DcWiring.reverse_via, BRIDGE_STOPS, "The state a reversal passes through."
+    )
     pwm: GpiodPwmConfig | None = table(GpiodPwmConfig, absent=None, absent_text="no PWM")
 
 
@@ -119,13 +126,13 @@ class GpiodConfig:
     """[gpiod]"""
 
     api: str = choice(
-        "auto",
+        GpioWiring.api,
         ("auto", "v1", "v2"),
         "libgpiod Python API: v1 (Debian bookworm "
         "python3-libgpiod 1.6), v2 (gpiod >= 2), or auto: whichever imports.",
     )
     consumer: str = text(
-        "motorctl",
+        GpioWiring.consumer,
         "The consumer name the kernel shows for our lines.",
         pattern=r"[!-~]{1,31}",
         pattern_text="1..31 characters, no spaces",
@@ -154,16 +161,20 @@ class GpiodAxisConfig:
     enable: str = _line_key(
         "", "The driver's ENABLE line (on while the daemon runs); empty: not wired."
     )
-    enable_active_low: bool = boolean(True, "ENABLE is active low (TMC drivers: EN low = on).")
-    dir_hold_us: float = number(0.0, 0, 10_000, "DIR stays this long after a STEP falls.")
+    enable_active_low: bool = boolean(
+        MotorWiring.enable_active_low, "ENABLE is active low (TMC drivers: EN low = on)."
+    )
+    dir_hold_us: float = number(
+        MotorWiring.dir_hold_us, 0, 10_000, "DIR stays this long after a STEP falls."
+    )
     endstop_min: str = _line_key(
         "",
         "End stop below (InitMove with DIR false); empty: none. "
         "Polarity: [motors.endstop] active_low.",
     )
-    endstop_min_bias: str = choice("as-is", BIASES, "Pull on the endstop_min line.")
+    endstop_min_bias: str = choice(AS_IS, BIASES, "Pull on the endstop_min line.")
     endstop_max: str = _line_key("", "End stop above; empty: none.")
-    endstop_max_bias: str = choice("as-is", BIASES, "Pull on the endstop_max line.")
+    endstop_max_bias: str = choice(AS_IS, BIASES, "Pull on the endstop_max line.")
 
 
 @section("The line of one pin for the gpiod backend.")
@@ -172,7 +183,7 @@ class GpiodPinConfig:
     """[pins.gpiod]"""
 
     line: str = _line_key(REQUIRED, "The pin's line.")
-    bias: str = choice("as-is", BIASES, "Pull on the line.")
+    bias: str = choice(AS_IS, BIASES, "Pull on the line.")
 
 
 def make(cls: type[S], **keys: Any) -> S:

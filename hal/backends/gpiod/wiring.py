@@ -3,7 +3,8 @@
 Plain data and pure checks, no hardware library: the config layer parses a ``[gpiod]``
 table into :class:`GpioWiring` (and reports mistakes such as a line used twice before
 anything is opened); the gpiod backend resolves the :class:`LineRef` values against the
-chips the kernel has. Immutable values: any thread may read them.
+chips the kernel has. The records' defaults are the [gpiod] keys' defaults: config.py declares
+each key with the default written here. Immutable values: any thread may read them.
 
 A line is written the way the kernel names it: ``gpiochip0:17`` (chip and offset; the
 chip may also be a path ``/dev/gpiochip0`` or a chip label such as ``pinctrl-bcm2711``)
@@ -16,7 +17,11 @@ import re
 from dataclasses import dataclass
 from typing import Final
 
-BIASES: Final = ("as-is", "pull-up", "pull-down", "disabled")
+from motorctl.hal.spec import AxisSpec
+
+#: a line's bias left as the kernel has it: the default of every bias key
+AS_IS: Final = "as-is"
+BIASES: Final = (AS_IS, "pull-up", "pull-down", "disabled")
 BRIDGE_STOPS: Final = ("coast", "brake")
 
 _CHIP_LINE = re.compile(r"^(?P<chip>[^:\s]+):(?P<offset>\d+)$")
@@ -59,7 +64,7 @@ class EndstopWiring:
     """An end-stop input. Its polarity is the motor's ``[motors.endstop] active_low``."""
 
     line: LineRef
-    bias: str = "as-is"
+    bias: str = AS_IS
 
 
 @dataclass(frozen=True)
@@ -76,7 +81,7 @@ class MotorWiring:
     enable_active_low: bool = True
     endstop_min: EndstopWiring | None = None
     endstop_max: EndstopWiring | None = None
-    dir_hold_us: float = 0.0
+    dir_hold_us: float = AxisSpec.dir_hold_s * 1e6
     own_ramp: bool = False
 
 
@@ -113,7 +118,7 @@ class PinWiring:
 
     number: int
     line: LineRef
-    bias: str = "as-is"
+    bias: str = AS_IS
 
 
 @dataclass(frozen=True)

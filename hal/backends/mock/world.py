@@ -48,6 +48,7 @@ from motorctl.hal.poller import DriverPoller
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.spi import SpiBuses
+from motorctl.schema import default_of
 
 
 class EventKind(enum.StrEnum):
@@ -567,7 +568,7 @@ def read_timeline(path: str) -> Timeline:
 def mock_axis(
     endstop_min: int = ENDSTOP_MIN,
     endstop_max: int = ENDSTOP_MAX,
-    switches: bool = True,
+    switches: bool = default_of(MockAxisConfig, "switches"),
     **axis: Any,
 ) -> AxisSpec:
     """An axis for the mock built by hand (tests, benchmarks): ``axis`` as AxisSpec takes

@@ -8,16 +8,21 @@ TMC2130/TMC5160 read over /dev/spidevB.C), so it is named in
 `motorctl.hal.registry.LAYERS`, not as a backend. Like every declaration it imports no
 hardware library: a config is checked without py-spidev.
 
+Each key's default is the runtime record's (:class:`TmcSettings`, :class:`TmcSpec` in
+settings.py), read from there and written nowhere else; tests/daemon/test_config_defaults.py
+fails on a default written twice.
+
 Pure declarations and conversions: no state, no I/O.
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any, Final
 
 from motorctl.hal.contract import LayerDeclaration, MotorEntry
+from motorctl.hal.interfaces import RampDriver
 from motorctl.hal.layers.tmc.fields import Chip, mres_of
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
@@ -73,7 +78,10 @@ class TmcAxisConfig:
         pattern_text="/dev/spidevB.C, for example /dev/spidev0.1",
     )
     spi_speed_hz: int = integer(
-        1_000_000, 10_000, 4_000_000, "SPI clock; the chips accept up to 4 MHz (fCLK/2 or less)."
+        TmcSpec.spi_speed_hz,
+        10_000,
+        4_000_000,
+        "SPI clock; the chips accept up to 4 MHz (fCLK/2 or less).",
     )
     mode: str = choice(
         "step_dir",
@@ -81,61 +89,84 @@ class TmcAxisConfig:
         "step_dir: STEP/DIR lines move it; ramp: the TMC5160's own ramp generator does.",
     )
     sense_resistor: float = number(
-        0.0, 0.0, 1.0, "Ohm; 0 = the usual board value (TMC2130 0.11, TMC5160 0.075)."
+        TmcSettings.sense_resistor,
+        0.0,
+        1.0,
+        "Ohm; 0 = the usual board value (TMC2130 0.11, TMC5160 0.075).",
     )
-    run_current: float = number(0.8, 0.0, 20.0, "A rms while moving.", lo_open=True)
-    hold_current: float = number(0.4, 0.0, "run_current", "A rms at standstill.")
-    hold_delay: int = integer(6, 0, 15, "IHOLDDELAY: how gradually run falls to hold current.")
+    run_current: float = number(
+        TmcSettings.run_current, 0.0, 20.0, "A rms while moving.", lo_open=True
+    )
+    hold_current: float = number(
+        TmcSettings.hold_current, 0.0, "run_current", "A rms at standstill."
+    )
+    hold_delay: int = integer(
+        TmcSettings.hold_delay, 0, 15, "IHOLDDELAY: how gradually run falls to hold current."
+    )
     microsteps: int = integer(
-        16,
+        TmcSettings.microsteps,
         1,
         256,
         "Microsteps per full step (a power of two); one step of the protocol is one microstep.",
     )
-    interpolate: bool = boolean(True, "intpol: interpolate to 256 microsteps.")
-    toff: int = integer(3, 1, 15, "CHOPCONF.TOFF (off time); the driver is off only at exit.")
-    hstrt: int = integer(4, 0, 7, "CHOPCONF.HSTRT (hysteresis start).")
-    hend: int = integer(1, 0, 15, "CHOPCONF.HEND (hysteresis end).")
-    tbl: int = integer(2, 0, 3, "CHOPCONF.TBL (blank time).")
-    stealthchop: bool = boolean(False, "en_pwm_mode: stealthChop (stallGuard needs spreadCycle).")
-    tpowerdown: int = integer(10, 0, 255, "TPOWERDOWN: standstill delay before hold current.")
+    interpolate: bool = boolean(TmcSettings.interpolate, "intpol: interpolate to 256 microsteps.")
+    toff: int = integer(
+        TmcSettings.toff, 1, 15, "CHOPCONF.TOFF (off time); the driver is off only at exit."
+    )
+    hstrt: int = integer(TmcSettings.hstrt, 0, 7, "CHOPCONF.HSTRT (hysteresis start).")
+    hend: int = integer(TmcSettings.hend, 0, 15, "CHOPCONF.HEND (hysteresis end).")
+    tbl: int = integer(TmcSettings.tbl, 0, 3, "CHOPCONF.TBL (blank time).")
+    stealthchop: bool = boolean(
+        TmcSettings.stealthchop, "en_pwm_mode: stealthChop (stallGuard needs spreadCycle)."
+    )
+    tpowerdown: int = integer(
+        TmcSettings.tpowerdown, 0, 255, "TPOWERDOWN: standstill delay before hold current."
+    )
     stall_threshold: int = integer(
-        0, -64, 63, "COOLCONF.SGT: stallGuard threshold; higher = less sensitive."
+        TmcSettings.stall_threshold,
+        -64,
+        63,
+        "COOLCONF.SGT: stallGuard threshold; higher = less sensitive.",
     )
-    stall_filter: bool = boolean(False, "COOLCONF.SFILT: filter stallGuard over 4 full steps.")
+    stall_filter: bool = boolean(
+        TmcSettings.stall_filter, "COOLCONF.SFILT: filter stallGuard over 4 full steps."
+    )
     stall_min_speed: float = number(
-        0.0, 0.0, 1e6, "step/s; below it the stall flag is ignored (TCOOLTHRS); 0 = always."
+        TmcSettings.stall_min_speed,
+        0.0,
+        1e6,
+        "step/s; below it the stall flag is ignored (TCOOLTHRS); 0 = always.",
     )
-    clock_hz: float = number(12e6, 4e6, 18e6, "fCLK: 12 MHz internal unless CLK is driven.")
+    clock_hz: float = number(
+        TmcSettings.clock_hz, 4e6, 18e6, "fCLK: 12 MHz internal unless CLK is driven."
+    )
     open_load: str = choice(
-        "fault", ("fault", "warn", "ignore"), "What open load (checked in motion) does."
+        TmcSettings.open_load,
+        ("fault", "warn", "ignore"),
+        "What open load (checked in motion) does.",
     )
-    ref_left_active_low: bool = boolean(False, "ramp mode: REFL is active when low.")
-    ref_right_active_low: bool = boolean(False, "ramp mode: REFR is active when low.")
-    disable_at_exit: bool = boolean(True, "TOFF = 0 when motorctld exits (motor unpowered).")
+    ref_left_active_low: bool = boolean(
+        TmcSpec.ref_left_active_low, "ramp mode: REFL is active when low."
+    )
+    ref_right_active_low: bool = boolean(
+        TmcSpec.ref_right_active_low, "ramp mode: REFR is active when low."
+    )
+    disable_at_exit: bool = boolean(
+        TmcSpec.disable_at_exit, "TOFF = 0 when motorctld exits (motor unpowered)."
+    )
+
+
+#: the keys of [motors.tmc] a TmcSettings holds as they are (its chip and shaft are derived)
+_AS_WRITTEN: Final = tuple(
+    f.name for f in fields(TmcSettings) if f.name not in ("chip", "invert_dir")
+)
 
 
 def _settings(v: TmcAxisConfig, invert_dir: bool) -> TmcSettings:
     return TmcSettings(
         chip=CHIPS[v.driver],
-        sense_resistor=v.sense_resistor,
-        run_current=v.run_current,
-        hold_current=v.hold_current,
-        hold_delay=v.hold_delay,
-        microsteps=v.microsteps,
-        interpolate=v.interpolate,
-        toff=v.toff,
-        hstrt=v.hstrt,
-        hend=v.hend,
-        tbl=v.tbl,
-        stealthchop=v.stealthchop,
-        tpowerdown=v.tpowerdown,
-        stall_threshold=v.stall_threshold,
-        stall_filter=v.stall_filter,
-        stall_min_speed=v.stall_min_speed,
-        clock_hz=v.clock_hz,
         invert_dir=invert_dir and v.mode == "ramp",  # step/dir: the DIR line is inverted
-        open_load=v.open_load,
+        **{name: getattr(v, name) for name in _AS_WRITTEN},
     )
 
 
@@ -219,10 +250,16 @@ class SpidevConfig:
     """[spidev]: how the TMC5160 ramp executor watches its chips."""
 
     ramp_poll_ms: float = number(
-        5.0, 0.5, 1000.0, "ramp mode: XACTUAL/RAMP_STAT poll period while a motor moves."
+        RampDriver.poll_s * 1e3,
+        0.5,
+        1000.0,
+        "ramp mode: XACTUAL/RAMP_STAT poll period while a motor moves.",
     )
     ramp_idle_poll_ms: float = number(
-        50.0, 1.0, 10000.0, "ramp mode: the same at rest (GetAbsPos reads the last poll)."
+        RampDriver.idle_poll_s * 1e3,
+        1.0,
+        10000.0,
+        "ramp mode: the same at rest (GetAbsPos reads the last poll).",
     )
 
 

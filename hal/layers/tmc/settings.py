@@ -12,12 +12,13 @@ from dataclasses import dataclass
 
 from motorctl.hal.layers.tmc.fields import Chip, F, Reg, mres_of, tstep_for
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
-from motorctl.hal.spec import DriverSpec
+from motorctl.hal.spec import AxisSpec, DriverSpec
 
 
 @dataclass(frozen=True)
 class TmcSettings:
-    """One driver's configuration: plain values, checked by the config schema."""
+    """One driver's configuration: plain values, checked by the config schema. The defaults
+    are [motors.tmc]'s: config.py declares each key with the default written here."""
 
     chip: Chip = TMC2130  # tmc2130.TMC2130 or tmc5160.TMC5160
     sense_resistor: float = 0.0  # ohm; 0 = the chip's usual board value
@@ -36,7 +37,7 @@ class TmcSettings:
     stall_filter: bool = False
     stall_min_speed: float = 0.0  # step/s below which the stall flag is ignored (TCOOLTHRS)
     clock_hz: float = 12e6  # fCLK: the internal clock unless CLK is driven
-    invert_dir: bool = False  # GCONF.shaft (used by the ramp generator)
+    invert_dir: bool = AxisSpec.invert_dir  # GCONF.shaft (used by the ramp generator)
     open_load: str = "fault"  # "fault", "warn" or "ignore"
 
     @property
@@ -75,7 +76,8 @@ def register_values(s: TmcSettings) -> dict[int, int]:
 
 @dataclass(frozen=True)
 class TmcSpec(DriverSpec):
-    """What the TMC layer needs to open one motor's driver: where, how fast, how configured."""
+    """What the TMC layer needs to open one motor's driver: where, how fast, how configured
+    (the defaults, as :class:`TmcSettings`'s, are [motors.tmc]'s)."""
 
     spi: str  # "/dev/spidevB.C"
     settings: TmcSettings

@@ -195,7 +195,7 @@ class RampUnits:
     resolution (one step = what one STEP pulse would move).
     """
 
-    clock_hz: float = 12e6
+    clock_hz: float  # fCLK: the [motors.tmc] clock_hz of the chip
 
     VMAX_MAX: Final = (1 << 23) - 512
     AMAX_MAX: Final = (1 << 16) - 1
@@ -266,8 +266,8 @@ class Tmc5160(TmcDriver, RampDriver):
         settings: TmcSettings,
         switches: RefSwitches | None = None,
         *,
-        poll_s: float = 0.005,
-        idle_poll_s: float = 0.05,
+        poll_s: float = RampDriver.poll_s,
+        idle_poll_s: float = RampDriver.idle_poll_s,
         known: Iterable[Chip] = (),
     ) -> None:
         if settings.chip is not TMC5160:

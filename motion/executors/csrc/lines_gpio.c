@@ -11,7 +11,11 @@
  *   the pending events of the ready ones: v2 struct gpio_v2_line_event (the line's offset
  *   in it), v1 struct gpioevent_data (one line per request). Their kernel timestamps are
  *   CLOCK_MONOTONIC, the core's clock.
- * A failing call is a HalIOError of the backend's wording (the core's FAULT text). */
+ * A failing call is a HalIOError of the backend's wording (the core's FAULT text).
+ *
+ * Hardware edge code kept beside the core it is compiled into (one extension, called per
+ * edge with no Python between), not under hal/backends/gpiod: the backend owns the lines and
+ * what they are, this file only drives them (docs/timing.md, "The compiled step core"). */
 #include <errno.h>
 #include <linux/gpio.h>
 #include <poll.h>

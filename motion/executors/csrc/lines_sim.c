@@ -13,7 +13,10 @@
  * timeline is kept here (bounded as the world's) and handed to the world's Timeline by
  * the Python side (motion/executors/compiled_core.py), with the number of the rise call of
  * each step (which motors shared a pulse). Errors injected into the world's lines (inject_line_error)
- * come as texts per axis: a write to such a line fails as the mock's does. */
+ * come as texts per axis: a write to such a line fails as the mock's does.
+ *
+ * Kept beside the core it is compiled into, not under hal/backends/mock, as lines_gpio.c
+ * (docs/timing.md, "The compiled step core"). */
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>

@@ -50,6 +50,7 @@ from motorctl.motion.executors.process.rings import (
     READY_CELL,
     REALTIME,
     RUN_CELL,
+    STEP_CORES,
     Layout,
     Ring,
     Shared,
@@ -191,7 +192,7 @@ def run_child(
     coalesce_s: float,
     wake_fd: int,
     event_fd: int,
-    core: str = "auto",
+    core: str,
     title_note: str = "",
 ) -> None:
     """The executor process: real-time set-up, own lines, then the step loop on the step
@@ -318,7 +319,7 @@ def choose_core(wanted: str, io: StepIO) -> tuple[str | None, str]:
     the process cannot start, the note says why)."""
     if wanted == "python":
         return "python", 'as [step_thread] core = "python" asks'
-    if wanted not in ("auto", "compiled"):
+    if wanted not in STEP_CORES:
         return None, f"[step_thread] core = {wanted!r}: no such step core"
     from motorctl.motion.executors import compiled_core
 

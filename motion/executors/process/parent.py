@@ -39,13 +39,14 @@ from motorctl.hal.interfaces import HalError, Hardware
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind, ExecutorHealth
-from motorctl.motion.executors.planner import StepExecutor
+from motorctl.motion.executors.planner import AHEAD_S, StepExecutor
 from motorctl.motion.executors.process.rings import (
     CORE_CELL,
     CORES,
     EXIT_NO_CORE,
     READY_CELL,
     RUN_CELL,
+    STEP_CORES,
     Layout,
     Shared,
     decode_event,
@@ -53,8 +54,8 @@ from motorctl.motion.executors.process.rings import (
 )
 from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES
-from motorctl.motion.latency import CELLS, LatencyStats
+from motorctl.motion.executors.step_core import COUNTER_NAMES, SPIN_S
+from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, RealtimeReport
 
 log = logging.getLogger("motorctl.executor")
@@ -70,15 +71,15 @@ class ProcessStepExecutor(StepExecutor):
         spec: HardwareSpec,
         limits: Sequence[AxisLimits],
         *,
-        ahead_s: float = 0.05,
+        ahead_s: float = AHEAD_S,
         lead_s: float = 0.003,
         max_error_s: float = 5e-6,
-        spin_s: float = 200e-6,
-        late_threshold_s: float = 100e-6,
+        spin_s: float = SPIN_S,
+        late_threshold_s: float = LATE_THRESHOLD_S,
         rt: RealtimeOptions | None = None,
         start_timeout_s: float = 30.0,
         process: WaitingInterpreter | None = None,
-        core: str = "auto",
+        core: str = STEP_CORES[0],
     ) -> None:
         """``process``: an executor process started earlier (``daemon/launch.py``), else
         one is started here. ``core``: the step core it runs, "auto" (the compiled one where

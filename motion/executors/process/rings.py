@@ -71,7 +71,7 @@ from __future__ import annotations
 
 import struct
 import zlib
-from typing import Any
+from typing import Any, Final
 
 from motorctl.hal.shm import SharedBlock
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, from_ticks, to_ticks
@@ -94,6 +94,8 @@ RUN_CELL, READY_CELL, PID_CELL, CORE_CELL = 0, 1, 2, 3
 HEADER_CELLS = 8
 #: the CORE_CELL's values: which step core the child runs (0: not yet known)
 CORES = ("", "python", "compiled")
+#: the step cores [step_thread] core may ask for; the first is its default
+STEP_CORES: Final = ("auto", "compiled", "python")
 #: bytes of the child's note to the daemon: why it runs the Python core, or cannot start
 NOTE = 256
 #: bytes of the child's real-time report (JSON, NUL-padded): what it asked for and got

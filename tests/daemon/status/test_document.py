@@ -251,3 +251,27 @@ def test_systemds_status_line_says_the_device_is_gone() -> None:
     assert summary_line({"motors": [], "link": link}).endswith(
         "; WAITING FOR SERIAL DEVICE /dev/ttyUSB0 (not there yet)"
     )
+
+
+def test_the_step_executors_kind_is_asked_of_the_executor_not_its_class() -> None:
+    """``executor.kind`` is "none" where no executor times STEP edges, whatever the
+    executor's class (a split of ramp chips only, too); the status imports no concrete
+    executor (its room knows an executor by the contract of motion/executors/base.py)."""
+    from motorctl.daemon.config import parse_config
+    from motorctl.daemon.status.document import step_executor_kind
+    from motorctl.motion.executors.split import SplitExecutor
+    from tests.support import REPO
+    from tests.support.executors import RampRig, RecordingExecutor
+
+    config = parse_config('[step_thread]\nexecutor = "thread"\n[[motors]]\n', "test")
+    rig = RampRig()
+    assert step_executor_kind(config, rig.ex) == "none"
+    assert step_executor_kind(config, SplitExecutor([(rig.ex, 0)])) == "none"
+    both = SplitExecutor([(rig.ex, 0), (RecordingExecutor(1), 0)])
+    assert step_executor_kind(config, both) == "thread"
+    rig.ex.close()
+    for path in sorted((REPO / "daemon" / "status").glob("*.py")):
+        source = path.read_text(encoding="utf-8")
+        assert "motorctl.motion.executors." not in source.replace(
+            "motorctl.motion.executors.base", ""
+        ), path.name

@@ -175,3 +175,12 @@ def test_a_machine_of_ramp_motors_only_has_no_step_executor() -> None:
         with_ramp_motors(None, [rig.chips[0], object()], rig.clock)
     split = with_ramp_motors(RecordingExecutor(1), [rig.chips[0], object()], rig.clock)
     assert isinstance(split, SplitExecutor) and split.routes[1][1] == 0  # its own numbering
+
+
+def test_a_split_times_steps_when_a_part_does() -> None:
+    rig = RampRig()
+    steps = RecordingExecutor(1)
+    assert rig.ex.times_steps is False and steps.times_steps is True
+    assert SplitExecutor([(rig.ex, 0)]).times_steps is False
+    assert SplitExecutor([(rig.ex, 0), (steps, 0)]).times_steps is True
+    rig.ex.close()
