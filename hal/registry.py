@@ -75,12 +75,17 @@ BACKENDS: dict[str, Entry] = {
     ),
 }
 
-#: "tmc": TMC2130/TMC5160 driver chips over /dev/spidevB.C
+#: "tmc": TMC2130/TMC5160 driver chips over /dev/spidevB.C; "dspin": ST dSPIN chains on it
 LAYERS: dict[str, Entry] = {
     "tmc": Entry(
         "motorctl.hal.layers.tmc.config:TmcDeclaration",
         "motorctl.hal.layers.tmc.layer:TmcLayer",
         "a complete motorctl install (py-spidev is imported only when a driver opens)",
+    ),
+    "dspin": Entry(
+        "motorctl.hal.layers.dspin.config:DspinDeclaration",
+        "motorctl.hal.layers.dspin.layer:DspinLayer",
+        "a complete motorctl install (py-spidev is imported only when a chain opens)",
     ),
 }
 

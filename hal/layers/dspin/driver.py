@@ -1,0 +1,340 @@
+"""The dSPIN chips of a motorctl machine: a chain on its SPI bus (:class:`Chain`) and each
+chip's driver (:class:`DspinDriver`): its start-up, its STATUS as the HAL's driver poller
+reads it, and the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability (the chip
+runs its own ramps: GoTo_DIR, Run, GoUntil, ReleaseSW, SoftStop, HardStop).
+
+**GetStatus clears the latched flags** (UVLO, thermal, OCD, STEP_LOSS, SW_EVN, the command
+errors), so every GetStatus of a chip goes through :meth:`DspinDriver.took`, which keeps
+what it read until its reader takes it: the faults until the driver poller's next reading
+reports them (E4), SW_EVN until the ramp's next read (an end stop). The poller reads every
+chip of a chain in one exchange (:meth:`Chain.poll`); the executor's reads use GetParam,
+which clears nothing, except :meth:`DspinDriver.watch`, which starts a motion with the
+switch's old event gone (a GetStatus, its faults kept for the poller).
+
+Units: positions are ABS_POS (microsteps, one protocol step each), speeds step/s and
+ramps step/s^2 of the protocol, converted to the registers by ``convert.py`` (clamped,
+never refused; the clamps are counted in ``clamped``).
+
+Threads: :func:`start_chain` runs on the thread that opens the hardware. Afterwards two
+threads talk to a chain: the driver poller (``Chain.poll``) and the planner (the ramp
+calls, with the engine's lock held); each exchange holds the bus's lock (hal/spi.py), and a
+driver's kept flags are behind its own lock. :meth:`DspinDriver.status` and ``stats`` read
+snapshots without I/O, from any thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from motorctl.hal.dspin.chips import Chip
+from motorctl.hal.dspin.commands import (
+    FORWARD,
+    REVERSE,
+    Command,
+    Op,
+    get_param,
+    go_to_dir,
+    go_until,
+    release_sw,
+    run,
+    set_param,
+    simple,
+)
+from motorctl.hal.dspin.spec import DspinSpec
+from motorctl.hal.dspin.status import MotorState, Status
+from motorctl.hal.interfaces import DriverStatus, HalError, RampDriver, RampStatus, StepperDriver
+from motorctl.hal.layers.dspin import chain as framing
+from motorctl.hal.layers.dspin import convert
+from motorctl.hal.spi import SpiBus, SpiError
+
+log = logging.getLogger("motorctl.dspin")
+
+#: ACT of GoUntil and ReleaseSW: ABS_POS copied to MARK (the position stays continuous;
+#: the motor's zero is set where MARK says, docs/protocol.md's homing rule)
+COPY_TO_MARK = 1
+#: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
+ALARMS_BUT_SWITCH = 0xFF & ~(1 << 6)
+
+
+class DspinError(HalError):
+    """A dSPIN chip is not what the config says, or refused its set-up; the message names
+    the chip, its chain and the fix."""
+
+
+class Chain:
+    """The chips on one chip select: ``length`` of them on ``bus``."""
+
+    def __init__(self, bus: SpiBus, length: int) -> None:
+        self.bus = bus
+        self.length = length
+        self.drivers: list[DspinDriver] = []
+
+    def exchange(self, commands: Mapping[int, Command]) -> dict[int, int]:
+        """Send ``commands`` (chip -> command) together; each answering chip's value."""
+        ex = framing.exchange(self.length, commands)
+        return ex.values(self.bus.xfer_many(ex.transfers))
+
+    def send(self, chip: int, commands: Sequence[Command]) -> None:
+        """``commands`` for chip ``chip``, in order, in one sequence of transfers that no
+        other exchange on the bus comes between (none of them answers)."""
+        data = b"".join(c.encode() for c in commands)
+        self.bus.xfer_many(framing.frame(self.length, {chip: data}))
+
+    def poll(self) -> list[tuple[StepperDriver, DriverStatus]]:
+        """The driver poller's read: one GetStatus of every chip in one exchange."""
+        try:
+            words = self.exchange({d.position: simple(Op.GET_STATUS) for d in self.drivers})
+        except SpiError as exc:
+            return [(d, d.failed(exc)) for d in self.drivers]
+        return [(d, d.took(Status(d.chip.status, words[d.position]))) for d in self.drivers]
+
+
+@dataclass
+class _Kept:
+    """What a GetStatus read that its readers have not taken yet."""
+
+    faults: set[str] = field(default_factory=set)
+    switch_event: bool = False
+
+
+class DspinDriver(StepperDriver, RampDriver):
+    """One chip of a chain: the motor's driver and its ramp."""
+
+    def __init__(self, name: str, spec: DspinSpec, chain: Chain, poll_s: float, idle_s: float):
+        self.name = name
+        self.spec = spec
+        self.chip: Chip = spec.model
+        self.position = spec.position
+        self.chain = chain
+        self.microsteps = spec.steps_per_full
+        self.poll_s = poll_s
+        self.idle_poll_s = idle_s
+        self._lock = threading.Lock()
+        self._kept = _Kept()
+        self._status = DriverStatus()
+        self._watch = 0  # the switch side armed to stop the motion (+1, -1, 0)
+        self._release = 0  # the side whose release ends it
+        self._until = False  # the motion is a GoUntil: MARK latches the switch's edge
+        self._settled = False  # the chip ended the motion short of its target on purpose
+        self._limit: int | None = None  # a ReleaseSW's farthest position
+        self.polls = 0
+        self.spi_errors = 0
+        self.clamped = 0
+        self.fault_counts: dict[str, int] = {}
+        self.warning_counts: dict[str, int] = {}
+        self.last_status: Status | None = None
+
+    # -- the bus ---------------------------------------------------------------------------
+    def _get(self, register: str) -> int:
+        reg = self.chip.registers[register]
+        return self.chain.exchange({self.position: get_param(reg)})[self.position]
+
+    def _send(self, *commands: Command) -> None:
+        self.chain.send(self.position, commands)
+
+    def _set(self, values: Mapping[str, int]) -> list[Command]:
+        return [set_param(self.chip.registers[n], v) for n, v in values.items()]
+
+    # -- start-up --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Check the chip and set it up, bridges in HiZ: the latched power-up flags read and
+        cleared, CONFIG compared with the model's reset value, then STEP_MODE, CONFIG, the
+        configured registers and ALARM_EN written and read back."""
+        where = f"{self.name}: the {self.chip.name} at position {self.position} of the chain "
+        where += f"on {self.chain.bus.path}"
+        word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+        config = self._get("CONFIG")
+        if config != self.chip.config.reset:
+            raise DspinError(
+                f"{where} reads CONFIG 0x{config:04X}, not the {self.chip.name}'s 0x"
+                f"{self.chip.config.reset:04X} (STATUS 0x{word:04X}): check [motors.dspin] "
+                "driver and position (position 0 is the chip at MOSI) and the chain's wiring"
+            )
+        wanted = {
+            "STEP_MODE": self.chip.step_mode(self.microsteps),
+            "CONFIG": self.chip.config.reset or 0,  # SW_MODE 0: the switch hard-stops
+            **dict(self.spec.registers),
+            "ALARM_EN": ALARMS_BUT_SWITCH,
+        }
+        self._send(simple(Op.HARD_HIZ), *self._set(wanted))
+        for name, value in wanted.items():
+            got = self._get(name)
+            if got != value:
+                raise DspinError(
+                    f"{where}: {name} reads 0x{got:X} after 0x{value:X} was written; check "
+                    "the chain's wiring (SDO to the next SDI) and its supply"
+                )
+        # the power-up UVLO (and whatever the set-up latched) is gone with this read
+        self.chain.exchange({self.position: simple(Op.GET_STATUS)})
+
+    def close(self) -> None:
+        """Leave the bridges off (HiZ) where so configured, the motor stopped."""
+        try:
+            self._send(simple(Op.HARD_HIZ if self.spec.hiz_at_exit else Op.HARD_STOP))
+        except SpiError as exc:
+            log.error("%s: could not stop the chip at exit: %s", self.name, exc)
+
+    # -- the status (the driver poller) ---------------------------------------------------
+    def took(self, st: Status) -> DriverStatus:
+        """A GetStatus's word: keep its latched news for their readers and make the
+        driver's status of what it says (the poller's reading)."""
+        self.polls += 1
+        self.last_status = st
+        faults = set(st.faults) | {f"{e} (the chip refused a command)" for e in st.command_errors}
+        for w in st.warnings:
+            self.warning_counts[w] = self.warning_counts.get(w, 0) + 1
+            log.warning("%s: %s", self.name, w)
+        with self._lock:
+            kept = self._kept
+            kept.faults |= faults
+            kept.switch_event |= st.switch_event
+        return self.status()
+
+    def failed(self, exc: BaseException) -> DriverStatus:
+        self.spi_errors += 1
+        with self._lock:
+            self._kept.faults.add(f"SPI: {exc}")
+        return self.status()
+
+    def refresh(self) -> DriverStatus:
+        return self.status()  # the chain's poll reads it (Chain.poll)
+
+    def status(self) -> DriverStatus:
+        """The faults read since the last status was taken, then none: the chip latches a
+        fault until a GetStatus finds it gone, so each one is reported once at least."""
+        with self._lock:
+            faults, self._kept.faults = sorted(self._kept.faults), set()
+        for f in faults:
+            self.fault_counts[f] = self.fault_counts.get(f, 0) + 1
+        if faults:
+            self._status = DriverStatus(fault=f"{self.chip.name}: {', '.join(faults)}")
+        else:
+            self._status = DriverStatus()
+        return self._status
+
+    def stats(self) -> dict[str, object]:
+        return {
+            "chip": self.chip.name,
+            "device": self.chain.bus.path,
+            "chain_position": self.position,
+            "polls": self.polls,
+            "spi_errors": self.spi_errors,
+            "clamped": self.clamped,
+            "fault_counts": dict(self.fault_counts),
+            "warning_counts": dict(self.warning_counts),
+            "status": None if self.last_status is None else str(self.last_status),
+        }
+
+    # -- the ramp (RampDriver) -------------------------------------------------------------
+    def _read(self) -> tuple[int, int, Status]:
+        regs = self.chip.registers
+        got = {}
+        for name in ("ABS_POS", "SPEED", "STATUS"):
+            got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
+        return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
+
+    def ramp_status(self) -> RampStatus:
+        try:
+            pos, speed, st = self._read()
+        except SpiError as exc:
+            raise DspinError(f"{self.name}: {exc}") from exc
+        with self._lock:
+            event = self._kept.switch_event or st.switch_event
+        standing = st.motor is MotorState.STOPPED
+        if self._limit is not None and st.switch_closed and not standing:
+            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
+            if beyond:  # ReleaseSW ran its whole way: the switch never opened
+                self._send(simple(Op.HARD_STOP))
+                self._settled, self._limit = True, None
+        velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
+        side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
+        stopped = bool(side and self._watch == side and event and standing)
+        released = bool(side and self._release == side and not st.switch_closed and standing)
+        latched = (stopped and self._until) or released
+        return RampStatus(
+            position=pos,
+            velocity=0.0 if standing else velocity,
+            active_min=side < 0 and st.switch_closed,
+            active_max=side > 0 and st.switch_closed,
+            stopped_min=side < 0 and stopped,
+            stopped_max=side > 0 and stopped,
+            latched_min=side < 0 and latched,
+            latched_max=side > 0 and latched,
+            settled=self._settled and standing,
+        )
+
+    def latched_position(self) -> int:
+        return self._get("MARK")
+
+    def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
+        del stall  # stall homing on STEP_LOSS is not offered: the config refuses it
+        word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+        self.took(Status(self.chip.status, word))  # its faults stay for the poller
+        with self._lock:
+            self._kept.switch_event = False
+        self._watch, self._release = direction, release
+        self._until = self._settled = False
+        self._limit = None
+
+    def _ramps(self, acc: float, dec: float, standing: bool) -> dict[str, int]:
+        if not standing:  # ACC and DEC are writable only while the motor stands
+            return {}
+        a, d = convert.ramp(acc, self.microsteps), convert.ramp(dec, self.microsteps)
+        self.clamped += a.clamped + d.clamped
+        return {"ACC": a.register, "DEC": d.register}
+
+    def _standing(self) -> tuple[int, Status]:
+        word = self._get("STATUS")
+        return self._get("ABS_POS"), Status(self.chip.status, word)
+
+    def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
+        try:
+            convert.check_position(target, f"{self.name}: target")
+        except convert.OutOfRange as exc:
+            raise DspinError(str(exc)) from exc
+        pos, st = self._standing()
+        standing = st.motor is MotorState.STOPPED
+        top = convert.max_speed(speed, self.microsteps)
+        self.clamped += top.clamped
+        if self._release:  # homing's back-off: ReleaseSW at MIN_SPEED to where it opens
+            low = convert.min_speed(speed, self.microsteps)
+            direction = FORWARD if self._release < 0 else REVERSE
+            self._limit = target
+            self._send(
+                *self._set({"MIN_SPEED": low.register, **self._ramps(acc, dec, standing)}),
+                release_sw(COPY_TO_MARK, direction),
+            )
+            return
+        if st.busy and not standing:  # GoTo while BUSY is refused: a stop along DEC
+            self._settled = True
+            self._send(simple(Op.SOFT_STOP))
+            return
+        direction = FORWARD if target >= pos else REVERSE
+        settings = {"MAX_SPEED": top.register, **self._ramps(acc, dec, standing)}
+        self._send(*self._set(settings), go_to_dir(direction, target))
+
+    def run(self, direction: int, speed: float, acc: float) -> None:
+        _, st = self._standing()
+        standing = st.motor is MotorState.STOPPED
+        spd = convert.run_speed(speed, self.microsteps)
+        top = convert.max_speed(speed, self.microsteps)
+        self.clamped += spd.clamped + top.clamped
+        top_reg = min(top.register + 1, 0x3FF)  # MAX_SPEED caps Run: just above SPD
+        settings = {"MAX_SPEED": top_reg, **self._ramps(acc, acc, standing)}
+        side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
+        way = FORWARD if direction > 0 else REVERSE
+        if side and self._watch == side == direction:
+            self._until = True  # to the switch: MARK takes ABS_POS at its edge
+            self._send(*self._set(settings), go_until(COPY_TO_MARK, way, spd.register))
+        else:
+            self._send(*self._set(settings), run(way, spd.register))
+
+    def stop(self, dec: float | None) -> None:
+        self._limit = None
+        self._send(simple(Op.HARD_STOP if dec is None else Op.SOFT_STOP))
+
+    def report_stall_stop(self) -> bool:
+        return False
