@@ -55,6 +55,8 @@ log = logging.getLogger("motorctl.dspin")
 #: ACT of GoUntil and ReleaseSW: ABS_POS copied to MARK (the position stays continuous;
 #: the motor's zero is set where MARK says, docs/protocol.md's homing rule)
 COPY_TO_MARK = 1
+#: the flags that say the chip refused a command
+_REFUSED = ("WRONG_CMD", "NOTPERF_CMD", "CMD_ERROR")
 #: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
 ALARMS_BUT_SWITCH = 0xFF & ~(1 << 6)
 
@@ -96,7 +98,8 @@ class Chain:
 class _Kept:
     """What a GetStatus read that its readers have not taken yet."""
 
-    faults: set[str] = field(default_factory=set)
+    faults: set[str] = field(default_factory=set)  # the flags' names
+    spi: str | None = None  # a failed read
     switch_event: bool = False
 
 
@@ -179,40 +182,46 @@ class DspinDriver(StepperDriver, RampDriver):
 
     # -- the status (the driver poller) ---------------------------------------------------
     def took(self, st: Status) -> DriverStatus:
-        """A GetStatus's word: keep its latched news for their readers and make the
-        driver's status of what it says (the poller's reading)."""
+        """A GetStatus's word: keep its latched news for their readers; the driver
+        poller's reading (the faults kept since its last one)."""
         self.polls += 1
         self.last_status = st
-        faults = set(st.faults) | {f"{e} (the chip refused a command)" for e in st.command_errors}
+        self._keep(st)
+        return self._publish()
+
+    def _keep(self, st: Status) -> None:
         for w in st.warnings:
             self.warning_counts[w] = self.warning_counts.get(w, 0) + 1
             log.warning("%s: %s", self.name, w)
         with self._lock:
-            kept = self._kept
-            kept.faults |= faults
-            kept.switch_event |= st.switch_event
-        return self.status()
+            self._kept.faults |= {*st.faults, *st.command_errors}
+            self._kept.switch_event |= st.switch_event
 
     def failed(self, exc: BaseException) -> DriverStatus:
         self.spi_errors += 1
         with self._lock:
-            self._kept.faults.add(f"SPI: {exc}")
-        return self.status()
+            self._kept.spi = f"SPI: {exc}"
+        return self._publish()
 
-    def refresh(self) -> DriverStatus:
-        return self.status()  # the chain's poll reads it (Chain.poll)
-
-    def status(self) -> DriverStatus:
-        """The faults read since the last status was taken, then none: the chip latches a
+    def _publish(self) -> DriverStatus:
+        """The faults kept since the last reading, now this reading's: the chip latches a
         fault until a GetStatus finds it gone, so each one is reported once at least."""
         with self._lock:
-            faults, self._kept.faults = sorted(self._kept.faults), set()
-        for f in faults:
-            self.fault_counts[f] = self.fault_counts.get(f, 0) + 1
-        if faults:
-            self._status = DriverStatus(fault=f"{self.chip.name}: {', '.join(faults)}")
-        else:
-            self._status = DriverStatus()
+            names, spi = sorted(self._kept.faults), self._kept.spi
+            self._kept.faults, self._kept.spi = set(), None
+        for name in names:
+            self.fault_counts[name] = self.fault_counts.get(name, 0) + 1
+        said = [f"{n} (the chip refused a command)" if n in _REFUSED else n for n in names]
+        if spi is not None:
+            said.append(spi)
+        self._status = DriverStatus(fault=f"{self.chip.name}: {', '.join(said)}" if said else None)
+        return self._status
+
+    def refresh(self) -> DriverStatus:
+        return self._status  # the chain's poll reads every chip at once (Chain.poll)
+
+    def status(self) -> DriverStatus:
+        """The last reading's verdict (no I/O, takes nothing)."""
         return self._status
 
     def stats(self) -> dict[str, object]:
@@ -272,7 +281,7 @@ class DspinDriver(StepperDriver, RampDriver):
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
         del stall  # stall homing on STEP_LOSS is not offered: the config refuses it
         word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
-        self.took(Status(self.chip.status, word))  # its faults stay for the poller
+        self._keep(Status(self.chip.status, word))  # its faults stay for the poller
         with self._lock:
             self._kept.switch_event = False
         self._watch, self._release = direction, release
