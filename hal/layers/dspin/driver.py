@@ -30,31 +30,19 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
 from motorctl.hal.dspin.chips import Chip
-from motorctl.hal.dspin.commands import (
-    FORWARD,
-    REVERSE,
-    Command,
-    Op,
-    get_param,
-    go_to_dir,
-    go_until,
-    release_sw,
-    run,
-    set_param,
-    simple,
-)
+from motorctl.hal.dspin.commands import COPY_TO_MARK, Command, Op, get_param, set_param, simple
 from motorctl.hal.dspin.spec import DspinSpec
 from motorctl.hal.dspin.status import MotorState, Status
 from motorctl.hal.interfaces import DriverStatus, HalError, RampDriver, RampStatus, StepperDriver
 from motorctl.hal.layers.dspin import chain as framing
-from motorctl.hal.layers.dspin import convert
+from motorctl.hal.layers.dspin import convert, program
 from motorctl.hal.spi import SpiBus, SpiError
 
 log = logging.getLogger("motorctl.dspin")
 
 #: ACT of GoUntil and ReleaseSW: ABS_POS copied to MARK (the position stays continuous;
 #: the motor's zero is set where MARK says, docs/protocol.md's homing rule)
-COPY_TO_MARK = 1
+MARK = COPY_TO_MARK
 #: the flags that say the chip refused a command
 _REFUSED = ("WRONG_CMD", "NOTPERF_CMD", "CMD_ERROR")
 #: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
@@ -288,62 +276,47 @@ class DspinDriver(StepperDriver, RampDriver):
         self._until = self._settled = False
         self._limit = None
 
-    def _ramps(self, acc: float, dec: float, standing: bool) -> dict[str, int]:
-        if not standing:  # ACC and DEC are writable only while the motor stands
-            return {}
-        a, d = convert.ramp(acc, self.microsteps), convert.ramp(dec, self.microsteps)
-        self.clamped += a.clamped + d.clamped
-        return {"ACC": a.register, "DEC": d.register}
+    def _standing(self) -> tuple[int, bool, bool]:
+        """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
+        nothing)."""
+        st = Status(self.chip.status, self._get("STATUS"))
+        return self._get("ABS_POS"), st.motor is MotorState.STOPPED, st.busy
 
-    def _standing(self) -> tuple[int, Status]:
-        word = self._get("STATUS")
-        return self._get("ABS_POS"), Status(self.chip.status, word)
+    def _do(self, p: program.Program) -> None:
+        self.clamped += len(p.clamped)
+        self._send(*p.commands)
 
     def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
-        try:
-            convert.check_position(target, f"{self.name}: target")
-        except convert.OutOfRange as exc:
-            raise DspinError(str(exc)) from exc
-        pos, st = self._standing()
-        standing = st.motor is MotorState.STOPPED
-        top = convert.max_speed(speed, self.microsteps)
-        self.clamped += top.clamped
+        pos, standing, busy = self._standing()
         if self._release:  # homing's back-off: ReleaseSW at MIN_SPEED to where it opens
-            low = convert.min_speed(speed, self.microsteps)
-            direction = FORWARD if self._release < 0 else REVERSE
             self._limit = target
-            self._send(
-                *self._set({"MIN_SPEED": low.register, **self._ramps(acc, dec, standing)}),
-                release_sw(COPY_TO_MARK, direction),
-            )
+            self._do(program.release(self.chip, self.microsteps, self._release > 0, speed, MARK))
             return
-        if st.busy and not standing:  # GoTo while BUSY is refused: a stop along DEC
+        if busy and not standing:  # GoTo while BUSY is refused: a stop along DEC
             self._settled = True
-            self._send(simple(Op.SOFT_STOP))
+            self._do(program.stop(hard=False))
             return
-        direction = FORWARD if target >= pos else REVERSE
-        settings = {"MAX_SPEED": top.register, **self._ramps(acc, dec, standing)}
-        self._send(*self._set(settings), go_to_dir(direction, target))
+        try:
+            p = program.move_to(
+                self.chip, self.microsteps, pos, target, speed, acc, dec, at_rest=standing
+            )
+        except convert.OutOfRange as exc:
+            raise DspinError(f"{self.name}: {exc}") from exc
+        self._do(p)
 
     def run(self, direction: int, speed: float, acc: float) -> None:
-        _, st = self._standing()
-        standing = st.motor is MotorState.STOPPED
-        spd = convert.run_speed(speed, self.microsteps)
-        top = convert.max_speed(speed, self.microsteps)
-        self.clamped += spd.clamped + top.clamped
-        top_reg = min(top.register + 1, 0x3FF)  # MAX_SPEED caps Run: just above SPD
-        settings = {"MAX_SPEED": top_reg, **self._ramps(acc, acc, standing)}
+        _, standing, _ = self._standing()
+        up = direction > 0
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
-        way = FORWARD if direction > 0 else REVERSE
-        if side and self._watch == side == direction:
-            self._until = True  # to the switch: MARK takes ABS_POS at its edge
-            self._send(*self._set(settings), go_until(COPY_TO_MARK, way, spd.register))
-        else:
-            self._send(*self._set(settings), run(way, spd.register))
+        if side and self._watch == side == direction:  # to the switch: MARK at its edge
+            self._until = True
+            self._do(program.home(self.chip, self.microsteps, up, speed, acc, acc, standing, MARK))
+            return
+        self._do(program.move(self.chip, self.microsteps, up, speed, acc, acc, speed, standing))
 
     def stop(self, dec: float | None) -> None:
         self._limit = None
-        self._send(simple(Op.HARD_STOP if dec is None else Op.SOFT_STOP))
+        self._do(program.stop(hard=dec is None))
 
     def report_stall_stop(self) -> bool:
         return False
