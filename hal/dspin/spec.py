@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from motorctl.hal.dspin.chips import CHIPS, Chip
+from motorctl.hal.dspin.registers import ABS_POS_BITS
 from motorctl.hal.spec import DriverSpec, HardwareSpec
 
 #: the sides the chip's SW input can be wired to (``none``: no switch on SW)
@@ -41,6 +42,11 @@ class DspinSpec(DriverSpec):
     @property
     def microsteps(self) -> int | None:
         return self.steps_per_full
+
+    @property
+    def counter_range(self) -> tuple[int, int] | None:
+        """ABS_POS: 22 bits of microsteps, two's complement."""
+        return -(1 << (ABS_POS_BITS - 1)), (1 << (ABS_POS_BITS - 1)) - 1
 
     @property
     def model(self) -> Chip:

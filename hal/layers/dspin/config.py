@@ -183,6 +183,23 @@ def _widths(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+def _soft_limits(v: Mapping[str, Any]) -> Violation | None:
+    d = v["dspin"]
+    if d is None:
+        return None
+    lo, hi = DspinSpec(d.spi, d.position, d.driver, d.microsteps).counter_range or (0, 0)
+    for key in ("soft_limit_min", "soft_limit_max"):
+        limit = v[key]
+        if limit is not None and not lo <= limit <= hi:
+            return (
+                key,
+                limit,
+                f"beyond the dSPIN's ABS_POS ({lo}..{hi}, 22 bits of microsteps): the chip "
+                "cannot count to it",
+            )
+    return None
+
+
 def _not_tmc_too(v: Mapping[str, Any]) -> Violation | None:
     if v["dspin"] is not None and v.get("tmc") is not None:
         return ("dspin", "[motors.dspin]", "the motor also has a [motors.tmc]: one driver chip")
@@ -269,6 +286,11 @@ class DspinDeclaration(LayerDeclaration):
                         _widths,
                     ),
                     Rule(("dspin",), "not with [motors.tmc] on the same motor", _not_tmc_too),
+                    Rule(
+                        ("soft_limit_min", "soft_limit_max", "dspin"),
+                        "within ABS_POS's -2097152..2097151 on a dSPIN motor",
+                        _soft_limits,
+                    ),
                 ),
             ),
             Extension(

@@ -72,6 +72,10 @@ def error_of(text: str) -> str:
             "motors[1].dspin.spi_speed_hz = 2000000: motors[0] on the same chain",
         ),
         (('driver = "l6480"', 'driver = "l6666"'), "motors[1].dspin.driver"),
+        (
+            ('name = "x"\n', 'name = "x"\nsoft_limit_min = -3000000\nsoft_limit_max = 10\n'),
+            "motors[0].soft_limit_min = -3000000: beyond the dSPIN's ABS_POS",
+        ),
     ],
 )
 def test_a_config_the_chips_cannot_take_is_refused_naming_the_key(

@@ -61,6 +61,9 @@ def until_past(c: Client, motor: int, position: int, timeout_s: float = 10.0) ->
 
 def test_moves_stops_and_homing_on_a_dspin_chain(daemon: DaemonProcess) -> None:
     with daemon.client() as c:
+        with pytest.raises(DeviceError) as e:
+            c.move_to(0, 2**21, speed=250)  # beyond ABS_POS's 22 bits: refused, nothing moves
+        assert e.value.code is ErrorCode.INVALID_COMMAND
         c.move_to(0, 3000, speed=250)
         seen = positions_until_ready(c, 0)
         assert c.position(0) == 3000
