@@ -200,6 +200,16 @@ def _soft_limits(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+def _no_stall_homing(v: Mapping[str, Any]) -> Violation | None:
+    if v["dspin"] is not None and str(v["homing"].source) == "stall":
+        return (
+            "homing.source",
+            "stall",
+            'a dSPIN motor homes on its SW input (GoUntil, ReleaseSW): set source = "endstop"',
+        )
+    return None
+
+
 def _not_tmc_too(v: Mapping[str, Any]) -> Violation | None:
     if v["dspin"] is not None and v.get("tmc") is not None:
         return ("dspin", "[motors.dspin]", "the motor also has a [motors.tmc]: one driver chip")
@@ -286,6 +296,11 @@ class DspinDeclaration(LayerDeclaration):
                         _widths,
                     ),
                     Rule(("dspin",), "not with [motors.tmc] on the same motor", _not_tmc_too),
+                    Rule(
+                        ("homing.source", "dspin"),
+                        "endstop on a dSPIN motor (its SW input)",
+                        _no_stall_homing,
+                    ),
                     Rule(
                         ("soft_limit_min", "soft_limit_max", "dspin"),
                         "within ABS_POS's -2097152..2097151 on a dSPIN motor",

@@ -267,7 +267,9 @@ class DspinDriver(StepperDriver, RampDriver):
         return self._get("MARK")
 
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
-        del stall  # stall homing on STEP_LOSS is not offered: the config refuses it
+        del (
+            stall
+        )  # stall homing on STEP_LOSS is not offered: the config refuses it (_no_stall_homing)
         word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
         self._keep(Status(self.chip.status, word))  # its faults stay for the poller
         with self._lock:

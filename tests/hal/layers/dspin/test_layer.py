@@ -73,6 +73,10 @@ def error_of(text: str) -> str:
         ),
         (('driver = "l6480"', 'driver = "l6666"'), "motors[1].dspin.driver"),
         (
+            ('name = "y"\n', 'name = "y"\n[motors.homing]\nsource = "stall"\n'),
+            'motors[1].homing.source = "stall": a dSPIN motor homes on its SW input',
+        ),
+        (
             ('name = "x"\n', 'name = "x"\nsoft_limit_min = -3000000\nsoft_limit_max = 10\n'),
             "motors[0].soft_limit_min = -3000000: beyond the dSPIN's ABS_POS",
         ),
