@@ -74,12 +74,15 @@ class Chain:
         self.bus.xfer_many(framing.frame(self.length, {chip: data}))
 
     def poll(self) -> list[tuple[StepperDriver, DriverStatus]]:
-        """The driver poller's read: one GetStatus of every chip in one exchange."""
-        try:
-            words = self.exchange({d.position: simple(Op.GET_STATUS) for d in self.drivers})
-        except SpiError as exc:
-            return [(d, d.failed(exc)) for d in self.drivers]
-        return [(d, d.took(Status(d.chip.status, words[d.position]))) for d in self.drivers]
+        """The driver poller's read: one GetStatus of every chip in one exchange, its news
+        kept before anyone else reads a chip (the bus held throughout: a motion's
+        :meth:`DspinDriver.watch` comes before or after, never between)."""
+        with self.bus.session():
+            try:
+                words = self.exchange({d.position: simple(Op.GET_STATUS) for d in self.drivers})
+            except SpiError as exc:
+                return [(d, d.failed(exc)) for d in self.drivers]
+            return [(d, d.took(Status(d.chip.status, words[d.position]))) for d in self.drivers]
 
 
 @dataclass
@@ -270,10 +273,11 @@ class DspinDriver(StepperDriver, RampDriver):
         del (
             stall
         )  # stall homing on STEP_LOSS is not offered: the config refuses it (_no_stall_homing)
-        word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
-        self._keep(Status(self.chip.status, word))  # its faults stay for the poller
-        with self._lock:
-            self._kept.switch_event = False
+        with self.chain.bus.session():  # no poll between the read and the clearing
+            word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+            self._keep(Status(self.chip.status, word))  # its faults stay for the poller
+            with self._lock:
+                self._kept.switch_event = False
         self._watch, self._release = direction, release
         self._until = self._settled = False
         self._limit = None

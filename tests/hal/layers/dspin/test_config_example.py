@@ -42,6 +42,18 @@ def test_the_daemon_serves_the_example(motorctld: StartDaemon) -> None:
         for motor in range(3):
             c.wait_moved(motor, timeout_ms=30_000)
             assert c.position(motor) == 0
+        c.move_to(1, 700, speed=250)  # home and waypoints: GoTo_DIR to saved positions
+        c.wait_moved(1, timeout_ms=20_000)
+        c.save_home(1)
+        c.move_to(1, 300, speed=250)
+        c.wait_moved(1, timeout_ms=20_000)
+        assert c.save_waypoint(1) == 0
+        c.go_home(1)
+        c.wait_moved(1, timeout_ms=20_000)
+        assert c.position(1) == 700
+        c.move_to_waypoint(1, 0, speed=250)
+        c.wait_moved(1, timeout_ms=20_000)
+        assert c.position(1) == 300
         c.set_pin(0, True)  # wired to pin 4 in the embedded world
         assert c.get_pin(4)
     assert [d["chip"] for d in daemon.status()["drivers"]] == [
