@@ -8,11 +8,14 @@ order, with the registers they need (docs/dspin.md, "The protocol's commands on 
 - Move: MAX_SPEED (the motor's maximum: Run runs at min(SPD, MAX_SPEED)), ACC and DEC when
   the motor stands (they are writable only then: a Move that changes a running Move keeps
   the ramps it has), then Run.
-- InitMove: ACC and DEC when the motor stands, MAX_SPEED (GoUntil runs at min(SPD,
-  MAX_SPEED)), then GoUntil in DIR; once the switch has stopped it, MIN_SPEED (the speed
-  ReleaseSW backs off at, never below 5 full step/s) and ReleaseSW the other way: zero where
-  the switch releases. The layer's driver gives both ACT = copy ABS_POS to MARK (the
-  position stays continuous; the motor's zero is set at MARK).
+- To the switch (:func:`home`): ACC and DEC when the motor stands, MAX_SPEED (GoUntil runs
+  at min(SPD, MAX_SPEED)), then GoUntil in DIR; once the switch has stopped it
+  (:func:`release`), MIN_SPEED (the speed ReleaseSW backs off at, never below 5 full
+  step/s) and ReleaseSW the other way: zero where the switch releases. The layer's driver
+  gives both ACT = copy ABS_POS to MARK (the position stays continuous; the motor's zero is
+  set at MARK) and uses :func:`home` for a run without limit towards the switch; InitMove's
+  run to the switch, limited by ``homing.max_travel``, reaches it as a :func:`move_to` that
+  the switch stops (CONFIG's SW_MODE 0), and backs off with :func:`release`.
 - StopMove: SoftStop (IS_HARDSTOP FALSE) or HardStop.
 
 Each returns the commands and the names of the values that had to be clamped

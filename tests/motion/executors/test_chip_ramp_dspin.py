@@ -1,7 +1,7 @@
 """The chip-ramp executor (motion/executors/chip_ramp.py) moving dSPIN chips: the dSPIN
 layer's drivers (hal/layers/dspin/driver.py) on the mock world's register-level chain, on a
 virtual clock. MoveTo is GoTo_DIR, a run is Run (GoUntil towards the switch), a stop while
-the chip ramps is SoftStop, homing is GoUntil then ReleaseSW with the positions MARK took."""
+the chip ramps is SoftStop, homing's back-off is ReleaseSW with the position MARK took."""
 
 from __future__ import annotations
 
@@ -100,7 +100,7 @@ def test_a_stop_while_the_chip_ramps_is_a_soft_stop_and_settles_where_it_stands(
     assert not rig.chip.latched & {"NOTPERF_CMD", "WRONG_CMD"}
 
 
-def test_homing_is_go_until_then_release_sw_with_the_positions_mark_took(
+def test_a_run_to_the_switch_is_go_until_and_the_back_off_release_sw_both_mark_it(
     rig: DspinRig,
 ) -> None:
     seek = plan_run(rig.clock.now(), 0.0, 0.0, -2000.0, 40_000.0, 40_000.0, None)
