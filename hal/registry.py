@@ -219,9 +219,13 @@ def probe_hardware(name: str, spec: HardwareSpec, clock: Clock) -> ProbeReport:
         backend(name).probe(spec, clock, report)
     except HalError as exc:
         report.problem(str(exc))
+    try:
+        simulated = backend(name).simulated_spi(spec, clock)
+    except HalError:  # already reported above
+        simulated = None
     for layer_name in _applying(spec):
         try:
-            layer(layer_name).probe(spec, clock, report)
+            layer(layer_name).probe(spec, clock, report, simulated)
         except HalError as exc:
             report.problem(f"{layer_name}: {exc}", ProblemKind.DEVICE)
     return report

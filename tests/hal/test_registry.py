@@ -21,6 +21,7 @@ from motorctl.hal.layers.tmc.config import TmcDeclaration
 from motorctl.hal.layers.tmc.layer import TmcLayer
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import SpiFactory
 
 #: every class of the tables, named here so that the type checker checks each is concrete
 IMPLEMENTATIONS: dict[str, type[Backend] | type[Layer]] = {
@@ -95,7 +96,13 @@ class BrokenLayer(Layer):
     def attach(self, hw: Hardware, spec: HardwareSpec, clock: Clock) -> None:
         raise HalError("broken: nothing there")
 
-    def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
+    def probe(
+        self,
+        spec: HardwareSpec,
+        clock: Clock,
+        report: ProbeReport,
+        spi_factory: SpiFactory | None = None,
+    ) -> None:
         raise HalError("nothing there")
 
 

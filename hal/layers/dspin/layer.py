@@ -128,7 +128,8 @@ def probe_chain(chain: Chain) -> tuple[list[str], list[str]]:
 
 class DspinLayer(Layer):
     """ST dSPIN chips in daisy chains over SPI. ``factory``: py-spidev's ``SpiDev`` or a
-    stand-in with its API (tests); None: the Hardware's ``spi_factory``, else py-spidev."""
+    stand-in with its API (tests); None: the chains the backend simulates (the Hardware's
+    ``spi_factory``; for ``--probe`` its ``simulated_spi``), else py-spidev."""
 
     name = "dspin"
 
@@ -139,7 +140,13 @@ class DspinLayer(Layer):
         del clock  # the poller reads the Hardware's
         attach_chains(hw, spec, self.factory or hw.spi_factory)
 
-    def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
+    def probe(
+        self,
+        spec: HardwareSpec,
+        clock: Clock,
+        report: ProbeReport,
+        spi_factory: SpiFactory | None = None,
+    ) -> None:
         """Each chain's chips: CONFIG against the configured model, STATUS decoded; reads
         registers only (nothing is written, nothing moves, no flag is cleared)."""
         del clock
@@ -147,7 +154,7 @@ class DspinLayer(Layer):
         if not found:
             return
         try:
-            factory = self.factory or spidev_factory()
+            factory = self.factory or spi_factory or spidev_factory()
         except HalError as exc:
             report.problem(str(exc))
             return

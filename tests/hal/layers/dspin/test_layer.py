@@ -200,3 +200,11 @@ def test_probe_names_each_chip_and_a_mismatch() -> None:
     assert "y: the chip at position 1" in report.problems[0].text
     # nothing cleared (GetParam, not GetStatus), nothing written (STEP_MODE at its reset)
     assert all("UVLO" in c.latched and c.regs["STEP_MODE"] == 0x07 for c in chain.chips)
+
+
+def test_probe_on_the_mock_finds_its_simulated_chain() -> None:
+    report = registry.probe_hardware("mock", spec_of(CHAIN), VirtualClock())
+    assert report.problems == []
+    found = dict(report.sections)["dSPIN drivers"]
+    assert [line.split(":")[0] for line in found] == ["x", "y", "z"]
+    assert "configured L6480, CONFIG 0x2C88 (L6480)" in found[1]
