@@ -126,11 +126,19 @@ def motor_params(config: Config) -> list[MotorParams]:
             max_speed=m.max_speed,
             start_speed=m.start_speed,
             microsteps=motor_microsteps(m),
+            counter_range=counter_range(m),
             max_lag_full_steps=m.max_lag_full_steps,
             host_position=wrap24,
         )
         for m in config.motors
     ]
+
+
+def counter_range(m: MotorConfig) -> tuple[int, int] | None:
+    """The range of the motor's driver chip's own position counter (a dSPIN's ABS_POS),
+    None without one."""
+    driver = driver_spec(m)
+    return None if driver is None else driver.counter_range
 
 
 def motor_microsteps(m: MotorConfig) -> int:

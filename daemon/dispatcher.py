@@ -376,6 +376,13 @@ class Dispatcher:
             p = m.params
             why = f"target {position} is outside the soft limits {p.soft_min}..{p.soft_max}"
             raise Reject(E.INVALID_COMMAND, why, m.index)
+        counted = m.counted_range()
+        if counted is not None and not counted[0] <= position <= counted[1]:
+            why = (
+                f"target {position} is outside what the motor's driver chip counts from its "
+                f"zero: {counted[0]}..{counted[1]}"
+            )
+            raise Reject(E.INVALID_COMMAND, why, m.index)
 
     # -- unit conversion --------------------------------------------------------------
     def _ramp(self, m: Motor, c: Command, raw: tuple[int, int, int], default_speed: float) -> Ramp:

@@ -34,12 +34,15 @@ import enum
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import ClassVar, Protocol, TypeVar
+from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
 from motorctl.hal.compiled_lines import NO_COMPILED_LINES, CompiledLines
 from motorctl.hal.interfaces import Clock, Hardware, StepIO
 from motorctl.hal.spec import DriverSpec, HardwareSpec
 from motorctl.schema import Extension
+
+if TYPE_CHECKING:  # hal/spi.py imports py-spidev only when a node opens; no cycle either way
+    from motorctl.hal.spi import SpiFactory
 
 T = TypeVar("T")
 
@@ -164,6 +167,12 @@ class Backend(ABC):
             raise
         return io
 
+    def simulated_spi(self, spec: HardwareSpec, clock: Clock) -> SpiFactory | None:
+        """The SPI devices it simulates (the mock's dSPIN chains) as py-spidev's API, for the
+        layers' ``--probe`` (:meth:`Layer.probe`); what it builds has them as
+        ``Hardware.spi_factory``. Default: None, the kernel's devices."""
+        return None
+
     def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
         """``motorctld --probe``: open what the config names without moving anything and add
         what was found to ``report``, problems included (a HalError that escapes is added
@@ -208,5 +217,13 @@ class Layer(ABC):
         the device and the fix, and nothing of it stays open."""
 
     @abstractmethod
-    def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
-        """As :meth:`Backend.probe`, for its own parts: reads only, moves nothing."""
+    def probe(
+        self,
+        spec: HardwareSpec,
+        clock: Clock,
+        report: ProbeReport,
+        spi_factory: SpiFactory | None = None,
+    ) -> None:
+        """As :meth:`Backend.probe`, for its own parts: reads only, moves nothing.
+        ``spi_factory``: the SPI devices the backend simulates
+        (:meth:`Backend.simulated_spi`), None: the kernel's."""

@@ -36,7 +36,7 @@ from motorctl.hal.compiled_lines import (
 
 if TYPE_CHECKING:  # they import this module; a backend makes them for its Hardware
     from motorctl.hal.poller import DriverPoller
-    from motorctl.hal.spi import SpiBuses
+    from motorctl.hal.spi import SpiBuses, SpiFactory
 
 
 class HalError(RuntimeError):
@@ -405,6 +405,10 @@ class RampStatus:
     ``latched``, the position at the switch's edge that :meth:`RampDriver.watch` armed (its
     active edge, or its inactive one for a release) is latched
     (:meth:`RampDriver.latched_position`). ``stall_stopped``: stallGuard stopped the motor.
+    ``settled``: the chip ended the last motion it was given where it stands, short of or
+    past its target, on purpose (a dSPIN cannot take a new target while it ramps, so it
+    stops along DEC instead; a ReleaseSW that ran its whole way is stopped there): that
+    motion is done.
     """
 
     position: int
@@ -416,6 +420,7 @@ class RampStatus:
     latched_min: bool = False
     latched_max: bool = False
     stall_stopped: bool = False
+    settled: bool = False
 
     def switch_active(self, direction: int) -> bool:
         """The level of the switch on the side of ``direction`` (+1: max, -1: min)."""
@@ -544,6 +549,9 @@ class Hardware:
     #: descriptors that executor's process gets for it, each as the option of that name
     #: (the mock's shared mechanics): its own copy, under a number of its own
     step_io_fds: dict[str, int] = field(default_factory=dict)
+    #: py-spidev's API for the SPI devices a backend simulates (the mock's dSPIN chains):
+    #: the layers open their nodes with it; None: the kernel's, through py-spidev
+    spi_factory: SpiFactory | None = None
 
     def persistent_state(self) -> dict[str, Any]:
         """What of the machine lives and dies with the daemon's state file (saved with it,

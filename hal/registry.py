@@ -75,12 +75,17 @@ BACKENDS: dict[str, Entry] = {
     ),
 }
 
-#: "tmc": TMC2130/TMC5160 driver chips over /dev/spidevB.C
+#: "tmc": TMC2130/TMC5160 driver chips over /dev/spidevB.C; "dspin": ST dSPIN chains on it
 LAYERS: dict[str, Entry] = {
     "tmc": Entry(
         "motorctl.hal.layers.tmc.config:TmcDeclaration",
         "motorctl.hal.layers.tmc.layer:TmcLayer",
         "a complete motorctl install (py-spidev is imported only when a driver opens)",
+    ),
+    "dspin": Entry(
+        "motorctl.hal.layers.dspin.config:DspinDeclaration",
+        "motorctl.hal.layers.dspin.layer:DspinLayer",
+        "a complete motorctl install (py-spidev is imported only when a chain opens)",
     ),
 }
 
@@ -214,9 +219,13 @@ def probe_hardware(name: str, spec: HardwareSpec, clock: Clock) -> ProbeReport:
         backend(name).probe(spec, clock, report)
     except HalError as exc:
         report.problem(str(exc))
+    try:
+        simulated = backend(name).simulated_spi(spec, clock)
+    except HalError:  # already reported above
+        simulated = None
     for layer_name in _applying(spec):
         try:
-            layer(layer_name).probe(spec, clock, report)
+            layer(layer_name).probe(spec, clock, report, simulated)
         except HalError as exc:
             report.problem(f"{layer_name}: {exc}", ProblemKind.DEVICE)
     return report

@@ -32,6 +32,12 @@ class DriverSpec:
         """The microsteps per full step the chip is set to; None: the chip does not say."""
         return None
 
+    @property
+    def counter_range(self) -> tuple[int, int] | None:
+        """The range of the chip's own position counter (a dSPIN's ABS_POS) where it moves
+        the motor itself; None: no limit of the chip's."""
+        return None
+
 
 @dataclass(frozen=True)
 class AxisSpec(Sectioned):

@@ -127,6 +127,15 @@ class Motor:
             return True
         return p.soft_min <= target <= p.soft_max
 
+    def counted_range(self) -> tuple[int, int] | None:
+        """The targets (host positions) the driver's own counter can reach from where the
+        motor's zero is now (``MotorParams.counter_range``); None: any (a rotary axis's
+        counter wraps as it turns)."""
+        r = self.params.counter_range
+        if r is None or self.params.rotary:
+            return None
+        return r[0] - self.offset, r[1] - self.offset
+
     # -- commands -----------------------------------------------------------
     def submit(self, cmd: MotionCmd, now: float) -> None:
         """Queue a motion command (the caller checked faults and queue space)."""

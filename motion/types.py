@@ -107,6 +107,9 @@ class MotorParams:
     # counter (motorctl.protocol.codec.wrap24: 24-bit two's complement). None: unbounded.
     # Motion does not know the protocol, so the wrap is passed in, not defined here.
     host_position: Callable[[int], int] | None = None
+    # The driver's own position counter's range where the chip moves the motor itself (a
+    # dSPIN's ABS_POS); a target beyond it is refused. None: the steps are counted here.
+    counter_range: tuple[int, int] | None = None
 
     @property
     def rotary(self) -> bool:

@@ -301,6 +301,8 @@ def _drivers(w: _Families, drivers: object) -> None:
         if not isinstance(d, Mapping):
             continue
         who = {"device": d.get("device"), "chip": d.get("chip")}
+        if "chain_position" in d:  # a daisy chain's chips share the device
+            who["chain_position"] = d.get("chain_position")
         w.counter("motorctl_driver_polls", "Status polls of the driver chip.", d.get("polls"), who)
         w.counter(
             "motorctl_driver_spi_errors",

@@ -388,8 +388,9 @@ def _drivers(doc: Mapping[str, Any]) -> Text | None:
     for d in drivers:
         text.append(
             f"\n  {d.get('chip')} {d.get('device')}: polls {_num(d.get('polls'))}"
-            f"  spi errors {_num(d.get('spi_errors'))}  DRV_STATUS "
-            f"{d.get('drv_status')}"
+            f"  spi errors {_num(d.get('spi_errors'))}  "
+            + (f"DRV_STATUS {d.get('drv_status')}" if "drv_status" in d else "")
+            + (f"#{d.get('chain_position')} STATUS {d.get('status')}" if "status" in d else "")
         )
         faults = _d(d.get("fault_counts"))
         if faults:

@@ -2,7 +2,7 @@
 
 :class:`RampExecutor` carries out the motors' plans with each driver's own ramp generator,
 through the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability (a TMC5160 in
-motion-controller mode): a finite plan (MoveTo, a soft stop, a homing back-off, a run up to
+motion-controller mode, a dSPIN): a finite plan (MoveTo, a soft stop, a homing back-off, a run up to
 a soft limit) becomes a trapezoid to the plan's end at the plan's peak speed with its ramps
 (``move_to``); an endless run becomes ``run`` at its speed. A hard stop is ``stop(None)``:
 the chip's largest deceleration. Positions are the chip's step counter. End stops are the
@@ -11,7 +11,9 @@ position, reported as ENDSTOP at the latched position; homing's back-off (a plan
 with ``release``) has the switch behind latch the position where it releases, and once a
 poll sees it released the executor stops the chip (its hard stop) and reports RELEASED with
 that latched position; stall homing (a plan without end stops) lets stallGuard stop the
-motor, and that stop is reported as the driver's stall flag.
+motor, and that stop is reported as the driver's stall flag. A finite plan is done when the
+chip stands at its end, or stands where it settled on purpose (``RampStatus.settled``: a
+dSPIN takes no new target while it ramps and stops along DEC instead).
 
 A machine that mixes such motors with STEP/DIR ones runs both executors behind one seam
 (``split.py``).
@@ -280,7 +282,7 @@ class RampExecutor(Executor):
         if ax.release and (st.latched(ax.release) or not st.switch_active(ax.release)):
             self._released(i, ax, chip, st, now)
             return
-        if ax.plan == "move" and st.velocity == 0 and ax.position == ax.target:
+        if ax.plan == "move" and st.velocity == 0 and (ax.position == ax.target or st.settled):
             ax.plan = ""
             self._emit(ExecEvent(K.DONE, i, ax.gen, ax.position, now))
 

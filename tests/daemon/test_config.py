@@ -40,6 +40,7 @@ from motorctl.hal.backends.gpiod.config import (
     GpiodPwmConfig,
 )
 from motorctl.hal.backends.mock.config import MockAxisConfig, MockConfig
+from motorctl.hal.layers.dspin.config import DspinAxisConfig, DspinConfig
 from motorctl.hal.layers.tmc.config import SpidevConfig, TmcAxisConfig
 from motorctl.hal.poller import DriversConfig
 from motorctl.motion.types import HomingSource
@@ -172,6 +173,8 @@ def test_defaults_agree_with_describe_keys() -> None:
     """Every key's documented default is the value a file without it gets."""
     optional = "[motors.tmc]\n"  # optional tables written empty: their keys at the defaults
     config = parse_config(MOTOR + optional + "[dc]\n[[pins]]\nnumber = 0\n", SOURCE)
+    # a motor has one driver chip: the dSPIN layer's tables in a config of their own
+    dspin = parse_config(MOTOR + "[motors.dspin]\n[dspin]\n", SOURCE)
     checked = 0
     for path, type_, default, _ in describe_keys():
         if type_ in ("table", "array of tables") or default in ("required", "unset"):
@@ -182,7 +185,7 @@ def test_defaults_agree_with_describe_keys() -> None:
             # not in this config; tests/hal/backends/gpiod/test_config.py checks those defaults
             continue
         expected = tomllib.loads(f"v = {default}")["v"]
-        actual = lookup(config, path)
+        actual = lookup(dspin if path.split(".")[-2] == "dspin" else config, path)
         assert actual == expected, path
         if isinstance(actual, enum.Enum):  # a choice the code reads as an enum member
             actual = actual.value
@@ -222,6 +225,8 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
         ("pins[].gpiod", GpiodPinConfig),
         ("motors[].tmc", TmcAxisConfig),
         ("spidev", SpidevConfig),
+        ("motors[].dspin", DspinAxisConfig),
+        ("dspin", DspinConfig),
         ("drivers", DriversConfig),
     ]
     expected = {
@@ -235,6 +240,7 @@ def test_describe_keys_covers_every_dataclass_field() -> None:
     expected |= {"mock", "motors[].mock"}  # the mock backend's tables, in `sections`
     expected |= {"gpiod", "motors[].gpiod", "pins[].gpiod"}  # the gpiod backend's
     expected |= {"spidev", "motors[].tmc"}  # the TMC layer's tables
+    expected |= {"dspin", "motors[].dspin"}  # the dSPIN layer's
     expected |= {"drivers"}  # the HAL's own (its driver poller)
     assert expected == paths
 
@@ -794,6 +800,7 @@ def test_table_of_the_whole_file() -> None:
         "mock",
         "gpiod",
         "spidev",
+        "dspin",
     ]
 
 

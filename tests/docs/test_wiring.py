@@ -30,7 +30,12 @@ from tests.support import REPO
 
 PAGES = [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
 #: the pages that show wiring: each points to the table (raspberry-pi.md holds it)
-POINTING = {"README.md": "docs/" + w.ANCHOR, "docs/hardware.md": w.ANCHOR, "docs/tmc.md": w.ANCHOR}
+POINTING = {
+    "README.md": "docs/" + w.ANCHOR,
+    "docs/hardware.md": w.ANCHOR,
+    "docs/tmc.md": w.ANCHOR,
+    "docs/dspin.md": w.ANCHOR,
+}
 
 
 def _rel(path: Path) -> str:

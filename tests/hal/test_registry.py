@@ -15,22 +15,31 @@ from motorctl.hal.backends.mock.config import MockConfig, MockDeclaration
 from motorctl.hal.backends.mock.world import mock_axis, world_of
 from motorctl.hal.contract import Backend, Layer, ProbeReport
 from motorctl.hal.interfaces import Clock, HalError, Hardware, VirtualClock
+from motorctl.hal.layers.dspin.config import DspinDeclaration
+from motorctl.hal.layers.dspin.layer import DspinLayer
 from motorctl.hal.layers.tmc.config import TmcDeclaration
 from motorctl.hal.layers.tmc.layer import TmcLayer
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import SpiFactory
 
 #: every class of the tables, named here so that the type checker checks each is concrete
 IMPLEMENTATIONS: dict[str, type[Backend] | type[Layer]] = {
     "mock": MockBackend,
     "gpiod": GpiodBackend,
     "tmc": TmcLayer,
+    "dspin": DspinLayer,
 }
-DECLARATIONS = {"mock": MockDeclaration(), "gpiod": GpiodDeclaration(), "tmc": TmcDeclaration()}
+DECLARATIONS = {
+    "mock": MockDeclaration(),
+    "gpiod": GpiodDeclaration(),
+    "tmc": TmcDeclaration(),
+    "dspin": DspinDeclaration(),
+}
 
 
 def test_every_name_maps_to_the_contracts_classes() -> None:
-    assert set(registry.BACKENDS) == {"mock", "gpiod"} and set(registry.LAYERS) == {"tmc"}
+    assert set(registry.BACKENDS) == {"mock", "gpiod"} and set(registry.LAYERS) == {"tmc", "dspin"}
     for name in registry.BACKENDS:
         found = registry.backend(name)
         assert type(found) is IMPLEMENTATIONS[name] and found.name == name
@@ -39,7 +48,13 @@ def test_every_name_maps_to_the_contracts_classes() -> None:
         assert type(declaration) is type(DECLARATIONS[name])
         found_layer = registry.layer(name)
         assert type(found_layer) is IMPLEMENTATIONS[name] and found_layer.name == name
-    assert [name for name, _ in registry.config_sections()] == ["hal", "mock", "gpiod", "tmc"]
+    assert [name for name, _ in registry.config_sections()] == [
+        "hal",
+        "mock",
+        "gpiod",
+        "tmc",
+        "dspin",
+    ]
 
 
 def test_an_unknown_backend_names_the_ones_there_are() -> None:
@@ -81,7 +96,13 @@ class BrokenLayer(Layer):
     def attach(self, hw: Hardware, spec: HardwareSpec, clock: Clock) -> None:
         raise HalError("broken: nothing there")
 
-    def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
+    def probe(
+        self,
+        spec: HardwareSpec,
+        clock: Clock,
+        report: ProbeReport,
+        spi_factory: SpiFactory | None = None,
+    ) -> None:
         raise HalError("nothing there")
 
 

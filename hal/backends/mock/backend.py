@@ -13,11 +13,13 @@ Threads: as the world's (``world.py``); the backend object holds no state.
 
 from __future__ import annotations
 
+from motorctl.hal.backends.mock.dspin_world import factory_of
 from motorctl.hal.backends.mock.world import MockStepOutputs, MockWorld, world_of
 from motorctl.hal.compiled_lines import CompiledLines
 from motorctl.hal.contract import Backend
 from motorctl.hal.interfaces import Clock, Hardware, StepIO
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import SpiFactory
 
 
 def _timeline_len(spec: HardwareSpec) -> int | None:
@@ -42,6 +44,10 @@ class MockBackend(Backend):
     def build(self, spec: HardwareSpec, clock: Clock) -> Hardware:
         share = bool(spec.options.get("executor_process", False))
         return MockWorld(spec, clock, _timeline_len(spec), share=share).hardware()
+
+    def simulated_spi(self, spec: HardwareSpec, clock: Clock) -> SpiFactory | None:
+        """A world of its own's dSPIN chains, for ``--probe`` (chips at power-up)."""
+        return factory_of(spec, MockWorld(spec, clock, _timeline_len(spec)).axes, clock)
 
     def build_step_io(self, spec: HardwareSpec, clock: Clock, parent: Hardware | None) -> StepIO:
         """STEP/DIR and end stops: on the parent's world in-process, else on the shared

@@ -1,7 +1,7 @@
 """A daisy chain of mock dSPIN chips (dspin_chip.py) on one chip select, as py-spidev's
 ``xfer2`` drives it: the part of py-spidev's ``SpiDev`` that motorctl uses (``open``,
-``mode``, ``max_speed_hz``, ``xfer2``, ``close``), so the layer's SPI code can be handed
-this in place of the device.
+``mode``, ``bits_per_word``, ``max_speed_hz``, ``xfer2``, ``close``), so the layer's SPI
+code can be handed this in place of the device.
 
 The chain is N 8-bit shift registers in a row: the host's MOSI into chip 0's, chip 0's
 out into chip 1's, ..., chip N-1's out to the host's MISO (AN4290's daisy chain). As chip
@@ -37,6 +37,7 @@ class DspinChain:
         self.chips = tuple(chips)
         self.mode = SPI_MODE_3
         self.max_speed_hz = 1_000_000
+        self.bits_per_word = 8
         self.opened: tuple[int, int] | None = None
         self.transfers: list[tuple[bytes, bytes]] = []
 

@@ -28,6 +28,7 @@ from motorctl.hal.backends.mock.config import (
     MockConfig,
     motors_lose_steps,
 )
+from motorctl.hal.backends.mock.dspin_world import MockSpiNodes, factory_of
 from motorctl.hal.compiled_lines import SimulatedLines
 from motorctl.hal.interfaces import (
     BridgeState,
@@ -196,14 +197,18 @@ class MockAxis:
         self._c[_GEN] = self._c[_GEN] + 1
 
     def endstop_active(self, which: str) -> bool:
+        return self.endstop_at(which, self.position)
+
+    def endstop_at(self, which: str, position: int) -> bool:
+        """The end stop's level were the axis at ``position`` (forced levels included)."""
         forced = self._c[_FORCED_MIN if which == "min" else _FORCED_MAX]
         if forced != _UNSET:
             return bool(forced == _ON)
         if not self.switches:
             return False
         if which == "min":
-            return self.position <= self.endstop_min
-        return self.position >= self.endstop_max
+            return position <= self.endstop_min
+        return position >= self.endstop_max
 
     @property
     def stalled(self) -> bool:
@@ -413,6 +418,8 @@ class MockWorld:
             self._wires[a] = b
             self._wires[b] = a
         self.bridge = MockBridge(self) if spec.dc else None
+        #: the dSPIN chains the axes' [motors.dspin] name (built with the hardware)
+        self.spi_nodes: MockSpiNodes | None = None
 
     @property
     def mechanics(self) -> int | None:
@@ -493,6 +500,8 @@ class MockWorld:
             self.clock, steppers, dict(self.pins), self.bridge, poller, SpiBuses(), world=self
         )
         hw.motors_lose_steps = motors_lose_steps(self.spec)
+        self.spi_nodes = factory_of(self.spec, self.axes, self.clock)
+        hw.spi_factory = self.spi_nodes
         if self.mechanics is not None:
             hw.step_io_fds["mechanics"] = self.mechanics
         hw.closers.append(self.close)

@@ -1,16 +1,21 @@
 """What each of the protocol's motion commands becomes on a dSPIN: the chip commands, in
 order, with the registers they need (docs/dspin.md, "The protocol's commands on the chip").
 
-- MoveTo (and GoHome, MoveToWayPoint with the saved position): MAX_SPEED, ACC, DEC, then
-  GoTo_DIR towards the target, never GoTo: GoTo takes the shortest way round ABS_POS's 22
-  bits, which for a distance of 2^21 or more is the wrong way on a linear axis.
+- MoveTo (and GoHome, MoveToWayPoint with the saved position): MAX_SPEED, ACC and DEC
+  when the motor stands, then GoTo_DIR towards the target, never GoTo: GoTo takes the
+  shortest way round ABS_POS's 22 bits, which for a distance of 2^21 or more is the wrong
+  way on a linear axis.
 - Move: MAX_SPEED (the motor's maximum: Run runs at min(SPD, MAX_SPEED)), ACC and DEC when
   the motor stands (they are writable only then: a Move that changes a running Move keeps
   the ramps it has), then Run.
-- InitMove: ACC, DEC, MAX_SPEED (GoUntil runs at min(SPD, MAX_SPEED)), MIN_SPEED (the
-  speed ReleaseSW backs off at, never below 5 full step/s), then GoUntil(ACT = reset ABS_POS)
-  in DIR; once the switch has stopped it, ReleaseSW(ACT = reset ABS_POS) the other way:
-  zero where the switch releases.
+- To the switch (:func:`home`): ACC and DEC when the motor stands, MAX_SPEED (GoUntil runs
+  at min(SPD, MAX_SPEED)), then GoUntil in DIR; once the switch has stopped it
+  (:func:`release`), MIN_SPEED (the speed ReleaseSW backs off at, never below 5 full
+  step/s) and ReleaseSW the other way: zero where the switch releases. The layer's driver
+  gives both ACT = copy ABS_POS to MARK (the position stays continuous; the motor's zero is
+  set at MARK) and uses :func:`home` for a run without limit towards the switch; InitMove's
+  run to the switch, limited by ``homing.max_travel``, reaches it as a :func:`move_to` that
+  the switch stops (CONFIG's SW_MODE 0), and backs off with :func:`release`.
 - StopMove: SoftStop (IS_HARDSTOP FALSE) or HardStop.
 
 Each returns the commands and the names of the values that had to be clamped
@@ -60,19 +65,18 @@ def move_to(
     speed: float,
     acc: float,
     dec: float,
+    at_rest: bool = True,
 ) -> Program:
     """MoveTo ``target`` from ``position`` at ``speed`` step/s with ramps ``acc``, ``dec``
-    step/s^2 (a motor at rest); :class:`~convert.OutOfRange` for a target ABS_POS cannot
+    step/s^2, the ramps written only ``at_rest`` (a GoTo given while the chip runs at its
+    speed keeps the ramps it has); :class:`~convert.OutOfRange` for a target ABS_POS cannot
     hold (E1)."""
     convert.check_position(target, "target")
-    setup = _settings(
-        chip,
-        {
-            "MAX_SPEED": convert.max_speed(speed, microsteps),
-            "ACC": convert.ramp(acc, microsteps),
-            "DEC": convert.ramp(dec, microsteps),
-        },
-    )
+    wanted = {"MAX_SPEED": convert.max_speed(speed, microsteps)}
+    if at_rest:
+        wanted["ACC"] = convert.ramp(acc, microsteps)
+        wanted["DEC"] = convert.ramp(dec, microsteps)
+    setup = _settings(chip, wanted)
     direction = FORWARD if target >= position else REVERSE
     return Program((*setup.commands, go_to_dir(direction, target)), setup.clamped)
 
@@ -106,30 +110,31 @@ def home(
     speed: float,
     acc: float,
     dec: float,
-    release_speed: float,
+    at_rest: bool = True,
+    act: int = RESET_ABS_POS,
 ) -> Program:
-    """InitMove's first phase: to the switch ``up`` or down at ``speed`` step/s, ABS_POS
-    reset where it closes; ``release_speed``: the back-off speed (MIN_SPEED) for
-    :func:`release`."""
-    setup = _settings(
-        chip,
-        {
-            "ACC": convert.ramp(acc, microsteps),
-            "DEC": convert.ramp(dec, microsteps),
-            "MAX_SPEED": convert.max_speed(speed, microsteps),
-            "MIN_SPEED": convert.min_speed(release_speed, microsteps),
-        },
-    )
+    """InitMove's first phase: to the switch ``up`` or down at ``speed`` step/s (MAX_SPEED
+    caps GoUntil), ``act`` where it closes (ABS_POS reset, or copied to MARK); the ramps
+    written only ``at_rest``."""
+    wanted = {"MAX_SPEED": convert.max_speed(speed, microsteps)}
+    if at_rest:
+        wanted["ACC"] = convert.ramp(acc, microsteps)
+        wanted["DEC"] = convert.ramp(dec, microsteps)
+    setup = _settings(chip, wanted)
     spd = convert.run_speed(speed, microsteps)
     clamped = (*setup.clamped, "SPD") if spd.clamped else setup.clamped
     direction = FORWARD if up else REVERSE
-    return Program((*setup.commands, go_until(RESET_ABS_POS, direction, spd.register)), clamped)
+    return Program((*setup.commands, go_until(act, direction, spd.register)), clamped)
 
 
-def release(up: bool) -> Program:
-    """InitMove's second phase, after :func:`home` towards ``up``: back off the other way
-    until the switch opens, ABS_POS = 0 there, hard stop."""
-    return Program((release_sw(RESET_ABS_POS, REVERSE if up else FORWARD),))
+def release(
+    chip: Chip, microsteps: int, up: bool, speed: float, act: int = RESET_ABS_POS
+) -> Program:
+    """InitMove's second phase, after :func:`home` towards ``up`` (the motor stands): back
+    off the other way at ``speed`` step/s (MIN_SPEED; the chip never goes below 5 full
+    step/s there) until the switch opens, ``act`` there, hard stop."""
+    setup = _settings(chip, {"MIN_SPEED": convert.min_speed(speed, microsteps)})
+    return Program((*setup.commands, release_sw(act, REVERSE if up else FORWARD)), setup.clamped)
 
 
 def stop(hard: bool) -> Program:

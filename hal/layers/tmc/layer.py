@@ -156,12 +156,18 @@ class TmcLayer(Layer):
         del clock  # the poller reads the Hardware's
         attach_drivers(hw, spec, self.factory)
 
-    def probe(self, spec: HardwareSpec, clock: Clock, report: ProbeReport) -> None:
+    def probe(
+        self,
+        spec: HardwareSpec,
+        clock: Clock,
+        report: ProbeReport,
+        spi_factory: SpiFactory | None = None,
+    ) -> None:
         """Each configured driver's chip and version, DRV_STATUS decoded, SPI status; reads
         registers only (nothing is written, nothing moves). Problems go to the report: a
         device that is missing or does not answer, another chip than configured, a ramp
         chip whose SD_MODE is high."""
-        del clock
+        del clock, spi_factory  # no backend simulates a TMC chip
         configured = [
             (a.name or f"motor {i}", a.driver)
             for i, a in enumerate(spec.axes)

@@ -312,6 +312,22 @@ def test_the_renamed_metrics_of_issue_35() -> None:
     assert got[("motorctl_link_processing_seconds_count", none)] == 9
 
 
+def test_the_chips_of_a_dspin_chain_are_told_apart_by_their_position() -> None:
+    """Two chips of one model on one chain share device and chip: their place tells them
+    apart (else the series would be one sample written twice, which a scrape refuses)."""
+    chip = {"chip": "L6470", "device": "/dev/spidev0.0", "polls": 3, "spi_errors": 0}
+    chain = [
+        {**chip, "chain_position": 0, "fault_counts": {"OCD": 2}, "warning_counts": {}},
+        {**chip, "chain_position": 1, "fault_counts": {"OCD": 1}, "warning_counts": {}},
+    ]
+    text = metrics({**DOC, "drivers": chain})
+    assert lint(text) == []
+    got = samples(parse_prometheus(text))
+    who = {("device", "/dev/spidev0.0"), ("chip", "L6470"), ("flag", "OCD")}
+    assert got[("motorctl_driver_faults_total", frozenset(who | {("chain_position", "0")}))] == 2
+    assert got[("motorctl_driver_faults_total", frozenset(who | {("chain_position", "1")}))] == 1
+
+
 def test_what_is_missing_is_left_out() -> None:
     none: frozenset[tuple[str, str]] = frozenset()
     up, enabled = ("motorctl_up", none), ("motorctl_trace_enabled", none)

@@ -49,10 +49,20 @@ def test_move_writes_the_ramps_only_at_rest() -> None:
 
 
 def test_home_is_gountil_then_releasesw_the_other_way() -> None:
-    p = program.home(L6480, 1, False, speed=100, acc=160, dec=160, release_speed=10)
-    assert hexes(p) == ["05 00 0A", "06 00 0A", "07 00 06", "08 00 29", "82 00 1A 36"]
-    assert hexes(program.release(False)) == ["93"]  # forward, ACT = reset ABS_POS
-    assert hexes(program.release(True)) == ["92"]
+    p = program.home(L6480, 1, False, speed=100, acc=160, dec=160)
+    assert hexes(p) == ["07 00 06", "05 00 0A", "06 00 0A", "82 00 1A 36"]
+    assert hexes(program.home(L6480, 1, True, 100, 160, 160, at_rest=False, act=1)) == [
+        "07 00 06",
+        "8B 00 1A 36",  # forward, ACT = copy ABS_POS to MARK; no ramps while moving
+    ]
+    # back off at 10 step/s: MIN_SPEED floor(10 / 0.2384) = 41 = 0x29; forward, ACT reset
+    assert hexes(program.release(L6480, 1, False, 10)) == ["08 00 29", "93"]
+    assert hexes(program.release(L6480, 1, True, 10, act=1)) == ["08 00 29", "9A"]
+
+
+def test_move_to_while_running_keeps_the_ramps() -> None:
+    p = program.move_to(L6470, 16, 0, 1000, speed=1000, acc=1600, dec=3200, at_rest=False)
+    assert hexes(p) == ["07 00 04", "69 00 03 E8"]
 
 
 def test_stop() -> None:

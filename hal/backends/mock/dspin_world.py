@@ -1,0 +1,128 @@
+"""The mock world's dSPIN chains: for every chip select that motors' ``[motors.dspin]``
+name, a chain of chip models (dspin_chain.py) that moves the world's axes, behind
+py-spidev's API (:class:`MockSpiNodes`, the mock Hardware's ``spi_factory``), so the dSPIN
+layer talks to them byte for byte as it talks to a real chain on /dev/spidevB.C.
+
+Time: the chips move by the world's clock, caught up before each transfer (a chip reads
+back where its motor is now). Each chip's ``shaft`` moves its axis (``MockAxis.position``:
+what the world's status and state file show); its SW input is the axis's end stop on the
+side ``[motors.dspin] switch`` names (forced levels included). A node the config names no
+chip on does not exist (ENOENT, as the kernel says).
+
+Owned by the daemon's process; transfers come under the SPI bus's lock (hal/spi.py), so
+one thread at a time touches a chain.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+from typing import TYPE_CHECKING
+
+from motorctl.hal.backends.mock.dspin_chain import DspinChain
+from motorctl.hal.backends.mock.dspin_chip import DspinChip
+from motorctl.hal.dspin.spec import DspinSpec, chains
+from motorctl.hal.interfaces import Clock
+from motorctl.hal.spec import HardwareSpec
+
+if TYPE_CHECKING:
+    from motorctl.hal.backends.mock.world import MockAxis
+
+
+class _Moved:
+    """One chip and the axis it moves."""
+
+    def __init__(self, axis: MockAxis, spec: DspinSpec) -> None:
+        self.axis = axis
+        self.side = spec.switch
+        self.synced = 0  # the chip's shaft when the axis was last moved to it
+        self.chip = DspinChip(spec.model, switch=self.switch)
+
+    def switch(self, shaft: int) -> bool:
+        if self.side == "none":
+            return False
+        return self.axis.endstop_at(self.side, self.axis.position + shaft - self.synced)
+
+    def sync(self) -> None:
+        self.axis.position += self.chip.shaft - self.synced
+        self.synced = self.chip.shaft
+
+
+class MockChain:
+    """One chip select's chain in the world: the chips, the axes they move, its clock."""
+
+    def __init__(self, members: list[_Moved], clock: Clock) -> None:
+        self.members = members
+        self.chain = DspinChain([m.chip for m in members])
+        self.clock = clock
+        self.last = clock.now()
+
+    def catch_up(self) -> None:
+        now = self.clock.now()
+        if now > self.last:
+            self.chain.advance(now - self.last)
+            self.last = now
+        for m in self.members:
+            m.sync()
+            if not m.chip.motion.idle:
+                continue
+            m.chip.set_switch(m.switch(m.chip.shaft))  # a forced or moved end stop
+
+
+class _Node:
+    """py-spidev's ``SpiDev`` over the world's chains."""
+
+    def __init__(self, chains: dict[tuple[int, int], MockChain]) -> None:
+        self._chains = chains
+        self._chain: MockChain | None = None
+        self.mode = 0
+        self.bits_per_word = 8
+        self.max_speed_hz = 500_000
+
+    def open(self, bus: int, device: int) -> None:
+        chain = self._chains.get((bus, device))
+        if chain is None:
+            path = f"/dev/spidev{bus}.{device}"
+            raise OSError(errno.ENOENT, os.strerror(errno.ENOENT), path)
+        self._chain = chain
+
+    def xfer2(self, values: list[int]) -> list[int]:
+        chain = self._chain
+        if chain is None:
+            raise OSError(errno.EBADF, "the mock SPI node is not open")
+        chain.catch_up()
+        chain.chain.mode = self.mode
+        try:
+            return chain.chain.xfer2(values)
+        except ValueError as exc:  # another SPI mode: the chips would read garbage
+            raise OSError(errno.EIO, str(exc)) from exc
+
+    def close(self) -> None:
+        self._chain = None
+
+
+class MockSpiNodes:
+    """The world's SPI nodes: call it for a new ``SpiDev`` (a py-spidev factory)."""
+
+    def __init__(self, spec: HardwareSpec, axes: list[MockAxis], clock: Clock) -> None:
+        self.chains: dict[tuple[int, int], MockChain] = {}
+        for node, members in chains(spec).items():
+            bus, _, cs = node.removeprefix("/dev/spidev").partition(".")
+            moved = [_Moved(axes[i], s) for i, s in members]
+            self.chains[(int(bus), int(cs))] = MockChain(moved, clock)
+
+    def __call__(self) -> _Node:
+        return _Node(self.chains)
+
+    def chip(self, axis: int, spec: HardwareSpec) -> DspinChip:
+        """The chip model that moves axis ``axis`` (tests inject faults into it)."""
+        driver = spec.axes[axis].driver
+        if not isinstance(driver, DspinSpec):
+            raise ValueError(f"motor {axis} has no dSPIN chip")
+        bus, _, cs = driver.spi.removeprefix("/dev/spidev").partition(".")
+        return self.chains[(int(bus), int(cs))].members[driver.position].chip
+
+
+def factory_of(spec: HardwareSpec, axes: list[MockAxis], clock: Clock) -> MockSpiNodes | None:
+    """The world's SPI nodes, when the spec has dSPIN chips (None: no simulated SPI)."""
+    return MockSpiNodes(spec, axes, clock) if chains(spec) else None

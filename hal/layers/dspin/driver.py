@@ -1,0 +1,328 @@
+"""The dSPIN chips of a motorctl machine: a chain on its SPI bus (:class:`Chain`) and each
+chip's driver (:class:`DspinDriver`): its start-up, its STATUS as the HAL's driver poller
+reads it, and the HAL's :class:`~motorctl.hal.interfaces.RampDriver` capability (the chip
+runs its own ramps: GoTo_DIR, Run, GoUntil, ReleaseSW, SoftStop, HardStop).
+
+**GetStatus clears the latched flags** (UVLO, thermal, OCD, STEP_LOSS, SW_EVN, the command
+errors), so every GetStatus of a chip goes through :meth:`DspinDriver.took`, which keeps
+what it read until its reader takes it: the faults until the driver poller's next reading
+reports them (E4), SW_EVN until the ramp's next read (an end stop). The poller reads every
+chip of a chain in one exchange (:meth:`Chain.poll`); the executor's reads use GetParam,
+which clears nothing, except :meth:`DspinDriver.watch`, which starts a motion with the
+switch's old event gone (a GetStatus, its faults kept for the poller).
+
+Units: positions are ABS_POS (microsteps, one protocol step each), speeds step/s and
+ramps step/s^2 of the protocol, converted to the registers by ``convert.py`` (clamped,
+never refused; the clamps are counted in ``clamped``).
+
+Threads: :func:`start_chain` runs on the thread that opens the hardware. Afterwards two
+threads talk to a chain: the driver poller (``Chain.poll``) and the planner (the ramp
+calls, with the engine's lock held); each exchange holds the bus's lock (hal/spi.py), and a
+driver's kept flags are behind its own lock. :meth:`DspinDriver.status` and ``stats`` read
+snapshots without I/O, from any thread.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+
+from motorctl.hal.dspin.chips import Chip
+from motorctl.hal.dspin.commands import COPY_TO_MARK, Command, Op, get_param, set_param, simple
+from motorctl.hal.dspin.spec import DspinSpec
+from motorctl.hal.dspin.status import MotorState, Status
+from motorctl.hal.interfaces import DriverStatus, HalError, RampDriver, RampStatus, StepperDriver
+from motorctl.hal.layers.dspin import chain as framing
+from motorctl.hal.layers.dspin import convert, program
+from motorctl.hal.spi import SpiBus, SpiError
+
+log = logging.getLogger("motorctl.dspin")
+
+#: ACT of GoUntil and ReleaseSW: ABS_POS copied to MARK (the position stays continuous;
+#: the motor's zero is set where MARK says, docs/protocol.md's homing rule)
+MARK = COPY_TO_MARK
+#: the flags that say the chip refused a command
+_REFUSED = ("WRONG_CMD", "NOTPERF_CMD", "CMD_ERROR")
+#: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
+ALARMS_BUT_SWITCH = 0xFF & ~(1 << 6)
+
+
+class DspinError(HalError):
+    """A dSPIN chip is not what the config says, or refused its set-up; the message names
+    the chip, its chain and the fix."""
+
+
+class Chain:
+    """The chips on one chip select: ``length`` of them on ``bus``."""
+
+    def __init__(self, bus: SpiBus, length: int) -> None:
+        self.bus = bus
+        self.length = length
+        self.drivers: list[DspinDriver] = []
+
+    def exchange(self, commands: Mapping[int, Command]) -> dict[int, int]:
+        """Send ``commands`` (chip -> command) together; each answering chip's value."""
+        ex = framing.exchange(self.length, commands)
+        return ex.values(self.bus.xfer_many(ex.transfers))
+
+    def send(self, chip: int, commands: Sequence[Command]) -> None:
+        """``commands`` for chip ``chip``, in order, in one sequence of transfers that no
+        other exchange on the bus comes between (none of them answers)."""
+        data = b"".join(c.encode() for c in commands)
+        self.bus.xfer_many(framing.frame(self.length, {chip: data}))
+
+    def poll(self) -> list[tuple[StepperDriver, DriverStatus]]:
+        """The driver poller's read: one GetStatus of every chip in one exchange, its news
+        kept before anyone else reads a chip (the bus held throughout: a motion's
+        :meth:`DspinDriver.watch` comes before or after, never between)."""
+        with self.bus.session():
+            try:
+                words = self.exchange({d.position: simple(Op.GET_STATUS) for d in self.drivers})
+            except SpiError as exc:
+                return [(d, d.failed(exc)) for d in self.drivers]
+            return [(d, d.took(Status(d.chip.status, words[d.position]))) for d in self.drivers]
+
+
+@dataclass
+class _Kept:
+    """What a GetStatus read that its readers have not taken yet."""
+
+    faults: set[str] = field(default_factory=set)  # the flags' names
+    spi: str | None = None  # a failed read
+    switch_event: bool = False
+
+
+class DspinDriver(StepperDriver, RampDriver):
+    """One chip of a chain: the motor's driver and its ramp."""
+
+    def __init__(self, name: str, spec: DspinSpec, chain: Chain, poll_s: float, idle_s: float):
+        self.name = name
+        self.spec = spec
+        self.chip: Chip = spec.model
+        self.position = spec.position
+        self.chain = chain
+        self.microsteps = spec.steps_per_full
+        self.poll_s = poll_s
+        self.idle_poll_s = idle_s
+        self._lock = threading.Lock()
+        self._kept = _Kept()
+        self._status = DriverStatus()
+        self._watch = 0  # the switch side armed to stop the motion (+1, -1, 0)
+        self._release = 0  # the side whose release ends it
+        self._until = False  # the motion is a GoUntil: MARK latches the switch's edge
+        self._settled = False  # the chip ended the motion short of its target on purpose
+        self._limit: int | None = None  # a ReleaseSW's farthest position
+        self.polls = 0
+        self.spi_errors = 0
+        self.clamped = 0
+        self.fault_counts: dict[str, int] = {}
+        self.warning_counts: dict[str, int] = {}
+        self.last_status: Status | None = None
+
+    # -- the bus ---------------------------------------------------------------------------
+    def _get(self, register: str) -> int:
+        reg = self.chip.registers[register]
+        return self.chain.exchange({self.position: get_param(reg)})[self.position]
+
+    def _send(self, *commands: Command) -> None:
+        self.chain.send(self.position, commands)
+
+    def _set(self, values: Mapping[str, int]) -> list[Command]:
+        return [set_param(self.chip.registers[n], v) for n, v in values.items()]
+
+    # -- start-up --------------------------------------------------------------------------
+    def start(self) -> None:
+        """Check the chip and set it up, bridges in HiZ: the latched power-up flags read and
+        cleared, CONFIG compared with the model's reset value, then STEP_MODE, CONFIG, the
+        configured registers and ALARM_EN written and read back."""
+        where = f"{self.name}: the {self.chip.name} at position {self.position} of the chain "
+        where += f"on {self.chain.bus.path}"
+        word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+        config = self._get("CONFIG")
+        if config != self.chip.config.reset:
+            raise DspinError(
+                f"{where} reads CONFIG 0x{config:04X}, not the {self.chip.name}'s 0x"
+                f"{self.chip.config.reset:04X} (STATUS 0x{word:04X}): check [motors.dspin] "
+                "driver and position (position 0 is the chip at MOSI) and the chain's wiring"
+            )
+        wanted = {
+            "STEP_MODE": self.chip.step_mode(self.microsteps),
+            "CONFIG": self.chip.config.reset or 0,  # SW_MODE 0: the switch hard-stops
+            **dict(self.spec.registers),
+            "ALARM_EN": ALARMS_BUT_SWITCH,
+        }
+        self._send(simple(Op.HARD_HIZ), *self._set(wanted))
+        for name, value in wanted.items():
+            got = self._get(name)
+            if got != value:
+                raise DspinError(
+                    f"{where}: {name} reads 0x{got:X} after 0x{value:X} was written; check "
+                    "the chain's wiring (SDO to the next SDI) and its supply"
+                )
+        # the power-up UVLO (and whatever the set-up latched) is gone with this read
+        self.chain.exchange({self.position: simple(Op.GET_STATUS)})
+
+    def close(self) -> None:
+        """Leave the bridges off (HiZ) where so configured, the motor stopped."""
+        try:
+            self._send(simple(Op.HARD_HIZ if self.spec.hiz_at_exit else Op.HARD_STOP))
+        except SpiError as exc:
+            log.error("%s: could not stop the chip at exit: %s", self.name, exc)
+
+    # -- the status (the driver poller) ---------------------------------------------------
+    def took(self, st: Status) -> DriverStatus:
+        """A GetStatus's word: keep its latched news for their readers; the driver
+        poller's reading (the faults kept since its last one)."""
+        self.polls += 1
+        self.last_status = st
+        self._keep(st)
+        return self._publish()
+
+    def _keep(self, st: Status) -> None:
+        for w in st.warnings:
+            self.warning_counts[w] = self.warning_counts.get(w, 0) + 1
+            log.warning("%s: %s", self.name, w)
+        with self._lock:
+            self._kept.faults |= {*st.faults, *st.command_errors}
+            self._kept.switch_event |= st.switch_event
+
+    def failed(self, exc: BaseException) -> DriverStatus:
+        self.spi_errors += 1
+        with self._lock:
+            self._kept.spi = f"SPI: {exc}"
+        return self._publish()
+
+    def _publish(self) -> DriverStatus:
+        """The faults kept since the last reading, now this reading's: the chip latches a
+        fault until a GetStatus finds it gone, so each one is reported once at least."""
+        with self._lock:
+            names, spi = sorted(self._kept.faults), self._kept.spi
+            self._kept.faults, self._kept.spi = set(), None
+        for name in names:
+            self.fault_counts[name] = self.fault_counts.get(name, 0) + 1
+        said = [f"{n} (the chip refused a command)" if n in _REFUSED else n for n in names]
+        if spi is not None:
+            said.append(spi)
+        self._status = DriverStatus(fault=f"{self.chip.name}: {', '.join(said)}" if said else None)
+        return self._status
+
+    def refresh(self) -> DriverStatus:
+        return self._status  # the chain's poll reads every chip at once (Chain.poll)
+
+    def status(self) -> DriverStatus:
+        """The last reading's verdict (no I/O, takes nothing)."""
+        return self._status
+
+    def stats(self) -> dict[str, object]:
+        return {
+            "chip": self.chip.name,
+            "device": self.chain.bus.path,
+            "chain_position": self.position,
+            "polls": self.polls,
+            "spi_errors": self.spi_errors,
+            "clamped": self.clamped,
+            "fault_counts": dict(self.fault_counts),
+            "warning_counts": dict(self.warning_counts),
+            "status": None if self.last_status is None else str(self.last_status),
+        }
+
+    # -- the ramp (RampDriver) -------------------------------------------------------------
+    def _read(self) -> tuple[int, int, Status]:
+        regs = self.chip.registers
+        got = {}
+        for name in ("ABS_POS", "SPEED", "STATUS"):
+            got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
+        return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
+
+    def ramp_status(self) -> RampStatus:
+        try:
+            pos, speed, st = self._read()
+        except SpiError as exc:
+            raise DspinError(f"{self.name}: {exc}") from exc
+        with self._lock:
+            event = self._kept.switch_event or st.switch_event
+        standing = st.motor is MotorState.STOPPED
+        if self._limit is not None and st.switch_closed and not standing:
+            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
+            if beyond:  # ReleaseSW ran its whole way: the switch never opened
+                self._send(simple(Op.HARD_STOP))
+                self._settled, self._limit = True, None
+        velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
+        side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
+        stopped = bool(side and self._watch == side and event and standing)
+        released = bool(side and self._release == side and not st.switch_closed and standing)
+        latched = (stopped and self._until) or released
+        return RampStatus(
+            position=pos,
+            velocity=0.0 if standing else velocity,
+            active_min=side < 0 and st.switch_closed,
+            active_max=side > 0 and st.switch_closed,
+            stopped_min=side < 0 and stopped,
+            stopped_max=side > 0 and stopped,
+            latched_min=side < 0 and latched,
+            latched_max=side > 0 and latched,
+            settled=self._settled and standing,
+        )
+
+    def latched_position(self) -> int:
+        return self._get("MARK")
+
+    def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
+        del (
+            stall
+        )  # stall homing on STEP_LOSS is not offered: the config refuses it (_no_stall_homing)
+        with self.chain.bus.session():  # no poll between the read and the clearing
+            word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+            self._keep(Status(self.chip.status, word))  # its faults stay for the poller
+            with self._lock:
+                self._kept.switch_event = False
+        self._watch, self._release = direction, release
+        self._until = self._settled = False
+        self._limit = None
+
+    def _standing(self) -> tuple[int, bool, bool]:
+        """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
+        nothing)."""
+        st = Status(self.chip.status, self._get("STATUS"))
+        return self._get("ABS_POS"), st.motor is MotorState.STOPPED, st.busy
+
+    def _do(self, p: program.Program) -> None:
+        self.clamped += len(p.clamped)
+        self._send(*p.commands)
+
+    def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
+        pos, standing, busy = self._standing()
+        if self._release:  # homing's back-off: ReleaseSW at MIN_SPEED to where it opens
+            self._limit = target
+            self._do(program.release(self.chip, self.microsteps, self._release > 0, speed, MARK))
+            return
+        if busy and not standing:  # GoTo while BUSY is refused: a stop along DEC
+            self._settled = True
+            self._do(program.stop(hard=False))
+            return
+        try:
+            p = program.move_to(
+                self.chip, self.microsteps, pos, target, speed, acc, dec, at_rest=standing
+            )
+        except convert.OutOfRange as exc:
+            raise DspinError(f"{self.name}: {exc}") from exc
+        self._do(p)
+
+    def run(self, direction: int, speed: float, acc: float) -> None:
+        _, standing, _ = self._standing()
+        up = direction > 0
+        side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
+        if side and self._watch == side == direction:  # to the switch: MARK at its edge
+            self._until = True
+            self._do(program.home(self.chip, self.microsteps, up, speed, acc, acc, standing, MARK))
+            return
+        self._do(program.move(self.chip, self.microsteps, up, speed, acc, acc, speed, standing))
+
+    def stop(self, dec: float | None) -> None:
+        self._limit = None
+        self._do(program.stop(hard=dec is None))
+
+    def report_stall_stop(self) -> bool:
+        return False
