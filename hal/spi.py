@@ -51,6 +51,12 @@ from typing import Protocol
 from motorctl.hal.interfaces import HalError
 
 SPI_MODE_3 = 3  # CPOL = 1, CPHA = 1: what the TMC2130/TMC5160 and the dSPIN chips expect
+#: every chip family's defaults for its ``spi`` and ``spi_speed_hz`` keys ([motors.tmc],
+#: [motors.dspin]): the first device of bus 0, and a clock every supported chip takes
+DEFAULT_DEVICE = "/dev/spidev0.0"
+DEFAULT_SPEED_HZ = 1_000_000
+#: what a ``spi`` key must look like, as the config's pattern and in its error
+DEVICE_PATTERN = r"/dev/spidev[0-9]+\.[0-9]+"
 
 
 class SpiError(HalError):

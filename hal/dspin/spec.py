@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from motorctl.hal.dspin.chips import CHIPS, Chip
 from motorctl.hal.dspin.registers import ABS_POS_BITS
 from motorctl.hal.spec import DriverSpec, HardwareSpec
+from motorctl.hal.spi import DEFAULT_SPEED_HZ
 
 #: the sides the chip's SW input can be wired to (``none``: no switch on SW)
 SWITCH_SIDES = ("min", "max", "none")
@@ -32,7 +33,7 @@ class DspinSpec(DriverSpec):
     steps_per_full: int  # microsteps per full step (STEP_SEL)
     registers: tuple[tuple[str, int], ...] = ()
     switch: str = "min"
-    spi_speed_hz: int = 1_000_000
+    spi_speed_hz: int = DEFAULT_SPEED_HZ
     hiz_at_exit: bool = True
 
     @property

@@ -47,6 +47,12 @@ AGAIN = {
     ("hal/dspin/status.py", "active_low"): "a dSPIN status flag's polarity, not an end stop's",
     ("hal/backends/gpiod/chip.py", "debounce_us"): "a line request's field (0: none); an end "
     "stop's request passes the motor's [motors.endstop] debounce_ms",
+    ("motion/executors/chip_ramp.py", "position"): "an axis's last read position, not "
+    "[motors.dspin] position (a place in the chain)",
+    # two chip families' own settings, each written once, equal by chance: [motors.tmc]
+    # microsteps in hal/layers/tmc/settings.py
+    ("hal/layers/dspin/config.py", "microsteps"): "[motors.dspin] microsteps, the dSPIN's "
+    "own (STEP_SEL), equal to the TMC layer's by chance",
     ("hal/interfaces.py", "poll_s"): "RampDriver's poll, the one default of [spidev] "
     "ramp_poll_ms, named like [drivers] poll_ms",
 }

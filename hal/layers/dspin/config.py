@@ -21,6 +21,7 @@ from motorctl.hal.contract import LayerDeclaration, MotorEntry
 from motorctl.hal.dspin.chips import CHIPS, Chip
 from motorctl.hal.dspin.spec import SWITCH_SIDES, DspinSpec
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import DEFAULT_DEVICE, DEVICE_PATTERN
 from motorctl.schema import (
     Extension,
     Rule,
@@ -32,8 +33,6 @@ from motorctl.schema import (
     section,
     text,
 )
-
-_SPI_PATTERN = r"/dev/spidev[0-9]+\.[0-9]+"
 
 #: the chips ``[motors.dspin] driver`` takes (hal/dspin/chips.py's names)
 DRIVERS = tuple(CHIPS)
@@ -69,16 +68,19 @@ class DspinAxisConfig:
         "CONFIG reset value is checked at start.",
     )
     spi: str = text(
-        "/dev/spidev0.0",
+        DEFAULT_DEVICE,
         "The SPI device of the chain: bus B, chip select C.",
-        pattern=_SPI_PATTERN,
+        pattern=DEVICE_PATTERN,
         pattern_text="/dev/spidevB.C, for example /dev/spidev0.1",
     )
     position: int = integer(
         0, 0, 15, "Place in the daisy chain: 0 = the chip whose SDI is the host's MOSI."
     )
     spi_speed_hz: int = integer(
-        1_000_000, 10_000, 5_000_000, "SPI clock; the chips accept up to 5 MHz (SPI mode 3)."
+        DspinSpec.spi_speed_hz,
+        10_000,
+        5_000_000,
+        "SPI clock; the chips accept up to 5 MHz (SPI mode 3).",
     )
     microsteps: int = integer(
         16,
@@ -102,11 +104,13 @@ class DspinAxisConfig:
         16, 0, 127, "STALL_TH, the stall threshold register (L6480/powerSTEP01: 0..31)."
     )
     switch: str = choice(
-        "min",
+        DspinSpec.switch,
         SWITCH_SIDES,
         "The end stop wired to the chip's SW input: min (below), max (above) or none.",
     )
-    hiz_at_exit: bool = boolean(True, "Bridges to high impedance when motorctld exits.")
+    hiz_at_exit: bool = boolean(
+        DspinSpec.hiz_at_exit, "Bridges to high impedance when motorctld exits."
+    )
 
 
 def _chip(v: DspinAxisConfig) -> Chip:

@@ -28,6 +28,7 @@ from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
 from motorctl.hal.layers.tmc.tmc5160 import TMC5160
 from motorctl.hal.spec import HardwareSpec
+from motorctl.hal.spi import DEFAULT_DEVICE, DEVICE_PATTERN
 from motorctl.schema import (
     Extension,
     Rule,
@@ -39,8 +40,6 @@ from motorctl.schema import (
     section,
     text,
 )
-
-_SPI_PATTERN = r"/dev/spidev[0-9]+\.[0-9]+"
 
 #: the chips the layer knows, by the name ``[motors.tmc] driver`` takes
 CHIPS: Final[Mapping[str, Chip]] = {"tmc2130": TMC2130, "tmc5160": TMC5160}
@@ -72,9 +71,9 @@ class TmcAxisConfig:
 
     driver: str = choice("tmc2130", tuple(CHIPS), "The chip: its IOIN version is checked.")
     spi: str = text(
-        "/dev/spidev0.0",
+        DEFAULT_DEVICE,
         "The SPI device: bus B, chip select C.",
-        pattern=_SPI_PATTERN,
+        pattern=DEVICE_PATTERN,
         pattern_text="/dev/spidevB.C, for example /dev/spidev0.1",
     )
     spi_speed_hz: int = integer(

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from motorctl.hal.layers.tmc.fields import Chip, F, Reg, mres_of, tstep_for
 from motorctl.hal.layers.tmc.tmc2130 import TMC2130
 from motorctl.hal.spec import AxisSpec, DriverSpec
+from motorctl.hal.spi import DEFAULT_SPEED_HZ
 
 
 @dataclass(frozen=True)
@@ -81,7 +82,7 @@ class TmcSpec(DriverSpec):
 
     spi: str  # "/dev/spidevB.C"
     settings: TmcSettings
-    spi_speed_hz: int = 1_000_000
+    spi_speed_hz: int = DEFAULT_SPEED_HZ
     ramp: bool = False  # TMC5160 motion-controller mode (its ramp generator moves the motor)
     ref_left_active_low: bool = False
     ref_right_active_low: bool = False
