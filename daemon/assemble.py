@@ -60,6 +60,7 @@ from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
 from motorctl.daemon.state.writer import StateWriter
 from motorctl.daemon.status.document import status_document, summary_line
 from motorctl.daemon.status.server import StatusServer
+from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
@@ -202,11 +203,14 @@ class Daemon:
         clock: Clock | None = None,
         executor_process: WaitingInterpreter | None = None,
         undo: contextlib.ExitStack | None = None,
+        timeline: StartTimeline | None = None,
     ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
         :func:`motorctl.daemon.main.main`. What it opens (the hardware, the step executor)
         registers its close on ``undo``, the caller's stack for a later part's failure; by
-        default on its own, closed when a part of the daemon fails."""
+        default on its own, closed when a part of the daemon fails. ``timeline``: marked as
+        each part is built (daemon/timeline.py)."""
+        timeline = timeline or StartTimeline("build")
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
         spec = hardware_spec(config)
@@ -220,11 +224,13 @@ class Daemon:
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
             opened.callback(quietly(hw.close))  # the lines, e.g. the mock's shared memory
+            timeline.mark("hardware")
             try:
                 executor = build_executor(config, hw, spec, params, executor_process)
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
             opened.callback(quietly(executor.close))  # e.g. the process executor's memory
+            timeline.mark("executor handed over")
             engine = MotionEngine(
                 hw,
                 params,
@@ -244,6 +250,7 @@ class Daemon:
             daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
             persistence.restore()
             persistence.open()
+            timeline.mark("state")
             own.pop_all()  # built: nothing to close
         engine.listeners.append(daemon._on_motor_event)  # the one listener
         return daemon
@@ -338,13 +345,16 @@ def build_served(
     options: ServeOptions,
     owned: Owned,
     executor_process: WaitingInterpreter | None = None,
+    timeline: StartTimeline | None = None,
 ) -> Served:
     """Everything the daemon runs, built and wired, in the order a start must fail in: the
     serial device before the state (one that is there but cannot be used stops the start
     before the state is restored and written again; one that is not there yet is served
     when it appears), the daemon behind the port, the PTY (its link recorded in ``owned``),
     the trace, the link, the status socket. A part that fails closes what was opened
-    before it (ConfigError, StartupError or the HAL's error)."""
+    before it (ConfigError, StartupError or the HAL's error). ``timeline``: marked as each
+    part is built (daemon/timeline.py)."""
+    timeline = timeline or StartTimeline("build")
     why = check_timeout(config.link.timeout_ms, options.baud)
     if why is not None:
         raise ConfigError(f"{config.source}: {why}")
@@ -353,7 +363,11 @@ def build_served(
         if uart is not None:
             undo.callback(quietly(uart.close))
         daemon = Daemon.build(
-            config, options.state_dir, executor_process=executor_process, undo=undo
+            config,
+            options.state_dir,
+            executor_process=executor_process,
+            undo=undo,
+            timeline=timeline,
         )
         pty: PtySlave | None = None
         if options.pty is not None:
@@ -367,6 +381,7 @@ def build_served(
             where = f"{options.port} at {options.baud} baud"
             if fd < 0:
                 where += " (not there yet: served when it appears)"
+        timeline.mark("PTY" if options.pty is not None else "port")
         recorder = open_trace(options.trace, config, where)
         if recorder is not None:
             undo.callback(quietly(recorder.close))
@@ -386,7 +401,9 @@ def build_served(
         undo.callback(quietly(link.close))
         daemon.link = link
         daemon.trace = recorder
+        timeline.mark("link")
         status = open_status(options.state_dir, daemon)
+        timeline.mark("status socket")
         undo.pop_all()  # built: from here on, Served.close closes it
     events = MotorEventLog()
     refusals = daemon.dispatcher.refusals

@@ -30,6 +30,7 @@ from motorctl.daemon.link.silence import check_timeout
 from motorctl.daemon.serve import serve
 from motorctl.daemon.service import setup_logging
 from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
@@ -205,8 +206,9 @@ def main(
     executor takes it over; ended unused otherwise (another executor, another command, an
     error). Output into a pipe whose reader went away (``motorctld --status | head``) ends
     the command quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
+    timeline = StartTimeline("imported")  # a serving start's steps (daemon/timeline.py)
     try:
-        return _main(argv, executor_process)
+        return _main(argv, executor_process, timeline)
     except BrokenPipeError:
         # Python would flush stdout again at exit and complain: point it at /dev/null
         devnull = os.open(os.devnull, os.O_WRONLY)
@@ -218,9 +220,14 @@ def main(
             executor_process.dismiss()  # a no-op once taken over
 
 
-def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | None) -> int:
+def _main(
+    argv: Sequence[str] | None,
+    executor_process: WaitingInterpreter | None,
+    timeline: StartTimeline,
+) -> int:
     args = parse_args(argv)
     logs_to = setup_logging(args.log_level)
+    timeline.mark("arguments")
     if args.print_default_config:
         from motorctl.daemon.config import default_config_text
 
@@ -268,7 +275,7 @@ def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | Non
     log.debug("logging to %s", logs_to)
     options = ServeOptions(args.state_dir, args.pty, args.port, args.baud, args.trace)
     try:
-        return serve(args.config, options, executor_process)
+        return serve(args.config, options, executor_process, timeline)
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
