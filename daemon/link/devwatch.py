@@ -17,6 +17,9 @@ cannot see, such as a change on another machine's file system, or no inotify at 
 
 inotify is reached through the C library (``inotify_init1``, ``inotify_add_watch``,
 ``inotify_rm_watch``; ctypes, no extra package): Python's standard library has no binding.
+It is the interpreter's own C library (``CDLL(None)``), never looked up with
+``ctypes.util.find_library``, which runs ``ldconfig -p`` in a process of its own: the PTY's
+watch is made at every start, and that look-up was most of the PTY's share of the start.
 
 Threads: owned by the link thread (armed at a loss, read while the device is away,
 disarmed when it is back).
@@ -26,7 +29,6 @@ from __future__ import annotations
 
 import contextlib
 import ctypes
-import ctypes.util
 import errno
 import logging
 import os
@@ -107,7 +109,7 @@ def read_events(fd: int) -> list[tuple[int, int, str]]:
 
 def _libc() -> ctypes.CDLL | None:
     try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or None, use_errno=True)
+        libc = ctypes.CDLL(None, use_errno=True)  # the interpreter's own (no ldconfig run)
         libc.inotify_init1.argtypes = [ctypes.c_int]
         libc.inotify_add_watch.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_uint32]
         libc.inotify_rm_watch.argtypes = [ctypes.c_int, ctypes.c_int]
