@@ -126,7 +126,6 @@ def run(served: Served, stop: StopSignals, timeline: StartTimeline | None = None
     daemon.persistence.start()
     daemon.engine.start()
     served.status.start()
-    daemon.gc_policy.ready()
     if served.watchdog is not None:
         served.watchdog.start()
     executor = daemon.engine.executor
@@ -146,6 +145,9 @@ def run(served: Served, stop: StopSignals, timeline: StartTimeline | None = None
         log.info("systemd notifications through %s", notify_backend()[0])
     sd_notify("READY=1")
     log.debug("%s", timeline.text())
+    # the start's garbage collected, what lives on frozen (rt.GcPolicy): a full collection,
+    # which READY need not wait for; the link serves once it is done
+    daemon.gc_policy.ready()
     served.line.start()
     threading.Thread(
         target=stop_when_executor_dies,
