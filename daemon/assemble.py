@@ -34,7 +34,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, MotorConfig
@@ -45,7 +45,6 @@ from motorctl.daemon.instance import Owned
 from motorctl.daemon.link.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import PtySlave, open_pty
-from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.link.serialport import DeviceError, SerialDevice
 from motorctl.daemon.link.silence import SilenceWatch, check_timeout
 from motorctl.daemon.service import (
@@ -74,8 +73,10 @@ from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.types import HomingParams, MotorParams
-from motorctl.protocol.capture.format import CaptureInfo
 from motorctl.protocol.codec import wrap24
+
+if TYPE_CHECKING:  # imported when a trace is asked for (open_trace)
+    from motorctl.daemon.link.recorder import TraceRecorder
 
 log = logging.getLogger("motorctl")
 
@@ -549,11 +550,15 @@ def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> Silence
 
 
 def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder | None:
-    """The link's trace recorder, when ``--trace`` or ``[trace] file`` asks for one."""
+    """The link's trace recorder, when ``--trace`` or ``[trace] file`` asks for one (its
+    modules imported only then)."""
     t = config.trace
     path = option.absolute() if option is not None else Path(t.file) if t.file else None
     if path is None:
         return None
+    from motorctl.daemon.link.recorder import TraceRecorder
+    from motorctl.protocol.capture.format import CaptureInfo
+
     c = config.link
     info = CaptureInfo(
         role="daemon",

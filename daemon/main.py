@@ -6,6 +6,10 @@ daemon/platform_check.py, ``--status`` read through daemon/status/reader.py), an
 command line that serves, the hand-over to daemon/serve.py, which runs the daemon; a
 daemon that cannot start says why here, in one line, and exits 1.
 
+What only a command that prints and exits needs (the platform check, the status reader and
+its summary, the compiled core's probe) is imported when that command runs: a start that
+serves imports none of it (tests/daemon/test_launch_startup.py).
+
 Threads: the main thread, all of it (serving goes on in daemon/serve.py on this thread).
 """
 
@@ -14,30 +18,30 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import shutil
 import stat
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from motorctl import __version__
-from motorctl.daemon import platform_check
 from motorctl.daemon.assemble import ServeOptions, hardware_spec, known_microsteps
 from motorctl.daemon.config import ConfigError, StepThreadConfig, load_config
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.link.silence import check_timeout
 from motorctl.daemon.serve import serve
 from motorctl.daemon.service import setup_logging
-from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
-from motorctl.motion.executors import compiled_core
 from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.rt import RealtimeOptions
 from motorctl.protocol.line import parse_baud
+
+if TYPE_CHECKING:
+    from motorctl.daemon import platform_check
 
 log = logging.getLogger("motorctl")
 
@@ -311,6 +315,8 @@ def status_command(args: argparse.Namespace) -> int:
         return 2
     import json
 
+    from motorctl.daemon.status.reader import read_status
+
     metrics: ModuleType | None = None
     if args.format != "json":
         try:
@@ -334,6 +340,8 @@ def status_command(args: argparse.Namespace) -> int:
     elif args.json or args.histogram or not sys.stdout.isatty():
         print(json.dumps(doc, indent=1))  # scripts and pipes: the document as it is
     else:
+        import shutil
+
         from motorctl.daemon.status.summary import summary
 
         sys.stdout.write(summary(doc, min(shutil.get_terminal_size().columns, 120)))
@@ -345,6 +353,8 @@ def probe(
 ) -> int:
     """``--probe``: what the configured hardware looks like, moving nothing; then the
     platform (docs/timing.md, "Checking a platform"), which advises and never fails it."""
+    from motorctl.daemon import platform_check
+
     try:
         config = load_config(config_path)
     except ConfigError as exc:
@@ -381,6 +391,8 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
     """``--probe``'s lines on the step core: what is built, what the backend's lines offer,
     which core the daemon would run (``[step_thread] core``); a core = "compiled" that
     could not run is one of the report's problems."""
+    from motorctl.motion.executors import compiled_core
+
     built = compiled_core.unavailable()
     lines = report.compiled_lines
     out = [

@@ -15,13 +15,12 @@ status read never delays planning, let alone a step. :func:`summary_line` is pur
 from __future__ import annotations
 
 import time
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from motorctl import __version__
 from motorctl.daemon.config import Config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link.loop import Link
-from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.refusals import Refusals
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.hal.interfaces import HalError, Hardware, Pin
@@ -30,6 +29,9 @@ from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import Executor
 from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.profile import Trajectory
+
+if TYPE_CHECKING:  # a trace's modules are imported only when one is asked for
+    from motorctl.daemon.link.recorder import TraceRecorder
 
 
 class Parts(Protocol):
