@@ -46,9 +46,44 @@ if TYPE_CHECKING:
 log = logging.getLogger("motorctl")
 
 
+def terminal_columns() -> int:
+    """The terminal's width as ``shutil.get_terminal_size`` finds it: ``COLUMNS``, else
+    standard output's terminal, else 80."""
+    try:
+        columns = int(os.environ["COLUMNS"])
+    except (KeyError, ValueError):
+        columns = 0
+    if columns > 0:
+        return columns
+    stdout = sys.__stdout__
+    if stdout is None:
+        return 80
+    try:
+        return os.get_terminal_size(stdout.fileno()).columns or 80
+    except (ValueError, OSError):
+        return 80
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's own, at the width it would choose (:func:`terminal_columns`, less 2),
+    found without importing shutil: argparse makes a formatter for every option it is
+    given, and shutil (with its archive modules) would be imported by every start for it."""
+
+    def __init__(
+        self,
+        prog: str,
+        indent_increment: int = 2,
+        max_help_position: int = 24,
+        width: int | None = None,
+    ) -> None:
+        width = terminal_columns() - 2 if width is None else width
+        super().__init__(prog, indent_increment, max_help_position, width)
+
+
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="motorctld",
+        formatter_class=HelpFormatter,
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
         epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
         "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
