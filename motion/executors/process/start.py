@@ -25,10 +25,12 @@ import contextlib
 import os
 import pickle
 import socket
-import subprocess
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported where a process is started: the executor's own needs none
+    import subprocess
 
 #: The child's program (its first line is what ``ps`` shows after ``python -c``). SIGINT,
 #: SIGTERM and SIGHUP are the daemon's to act on (a service manager signals the whole
@@ -63,6 +65,8 @@ class WaitingInterpreter:
     @classmethod
     def start(cls) -> WaitingInterpreter:
         """Start the interpreter; OSError when it cannot be (``sys.executable`` missing)."""
+        import subprocess
+
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             proc = subprocess.Popen([sys.executable, "-c", BOOTSTRAP], stdin=theirs.fileno())
