@@ -57,7 +57,7 @@ from motorctl.daemon.service import (
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
 from motorctl.daemon.state.writer import StateWriter
-from motorctl.daemon.status.document import status_document, summary_line
+from motorctl.daemon.status.document import StatusDocument, status_document, summary_line
 from motorctl.daemon.status.server import StatusServer
 from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, RampDriver
@@ -439,7 +439,7 @@ def open_status(state_dir: Path, daemon: Daemon) -> StatusServer:
     """The status socket ``status.sock`` in ``state_dir``, serving ``daemon``'s document."""
     path = state_dir / "status.sock"
     try:
-        return StatusServer(path, daemon.status)
+        return StatusServer(path, StatusDocument(daemon))  # its reads' own document
     except OSError as exc:
         raise StartupError(f"cannot serve the status socket {path}: {exc.strerror or exc}") from exc
 
