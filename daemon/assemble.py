@@ -7,8 +7,9 @@ the config asks for (:func:`build_executor`: process, running the step core ``[s
 core`` names; thread; or none when every motor's driver runs its own ramp), the motion
 engine, the state file and the dispatcher (:meth:`Daemon.build`: everything behind the
 serial port); then what serves it (:func:`build_served`): the port (a PTY, or the UART,
-daemon/link/), the trace, the link and its silence watch, the status socket, systemd's
-STATUS= line, the motor events' journal entries and the watchdog's idea of progress.
+daemon/link/), the trace and the link's silence watch (daemon/link_parts.py), the link,
+the status socket, systemd's STATUS= line, the motor events' journal entries and the
+watchdog's idea of progress.
 :meth:`Daemon._on_motor_event` is the one listener of the motors' events: it wakes each
 part that wants to know. It knows the HAL only by its interfaces: what some hardware can
 do it asks for (``RampDriver``, ``StepperDriver.stats``, ``Hardware.persistent_state``),
@@ -36,7 +37,6 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, MotorConfig
 from motorctl.daemon.config.model import MICROSTEPS_UNSAID
 from motorctl.daemon.dispatcher import Dispatcher
@@ -46,7 +46,8 @@ from motorctl.daemon.link.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import PtySlave, open_pty
 from motorctl.daemon.link.serialport import DeviceError, SerialDevice
-from motorctl.daemon.link.silence import SilenceWatch, check_timeout
+from motorctl.daemon.link.silence import check_timeout
+from motorctl.daemon.link_parts import open_trace, silence_watch
 from motorctl.daemon.service import (
     MotorEventLog,
     ProgressWatch,
@@ -75,7 +76,7 @@ from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.types import HomingParams, MotorParams
 from motorctl.protocol.codec import wrap24
 
-if TYPE_CHECKING:  # imported when a trace is asked for (open_trace)
+if TYPE_CHECKING:  # imported when a trace is asked for (link_parts.open_trace)
     from motorctl.daemon.link.recorder import TraceRecorder
 
 log = logging.getLogger("motorctl")
@@ -528,59 +529,6 @@ def build_executor(
     if process is not None:
         process.dismiss()  # no process executor after all (a no-op when it took it)
     return with_ramp_motors(steps, drivers, hw.clock)  # polled as the ramp drivers ask
-
-
-def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> SilenceWatch:
-    """``[link] timeout_ms`` and ``timeout_action``: the host's silence stops the motors
-    (its silence counted from ``now``, on the link's clock)."""
-    c = config.link
-    hard = c.timeout_action == "hard"
-    reason = f"link timeout: no byte from the host for {c.timeout_ms:g} ms"
-
-    def act(now: float) -> list[str]:
-        return dispatcher.link_silent(hard=hard, reason=reason)
-
-    if c.timeout_ms > 0:
-        log.info(
-            "[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
-            c.timeout_ms,
-            c.timeout_action,
-        )
-    return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
-
-
-def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder | None:
-    """The link's trace recorder, when ``--trace`` or ``[trace] file`` asks for one (its
-    modules imported only then)."""
-    t = config.trace
-    path = option.absolute() if option is not None else Path(t.file) if t.file else None
-    if path is None:
-        return None
-    from motorctl.daemon.link.recorder import TraceRecorder
-    from motorctl.protocol.capture.format import CaptureInfo
-
-    c = config.link
-    info = CaptureInfo(
-        role="daemon",
-        checksum=c.checksum,
-        crc_covers_ack=c.crc_covers_ack,
-        strict_padding=c.strict_padding,
-        frame_gap_ms=c.frame_gap_ms,
-        port=where,
-        application=f"motorctld {__version__}",
-    )
-    recorder = TraceRecorder(
-        path, info, max(4096, int(t.max_file_mb * (1 << 20))), t.files, time.monotonic()
-    )
-    try:
-        recorder.open()
-    except OSError as exc:
-        raise StartupError(
-            f"cannot write the trace file {path}: {exc.strerror or exc}; "
-            "give --trace (or [trace] file) a writable path"
-        ) from exc
-    log.info("tracing the link to %s (%d files of %.3g MiB at most)", path, t.files, t.max_file_mb)
-    return recorder
 
 
 def progress_watch(daemon: Daemon, link: Link) -> ProgressWatch:
