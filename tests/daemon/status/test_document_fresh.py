@@ -46,7 +46,7 @@ def read(path: Path) -> dict[str, Any]:
 def test_each_read_shows_what_its_reader_caused(served: tuple[LiveDaemon, Path]) -> None:
     live, path = served
     first = read(path)
-    assert first["motors"][0]["state"] == "idle" and read(path) == first  # nothing happened
+    assert first["motors"][0]["state"] == "idle"
     assert live.code(MoveTo(0, True, 300, 0, 0, 0)) is None
     doc = read(path)
     assert doc["link"]["recent"][-1]["command"].startswith("MoveTo(motor=0")
