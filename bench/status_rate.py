@@ -1,24 +1,43 @@
-"""How fast `motorctld --status` can be read while 3 motors step: reads/s and per-read latency.
+"""What reading motorctld's status costs the daemon while 3 motors step: CPU per read, the
+rate a reader reaches, and what a live monitor costs.
 
 A real daemon (bench/steps.py's, without real-time priority or a pinned CPU) runs 3 motors
-at --rate step/s each; this process reads its status socket with ``read_status`` paced at
---per-s reads a second (as bench/steps.py's ``status`` scenario does: a read, then sleep
-until the next slot if there is time left) for --seconds, and reports the rate reached and
-the per-read latency (connect to JSON parsed) p50/p99/max. ``--per-s 0`` reads back to
-back: the ceiling.
+at --rate step/s each. Three windows of --seconds each, on that one daemon:
+
+  idle     nobody reads: the daemon's own CPU with the motors stepping (the baseline)
+  reads    this process reads the status socket with ``read_status``, paced at --per-s
+           reads a second (a read, then sleep until the next slot if there is time left;
+           ``--per-s 0``: back to back, the ceiling): the rate reached, the per-read latency
+           (connect to JSON parsed) p50/p99/max, and the daemon's CPU per read, "gross"
+           (its CPU over the window over the reads) and "net" (less the idle window's rate:
+           what the reads themselves cost)
+  monitor  ``motorctl monitor --period 100`` (10 updates a second while the motors move) on
+           a terminal of its own (a PTY of 120 x 50, drained as a terminal would): the
+           daemon's CPU above the idle window, and the monitor process's own
+
+The daemon's CPU is its user + system time from /proc/PID/stat (every thread of it; the
+process executor's own process not counted: it steps the same with or without readers).
+Targets (issue 36): at most 0.1 ms of the daemon's CPU per read at 1,000 reads a second;
+the monitor at 10 Hz under 1 % of a CPU.
 
 Not a step-timing benchmark: bench/steps.py measures what the reads do to the steps (on a
-quiet machine, with real-time priority).
+quiet machine, with real-time priority). ``--json FILE`` writes the figures (flat keys).
 """
 
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import os
+import pty
 import shutil
+import struct
+import subprocess
 import sys
 import tempfile
+import termios
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -29,6 +48,10 @@ sys.path.insert(0, str(ROOT))
 from bench.steps import config_text  # noqa: E402  (the daemon of its status scenario)
 from motorctl.daemon.status.reader import read_status  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
+
+READ_TARGET_MS = 0.1
+MONITOR_TARGET_PERCENT = 1.0
+MONITOR_PERIOD_MS = 100
 
 
 def quantile(sorted_values: list[float], q: float) -> float:
@@ -56,13 +79,85 @@ def read_paced(sock: Path, seconds: float, per_s: int) -> tuple[int, float, list
         doc = read_status(sock)
         lat.append(time.perf_counter() - a)
         if not size:
-            size = len(json.dumps(doc))
+            size = len(json.dumps(doc, sort_keys=True))
         if period:
             nxt += period
             d = nxt - time.monotonic()
             if d > 0:
                 time.sleep(d)
     return len(lat), time.monotonic() - t0, lat, size
+
+
+def idle_window(pid: int, seconds: float) -> float:
+    """The daemon's CPU (s of CPU per s) while nobody reads."""
+    cpu0, t0 = cpu_s(pid), time.monotonic()
+    time.sleep(seconds)
+    return (cpu_s(pid) - cpu0) / (time.monotonic() - t0)
+
+
+def drain(fd: int, stop: threading.Event) -> None:
+    """Read what the monitor draws, as its terminal would, until it is gone."""
+    while not stop.is_set():
+        try:
+            if not os.read(fd, 65536):
+                return
+        except OSError:
+            return
+
+
+def monitor_window(state_dir: Path, seconds: float, daemon_pid: int) -> dict[str, float]:
+    """``motorctl monitor --period 100`` on a PTY for ``seconds``: (the daemon's CPU in the
+    window, the monitor's, both in % of a CPU). The monitor's start-up is left out: the
+    window begins once it has drawn its first view."""
+    master, slave = pty.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 50, 120, 0, 0))
+    env = {**os.environ, "TERM": "xterm-256color", "COLUMNS": "120", "LINES": "50"}
+    cmd = [
+        sys.executable,
+        "-m",
+        "motorctl.client.cli",
+        "monitor",
+        "--state-dir",
+        str(state_dir),
+        "--period",
+        str(MONITOR_PERIOD_MS),
+    ]
+    proc = subprocess.Popen(
+        cmd, stdin=slave, stdout=slave, stderr=slave, env=env, cwd=ROOT, start_new_session=True
+    )
+    os.close(slave)
+    stop = threading.Event()
+    first = threading.Event()
+
+    def follow() -> None:
+        # the first bytes: it is up and drawing; then drain until it is gone
+        try:
+            if os.read(master, 65536):
+                first.set()
+        except OSError:
+            return
+        drain(master, stop)
+
+    reader = threading.Thread(target=follow, daemon=True)
+    reader.start()
+    try:
+        if not first.wait(30):
+            raise RuntimeError("motorctl monitor drew nothing within 30 s")
+        time.sleep(1.0)  # past its imports and its first full drawings
+        d0, m0, t0 = cpu_s(daemon_pid), cpu_s(proc.pid), time.monotonic()
+        time.sleep(seconds)
+        d1, m1, t1 = cpu_s(daemon_pid), cpu_s(proc.pid), time.monotonic()
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+        stop.set()
+        os.close(master)
+        reader.join(5)
+    return {"daemon": (d1 - d0) / (t1 - t0), "monitor": (m1 - m0) / (t1 - t0)}
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -76,12 +171,17 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                     c.move(m, True, speed=args.rate // 1000)
                 time.sleep(0.5)  # past the ramps
                 assert d.proc is not None
+                pid = d.proc.pid
                 before = d.status()["steps"]
-                cpu0 = cpu_s(d.proc.pid)
+                idle = idle_window(pid, args.seconds)
+                cpu0 = cpu_s(pid)
                 n, elapsed, lat, size = read_paced(
                     d.state_dir / "status.sock", args.seconds, args.per_s
                 )
-                cpu = cpu_s(d.proc.pid) - cpu0
+                cpu = cpu_s(pid) - cpu0
+                monitor = (
+                    None if args.no_monitor else monitor_window(d.state_dir, args.seconds, pid)
+                )
                 after = d.status()
                 for m in range(3):
                     c.stop(m, hard=True)
@@ -90,7 +190,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             shutil.rmtree(work / "state", ignore_errors=True)
     lat.sort()
     moving = [m["state"] for m in after["motors"]]
-    return {
+    fig: dict[str, Any] = {
         "executor": args.executor,
         "target_reads_per_s": args.per_s,
         "reads": n,
@@ -99,26 +199,40 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "read_p99_ms": round(quantile(lat, 0.99) * 1e3, 3),
         "read_max_ms": round(lat[-1] * 1e3, 3) if lat else 0.0,
         "status_bytes": size,
+        "idle_daemon_cpu_percent": round(100 * idle, 2),
         "daemon_cpu_percent": round(100 * cpu / elapsed, 1),
+        "cpu_ms_per_read": round(1e3 * cpu / max(1, n), 4),
+        "net_cpu_ms_per_read": round(1e3 * (cpu - idle * elapsed) / max(1, n), 4),
+        "read_target_ms": READ_TARGET_MS,
         "steps_in_window": after["steps"]["steps"] - before["steps"],
         "motor_states_at_end": ",".join(moving),
     }
+    if monitor is not None:
+        fig.update(
+            monitor_period_ms=MONITOR_PERIOD_MS,
+            monitor_daemon_cpu_percent=round(100 * (monitor["daemon"] - idle), 2),
+            monitor_own_cpu_percent=round(100 * monitor["monitor"], 2),
+            monitor_target_percent=MONITOR_TARGET_PERCENT,
+        )
+    return fig
 
 
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--seconds", type=float, default=3.0, help="length of the read window")
+    ap.add_argument("--seconds", type=float, default=3.0, help="length of each window")
     ap.add_argument(
         "--per-s", type=int, default=1000, help="target reads a second (0: back to back)"
     )
     ap.add_argument("--rate", type=int, default=10000, help="step/s per motor")
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
+    ap.add_argument("--no-monitor", action="store_true", help="leave out the monitor's window")
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON (flat keys)")
     args = ap.parse_args()
     fig = measure(args)
     print(
         f"status reads against a daemon ({fig['executor']} executor, 3 motors x "
-        f"{args.rate} step/s, {fig['steps_in_window']} steps in the window):"
+        f"{args.rate} step/s, {fig['steps_in_window']} steps in the window; load "
+        f"{os.getloadavg()[0]:.2f}):"
     )
     print(
         f"  {fig['reads_per_s']} reads/s (target {args.per_s or 'back to back'}), "
@@ -126,9 +240,18 @@ def main() -> int:
         f"max {fig['read_max_ms']} ms; {fig['status_bytes']} bytes a document"
     )
     print(
-        f"  the daemon's process used {fig['daemon_cpu_percent']} % of a CPU meanwhile "
-        "(its threads; the process executor's own process not counted)"
+        f"  the daemon's CPU: {fig['idle_daemon_cpu_percent']} % of a CPU without readers, "
+        f"{fig['daemon_cpu_percent']} % while read: {fig['cpu_ms_per_read']} ms a read, "
+        f"{fig['net_cpu_ms_per_read']} ms a read above the motors' own (target <= "
+        f"{READ_TARGET_MS} ms; the process executor's own process not counted)"
     )
+    if "monitor_daemon_cpu_percent" in fig:
+        print(
+            f"  motorctl monitor --period {MONITOR_PERIOD_MS} on a terminal: the daemon "
+            f"{fig['monitor_daemon_cpu_percent']} % of a CPU above the motors' own, the "
+            f"monitor itself {fig['monitor_own_cpu_percent']} % (target < "
+            f"{MONITOR_TARGET_PERCENT:.0f} %)"
+        )
     if args.json:
         Path(args.json).write_text(json.dumps(fig, indent=1))
     return 0

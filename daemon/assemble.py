@@ -7,8 +7,9 @@ the config asks for (:func:`build_executor`: process, running the step core ``[s
 core`` names; thread; or none when every motor's driver runs its own ramp), the motion
 engine, the state file and the dispatcher (:meth:`Daemon.build`: everything behind the
 serial port); then what serves it (:func:`build_served`): the port (a PTY, or the UART,
-daemon/link/), the trace, the link and its silence watch, the status socket, systemd's
-STATUS= line, the motor events' journal entries and the watchdog's idea of progress.
+daemon/link/), the trace and the link's silence watch (daemon/link_parts.py), the link,
+the status socket, systemd's STATUS= line, the motor events' journal entries and the
+watchdog's idea of progress.
 :meth:`Daemon._on_motor_event` is the one listener of the motors' events: it wakes each
 part that wants to know. It knows the HAL only by its interfaces: what some hardware can
 do it asks for (``RampDriver``, ``StepperDriver.stats``, ``Hardware.persistent_state``),
@@ -34,9 +35,8 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from motorctl import __version__
 from motorctl.daemon.config import Config, ConfigError, MotorConfig
 from motorctl.daemon.config.model import MICROSTEPS_UNSAID
 from motorctl.daemon.dispatcher import Dispatcher
@@ -45,9 +45,9 @@ from motorctl.daemon.instance import Owned
 from motorctl.daemon.link.devwatch import NOT_BACK, PathWatch
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import PtySlave, open_pty
-from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.link.serialport import DeviceError, SerialDevice
-from motorctl.daemon.link.silence import SilenceWatch, check_timeout
+from motorctl.daemon.link.silence import check_timeout
+from motorctl.daemon.link_parts import open_trace, silence_watch
 from motorctl.daemon.service import (
     MotorEventLog,
     ProgressWatch,
@@ -58,8 +58,9 @@ from motorctl.daemon.service import (
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
 from motorctl.daemon.state.writer import StateWriter
-from motorctl.daemon.status.document import status_document, summary_line
+from motorctl.daemon.status.document import StatusDocument, status_document, summary_line
 from motorctl.daemon.status.server import StatusServer
+from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
@@ -73,8 +74,10 @@ from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.motor import Motor
 from motorctl.motion.rt import GcPolicy, RealtimeOptions
 from motorctl.motion.types import HomingParams, MotorParams
-from motorctl.protocol.capture.format import CaptureInfo
 from motorctl.protocol.codec import wrap24
+
+if TYPE_CHECKING:  # imported when a trace is asked for (link_parts.open_trace)
+    from motorctl.daemon.link.recorder import TraceRecorder
 
 log = logging.getLogger("motorctl")
 
@@ -210,11 +213,14 @@ class Daemon:
         clock: Clock | None = None,
         executor_process: WaitingInterpreter | None = None,
         undo: contextlib.ExitStack | None = None,
+        timeline: StartTimeline | None = None,
     ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
         :func:`motorctl.daemon.main.main`. What it opens (the hardware, the step executor)
         registers its close on ``undo``, the caller's stack for a later part's failure; by
-        default on its own, closed when a part of the daemon fails."""
+        default on its own, closed when a part of the daemon fails. ``timeline``: marked as
+        each part is built (daemon/timeline.py)."""
+        timeline = timeline or StartTimeline("build")
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
         spec = hardware_spec(config)
@@ -228,11 +234,13 @@ class Daemon:
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
             opened.callback(quietly(hw.close))  # the lines, e.g. the mock's shared memory
+            timeline.mark("hardware")
             try:
                 executor = build_executor(config, hw, spec, params, executor_process)
             except HalError as exc:
                 raise StartupError(str(exc)) from exc
             opened.callback(quietly(executor.close))  # e.g. the process executor's memory
+            timeline.mark("executor handed over")
             engine = MotionEngine(
                 hw,
                 params,
@@ -251,6 +259,7 @@ class Daemon:
             daemon = cls(config, state_dir, clock, hw, engine, dispatcher, persistence)
             persistence.restore()
             persistence.open()
+            timeline.mark("state")
             own.pop_all()  # built: nothing to close
         engine.listeners.append(daemon._on_motor_event)  # the one listener
         return daemon
@@ -345,13 +354,16 @@ def build_served(
     options: ServeOptions,
     owned: Owned,
     executor_process: WaitingInterpreter | None = None,
+    timeline: StartTimeline | None = None,
 ) -> Served:
     """Everything the daemon runs, built and wired, in the order a start must fail in: the
     serial device before the state (one that is there but cannot be used stops the start
     before the state is restored and written again; one that is not there yet is served
     when it appears), the daemon behind the port, the PTY (its link recorded in ``owned``),
     the trace, the link, the status socket. A part that fails closes what was opened
-    before it (ConfigError, StartupError or the HAL's error)."""
+    before it (ConfigError, StartupError or the HAL's error). ``timeline``: marked as each
+    part is built (daemon/timeline.py)."""
+    timeline = timeline or StartTimeline("build")
     why = check_timeout(config.link.timeout_ms, options.baud)
     if why is not None:
         raise ConfigError(f"{config.source}: {why}")
@@ -360,7 +372,11 @@ def build_served(
         if uart is not None:
             undo.callback(quietly(uart.close))
         daemon = Daemon.build(
-            config, options.state_dir, executor_process=executor_process, undo=undo
+            config,
+            options.state_dir,
+            executor_process=executor_process,
+            undo=undo,
+            timeline=timeline,
         )
         pty: PtySlave | None = None
         if options.pty is not None:
@@ -374,6 +390,7 @@ def build_served(
             where = f"{options.port} at {options.baud} baud"
             if fd < 0:
                 where += " (not there yet: served when it appears)"
+        timeline.mark("PTY" if options.pty is not None else "port")
         recorder = open_trace(options.trace, config, where)
         if recorder is not None:
             undo.callback(quietly(recorder.close))
@@ -393,7 +410,9 @@ def build_served(
         undo.callback(quietly(link.close))
         daemon.link = link
         daemon.trace = recorder
+        timeline.mark("link")
         status = open_status(options.state_dir, daemon)
+        timeline.mark("status socket")
         undo.pop_all()  # built: from here on, Served.close closes it
     events = MotorEventLog()
     refusals = daemon.dispatcher.refusals
@@ -428,7 +447,7 @@ def open_status(state_dir: Path, daemon: Daemon) -> StatusServer:
     """The status socket ``status.sock`` in ``state_dir``, serving ``daemon``'s document."""
     path = state_dir / "status.sock"
     try:
-        return StatusServer(path, daemon.status)
+        return StatusServer(path, StatusDocument(daemon))  # its reads' own document
     except OSError as exc:
         raise StartupError(f"cannot serve the status socket {path}: {exc.strerror or exc}") from exc
 
@@ -517,55 +536,6 @@ def build_executor(
     if process is not None:
         process.dismiss()  # no process executor after all (a no-op when it took it)
     return with_ramp_motors(steps, drivers, hw.clock)  # polled as the ramp drivers ask
-
-
-def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> SilenceWatch:
-    """``[link] timeout_ms`` and ``timeout_action``: the host's silence stops the motors
-    (its silence counted from ``now``, on the link's clock)."""
-    c = config.link
-    hard = c.timeout_action == "hard"
-    reason = f"link timeout: no byte from the host for {c.timeout_ms:g} ms"
-
-    def act(now: float) -> list[str]:
-        return dispatcher.link_silent(hard=hard, reason=reason)
-
-    if c.timeout_ms > 0:
-        log.info(
-            "[link] timeout_ms = %g: the host's silence stops the motors in motion (%s)",
-            c.timeout_ms,
-            c.timeout_action,
-        )
-    return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
-
-
-def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder | None:
-    """The link's trace recorder, when ``--trace`` or ``[trace] file`` asks for one."""
-    t = config.trace
-    path = option.absolute() if option is not None else Path(t.file) if t.file else None
-    if path is None:
-        return None
-    c = config.link
-    info = CaptureInfo(
-        role="daemon",
-        checksum=c.checksum,
-        crc_covers_ack=c.crc_covers_ack,
-        strict_padding=c.strict_padding,
-        frame_gap_ms=c.frame_gap_ms,
-        port=where,
-        application=f"motorctld {__version__}",
-    )
-    recorder = TraceRecorder(
-        path, info, max(4096, int(t.max_file_mb * (1 << 20))), t.files, time.monotonic()
-    )
-    try:
-        recorder.open()
-    except OSError as exc:
-        raise StartupError(
-            f"cannot write the trace file {path}: {exc.strerror or exc}; "
-            "give --trace (or [trace] file) a writable path"
-        ) from exc
-    log.info("tracing the link to %s (%d files of %.3g MiB at most)", path, t.files, t.max_file_mb)
-    return recorder
 
 
 def progress_watch(daemon: Daemon, link: Link) -> ProgressWatch:

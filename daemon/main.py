@@ -6,6 +6,10 @@ daemon/platform_check.py, ``--status`` read through daemon/status/reader.py), an
 command line that serves, the hand-over to daemon/serve.py, which runs the daemon; a
 daemon that cannot start says why here, in one line, and exits 1.
 
+What only a command that prints and exits needs (the platform check, the status reader and
+its summary, the compiled core's probe) is imported when that command runs: a start that
+serves imports none of it (tests/daemon/test_launch_startup.py).
+
 Threads: the main thread, all of it (serving goes on in daemon/serve.py on this thread).
 """
 
@@ -14,36 +18,72 @@ from __future__ import annotations
 import argparse
 import logging
 import os
-import shutil
 import stat
 import sys
 from collections.abc import Sequence
 from pathlib import Path
 from types import ModuleType
+from typing import TYPE_CHECKING
 
 from motorctl import __version__
-from motorctl.daemon import platform_check
 from motorctl.daemon.assemble import ServeOptions, hardware_spec, known_microsteps
 from motorctl.daemon.config import ConfigError, StepThreadConfig, load_config
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.link.silence import check_timeout
 from motorctl.daemon.serve import serve
 from motorctl.daemon.service import setup_logging
-from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
-from motorctl.motion.executors import compiled_core
 from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.rt import RealtimeOptions
 from motorctl.protocol.line import parse_baud
 
+if TYPE_CHECKING:
+    from motorctl.daemon import platform_check
+
 log = logging.getLogger("motorctl")
+
+
+def terminal_columns() -> int:
+    """The terminal's width as ``shutil.get_terminal_size`` finds it: ``COLUMNS``, else
+    standard output's terminal, else 80."""
+    try:
+        columns = int(os.environ["COLUMNS"])
+    except (KeyError, ValueError):
+        columns = 0
+    if columns > 0:
+        return columns
+    stdout = sys.__stdout__
+    if stdout is None:
+        return 80
+    try:
+        return os.get_terminal_size(stdout.fileno()).columns or 80
+    except (ValueError, OSError):
+        return 80
+
+
+class HelpFormatter(argparse.HelpFormatter):
+    """argparse's own, at the width it would choose (:func:`terminal_columns`, less 2),
+    found without importing shutil: argparse makes a formatter for every option it is
+    given, and shutil (with its archive modules) would be imported by every start for it."""
+
+    def __init__(
+        self,
+        prog: str,
+        indent_increment: int = 2,
+        max_help_position: int = 24,
+        width: int | None = None,
+    ) -> None:
+        width = terminal_columns() - 2 if width is None else width
+        super().__init__(prog, indent_increment, max_help_position, width)
 
 
 def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p = argparse.ArgumentParser(
         prog="motorctld",
+        formatter_class=HelpFormatter,
         description="Serve the motor-controller protocol (docs/protocol.md) on a PTY or a UART.",
         epilog="One daemon per --state-dir and --pty/--port: a second one exits naming the "
         "first's PID. SIGTERM, SIGINT and SIGHUP stop it cleanly (motors ramp down, "
@@ -205,8 +245,9 @@ def main(
     executor takes it over; ended unused otherwise (another executor, another command, an
     error). Output into a pipe whose reader went away (``motorctld --status | head``) ends
     the command quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
+    timeline = StartTimeline("imported")  # a serving start's steps (daemon/timeline.py)
     try:
-        code = _main(argv, executor_process)
+        code = _main(argv, executor_process, timeline)
         sys.stdout.flush()  # here, not at exit: a reader gone is a broken pipe caught below
         return code
     except BrokenPipeError:
@@ -220,9 +261,14 @@ def main(
             executor_process.dismiss()  # a no-op once taken over
 
 
-def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | None) -> int:
+def _main(
+    argv: Sequence[str] | None,
+    executor_process: WaitingInterpreter | None,
+    timeline: StartTimeline,
+) -> int:
     args = parse_args(argv)
     logs_to = setup_logging(args.log_level)
+    timeline.mark("arguments")
     if args.print_default_config:
         from motorctl.daemon.config import default_config_text
 
@@ -270,7 +316,7 @@ def _main(argv: Sequence[str] | None, executor_process: WaitingInterpreter | Non
     log.debug("logging to %s", logs_to)
     options = ServeOptions(args.state_dir, args.pty, args.port, args.baud, args.trace)
     try:
-        return serve(args.config, options, executor_process)
+        return serve(args.config, options, executor_process, timeline)
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
@@ -306,6 +352,8 @@ def status_command(args: argparse.Namespace) -> int:
         return 2
     import json
 
+    from motorctl.daemon.status.reader import read_status
+
     metrics: ModuleType | None = None
     if args.format != "json":
         try:
@@ -329,6 +377,8 @@ def status_command(args: argparse.Namespace) -> int:
     elif args.json or args.histogram or not sys.stdout.isatty():
         print(json.dumps(doc, indent=1))  # scripts and pipes: the document as it is
     else:
+        import shutil
+
         from motorctl.daemon.status.summary import summary
 
         sys.stdout.write(summary(doc, min(shutil.get_terminal_size().columns, 120)))
@@ -340,6 +390,8 @@ def probe(
 ) -> int:
     """``--probe``: what the configured hardware looks like, moving nothing; then the
     platform (docs/timing.md, "Checking a platform"), which advises and never fails it."""
+    from motorctl.daemon import platform_check
+
     try:
         config = load_config(config_path)
     except ConfigError as exc:
@@ -376,6 +428,8 @@ def step_core_probe(st: StepThreadConfig, report: ProbeReport) -> list[str]:
     """``--probe``'s lines on the step core: what is built, what the backend's lines offer,
     which core the daemon would run (``[step_thread] core``); a core = "compiled" that
     could not run is one of the report's problems."""
+    from motorctl.motion.executors import compiled_core
+
     built = compiled_core.unavailable()
     lines = report.compiled_lines
     out = [

@@ -38,6 +38,7 @@ from motorctl.daemon.errors import StartupError
 from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
 from motorctl.daemon.service import notify_backend, sd_notify
 from motorctl.daemon.signals import StopSignals
+from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.interfaces import HalError
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.process.start import WaitingInterpreter
@@ -59,18 +60,23 @@ def serve(
     config_path: str | None,
     options: ServeOptions,
     executor_process: WaitingInterpreter | None = None,
+    timeline: StartTimeline | None = None,
 ) -> int:
     """Serve until stopped; the exit status. ConfigError or StartupError when the daemon
-    cannot start (the message says what to fix)."""
+    cannot start (the message says what to fix). ``timeline``: the start's steps, marked
+    as they end and logged at READY (daemon/timeline.py)."""
+    timeline = timeline or StartTimeline("serve")
     config = load_config(config_path)
+    timeline.mark("config")
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
     with contextlib.ExitStack() as cleanup:
         owned = Owned()
         cleanup.callback(owned.cleanup)
         prepare_process(config)
         claim(config, options, owned)
-        served = build_served(config, options, owned, executor_process)
-        return run(served, stop)
+        timeline.mark("locks")
+        served = build_served(config, options, owned, executor_process, timeline)
+        return run(served, stop, timeline)
 
 
 def prepare_process(config: Config) -> None:
@@ -103,9 +109,10 @@ def claim(config: Config, options: ServeOptions, owned: Owned) -> None:
         raise StartupError(str(exc)) from exc
 
 
-def run(served: Served, stop: StopSignals) -> int:
+def run(served: Served, stop: StopSignals, timeline: StartTimeline | None = None) -> int:
     """Start what ``served`` runs, serve until a stop signal or the executor's death, then
     shut down and close; the exit status."""
+    timeline = timeline or StartTimeline("run")
     daemon, link = served.daemon, served.link
     config = daemon.config
     try:  # first: a core that cannot run ([step_thread] core) is a start error, state untouched
@@ -114,11 +121,11 @@ def run(served: Served, stop: StopSignals) -> int:
         daemon.engine.executor.close()
         served.close()
         raise StartupError(str(exc)) from exc
+    timeline.mark("executor ready")
     stop.attach(link.stop, link.signal_fd)
     daemon.persistence.start()
     daemon.engine.start()
     served.status.start()
-    daemon.gc_policy.ready()
     if served.watchdog is not None:
         served.watchdog.start()
     executor = daemon.engine.executor
@@ -127,6 +134,7 @@ def run(served: Served, stop: StopSignals) -> int:
         words = realtime.words()
     else:
         words = "real time not reported" if core else "real time none (no step executor)"
+    timeline.mark("threads")
     print(
         f"motorctld ready: serving {served.where}; config {config.source}; "
         f"{len(config.motors)} motors; {config.hal.backend} hardware; "
@@ -136,6 +144,10 @@ def run(served: Served, stop: StopSignals) -> int:
     if os.environ.get("NOTIFY_SOCKET"):
         log.info("systemd notifications through %s", notify_backend()[0])
     sd_notify("READY=1")
+    log.debug("%s", timeline.text())
+    # the start's garbage collected, what lives on frozen (rt.GcPolicy): a full collection,
+    # which READY need not wait for; the link serves once it is done
+    daemon.gc_policy.ready()
     served.line.start()
     threading.Thread(
         target=stop_when_executor_dies,

@@ -68,6 +68,27 @@ class Settled(enum.Enum):
     DIED = "died"  # the executor is dead: the motor is faulted, its position lost
 
 
+class ChangeLock:
+    """The motion lock: a re-entrant lock that counts its releases. Every change of a
+    motor's state, its queue, a fault, a stop or the DC motor is made under it, so
+    ``releases`` moves on after each such change is whole: a reader that saw the same count
+    before and after looking (without the lock) saw no change since (the status server's
+    documents, daemon/status/document.py). Any thread; ``releases`` is only written with
+    the lock held."""
+
+    def __init__(self) -> None:
+        self._lock = threading.RLock()
+        self.releases = 0
+
+    def __enter__(self) -> ChangeLock:
+        self._lock.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.releases += 1
+        self._lock.release()
+
+
 class MotionEngine:
     def __init__(
         self,
@@ -84,7 +105,7 @@ class MotionEngine:
         self.hw = hw
         self.clock = hw.clock
         self.executor = executor
-        self.lock = threading.RLock()
+        self.lock = ChangeLock()
         self.wake = threading.Event()
         self.listeners: list[Listener] = []
         self.motors = [

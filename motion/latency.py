@@ -10,9 +10,9 @@ behind or ahead of its counters, never a torn value.
 
 from __future__ import annotations
 
-import bisect
 import itertools
 import math
+from collections.abc import Sequence
 from typing import Any, Final, Protocol
 
 
@@ -124,41 +124,47 @@ class LatencyStats:
 
     def percentile_us(self, q: float) -> float:
         """The q-th percentile (0..100) in microseconds, at 1 us resolution."""
-        blocks = self._span(_BLOCKS, _BLOCKS + BLOCKS)
-        return self._percentile(q, list(itertools.accumulate(blocks)))
+        return self._percentiles((q,))[0]
 
-    def _percentile(self, q: float, cum: list[int]) -> float:
-        """Nearest rank, from the blocks' running totals ``cum``: finds the block, then the
-        bin in it (its own bins only: the cost is bounded, however spread the histogram).
-        A bin read a step ahead of or behind its block's count moves the answer by at most
-        that step, never outside the block."""
-        count = cum[-1] if cum else 0
+    def _percentiles(self, qs: Sequence[float]) -> list[float]:
+        """Nearest rank of each of ``qs`` (ascending): walks the block counts only as far
+        as the last rank's block (the busy blocks at the start, as a rule), then looks in
+        each rank's block at its own bins: the cost is bounded, however spread the
+        histogram. A bin read a step ahead of or behind its block's count moves the answer
+        by at most that step, never outside the block."""
+        blocks = self._span(_BLOCKS, _BLOCKS + BLOCKS)
+        count = sum(blocks)
         if count == 0:
-            return 0.0
-        exact = q / 100.0 * count
-        rank = max(1, math.ceil(exact - 1e-12 * exact))  # 99.9% of 1000 is 999, not 1000
-        b = bisect.bisect_left(cum, rank)
-        seen = cum[b - 1] if b else 0
-        first = b << BLOCK_SHIFT
-        seg = self._span(_BINS + first, _BINS + min(first + BLOCK, BINS + 1))
-        us = first
-        for j, n in enumerate(seg):
-            if n:
-                us = first + j
-                seen += n
-                if seen >= rank:
-                    break
-        return float(us) if us < BINS else self.max_s * 1e6
+            return [0.0] * len(qs)
+        out = []
+        b = seen = 0  # the block looked at, and the edges in the blocks before it
+        for q in qs:
+            exact = q / 100.0 * count
+            rank = max(1, math.ceil(exact - 1e-12 * exact))  # 99.9% of 1000 is 999, not 1000
+            while seen + blocks[b] < rank:
+                seen += blocks[b]
+                b += 1
+            first = b << BLOCK_SHIFT
+            seg = self._span(_BINS + first, _BINS + min(first + BLOCK, BINS + 1))
+            us, got = first, seen
+            for j, n in enumerate(seg):
+                if n:
+                    us = first + j
+                    got += n
+                    if got >= rank:
+                        break
+            out.append(float(us) if us < BINS else self.max_s * 1e6)
+        return out
 
     def summary(self) -> dict[str, Any]:
         """Count, p50/p99/p99.9, max, sum and late steps: a bounded cost (the blocks and three of
         them), whatever the spread, so the status and the watchdog can ask often."""
-        cum = list(itertools.accumulate(self._span(_BLOCKS, _BLOCKS + BLOCKS)))
+        p50, p99, p999 = self._percentiles((50, 99, 99.9))
         return {
             "steps": self.count,
-            "p50_us": self._percentile(50, cum),
-            "p99_us": self._percentile(99, cum),
-            "p999_us": self._percentile(99.9, cum),
+            "p50_us": p50,
+            "p99_us": p99,
+            "p999_us": p999,
             "max_us": round(self.max_s * 1e6, 1),
             "sum_us": round(self.sum_s * 1e6, 1),
             "late": self.late,

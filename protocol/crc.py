@@ -1,8 +1,11 @@
-"""CRC-8 algorithms of the reveng catalogue, table-driven."""
+"""CRC-8 algorithms of the reveng catalogue, table-driven: each algorithm's table is built
+at its first use (a link uses one of the 20; building them all cost every start of the
+daemon and of the client a few ms)."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from functools import cached_property
 
 
 def _reflect8(value: int) -> int:
@@ -44,14 +47,17 @@ class Crc8:
     refout: bool
     xorout: int
     check: int
-    _table: tuple[int, ...] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for attr in ("poly", "init", "xorout", "check"):
             value = getattr(self, attr)
             if not 0 <= value <= 0xFF:
                 raise ValueError(f"{self.name}: {attr} {value!r} is not a byte")
-        object.__setattr__(self, "_table", _build_table(self.poly, self.refin))
+
+    @cached_property
+    def _table(self) -> tuple[int, ...]:
+        """The byte table, built at the first :meth:`compute` (then an attribute)."""
+        return _build_table(self.poly, self.refin)
 
     def compute(self, data: bytes) -> int:
         """CRC of `data`."""

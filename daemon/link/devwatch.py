@@ -17,6 +17,9 @@ cannot see, such as a change on another machine's file system, or no inotify at 
 
 inotify is reached through the C library (``inotify_init1``, ``inotify_add_watch``,
 ``inotify_rm_watch``; ctypes, no extra package): Python's standard library has no binding.
+It is the interpreter's own C library (``CDLL(None)``), never looked up with
+``ctypes.util.find_library``, which runs ``ldconfig -p`` in a process of its own: the PTY's
+watch is made at every start, and that look-up was most of the PTY's share of the start.
 
 Threads: owned by the link thread (armed at a loss, read while the device is away,
 disarmed when it is back).

@@ -148,6 +148,10 @@ class LinkSession:
         self._held: deque[Command | bytes | None] = deque()
         self._held_places = 0  # commands and Nones in _held (they take a place in the buffer)
         self._out = bytearray()
+        # times the answers were taken for writing: counted once everything their frames
+        # changed is done, before the host can read them (a status reader's sign that its
+        # own command's changes are there: daemon/status/document.py)
+        self.outputs = 0
         # A host polls with the same few frames and gets the same few answers: both
         # translations are remembered (commands and responses are immutable; a frame
         # that fails its checks is not remembered and is checked again each time).
@@ -242,6 +246,7 @@ class LinkSession:
         """The response bytes ready to send, in order; the session forgets them."""
         if not self._out:
             return b""
+        self.outputs += 1
         data = bytes(self._out)
         self._out.clear()
         return data

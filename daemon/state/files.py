@@ -42,7 +42,6 @@ import logging
 import os
 import socket
 import stat
-import tempfile
 from pathlib import Path
 
 log = logging.getLogger("motorctl.paths")
@@ -204,7 +203,7 @@ def bind_socket(path: Path, mode: int) -> socket.socket:
     else:
         if not stat.S_ISSOCK(st.st_mode):
             aside_in_the_way(path, describe(st, folder_owner(path)))
-    private = Path(tempfile.mkdtemp(prefix=".s", dir=path.parent))
+    private = private_folder(path.parent)
     tmp = private / "s"
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM | socket.SOCK_CLOEXEC)
     try:
@@ -228,6 +227,26 @@ def bind_socket(path: Path, mode: int) -> socket.socket:
             os.unlink(tmp)  # still there when the rename did not happen
         os.rmdir(private)
     return sock
+
+
+#: the characters of a private folder's name (tempfile's own)
+_NAME_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789_"
+
+
+def private_folder(parent: Path) -> Path:
+    """A new folder ``.sXXXXXXXX`` in ``parent`` (8 random characters) that only this
+    process's user may enter (0700), as ``tempfile.mkdtemp(prefix=".s")`` makes one: made by
+    ``mkdir``, which fails on anything already there (never followed, never reused). Without
+    tempfile, whose imports (random, shutil and its compressors) every start paid for this
+    one folder. OSError when none can be made."""
+    for _ in range(TRIES):
+        name = ".s" + "".join(_NAME_CHARS[b % len(_NAME_CHARS)] for b in os.urandom(8))
+        try:
+            os.mkdir(parent / name, 0o700)
+        except FileExistsError:
+            continue
+        return parent / name
+    raise OSError(errno.EEXIST, f"no unused name for a private folder in {parent}")
 
 
 # -- complete or absent ---------------------------------------------------------------------

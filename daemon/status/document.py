@@ -5,23 +5,28 @@ socket's subscribers, systemd's STATUS= line, the metrics and the monitor all re
 :func:`status_document` builds it from the parts of a running daemon (:class:`Parts`, the
 assembler's ``Daemon`` in practice): its motors, step executor, link, trace, state file,
 pins and DC motor; :func:`summary_line` turns a document into systemd's one-line STATUS=.
+:class:`StatusDocument` builds the documents of one frequent reader (the status server:
+every one-shot read and subscription) and takes what is known not to have changed from the
+document before; daemon/status/encoder.py then encodes only what changed. So a read costs
+what changed since the last one (bench/status_rate.py, docs/timing.md).
 
 Threads: :func:`status_document` runs on the status server's thread and the STATUS= line's
 (daemon/service.py), never holding the motion lock: each field is read whole from a
 snapshot of its owner (the executor's counters and histogram are its own snapshots), so a
-status read never delays planning, let alone a step. :func:`summary_line` is pure.
+status read never delays planning, let alone a step. A :class:`StatusDocument` belongs to
+one thread (the status server's). :func:`summary_line` is pure.
 """
 
 from __future__ import annotations
 
 import time
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Protocol
 
 from motorctl import __version__
 from motorctl.daemon.config import Config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.link.loop import Link
-from motorctl.daemon.link.recorder import TraceRecorder
 from motorctl.daemon.refusals import Refusals
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.hal.interfaces import HalError, Hardware, Pin
@@ -29,6 +34,10 @@ from motorctl.motion.dc import DcMotor
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import Executor
 from motorctl.motion.profile import Trajectory
+from motorctl.motion.rt import RealtimeReport
+
+if TYPE_CHECKING:  # a trace's modules are imported only when one is asked for
+    from motorctl.daemon.link.recorder import TraceRecorder
 
 
 class Parts(Protocol):
@@ -59,13 +68,104 @@ class Parts(Protocol):
     def started(self) -> float: ...  # time.monotonic() at the start
 
 
-def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
+#: a document younger than this is the answer again while nothing happened since
+#: (:class:`StatusDocument`): what frequent readers get
+FRESH_S = 0.010
+
+
+class StatusDocument:
+    """The status documents of the status server's readers: a frequent reader gets the
+    last document again while nothing has happened since, and each new document takes from
+    the last the parts known not to have changed.
+
+    - **The same document again**, when the last one is younger than ``FRESH_S`` and
+      nothing has happened since it was begun (:meth:`moment`): the motion lock not
+      released (every change of a motor, its queue, a fault, a stop, the DC motor is made
+      under it: ``ChangeLock``, motion/engine.py), no answer taken for the host (counted
+      after everything its command changed: ``LinkSession.outputs``), no turn of the link's
+      loop ended, the state file neither written nor failed, the executor not dead. Each
+      count moves on only after the change it stands for is whole, and is read before the
+      document is begun: so a change under way while a document is built makes the next
+      read build anew, and a reader that caused a change (its command answered, a
+      WaitMoved released when the move ended) or saw one never gets a document from
+      before it. What moves on meanwhile (positions and speeds of moving motors, the step
+      counters and their lateness, the clock's fields, an input's level) is as of the
+      document's ``monotonic_s``. A reader that asks less often than every ``FRESH_S``
+      (``motorctld --status``, the monitor's updates, a metrics scrape) always gets a new
+      one; a reader that asks 1,000 times a second gets one every ``FRESH_S`` at most, and
+      each read costs the daemon little more than the socket's work (bench/status_rate.py).
+      A histogram is always read anew.
+    - **Parts taken again**: the link's status, while its loop has not turned and no
+      answer was taken (the same counts); the executor's real-time report as a dict, while
+      it is the same report (it is written once, at READY).
+
+    The server encodes a document again only when it is not the one before
+    (daemon/status/server.py), and then only its parts that changed
+    (daemon/status/encoder.py). Called as the server's status source:
+    ``StatusDocument(daemon)(histogram)``; ``clock``: seconds, monotonic."""
+
+    def __init__(self, parts: Parts, clock: Callable[[], float] = time.monotonic) -> None:
+        self.parts = parts
+        self.clock = clock
+        self._link: tuple[tuple[int, int], dict[str, Any]] | None = None
+        self._realtime: tuple[RealtimeReport, dict[str, Any]] | None = None
+        self._last: tuple[float, tuple[Any, ...], dict[str, Any]] | None = None
+
+    def __call__(self, histogram: bool = False) -> dict[str, Any]:
+        if histogram:
+            return status_document(self.parts, True, self)
+        moment, now, last = self.moment(), self.clock(), self._last
+        if last is not None and now - last[0] < FRESH_S and last[1] == moment:
+            return last[2]
+        doc = status_document(self.parts, False, self)
+        self._last = (now, moment, doc)
+        return doc
+
+    def moment(self) -> tuple[Any, ...]:
+        """The counts that move on when something happens (not as time goes by), each after
+        the change it stands for: read before a document is begun."""
+        p = self.parts
+        writer = p.persistence.writer
+        return (
+            p.engine.lock.releases,
+            None if p.link is None else link_moment(p.link),
+            p.engine.executor_died,
+            p.dispatcher.refusals.answered,
+            writer.writes,
+            writer.errors,
+            p.persistence.save_errors,
+        )
+
+    def link(self, link: Link) -> dict[str, Any]:
+        moment = link_moment(link)  # before the status: a change under way is seen again
+        if self._link is None or self._link[0] != moment:
+            self._link = (moment, link_status(link.status()))
+        return self._link[1]
+
+    def realtime(self, report: RealtimeReport | None) -> dict[str, Any] | None:
+        if report is None:
+            return None
+        if self._realtime is None or self._realtime[0] is not report:
+            self._realtime = (report, report.as_dict())
+        return self._realtime[1]
+
+
+def link_moment(link: Link) -> tuple[int, int]:
+    """What moves on when the link's status may have changed: its loop's turns (counted
+    when one is over, daemon/link/loop.py) and the answers taken for the host."""
+    return link.turns, link.session.outputs
+
+
+def status_document(
+    parts: Parts, histogram: bool = False, reader: StatusDocument | None = None
+) -> dict[str, Any]:
     """A snapshot for the status socket, taken WITHOUT the motion lock: each field is
     read whole (the executor's counters and histogram are its own snapshots), so a
     status read never delays planning, let alone a step. Its cost is bounded (the
     lateness percentiles come from the histogram's blocks), except ``histogram``: the
     step edges' whole lateness histogram, ``steps.histogram_us`` (non-empty 1 us bins,
-    up to 20,001), for the benchmarks that ask for it."""
+    up to 20,001), for the benchmarks that ask for it. ``reader``: a frequent reader's
+    :class:`StatusDocument`, whose parts known unchanged are taken again."""
     executor = parts.engine.executor
     motors: list[dict[str, Any]] = [
         {
@@ -100,6 +200,8 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
     stats = executor.step_lateness()
     if histogram and stats is not None:  # the step executor's, with or without ramps
         steps["histogram_us"] = stats.histogram()
+    rt = executor.realtime()
+    realtime = reader.realtime(rt) if reader is not None else None if rt is None else rt.as_dict()
     out: dict[str, Any] = {
         "version": __version__,
         "motors": motors,
@@ -110,7 +212,7 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
             "kind": step_executor_kind(parts.config, executor),
             "core": executor.step_core(),
             "pid": getattr(executor, "pid", None),
-            "realtime": None if (rt := executor.realtime()) is None else rt.as_dict(),
+            "realtime": realtime,
         },
         "clamped": dict(parts.dispatcher.clamped),
         "hard_stops": parts.engine.stop_wait_status(),
@@ -123,7 +225,9 @@ def status_document(parts: Parts, histogram: bool = False) -> dict[str, Any]:
         monotonic_s=mono, uptime_s=round(mono - parts.started, 3), unix_s=round(time.time(), 3)
     )
     if parts.link is not None:
-        out["link"] = link_status(parts.link.status())
+        out["link"] = (
+            reader.link(parts.link) if reader is not None else link_status(parts.link.status())
+        )
     if parts.trace is not None:
         out["trace"] = parts.trace.status()
     drivers = [d for s in parts.hw.steppers if (d := s.driver.stats()) is not None]

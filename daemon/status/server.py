@@ -3,7 +3,9 @@ done; or subscribe and receive one JSON document per line for as long as you sta
 
 Its clients are daemon/status/reader.py (the same protocol: request words, one JSON
 document per line; the constants here are theirs too); the document itself is built by
-daemon/status/document.py.
+daemon/status/document.py (the assembler hands it a ``StatusDocument``: each read builds
+again only what may have changed) and encoded by daemon/status/encoder.py (only what
+changed is encoded again).
 
 The request is one line of words, ``\n``-terminated: empty for the status, ``histogram`` for
 the status with the full step-lateness histogram (``steps.histogram_us``, up to 20,001 bins:
@@ -46,6 +48,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from motorctl.daemon.state.files import bind_socket
+from motorctl.daemon.status.encoder import DocumentEncoder
 
 log = logging.getLogger("motorctl.status")
 
@@ -160,6 +163,11 @@ class StatusServer:
         anything else there is set aside, daemon/state/files.py). OSError when it cannot."""
         self.path = path
         self.status = status
+        # the documents as JSON, what is unchanged since the last one kept encoded: the
+        # documents sent, and the stable views that decide a subscriber's update
+        self._encoder = DocumentEncoder()
+        self._stable_encoder = DocumentEncoder()
+        self._sent: tuple[dict[str, Any], bytes] | None = None  # the last document, encoded
         self.errors = 0
         self.served = 0
         self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
@@ -370,8 +378,18 @@ class StatusServer:
         except Exception:
             log.exception("cannot build the status document")
             doc = {"error": "status unavailable, see the log"}
-        key = json.dumps(stable_view(doc), sort_keys=True).encode()
-        return key, json.dumps(doc, sort_keys=True).encode() + b"\n"
+        key = self._stable_encoder.encode(stable_view(doc))
+        return key, self._encoded(doc) + b"\n"
+
+    def _encoded(self, doc: dict[str, Any]) -> bytes:
+        """``doc`` as JSON; the last one's bytes when it is that document again (a frequent
+        reader's, daemon/status/document.py)."""
+        sent = self._sent
+        if sent is not None and sent[0] is doc:
+            return sent[1]
+        data = self._encoder.encode(doc)
+        self._sent = (doc, data)
+        return data
 
     def _send(self, client: _Client) -> None:
         assert client.out is not None
@@ -447,7 +465,9 @@ class StatusServer:
                 {"error": "a subscription is answered by the server's thread"}
             ).encode()
         try:
-            return json.dumps(self.status(histogram=request.histogram), sort_keys=True).encode()
+            if request.histogram:  # 20,001 bins at most: rare, and not worth keeping
+                return json.dumps(self.status(histogram=True), sort_keys=True).encode()
+            return self._encoded(self.status())
         except Exception:
             log.exception("cannot build the status document")
             return json.dumps({"error": "status unavailable, see the log"}).encode()

@@ -283,3 +283,24 @@ def test_a_baud_rate_that_is_none_is_refused_not_a_traceback(tmp_path: Path, bau
     assert "motorctld: error: argument --baud: " in out.stderr
     assert "is not a baud rate" in out.stderr and "e.g. 115200" in out.stderr
     assert not (tmp_path / "x.pty").exists()
+
+
+@pytest.mark.parametrize("columns", [None, "100", "37", "0", "wide", "-5"])
+def test_the_help_is_as_wide_as_argparse_makes_it(
+    columns: str | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """--help at the width argparse's own formatter finds (through shutil, which a start
+    no longer imports for it): from COLUMNS, else the terminal, else 80."""
+    import argparse
+    import shutil
+
+    from motorctl.daemon.main import HelpFormatter, terminal_columns
+
+    if columns is None:
+        monkeypatch.delenv("COLUMNS", raising=False)
+    else:
+        monkeypatch.setenv("COLUMNS", columns)
+    assert terminal_columns() == shutil.get_terminal_size().columns
+    ours, theirs = HelpFormatter("motorctld"), argparse.HelpFormatter("motorctld")
+    assert ours._width == theirs._width and ours._max_help_position == theirs._max_help_position
+    assert HelpFormatter("motorctld", width=50)._width == 50

@@ -17,7 +17,7 @@ from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.backends.mock.world import EventKind, mock_axis
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
-from motorctl.motion.engine import MotionEngine
+from motorctl.motion.engine import ChangeLock, MotionEngine
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.types import MotorState, MoveToCmd, Ramp, RunCmd
@@ -331,3 +331,17 @@ def test_a_fault_on_one_motor_leaves_the_other_alone() -> None:
     assert rig.motor(0).fault == "driver fault: short" and rig.motor(1).fault is None
     assert rig.motor(1).position == -800 == rig.axis(1)
     assert rig.motor(0).position == rig.axis(0) < 800
+
+
+def test_the_motion_lock_counts_its_releases_once_the_holder_is_done() -> None:
+    """``releases`` moves on as the lock is let go (each nested level too), never while it
+    is held: the status server's sign that a change is whole (daemon/status/document.py)."""
+    lock = ChangeLock()
+    assert lock.releases == 0
+    with lock:
+        with lock:  # re-entrant
+            assert lock.releases == 0
+        assert lock.releases == 1
+    assert lock.releases == 2
+    assert lock._lock.acquire(blocking=False)  # let go: free again
+    lock._lock.release()

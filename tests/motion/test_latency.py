@@ -85,3 +85,7 @@ def test_latency_blocks_agree_with_a_full_scan(lateness_us: list[int], shared: b
         us = next(i for i, c in enumerate(cum) if c >= rank)
         want = float(us) if us < BINS else stats.max_s * 1e6
         assert stats.percentile_us(q) == want, q
+    summary = stats.summary()  # its three percentiles in one walk: the same answers
+    assert [summary["p50_us"], summary["p99_us"], summary["p999_us"]] == [
+        stats.percentile_us(q) for q in (50, 99, 99.9)
+    ]

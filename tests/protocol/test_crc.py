@@ -88,6 +88,15 @@ def test_custom_parameters_match_reference() -> None:
             assert c.compute(data) == reference_crc(c, data)
 
 
+def test_a_table_is_built_at_its_first_use_only() -> None:
+    """Importing the catalogue builds no table (each start would pay for all 20)."""
+    c = Crc8("CRC-8/SMBUS", 0x07, 0x00, False, False, 0x00, 0xF4)
+    assert "_table" not in vars(c)
+    assert c.compute(b"123456789") == 0xF4
+    assert vars(c)["_table"] == SMBUS._table  # built once, kept
+    assert c == SMBUS and repr(c) == repr(SMBUS)  # not one of its fields
+
+
 def test_parameters_must_be_bytes() -> None:
     with pytest.raises(ValueError, match="poly"):
         Crc8("BAD", 0x107, 0, False, False, 0, 0)

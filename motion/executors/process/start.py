@@ -30,10 +30,12 @@ import contextlib
 import os
 import pickle
 import socket
-import subprocess
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # imported where a process is started: the executor's own needs none
+    import subprocess
 
 #: What ``ps`` shows as the child's command line (``ps -f``, ``ps aux``, ``pgrep -a``)...
 TITLE = "motorctld: step executor"
@@ -81,6 +83,8 @@ class WaitingInterpreter:
     @classmethod
     def start(cls) -> WaitingInterpreter:
         """Start the interpreter; OSError when it cannot be (``sys.executable`` missing)."""
+        import subprocess
+
         ours, theirs = socket.socketpair(socket.AF_UNIX, socket.SOCK_SEQPACKET)
         try:
             proc = subprocess.Popen([sys.executable, "-I", "-c", BOOTSTRAP], stdin=theirs.fileno())

@@ -593,3 +593,13 @@ def test_answers_not_yet_taken_go_with_the_session(w: SessionRig) -> None:
     w.send(IsReady(0), GetAbsPos(0))
     assert w.session.end() == Ended(partial_bytes=0, unsent=2, wait=0, held=0, discarded=0)
     assert w.session.take_output() == b""
+
+
+def test_outputs_counts_the_answers_taken_for_writing(w: SessionRig) -> None:
+    """``outputs`` moves on when answers are taken, never while they are only made: a status
+    reader that sees it move knows their commands' changes are whole (daemon/status)."""
+    assert w.session.outputs == 0 and w.session.take_output() == b""
+    w.send(IsReady(0), GetAbsPos(1))
+    assert w.session.outputs == 0  # made, not taken
+    assert len(w.responses()) == 2 and w.session.outputs == 1
+    assert w.responses() == [] and w.session.outputs == 1  # nothing to take: no count

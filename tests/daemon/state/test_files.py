@@ -287,6 +287,34 @@ def test_the_status_socket_mode_is_exact_whatever_the_umask(shared: Path) -> Non
     assert sorted(p.name for p in shared.iterdir()) == ["status.sock"]
 
 
+def test_the_private_folder_is_new_and_its_users_alone(shared: Path) -> None:
+    old = os.umask(0o000)
+    try:
+        made = [files.private_folder(shared) for _ in range(20)]
+    finally:
+        os.umask(old)
+    assert len(set(made)) == 20
+    for folder in made:
+        assert folder.parent == shared
+        assert len(folder.name) == len(".sXXXXXXXX") and folder.name.startswith(".s")
+        st = os.lstat(folder)
+        assert stat.S_ISDIR(st.st_mode) and stat.S_IMODE(st.st_mode) == 0o700
+
+
+def test_a_private_folder_never_reuses_what_is_there(
+    shared: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    draws = iter([bytes(8), bytes(8), bytes([1] * 8)])
+    monkeypatch.setattr(os, "urandom", lambda n: next(draws))
+    (shared / ".saaaaaaaa").symlink_to(shared / "elsewhere")  # another user's, at the 1st name
+    folder = files.private_folder(shared)
+    assert folder.name == ".sbbbbbbbb"  # the third draw: the first two named the link
+    assert os.path.islink(shared / ".saaaaaaaa") and not (shared / "elsewhere").exists()
+    monkeypatch.setattr(os, "urandom", lambda n: bytes(8))
+    with pytest.raises(OSError, match="no unused name for a private folder"):
+        files.private_folder(shared)
+
+
 def test_the_status_socket_cannot_be_bound_names_the_path(tmp_path: Path) -> None:
     long = tmp_path / ("d" * 120)
     long.mkdir()
