@@ -94,7 +94,8 @@ run: venv stepcore
 
 # What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
 # tshark and mergecap (tests/client/test_trace_files.py: the Lua dissector, merged files), with
-# wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files).
+# wireshark-common's debconf question answered (no setuid dumpcap: the tests only read files);
+# dtc (tests/docs/test_wiring.py compiles docs/examples/motorctl-spi0-3cs-overlay.dts).
 # As root, each missing one is installed quietly (apt_quiet above). Nothing else: the metrics'
 # promtool lint runs on prometheus_client's parser (tests/support/promlint.py), promtool itself
 # where it is installed already and in make test-deb; Debian's prometheus server package is
@@ -114,6 +115,12 @@ test-deps:
 	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
 	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
 	    "dissector's tests are SKIPPED" >&2; fi; }
+	@$(APT_QUIET); command -v dtc >/dev/null || { \
+	  if [ "$$(id -u)" = 0 ]; then \
+	    apt_quiet dtc "the SPI0 overlay's test compiles it" device-tree-compiler \
+	    || echo "dtc could not be installed: the SPI0 overlay's test is SKIPPED" >&2; \
+	  else echo "dtc is missing: run 'sudo apt-get install device-tree-compiler'; until then" \
+	    "the SPI0 overlay's test is SKIPPED" >&2; fi; }
 
 test: venv stepcore test-deps
 	$(BIN)/ruff check .

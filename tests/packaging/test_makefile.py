@@ -2,8 +2,8 @@
 
 The recipe runs as written (make, /bin/sh) with a PATH of stand-ins: ``id`` says root or not,
 ``apt-get`` records what it was asked and prints apt's kind of progress, ``socat``,
-``tshark``, ``mergecap``, ``promtool`` are there or not. So nothing is installed, and what
-make would install is seen: socat and tshark when missing, each announced in one line with
+``tshark``, ``mergecap``, ``dtc``, ``promtool`` are there or not. So nothing is installed, and what
+make would install is seen: socat, tshark and dtc when missing, each announced in one line with
 apt's output kept out of the log unless it fails; never Debian's prometheus server package
 (promtool comes with it: issue 32), whatever is missing.
 """
@@ -78,26 +78,33 @@ def installs(calls: list[str]) -> list[str]:
     return [call for call in calls if call.split()[:1] == ["install"]]
 
 
-def test_as_root_it_installs_only_socat_and_tshark_one_line_each(tmp_path: Path) -> None:
+def test_as_root_it_installs_only_socat_tshark_and_dtc_one_line_each(tmp_path: Path) -> None:
     run, calls = run_test_deps(tmp_path, root=True, have=())
     assert run.returncode == 0, run.stdout + run.stderr
     assert run.stdout.splitlines() == [
         "make: installing socat with apt-get (as root: the serial device reconnect tests need it)",
         "make: installing tshark with apt-get (as root: the Wireshark dissector's tests need it)",
+        "make: installing dtc with apt-get (as root: the SPI0 overlay's test compiles it)",
     ]
     assert run.stderr == ""  # apt's progress is not in the log
-    assert [call.split()[-1] for call in installs(calls)] == ["socat", "tshark"]
+    assert [call.split()[-1] for call in installs(calls)] == [
+        "socat",
+        "tshark",
+        "device-tree-compiler",
+    ]
     assert not any("prometheus" in call for call in calls)
 
 
 def test_as_root_without_promtool_nothing_is_installed_for_it(tmp_path: Path) -> None:
-    run, calls = run_test_deps(tmp_path, root=True, have=("socat", "tshark", "mergecap"))
+    run, calls = run_test_deps(tmp_path, root=True, have=("socat", "tshark", "mergecap", "dtc"))
     assert run.returncode == 0, run.stdout + run.stderr
     assert calls == [] and run.stdout == "" and run.stderr == ""
 
 
 def test_a_failed_install_shows_apts_output_and_what_is_skipped(tmp_path: Path) -> None:
-    run, calls = run_test_deps(tmp_path, root=True, have=("tshark", "mergecap"), apt_fails=True)
+    run, calls = run_test_deps(
+        tmp_path, root=True, have=("tshark", "mergecap", "dtc"), apt_fails=True
+    )
     assert run.returncode == 0, run.stdout + run.stderr  # the tests skip, saying so
     assert [call.split()[-1] for call in installs(calls)] == ["socat"]
     assert "E: Unable to locate package" in run.stderr
@@ -111,4 +118,5 @@ def test_not_root_it_names_the_command_and_installs_nothing(tmp_path: Path) -> N
     assert run.returncode == 0 and calls == [] and run.stdout == ""
     assert "run 'sudo apt-get install socat'" in run.stderr
     assert "run 'sudo apt-get install tshark'" in run.stderr
+    assert "run 'sudo apt-get install device-tree-compiler'" in run.stderr
     assert "prometheus" not in run.stderr
