@@ -437,13 +437,14 @@ class Link:
         elif why != "closed":
             self.counters["link_errors"] += 1
             log.error("link: %s; retrying every %.0f ms", why, self.retry_s * 1000)
-        self._end_session(how, reopened)
-        self.counters["peer_closed"] += int(self.device is None and why == "closed")
+        self._end_session(how, reopened, closed=self.device is None and why == "closed")
 
-    def _end_session(self, how: str, reopened: bool = False) -> None:
+    def _end_session(self, how: str, reopened: bool = False, closed: bool = False) -> None:
         """Drop and count what was owed to the host whose session ended (``how``).
         ``reopened``: a new host has the PTY; if the old one was written nothing, nothing
-        of it is in the slave's input, and the new host's session begins at once."""
+        of it is in the slave's input, and the new host's session begins at once.
+        ``closed``: the host closed the PTY: counted (``peer_closed``) once the end is
+        done and before anything of the new host's is answered."""
         pty, unread, rest = self.pty, b"", b""
         if pty is not None and self.device is None and not reopened:  # what it wrote, unread
             unread, rest, reopened = read_out(self.fd, pty.reopened)
@@ -456,6 +457,7 @@ class Link:
             if not at_once:  # left unread in the kernel (looked for if anything was written)
                 unsent += pty.hold(self._answered)
         self.ends.ended(how, ended, ended.unsent + -(-unsent // RESPONSE_LEN))
+        self.counters["peer_closed"] += int(closed)
         if at_once and pty is not None:
             pty.release()  # its closes are accounted for
             self._open_session()  # the new host's (nothing written to it yet)

@@ -668,16 +668,27 @@ def test_a_new_hosts_bytes_read_out_with_the_old_ones_are_its_own(
 
         return real(master, racing)
 
+    # what a status reader would see when the new host's bytes are taken (and answered)
+    closes_seen: list[int] = []
+    take = loop.Link._take
+
+    def counted_take(link: loop.Link, data: bytes, now: float) -> None:
+        if hosts and not closes_seen:
+            closes_seen.append(link.counters["peer_closed"])
+        take(link, data, now)
+
     try:
         old = s.host()
         old.write(frame(IsReady(0)))
         assert old.responses(1) == [Response.boolean(True)]
+        monkeypatch.setattr(loop.Link, "_take", counted_take)
         monkeypatch.setattr(loop, "read_out", read_out)
         old.close()
         s.until("the new host", lambda: bool(hosts))
         assert hosts[0].responses(1) == [Response.boolean(True)]
         c = s.counters()
         assert c["peer_closed"] == 1 and c["unread_frames_dropped"] == 0
+        assert closes_seen == [1], "the new host was answered before the close was counted"
     finally:
         for host in hosts:
             host.close()
