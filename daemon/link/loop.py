@@ -424,8 +424,7 @@ class Link:
         """The host's side is gone (``why``: "closed", or the error): its session ends.
         ``reopened``: the PTY's slave was opened again since: a new host has it. A close
         is counted (``peer_closed``) once the session's end is done: a status reader that
-        sees it sees what the end dropped, and a new host that opens the port then finds
-        nothing of the old session left."""
+        sees it sees what the end dropped; a new host then finds nothing of the old session."""
         if self.peer_gone:
             return
         self.peer_gone = True
@@ -443,8 +442,7 @@ class Link:
         """Drop and count what was owed to the host whose session ended (``how``).
         ``reopened``: a new host has the PTY; if the old one was written nothing, nothing
         of it is in the slave's input, and the new host's session begins at once.
-        ``closed``: the host closed the PTY: counted (``peer_closed``) once the end is
-        done and before anything of the new host's is answered."""
+        ``closed``: a close, counted once the end is done, before a new host is answered."""
         pty, unread, rest = self.pty, b"", b""
         if pty is not None and self.device is None and not reopened:  # what it wrote, unread
             unread, rest, reopened = read_out(self.fd, pty.reopened)
