@@ -70,23 +70,6 @@ from motorctl.daemon.timeline import parse  # noqa: E402  (the daemon's start-up
 ENTRIES = {"motorctld": "motorctl.daemon.launch", "main": "motorctl.daemon.main"}
 READY_TARGET_MS = 200.0
 RATIO_TARGET = 2.0
-#: the steps of the breakdown, in the daemon's order (daemon/timeline.py's marks); the first
-#: ("interpreter and imports") and the last ("READY line") are measured here
-STEPS = (
-    "interpreter and imports",
-    "arguments",
-    "config",
-    "locks",
-    "hardware",
-    "executor handed over",
-    "state",
-    "PTY",
-    "link",
-    "status socket",
-    "executor ready",
-    "threads",
-    "READY line",
-)
 RSS_TARGET_MIB = 60.0
 SETTLE_S = 0.5
 TIMEOUT_S = 30.0
@@ -136,7 +119,7 @@ def cpu_ms(pid: int) -> float:
 
 
 def breakdown(stderr: str, t0: float, ready: float) -> dict[str, float]:
-    """The start's steps in ms (``STEPS``) from the daemon's start-up line in ``stderr``;
+    """The start's steps in ms, in order, from the daemon's start-up line in ``stderr``;
     ``t0``, ``ready``: when the process was started and its READY line came (monotonic).
     Empty without that line (a motorctl from before it)."""
     found = None
@@ -270,7 +253,8 @@ def figures(runs_of: list[dict[str, Any]], bare: dict[str, list[float]]) -> dict
         "cpu_ms_at_ready": {k: spread(v) for k, v in cpu.items()},
         "steps_ms": {
             step: round(statistics.median(r["steps_ms"].get(step, 0.0) for r in timed), 1)
-            for step in STEPS
+            # in the daemon's order, as its start-up line gives them (breakdown keeps it)
+            for step in dict.fromkeys(s for r in timed for s in r["steps_ms"])
         }
         if (timed := [r for r in runs_of if r["steps_ms"]])
         else {},
@@ -380,7 +364,7 @@ def report(result: dict[str, Any]) -> None:
             print(
                 "      where it goes (medians, ms): "
                 + (
-                    ", ".join(f"{step} {steps[step]:.1f}" for step in STEPS)
+                    ", ".join(f"{step} {ms:.1f}" for step, ms in steps.items())
                     if steps
                     else "not known (the daemon logged no start-up timeline)"
                 )
