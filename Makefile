@@ -100,27 +100,24 @@ run: venv stepcore
 # promtool lint runs on prometheus_client's parser (tests/support/promlint.py), promtool itself
 # where it is installed already and in make test-deb; Debian's prometheus server package is
 # never installed for it (tests/packaging/test_makefile.py holds this recipe to that).
+# need_tool CMD PACKAGE WHY SKIPPED [DEBCONF]: as root, PACKAGE installed quietly (DEBCONF, a
+# debconf answer, given first); else, or when that fails, one line on stderr saying what is
+# SKIPPED and (not root) the command that installs it.
+NEED_TOOL = $(APT_QUIET); need_tool() { \
+  if [ "$$(id -u)" = 0 ]; then \
+    { [ -z "$${5:-}" ] || echo "$$5" | debconf-set-selections; } \
+    && apt_quiet "$$1" "$$3" "$$2" || echo "$$1 could not be installed: $$4" >&2; \
+  else echo "$$1 is missing: run 'sudo apt-get install $$2'; until then $$4" >&2; fi; }
+
 test-deps:
-	@$(APT_QUIET); command -v socat >/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then \
-	    apt_quiet socat "the serial device reconnect tests need it" socat \
-	    || echo "socat could not be installed: the serial device reconnect tests are SKIPPED" >&2; \
-	  else echo "socat is missing: run 'sudo apt-get install socat'; until then the serial" \
-	    "device reconnect tests are SKIPPED" >&2; fi; }
-	@$(APT_QUIET); command -v tshark >/dev/null && command -v mergecap >/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then \
-	    { echo 'wireshark-common wireshark-common/install-setuid boolean false' \
-	      | debconf-set-selections && apt_quiet tshark \
-	      "the Wireshark dissector's tests need it" tshark; } \
-	    || echo "tshark could not be installed: the Wireshark dissector's tests are SKIPPED" >&2; \
-	  else echo "tshark is missing: run 'sudo apt-get install tshark'; until then the Wireshark" \
-	    "dissector's tests are SKIPPED" >&2; fi; }
-	@$(APT_QUIET); command -v dtc >/dev/null || { \
-	  if [ "$$(id -u)" = 0 ]; then \
-	    apt_quiet dtc "the SPI0 overlay's test compiles it" device-tree-compiler \
-	    || echo "dtc could not be installed: the SPI0 overlay's test is SKIPPED" >&2; \
-	  else echo "dtc is missing: run 'sudo apt-get install device-tree-compiler'; until then" \
-	    "the SPI0 overlay's test is SKIPPED" >&2; fi; }
+	@$(NEED_TOOL); command -v socat >/dev/null || need_tool socat socat \
+	  "the serial device reconnect tests need it" "the serial device reconnect tests are SKIPPED"
+	@$(NEED_TOOL); command -v tshark >/dev/null && command -v mergecap >/dev/null \
+	  || need_tool tshark tshark "the Wireshark dissector's tests need it" \
+	  "the Wireshark dissector's tests are SKIPPED" \
+	  'wireshark-common wireshark-common/install-setuid boolean false'
+	@$(NEED_TOOL); command -v dtc >/dev/null || need_tool dtc device-tree-compiler \
+	  "the SPI0 overlay's test compiles it" "the SPI0 overlay's test is SKIPPED"
 
 test: venv stepcore test-deps
 	$(BIN)/ruff check .
