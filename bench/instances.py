@@ -81,7 +81,7 @@ def status(state_dir: Path) -> dict[str, Any]:
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--status",
             "--histogram",
             "--state-dir",

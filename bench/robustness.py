@@ -200,7 +200,7 @@ class Daemon:
         cmdline = [
             sys.executable,
             "-m",
-            "motorctl.daemon.launch",
+            "motorctl.daemon.start.launch",
             "--pty",
             str(self.pty),
             "--state-dir",

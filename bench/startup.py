@@ -15,7 +15,7 @@ Its ratio to a bare interpreter (``python -c pass``, started the same way, one b
 run: the same load for both) is the figure to judge: the median READY over the median bare
 start, in the same run.
 
-The breakdown comes from the daemon's own start-up timeline (daemon/timeline.py: run with
+The breakdown comes from the daemon's own start-up timeline (daemon/start/timeline.py: run with
 ``--log-level debug``, it logs when each step of its start ended, on the monotonic clock this
 benchmark reads too): "interpreter and imports" from the process's start until the daemon's
 modules are imported (of which a bare interpreter's start is the first part), then the
@@ -26,9 +26,9 @@ wait for), the threads started, and the READY line's way to this process.
 
 Two ways to start it, in alternate runs (the same load for both):
 
-  motorctld   python -m motorctl.daemon.launch, the ``motorctld`` command: the executor's
-              interpreter starts first, beside the daemon's imports (daemon/launch.py)
-  main        python -m motorctl.daemon.main: the same daemon, the executor started when
+  motorctld   python -m motorctl.daemon.start.launch, the ``motorctld`` command: the executor's
+              interpreter starts first, beside the daemon's imports (daemon/start/launch.py)
+  main        python -m motorctl.daemon.start.main: the same daemon, the executor started when
               the config has been read
 
 and two states of the bytecode cache:
@@ -65,9 +65,9 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from motorctl.daemon.timeline import parse  # noqa: E402  (the daemon's start-up line)
+from motorctl.daemon.start.timeline import parse  # noqa: E402  (the daemon's start-up line)
 
-ENTRIES = {"motorctld": "motorctl.daemon.launch", "main": "motorctl.daemon.main"}
+ENTRIES = {"motorctld": "motorctl.daemon.start.launch", "main": "motorctl.daemon.start.main"}
 READY_TARGET_MS = 200.0
 RATIO_TARGET = 2.0
 RSS_TARGET_MIB = 60.0
@@ -393,7 +393,7 @@ def main() -> int:
         "--entry",
         choices=(*ENTRIES, "both"),
         default="both",
-        help="motorctld (the command), main (python -m motorctl.daemon.main)",
+        help="motorctld (the command), main (python -m motorctl.daemon.start.main)",
     )
     ap.add_argument(
         "--state-on",

@@ -21,8 +21,8 @@ import pytest
 from hwtest import boards, gsim
 from hwtest.boards import BOARDS, Board
 from hwtest.layout import GUEST_READY_TIMEOUT_S, MOTORS, PINS, example_in_the_guest
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import probe_hardware
 from tests.support.daemon_proc import DaemonProcess, run_probe

@@ -82,7 +82,7 @@ class HomingParams:
 class MotorParams:
     name: str = "motor"
     # The motor's config: the config model declares the defaults ([[motors]]), so these
-    # are always given (the daemon: daemon/assemble.py's motor_params)
+    # are always given (the daemon: daemon/start/assemble.py's motor_params)
     steps_per_rev: int = field(kw_only=True)  # 0 = linear axis
     queue_depth: int = field(kw_only=True)
     # the table size: the config model declares its default (the protocol's table), so

@@ -16,9 +16,9 @@ functions, and module names written as strings for ``importlib``), not by import
 - inside ``motion/``, the executors' wing (``motion/executors/``) is entered through its base
   only, and looks no higher than the modules it is handed (see ``EXECUTORS``);
 - inside ``daemon/``, the wings keep their order and the top stays on top (see
-  ``DAEMON_TOP`` and ``DAEMON_WINGS``); the link's pure parts reach no file, clock or thread
-  (``PURE``); an optional library is imported only by the one module that needs it
-  (``OPTIONAL``).
+  ``DAEMON_TOP``, ``DAEMON_START`` and ``DAEMON_WINGS``); the link's pure parts reach no
+  file, clock or thread (``PURE``); an optional library is imported only by the one module
+  that needs it (``OPTIONAL``).
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ _MODULE_NAME = re.compile(r"^(motorctl(?:\.[A-Za-z_][A-Za-z0-9_]*)+)(?::[A-Za-z_
 #: engine (motion/engine.py), and whatever else of motion/ is outside the wing, know an
 #: executor only by its contract, motion/executors/base.py (``Executor``, its events and
 #: records): which executor runs (a thread, a process, a driver chip's ramp, a split) is the
-#: assembler's choice (daemon/assemble.py), and what changes behind the seam (the planner,
+#: assembler's choice (daemon/start/assemble.py), and what changes behind the seam (the planner,
 #: the step cores, the shared block's rings) never reaches the state machines. The wing in
 #: turn imports nothing of the state machines: it carries out plans, it does not make them.
 EXECUTORS = "motorctl.motion.executors"
@@ -70,11 +70,15 @@ ABOVE_EXECUTORS = ("motorctl.motion.motor", "motorctl.motion.engine")
 #: are built and run, they do not build or run one another (a part that needs an error of the
 #: start raises daemon/errors.py's, which is below them all).
 DAEMON_TOP = (
-    "motorctl.daemon.launch",
-    "motorctl.daemon.main",
-    "motorctl.daemon.serve",
-    "motorctl.daemon.assemble",
+    "motorctl.daemon.start.launch",
+    "motorctl.daemon.start.main",
+    "motorctl.daemon.start.serve",
+    "motorctl.daemon.start.assemble",
 )
+#: The package of the start-up chain: the top above and what only it uses (the platform check,
+#: the stop signals, the start's timeline, the link's optional parts). Nothing of the daemon
+#: outside it imports it, so daemon/'s root shows the jobs it builds and runs.
+DAEMON_START = "motorctl.daemon.start"
 #: The daemon's wings and the other wings each may import. state/ is the lowest and imports
 #: nothing of the daemon outside itself: what the daemon keeps on disk, and the rule of every
 #: path it writes (state/files.py), which the link's recorder and ports and the status socket
@@ -166,6 +170,11 @@ def daemon_problem(name: str, target: str) -> str | None:
         return (
             f"{name} imports {target}: the daemon's top imports only down its order "
             f"{' -> '.join(DAEMON_TOP)}, and no part imports it"
+        )
+    if in_package(target, DAEMON_START) and not in_package(name, DAEMON_START):
+        return (
+            f"{name} imports {target}: nothing of the daemon outside the start-up chain "
+            f"({DAEMON_START}) imports it"
         )
     here, there = wing_of(name), wing_of(target)
     if here is None or here == there:
@@ -306,7 +315,7 @@ def test_the_package_keeps_the_rooms_order_and_the_hal_boundary() -> None:
     modules = {name: path.read_text(encoding="utf-8") for name, path in package_modules().items()}
     assert {room_of(m) for m in modules} == {*ROOMS, "root", "schema"}  # the whole package
     assert {
-        "motorctl.daemon.assemble",
+        "motorctl.daemon.start.assemble",
         "motorctl.hal.layers.tmc.tmc5160",
         "motorctl.motion.motor",
         "motorctl.motion.engine",
@@ -413,13 +422,18 @@ def test_the_one_exception_is_still_there() -> None:
         ),
         (
             "motorctl.daemon.link.ports",
-            "from motorctl.daemon.assemble import StartupError\n",
-            "motorctl.daemon.link.ports imports motorctl.daemon.assemble: the daemon's top",
+            "from motorctl.daemon.start.assemble import StartupError\n",
+            "motorctl.daemon.link.ports imports motorctl.daemon.start.assemble: the daemon's top",
         ),
         (
-            "motorctl.daemon.assemble",
-            "def f():\n    from motorctl.daemon.serve import run\n",
-            "motorctl.daemon.assemble imports motorctl.daemon.serve: the daemon's top",
+            "motorctl.daemon.start.assemble",
+            "def f():\n    from motorctl.daemon.start.serve import run\n",
+            "motorctl.daemon.start.assemble imports motorctl.daemon.start.serve: the daemon's top",
+        ),
+        (
+            "motorctl.daemon.link.loop",
+            "from motorctl.daemon.start.signals import StopSignals\n",
+            "motorctl.daemon.link.loop imports motorctl.daemon.start.signals: nothing of the",
         ),
         (
             "motorctl.daemon.state.journal",
@@ -468,9 +482,9 @@ def test_a_pure_part_that_reaches_out_is_named(source: str, says: str) -> None:
 
 
 def test_an_optional_library_elsewhere_is_named() -> None:
-    modules = {"motorctl.daemon.main": "def f():\n    from rich.console import Console\n"}
+    modules = {"motorctl.daemon.start.main": "def f():\n    from rich.console import Console\n"}
     assert optional_problems(modules) == [
-        "motorctl.daemon.main imports rich, an optional library only "
+        "motorctl.daemon.start.main imports rich, an optional library only "
         "motorctl.daemon.status.monitor_view imports"
     ]
     assert optional_problems({"motorctl.daemon.status.monitor_view": "import rich\n"}) == []
@@ -490,10 +504,10 @@ def test_what_is_allowed_is_not_named() -> None:
         "motorctl.motion.motor": "from motorctl.motion.executors.base import Executor\n",
         "motorctl.motion.executors.thread": "from motorctl.motion.executors.planner import "
         "StepExecutor\nfrom motorctl.motion.profile import Trajectory\n",
-        "motorctl.daemon.assemble": "from motorctl.motion.executors.thread import "
+        "motorctl.daemon.start.assemble": "from motorctl.motion.executors.thread import "
         "ThreadStepExecutor\n",
-        "motorctl.daemon.main": "from motorctl.daemon.serve import serve\n",
-        "motorctl.daemon.serve": "from motorctl.daemon.assemble import build_served\n",
+        "motorctl.daemon.start.main": "from motorctl.daemon.start.serve import serve\n",
+        "motorctl.daemon.start.serve": "from motorctl.daemon.start.assemble import build_served\n",
         "motorctl.daemon.status.document": "from motorctl.daemon.link.loop import Link\n"
         "from motorctl.daemon.state.persistence import Persistence\n"
         "from motorctl.daemon.config import Config\n",

@@ -7,8 +7,8 @@ it, file by file, and no module or function of it grows past what a reader takes
   many may have more files, each named ``test_<name>_<part>.py`` after the part it holds
   (tests/daemon/status/test_server_subscribe.py: the status server's subscriptions);
   ``_e2e``: the same module, against motorctld as a process on a real PTY
-  (tests/daemon/test_serve_e2e.py: daemon/serve.py). So a newcomer finds a module's tests
-  by its path, and a test file's module by its name (tests/conftest.py).
+  (tests/daemon/start/test_serve_e2e.py: daemon/start/serve.py). So a newcomer finds a
+  module's tests by its path, and a test file's module by its name (tests/conftest.py).
 - Sized rooms (``SIZED``): no module over ``MAX_LINES`` lines (Python, and the C of the
   compiled step core), no function or method of a cyclomatic complexity above
   ``MAX_COMPLEXITY`` (radon's measure, as the issue measured), but the step core's hot loop.
@@ -87,8 +87,8 @@ def test_a_test_file_is_matched_with_its_module() -> None:
     assert module_tested_by(tests / "daemon" / "status" / "test_server_subscribe.py") == (
         REPO / "daemon" / "status" / "server.py"
     )
-    assert module_tested_by(tests / "daemon" / "test_serve_e2e.py") == (
-        REPO / "daemon" / "serve.py"
+    assert module_tested_by(tests / "daemon" / "start" / "test_serve_e2e.py") == (
+        REPO / "daemon" / "start" / "serve.py"
     )
     assert module_tested_by(tests / "daemon" / "test_config.py") == (
         REPO / "daemon" / "config" / "__init__.py"

@@ -2,7 +2,7 @@
 
 A UART (``--port``) is opened by daemon/link/serialport.py.
 
-Threads: the main thread, at start-up (the assembler, daemon/assemble.py); the descriptors
+Threads: the main thread, at start-up (the assembler, daemon/start/assemble.py); the descriptors
 it returns, and the :class:`PtySlave`, then belong to the link (daemon/link/loop.py).
 """
 

@@ -7,7 +7,7 @@ sample there, so it arrives typed), and ``openmetrics`` for scrapers that ask fo
 OpenMetrics. prometheus_client is an optional dependency (the ``metrics`` extra; Debian:
 python3-prometheus-client), imported by this module only: the daemon never imports it, and
 ``motorctld --status`` says what to install when it is missing
-(``motorctl.daemon.main.METRICS_MISSING``).
+(``motorctl.daemon.start.main.METRICS_MISSING``).
 
 Pure: a status document in, text out; no socket, no clock. Every name starts with
 ``motorctl_``, values are in base units (seconds, bytes; steps are the machine's own unit),

@@ -7,7 +7,7 @@ daemon never imports it. The monitor reads only the status socket (docs/status.m
 runs beside the daemon, e.g. in an SSH session on the board.
 
 SIGINT and SIGTERM end the monitor at any moment, within a second (:func:`end_on_signals`):
-the monitor's entry points (``motorctld``'s, daemon/launch.py, first thing; :func:`run`)
+the monitor's entry points (``motorctld``'s, daemon/start/launch.py, first thing; :func:`run`)
 make sure of it.
 
 Threads: the caller's thread draws; one reader thread per connection follows the

@@ -4,7 +4,7 @@ One job a module; ``base.py`` is the wing's one door (tests/test_imports.py keep
 
 - ``base.py``: the :class:`~motorctl.motion.executors.base.Executor` contract, its events
   and records, the step path's integer time. The motor state machines and the engine import
-  this module and nothing else of the wing; the assembler (``daemon/assemble.py``) chooses
+  this module and nothing else of the wing; the assembler (``daemon/start/assemble.py``) chooses
   and builds the rest.
 - ``planner.py``: the step executors' planner half (cuts plans into ``segments.py``'s step
   segments a few ms ahead); each kind implements its transport to a step core.

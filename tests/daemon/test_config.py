@@ -821,7 +821,7 @@ def test_old_embedded_default_file_still_loads_the_same() -> None:
 
 
 def test_backends_get_their_sections_in_the_hardware_spec() -> None:
-    from motorctl.daemon.assemble import hardware_spec
+    from motorctl.daemon.start.assemble import hardware_spec
 
     config = parse_config(
         MOTOR + "[motors.mock]\nendstop_min = -5\n" + PINS_0_TO_3 + "[mock]\nwires = [[0, 1]]\n",
@@ -837,8 +837,8 @@ def test_motion_defaults_are_the_configs() -> None:
     """motion.types keeps construction defaults for its own tests, but not those of the lag
     rule (start_speed, max_lag_full_steps: declared in the config model only, the tests take
     them from there); the daemon always passes every value from the config
-    (daemon.assemble.motor_params). They must not drift apart."""
-    from motorctl.daemon.assemble import motor_params
+    (daemon.start.assemble.motor_params). They must not drift apart."""
+    from motorctl.daemon.start.assemble import motor_params
     from motorctl.motion.types import HomingParams
     from tests.support.motor_defaults import motor_params as declared_params
 
@@ -852,7 +852,7 @@ def test_a_retired_key_still_loads_with_a_notice_naming_it(
 ) -> None:
     """max_lateness_us (0.2.0's fail-safe) is accepted with any value and means nothing now:
     the same config as without it, and a notice that says so and what replaced it."""
-    from motorctl.daemon.main import main
+    from motorctl.daemon.start.main import main
 
     config = parse_config("[step_thread]\nmax_lateness_us = 2000.0\n" + MOTOR, SOURCE)
     assert config == parse_config(MOTOR, SOURCE) and not parse_config(MOTOR, SOURCE).notices
@@ -903,7 +903,7 @@ def test_the_old_driver_poll_keys_load_with_a_notice_naming_the_new_one(old: str
     ],
 )
 def test_microsteps_come_from_the_motor_or_its_tmc_table(text: str, expected: int) -> None:
-    from motorctl.daemon.assemble import motor_params
+    from motorctl.daemon.start.assemble import motor_params
 
     params = motor_params(parse_config(text, SOURCE))[0]
     assert params.microsteps == expected and params.max_lag_full_steps == 0.5
@@ -934,7 +934,7 @@ def test_lateness_keys_are_checked(text: str, parts: list[str]) -> None:
 def test_only_the_mock_with_lose_steps_off_spares_its_motors_from_the_lag_rule() -> None:
     """The executor's rule follows the hardware: the mock's simulated motors never lose steps
     unless [mock] lose_steps = true; real backends' motors always may."""
-    from motorctl.daemon.assemble import hardware_spec
+    from motorctl.daemon.start.assemble import hardware_spec
     from motorctl.hal.interfaces import VirtualClock
     from motorctl.hal.registry import open_hardware
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.dispatcher import Dispatcher, Wait
+from motorctl.daemon.start.assemble import Daemon
 from motorctl.hal.backends.mock.world import world_of
 from motorctl.hal.interfaces import BridgeState
 from motorctl.protocol.codec import (

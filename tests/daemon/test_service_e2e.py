@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import DeviceError
-from motorctl.daemon.serve import EXIT_STATE_NOT_SAVED
+from motorctl.daemon.start.serve import EXIT_STATE_NOT_SAVED
 from motorctl.protocol.codec import ErrorCode
 from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.fsutil import fill, read_only, small_tmpfs
@@ -45,7 +45,7 @@ def test_second_daemon_exits_at_once_naming_the_first(
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--pty",
             str(daemon.pty),
             "--state-dir",
@@ -63,7 +63,7 @@ def test_second_daemon_exits_at_once_naming_the_first(
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--pty",
             str(daemon.pty),
             "--state-dir",
@@ -173,8 +173,8 @@ def test_whatever_stands_at_the_state_file_is_set_aside_under_a_free_name(
 
 
 def _state_file(state: Path, motors: list[dict[str, object]]) -> bytes:
-    from motorctl.daemon.assemble import motor_identities
     from motorctl.daemon.config import default_config_text, parse_config
+    from motorctl.daemon.start.assemble import motor_identities
 
     idents = motor_identities(parse_config(default_config_text(), "default"))
     records = [
@@ -392,7 +392,7 @@ def test_a_held_uart_names_its_holder(tmp_path: Path) -> None:
             [
                 sys.executable,
                 "-m",
-                "motorctl.daemon.main",
+                "motorctl.daemon.start.main",
                 "--port",
                 device,
                 "--state-dir",

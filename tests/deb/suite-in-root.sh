@@ -21,7 +21,7 @@
 #                                                     two processes (arm64's weaker memory order)
 #     tests/motion/executors/process/test_parent.py,  the step executor as a process of its own
 #       tests/motion/executors/process/test_child.py  (the daemon's side and the child's)
-#     tests/daemon/test_serve_e2e.py                  motorctld end to end on a PTY
+#     tests/daemon/start/test_serve_e2e.py                  motorctld end to end on a PTY
 #     tests/packaging/test_debian.py                  the package build's runs under Debian's
 #                                                     python3
 #     tests/protocol tests/contract                   the frames (byte order, struct) and the
@@ -47,7 +47,7 @@ PACKAGES="python3-pytest python3-pytest-xdist python3-hypothesis python3-serial 
   gcc libc6-dev python3-dev python3-setuptools"
 EMULATED=(tests/motion/executors/test_step_core.py tests/motion/executors/process/test_rings.py
   tests/motion/executors/process/test_parent.py tests/motion/executors/process/test_child.py
-  tests/daemon/test_serve_e2e.py tests/packaging/test_debian.py tests/protocol tests/contract
+  tests/daemon/start/test_serve_e2e.py tests/packaging/test_debian.py tests/protocol tests/contract
   -m "not slow and not real_rule" -k "not lose_steps")
 NEEDS_THE_CHECKOUT=(--ignore=tests/docs/test_readme.py --ignore=tests/packaging/test_wheel.py
   --ignore=tests/packaging/test_version.py)
@@ -85,7 +85,7 @@ echo "   built in $((SECONDS - t1)) s: $(cd "$root/src/motion/executors" && ls _
 # "auto"): the compiled one, built above. Any other answer fails the run here, before the
 # tests: a suite on the Python core would pass with the compiled core untested (as it once
 # did on bookworm, whose setuptools could not read pyproject.toml's licence).
-debroot_run "$root" sh -c "cd /src && python3 -m motorctl.daemon.main --probe --latency-seconds 0" \
+debroot_run "$root" sh -c "cd /src && python3 -m motorctl.daemon.start.main --probe --latency-seconds 0" \
   > "$out/probe.txt" 2>&1 || { cat "$out/probe.txt"; debroot_fail "motorctld --probe in the root (log: $out/probe.txt)"; }
 runs=$(sed -n 's/^  runs: //p' "$out/probe.txt")
 echo "== the step core the suite runs: ${runs:-none} (motorctld --probe in the root)"

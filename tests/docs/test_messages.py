@@ -43,9 +43,9 @@ import pytest
 
 from motorctl.client import reasons
 from motorctl.client.cli import main as cli
-from motorctl.daemon import launch
-from motorctl.daemon.assemble import motor_identities
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start import launch
+from motorctl.daemon.start.assemble import motor_identities
 from motorctl.hal.backends.gpiod.chip import busy_message
 from motorctl.hal.backends.gpiod.wiring import LineRef, ResolvedLine
 from motorctl.protocol.capture.format import CaptureInfo
@@ -419,7 +419,7 @@ def start_refused(
     def run(tmp: Path, capsys: pytest.CaptureFixture[str]) -> str:
         path = tmp / "motorctl.toml"
         path.write_text(config, encoding="utf-8")
-        cmd = [sys.executable, "-m", "motorctl.daemon.launch"]
+        cmd = [sys.executable, "-m", "motorctl.daemon.start.launch"]
         cmd += [arg.format(tmp=tmp) for arg in extra]
         cmd += ["--state-dir", str(tmp / "state"), "--config", str(path)]
         out = subprocess.run(
@@ -509,7 +509,14 @@ class Session:
         config.write_text(SERVED_CONFIG, encoding="utf-8")
         # SCHED_FIFO refused, as on a machine whose limits do not allow it
         wrap = ["setpriv", "--bounding-set", "-sys_nice"] if os.geteuid() == 0 else []
-        cmd = [*wrap, sys.executable, "-m", "motorctl.daemon.launch", "--port", str(self.port)]
+        cmd = [
+            *wrap,
+            sys.executable,
+            "-m",
+            "motorctl.daemon.start.launch",
+            "--port",
+            str(self.port),
+        ]
         cmd += ["--state-dir", str(self.state), "--config", str(config), "--log-level", "info"]
         env = {**os.environ, "NOTIFY_SOCKET": str(self.tmp / "notify")}
         with open(self.log, "wb") as log:
@@ -655,7 +662,13 @@ def served(tmp: Path, capsys: pytest.CaptureFixture[str]) -> str:
             s.said.append(read_all(ninth))
         second = subprocess.run(
             [
-                *(sys.executable, "-m", "motorctl.daemon.launch", "--pty", str(tmp / "other.pty")),
+                *(
+                    sys.executable,
+                    "-m",
+                    "motorctl.daemon.start.launch",
+                    "--pty",
+                    str(tmp / "other.pty"),
+                ),
                 *("--state-dir", str(s.state), "--config", str(tmp / "motorctl.toml")),
             ],
             capture_output=True,

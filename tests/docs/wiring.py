@@ -32,8 +32,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Final
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import Config, MotorConfig, load_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal.backends.gpiod.config import wiring_of
 from motorctl.hal.backends.gpiod.wiring import EndstopWiring, GpioWiring, LineRef, MotorWiring
 from motorctl.hal.layers.tmc.settings import TmcSpec

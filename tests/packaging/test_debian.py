@@ -109,9 +109,9 @@ def test_unit_serves_what_the_default_file_says() -> None:
 # help2man's --help/--version of both programs), and the Debian package of every module from
 # outside the standard library that it may import.
 BUILD_RUNS = (
-    ("motorctl.daemon.main", "--print-default-config"),
-    ("motorctl.daemon.main", "--help"),
-    ("motorctl.daemon.main", "--version"),
+    ("motorctl.daemon.start.main", "--print-default-config"),
+    ("motorctl.daemon.start.main", "--help"),
+    ("motorctl.daemon.start.main", "--version"),
     ("motorctl.client.cli", "--help"),
     ("motorctl.client.cli", "--version"),
 )

@@ -58,7 +58,7 @@ def installed_root(tmp_path: Path, unit: Path) -> Path:
     shutil.copy(unit, units / unit.name)
     (tmp_path / "usr" / "bin").mkdir(parents=True)
     daemon = tmp_path / "usr" / "bin" / "motorctld"
-    daemon.write_text(f"#!{sys.executable}\nfrom motorctl.daemon.main import main\nmain()\n")
+    daemon.write_text(f"#!{sys.executable}\nfrom motorctl.daemon.start.main import main\nmain()\n")
     daemon.chmod(0o755)
     (tmp_path / "bin").mkdir()
     shutil.copy(os.path.realpath("/bin/sh"), tmp_path / "bin" / "sh")  # the metrics' ExecStart

@@ -10,8 +10,8 @@ import pytest
 
 import motorctl
 from motorctl.client import cli
-from motorctl.daemon import launch
-from motorctl.daemon import main as daemon_main
+from motorctl.daemon.start import launch
+from motorctl.daemon.start import main as daemon_main
 
 ENTRIES = [("motorctl", cli.main), ("motorctld", launch.main), ("motorctld", daemon_main.main)]
 

@@ -35,7 +35,7 @@ DAEMON_WORKS = (
     "assert ctx.working_directory == '/'; print('python-daemon ok')"
 )
 MOTORCTL_WORKS = (
-    "import motorctl, motorctl.daemon.main, motorctl.hal.backends.mock.world\n"
+    "import motorctl, motorctl.daemon.start.main, motorctl.hal.backends.mock.world\n"
     "import motorctl.client.cli\n"
     "from motorctl.daemon.config import load_config\n"
     "assert len(load_config(None).motors) == 3\n"

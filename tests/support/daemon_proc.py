@@ -35,7 +35,7 @@ def run_probe(
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--probe",
             "--latency-seconds",
             "0",
@@ -100,7 +100,7 @@ class DaemonProcess:
     (the default) gets the test settings (``TEST_STEP_THREAD``) and, without
     ``config_text``, the embedded default written out; ``as_user``: started as a user starts
     it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default).
-    ``command``: what runs before the options (``python -m motorctl.daemon.launch``, the
+    ``command``: what runs before the options (``python -m motorctl.daemon.start.launch``, the
     motorctld command's entry point); ``cwd``: the folder it starts in (the checkout)."""
 
     def __init__(
@@ -118,7 +118,7 @@ class DaemonProcess:
         cwd: Path = REPO,
     ) -> None:
         self.workdir = workdir
-        self.command = command or [sys.executable, "-m", "motorctl.daemon.launch"]
+        self.command = command or [sys.executable, "-m", "motorctl.daemon.start.launch"]
         self.cwd = cwd
         self.ready_timeout = ready_timeout  # longer in an emulated guest (hwtest/layout.py)
         self.port = port  # serve this serial device (--port) instead of a PTY of its own

@@ -17,10 +17,10 @@ import time
 from pathlib import Path
 from typing import Any
 
-from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import PtySlave, open_pty
+from motorctl.daemon.start.assemble import Daemon
 from motorctl.hal.backends.mock.world import MockWorld, world_of
 from motorctl.hal.interfaces import Clock, MonotonicClock, VirtualClock
 from motorctl.protocol.codec import Command, ErrorCode, GetAbsPos, Move, Response

@@ -12,7 +12,7 @@ from __future__ import annotations
 from typing import Any
 
 from motorctl.daemon.config.model import MICROSTEPS_UNSAID, MotorConfig
-from motorctl.daemon.platform_check import MotorRate
+from motorctl.daemon.start.platform_check import MotorRate
 from motorctl.motion.executors.base import AxisLimits
 from motorctl.motion.types import MotorParams
 from motorctl.schema import table_of

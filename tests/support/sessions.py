@@ -10,7 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from motorctl.daemon.link.session import LinkSession
-from motorctl.daemon.link_parts import silence_watch
+from motorctl.daemon.start.link_parts import silence_watch
 from motorctl.hal.interfaces import VirtualClock
 from motorctl.protocol.codec import Command, GetAbsPos, Response
 from tests.support.frames import OPTS, answers, frame

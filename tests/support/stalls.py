@@ -11,9 +11,9 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 
-from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import Config, parse_config
 from motorctl.daemon.dispatcher import Dispatcher
+from motorctl.daemon.start.assemble import build_executor, hardware_spec, motor_params
 from motorctl.hal.interfaces import Clock, Hardware, VirtualClock
 from motorctl.hal.registry import open_hardware
 from motorctl.motion.engine import MotionEngine

@@ -81,7 +81,7 @@ class ProcessStepExecutor(StepExecutor):
         process: WaitingInterpreter | None = None,
         core: str = STEP_CORES[0],
     ) -> None:
-        """``process``: an executor process started earlier (``daemon/launch.py``), else
+        """``process``: an executor process started earlier (``daemon/start/launch.py``), else
         one is started here. ``core``: the step core it runs, "auto" (the compiled one where
         it is built and the backend hands over its lines, else the Python one, with a
         warning), "compiled" (else it cannot start) or "python"."""

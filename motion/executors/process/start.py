@@ -1,7 +1,7 @@
 """Starting the step executor's process (``child.py``); light to import.
 
 That process takes longer to start than anything else in motorctld's start-up: a second
-Python interpreter, then the step core's modules. So ``motorctld`` (``daemon/launch.py``)
+Python interpreter, then the step core's modules. So ``motorctld`` (``daemon/start/launch.py``)
 starts it first thing, before the daemon's own imports, and both interpreters start side by
 side; the daemon hands it its parameters once it has read its config and made the shared
 memory (:class:`~motorctl.motion.executors.process.parent.ProcessStepExecutor`). This

@@ -20,7 +20,7 @@ import pytest
 from motorctl.daemon.dispatcher import Dispatcher, Wait
 from motorctl.daemon.link import loop, session_end
 from motorctl.daemon.link.silence import SilenceWatch
-from motorctl.daemon.signals import StopSignals
+from motorctl.daemon.start.signals import StopSignals
 from motorctl.protocol.codec import (
     Command,
     ErrorCode,

@@ -462,7 +462,7 @@ def test_a_held_device_names_its_holder(adapter: Adapter) -> None:
 
 def _motorctld(args: list[str], *, as_nobody: bool = False) -> subprocess.CompletedProcess[str]:
     """``motorctld ARGS`` as a user runs it (``as_nobody``: as user nobody, when root)."""
-    cmd = [sys.executable, "-m", "motorctl.daemon.main", *args]
+    cmd = [sys.executable, "-m", "motorctl.daemon.start.main", *args]
     if as_nobody:
         cmd = ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *cmd]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=DEADLINE_S)

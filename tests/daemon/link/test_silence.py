@@ -236,7 +236,7 @@ def test_check_config_refuses_a_timeout_below_a_frame(tmp_path: Path) -> None:
     config = tmp_path / "short.toml"
     config.write_text('[link]\ntimeout_ms = 0.5\n[[motors]]\nname = "a"\n')
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--check-config", str(config)],
+        [sys.executable, "-m", "motorctl.daemon.start.main", "--check-config", str(config)],
         capture_output=True,
         text=True,
         timeout=60,
@@ -246,7 +246,7 @@ def test_check_config_refuses_a_timeout_below_a_frame(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--check-config",
             str(config),
             "--baud",
@@ -263,7 +263,7 @@ def test_check_config_refuses_a_timeout_below_a_frame(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--config",
             str(config),
             "--pty",

@@ -95,7 +95,7 @@ def test_a_start_among_traps_at_every_path(tmp_path: Path, start: int) -> None:
 def _motorctld(*args: str, timeout: float = 60.0) -> subprocess.CompletedProcess[str]:
     """motorctld as a user (or ExecStartPre=) runs it; a hang fails by the timeout."""
     return subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.launch", *args],
+        [sys.executable, "-m", "motorctl.daemon.start.launch", *args],
         capture_output=True,
         text=True,
         cwd=REPO,

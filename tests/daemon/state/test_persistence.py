@@ -21,8 +21,8 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as hst
 
-from motorctl.daemon.assemble import Daemon
 from motorctl.daemon.config import ConfigError, parse_config
+from motorctl.daemon.start.assemble import Daemon
 from motorctl.daemon.state import files, writer
 from motorctl.daemon.state import records as st
 from motorctl.daemon.state.journal import MotionJournal

@@ -82,7 +82,12 @@ def test_metrics_of_a_live_daemon(daemon: DaemonProcess) -> None:
 def check_metrics(daemon: DaemonProcess, fmt: str) -> None:
     parse = parse_prometheus if fmt == "prometheus" else parse_om
     out = run(
-        "motorctl.daemon.main", "--status", "--format", fmt, "--state-dir", str(daemon.state_dir)
+        "motorctl.daemon.start.main",
+        "--status",
+        "--format",
+        fmt,
+        "--state-dir",
+        str(daemon.state_dir),
     )
     assert out.returncode == 0, out.stderr
     families = {f.name: f for f in parse(out.stdout)}
@@ -132,7 +137,7 @@ def check_metrics(daemon: DaemonProcess, fmt: str) -> None:
     assert value("motorctl_executor_alive") == 1
     assert value("motorctl_trace_enabled") == 0
     gone = run(
-        "motorctl.daemon.main",
+        "motorctl.daemon.start.main",
         "--status",
         "--format",
         fmt,
@@ -183,7 +188,7 @@ def test_the_monitor_draws_the_daemon(daemon: DaemonProcess) -> None:
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--status",
             "--watch",
             "--period",

@@ -430,7 +430,7 @@ def test_promtool_check_metrics_passes() -> None:
 def test_without_prometheus_client_the_status_says_what_to_install(tmp_path: Any) -> None:
     code = (
         "import sys; sys.modules['prometheus_client'] = None\n"
-        "from motorctl.daemon.main import main\n"
+        "from motorctl.daemon.start.main import main\n"
         f"sys.exit(main(['--status', '--format', 'prometheus', '--state-dir', {str(tmp_path)!r}]))"
     )
     run = subprocess.run(

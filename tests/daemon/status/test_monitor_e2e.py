@@ -7,7 +7,7 @@ program started with SIGINT ignored (as a shell script starts one in the backgro
 test sends SIGINT through ``sh -c "trap '' INT; exec ..."``) keeps it ignored, for Python
 installs its KeyboardInterrupt handler only where SIGINT has its default action. SIGTERM's
 default ends it on the spot, without restoring a terminal. The moments are counted from the
-one the command takes the signal over (its first instruction, ``daemon/launch.py``: the
+one the command takes the signal over (its first instruction, ``daemon/start/launch.py``: the
 signal is then caught, ``/proc/PID/status``), 16 of them spread over the first 500 ms
 (while it imports, connects, draws its first view) and 4 after; SIGTERM at 4 moments too."""
 
@@ -47,7 +47,7 @@ def taken_over(pid: int, sig: int) -> bool:
     ``sig`` (its status's SigCgt mask; the shell's own handlers, before it ran ``exec``, do
     not count)."""
     with open(f"/proc/{pid}/cmdline", "rb") as f:
-        if b"motorctl.daemon.launch" not in f.read().split(b"\0")[:3]:
+        if b"motorctl.daemon.start.launch" not in f.read().split(b"\0")[:3]:
             return False
     with open(f"/proc/{pid}/status") as f:
         for line in f:
@@ -59,7 +59,7 @@ def taken_over(pid: int, sig: int) -> bool:
 def watch_and_signal(state_dir: Path, sig: int, at_s: float, log: Path) -> str:
     """Start the monitor as ``motorctld`` starts it, SIGINT ignored from the start; send
     ``sig`` ``at_s`` after it took the signal over; what went wrong ("" if nothing)."""
-    command = [sys.executable, "-m", "motorctl.daemon.launch", "--status", "--watch"]
+    command = [sys.executable, "-m", "motorctl.daemon.start.launch", "--status", "--watch"]
     command += ["--period", "50", "--state-dir", str(state_dir)]
     with open(log, "wb") as err:
         proc = subprocess.Popen(

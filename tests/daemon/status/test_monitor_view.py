@@ -128,7 +128,7 @@ def test_without_rich_the_monitor_says_what_to_install(tmp_path: Path) -> None:
     """The daemon never needs rich; the monitor, without it, names the packages and exits 1
     (no traceback), both as motorctld --status --watch and as motorctl monitor."""
     for call in (
-        "from motorctl.daemon.main import main; "
+        "from motorctl.daemon.start.main import main; "
         f"sys.exit(main(['--status', '--watch', '--state-dir', '{tmp_path}']))",
         "from motorctl.client.cli import main; "
         f"sys.exit(main(['monitor', '--state-dir', '{tmp_path}']))",

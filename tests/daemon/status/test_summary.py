@@ -2,8 +2,8 @@
 summed up exactly as docs/status.md shows it (the doc's block is this test's output), each
 real-time refusal with its reason and fix, a motor's last error read from whatever error
 field it has, and documents of other daemons (older, newer, odd) shown as far as they go.
-(``motorctld --status`` on a real terminal against a real daemon: tests/daemon/test_main.py
-and tests/daemon/test_serve_realtime_e2e.py.)"""
+(``motorctld --status`` on a real terminal against a real daemon: tests/daemon/start/test_main.py
+and tests/daemon/start/test_serve_realtime_e2e.py.)"""
 
 from __future__ import annotations
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from motorctl.daemon.platform_check import MotorRate
+from motorctl.daemon.start.platform_check import MotorRate
 from motorctl.motion.executors.base import (
     TICKS_PER_S,
     AxisLimits,

@@ -9,8 +9,8 @@ from collections.abc import Callable
 
 import pytest
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal import registry
 from motorctl.hal.backends.mock.dspin_chip import DspinChip
 from motorctl.hal.backends.mock.world import MockAxis, world_of

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import pytest
 
-from motorctl.daemon.assemble import build_executor, hardware_spec, motor_params
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start.assemble import build_executor, hardware_spec, motor_params
 from motorctl.hal.backends.mock.backend import build
 from motorctl.hal.backends.mock.world import EventKind, world_of
 from motorctl.hal.interfaces import VirtualClock

@@ -8,8 +8,8 @@ import importlib.util
 
 import pytest
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal.backends.gpiod.backend import GpiodBackend
 from motorctl.hal.backends.mock.world import mock_axis
 from motorctl.hal.contract import ProblemKind

@@ -10,8 +10,8 @@ import sys
 
 import pytest
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal.backends.gpiod.config import (
     GpiodAxisConfig,
     GpiodConfig,
@@ -102,7 +102,7 @@ def test_other_backends_need_no_wiring_but_a_written_section_is_still_checked() 
 
 def test_the_example_config_passes_check_config() -> None:
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--check-config", str(EXAMPLE)],
+        [sys.executable, "-m", "motorctl.daemon.start.main", "--check-config", str(EXAMPLE)],
         capture_output=True,
         text=True,
         cwd=REPO,

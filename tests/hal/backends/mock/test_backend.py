@@ -56,7 +56,7 @@ def test_probe_of_the_mock_says_nothing_is_opened() -> None:
     assert report.compiled_lines == "the simulated mechanics of the mock"
     assert report.problems == []
     out = subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--latency-seconds", "0"],
+        [sys.executable, "-m", "motorctl.daemon.start.main", "--probe", "--latency-seconds", "0"],
         capture_output=True,
         text=True,
         cwd=REPO,

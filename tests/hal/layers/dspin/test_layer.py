@@ -10,8 +10,8 @@ from collections.abc import Iterator
 
 import pytest
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal import registry
 from motorctl.hal.backends.mock.dspin_chain import DspinChain
 from motorctl.hal.backends.mock.dspin_chip import DspinChip

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import ConfigError, parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal.layers.tmc.config import TmcDeclaration
 from motorctl.hal.layers.tmc.tmc5160 import TMC5160
 

@@ -2,7 +2,7 @@
 daemon's launch imports it before anything else of motorctl), the parameters and their
 descriptors handed over once over the socket, a message too big refused before anything
 goes, an interpreter not needed after all ended and reaped, and the child's side of the
-socket. (The daemon's early start: tests/daemon/test_launch.py.)"""
+socket. (The daemon's early start: tests/daemon/start/test_launch.py.)"""
 
 from __future__ import annotations
 

@@ -45,7 +45,7 @@ def console_script(folder: Path) -> Path:
     folder.mkdir()
     script = folder / "motorctld"
     script.write_text(
-        f"#!{sys.executable}\nimport sys\nfrom motorctl.daemon.launch import main\n"
+        f"#!{sys.executable}\nimport sys\nfrom motorctl.daemon.start.launch import main\n"
         "sys.exit(main())\n"
     )
     script.chmod(0o755)

@@ -5,7 +5,7 @@ Facts come from files under three roots, ``/proc``, ``/sys`` and ``/etc`` (:clas
 so tests point them at a fake tree: the kernel's preemption model (its version string, i.e.
 ``uname -v``, or ``/sys/kernel/realtime``; ``/sys/kernel/debug/sched/preempt`` or
 ``preempt=`` on the command line for a PREEMPT_DYNAMIC kernel), the OS release (for the way
-to an RT kernel on it: daemon/platform_kernel.py), ``kernel.sched_rt_runtime_us``, each
+to an RT kernel on it: daemon/start/platform_kernel.py), ``kernel.sched_rt_runtime_us``, each
 CPU's cpufreq governor, the isolated and nohz_full CPUs, the board's model (device tree),
 and where the board reports them under-voltage and throttling: a Raspberry Pi's ``rpi_volt``
 hwmon device (``in0_lcrit_alarm``: under-voltage seen in the driver's last poll, every 2 s)
@@ -34,7 +34,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from motorctl.daemon.config.model import MICROSTEPS_UNSAID
-from motorctl.daemon.platform_kernel import OsRelease, read_os_release, rt_kernel_advice
+from motorctl.daemon.start.platform_kernel import OsRelease, read_os_release, rt_kernel_advice
 from motorctl.daemon.status.summary import realtime_lines
 from motorctl.motion.executors.base import LagRule, lag_full_steps
 from motorctl.motion.executors.config import StepThreadConfig

@@ -1,5 +1,5 @@
 """Where a PREEMPT_RT kernel comes from on this board and OS release: the platform check's
-advice (daemon/platform_check.py) when the running kernel is not one, as
+advice (daemon/start/platform_check.py) when the running kernel is not one, as
 docs/raspberry-pi.md ("A real-time kernel") and docs/timing.md ("Checking a platform")
 describe it.
 

@@ -1,4 +1,4 @@
-"""motorctld serving end to end (daemon/serve.py and everything it runs): a subprocess on a
+"""motorctld serving end to end (daemon/start/serve.py and everything it runs): a subprocess on a
 real PTY, driven through the client library: every command and error code, framing, held
 frames, persistence across restarts, stop signals, both step executors and the executor's
 death."""
@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.client.client import Client, DeviceError
-from motorctl.daemon.serve import EXECUTOR_DEATH_GRACE_S, SHUTDOWN_LIMIT_S
+from motorctl.daemon.start.serve import EXECUTOR_DEATH_GRACE_S, SHUTDOWN_LIMIT_S
 from motorctl.protocol.codec import (
     CodecOptions,
     Command,
@@ -614,7 +614,7 @@ def test_status_has_the_step_lateness_histogram(daemon: DaemonProcess) -> None:
     cli = [
         sys.executable,
         "-m",
-        "motorctl.daemon.main",
+        "motorctl.daemon.start.main",
         "--state-dir",
         str(daemon.state_dir),
         "--status",

@@ -1,4 +1,4 @@
-"""motorctld's command line (daemon/main.py), in this process where it can be: the commands
+"""motorctld's command line (daemon/start/main.py), in this process where it can be: the commands
 that print and exit (--print-default-config, --check-config, --probe's step core lines,
 --status without a daemon), the options that go only with --status, a start that cannot
 begin said in one line. Serving itself: test_serve.py, test_serve_e2e.py."""
@@ -18,7 +18,7 @@ from pathlib import Path
 import pytest
 
 from motorctl.daemon.config import default_config_text
-from motorctl.daemon.main import main
+from motorctl.daemon.start.main import main
 from tests.support import REPO
 from tests.support.daemon_proc import StartDaemon, for_tests, run_on_pty
 
@@ -49,7 +49,15 @@ def _probe(tmp_path: Path, step_thread: str) -> subprocess.CompletedProcess[str]
         for_tests(f'[step_thread]\n{step_thread}\n[[motors]]\nname = "a"\n', force=True)
     )
     return subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", "--probe", "--config", str(config), *LAT0],
+        [
+            sys.executable,
+            "-m",
+            "motorctl.daemon.start.main",
+            "--probe",
+            "--config",
+            str(config),
+            *LAT0,
+        ],
         capture_output=True,
         text=True,
         timeout=60,
@@ -185,7 +193,7 @@ def test_a_start_that_cannot_begin_is_one_line_and_exit_1(
 def test_output_into_a_pipe_nobody_reads_ends_quietly(tmp_path: Path, status: bool) -> None:
     """motorctld --status | head: the reader is gone before the output (its end of the pipe
     is closed before motorctld starts): no BrokenPipeError traceback, SIGPIPE's status."""
-    from motorctl.daemon.main import EXIT_PIPE
+    from motorctl.daemon.start.main import EXIT_PIPE
 
     args = ["--status", "--state-dir", str(tmp_path)] if status else ["--print-default-config"]
     answered = (
@@ -198,7 +206,7 @@ def test_output_into_a_pipe_nobody_reads_ends_quietly(tmp_path: Path, status: bo
     try:
         with answered:
             run = subprocess.run(
-                [sys.executable, "-m", "motorctl.daemon.main", *args],
+                [sys.executable, "-m", "motorctl.daemon.start.main", *args],
                 stdout=write,
                 stderr=subprocess.PIPE,
                 text=True,
@@ -222,7 +230,7 @@ def test_status_on_a_terminal_is_a_summary_and_in_a_pipe_the_document(
     cmd = [
         sys.executable,
         "-m",
-        "motorctl.daemon.main",
+        "motorctl.daemon.start.main",
         "--status",
         "--state-dir",
         str(d.state_dir),
@@ -248,7 +256,7 @@ def test_status_on_a_terminal_is_a_summary_and_in_a_pipe_the_document(
 
 def _motorctld(*args: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "motorctl.daemon.main", *args],
+        [sys.executable, "-m", "motorctl.daemon.start.main", *args],
         capture_output=True,
         text=True,
         timeout=60,
@@ -294,7 +302,7 @@ def test_the_help_is_as_wide_as_argparse_makes_it(
     import argparse
     import shutil
 
-    from motorctl.daemon.main import HelpFormatter, terminal_columns
+    from motorctl.daemon.start.main import HelpFormatter, terminal_columns
 
     if columns is None:
         monkeypatch.delenv("COLUMNS", raising=False)

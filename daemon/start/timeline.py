@@ -1,10 +1,10 @@
 """A start's timeline: when each step of motorctld's start-up ended, on the monotonic clock.
 
-daemon/main.py makes one for a command line that serves (its first mark: the daemon's
-modules imported); daemon/serve.py and the assembler mark each step as it ends (the config
+daemon/start/main.py makes one for a command line that serves (its first mark: the daemon's
+modules imported); daemon/start/serve.py and the assembler mark each step as it ends (the config
 read, the hardware opened, the step executor's process handed its parameters, the state
 restored, the PTY, the link, the status socket, the executor ready, the threads started,
-READY). At READY daemon/serve.py logs it in one line at debug level::
+READY). At READY daemon/start/serve.py logs it in one line at debug level::
 
     start-up: imported at 81234.567890 s (monotonic); arguments 0.4 ms, config 6.1 ms, ...
 

@@ -3,9 +3,9 @@
 :func:`serve` prepares the process (the interpreter's switch interval, the CPUs other than
 the step thread's), locks the state directory and the PTY path (one daemon each,
 daemon/instance.py), has the assembler build everything the daemon runs
-(:func:`motorctl.daemon.assemble.build_served`, which closes what it opened when a part
+(:func:`motorctl.daemon.start.assemble.build_served`, which closes what it opened when a part
 fails), then runs it (:func:`run`): starts its threads, says READY, serves the link until a
-stop signal (daemon/signals.py) or the step executor's death, shuts down (:func:`shutdown`:
+stop signal (daemon/start/signals.py) or the step executor's death, shuts down (:func:`shutdown`:
 motors ramp down, outputs safe, state written), closes, and says why it stopped in the exit
 status (:func:`exit_status`).
 
@@ -25,7 +25,11 @@ import threading
 import time
 from collections.abc import Callable
 
-from motorctl.daemon.assemble import (
+from motorctl.daemon.config import Config, load_config
+from motorctl.daemon.errors import StartupError
+from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
+from motorctl.daemon.service import notify_backend, sd_notify
+from motorctl.daemon.start.assemble import (
     Daemon,
     Served,
     ServeOptions,
@@ -33,12 +37,8 @@ from motorctl.daemon.assemble import (
     make_state_dir,
     state_files_dir,
 )
-from motorctl.daemon.config import Config, load_config
-from motorctl.daemon.errors import StartupError
-from motorctl.daemon.instance import LOCK_NAME, InstanceError, Owned
-from motorctl.daemon.service import notify_backend, sd_notify
-from motorctl.daemon.signals import StopSignals
-from motorctl.daemon.timeline import StartTimeline
+from motorctl.daemon.start.signals import StopSignals
+from motorctl.daemon.start.timeline import StartTimeline
 from motorctl.hal.interfaces import HalError
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.process.start import WaitingInterpreter
@@ -64,7 +64,7 @@ def serve(
 ) -> int:
     """Serve until stopped; the exit status. ConfigError or StartupError when the daemon
     cannot start (the message says what to fix). ``timeline``: the start's steps, marked
-    as they end and logged at READY (daemon/timeline.py)."""
+    as they end and logged at READY (daemon/start/timeline.py)."""
     timeline = timeline or StartTimeline("serve")
     config = load_config(config_path)
     timeline.mark("config")

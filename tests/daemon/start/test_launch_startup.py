@@ -1,10 +1,10 @@
-"""What a start of motorctld (daemon/launch.py, the command) does before READY: the modules it
+"""What a start of motorctld (daemon/start/launch.py, the command) does before READY: the modules it
 imports (read from ``python -X importtime``, which writes each module as it is imported,
 before the READY line) leave out everything a serving daemon does not need: the client, the
 live monitor, the metrics, the status reader and its summary, the platform probe, the
 compiled core's probe, the trace recorder and its format, and the standard library modules
 only those need (a process for ``ldconfig``, temporary files, archives). And its start-up
-timeline (daemon/timeline.py), logged at debug level, names every step of the start in order,
+timeline (daemon/start/timeline.py), logged at debug level, names every step of the start in order,
 as bench/startup.py reads it. A real daemon on a real PTY, the embedded default."""
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import sys
 import time
 from pathlib import Path
 
-from motorctl.daemon.timeline import parse
+from motorctl.daemon.start.timeline import parse
 from tests.support import REPO
 from tests.support.daemon_proc import READY_TIMEOUT_S
 
@@ -30,8 +30,8 @@ NEVER = (
     "motorctl.daemon.status.metric_tables",
     "motorctl.daemon.status.reader",
     "motorctl.daemon.status.summary",
-    "motorctl.daemon.platform_check",
-    "motorctl.daemon.platform_kernel",
+    "motorctl.daemon.start.platform_check",
+    "motorctl.daemon.start.platform_kernel",
     "motorctl.daemon.config.docs",
     "motorctl.daemon.link.recorder",
     "motorctl.protocol.capture.",
@@ -47,7 +47,7 @@ NEVER = (
     "http.",
 )
 
-#: the start's steps, in order (daemon/serve.py and daemon/assemble.py mark them)
+#: the start's steps, in order (daemon/start/serve.py and daemon/start/assemble.py mark them)
 STEPS = [
     "arguments",
     "config",
@@ -77,7 +77,7 @@ def start_until_ready(work: Path) -> tuple[list[str], str]:
         "-X",
         "importtime",
         "-m",
-        "motorctl.daemon.launch",
+        "motorctl.daemon.start.launch",
         "--pty",
         str(work / "pty"),
         "--state-dir",
@@ -138,7 +138,7 @@ def start_until_ready(work: Path) -> tuple[list[str], str]:
 
 def test_a_start_imports_only_what_serving_needs_and_times_its_steps(tmp_path: Path) -> None:
     modules, log = start_until_ready(tmp_path)
-    assert "motorctl.daemon.serve" in modules  # read as meant
+    assert "motorctl.daemon.start.serve" in modules  # read as meant
     assert "motorctl.daemon.status.server" in modules
     assert sorted({m for m in modules if never(m)}) == []
     timelines = [found for line in log.splitlines() if (found := parse(line)) is not None]

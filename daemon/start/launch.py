@@ -7,7 +7,7 @@ and READY comes sooner (bench/startup.py, docs/service.md). It is started only f
 that serves (``--pty`` or ``--port``, none of the commands that print and exit) and when a
 second CPU can run it; the daemon takes it over once it has read its config, or ends it at
 once when the config has no use for it (the thread executor, no stepped motor) or the start
-fails. ``python -m motorctl.daemon.main`` runs the same daemon without this head start.
+fails. ``python -m motorctl.daemon.start.main`` runs the same daemon without this head start.
 
 ``motorctld --status --watch`` (the live monitor) ends on SIGINT and SIGTERM from this
 command's first instruction on (``daemon/status/monitor.py``, ``end_on_signals``): they are
@@ -55,7 +55,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         from motorctl.daemon.status import monitor
 
         monitor.end_on_signals()
-        from motorctl.daemon.main import main as watch_main
+        from motorctl.daemon.start.main import main as watch_main
 
         return watch_main(args)
     from motorctl.motion.executors.process.start import WaitingInterpreter
@@ -66,7 +66,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             early = WaitingInterpreter.start()
         except OSError:
             early = None  # the daemon starts it itself, and reports what is wrong then
-    from motorctl.daemon.main import main as daemon_main
+    from motorctl.daemon.start.main import main as daemon_main
 
     return daemon_main(args, executor_process=early)
 

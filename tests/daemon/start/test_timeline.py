@@ -1,11 +1,11 @@
-"""A start's timeline (daemon/timeline.py): each step's own time, the line logged at READY,
+"""A start's timeline (daemon/start/timeline.py): each step's own time, the line logged at READY,
 and that line read back as bench/startup.py reads it. A clock the test turns."""
 
 from __future__ import annotations
 
 import pytest
 
-from motorctl.daemon.timeline import StartTimeline, parse
+from motorctl.daemon.start.timeline import StartTimeline, parse
 
 
 class Clock:

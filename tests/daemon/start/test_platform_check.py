@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.platform_check import (
+from motorctl.daemon.start.platform_check import (
     Latency,
     Platform,
     Roots,
@@ -356,7 +356,7 @@ def test_probe_prints_the_platform_section(tmp_path: Path) -> None:
         [
             sys.executable,
             "-m",
-            "motorctl.daemon.main",
+            "motorctl.daemon.start.main",
             "--probe",
             "--config",
             str(config),

@@ -2,15 +2,15 @@
 
 The command line only: its options (:func:`parse_args`), the commands that print and exit
 (``--check-config``, ``--print-default-config``, ``--probe`` with the platform check of
-daemon/platform_check.py, ``--status`` read through daemon/status/reader.py), and, for a
-command line that serves, the hand-over to daemon/serve.py, which runs the daemon; a
+daemon/start/platform_check.py, ``--status`` read through daemon/status/reader.py), and, for a
+command line that serves, the hand-over to daemon/start/serve.py, which runs the daemon; a
 daemon that cannot start says why here, in one line, and exits 1.
 
 What only a command that prints and exits needs (the platform check, the status reader and
 its summary, the compiled core's probe) is imported when that command runs: a start that
-serves imports none of it (tests/daemon/test_launch_startup.py).
+serves imports none of it (tests/daemon/start/test_launch_startup.py).
 
-Threads: the main thread, all of it (serving goes on in daemon/serve.py on this thread).
+Threads: the main thread, all of it (serving goes on in daemon/start/serve.py on this thread).
 """
 
 from __future__ import annotations
@@ -26,13 +26,13 @@ from types import ModuleType
 from typing import TYPE_CHECKING
 
 from motorctl import __version__
-from motorctl.daemon.assemble import ServeOptions, hardware_spec, known_microsteps
 from motorctl.daemon.config import ConfigError, StepThreadConfig, load_config
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.link.silence import check_timeout
-from motorctl.daemon.serve import serve
 from motorctl.daemon.service import setup_logging
-from motorctl.daemon.timeline import StartTimeline
+from motorctl.daemon.start.assemble import ServeOptions, hardware_spec, known_microsteps
+from motorctl.daemon.start.serve import serve
+from motorctl.daemon.start.timeline import StartTimeline
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
@@ -41,7 +41,7 @@ from motorctl.motion.rt import RealtimeOptions
 from motorctl.protocol.line import parse_baud
 
 if TYPE_CHECKING:
-    from motorctl.daemon import platform_check
+    from motorctl.daemon.start import platform_check
 
 log = logging.getLogger("motorctl")
 
@@ -241,11 +241,11 @@ def main(
     argv: Sequence[str] | None = None, executor_process: WaitingInterpreter | None = None
 ) -> int:
     """motorctld. ``executor_process``: the step executor's process, started before this
-    module was imported (``daemon/launch.py``, the ``motorctld`` command): the process
+    module was imported (``daemon/start/launch.py``, the ``motorctld`` command): the process
     executor takes it over; ended unused otherwise (another executor, another command, an
     error). Output into a pipe whose reader went away (``motorctld --status | head``) ends
     the command quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
-    timeline = StartTimeline("imported")  # a serving start's steps (daemon/timeline.py)
+    timeline = StartTimeline("imported")  # a serving start's steps (daemon/start/timeline.py)
     try:
         code = _main(argv, executor_process, timeline)
         sys.stdout.flush()  # here, not at exit: a reader gone is a broken pipe caught below
@@ -390,7 +390,7 @@ def probe(
 ) -> int:
     """``--probe``: what the configured hardware looks like, moving nothing; then the
     platform (docs/timing.md, "Checking a platform"), which advises and never fails it."""
-    from motorctl.daemon import platform_check
+    from motorctl.daemon.start import platform_check
 
     try:
         config = load_config(config_path)

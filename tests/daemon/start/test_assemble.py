@@ -1,4 +1,4 @@
-"""The assembler (daemon/assemble.py) in this process: a start that fails closes what it
+"""The assembler (daemon/start/assemble.py) in this process: a start that fails closes what it
 opened before (the step executor's process and shared memory, the hardware, the PTY), the
 motors' events reach every served part through one listener, the geometry's fingerprint
 covers what gives positions their meaning."""
@@ -11,13 +11,13 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon import assemble
-from motorctl.daemon.assemble import Daemon, ServeOptions, build_served, motor_identities
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.instance import Owned
 from motorctl.daemon.link import ports
-from motorctl.daemon.serve import shutdown
+from motorctl.daemon.start import assemble
+from motorctl.daemon.start.assemble import Daemon, ServeOptions, build_served, motor_identities
+from motorctl.daemon.start.serve import shutdown
 from motorctl.motion.executors.base import Executor
 from tests.support.daemon_proc import memfd_holders
 from tests.support.inprocess import IN_PROCESS_CONFIG

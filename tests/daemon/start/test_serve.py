@@ -1,4 +1,4 @@
-"""Running the daemon (daemon/serve.py), its parts in this process: one daemon per state
+"""Running the daemon (daemon/start/serve.py), its parts in this process: one daemon per state
 directory and PTY path, the shutdown (safe outputs, the final state written), the exit
 status that says why it stopped, the executor-death watcher. The whole run, as motorctld:
 test_serve_e2e.py, test_service_e2e.py."""
@@ -14,11 +14,11 @@ from typing import Any
 
 import pytest
 
-from motorctl.daemon import serve
-from motorctl.daemon.assemble import ServeOptions
 from motorctl.daemon.config import parse_config
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.instance import Owned
+from motorctl.daemon.start import serve
+from motorctl.daemon.start.assemble import ServeOptions
 from motorctl.protocol.codec import SetPin
 from tests.support.inprocess import build_daemon
 from tests.support.wait import WAIT_S

@@ -1,4 +1,4 @@
-"""Memory a serving motorctld holds (daemon/serve.py runs it; a real process here).
+"""Memory a serving motorctld holds (daemon/start/serve.py runs it; a real process here).
 
 Only the step executor locks its memory (issue 7): mlockall in the daemon would lock every
 thread's stack and the whole interpreter, which a 512 MB board feels. A real daemon with

@@ -1,4 +1,4 @@
-"""The motorctld command (daemon/launch.py) starts the step executor's interpreter before
+"""The motorctld command (daemon/start/launch.py) starts the step executor's interpreter before
 the daemon's imports (motion/executors/process/start.py): the process executor takes it over;
 any other outcome ends it, also when the daemon fails to start or is gone before handing it its
 parameters. Real processes throughout."""
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon import launch
+from motorctl.daemon.start import launch
 from motorctl.motion.executors.process.start import WaitingInterpreter
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, children_of
@@ -36,7 +36,7 @@ def test_only_a_command_line_that_serves_gets_the_head_start(argv: list[str], se
 
 
 def test_the_process_executor_takes_the_early_process_over(tmp_path: Path) -> None:
-    d = DaemonProcess(tmp_path).start()  # python -m motorctl.daemon.launch
+    d = DaemonProcess(tmp_path).start()  # python -m motorctl.daemon.start.launch
     try:
         assert d.proc is not None
         executor = d.status()["executor"]

@@ -1,4 +1,4 @@
-"""Real time that says what it got, end to end (daemon/serve.py's READY line, and the status
+"""Real time that says what it got, end to end (daemon/start/serve.py's READY line, and the status
 of what it serves): motorctld under limits that make the kernel refuse its executor
 SCHED_FIFO and mlockall, for real (no root real time is needed: the refusal is the test),
 says so in its READY line, its status document, systemd's STATUS= summary and
@@ -44,7 +44,7 @@ def test_real_time_the_kernel_refuses_is_said_everywhere(motorctld: StartDaemon)
     pid = doc["executor"]["pid"]
     assert os.sched_getscheduler(pid) == os.SCHED_OTHER  # what the kernel left it
     assert "; REAL TIME REFUSED (mlockall, SCHED_FIFO 50): steps best effort" in (summary_line(doc))
-    main = [sys.executable, "-m", "motorctl.daemon.main"]
+    main = [sys.executable, "-m", "motorctl.daemon.start.main"]
     code, out = run_on_pty([*main, "--status", "--state-dir", str(d.state_dir)])
     assert code == 0, out
     lines = out.splitlines()

@@ -1,7 +1,7 @@
 """The link's optional parts as the config and the command line ask for them: the watch on
 the host's silence (``[link] timeout_ms``, ``timeout_action``: :func:`silence_watch`) and
 the trace recorder (``--trace``, ``[trace]``: :func:`open_trace`, whose modules are
-imported only when a trace is asked for). The assembler (daemon/assemble.py) hands them to
+imported only when a trace is asked for). The assembler (daemon/start/assemble.py) hands them to
 the link it builds.
 
 Threads: the main thread at start-up builds them; the silence watch's action then runs on

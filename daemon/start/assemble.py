@@ -7,7 +7,7 @@ the config asks for (:func:`build_executor`: process, running the step core ``[s
 core`` names; thread; or none when every motor's driver runs its own ramp), the motion
 engine, the state file and the dispatcher (:meth:`Daemon.build`: everything behind the
 serial port); then what serves it (:func:`build_served`): the port (a PTY, or the UART,
-daemon/link/), the trace and the link's silence watch (daemon/link_parts.py), the link,
+daemon/link/), the trace and the link's silence watch (daemon/start/link_parts.py), the link,
 the status socket, systemd's STATUS= line, the motor events' journal entries and the
 watchdog's idea of progress.
 :meth:`Daemon._on_motor_event` is the one listener of the motors' events: it wakes each
@@ -18,7 +18,7 @@ never a backend's class.
 A part that cannot be built stops the start with a :class:`StartupError` (or the HAL's
 message), and what was opened before it is closed again, each close registered once, as
 it is opened, on one ``ExitStack``; :meth:`Served.close` closes what served after
-daemon/serve.py's shutdown.
+daemon/start/serve.py's shutdown.
 
 Threads: everything here runs on the main thread at start-up, before the daemon serves,
 except :meth:`Daemon.status` (the status server's thread and the STATUS= line's: reads
@@ -47,7 +47,6 @@ from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import PtySlave, open_pty
 from motorctl.daemon.link.serialport import DeviceError, SerialDevice
 from motorctl.daemon.link.silence import check_timeout
-from motorctl.daemon.link_parts import open_trace, silence_watch
 from motorctl.daemon.service import (
     MotorEventLog,
     ProgressWatch,
@@ -55,12 +54,13 @@ from motorctl.daemon.service import (
     Watchdog,
     watchdog_interval,
 )
+from motorctl.daemon.start.link_parts import open_trace, silence_watch
+from motorctl.daemon.start.timeline import StartTimeline
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
 from motorctl.daemon.state.writer import StateWriter
 from motorctl.daemon.status.document import StatusDocument, status_document, summary_line
 from motorctl.daemon.status.server import StatusServer
-from motorctl.daemon.timeline import StartTimeline
 from motorctl.hal.interfaces import Clock, HalError, Hardware, MonotonicClock, RampDriver
 from motorctl.hal.registry import driver_spec, open_hardware
 from motorctl.hal.spec import AxisSpec, HardwareSpec, PinSpec
@@ -216,10 +216,10 @@ class Daemon:
         timeline: StartTimeline | None = None,
     ) -> Daemon:
         """Everything behind the serial port; ``executor_process``: see
-        :func:`motorctl.daemon.main.main`. What it opens (the hardware, the step executor)
+        :func:`motorctl.daemon.start.main.main`. What it opens (the hardware, the step executor)
         registers its close on ``undo``, the caller's stack for a later part's failure; by
         default on its own, closed when a part of the daemon fails. ``timeline``: marked as
-        each part is built (daemon/timeline.py)."""
+        each part is built (daemon/start/timeline.py)."""
         timeline = timeline or StartTimeline("build")
         clock = clock or MonotonicClock()
         make_state_dir(state_dir)
@@ -309,7 +309,8 @@ def quietly(close: Callable[[], None]) -> Callable[[], None]:
 
 @dataclass(frozen=True)
 class ServeOptions:
-    """Where the daemon serves and keeps its files: the command line's say (daemon/main.py)."""
+    """Where the daemon serves and keeps its files: the command line's say
+    (daemon/start/main.py)."""
 
     state_dir: Path
     pty: Path | None = None  # --pty: a new PTY, this path a link to it
@@ -320,7 +321,7 @@ class ServeOptions:
 
 @dataclass
 class Served:
-    """A daemon built to serve (:func:`build_served`), nothing started yet: daemon/serve.py
+    """A daemon built to serve (:func:`build_served`), nothing started yet: daemon/start/serve.py
     starts it, serves, shuts it down and closes it (:meth:`close`)."""
 
     daemon: Daemon
@@ -362,7 +363,7 @@ def build_served(
     when it appears), the daemon behind the port, the PTY (its link recorded in ``owned``),
     the trace, the link, the status socket. A part that fails closes what was opened
     before it (ConfigError, StartupError or the HAL's error). ``timeline``: marked as each
-    part is built (daemon/timeline.py)."""
+    part is built (daemon/start/timeline.py)."""
     timeline = timeline or StartTimeline("build")
     why = check_timeout(config.link.timeout_ms, options.baud)
     if why is not None:
@@ -481,7 +482,7 @@ def build_executor(
     HAL's RampDriver: a TMC5160 with ``[motors.tmc] mode = "ramp"``) go to a RampExecutor
     instead and are not the step executor's at all (no STEP/DIR, no slot). Without stepped
     motors there is no step executor (nothing to run in real time). ``process``: an
-    executor process started early (daemon/launch.py), the process executor's; ended here
+    executor process started early (daemon/start/launch.py), the process executor's; ended here
     when the config has no use for it."""
     st = config.step_thread
     if st.core == "compiled" and st.executor == "thread":

@@ -1,4 +1,4 @@
-"""Where a PREEMPT_RT kernel comes from (daemon/platform_kernel.py): the OS release read
+"""Where a PREEMPT_RT kernel comes from (daemon/start/platform_kernel.py): the OS release read
 from a fake /etc, the advice for a Raspberry Pi by its OS release, its word size and its
 kernel, for Debian elsewhere, and docs/raspberry-pi.md saying the same."""
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.platform_kernel import (
+from motorctl.daemon.start.platform_kernel import (
     RPI_CONFIG_LINE,
     RPI_RT_PACKAGE,
     OsRelease,
