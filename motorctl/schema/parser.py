@@ -159,37 +159,48 @@ class Parser:
     ) -> Any:
         """Type- and range-check one value; floats accept integers."""
         what = accepted(key, scope)
-        type_problem = f"wrong type ({toml_type(value)})"
         if key.kind in ("int", "float"):
-            number_types = int if key.kind == "int" else int | float
-            if isinstance(value, bool) or not isinstance(value, number_types):
-                raise self.error(path, value, type_problem, what)
-            lo = key.lo
-            hi = scope[key.hi] if isinstance(key.hi, str) else key.hi
-            assert lo is not None and hi is not None
-            in_range = (value > lo if key.lo_open else value >= lo) and value <= hi
-            if not in_range:
-                raise self.error(path, value, "out of range" + note, what)
-            return float(value) if key.kind == "float" else value
+            return self._number(key, value, path, scope, what, note)
         if key.kind == "bool":
             if not isinstance(value, bool):
-                raise self.error(path, value, type_problem, what)
+                raise self.error(path, value, _wrong_type(value), what)
             return value
         if key.kind == "str":
-            if not isinstance(value, str):
-                raise self.error(path, value, type_problem, what)
-            if key.choices and value not in key.choice_list():
-                raise self.error(path, value, "unknown value", what)
-            if key.pattern is not None and re.fullmatch(key.pattern, value) is None:
-                raise self.error(path, value, "not a valid name", what)
-            if key.check is not None:
-                problem = key.check(value)
-                if problem is not None:
-                    if key.check_listing is not None:
-                        what = f"{what}: {key.check_listing()}"
-                    raise self.error(path, value, problem, what)
-            return key.enum(value) if key.enum is not None else value
+            return self._string(key, value, path, what)
         return self.pairs(value, path, what)
+
+    def _number(
+        self, key: Key, value: Any, path: str, scope: Mapping[str, Any], what: str, note: str
+    ) -> int | float:
+        """An integer, or a float (integers accepted), within the key's bounds (an upper
+        bound that names another key is that key's value in ``scope``)."""
+        number_types = int if key.kind == "int" else int | float
+        if isinstance(value, bool) or not isinstance(value, number_types):
+            raise self.error(path, value, _wrong_type(value), what)
+        lo = key.lo
+        hi = scope[key.hi] if isinstance(key.hi, str) else key.hi
+        assert lo is not None and hi is not None
+        in_range = (value > lo if key.lo_open else value >= lo) and value <= hi
+        if not in_range:
+            raise self.error(path, value, "out of range" + note, what)
+        return float(value) if key.kind == "float" else value
+
+    def _string(self, key: Key, value: Any, path: str, what: str) -> Any:
+        """A string from the key's choices (its enum's member, where it has one), of its
+        pattern, or passing its check (whose listing joins what is accepted)."""
+        if not isinstance(value, str):
+            raise self.error(path, value, _wrong_type(value), what)
+        if key.choices and value not in key.choice_list():
+            raise self.error(path, value, "unknown value", what)
+        if key.pattern is not None and re.fullmatch(key.pattern, value) is None:
+            raise self.error(path, value, "not a valid name", what)
+        if key.check is not None:
+            problem = key.check(value)
+            if problem is not None:
+                if key.check_listing is not None:
+                    what = f"{what}: {key.check_listing()}"
+                raise self.error(path, value, problem, what)
+        return key.enum(value) if key.enum is not None else value
 
     def pairs(self, value: Any, path: str, what: str) -> tuple[tuple[int, int], ...]:
         """An array of [pin, pin] pairs."""
@@ -206,3 +217,7 @@ class Parser:
             if not all(0 <= p <= 255 for p in pair):
                 raise self.error(f"{path}[{i}]", pair, "pin number out of range", what)
         return tuple((a, b) for a, b in value)
+
+
+def _wrong_type(value: Any) -> str:
+    return f"wrong type ({toml_type(value)})"

@@ -87,25 +87,8 @@ def type_text(key: Key) -> str:
 
 def accepted(key: Key, scope: Mapping[str, Any] | None = None) -> str:
     """What a key accepts; with `scope`, bounds that name other keys show their values."""
-    hi_text = ""
-    if isinstance(key.hi, str):
-        hi_text = key.hi
-        if scope is not None and key.hi in scope:
-            hi_text += f" ({key.hi} = {num(scope[key.hi])})"
-    elif key.hi is not None:
-        hi_text = num(key.hi)
     if key.kind in ("int", "float"):
-        noun = "an integer" if key.kind == "int" else "a number"
-        assert key.lo is not None
-        if key.lo_open or isinstance(key.hi, str):
-            op = ">" if key.lo_open else ">="
-            text = f"{noun} {op} {num(key.lo)} and <= {hi_text}"
-        else:
-            text = f"{noun} in {num(key.lo)}..{hi_text}"
-        if key.optional:
-            text += ", or leave it unset"
-        if key.default is REQUIRED:
-            text += " (required)"
+        text = _number_text(key, scope)
     elif key.kind == "bool":
         text = "true or false"
     elif key.kind == "pairs":
@@ -121,6 +104,30 @@ def accepted(key: Key, scope: Mapping[str, Any] | None = None) -> str:
         text = key.check_text
     if key.unique:
         text += ", unique"
+    return text
+
+
+def _number_text(key: Key, scope: Mapping[str, Any] | None) -> str:
+    """What a number key accepts: its bounds (an upper one that names another key with
+    that key's value, where ``scope`` has it), unset or required."""
+    hi_text = ""
+    if isinstance(key.hi, str):
+        hi_text = key.hi
+        if scope is not None and key.hi in scope:
+            hi_text += f" ({key.hi} = {num(scope[key.hi])})"
+    elif key.hi is not None:
+        hi_text = num(key.hi)
+    noun = "an integer" if key.kind == "int" else "a number"
+    assert key.lo is not None
+    if key.lo_open or isinstance(key.hi, str):
+        op = ">" if key.lo_open else ">="
+        text = f"{noun} {op} {num(key.lo)} and <= {hi_text}"
+    else:
+        text = f"{noun} in {num(key.lo)}..{hi_text}"
+    if key.optional:
+        text += ", or leave it unset"
+    if key.default is REQUIRED:
+        text += " (required)"
     return text
 
 
