@@ -289,9 +289,10 @@ def core_cost_us(core: str = "python", steps: int = 30_000) -> float:
     from motorctl.hal.shm import SharedBlock
     from motorctl.hal.spec import HardwareSpec
     from motorctl.motion.executors.compiled_core import CompiledStepCore
+    from motorctl.motion.executors.core_cells import COUNTER_NAMES, STEPS, CoreInbox
     from motorctl.motion.executors.process.rings import Layout, Shared
     from motorctl.motion.executors.segments import StepSegment
-    from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
+    from motorctl.motion.executors.step_core import StepCore
     from motorctl.motion.latency import LatencyStats
     from tests.support.motor_defaults import motor_limits
 

@@ -25,9 +25,10 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.registry import open_hardware, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.core_cells import COUNTER_NAMES, STEPS, CoreInbox
 from motorctl.motion.executors.process.rings import Layout, Shared
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES, STEPS, CoreInbox, StepCore
+from motorctl.motion.executors.step_core import StepCore
 from motorctl.motion.latency import LatencyStats
 from tests.support.motor_defaults import motor_limits
 

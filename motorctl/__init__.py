@@ -1,6 +1,6 @@
 """motorctl: a Linux daemon that stands in for a motor-controller microcontroller on a UART.
 
-This folder holds the namespace root, ``schema.py`` (the generic config-schema engine that
+This folder holds the namespace root, ``schema/`` (the generic config-schema engine that
 every room may use: it imports nothing from motorctl) and, in a checkout, relative symlinks
 to the rooms. The rooms are the repository's top-level folders, mapped under this name by
 ``[tool.setuptools.package-dir]`` in pyproject.toml:

@@ -32,7 +32,7 @@ import pytest
 REPO = Path(__file__).resolve().parent.parent
 ROOMS = ("protocol", "client", "daemon", "motion", "hal")
 #: what each room may import besides itself ("root": motorctl/__init__.py, "schema":
-#: motorctl/schema.py)
+#: motorctl/schema/)
 ALLOWED = {
     "root": set(),
     "schema": set(),
@@ -125,13 +125,10 @@ OPTIONAL = {
 
 def package_modules() -> dict[str, Path]:
     """Every module of the package by its name (the rooms as installed: motorctl.<room>)."""
-    found = {
-        "motorctl": REPO / "motorctl" / "__init__.py",
-        "motorctl.schema": REPO / "motorctl" / "schema.py",
-    }
-    for room in ROOMS:
-        for path in sorted((REPO / room).rglob("*.py")):
-            parts = path.relative_to(REPO).with_suffix("").parts
+    found = {"motorctl": REPO / "motorctl" / "__init__.py"}
+    for folder in (*(REPO / room for room in ROOMS), REPO / "motorctl" / "schema"):
+        for path in sorted(folder.rglob("*.py")):
+            parts = path.relative_to(folder.parent).with_suffix("").parts
             if parts[-1] == "__init__":
                 parts = parts[:-1]
             found[".".join(("motorctl", *parts))] = path

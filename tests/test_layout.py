@@ -11,13 +11,8 @@ it, file by file, and no module or function of it grows past what a reader takes
   module's tests by its path, and a test file's module by its name (tests/conftest.py).
 - Sized rooms (``SIZED``): no module over ``MAX_LINES`` lines (Python, and the C of the
   compiled step core), no function or method of a cyclomatic complexity above
-  ``MAX_COMPLEXITY`` (radon's measure, as the issue measured), but the step core's hot loop.
-
-The one exception, with its reason: ``StepCore.step`` (motion/executors/step_core.py) is the
-one function that runs per step. Its branches are the loop's rules, read together at the top
-of that module, and a call per rule would cost every step a Python call (``bench/steps.py``'s
-``core_cost_us_python``); its C twin, motion/executors/csrc/core.c, mirrors it function by
-function.
+  ``MAX_COMPLEXITY`` (radon's measure, as the issue measured), with no exception: the step
+  core's hot loop too is read in named steps (``StepCore.step``, issue 33).
 
 Every room is in order now (issue 23): each is in both tuples, and a room the package maps
 (pyproject.toml's ``package-dir``) but the tuples leave out fails
@@ -41,8 +36,6 @@ MAX_LINES = 600
 MAX_COMPLEXITY = 25
 #: the sources whose length counts (the compiled step core's C beside the Python)
 SOURCES = ("*.py", "*.c", "*.h")
-#: functions above MAX_COMPLEXITY on purpose, by file (see the module's doc)
-HOT_LOOP = {"motion/executors/step_core.py": {"StepCore.step"}}
 
 
 def rooms() -> set[str]:
@@ -142,21 +135,18 @@ def test_no_module_too_long_and_no_function_too_complex(room: str) -> None:
         if lines > MAX_LINES:
             long.append(f"{where}: {lines} lines")
         if path.suffix == ".py":
-            complex_ += [f"{where} {n}" for n in too_complex(source, HOT_LOOP.get(where, set()))]
+            complex_ += [f"{where} {n}" for n in too_complex(source)]
     assert long == [], f"modules over {MAX_LINES} lines: {long}"
     assert complex_ == [], f"functions above CC {MAX_COMPLEXITY}: {complex_}"
 
 
 def test_the_sized_rooms_are_read_c_too() -> None:
     found = {p.relative_to(REPO).as_posix() for room in SIZED for p in sources(room)}
-    assert {"motion/motor.py", *HOT_LOOP, "motion/executors/csrc/core.c"} <= found
-
-
-def test_the_hot_loop_is_still_the_exception() -> None:
-    """An exception that no longer exists is removed from the list, not kept for later."""
-    for where, names in HOT_LOOP.items():
-        over = too_complex((REPO / where).read_text(encoding="utf-8"))
-        assert {n.split(":")[0] for n in over} == names
+    assert {
+        "motion/motor.py",
+        "motion/executors/step_core.py",
+        "motion/executors/csrc/core.c",
+    } <= found
 
 
 SOURCE = """

@@ -2,7 +2,7 @@
 
 Split by owner:
 
-- `motorctl.schema` (motorctl/schema.py): the generic engine — key helpers, types, bounds,
+- `motorctl.schema` (motorctl/schema/): the generic engine — key helpers, types, bounds,
   choices, tables and arrays of tables, unknown-key rejection, error messages. It lives
   below every room so that hal/ and motion/ can declare the sections they own.
 - `model`: the core tables (link, units, hal, step_thread, dc, motors, pins); each key is a

@@ -126,7 +126,7 @@ HOW_TO: Final = """\
 ## Adding configuration
 
 Every key is declared once, next to the code that owns it: a field of a frozen dataclass
-made a table by `@section` (`motorctl/schema.py`). The field's helper (`integer`, `number`,
+made a table by `@section` (`motorctl/schema/fields.py`). The field's helper (`integer`, `number`,
 `boolean`, `choice`, `text`, `pairs`, `table`, `tables`) holds the default, the bounds and
 the doc; the same dataclass is what the code reads. This page, the checks and
 `--print-default-config` are all generated from those declarations.

@@ -27,6 +27,7 @@ from motorctl.daemon.state.journal import MotionJournal
 from motorctl.daemon.state.records import (
     JOURNAL_NAME,
     STATE_NAME,
+    Match,
     MotorIdentity,
     SavedMotor,
     SavedState,
@@ -77,18 +78,42 @@ class Persistence:
 
     # -- start and stop ----------------------------------------------------------------------
     def restore(self) -> None:
-        """Load the state file into the motors; never raises for a bad file (see module doc)."""
-        motors = self.engine.motors
-        marks: list[bool] | None
+        """Load the state file into the motors; never raises for a bad file (see module doc).
+
+        In steps: the journal's marks, the state file, each motor's match loaded into it,
+        the warnings of what was not restored, then the outcome (the file set aside when
+        anything was not).
+        """
+        marks = self._journal_marks()
+        state = self._saved_state(marks)
+        if state is None:
+            return
+        matches = match_motors(state, self.identities)
+        moved = self._load_motors(state, matches, marks)
+        orphans = unmatched_records(state, self.identities)
+        self._warn(matches, moved, orphans)
+        self.restored = self._outcome(state, matches, orphans)
+        log.info("%s from %s", self.restored, self.path)
+
+    def _journal_marks(self) -> list[bool] | None:
+        """Which of the file's motors the motion journal says were moving; None when it
+        cannot be read (its problem kept for :meth:`open`, which logs it and sets it aside
+        once the state is durable)."""
         try:
-            marks = MotionJournal.read(self.journal.path)
-        except StateError as exc:  # logged and set aside by open(), once the state is durable
-            marks, self.journal_problem = None, str(exc)
+            return MotionJournal.read(self.journal.path)
+        except StateError as exc:
+            self.journal_problem = str(exc)
+            return None
+
+    def _saved_state(self, marks: list[bool] | None) -> SavedState | None:
+        """The state file, None when there is none to restore (every motor lost when that
+        is for a reason: the file cannot be trusted, or it is missing and the journal says
+        a motor may have moved)."""
         try:
             state = read_state(self.path)
         except StateError as exc:
             self._lose_all(f"{exc}", set_aside(self.path))
-            return
+            return None
         if state is None:
             if marks is None:
                 self._lose_all(f"{self.path} is missing and the motion journal is unreadable", None)
@@ -96,11 +121,17 @@ class Persistence:
                 self._lose_all(
                     f"{self.journal.path} says a motor was moving and {self.path} is missing", None
                 )
-            return
-        matches = match_motors(state, self.identities)
+        return state
+
+    def _load_motors(
+        self, state: SavedState, matches: Sequence[Match], marks: list[bool] | None
+    ) -> list[str]:
+        """Each motor its match: a motor without one has lost its position; one with one
+        gets its home, table and position, and loses the position when it was moving (the
+        record or the journal says so). The motors that were moving, named for the log."""
         moved = []
         with self.engine.lock:
-            for m, match, ident in zip(motors, matches, self.identities, strict=True):
+            for m, match, ident in zip(self.engine.motors, matches, self.identities, strict=True):
                 saved = match.saved
                 if saved is None:
                     m.position_lost = True
@@ -114,7 +145,12 @@ class Persistence:
                     m.position_lost = True
                     if not saved.position_lost:
                         moved.append(f"{m.index} ({ident.name})")
-        for m, match, ident in zip(motors, matches, self.identities, strict=True):
+        return moved
+
+    def _warn(self, matches: Sequence[Match], moved: list[str], orphans: list[str]) -> None:
+        """The log's warnings: each motor nothing was restored for, the motors that were
+        moving, each record of no configured motor."""
+        for m, match, ident in zip(self.engine.motors, matches, self.identities, strict=True):
             if match.problem is not None:
                 log.warning(
                     "motor %d (%s): nothing restored from %s, %s: position lost, "
@@ -131,7 +167,6 @@ class Persistence:
                 ", ".join(moved),
                 extra={"STATE_PATH": str(self.path)},
             )
-        orphans = unmatched_records(state, self.identities)
         for what in orphans:
             log.warning(
                 "%s has %s: nothing restored from that record",
@@ -139,21 +174,23 @@ class Persistence:
                 what,
                 extra={"STATE_PATH": str(self.path)},
             )
+
+    def _outcome(self, state: SavedState, matches: Sequence[Match], orphans: list[str]) -> str:
+        """What was restored, in words: the file set aside when anything of it was not;
+        when everything was, the extra state restored too."""
         problems = [mt for mt in matches if mt.problem is not None]
         if problems or orphans:
             bad = set_aside(self.path)
             kept = f"kept as {bad}" if bad is not None else "could not be moved aside"
             n = len(orphans)
             unused = f", {n} record{'s' * (n != 1)} for no configured motor" if n else ""
-            self.restored = (
+            return (
                 f"restored {len(matches) - len(problems)} of {len(matches)} "
                 f"motors{unused}; the file was {kept}"
             )
-        else:
-            if self.extra is not None:
-                self.extra[1](state.extra)
-            self.restored = f"restored {len(matches)} motors"
-        log.info("%s from %s", self.restored, self.path)
+        if self.extra is not None:
+            self.extra[1](state.extra)
+        return f"restored {len(matches)} motors"
 
     def _journal_unreadable(self, bad: Path | None) -> None:
         """The one log line of an unreadable motion journal (none when it was readable)."""

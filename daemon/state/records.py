@@ -165,6 +165,20 @@ def parse_state(raw: bytes) -> SavedState:
     StateError when the file as a whole cannot be trusted; a motor record that cannot be
     is listed in :attr:`SavedState.bad` with its problem, and the other records stand.
     """
+    data = _json_object(raw)
+    good, bad = _records(_motor_list(data))
+    twins = _same_names(good, bad)
+    shared = {b.name for b in twins}
+    bad = sorted(bad + twins, key=lambda b: b.index)
+    kept = [(i, saved) for i, saved in good if saved.name not in shared]
+    extra = {k: v for k, v in data.items() if k not in ("version", "motors")}
+    return SavedState(
+        [saved for _, saved in kept], extra, bad, {saved.name: i for i, saved in kept}
+    )
+
+
+def _json_object(raw: bytes) -> dict[str, Any]:
+    """The file as a JSON object: UTF-8 text that Python's parser takes, an object."""
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError as exc:
@@ -180,12 +194,23 @@ def parse_state(raw: bytes) -> SavedState:
         raise StateError(f"JSON that cannot be read ({why})") from None
     if not isinstance(data, dict):
         raise StateError("not a JSON object")
+    return data
+
+
+def _motor_list(data: dict[str, Any]) -> list[object]:
+    """The header's checks (the version this daemon writes), then the list of records."""
     if data.get("version") != STATE_VERSION:
         version = _show.repr(data.get("version"))
         raise StateError(f"version is {version}, this daemon writes {STATE_VERSION}")
     motors = data.get("motors")
     if not isinstance(motors, list):
         raise StateError("'motors' is missing or not a list")
+    return motors
+
+
+def _records(motors: list[object]) -> tuple[list[tuple[int, SavedMotor]], list[BadRecord]]:
+    """Each record on its own: the good ones with their place in the file, and the bad
+    ones with their problem (and their name, where it is a string)."""
     good: list[tuple[int, SavedMotor]] = []
     bad: list[BadRecord] = []
     for i, m in enumerate(motors):
@@ -194,23 +219,20 @@ def parse_state(raw: bytes) -> SavedState:
         except StateError as exc:
             name = m.get("name") if isinstance(m, dict) else None
             bad.append(BadRecord(i, name if isinstance(name, str) else None, str(exc)))
+    return good, bad
+
+
+def _same_names(good: list[tuple[int, SavedMotor]], bad: list[BadRecord]) -> list[BadRecord]:
+    """The good records whose name another record (good or bad) has too, made bad: none of
+    them can be told to be that motor's."""
     names = Counter([s.name for _, s in good] + [b.name for b in bad if b.name is not None])
-    shared = {name for name, n in names.items() if n > 1}
-    for i, saved in good:
-        if saved.name in shared:
-            bad.append(
-                BadRecord(
-                    i,
-                    saved.name,
-                    f"{names[saved.name]} motor records are named {_show.repr(saved.name)}",
-                )
-            )
-    bad.sort(key=lambda b: b.index)
-    kept = [(i, saved) for i, saved in good if saved.name not in shared]
-    extra = {k: v for k, v in data.items() if k not in ("version", "motors")}
-    return SavedState(
-        [saved for _, saved in kept], extra, bad, {saved.name: i for i, saved in kept}
-    )
+    return [
+        BadRecord(
+            i, saved.name, f"{names[saved.name]} motor records are named {_show.repr(saved.name)}"
+        )
+        for i, saved in good
+        if names[saved.name] > 1
+    ]
 
 
 def read_state(path: Path) -> SavedState | None:

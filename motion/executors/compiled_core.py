@@ -39,6 +39,7 @@ from typing import Any
 from motorctl.hal.compiled_lines import ChardevLines, SimulatedLines
 from motorctl.hal.interfaces import StepIO, VirtualClock
 from motorctl.motion.executors.base import TICKS_PER_S, AxisLimits, ExecEvent, to_ticks
+from motorctl.motion.executors.core_cells import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.executors.process.rings import (
     BAD_RECORD_S,
     EVENT_RECORD,
@@ -50,7 +51,7 @@ from motorctl.motion.executors.process.rings import (
     Shared,
     decode_event,
 )
-from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, SPIN_S
+from motorctl.motion.executors.step_core import SPIN_S
 from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
 
 NAME = "compiled"

@@ -38,8 +38,7 @@ from motorctl.motion.executors.base import (
     from_ticks,
     to_ticks,
 )
-from motorctl.motion.executors.segments import Boundary, SegmentCutter, StepSegment
-from motorctl.motion.executors.step_core import (
+from motorctl.motion.executors.core_cells import (
     ABSORBED,
     LAG_FAULTS,
     LAG_UNIT,
@@ -48,6 +47,7 @@ from motorctl.motion.executors.step_core import (
     WORST_LAG,
     WORST_LATE,
 )
+from motorctl.motion.executors.segments import Boundary, SegmentCutter, StepSegment
 from motorctl.motion.latency import Cells
 from motorctl.motion.profile import Trajectory
 from motorctl.motion.types import MotorParams, Ramp

@@ -37,8 +37,8 @@ changing anything here, and keep to them in what it calls:
   change to a rule is made in both, and the core's tests run on both
   (tests/motion/executors/test_step_core.py). This one stays the readable reference and
   the fallback.
-- One module, a little over 500 lines with this fence, on purpose: the loop's state and
-  every path that touches it are read together.
+- One module on purpose (but its inbox and published cells: ``core_cells.py``): the loop's
+  state and every path that touches it are read together.
 
 Per step: pick the motors due now; a motor whose step comes later than ``slide_after`` has
 the rest of its schedule slid by that lateness (its ``shift``: the planner reads it and
@@ -63,7 +63,6 @@ that start at or after tick ``cut``, silently: a re-plan takes over there. A seg
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Sequence
 from typing import Final
 
@@ -76,6 +75,24 @@ from motorctl.motion.executors.base import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.core_cells import (
+    ABSORBED,
+    BAD_RECORDS,
+    DISCARDED,
+    ENDSTOPS,
+    IO_ERRORS,
+    LAG_FAULTS,
+    LAG_UNIT,
+    MIN_GAP,
+    MOTOR_CELLS,
+    PROGRESS,
+    SHIFT,
+    STEPS,
+    TIMING_LOST,
+    WORST_LAG,
+    WORST_LATE,
+    CoreInbox,
+)
 from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.latency import Cells, LatencyStats
 
@@ -83,27 +100,8 @@ from motorctl.motion.latency import Cells, LatencyStats
 #: spin_us declares it with this value)
 SPIN_S: Final = 200e-6
 
-# counters cells
-PROGRESS, STEPS, TIMING_LOST, IO_ERRORS, ENDSTOPS, DISCARDED, MIN_GAP, BAD_RECORDS = range(8)
-COUNTER_NAMES = (
-    "progress",
-    "steps",
-    "timing_lost",
-    "io_errors",
-    "endstops",
-    "segments_discarded",  # segments of a replaced or stopped plan, never stepped
-    "min_gap_ns",
-    "bad_records",
-)
 #: the smallest time between two steps of a motor (MIN_GAP) counts steps less than this apart
 _GAP_WINDOW = TICKS_PER_S // 10
-
-# per motor cells (``motor_cells``: MOTOR_CELLS per motor, motor m's at m * MOTOR_CELLS)
-SHIFT, ABSORBED, WORST_LATE, WORST_LAG, LAG_FAULTS = range(5)
-MOTOR_CELL_NAMES = ("shift_ns", "late_absorbed", "worst_late_ns", "worst_lag_ufs", "lag_faults")
-MOTOR_CELLS = len(MOTOR_CELL_NAMES)
-#: worst lag cell unit: millionths of a full step
-LAG_UNIT = 1_000_000
 
 K = ExecEventKind
 #: stopped_gen after the core stopped a motor itself: every segment is dropped until the
@@ -113,20 +111,6 @@ BLOCKED = 1 << 62
 NEVER = 1 << 62
 #: the largest value of a shared int64 cell
 _CELL_MAX = (1 << 63) - 1
-
-
-class CoreInbox:
-    """What the planner hands the core: per-motor segment queues and hard stops; and the
-    records the transport found bad (``faults``: (motor or -1 for every motor, detail);
-    the shared-memory rings' only, process/child.py)."""
-
-    def __init__(self, motors: int) -> None:
-        self.queues: list[deque[StepSegment]] = [deque() for _ in range(motors)]
-        self.stops: deque[tuple[int, int, int]] = deque()  # (motor, gen, cut or -1)
-        self.faults: deque[tuple[int, str]] = deque()
-
-    def pull(self) -> None:
-        """Move pending work from the transport into the deques (in-process: nothing)."""
 
 
 class StepCore:
@@ -340,10 +324,35 @@ class StepCore:
 
     # -- one edge ----------------------------------------------------------------------
     def step(self, now: int) -> None:
-        """Emit every step due at ``now`` (ticks)."""
+        """Emit every step due at ``now`` (ticks), in the steps of the module's "Per step"."""
+        slid = self._pick_due(now)
+        due = self._due
+        if not due:
+            return
+        outputs = self.io.outputs
+        try:
+            rise = outputs.rise(due)
+        except HalError as exc:
+            self._io_fault(due, exc)
+            return
+        width = self._account(rise, slid)
+        try:
+            outputs.fall(due, rise + width)
+        except HalError as exc:
+            self._io_fault(due, exc)
+            return
+        # the end stops after this step, in its direction and generation, before a motor
+        # whose segment it ended reports DONE or goes on: a last step onto the switch is
+        # an end stop hit, not a move done
+        self._edges()
+        self._look_at_ends()
+        if self._done:
+            self._go_on(rise)
+
+    def _pick_due(self, now: int) -> bool:
+        """The motors due at ``now`` into ``_due``: due, or planned within ``coalesce`` of
+        now with nothing else holding it back (it shares this pulse); True: one slid."""
         due_t, next_t, slide_after = self.due_t, self.next_t, self.slide_after
-        # due now, or planned within ``coalesce`` of now with nothing else holding it back
-        # (spacing, DIR set-up): it shares this pulse rather than queue behind it
         soon = now + self.coalesce
         due = self._due
         due.clear()
@@ -356,26 +365,23 @@ class StepCore:
                         continue  # stopped: a real motor may have lost steps
                     slid = True
                 due.append(m)
-        if not due:
-            return
-        outputs = self.io.outputs
-        try:
-            rise = outputs.rise(due)
-        except HalError as exc:
-            self._io_fault(due, exc)
-            return
-        # the accounting happens while the lines are high (the pulse width)
+        return slid
+
+    def _account(self, rise: int, slid: bool) -> int:
+        """While the STEP lines are high: lateness, positions, next steps (a segment's end
+        into ``_done``), counters. The pulse width to keep."""
         record, pos, counters, dirs = self.stats.record_ns, self.pos, self.counters, self.dir
         left, iv, add, min_iv = self.left, self.iv, self.add, self.min_iv
-        last_edge, prev_t = self.last_edge, self.prev_t
+        next_t, due_t, last_edge, prev_t = self.next_t, self.due_t, self.last_edge, self.prev_t
+        widths, lateness, due = self.width, self.slid, self._due
         width = 0
         done = self._done
         done.clear()
         for m in due:
             planned = next_t[m]
-            if slid and self.slid[m]:  # lateness is judged against the schedule before it slid
-                record(rise - planned + self.slid[m])
-                self.slid[m] = 0
+            if slid and lateness[m]:  # lateness is judged against the schedule before it slid
+                record(rise - planned + lateness[m])
+                lateness[m] = 0
             else:
                 record(rise - planned)
             gap = rise - last_edge[m]
@@ -386,8 +392,8 @@ class StepCore:
             pos[m] += dirs[m]
             prev_t[m] = planned
             last_edge[m] = rise
-            if self.width[m] > width:
-                width = self.width[m]
+            if widths[m] > width:
+                width = widths[m]
             n = left[m] - 1
             left[m] = n
             if n > 0:
@@ -400,28 +406,28 @@ class StepCore:
                 next_t[m] = due_t[m] = NEVER
                 done.append(m)
         counters[STEPS] += len(due)
-        try:
-            outputs.fall(due, rise + width)
-        except HalError as exc:
-            self._io_fault(due, exc)
-            return
-        # the end stops after this step, in its direction and generation, before a motor
-        # whose segment it ended reports DONE or goes on: a last step onto the switch is
-        # an end stop hit, not a move done
-        self._edges()
-        levels, ends, watch, release = self.levels, self.ends, self.watch, self.release
-        for m in due:
+        return width
+
+    def _look_at_ends(self) -> None:
+        """Each motor that stepped: the end stop ahead, and the one behind where it is
+        watched for its release."""
+        levels, ends, dirs = self.levels, self.ends, self.dir
+        watch, release = self.watch, self.release
+        for m in self._due:
             if watch[m]:
                 line = ends[m][1 if dirs[m] > 0 else 0]
                 if line is not None and levels[line] and self._check_endstop(m, line):
                     continue
             if release[m]:
                 self._check_release(m)
-        for m in done:
+
+    def _go_on(self, rise: int) -> None:
+        """Each motor whose segment the step ended: DONE after a plan's last, its next one."""
+        for m in self._done:
             if self.stopped_gen[m] == BLOCKED:
                 continue  # stopped on its own account: nothing more until the answer
             if self.last[m]:  # before the next segment (a marker reports its own DONE)
-                self.emit(ExecEvent(K.DONE, m, self.gen[m], pos[m], from_ticks(rise)))
+                self.emit(ExecEvent(K.DONE, m, self.gen[m], self.pos[m], from_ticks(rise)))
             self._load(m)
 
     def _edges(self) -> None:

@@ -5,7 +5,7 @@ planner half, which cuts the plans into step segments) whose step core
 (:class:`~motorctl.motion.executors.step_core.StepCore`) runs in a thread of this process,
 ``motorctl-steps`` (``[step_thread] executor = "thread"``: single-core boards), at the
 real-time priority the config gives it; the planner hands it segments and stops through
-the core's inbox deques (:class:`~motorctl.motion.executors.step_core.CoreInbox`). On a
+the core's inbox deques (:class:`~motorctl.motion.executors.core_cells.CoreInbox`). On a
 virtual clock (tests, bench/steps.py) there is
 no thread at all: the engine's caller drives the core through ``next_deadline`` and
 ``advance``.
@@ -33,9 +33,10 @@ from motorctl.motion.executors.base import (
     from_ticks,
     to_ticks,
 )
+from motorctl.motion.executors.core_cells import COUNTER_NAMES, CoreInbox
 from motorctl.motion.executors.planner import AHEAD_S, StepExecutor
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES, SPIN_S, CoreInbox, StepCore
+from motorctl.motion.executors.step_core import SPIN_S, StepCore
 from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, RealtimeReport, enter_realtime
 

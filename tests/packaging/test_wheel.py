@@ -176,7 +176,7 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
     }
     assert sorted(modules - set(names)) == []
     assert "motorctl/hal/layers/tmc/tmc5160.py" in modules
-    assert "motorctl/daemon/config/model.py" in names and "motorctl/schema.py" in names
+    assert "motorctl/daemon/config/model.py" in names and "motorctl/schema/__init__.py" in names
     assert not any(name.endswith((".pyc", "/tests/__init__.py")) for name in names)
     # the compiled step core, built by the wheel's build; its sources stay out
     assert (

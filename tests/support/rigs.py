@@ -20,11 +20,12 @@ from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import ExecEvent, Executor, from_ticks, to_ticks
 from motorctl.motion.executors.compiled_core import CompiledStepCore
+from motorctl.motion.executors.core_cells import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.process.child import RingInbox
 from motorctl.motion.executors.process.rings import Layout, Shared, segment_fields
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS, StepCore
+from motorctl.motion.executors.step_core import StepCore
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.motor import Motor

@@ -448,10 +448,11 @@ static int late(struct core *c, int m, int64_t now) {
     return 1;
 }
 
-void core_step(struct core *c, int64_t now) {
+/* the motors due at now into c->due (their count): due, or planned within coalesce of now
+ * with nothing else holding it back (it shares this pulse); *slid: one of them slid */
+static int pick_due(struct core *c, int64_t now, int *slid) {
     int64_t soon = now + c->coalesce;
-    int *due = c->due, *done = c->done;
-    int ndue = 0, ndone = 0, slid = 0;
+    int ndue = 0;
     for (int m = 0; m < c->n; m++) {
         struct motor *mo = &c->m[m];
         int64_t d = mo->due_t;
@@ -459,23 +460,21 @@ void core_step(struct core *c, int64_t now) {
             if (now - mo->next_t > mo->slide_after) {
                 if (!late(c, m, now))
                     continue; /* stopped: a real motor may have lost steps */
-                slid = 1;
+                *slid = 1;
             }
-            due[ndue++] = m;
+            c->due[ndue++] = m;
         }
     }
-    if (ndue == 0)
-        return;
-    if (lines_steps(c, due, ndue, 1) < 0) {
-        io_fault(c, due, ndue);
-        return;
-    }
-    /* the edge happened by now (StepOutputs.rise): the accounting while the lines are high */
-    int64_t rise = core_now(c);
+    return ndue;
+}
+
+/* while the STEP lines are high: lateness, positions, next steps (a segment's end into
+ * c->done, *ndone), counters; the pulse width to keep */
+static int64_t account(struct core *c, int ndue, int slid, int64_t rise, int *ndone) {
     int64_t width = 0;
     int64_t *counters = c->counters;
     for (int i = 0; i < ndue; i++) {
-        int m = due[i];
+        int m = c->due[i];
         struct motor *mo = &c->m[m];
         int64_t planned = mo->next_t;
         if (slid && mo->slid) { /* judged against the schedule before it slid */
@@ -504,26 +503,18 @@ void core_step(struct core *c, int64_t now) {
             mo->due_t = nt >= earliest ? nt : earliest;
         } else {
             mo->next_t = mo->due_t = NEVER;
-            done[ndone++] = m;
+            c->done[(*ndone)++] = m;
         }
     }
     CELL_ADD(&counters[C_STEPS], ndue);
-    if (!c->virt) /* StepOutputs.fall: not before the pulse width (a virtual clock stays) */
-        core_spin_until(c, rise + width);
-    int failed = lines_steps(c, due, ndue, 0) < 0;
-    int64_t fall = core_now(c);
-    if (failed) {
-        io_fault(c, due, ndue);
-        return;
-    }
-    for (int i = 0; i < ndue; i++)
-        c->m[due[i]].last_fall = fall;
-    /* the end stops after this step, in its direction and generation, before a motor whose
-     * segment it ended reports DONE or goes on: a last step onto the switch is an end stop
-     * hit, not a move done */
-    core_edges(c);
+    return width;
+}
+
+/* each motor that stepped: the end stop ahead, and the one behind where it is watched for
+ * its release */
+static void look_at_ends(struct core *c, int ndue) {
     for (int i = 0; i < ndue; i++) {
-        int m = due[i];
+        int m = c->due[i];
         struct motor *mo = &c->m[m];
         if (mo->watch) {
             int line = mo->end[mo->dir > 0 ? 1 : 0];
@@ -533,8 +524,12 @@ void core_step(struct core *c, int64_t now) {
         if (mo->release)
             check_release(c, m);
     }
+}
+
+/* each motor whose segment the step ended: DONE after a plan's last, its next one */
+static void go_on(struct core *c, int ndone, int64_t rise) {
     for (int i = 0; i < ndone; i++) {
-        int m = done[i];
+        int m = c->done[i];
         struct motor *mo = &c->m[m];
         if (mo->stopped_gen == BLOCKED)
             continue; /* stopped on its own account: nothing more until the answer */
@@ -542,4 +537,34 @@ void core_step(struct core *c, int64_t now) {
             emit(c, EV_DONE, m, mo->gen, c->positions[m], rise, 0, 0.0, NULL);
         load(c, m);
     }
+}
+
+void core_step(struct core *c, int64_t now) {
+    int slid = 0, ndone = 0;
+    int ndue = pick_due(c, now, &slid);
+    if (ndue == 0)
+        return;
+    if (lines_steps(c, c->due, ndue, 1) < 0) {
+        io_fault(c, c->due, ndue);
+        return;
+    }
+    /* the edge happened by now (StepOutputs.rise): the accounting while the lines are high */
+    int64_t rise = core_now(c);
+    int64_t width = account(c, ndue, slid, rise, &ndone);
+    if (!c->virt) /* StepOutputs.fall: not before the pulse width (a virtual clock stays) */
+        core_spin_until(c, rise + width);
+    int failed = lines_steps(c, c->due, ndue, 0) < 0;
+    int64_t fall = core_now(c);
+    if (failed) {
+        io_fault(c, c->due, ndue);
+        return;
+    }
+    for (int i = 0; i < ndue; i++)
+        c->m[c->due[i]].last_fall = fall;
+    /* the end stops after this step, in its direction and generation, before a motor whose
+     * segment it ended reports DONE or goes on: a last step onto the switch is an end stop
+     * hit, not a move done */
+    core_edges(c);
+    look_at_ends(c, ndue);
+    go_on(c, ndone, rise);
 }

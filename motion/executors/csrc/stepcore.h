@@ -35,10 +35,10 @@
 #define GAP_WINDOW (TICKS_PER_S / 10)
 #define TEXT_LEN 120 /* an event's text field */
 
-/* counters cells (step_core.COUNTER_NAMES) */
+/* counters cells (core_cells.COUNTER_NAMES) */
 enum { C_PROGRESS, C_STEPS, C_TIMING_LOST, C_IO_ERRORS, C_ENDSTOPS, C_DROPPED, C_MIN_GAP,
        C_BAD_RECORDS, N_COUNTERS };
-/* per motor cells (step_core.MOTOR_CELL_NAMES) */
+/* per motor cells (core_cells.MOTOR_CELL_NAMES) */
 enum { M_SHIFT, M_ABSORBED, M_WORST_LATE, M_WORST_LAG, M_LAG_FAULTS, N_MOTOR_CELLS };
 #define LAG_UNIT 1000000.0
 /* header cells (executor_process: _RUN, _READY, _PID, _CORE) */

@@ -39,6 +39,7 @@ from motorctl.hal.registry import config_sections, open_step_io
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.executors.base import AxisLimits, ExecEvent, to_ticks
+from motorctl.motion.executors.core_cells import CoreInbox
 from motorctl.motion.executors.process import start as process_start
 from motorctl.motion.executors.process.rings import (
     BAD_RECORD_S,
@@ -61,7 +62,7 @@ from motorctl.motion.executors.process.rings import (
     stop_problem,
     torn_problem,
 )
-from motorctl.motion.executors.step_core import CoreInbox, StepCore
+from motorctl.motion.executors.step_core import StepCore
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
 

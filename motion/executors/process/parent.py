@@ -39,6 +39,7 @@ from motorctl.hal.interfaces import HalError, Hardware
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind, ExecutorHealth
+from motorctl.motion.executors.core_cells import COUNTER_NAMES
 from motorctl.motion.executors.planner import AHEAD_S, StepExecutor
 from motorctl.motion.executors.process.rings import (
     CORE_CELL,
@@ -54,7 +55,7 @@ from motorctl.motion.executors.process.rings import (
 )
 from motorctl.motion.executors.process.start import WaitingInterpreter
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES, SPIN_S
+from motorctl.motion.executors.step_core import SPIN_S
 from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
 from motorctl.motion.rt import RealtimeOptions, RealtimeReport
 

@@ -75,8 +75,8 @@ from typing import Any, Final
 
 from motorctl.hal.shm import SharedBlock
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, from_ticks, to_ticks
+from motorctl.motion.executors.core_cells import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.latency import CELLS
 
 SEG_RING = 4096
@@ -241,7 +241,7 @@ class Layout:
         off += motors * 2 * 8
         self.latency = off
         off += CELLS * 8
-        self.motor_cells = off  # per motor: shift, late-step figures (step_core.MOTOR_CELLS)
+        self.motor_cells = off  # per motor: shift, late-step figures (core_cells.MOTOR_CELLS)
         off += motors * MOTOR_CELLS * 8
         # rings: head, tail cells then records
         self.seg_rings = []

@@ -15,8 +15,8 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.executors import compiled_core
+from motorctl.motion.executors.core_cells import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.executors.process.rings import Layout, Shared
-from motorctl.motion.executors.step_core import COUNTER_NAMES, MOTOR_CELLS
 from motorctl.motion.latency import CELLS
 from tests.support.motor_defaults import motor_limits
 from tests.support.rigs import FAR

@@ -16,8 +16,8 @@ from motorctl.hal.interfaces import VirtualClock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, ExecutorHealth
+from motorctl.motion.executors.core_cells import COUNTER_NAMES
 from motorctl.motion.executors.planner import REFILL_S, StepExecutor, axis_limits
-from motorctl.motion.executors.step_core import COUNTER_NAMES
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.profile import Segment, Trajectory, plan_move_to
 from motorctl.motion.types import MotorState, Ramp, RunCmd

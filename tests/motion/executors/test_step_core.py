@@ -20,9 +20,7 @@ from hypothesis import strategies as st
 
 from motorctl.hal.backends.mock.world import EventKind, mock_axis
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
-from motorctl.motion.executors.process.rings import BAD_RECORD_S, segment_problem, stop_problem
-from motorctl.motion.executors.segments import StepSegment
-from motorctl.motion.executors.step_core import (
+from motorctl.motion.executors.core_cells import (
     ABSORBED,
     LAG_FAULTS,
     LAG_UNIT,
@@ -30,6 +28,8 @@ from motorctl.motion.executors.step_core import (
     WORST_LAG,
     WORST_LATE,
 )
+from motorctl.motion.executors.process.rings import BAD_RECORD_S, segment_problem, stop_problem
+from motorctl.motion.executors.segments import StepSegment
 from tests.support.rigs import StepCoreRig
 
 K = ExecEventKind
