@@ -47,7 +47,7 @@ from motorctl.daemon.link.loop import Link
 from motorctl.daemon.link.ports import PtySlave, open_pty
 from motorctl.daemon.link.serialport import DeviceError, SerialDevice
 from motorctl.daemon.link.silence import check_timeout
-from motorctl.daemon.link_parts import open_trace, silence_watch
+from motorctl.daemon.link_parts import cpu_parts, open_trace, silence_watch
 from motorctl.daemon.service import (
     MotorEventLog,
     ProgressWatch,
@@ -406,6 +406,7 @@ def build_served(
             notice=None if uart is None else PathWatch(uart.path),
             watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
             recorder=recorder,
+            parts=cpu_parts(),
         )
         undo.callback(quietly(link.close))
         daemon.link = link
