@@ -66,9 +66,7 @@ def test_off_the_session_has_the_dispatcher_itself(tmp_path: Path) -> None:
 
 
 @pytest.mark.parametrize(("value", "on"), [("1", True), ("0", False), ("", False)])
-def test_the_environment_asks_for_it(
-    monkeypatch: pytest.MonkeyPatch, value: str, on: bool
-) -> None:
+def test_the_environment_asks_for_it(monkeypatch: pytest.MonkeyPatch, value: str, on: bool) -> None:
     monkeypatch.setenv(CPU_PARTS_ENV, value)
     assert (cpu_parts() is not None) is on
 
