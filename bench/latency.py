@@ -6,6 +6,12 @@ daemon: its link thread), and the daemon's own processing time per command
 <= 2x the echo peer's (idle), <= 1.5x while 3 motors step (``--motion 25000``, issue 7: the
 link must not feel the motion); processing p99 <= 108 us.
 
+``--parts``: the daemon counts its link thread's CPU time part by part (read, decode,
+dispatch, encode, write, the poll and the session's bookkeeping: daemon/link/cpu_parts.py,
+``MOTORCTL_LINK_CPU_PARTS=1``), printed per round trip beside the echo peer's whole CPU per
+round trip. The count's own clock readings (7 a round trip, a system call each) are in the
+daemon's figures then: compare the total without ``--parts``.
+
 ``--trace``: a second motorctld, the same but with ``--trace`` (its link's byte runs recorded
 to a pcapng file), takes its turns too; its round trips against the untraced daemon's give
 the cost of the trace (issue 18: p99 <= 1.1x).
@@ -33,6 +39,7 @@ import serial
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from motorctl.daemon.start.link_parts import CPU_PARTS_ENV  # noqa: E402
 from motorctl.daemon.status.reader import read_status  # noqa: E402
 from motorctl.protocol.codec import CodecOptions, IsReady, encode_command  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
@@ -69,6 +76,12 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+def link_parts(daemon: DaemonProcess) -> dict[str, int]:
+    """The daemon's link thread's CPU nanoseconds so far, by part (``--parts``)."""
+    parts: dict[str, Any] = daemon.status()["link"]["cpu_parts"]
+    return {part: int(ns) for part, ns in parts["ns"].items()}
+
+
 def summary(times: list[float]) -> dict[str, float]:
     return {
         "p50_us": round(pct(times, 50) * 1e6, 1),
@@ -102,6 +115,12 @@ def main() -> int:
         action="store_true",
         help="also a daemon with --trace: the trace's cost (target p99 <= 1.1x)",
     )
+    ap.add_argument(
+        "--parts",
+        action="store_true",
+        help="the daemon's link thread's CPU per round trip, part by part (its clock readings "
+        "add to it)",
+    )
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
     frame = encode_command(IsReady(0), CodecOptions())
@@ -125,7 +144,8 @@ def main() -> int:
             )
             # run_speed_factor 1000: SPEED kHz
             config = config_text(50, 0, args.executor, step_thread=extra)
-        daemon = DaemonProcess(work, config).start()
+        env = {CPU_PARTS_ENV: "1"} if args.parts else None
+        daemon = DaemonProcess(work, config, env=env).start()
         traced: DaemonProcess | None = None
         try:
             if args.trace:
@@ -152,12 +172,14 @@ def main() -> int:
             if traced is not None:
                 assert traced.proc is not None
                 peers.append(("traced", traced.proc.pid, traced.pty, traced_t))
+            parts_before = link_parts(daemon) if args.parts else None
             for _ in range(args.rounds):  # interleaved rounds: drift hits all alike
                 for name, pid, port, into in peers:
                     before = cpu_s(pid)
                     into += round_trips(str(port), args.n, frame)
                     cpu[name] += cpu_s(pid) - before
             status = read_status(daemon.state_dir / "status.sock")
+            parts_after = link_parts(daemon) if args.parts else None
             trace_status = None if traced is None else read_status(traced.state_dir / "status.sock")
         finally:
             daemon.close()
@@ -176,6 +198,12 @@ def main() -> int:
     made = args.rounds * (args.n + WARM_UP)  # per peer, the warm-ups included
     result["echo_cpu_per_round_trip_us"] = round(cpu["echo"] / made * 1e6, 1)
     result["daemon_cpu_per_round_trip_us"] = round(cpu["daemon"] / made * 1e6, 1)
+    result["cpu_ratio"] = round(cpu["daemon"] / cpu["echo"], 2) if cpu["echo"] else None
+    if parts_before is not None and parts_after is not None:
+        result["daemon_cpu_parts_us"] = {
+            part: round((parts_after[part] - parts_before[part]) / made / 1000, 2)
+            for part in parts_after
+        }
     result["motion_steps_per_s_per_motor"] = args.motion
     result["executor"] = args.executor
     result["switch_interval_us"] = args.switch_interval_us
@@ -194,8 +222,16 @@ def main() -> int:
     print(f"  ratio p50 {result['p50_ratio']}  p99 {result['p99_ratio']}  (target p99 <= {target})")
     print(
         f"  CPU per round trip: echo peer {result['echo_cpu_per_round_trip_us']} us, "
-        f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us"
+        f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us "
+        f"(ratio {result['cpu_ratio']}, target <= 2)"
     )
+    if "daemon_cpu_parts_us" in result:
+        parts = result["daemon_cpu_parts_us"]
+        print(
+            f"  the link thread's CPU per round trip by part ({sum(parts.values()):.1f} us "
+            "with the count's own clock readings): "
+            + ", ".join(f"{part} {us:.1f}" for part, us in parts.items())
+        )
     print(f"daemon processing (last byte read -> reply written), {p['reads']} commands:")
     print(
         f"  p50 {p['p50_us']} us  p99 {p['p99_us']} us  p99.9 {p['p999_us']} us  "

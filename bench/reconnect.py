@@ -119,6 +119,7 @@ KINDS = ("wait", "unread", "unread_flush", "partial", "clean")
 CONFIG = for_tests("".join(f'[[motors]]\nname = "{n}"\n' for n in "abc"))
 TIMEOUT_S = 10.0
 STALL_S = 0.001  # a CPU taken away for longer than this, a stall (see stalls())
+SLOW_S = 0.001  # a round trip longer than this is counted (over_1ms: the fraction of them)
 
 
 def pct(values: list[float], q: float) -> float:
@@ -133,6 +134,7 @@ def summary(times: list[float]) -> dict[str, float]:
         "p90_us": round(pct(times, 90) * 1e6, 1),
         "p99_us": round(pct(times, 99) * 1e6, 1),
         "max_us": round(max(times) * 1e6, 1),
+        "over_1ms": round(sum(t > SLOW_S for t in times) / len(times), 4),
     }
 
 
@@ -450,14 +452,14 @@ def main() -> int:
     for name, f in (("back to back (context)", b), ("ordinary (port kept open)", o)):
         print(
             f"  {name:<26} n={f['n']:5}  p50 {f['p50_us']:7.1f}  p90 {f['p90_us']:7.1f}  "
-            f"p99 {f['p99_us']:7.1f}  max {f['max_us']:.0f} us"
+            f"p99 {f['p99_us']:7.1f}  max {f['max_us']:.0f} us  over 1 ms {f['over_1ms']:.2%}"
         )
     for k in kinds:
         f = result["first_command"][k]
         print(
             f"  first after {k:<13}  n={f['n']:5}  p50 {f['p50_us']:7.1f}  p90 {f['p90_us']:7.1f}  "
-            f"p99 {f['p99_us']:7.1f}  max {f['max_us']:.0f} us  ratio p50 {f['p50_ratio']} "
-            f"p90 {f['p90_ratio']} p99 {f['p99_ratio']}"
+            f"p99 {f['p99_us']:7.1f}  max {f['max_us']:.0f} us  over 1 ms {f['over_1ms']:.2%}  "
+            f"ratio p50 {f['p50_ratio']} p90 {f['p90_ratio']} p99 {f['p99_ratio']}"
         )
     print(
         f"  worst p99 ratio {worst} (target <= 1.5), worst p90 ratio {result['worst_p90_ratio']}; "

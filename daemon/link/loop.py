@@ -63,7 +63,7 @@ What the shell does, and why:
   at most ``drain_s`` to leave.
 - **A recorder may listen.** Given one (``motorctld --trace``), every byte run read from the
   host and every run written to it is handed to it with this loop's own clock reading, on
-  this thread (:class:`ByteRecorder`; the daemon's is :mod:`motorctl.daemon.link.recorder`).
+  this thread (seams.py; the daemon's is :mod:`motorctl.daemon.link.recorder`).
 - **Processing time** (``processing``): from a read to its answers written, for every read
   that produced answers, whichever way its frames were taken (the session's one-frame path
   or its framer) and whether or not the read began a session.
@@ -79,10 +79,11 @@ import select
 import time
 from collections import Counter
 from collections.abc import Callable
-from typing import Protocol
 
 from motorctl.daemon.config.model import LinkConfig
+from motorctl.daemon.link.cpu_parts import CpuParts, TimedPort
 from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
+from motorctl.daemon.link.seams import ByteRecorder, Slave
 from motorctl.daemon.link.serialport import Backoff
 from motorctl.daemon.link.session import CommandPort, LinkSession
 from motorctl.daemon.link.session_end import END_COUNTERS, SessionEnds, read_out
@@ -113,34 +114,6 @@ SHELL_COUNTERS = (
 )
 
 
-class Slave(Protocol):
-    """The PTY's slave side, held while no host has it, its opens and closes watched
-    (daemon.ports.PtySlave)."""
-
-    @property
-    def held(self) -> bool: ...
-
-    @property
-    def events_fd(self) -> int | None: ...  # readable when the slave was opened or closed
-
-    def reopened(self) -> bool: ...  # opened again after a host closed it, since last asked
-
-    def hold(self, answered: bool = True) -> int: ...  # held; what the last host left, flushed
-
-    def release(self) -> None: ...
-
-    def close(self) -> None: ...
-
-
-class ByteRecorder(Protocol):
-    """Told each byte run the link reads or writes, with the link clock's reading (called on
-    the link thread: it must not block)."""
-
-    def received(self, data: bytes, t: float) -> None: ...
-
-    def sent(self, data: bytes, t: float) -> None: ...
-
-
 class Link:
     def __init__(
         self,
@@ -161,12 +134,16 @@ class Link:
         watch: SilenceWatch | None = None,
         backoff: Backoff | None = None,
         recorder: ByteRecorder | None = None,
+        parts: CpuParts | None = None,
     ) -> None:
         """``fd``: the PTY's master (with ``pty``, its slave side), the serial device's
         descriptor (with ``device``; -1: not there yet, served when it appears, ``notice``
-        telling when something changes on its path), or any other descriptor."""
+        telling when something changes on its path), or any other descriptor. ``parts``: the
+        thread's CPU time counted part by part (cpu_parts.py; None: not counted)."""
         self.fd = fd
-        self.session = LinkSession(dispatcher, options, frame_gap_s, held_frames, backlog_limit)
+        self.parts = parts
+        port = dispatcher if parts is None else TimedPort(dispatcher, parts)
+        self.session = LinkSession(port, options, frame_gap_s, held_frames, backlog_limit)
         self.clock = clock
         self.read_size = read_size
         self.out_limit = backlog_limit * RESPONSE_LEN
@@ -254,11 +231,13 @@ class Link:
     def turn(self, poller: select.poll) -> None:
         """One turn of the loop: answer what is due, write, wait, read, watch the silence."""
         session = self.session
-        if session.waiting:
+        waiting = session.wait is not None
+        if waiting:
             session.poll(self.clock())
         if self._watching:
-            self.watch.hold(session.waiting, self.clock())
-        self._flush()
+            self.watch.hold(session.wait is not None, self.clock())
+        if waiting or self._out:  # answers only come from a read (written then) or a wait
+            self._flush()
         if self.peer_gone and not (self.pty is not None and self.pty.held):
             if self.device is not None:
                 self._look_for_device()
@@ -316,7 +295,13 @@ class Link:
         (a wake-up's bytes are taken)."""
         events = 0
         opened = False
-        for ready, what in poller.poll(timeout):
+        parts = self.parts
+        if parts is not None:
+            parts.mark("bookkeeping")
+        ready_list = poller.poll(timeout)
+        if parts is not None:
+            parts.mark("poll")
+        for ready, what in ready_list:
             if ready == self.fd:
                 events = what
             elif ready == self._wake_r:
@@ -336,6 +321,9 @@ class Link:
         return deadline
 
     def _timeout_ms(self, now: float, reading: bool) -> float | None:
+        session = self.session
+        if session.wait is None and not self._watching and not session.framer.pending:
+            return None  # the usual turn: nothing due, nothing partial
         deadline = self._deadline()
         gap = self.session.gap_left() if reading else None
         if gap is None:
@@ -365,6 +353,8 @@ class Link:
             return
         if self._reopened():  # these bytes came after a host closed the port and another
             self._hangup("closed", reopened=True)  # opened it: the next session's (turn())
+        if self.parts is not None:
+            self.parts.mark("read")
         self._take(data, now)
 
     def _reopened(self) -> bool:
@@ -373,8 +363,11 @@ class Link:
         open is reported before anything it writes can be read, so no new host's byte
         joins the old session, however the poll and the read fell."""
         pty = self.pty
-        reopened = pty is not None and pty.events_fd is not None and pty.reopened()
-        if self._opens is not None and (pty is None or pty.events_fd is None):
+        if pty is None:
+            return False
+        watched = pty.events_fd is not None
+        reopened = watched and pty.reopened()
+        if self._opens is not None and not watched:
             self._poller.unregister(self._opens)  # no longer watched: before its number
             self._opens = None  # can be reused
         return reopened and not self.peer_gone
@@ -403,6 +396,9 @@ class Link:
                 return False
             self._out += data
         out = self._out
+        parts = self.parts
+        if parts is not None and out:
+            parts.mark("encode")
         while out:
             try:  # a bytearray is written as it is, without a copy, when it is not too long
                 n = os.write(self.fd, out if len(out) <= WRITE_MAX else out[:WRITE_MAX])
@@ -418,6 +414,8 @@ class Link:
             if self.recorder is not None:
                 self.recorder.sent(bytes(out[:n]), self.clock())
             del out[:n]
+        if parts is not None and data:
+            parts.mark("write")
         return bool(data)
 
     def _hangup(self, why: str, reopened: bool = False) -> None:
@@ -589,6 +587,8 @@ class Link:
         }
         if self.device is not None:
             out["device"] = self.device.path
+        if self.parts is not None:
+            out["cpu_parts"] = self.parts.summary()
         return out
 
     def close(self) -> None:

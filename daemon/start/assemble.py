@@ -54,7 +54,7 @@ from motorctl.daemon.service import (
     Watchdog,
     watchdog_interval,
 )
-from motorctl.daemon.start.link_parts import open_trace, silence_watch
+from motorctl.daemon.start.link_parts import cpu_parts, open_trace, silence_watch
 from motorctl.daemon.start.timeline import StartTimeline
 from motorctl.daemon.state.persistence import Persistence
 from motorctl.daemon.state.records import MotorIdentity, geometry_fingerprint
@@ -407,6 +407,7 @@ def build_served(
             notice=None if uart is None else PathWatch(uart.path),
             watch=silence_watch(config, daemon.dispatcher, time.monotonic()),
             recorder=recorder,
+            parts=cpu_parts(),
         )
         undo.callback(quietly(link.close))
         daemon.link = link

@@ -1,8 +1,9 @@
-"""The link's optional parts as the config and the command line ask for them: the watch on
-the host's silence (``[link] timeout_ms``, ``timeout_action``: :func:`silence_watch`) and
-the trace recorder (``--trace``, ``[trace]``: :func:`open_trace`, whose modules are
-imported only when a trace is asked for). The assembler (daemon/start/assemble.py) hands them to
-the link it builds.
+"""The link's optional parts as the config, the command line and the environment ask for
+them: the watch on the host's silence (``[link] timeout_ms``, ``timeout_action``:
+:func:`silence_watch`), the trace recorder (``--trace``, ``[trace]``: :func:`open_trace`,
+whose modules are imported only when a trace is asked for) and the count of the link
+thread's CPU time by part (``MOTORCTL_LINK_CPU_PARTS=1``: :func:`cpu_parts`). The
+assembler (daemon/start/assemble.py) hands them to the link it builds.
 
 Threads: the main thread at start-up builds them; the silence watch's action then runs on
 the link thread (the dispatcher's ``link_silent``).
@@ -11,6 +12,7 @@ the link thread (the dispatcher's ``link_silent``).
 from __future__ import annotations
 
 import logging
+import os
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -19,6 +21,7 @@ from motorctl import __version__
 from motorctl.daemon.config import Config
 from motorctl.daemon.dispatcher import Dispatcher
 from motorctl.daemon.errors import StartupError
+from motorctl.daemon.link.cpu_parts import CpuParts
 from motorctl.daemon.link.silence import SilenceWatch
 
 if TYPE_CHECKING:  # imported when a trace is asked for (open_trace)
@@ -44,6 +47,22 @@ def silence_watch(config: Config, dispatcher: Dispatcher, now: float) -> Silence
             c.timeout_action,
         )
     return SilenceWatch(c.timeout_ms / 1000.0, act, now, c.timeout_action)
+
+
+#: the environment variable that asks for the link thread's CPU time by part
+CPU_PARTS_ENV = "MOTORCTL_LINK_CPU_PARTS"
+
+
+def cpu_parts() -> CpuParts | None:
+    """The link thread's CPU time counted by part (status ``link.cpu_parts``), when
+    ``MOTORCTL_LINK_CPU_PARTS=1`` (bench/latency.py sets it); any other value is refused."""
+    value = os.environ.get(CPU_PARTS_ENV, "")
+    if value not in ("", "0", "1"):
+        raise StartupError(f"{CPU_PARTS_ENV}={value!r}: 1 counts the link's CPU by part, 0 not")
+    if value != "1":
+        return None
+    log.info("%s=1: the link thread's CPU time is counted by part", CPU_PARTS_ENV)
+    return CpuParts()
 
 
 def open_trace(option: Path | None, config: Config, where: str) -> TraceRecorder | None:
