@@ -1,6 +1,7 @@
 # Two commands do all set-up on a fresh Debian machine:
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
 #   make test   the test suite (what .ci/run calls first)
+#   make test-slow  the tests marked slow, which make test leaves out (.ci/run runs them next)
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
 #               builds its VM on first use, as root, into $XDG_CACHE_HOME/motorctl-gpio-sim,
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
@@ -29,7 +30,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
+.PHONY: run test test-slow test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
   test-root stepcore test-asan
 
 venv: $(VENV)/.installed
@@ -124,6 +125,13 @@ test: venv stepcore test-deps
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
+
+# The tests marked slow (pyproject.toml's addopts leaves them out of make test, to keep it near
+# 90 s on 2 cores): the wheel built and installed beside python-daemon from PyPI
+# (tests/packaging/test_wheel.py), hwtest/run's stand-in guests that run pytest on the
+# checkout (tests/packaging/test_hwtest_run.py). .ci/run runs them, a part of its own.
+test-slow: venv stepcore test-deps
+	$(BIN)/pytest -q -n $(JOBS) -m slow
 
 test-hw: stepcore
 	hwtest/run all

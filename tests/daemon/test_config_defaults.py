@@ -166,16 +166,24 @@ def _scale(site: Site, setting: Setting) -> Any:
 def restated(paths: list[tuple[str, str]]) -> dict[str, list[str]]:
     """setting -> the places that write its default, where more than one does (each with
     the value in the setting's unit)."""
-    settings = list(declared())
+    return restated_sites([site for source, where in paths for site in sites(source, where)])
+
+
+def restated_sites(found_sites: list[Site]) -> dict[str, list[str]]:
+    """``restated`` of sites already found (the whole checkout's are parsed once)."""
+    by_base: dict[str, list[Setting]] = {}
+    for s in declared():
+        by_base.setdefault(_canon(s.key)[0], []).append(s)
     found: dict[str, list[str]] = {}
-    for source, where in paths:
-        for site in sites(source, where):
-            for s in settings:
-                if counts(site, s) and (where, site.name) not in AGAIN:
-                    v = _scale(site, s)
-                    found.setdefault(f"{s.table}.{s.key} = {s.default!r}", []).append(
-                        f"{where}: {site.name} ({v!r})"
-                    )
+    for site in found_sites:
+        where = site.where
+        # only a setting of the same name (its unit aside) can count: `counts` checks first
+        for s in by_base.get(_canon(site.name)[0], []):
+            if counts(site, s) and (where, site.name) not in AGAIN:
+                v = _scale(site, s)
+                found.setdefault(f"{s.table}.{s.key} = {s.default!r}", []).append(
+                    f"{where}: {site.name} ({v!r})"
+                )
     return {k: v for k, v in found.items() if len(v) > 1}
 
 
@@ -188,10 +196,10 @@ def _sources() -> list[tuple[str, str]]:
 
 
 def test_each_settings_default_is_written_once() -> None:
-    sources = _sources()
-    again = restated(sources)
+    found = [site for source, where in _sources() for site in sites(source, where)]
+    again = restated_sites(found)
     assert again == {}, "\n".join(f"{k}: {', '.join(v)}" for k, v in again.items())
-    seen = {(site.where, site.name) for source, where in sources for site in sites(source, where)}
+    seen = {(site.where, site.name) for site in found}
     assert set(AGAIN) <= seen  # no reason kept for a place that is gone
 
 

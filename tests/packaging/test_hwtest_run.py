@@ -28,6 +28,10 @@ from tests.support import REPO
 from tests.support.apt_archive import TODAY, FakeArchive, fake_archive, replace_version, without
 
 ROOT = REPO
+#: the tests whose stand-in guest runs pytest (on the checkout, or on a guest's checkout
+#: with the tier's plugins): several seconds each on 2 cores, so make test leaves them out
+#: and make test-slow runs them (.ci/run does); the cache logic's tests stay in make test
+GUEST_RUNS_PYTEST = pytest.mark.slow
 TIMEOUT_S = 120.0
 SYSTEM_PATH = "/usr/sbin:/usr/bin:/sbin:/bin"
 
@@ -354,6 +358,7 @@ def test_building_needs_root_and_says_how(tier: Tier) -> None:
     assert tier.builds() == 0
 
 
+@GUEST_RUNS_PYTEST
 def test_a_guest_whose_tests_all_skip_fails(tier: Tier) -> None:
     """The guest's command, run here where there is no gpio-sim chip: every hardware test
     skips itself, and the tier must fail rather than report '0 passed, N skipped'."""
@@ -376,6 +381,7 @@ def test_each_binding_boots_its_own_root(tier: Tier) -> None:
         assert f"GSIM_ROOT={root})" in out.stdout
 
 
+@GUEST_RUNS_PYTEST
 def test_layouts_boot_without_chips_and_run_only_the_layout_tests(tier: Tier) -> None:
     """`hwtest/run layouts`: a guest per binding with no gpio-sim chip of its own (the tests
     make each board's), running hwtest/test_layouts.py alone; here, where there is no
@@ -413,6 +419,7 @@ def _guest_with_the_plugins(tier: Tier) -> Path:
     return guest
 
 
+@GUEST_RUNS_PYTEST
 def test_a_test_that_hangs_ends_its_guest_and_is_named_at_the_end(tier: Tier) -> None:
     """A guest whose test never returns: hwtest/deadline.py ends its pytest after
     HWTEST_DEADLINE_S with each thread's stack, instead of the whole GSIM_TIMEOUT going by;
@@ -438,6 +445,7 @@ def test_a_test_that_hangs_ends_its_guest_and_is_named_at_the_end(tier: Tier) ->
     assert "tests/contract/test_fine.py::test_fine PASSED" in out.stdout
 
 
+@GUEST_RUNS_PYTEST
 def test_a_bad_deadline_is_named(tier: Tier) -> None:
     guest = _guest_with_the_plugins(tier)
     out = tier.run("pypi", env={"FAKE_GUEST": str(guest), "HWTEST_DEADLINE_S": "soon"})
@@ -445,6 +453,7 @@ def test_a_bad_deadline_is_named(tier: Tier) -> None:
     assert "HWTEST_DEADLINE_S='soon': not a number of seconds" in out.stdout + out.stderr
 
 
+@GUEST_RUNS_PYTEST
 def test_the_core_for_the_trixie_root_is_built_once_and_by_the_guest_when_not_here(
     tier: Tier,
 ) -> None:

@@ -10,8 +10,10 @@ apt's output kept out of the log unless it fails; never Debian's prometheus serv
 
 from __future__ import annotations
 
+import re
 import shutil
 import subprocess
+import tomllib
 from pathlib import Path
 
 import pytest
@@ -120,3 +122,30 @@ def test_not_root_it_names_the_command_and_installs_nothing(tmp_path: Path) -> N
     assert "run 'sudo apt-get install tshark'" in run.stderr
     assert "run 'sudo apt-get install device-tree-compiler'" in run.stderr
     assert "prometheus" not in run.stderr
+
+
+def pytest_line(target: str) -> str:
+    """The pytest command of ``make TARGET``'s recipe (``make -n``: printed, not run)."""
+    assert MAKE is not None
+    run = subprocess.run(
+        [MAKE, "-n", "--no-print-directory", "-f", str(REPO / "Makefile"), target],
+        cwd=REPO,
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
+    assert run.returncode == 0, run.stderr
+    (line,) = [line for line in run.stdout.splitlines() if "/pytest " in line]
+    return line
+
+
+def test_what_make_test_leaves_out_make_test_slow_runs_and_ci_runs_both() -> None:
+    """pyproject.toml's addopts leave the tests marked slow out of every plain pytest run
+    (make test's too); make test-slow runs exactly those, and .ci/run runs both parts, so a
+    test marked slow still runs in CI."""
+    ini = tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["pytest"]["ini_options"]
+    assert "-m 'not slow'" in ini["addopts"]
+    assert " -m " not in pytest_line("test")
+    assert pytest_line("test-slow").endswith(" -m slow")
+    parts = re.findall(r"^\s*timed (make [\w-]+)", (REPO / ".ci" / "run").read_text(), re.M)
+    assert parts[:2] == ["make test", "make test-slow"], parts

@@ -6,7 +6,8 @@ isolation) and installs it with python-daemon (whose import name is `daemon`) fr
 throwaway virtual environment, in both orders, uninstalling either and checking the other
 still imports and works; mypy --strict type-checks code against the installed wheel. Needs
 PyPI (or the configured index); pip's downloads are cached in the test's temporary directory.
-Deselect with `-m "not packaging"` when offline.
+Deselect with `-m "not packaging"` when offline. Marked `slow` too: `make test-slow` runs it
+(a part of .ci/run of its own), not `make test`.
 """
 
 from __future__ import annotations
@@ -26,7 +27,8 @@ from tests.support import REPO
 ROOT = REPO
 STEP_TIMEOUT_S = 300.0
 
-pytestmark = pytest.mark.packaging
+# slow too: make test leaves it out (about 30 s on 2 cores), make test-slow runs it (.ci/run)
+pytestmark = [pytest.mark.packaging, pytest.mark.slow]
 
 DAEMON_WORKS = (
     "import daemon, daemon.pidfile, os; "
