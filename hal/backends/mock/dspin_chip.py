@@ -78,6 +78,9 @@ class DspinChip:
         self.active: set[str] = set()  # injected conditions present now
         self.latched: set[str] = set()  # latched flags (and command errors)
         self._sw = False
+        #: called when FLAG or BUSY may have changed (a fault injected, a transfer, time):
+        #: the mock's FLAG and BUSY lines (dspin_world.py)
+        self.listeners: list[Callable[[], None]] = []
         self.power_up()
 
     # state
@@ -375,6 +378,12 @@ class DspinChip:
         if self._bridges_held_off():
             self.motion.halt()
             self.hiz = True
+        self.changed()
+
+    def changed(self) -> None:
+        """Tell the listeners that FLAG or BUSY may have changed."""
+        for listener in self.listeners:
+            listener()
 
     # time
     def advance(self, dt: float) -> None:

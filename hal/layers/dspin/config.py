@@ -13,6 +13,7 @@ Pure declarations and conversions: no state, no I/O.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -36,6 +37,14 @@ from motorctl.schema import (
 
 #: the chips ``[motors.dspin] driver`` takes (hal/dspin/chips.py's names)
 DRIVERS = tuple(CHIPS)
+
+#: a GPIO line as a backend names it (the gpiod backend parses it, and finds it, at start)
+LINE_TEXT = '"" (not wired) or a GPIO line: "chip:offset" (gpiochip0:25) or a line name (GPIO25)'
+_LINE = re.compile(r"^$|^(/dev/)?[A-Za-z0-9_.-]+:[0-9]+$|^[A-Za-z_][A-Za-z0-9_.-]*$")
+
+
+def _line(value: str) -> str | None:
+    return None if _LINE.match(value) else "not a GPIO line"
 
 
 @section(
@@ -111,6 +120,23 @@ class DspinAxisConfig:
     hiz_at_exit: bool = boolean(
         DspinSpec.hiz_at_exit, "Bridges to high impedance when motorctld exits."
     )
+    # -- the chip's FLAG and BUSY outputs on GPIO lines (docs/dspin.md, "FLAG and BUSY") --
+    flag: str = text(
+        DspinSpec.flag,
+        "The GPIO line the chip's FLAG output is wired to (open drain, low on an alarm): "
+        'a falling edge reads STATUS at once; "" not wired (the STATUS poll). Chips of '
+        "one chain may name one line (wired-OR).",
+        check=_line,
+        check_text=LINE_TEXT,
+    )
+    busy: str = text(
+        DspinSpec.busy,
+        "The GPIO line the chip's BUSY output is wired to (open drain, low while a "
+        'command runs): at rest the motor is watched on it, not over SPI; "" not wired. '
+        "Chips of one chain may name one line (wired-OR).",
+        check=_line,
+        check_text=LINE_TEXT,
+    )
 
 
 def _chip(v: DspinAxisConfig) -> Chip:
@@ -148,6 +174,8 @@ def driver_spec(motor: MotorEntry) -> DspinSpec | None:
         switch=v.switch,
         spi_speed_hz=v.spi_speed_hz,
         hiz_at_exit=v.hiz_at_exit,
+        flag=v.flag,
+        busy=v.busy,
     )
 
 
@@ -258,6 +286,36 @@ def _chains(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+def _lines(v: Mapping[str, Any]) -> Violation | None:
+    """A FLAG or BUSY line serves one chain (its chips may share it: wired-OR), and one
+    of the two outputs."""
+    seen: dict[str, tuple[str, str, int]] = {}  # line -> (output, chain, motor)
+    for i, m in enumerate(v["motors"]):
+        d = m.section(DspinAxisConfig)
+        if d is None:
+            continue
+        for output in ("flag", "busy"):
+            line = getattr(d, output)
+            if not line:
+                continue
+            other = seen.setdefault(line, (output, d.spi, i))
+            if other[0] != output:
+                return (
+                    f"motors[{i}].dspin.{output}",
+                    line,
+                    f"also the {other[0].upper()} line of motors[{other[2]}]: a line used "
+                    "twice (FLAG and BUSY each need a line of their own)",
+                )
+            if other[1] != d.spi:
+                return (
+                    f"motors[{i}].dspin.{output}",
+                    line,
+                    f"also the {output.upper()} line of motors[{other[2]}] on another chain "
+                    f"({other[1]}): a line used twice (a line is wired-OR within one chain)",
+                )
+    return None
+
+
 @section("Settings of the dSPIN layer shared by every chip (used only with dSPIN chips).")
 @dataclass(frozen=True)
 class DspinConfig:
@@ -322,6 +380,11 @@ class DspinDeclaration(LayerDeclaration):
                         ("dspin",),
                         "a chain's positions run 0..N-1 with one SPI clock",
                         _chains,
+                    ),
+                    Rule(
+                        ("dspin",),
+                        "a FLAG or BUSY line serves one output of one chain",
+                        _lines,
                     ),
                 ),
             ),

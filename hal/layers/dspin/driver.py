@@ -33,7 +33,14 @@ from motorctl.hal.dspin.chips import Chip
 from motorctl.hal.dspin.commands import COPY_TO_MARK, Command, Op, get_param, set_param, simple
 from motorctl.hal.dspin.spec import DspinSpec
 from motorctl.hal.dspin.status import MotorState, Status
-from motorctl.hal.interfaces import DriverStatus, HalError, RampDriver, RampStatus, StepperDriver
+from motorctl.hal.interfaces import (
+    DriverStatus,
+    EdgeInputs,
+    HalError,
+    RampDriver,
+    RampStatus,
+    StepperDriver,
+)
 from motorctl.hal.layers.dspin import chain as framing
 from motorctl.hal.layers.dspin import convert, program
 from motorctl.hal.spi import SpiBus, SpiError
@@ -47,6 +54,10 @@ MARK = COPY_TO_MARK
 _REFUSED = ("WRONG_CMD", "NOTPERF_CMD", "CMD_ERROR")
 #: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
 ALARMS_BUT_SWITCH = 0xFF & ~(1 << 6)
+#: with BUSY wired, a motor at rest is read over SPI once in this many ramp reads (the
+#: others answer from the last read while BUSY stays high): a switch closed by hand at rest
+#: shows within this many idle periods
+REST_READ_EVERY = 20
 
 
 class DspinError(HalError):
@@ -120,6 +131,11 @@ class DspinDriver(StepperDriver, RampDriver):
         self.fault_counts: dict[str, int] = {}
         self.warning_counts: dict[str, int] = {}
         self.last_status: Status | None = None
+        #: the chip's BUSY output as an edge input (line 0), where wired
+        self.busy_line: EdgeInputs | None = None
+        self._rest: RampStatus | None = None  # the last read: standing, BUSY high
+        self._rest_reads = 0  # answered from it since
+        self.busy_answers = 0  # ramp reads answered from BUSY, without SPI
 
     # -- the bus ---------------------------------------------------------------------------
     def _get(self, register: str) -> int:
@@ -226,6 +242,9 @@ class DspinDriver(StepperDriver, RampDriver):
             "fault_counts": dict(self.fault_counts),
             "warning_counts": dict(self.warning_counts),
             "status": None if self.last_status is None else str(self.last_status),
+            "flag_line": self.spec.flag or None,
+            "busy_line": self.spec.busy or None,
+            "busy_answers": self.busy_answers,
         }
 
     # -- the ramp (RampDriver) -------------------------------------------------------------
@@ -236,11 +255,38 @@ class DspinDriver(StepperDriver, RampDriver):
             got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
         return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
 
+    def _busy(self) -> bool:
+        """BUSY's level on its line (the line read, no SPI); True without a line."""
+        line = self.busy_line
+        if line is None:
+            return True
+        try:
+            line.read_edges()
+            return line.level(0)
+        except HalError as exc:
+            raise DspinError(f"{self.name}: the BUSY line: {exc}") from exc
+
     def ramp_status(self) -> RampStatus:
+        """One read of the ramp: ABS_POS, SPEED and STATUS (GetParam). With BUSY wired, a
+        motor that stood at the last read and whose BUSY is still high (no command since)
+        is answered from that read, without SPI (one read in ``REST_READ_EVERY``)."""
+        rest = self._rest
+        if rest is not None and self._rest_reads < REST_READ_EVERY and not self._busy():
+            self._rest_reads += 1
+            self.busy_answers += 1
+            return rest
+        self._rest = None
         try:
             pos, speed, st = self._read()
         except SpiError as exc:
             raise DspinError(f"{self.name}: {exc}") from exc
+        out = self._ramp(pos, speed, st)
+        standing = st.motor is MotorState.STOPPED and not st.busy and self._limit is None
+        if self.busy_line is not None and standing and not self._busy():
+            self._rest, self._rest_reads = out, 0
+        return out
+
+    def _ramp(self, pos: int, speed: int, st: Status) -> RampStatus:
         with self._lock:
             event = self._kept.switch_event or st.switch_event
         standing = st.motor is MotorState.STOPPED
@@ -281,6 +327,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._watch, self._release = direction, release
         self._until = self._settled = False
         self._limit = None
+        self._rest = None
 
     def _standing(self) -> tuple[int, bool, bool]:
         """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
@@ -290,6 +337,7 @@ class DspinDriver(StepperDriver, RampDriver):
 
     def _do(self, p: program.Program) -> None:
         self.clamped += len(p.clamped)
+        self._rest = None  # the chip moves again: read it until it stands
         self._send(*p.commands)
 
     def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
