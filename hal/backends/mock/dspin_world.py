@@ -45,12 +45,19 @@ class _Moved:
         self.spec = spec
         self.side = spec.switch
         self.synced = 0  # the chip's shaft when the axis was last moved to it
-        self.chip = DspinChip(spec.model, switch=self.switch)
+        self.chip = DspinChip(spec.model, switch=self.switch, stops=self.stops)
 
     def switch(self, shaft: int) -> bool:
         if self.side == "none":
             return False
         return self.axis.endstop_at(self.side, self.axis.position + shaft - self.synced)
+
+    def stops(self, shaft: int) -> int:
+        """The axis's hard stops (its end stops' positions, ``MockAxis``): the shaft as far
+        towards ``shaft`` as they let it go."""
+        at = self.axis.position + shaft - self.synced
+        held = min(max(at, self.axis.endstop_min), self.axis.endstop_max)
+        return shaft - (at - held)
 
     def sync(self) -> None:
         self.axis.position += self.chip.shaft - self.synced

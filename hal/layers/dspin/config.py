@@ -53,18 +53,20 @@ def _line(value: str) -> str | None:
     notes="""\
 The chip runs its own ramps: the motor has no STEP/DIR lines, positions are the chip's
 ABS_POS (22 bits of microsteps: -2097152..2097151), homing is the chip's GoUntil on its SW
-input and ReleaseSW back off it (docs/dspin.md). Chips on one chip select form a daisy chain:
-`position` 0 is the chip whose SDI is wired to the host's MOSI, the others follow in the
-order of the wiring; every chip of a chain is configured (positions 0..N-1) and all of a
-chain's motors give the same `spi_speed_hz`. At start each chip's STATUS is read and its
-latched power-up flags cleared, its CONFIG read and compared with the model's reset value
-(another value: the daemon refuses to start, naming the chip and what it read), then the
-bridges go to high impedance and STEP_MODE, CONFIG, the KVAL (voltage mode) or TVAL
-(current mode) registers, OCD_TH, STALL_TH and ALARM_EN are written and read back. While
-running the HAL's driver poller reads every chip's STATUS (GetStatus, one exchange per
-chain) every `[drivers] poll_ms`: UVLO, thermal shutdown, overcurrent, a stall
-(STEP_LOSS_A/B) and a command the chip refused fault the motor (E4); a thermal warning is
-logged.""",
+input and ReleaseSW back off it, or with `homing.source = "stall"` (a chip with STALL_TH,
+`switch = "none"`) a run that the chip's stall detection ends (docs/dspin.md). Chips on one
+chip select form a daisy chain: `position` 0 is the chip whose SDI is wired to the host's
+MOSI, the others follow in the order of the wiring; every chip of a chain is configured
+(positions 0..N-1) and all of a chain's motors give the same `spi_speed_hz`. At start each
+chip's STATUS is read and its latched power-up flags cleared, its CONFIG read and compared
+with the model's reset value (another value: the daemon refuses to start, naming the chip
+and what it read), then the bridges go to high impedance and STEP_MODE, CONFIG, the KVAL
+(voltage mode) or TVAL (current mode) registers, OCD_TH, STALL_TH and ALARM_EN are written
+and read back. While running the HAL's driver poller reads every chip's STATUS (GetStatus,
+one exchange per chain) every `[drivers] poll_ms`: UVLO, thermal shutdown, overcurrent, a
+stall (STEP_LOSS_A/B, except during stall homing) and a command the chip refused fault the
+motor (E4); a thermal warning is logged. A chip's FLAG line (`flag`) makes the poller read
+its chain at once; its BUSY line (`busy`) spares the reads of a motor at rest.""",
 )
 @dataclass(frozen=True)
 class DspinAxisConfig:
@@ -110,7 +112,11 @@ class DspinAxisConfig:
         8, 0, 31, "OCD_TH, the overcurrent threshold register (L6470/L6472: 0..15)."
     )
     stall_th: int = integer(
-        16, 0, 127, "STALL_TH, the stall threshold register (L6480/powerSTEP01: 0..31)."
+        16,
+        0,
+        127,
+        "STALL_TH, the stall threshold register (L6480/powerSTEP01: 0..31): STEP_LOSS_A/B, "
+        'a fault, or the end of the run with homing.source = "stall".',
     )
     switch: str = choice(
         DspinSpec.switch,
@@ -232,12 +238,26 @@ def _soft_limits(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
-def _no_stall_homing(v: Mapping[str, Any]) -> Violation | None:
-    if v["dspin"] is not None and str(v["homing"].source) == "stall":
+def _stall_homing(v: Mapping[str, Any]) -> Violation | None:
+    """Stall homing needs the chip's stall detection and no switch on its SW input (which
+    would hard-stop the run before the motor stalls)."""
+    d = v["dspin"]
+    if d is None or str(v["homing"].source) != "stall":
+        return None
+    chip = _chip(d)
+    if "STALL_TH" not in chip.registers:
         return (
             "homing.source",
             "stall",
-            'a dSPIN motor homes on its SW input (GoUntil, ReleaseSW): set source = "endstop"',
+            f"the {chip.name} has no stall detection (no STALL_TH, no STEP_LOSS flags): "
+            'home it on its SW input, source = "endstop"',
+        )
+    if d.switch != "none":
+        return (
+            "homing.source",
+            "stall",
+            f'[motors.dspin] switch = "{d.switch}": the switch on the chip\'s SW input would '
+            'stop the run before the motor stalls; set switch = "none" for stall homing',
         )
     return None
 
@@ -360,8 +380,8 @@ class DspinDeclaration(LayerDeclaration):
                     Rule(("dspin",), "not with [motors.tmc] on the same motor", _not_tmc_too),
                     Rule(
                         ("homing.source", "dspin"),
-                        "endstop on a dSPIN motor (its SW input)",
-                        _no_stall_homing,
+                        "stall only on a chip with stall detection and no switch on SW",
+                        _stall_homing,
                     ),
                     Rule(
                         ("soft_limit_min", "soft_limit_max", "dspin"),

@@ -11,6 +11,14 @@ chip of a chain in one exchange (:meth:`Chain.poll`); the executor's reads use G
 which clears nothing, except :meth:`DspinDriver.watch`, which starts a motion with the
 switch's old event gone (a GetStatus, its faults kept for the poller).
 
+**Stall homing** (``homing.source = "stall"``): :meth:`DspinDriver.watch` with ``stall``
+arms the chip's stall detection for the motion: STEP_LOSS_A/B (STALL_TH) is then the
+motor's stall, not a fault: the ramp's read that finds it stops the chip at once
+(HardStop: the chip runs on after a stall) and the driver reports a stall
+(``DriverStatus.stall``) to the driver poller, which hands it to the motion engine (it ends
+the homing's run there and zeroes, docs/protocol.md's homing rule); a GetStatus that finds
+it first (the poller's, at once with FLAG wired) reports it the same way.
+
 Units: positions are ABS_POS (microsteps, one protocol step each), speeds step/s and
 ramps step/s^2 of the protocol, converted to the registers by ``convert.py`` (clamped,
 never refused; the clamps are counted in ``clamped``).
@@ -52,6 +60,8 @@ log = logging.getLogger("motorctl.dspin")
 MARK = COPY_TO_MARK
 #: the flags that say the chip refused a command
 _REFUSED = ("WRONG_CMD", "NOTPERF_CMD", "CMD_ERROR")
+#: the flags of the chip's stall detection (STALL_TH)
+STALL = frozenset({"STEP_LOSS_A", "STEP_LOSS_B"})
 #: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
 ALARMS_BUT_SWITCH = 0xFF & ~(1 << 6)
 #: with BUSY wired, a motor at rest is read over SPI once in this many ramp reads (the
@@ -103,6 +113,7 @@ class _Kept:
     faults: set[str] = field(default_factory=set)  # the flags' names
     spi: str | None = None  # a failed read
     switch_event: bool = False
+    stall: bool = False  # STEP_LOSS while stall homing armed the detection
 
 
 class DspinDriver(StepperDriver, RampDriver):
@@ -125,6 +136,9 @@ class DspinDriver(StepperDriver, RampDriver):
         self._until = False  # the motion is a GoUntil: MARK latches the switch's edge
         self._settled = False  # the chip ended the motion short of its target on purpose
         self._limit: int | None = None  # a ReleaseSW's farthest position
+        self._stall = False  # STEP_LOSS is the motion's stall (stall homing), not a fault
+        self._stall_stopped = False  # a ramp read found it and stopped the chip
+        self._stall_told = False  # the executor saw it (report_stall_stop): a stall
         self.polls = 0
         self.spi_errors = 0
         self.clamped = 0
@@ -200,9 +214,14 @@ class DspinDriver(StepperDriver, RampDriver):
         for w in st.warnings:
             self.warning_counts[w] = self.warning_counts.get(w, 0) + 1
             log.warning("%s: %s", self.name, w)
+        faults = {*st.faults, *st.command_errors}
+        stalled = self._stall and bool(faults & STALL)
+        if self._stall:  # stall homing: the stall it looks for
+            faults -= STALL
         with self._lock:
-            self._kept.faults |= {*st.faults, *st.command_errors}
+            self._kept.faults |= faults
             self._kept.switch_event |= st.switch_event
+            self._kept.stall |= stalled
 
     def failed(self, exc: BaseException) -> DriverStatus:
         self.spi_errors += 1
@@ -215,13 +234,15 @@ class DspinDriver(StepperDriver, RampDriver):
         fault until a GetStatus finds it gone, so each one is reported once at least."""
         with self._lock:
             names, spi = sorted(self._kept.faults), self._kept.spi
-            self._kept.faults, self._kept.spi = set(), None
+            stall = self._kept.stall or self._stall_told
+            self._kept.faults, self._kept.spi, self._kept.stall = set(), None, False
         for name in names:
             self.fault_counts[name] = self.fault_counts.get(name, 0) + 1
         said = [f"{n} (the chip refused a command)" if n in _REFUSED else n for n in names]
         if spi is not None:
             said.append(spi)
-        self._status = DriverStatus(fault=f"{self.chip.name}: {', '.join(said)}" if said else None)
+        fault = f"{self.chip.name}: {', '.join(said)}" if said else None
+        self._status = DriverStatus(fault=fault, stall=stall)
         return self._status
 
     def refresh(self) -> DriverStatus:
@@ -290,11 +311,8 @@ class DspinDriver(StepperDriver, RampDriver):
         with self._lock:
             event = self._kept.switch_event or st.switch_event
         standing = st.motor is MotorState.STOPPED
-        if self._limit is not None and st.switch_closed and not standing:
-            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
-            if beyond:  # ReleaseSW ran its whole way: the switch never opened
-                self._send(simple(Op.HARD_STOP))
-                self._settled, self._limit = True, None
+        if not standing:
+            self._stop_where_due(pos, st)
         velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         stopped = bool(side and self._watch == side and event and standing)
@@ -310,20 +328,31 @@ class DspinDriver(StepperDriver, RampDriver):
             latched_min=side < 0 and latched,
             latched_max=side > 0 and latched,
             settled=self._settled and standing,
+            stall_stopped=self._stall_stopped,
         )
+
+    def _stop_where_due(self, pos: int, st: Status) -> None:
+        """A moving chip that the driver stops itself: on a stall that stall homing armed
+        (the chip runs on after one), and at the end of a ReleaseSW that found no edge."""
+        if self._stall and STALL & {*st.faults}:
+            self._send(simple(Op.HARD_STOP))
+            self._stall_stopped = True
+        if self._limit is not None and st.switch_closed:
+            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
+            if beyond:  # ReleaseSW ran its whole way: the switch never opened
+                self._send(simple(Op.HARD_STOP))
+                self._settled, self._limit = True, None
 
     def latched_position(self) -> int:
         return self._get("MARK")
 
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
-        del (
-            stall
-        )  # stall homing on STEP_LOSS is not offered: the config refuses it (_no_stall_homing)
         with self.chain.bus.session():  # no poll between the read and the clearing
             word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
             self._keep(Status(self.chip.status, word))  # its faults stay for the poller
-            with self._lock:
-                self._kept.switch_event = False
+            with self._lock:  # the last motion's switch and stall are gone with it
+                self._kept.switch_event = self._kept.stall = False
+            self._stall, self._stall_stopped, self._stall_told = stall, False, False
         self._watch, self._release = direction, release
         self._until = self._settled = False
         self._limit = None
@@ -373,4 +402,9 @@ class DspinDriver(StepperDriver, RampDriver):
         self._do(program.stop(hard=dec is None))
 
     def report_stall_stop(self) -> bool:
-        return False
+        """The executor saw the chip stopped on its stall: the driver reports a stall at
+        the poller's next reading, and every one until the next :meth:`watch`."""
+        if self._stall_told:
+            return False
+        self._stall_told = True
+        return True
