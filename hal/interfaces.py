@@ -564,6 +564,15 @@ class Hardware:
         other keys; ones that are not the backend's are ignored). The default: nothing."""
         return None
 
+    def open_alert_lines(self, uses: Sequence[tuple[str, str]]) -> EdgeInputs:
+        """Inputs a layer reads as edges in this process: the open-drain, active-low
+        outputs of its chips (a dSPIN's FLAG and BUSY), one per ``(use, line)`` (``use``
+        names it in messages, ``line`` is the config's line text), pulled up; an
+        :class:`Edge` is ``active`` when the line falls (low: the chip signals). Closed
+        with the Hardware. The default: a backend without GPIO inputs refuses them."""
+        names = ", ".join(use for use, _ in uses)
+        raise HalError(f"{names}: this hardware backend has no GPIO inputs to read them on")
+
     def close(self) -> None:
         """Stop the poller (nothing reads a chip any more), then close the parts."""
         self.poller.stop()

@@ -18,6 +18,12 @@ own thread, which acts on them under its lock at once, and before it answers the
 command. A reading is pushed at every poll while its condition lasts (a level, as the chips
 report it), so nothing is lost to a consumer that acts later.
 
+An alert line (:meth:`DriverPoller.alert`: a chip's FLAG output read as edges,
+``Hardware.open_alert_lines``) makes its poll due at once when it falls: the thread waits
+on the lines' descriptors as well as on its period, so a fault the chip signals is read
+within a pass's time rather than a period's; on a virtual clock the edges are taken
+whenever the engine asks what is due (:meth:`DriverPoller.next_due`).
+
 A real clock: :meth:`DriverPoller.start` runs the ``motorctl-drivers`` thread (its consumer
 starts it, and stops it, bounded; the Hardware's close stops it too). A virtual clock: no
 thread; the engine asks :meth:`DriverPoller.next_due` and calls
@@ -34,11 +40,13 @@ from __future__ import annotations
 
 import logging
 import math
+import os
+import select
 import threading
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
-from motorctl.hal.interfaces import Clock, DriverStatus, StepperDriver
+from motorctl.hal.interfaces import Clock, DriverStatus, EdgeInputs, HalError, StepperDriver
 from motorctl.schema import number, section, table_of
 
 log = logging.getLogger("motorctl.drivers")
@@ -96,6 +104,16 @@ class Polled:
     due: float = 0.0  # when it is polled next (registered: now, so the first pass polls it)
     polls: int = 0
     failures: int = 0
+    alerts: int = 0  # the falling edges of its alert lines that made it due at once
+
+
+@dataclass(eq=False)
+class Alert:
+    """An alert line: ``line`` of ``inputs`` falling makes ``entry`` due at once."""
+
+    inputs: EdgeInputs
+    line: int
+    entry: Polled
 
 
 @dataclass(eq=False)
@@ -108,11 +126,13 @@ class DriverPoller:
     entries: list[Polled] = field(default_factory=list)
     rounds: int = 0
     failures: int = 0  # poll functions that raised
+    alerts: list[Alert] = field(default_factory=list)
     _sink: Sink | None = field(default=None, init=False, repr=False)
     _before: Callable[[], None] | None = field(default=None, init=False, repr=False)
     _thread: threading.Thread | None = field(default=None, init=False, repr=False)
     _stopping: bool = field(default=False, init=False, repr=False)
     _kick: threading.Event = field(default_factory=threading.Event, init=False, repr=False)
+    _wake: tuple[int, int] | None = field(default=None, init=False, repr=False)
 
     # -- registration (start-up) ---------------------------------------------------------
     def add(
@@ -133,6 +153,34 @@ class DriverPoller:
         """Poll one driver's own ``refresh()`` (a chip read on its own)."""
         return self.add(name, lambda: ((driver, driver.refresh()),), (driver,), period_s)
 
+    def alert(self, entry: Polled, inputs: EdgeInputs, line: int) -> Alert:
+        """Poll ``entry`` as soon as ``line`` of ``inputs`` falls (its ``active`` edge); the
+        thread waits on ``inputs.fileno()``, which a real clock needs."""
+        if not self.clock.is_virtual and inputs.fileno() is None:
+            raise ValueError(f"{entry.name}: an alert line needs a descriptor to wait on")
+        found = Alert(inputs, line, entry)
+        self.alerts.append(found)
+        return found
+
+    def _take_alerts(self) -> None:
+        """The alert lines' edges since the last look (no bus transfer): a falling one
+        makes its poll due at the edge's time."""
+        done: set[int] = set()
+        for a in self.alerts:
+            if id(a.inputs) in done:
+                continue
+            done.add(id(a.inputs))
+            try:
+                edges = a.inputs.read_edges()
+            except HalError as exc:  # the poll at its period still reads the chips
+                log.error("%s: its alert line could not be read: %s", a.entry.name, exc)
+                continue
+            for e in edges:
+                for b in self.alerts:
+                    if b.inputs is a.inputs and b.line == e.line and e.active:
+                        b.entry.due = min(b.entry.due, e.t)
+                        b.entry.alerts += 1
+
     def remove(self, entry: Polled) -> None:
         self.entries = [e for e in self.entries if e is not entry]
 
@@ -150,7 +198,10 @@ class DriverPoller:
         return self.period_s if entry.period_s is None else entry.period_s
 
     def next_due(self) -> float:
-        """When the next poll is due (``inf``: nothing to poll)."""
+        """When the next poll is due (``inf``: nothing to poll); an alert line that fell
+        makes its poll due now."""
+        if self.alerts:
+            self._take_alerts()
         return min((e.due for e in self.entries), default=math.inf)
 
     def is_due(self, now: float) -> bool:
@@ -160,6 +211,8 @@ class DriverPoller:
     def poll_due(self, now: float) -> float:
         """Poll every entry due at ``now``, push what needs acting on; the next due time."""
         news: list[Reading] = []
+        if self.alerts:
+            self._take_alerts()
         before = self._before
         if before is not None and self.is_due(now):
             before()
@@ -207,6 +260,8 @@ class DriverPoller:
         self.poll_due(self.clock.now())
         self._stopping = False
         self._kick.clear()
+        if self.alerts and self._wake is None:
+            self._wake = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
         self._thread = threading.Thread(target=self._run, name="motorctl-drivers", daemon=True)
         self._thread.start()
 
@@ -214,16 +269,31 @@ class DriverPoller:
         """Stop the thread, waiting at most ``join_s`` (idempotent)."""
         self._stopping = True
         self._kick.set()
-        thread, self._thread = self._thread, None
+        wake, thread, self._thread = self._wake, self._thread, None
+        if wake is not None:
+            os.write(wake[1], b"!")
         if thread is not None:
             thread.join(self.join_s)
             if thread.is_alive():
                 log.error("the driver poller did not stop within %.1f s", self.join_s)
+                return
+        if wake is not None:
+            self._wake = None
+            os.close(wake[0])
+            os.close(wake[1])
 
     def _run(self) -> None:
-        clock, kick = self.clock, self._kick
+        clock, kick, wake = self.clock, self._kick, self._wake
+        fds = [fd for a in self.alerts if (fd := a.inputs.fileno()) is not None]
         while not self._stopping:
             nxt = self.poll_due(clock.now())
             wait = nxt - clock.now()
-            if wait > 0 and kick.wait(wait):
+            if wait <= 0:
+                continue
+            if wake is None:
+                if kick.wait(wait):
+                    kick.clear()
+                continue
+            ready = select.select([wake[0], *fds], [], [], wait)[0]
+            if wake[0] in ready:
                 kick.clear()

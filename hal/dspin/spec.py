@@ -25,7 +25,9 @@ class DspinSpec(DriverSpec):
     ``position`` (0 = the chip whose SDI is the host's MOSI) in the chain on ``spi``;
     ``registers``: the values written at start (register name -> value) beyond those
     derived from ``step_mode`` (STEP_MODE, from ``microsteps``); ``switch``: the end stop
-    wired to the chip's SW input (``min``, ``max``, ``none``)."""
+    wired to the chip's SW input (``min``, ``max``, ``none``); ``flag``, ``busy``: the
+    GPIO lines the chip's FLAG and BUSY outputs are wired to (a backend's line text; ""
+    not wired; chips of one chain may share one, wired-OR)."""
 
     spi: str
     position: int
@@ -35,6 +37,8 @@ class DspinSpec(DriverSpec):
     switch: str = "min"
     spi_speed_hz: int = DEFAULT_SPEED_HZ
     hiz_at_exit: bool = True
+    flag: str = ""
+    busy: str = ""
 
     @property
     def own_ramp(self) -> bool:

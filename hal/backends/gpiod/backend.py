@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 
 from motorctl.hal.backends.gpiod.bridge import GpiodBridge, PwmChannel
@@ -38,11 +38,12 @@ from motorctl.hal.backends.gpiod.parts import (
     NoDriver,
 )
 from motorctl.hal.backends.gpiod.probe import probe_gpio
-from motorctl.hal.backends.gpiod.wiring import GpioWiring, ResolvedLine
+from motorctl.hal.backends.gpiod.wiring import GpioWiring, LineRef, ResolvedLine
 from motorctl.hal.compiled_lines import ChardevLines, ChardevRequest, CompiledLines
 from motorctl.hal.contract import Backend, ProbeReport
 from motorctl.hal.interfaces import (
     Clock,
+    EdgeInputs,
     HalError,
     Hardware,
     StepIO,
@@ -61,6 +62,49 @@ class GpiodHardware(Hardware):
 
     api: GpioApi | None = None
     lines: list[ResolvedLine] = field(default_factory=list)
+    consumer: str = GpioWiring.consumer
+
+    def open_alert_lines(self, uses: Sequence[tuple[str, str]]) -> EdgeInputs:
+        """The lines as edge-event requests (pulled up, active low: one request per chip
+        on v2, per line on v1), after checking that no other use of the config (a STEP,
+        an end stop, a pin, another of these) names one of them and that each is free."""
+        api = self.api
+        if api is None:
+            return super().open_alert_lines(uses)
+        refs: list[tuple[str, LineRef]] = []
+        for use, text in uses:
+            try:
+                refs.append((use, LineRef.parse(text)))
+            except ValueError as exc:
+                raise HalError(f"{use}: {exc}") from exc
+        found = api.resolve(refs)
+        taken = {(ln.chip_path, ln.offset): ln for ln in self.lines}
+        for line in found:
+            other = taken.setdefault((line.chip_path, line.offset), line)
+            if other is not line:
+                raise HalError(
+                    f"{line.use}: {line.ref} is {other.chip_path}:{other.offset}, also "
+                    f"{other.use} ({other.ref}): a line used twice"
+                )
+        api.check_free(found)
+        settings = LineSettings(bias="pull-up", edges=True)
+        groups: dict[str, list[tuple[int, ResolvedLine]]] = {}
+        for i, line in enumerate(found):
+            key = line.chip_path if api.name == "v2" else f"{line.chip_path}:{line.offset}"
+            groups.setdefault(key, []).append((i, line))
+        reqs: list[LineRequest] = []
+        index: dict[tuple[int, int], int] = {}
+        try:
+            for group in groups.values():
+                req = api.request(self.consumer, [(line, settings) for _, line in group])
+                self.closers.append(req.release)
+                index.update({(len(reqs), line.offset): i for i, line in group})
+                reqs.append(req)
+            inputs = GpiodEdgeInputs([u for u, _ in uses], reqs, index, [True] * len(found))
+        except OSError as exc:
+            raise HalError(f"{', '.join(u for u, _ in uses)}: {exc}") from exc
+        self.lines += found
+        return inputs
 
 
 def _step_executor_lines(spec: HardwareSpec) -> Callable[[str], bool]:
@@ -302,6 +346,7 @@ class GpiodBackend(Backend):
             SpiBuses(),
             api=api,
             lines=list(found.values()),
+            consumer=consumer,
         )
         try:
             _open_daemon_part(hw, api, spec, wiring, found, consumer, clock)

@@ -62,6 +62,8 @@ class DspinChain:
         for chip, byte in zip(self.chips, shift, strict=True):  # chip select rises
             chip.receive(byte)
         self.transfers.append((bytes(values), bytes(back)))
+        for chip in self.chips:  # the command may have raised or cleared BUSY and FLAG
+            chip.changed()
         return back
 
     # the world's time
@@ -69,3 +71,4 @@ class DspinChain:
         """Let ``dt`` seconds pass for every chip."""
         for chip in self.chips:
             chip.advance(dt)
+            chip.changed()

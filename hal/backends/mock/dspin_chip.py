@@ -68,16 +68,28 @@ def wrap22(value: int) -> int:
 class DspinChip:
     """One chip. ``switch``: where the switch is, as a function of the motor's shaft
     position in microsteps (``shaft``: counted from power-up, never reset, unlike ABS_POS);
-    without it the switch is what :meth:`set_switch` last set."""
+    without it the switch is what :meth:`set_switch` last set. ``stops``: where the
+    mechanics let the shaft go when the chip drives it towards a shaft position (a hard
+    stop): a step it cannot take is lost (ABS_POS counts it, the shaft stays) and, on a
+    chip with stall detection, latches STEP_LOSS_A (the stall; FLAG falls)."""
 
-    def __init__(self, chip: Chip, switch: Callable[[int], bool] | None = None) -> None:
+    def __init__(
+        self,
+        chip: Chip,
+        switch: Callable[[int], bool] | None = None,
+        stops: Callable[[int], int] | None = None,
+    ) -> None:
         self.chip = chip
         self.model = chip.model
         self._switch_fn = switch
+        self._stops_fn = stops
         self.shaft = 0
         self.active: set[str] = set()  # injected conditions present now
         self.latched: set[str] = set()  # latched flags (and command errors)
         self._sw = False
+        #: called when FLAG or BUSY may have changed (a fault injected, a transfer, time):
+        #: the mock's FLAG and BUSY lines (dspin_world.py)
+        self.listeners: list[Callable[[], None]] = []
         self.power_up()
 
     # state
@@ -375,6 +387,24 @@ class DspinChip:
         if self._bridges_held_off():
             self.motion.halt()
             self.hiz = True
+        self.changed()
+
+    def changed(self) -> None:
+        """Tell the listeners that FLAG or BUSY may have changed."""
+        for listener in self.listeners:
+            listener()
+
+    def _rotor(self, shaft: int) -> int:
+        """Where the shaft gets to when driven to ``shaft``: a hard stop holds it; pushed
+        on while it stands there, the chip sees the stall (STEP_LOSS latched while it
+        lasts). Reaching the stop within a sub-step is no stall yet: a switch there (SW
+        closes on the same position) stops the chip first, as it would between two
+        microsteps."""
+        got = shaft if self._stops_fn is None else self._stops_fn(shaft)
+        pushed = got != shaft and got == self.shaft
+        if pushed and self.chip.status.by_name.get("STEP_LOSS_A") is not None:
+            self.latched.add("STEP_LOSS_A")
+        return got
 
     # time
     def advance(self, dt: float) -> None:
@@ -387,8 +417,8 @@ class DspinChip:
             h = min(left, 0.0005)
             left -= h
             moved = self.motion.advance(h, ramps)
-            self.shaft += moved
             self.regs["ABS_POS"] = wrap22(self.abs_pos + moved)
+            self.shaft = self._rotor(self.shaft + moved)
             if self._switch_fn is not None:
                 self.set_switch(self._switch_fn(self.shaft))
             if self.motion.idle and self._hiz_after_stop:

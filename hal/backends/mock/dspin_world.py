@@ -9,20 +9,28 @@ what the world's status and state file show); its SW input is the axis's end sto
 side ``[motors.dspin] switch`` names (forced levels included). A node the config names no
 chip on does not exist (ENOENT, as the kernel says).
 
+The chips' FLAG and BUSY outputs are the mock's lines where ``[motors.dspin] flag`` and
+``busy`` name one (:class:`MockAlertLines`, what ``Hardware.open_alert_lines`` gives on the
+mock): low while any chip wired to the line signals (open drain, wired-OR), each change
+made known on a pipe as a kernel line request's descriptor makes an edge known.
+
 Owned by the daemon's process; transfers come under the SPI bus's lock (hal/spi.py), so
-one thread at a time touches a chain.
+one thread at a time touches a chain; a line's level is read from the chips' state
+(a read of Python attributes, from the thread that reads the line).
 """
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import os
+from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
 from motorctl.hal.backends.mock.dspin_chain import DspinChain
 from motorctl.hal.backends.mock.dspin_chip import DspinChip
 from motorctl.hal.dspin.spec import DspinSpec, chains
-from motorctl.hal.interfaces import Clock
+from motorctl.hal.interfaces import Clock, Edge, EdgeInputs, HalError
 from motorctl.hal.spec import HardwareSpec
 
 if TYPE_CHECKING:
@@ -34,14 +42,22 @@ class _Moved:
 
     def __init__(self, axis: MockAxis, spec: DspinSpec) -> None:
         self.axis = axis
+        self.spec = spec
         self.side = spec.switch
         self.synced = 0  # the chip's shaft when the axis was last moved to it
-        self.chip = DspinChip(spec.model, switch=self.switch)
+        self.chip = DspinChip(spec.model, switch=self.switch, stops=self.stops)
 
     def switch(self, shaft: int) -> bool:
         if self.side == "none":
             return False
         return self.axis.endstop_at(self.side, self.axis.position + shaft - self.synced)
+
+    def stops(self, shaft: int) -> int:
+        """The axis's hard stops (its end stops' positions, ``MockAxis``): the shaft as far
+        towards ``shaft`` as they let it go."""
+        at = self.axis.position + shaft - self.synced
+        held = min(max(at, self.axis.endstop_min), self.axis.endstop_max)
+        return shaft - (at - held)
 
     def sync(self) -> None:
         self.axis.position += self.chip.shaft - self.synced
@@ -101,6 +117,65 @@ class _Node:
         self._chain = None
 
 
+class MockAlertLines(EdgeInputs):
+    """Lines driven by chips' open-drain outputs: line ``i`` is active (low) while one of
+    ``wired[i]`` (a chip and its output, ``flag`` or ``busy``) signals. The chips call
+    :meth:`_changed` when their outputs may have changed; a change of a line writes a byte
+    to the pipe whose read end is :meth:`fileno`; :meth:`read_edges` drains it and gives
+    each changed line's edge, timed when it is read (the world's clock)."""
+
+    def __init__(
+        self, names: Sequence[str], wired: list[list[tuple[DspinChip, str]]], clock: Clock
+    ) -> None:
+        super().__init__(names)
+        self.wired = wired
+        self.clock = clock
+        self._r, self._w = os.pipe2(os.O_NONBLOCK | os.O_CLOEXEC)
+        self.levels = [self._sense(i) for i in range(len(wired))]
+        self._told = list(self.levels)
+        self.chips = {id(c): c for line in wired for c, _ in line}
+        for chip in self.chips.values():
+            chip.listeners.append(self._changed)
+
+    def _sense(self, line: int) -> bool:
+        return any(getattr(chip, output) for chip, output in self.wired[line])
+
+    def _changed(self) -> None:
+        now = [self._sense(i) for i in range(len(self.wired))]
+        if now != self._told:
+            self._told = now
+            with contextlib.suppress(BlockingIOError):  # a full pipe wakes its reader too
+                os.write(self._w, b"!")
+
+    def read_edges(self) -> list[Edge]:
+        with contextlib.suppress(BlockingIOError):
+            while os.read(self._r, 4096):
+                pass
+        out: list[Edge] = []
+        t = self.clock.now()
+        for i, level in enumerate(self.levels):
+            now = self._sense(i)
+            if now != level:
+                self.levels[i] = now
+                out.append(Edge(i, now, t))
+        return out
+
+    def level(self, line: int) -> bool:
+        return self.levels[line]
+
+    def fileno(self) -> int | None:
+        return self._r
+
+    def close(self) -> None:
+        for chip in self.chips.values():
+            if self._changed in chip.listeners:
+                chip.listeners.remove(self._changed)
+        if self._r >= 0:
+            os.close(self._r)
+            os.close(self._w)
+            self._r = self._w = -1
+
+
 class MockSpiNodes:
     """The world's SPI nodes: call it for a new ``SpiDev`` (a py-spidev factory)."""
 
@@ -113,6 +188,23 @@ class MockSpiNodes:
 
     def __call__(self) -> _Node:
         return _Node(self.chains)
+
+    def alert_lines(self, uses: Sequence[tuple[str, str]], clock: Clock) -> MockAlertLines:
+        """The lines ``uses`` names (``[motors.dspin] flag``/``busy`` texts) as the chips
+        wired to them drive them."""
+        wired: list[list[tuple[DspinChip, str]]] = []
+        for use, line in uses:
+            found = [
+                (m.chip, output)
+                for chain in self.chains.values()
+                for m in chain.members
+                for output in ("flag", "busy")
+                if getattr(m.spec, output) == line
+            ]
+            if not found:
+                raise HalError(f"{use}: no simulated dSPIN chip drives the line {line!r}")
+            wired.append(found)
+        return MockAlertLines([use for use, _ in uses], wired, clock)
 
     def chip(self, axis: int, spec: HardwareSpec) -> DspinChip:
         """The chip model that moves axis ``axis`` (tests inject faults into it)."""

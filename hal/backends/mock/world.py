@@ -563,6 +563,10 @@ class MockHardware(Hardware):
         if self.world is not None and isinstance(mock, dict):
             self.world.restore(mock)
 
+    def open_alert_lines(self, uses: Sequence[tuple[str, str]]) -> EdgeInputs:
+        nodes = None if self.world is None else self.world.spi_nodes  # its chips drive them
+        return nodes.alert_lines(uses, self.clock) if nodes else super().open_alert_lines(uses)
+
 
 def read_timeline(path: str) -> Timeline:
     """A timeline written by a step executor's own process (``timeline_file``)."""

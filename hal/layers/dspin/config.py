@@ -13,6 +13,7 @@ Pure declarations and conversions: no state, no I/O.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -37,6 +38,14 @@ from motorctl.schema import (
 #: the chips ``[motors.dspin] driver`` takes (hal/dspin/chips.py's names)
 DRIVERS = tuple(CHIPS)
 
+#: a GPIO line as a backend names it (the gpiod backend parses it, and finds it, at start)
+LINE_TEXT = '"" (not wired) or a GPIO line: "chip:offset" (gpiochip0:25) or a line name (GPIO25)'
+_LINE = re.compile(r"^$|^(/dev/)?[A-Za-z0-9_.-]+:[0-9]+$|^[A-Za-z_][A-Za-z0-9_.-]*$")
+
+
+def _line(value: str) -> str | None:
+    return None if _LINE.match(value) else "not a GPIO line"
+
 
 @section(
     "An ST dSPIN driver (L6470, L6472, L6480, powerSTEP01) on SPI that moves the motor "
@@ -44,18 +53,20 @@ DRIVERS = tuple(CHIPS)
     notes="""\
 The chip runs its own ramps: the motor has no STEP/DIR lines, positions are the chip's
 ABS_POS (22 bits of microsteps: -2097152..2097151), homing is the chip's GoUntil on its SW
-input and ReleaseSW back off it (docs/dspin.md). Chips on one chip select form a daisy chain:
-`position` 0 is the chip whose SDI is wired to the host's MOSI, the others follow in the
-order of the wiring; every chip of a chain is configured (positions 0..N-1) and all of a
-chain's motors give the same `spi_speed_hz`. At start each chip's STATUS is read and its
-latched power-up flags cleared, its CONFIG read and compared with the model's reset value
-(another value: the daemon refuses to start, naming the chip and what it read), then the
-bridges go to high impedance and STEP_MODE, CONFIG, the KVAL (voltage mode) or TVAL
-(current mode) registers, OCD_TH, STALL_TH and ALARM_EN are written and read back. While
-running the HAL's driver poller reads every chip's STATUS (GetStatus, one exchange per
-chain) every `[drivers] poll_ms`: UVLO, thermal shutdown, overcurrent, a stall
-(STEP_LOSS_A/B) and a command the chip refused fault the motor (E4); a thermal warning is
-logged.""",
+input and ReleaseSW back off it, or with `homing.source = "stall"` (a chip with STALL_TH,
+`switch = "none"`) a run that the chip's stall detection ends (docs/dspin.md). Chips on one
+chip select form a daisy chain: `position` 0 is the chip whose SDI is wired to the host's
+MOSI, the others follow in the order of the wiring; every chip of a chain is configured
+(positions 0..N-1) and all of a chain's motors give the same `spi_speed_hz`. At start each
+chip's STATUS is read and its latched power-up flags cleared, its CONFIG read and compared
+with the model's reset value (another value: the daemon refuses to start, naming the chip
+and what it read), then the bridges go to high impedance and STEP_MODE, CONFIG, the KVAL
+(voltage mode) or TVAL (current mode) registers, OCD_TH, STALL_TH and ALARM_EN are written
+and read back. While running the HAL's driver poller reads every chip's STATUS (GetStatus,
+one exchange per chain) every `[drivers] poll_ms`: UVLO, thermal shutdown, overcurrent, a
+stall (STEP_LOSS_A/B, except during stall homing) and a command the chip refused fault the
+motor (E4); a thermal warning is logged. A chip's FLAG line (`flag`) makes the poller read
+its chain at once; its BUSY line (`busy`) spares the reads of a motor at rest.""",
 )
 @dataclass(frozen=True)
 class DspinAxisConfig:
@@ -101,7 +112,11 @@ class DspinAxisConfig:
         8, 0, 31, "OCD_TH, the overcurrent threshold register (L6470/L6472: 0..15)."
     )
     stall_th: int = integer(
-        16, 0, 127, "STALL_TH, the stall threshold register (L6480/powerSTEP01: 0..31)."
+        16,
+        0,
+        127,
+        "STALL_TH, the stall threshold register (L6480/powerSTEP01: 0..31): STEP_LOSS_A/B, "
+        'a fault, or the end of the run with homing.source = "stall".',
     )
     switch: str = choice(
         DspinSpec.switch,
@@ -110,6 +125,23 @@ class DspinAxisConfig:
     )
     hiz_at_exit: bool = boolean(
         DspinSpec.hiz_at_exit, "Bridges to high impedance when motorctld exits."
+    )
+    # -- the chip's FLAG and BUSY outputs on GPIO lines (docs/dspin.md, "FLAG and BUSY") --
+    flag: str = text(
+        DspinSpec.flag,
+        "The GPIO line the chip's FLAG output is wired to (open drain, low on an alarm): "
+        'a falling edge reads STATUS at once; "" not wired (the STATUS poll). Chips of '
+        "one chain may name one line (wired-OR).",
+        check=_line,
+        check_text=LINE_TEXT,
+    )
+    busy: str = text(
+        DspinSpec.busy,
+        "The GPIO line the chip's BUSY output is wired to (open drain, low while a "
+        'command runs): at rest the motor is watched on it, not over SPI; "" not wired. '
+        "Chips of one chain may name one line (wired-OR).",
+        check=_line,
+        check_text=LINE_TEXT,
     )
 
 
@@ -148,6 +180,8 @@ def driver_spec(motor: MotorEntry) -> DspinSpec | None:
         switch=v.switch,
         spi_speed_hz=v.spi_speed_hz,
         hiz_at_exit=v.hiz_at_exit,
+        flag=v.flag,
+        busy=v.busy,
     )
 
 
@@ -204,12 +238,26 @@ def _soft_limits(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
-def _no_stall_homing(v: Mapping[str, Any]) -> Violation | None:
-    if v["dspin"] is not None and str(v["homing"].source) == "stall":
+def _stall_homing(v: Mapping[str, Any]) -> Violation | None:
+    """Stall homing needs the chip's stall detection and no switch on its SW input (which
+    would hard-stop the run before the motor stalls)."""
+    d = v["dspin"]
+    if d is None or str(v["homing"].source) != "stall":
+        return None
+    chip = _chip(d)
+    if "STALL_TH" not in chip.registers:
         return (
             "homing.source",
             "stall",
-            'a dSPIN motor homes on its SW input (GoUntil, ReleaseSW): set source = "endstop"',
+            f"the {chip.name} has no stall detection (no STALL_TH, no STEP_LOSS flags): "
+            'home it on its SW input, source = "endstop"',
+        )
+    if d.switch != "none":
+        return (
+            "homing.source",
+            "stall",
+            f'[motors.dspin] switch = "{d.switch}": the switch on the chip\'s SW input would '
+            'stop the run before the motor stalls; set switch = "none" for stall homing',
         )
     return None
 
@@ -258,6 +306,36 @@ def _chains(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
+def _lines(v: Mapping[str, Any]) -> Violation | None:
+    """A FLAG or BUSY line serves one chain (its chips may share it: wired-OR), and one
+    of the two outputs."""
+    seen: dict[str, tuple[str, str, int]] = {}  # line -> (output, chain, motor)
+    for i, m in enumerate(v["motors"]):
+        d = m.section(DspinAxisConfig)
+        if d is None:
+            continue
+        for output in ("flag", "busy"):
+            line = getattr(d, output)
+            if not line:
+                continue
+            other = seen.setdefault(line, (output, d.spi, i))
+            if other[0] != output:
+                return (
+                    f"motors[{i}].dspin.{output}",
+                    line,
+                    f"also the {other[0].upper()} line of motors[{other[2]}]: a line used "
+                    "twice (FLAG and BUSY each need a line of their own)",
+                )
+            if other[1] != d.spi:
+                return (
+                    f"motors[{i}].dspin.{output}",
+                    line,
+                    f"also the {output.upper()} line of motors[{other[2]}] on another chain "
+                    f"({other[1]}): a line used twice (a line is wired-OR within one chain)",
+                )
+    return None
+
+
 @section("Settings of the dSPIN layer shared by every chip (used only with dSPIN chips).")
 @dataclass(frozen=True)
 class DspinConfig:
@@ -302,8 +380,8 @@ class DspinDeclaration(LayerDeclaration):
                     Rule(("dspin",), "not with [motors.tmc] on the same motor", _not_tmc_too),
                     Rule(
                         ("homing.source", "dspin"),
-                        "endstop on a dSPIN motor (its SW input)",
-                        _no_stall_homing,
+                        "stall only on a chip with stall detection and no switch on SW",
+                        _stall_homing,
                     ),
                     Rule(
                         ("soft_limit_min", "soft_limit_max", "dspin"),
@@ -322,6 +400,11 @@ class DspinDeclaration(LayerDeclaration):
                         ("dspin",),
                         "a chain's positions run 0..N-1 with one SPI clock",
                         _chains,
+                    ),
+                    Rule(
+                        ("dspin",),
+                        "a FLAG or BUSY line serves one output of one chain",
+                        _lines,
                     ),
                 ),
             ),

@@ -11,6 +11,14 @@ chip of a chain in one exchange (:meth:`Chain.poll`); the executor's reads use G
 which clears nothing, except :meth:`DspinDriver.watch`, which starts a motion with the
 switch's old event gone (a GetStatus, its faults kept for the poller).
 
+**Stall homing** (``homing.source = "stall"``): :meth:`DspinDriver.watch` with ``stall``
+arms the chip's stall detection for the motion: STEP_LOSS_A/B (STALL_TH) is then the
+motor's stall, not a fault: the ramp's read that finds it stops the chip at once
+(HardStop: the chip runs on after a stall) and the driver reports a stall
+(``DriverStatus.stall``) to the driver poller, which hands it to the motion engine (it ends
+the homing's run there and zeroes, docs/protocol.md's homing rule); a GetStatus that finds
+it first (the poller's, at once with FLAG wired) reports it the same way.
+
 Units: positions are ABS_POS (microsteps, one protocol step each), speeds step/s and
 ramps step/s^2 of the protocol, converted to the registers by ``convert.py`` (clamped,
 never refused; the clamps are counted in ``clamped``).
@@ -33,7 +41,14 @@ from motorctl.hal.dspin.chips import Chip
 from motorctl.hal.dspin.commands import COPY_TO_MARK, Command, Op, get_param, set_param, simple
 from motorctl.hal.dspin.spec import DspinSpec
 from motorctl.hal.dspin.status import MotorState, Status
-from motorctl.hal.interfaces import DriverStatus, HalError, RampDriver, RampStatus, StepperDriver
+from motorctl.hal.interfaces import (
+    DriverStatus,
+    EdgeInputs,
+    HalError,
+    RampDriver,
+    RampStatus,
+    StepperDriver,
+)
 from motorctl.hal.layers.dspin import chain as framing
 from motorctl.hal.layers.dspin import convert, program
 from motorctl.hal.spi import SpiBus, SpiError
@@ -45,8 +60,14 @@ log = logging.getLogger("motorctl.dspin")
 MARK = COPY_TO_MARK
 #: the flags that say the chip refused a command
 _REFUSED = ("WRONG_CMD", "NOTPERF_CMD", "CMD_ERROR")
+#: the flags of the chip's stall detection (STALL_TH)
+STALL = frozenset({"STEP_LOSS_A", "STEP_LOSS_B"})
 #: ALARM_EN written at start: every alarm but SW_EVN (homing closes the switch on purpose)
 ALARMS_BUT_SWITCH = 0xFF & ~(1 << 6)
+#: with BUSY wired, a motor at rest is read over SPI once in this many ramp reads (the
+#: others answer from the last read while BUSY stays high): a switch closed by hand at rest
+#: shows within this many idle periods
+REST_READ_EVERY = 20
 
 
 class DspinError(HalError):
@@ -92,6 +113,7 @@ class _Kept:
     faults: set[str] = field(default_factory=set)  # the flags' names
     spi: str | None = None  # a failed read
     switch_event: bool = False
+    stall: bool = False  # STEP_LOSS while stall homing armed the detection
 
 
 class DspinDriver(StepperDriver, RampDriver):
@@ -114,12 +136,20 @@ class DspinDriver(StepperDriver, RampDriver):
         self._until = False  # the motion is a GoUntil: MARK latches the switch's edge
         self._settled = False  # the chip ended the motion short of its target on purpose
         self._limit: int | None = None  # a ReleaseSW's farthest position
+        self._stall = False  # STEP_LOSS is the motion's stall (stall homing), not a fault
+        self._stall_stopped = False  # a ramp read found it and stopped the chip
+        self._stall_told = False  # the executor saw it (report_stall_stop): a stall
         self.polls = 0
         self.spi_errors = 0
         self.clamped = 0
         self.fault_counts: dict[str, int] = {}
         self.warning_counts: dict[str, int] = {}
         self.last_status: Status | None = None
+        #: the chip's BUSY output as an edge input (line 0), where wired
+        self.busy_line: EdgeInputs | None = None
+        self._rest: RampStatus | None = None  # the last read: standing, BUSY high
+        self._rest_reads = 0  # answered from it since
+        self.busy_answers = 0  # ramp reads answered from BUSY, without SPI
 
     # -- the bus ---------------------------------------------------------------------------
     def _get(self, register: str) -> int:
@@ -184,9 +214,14 @@ class DspinDriver(StepperDriver, RampDriver):
         for w in st.warnings:
             self.warning_counts[w] = self.warning_counts.get(w, 0) + 1
             log.warning("%s: %s", self.name, w)
+        faults = {*st.faults, *st.command_errors}
+        stalled = self._stall and bool(faults & STALL)
+        if self._stall:  # stall homing: the stall it looks for
+            faults -= STALL
         with self._lock:
-            self._kept.faults |= {*st.faults, *st.command_errors}
+            self._kept.faults |= faults
             self._kept.switch_event |= st.switch_event
+            self._kept.stall |= stalled
 
     def failed(self, exc: BaseException) -> DriverStatus:
         self.spi_errors += 1
@@ -199,13 +234,15 @@ class DspinDriver(StepperDriver, RampDriver):
         fault until a GetStatus finds it gone, so each one is reported once at least."""
         with self._lock:
             names, spi = sorted(self._kept.faults), self._kept.spi
-            self._kept.faults, self._kept.spi = set(), None
+            stall = self._kept.stall or self._stall_told
+            self._kept.faults, self._kept.spi, self._kept.stall = set(), None, False
         for name in names:
             self.fault_counts[name] = self.fault_counts.get(name, 0) + 1
         said = [f"{n} (the chip refused a command)" if n in _REFUSED else n for n in names]
         if spi is not None:
             said.append(spi)
-        self._status = DriverStatus(fault=f"{self.chip.name}: {', '.join(said)}" if said else None)
+        fault = f"{self.chip.name}: {', '.join(said)}" if said else None
+        self._status = DriverStatus(fault=fault, stall=stall)
         return self._status
 
     def refresh(self) -> DriverStatus:
@@ -226,6 +263,9 @@ class DspinDriver(StepperDriver, RampDriver):
             "fault_counts": dict(self.fault_counts),
             "warning_counts": dict(self.warning_counts),
             "status": None if self.last_status is None else str(self.last_status),
+            "flag_line": self.spec.flag or None,
+            "busy_line": self.spec.busy or None,
+            "busy_answers": self.busy_answers,
         }
 
     # -- the ramp (RampDriver) -------------------------------------------------------------
@@ -236,19 +276,43 @@ class DspinDriver(StepperDriver, RampDriver):
             got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
         return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
 
+    def _busy(self) -> bool:
+        """BUSY's level on its line (the line read, no SPI); True without a line."""
+        line = self.busy_line
+        if line is None:
+            return True
+        try:
+            line.read_edges()
+            return line.level(0)
+        except HalError as exc:
+            raise DspinError(f"{self.name}: the BUSY line: {exc}") from exc
+
     def ramp_status(self) -> RampStatus:
+        """One read of the ramp: ABS_POS, SPEED and STATUS (GetParam). With BUSY wired, a
+        motor that stood at the last read and whose BUSY is still high (no command since)
+        is answered from that read, without SPI (one read in ``REST_READ_EVERY``)."""
+        rest = self._rest
+        if rest is not None and self._rest_reads < REST_READ_EVERY and not self._busy():
+            self._rest_reads += 1
+            self.busy_answers += 1
+            return rest
+        self._rest = None
         try:
             pos, speed, st = self._read()
         except SpiError as exc:
             raise DspinError(f"{self.name}: {exc}") from exc
+        out = self._ramp(pos, speed, st)
+        standing = st.motor is MotorState.STOPPED and not st.busy and self._limit is None
+        if self.busy_line is not None and standing and not self._busy():
+            self._rest, self._rest_reads = out, 0
+        return out
+
+    def _ramp(self, pos: int, speed: int, st: Status) -> RampStatus:
         with self._lock:
             event = self._kept.switch_event or st.switch_event
         standing = st.motor is MotorState.STOPPED
-        if self._limit is not None and st.switch_closed and not standing:
-            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
-            if beyond:  # ReleaseSW ran its whole way: the switch never opened
-                self._send(simple(Op.HARD_STOP))
-                self._settled, self._limit = True, None
+        if not standing:
+            self._stop_where_due(pos, st)
         velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         stopped = bool(side and self._watch == side and event and standing)
@@ -264,23 +328,35 @@ class DspinDriver(StepperDriver, RampDriver):
             latched_min=side < 0 and latched,
             latched_max=side > 0 and latched,
             settled=self._settled and standing,
+            stall_stopped=self._stall_stopped,
         )
+
+    def _stop_where_due(self, pos: int, st: Status) -> None:
+        """A moving chip that the driver stops itself: on a stall that stall homing armed
+        (the chip runs on after one), and at the end of a ReleaseSW that found no edge."""
+        if self._stall and STALL & {*st.faults}:
+            self._send(simple(Op.HARD_STOP))
+            self._stall_stopped = True
+        if self._limit is not None and st.switch_closed:
+            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
+            if beyond:  # ReleaseSW ran its whole way: the switch never opened
+                self._send(simple(Op.HARD_STOP))
+                self._settled, self._limit = True, None
 
     def latched_position(self) -> int:
         return self._get("MARK")
 
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
-        del (
-            stall
-        )  # stall homing on STEP_LOSS is not offered: the config refuses it (_no_stall_homing)
         with self.chain.bus.session():  # no poll between the read and the clearing
             word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
             self._keep(Status(self.chip.status, word))  # its faults stay for the poller
-            with self._lock:
-                self._kept.switch_event = False
+            with self._lock:  # the last motion's switch and stall are gone with it
+                self._kept.switch_event = self._kept.stall = False
+            self._stall, self._stall_stopped, self._stall_told = stall, False, False
         self._watch, self._release = direction, release
         self._until = self._settled = False
         self._limit = None
+        self._rest = None
 
     def _standing(self) -> tuple[int, bool, bool]:
         """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
@@ -290,6 +366,7 @@ class DspinDriver(StepperDriver, RampDriver):
 
     def _do(self, p: program.Program) -> None:
         self.clamped += len(p.clamped)
+        self._rest = None  # the chip moves again: read it until it stands
         self._send(*p.commands)
 
     def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
@@ -325,4 +402,9 @@ class DspinDriver(StepperDriver, RampDriver):
         self._do(program.stop(hard=dec is None))
 
     def report_stall_stop(self) -> bool:
-        return False
+        """The executor saw the chip stopped on its stall: the driver reports a stall at
+        the poller's next reading, and every one until the next :meth:`watch`."""
+        if self._stall_told:
+            return False
+        self._stall_told = True
+        return True

@@ -24,7 +24,7 @@ from motorctl.hal.dspin.chips import CHIPS
 from motorctl.hal.dspin.commands import get_param
 from motorctl.hal.dspin.spec import DspinSpec, chains
 from motorctl.hal.dspin.status import Status
-from motorctl.hal.interfaces import Clock, HalError, Hardware
+from motorctl.hal.interfaces import Clock, EdgeInputs, HalError, Hardware
 from motorctl.hal.layers.dspin.config import DspinConfig
 from motorctl.hal.layers.dspin.driver import Chain, DspinDriver, DspinError
 from motorctl.hal.spec import HardwareSpec
@@ -56,6 +56,25 @@ def open_chain(
     return chain
 
 
+def wire_lines(
+    hw: Hardware, members: list[tuple[int, DspinSpec]], output: str
+) -> list[tuple[EdgeInputs, set[int]]]:
+    """Each line a chain's chips wire their ``output`` (``flag``, ``busy``) to, opened as
+    an edge input of its own (chips sharing a line: wired-OR) with the chain positions on
+    it; closed with the Hardware."""
+    lines: dict[str, tuple[str, set[int]]] = {}
+    for i, spec in members:
+        line = getattr(spec, output)
+        if line:
+            lines.setdefault(line, (f"motors[{i}].dspin.{output}", set()))[1].add(spec.position)
+    out: list[tuple[EdgeInputs, set[int]]] = []
+    for line, (use, on) in lines.items():
+        inputs = hw.open_alert_lines([(use, line)])
+        hw.closers.append(inputs.close)
+        out.append((inputs, on))
+    return out
+
+
 def attach_chains(
     hw: Hardware, spec: HardwareSpec, factory: SpiFactory | None = None
 ) -> list[DspinDriver]:
@@ -85,7 +104,13 @@ def attach_chains(
         for (i, _), driver in zip(members, chain.drivers, strict=True):
             hw.poller.forget(hw.steppers[i].driver)  # a backend's stand-in: not read now
             hw.steppers[i].driver = driver
-        hw.poller.add(f"dSPIN chain on {node}", chain.poll, chain.drivers)
+        entry = hw.poller.add(f"dSPIN chain on {node}", chain.poll, chain.drivers)
+        for inputs, _ in wire_lines(hw, members, "flag"):
+            hw.poller.alert(entry, inputs, 0)  # FLAG falls: GetStatus of the chain at once
+        for inputs, on in wire_lines(hw, members, "busy"):
+            for driver in chain.drivers:
+                if driver.position in on:
+                    driver.busy_line = inputs
         drivers += chain.drivers
 
     def close() -> None:  # the Hardware's close stopped the poller first

@@ -74,7 +74,8 @@ def error_of(text: str) -> str:
         (('driver = "l6480"', 'driver = "l6666"'), "motors[1].dspin.driver"),
         (
             ('name = "y"\n', 'name = "y"\n[motors.homing]\nsource = "stall"\n'),
-            'motors[1].homing.source = "stall": a dSPIN motor homes on its SW input',
+            'motors[1].homing.source = "stall": [motors.dspin] switch = "min": the switch on '
+            "the chip's SW input would stop the run before the motor stalls",
         ),
         (
             ('name = "x"\n', 'name = "x"\nsoft_limit_min = -3000000\nsoft_limit_max = 10\n'),
@@ -86,6 +87,13 @@ def test_a_config_the_chips_cannot_take_is_refused_naming_the_key(
     change: tuple[str, str], says: str
 ) -> None:
     assert says in error_of(CHAIN.replace(*change, 1))
+
+
+def test_stall_homing_needs_the_chips_stall_detection() -> None:
+    text = CHAIN.replace('driver = "l6470"', 'driver = "l6472"\n  switch = "none"', 1)
+    text = text.replace('name = "x"\n', 'name = "x"\n[motors.homing]\nsource = "stall"\n', 1)
+    assert 'motors[0].homing.source = "stall": the L6472 has no stall detection' in error_of(text)
+    parse_config(text.replace('"l6472"', '"l6470"'), "t.toml")  # an L6470 has it
 
 
 def test_a_motor_has_one_driver_chip() -> None:
