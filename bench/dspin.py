@@ -142,11 +142,11 @@ def round_trips(s: Subject, runs: int, rng: random.Random) -> dict[int, list[flo
 
 def idle_transfers(subjects: list[Subject], seconds: float) -> dict[str, float]:
     """Each daemon's chain transfers per second over one window, every motor at rest."""
-    before = {s.name: len(s.chain.transfers) for s in subjects}
+    before = {s.name: s.chain.count for s in subjects}
     t0 = time.monotonic()
     time.sleep(seconds)
     elapsed = time.monotonic() - t0
-    return {s.name: (len(s.chain.transfers) - before[s.name]) / elapsed for s in subjects}
+    return {s.name: (s.chain.count - before[s.name]) / elapsed for s in subjects}
 
 
 def inject(s: Subject, present: bool) -> None:

@@ -14,13 +14,16 @@ chips would get them.
 
 The chips want SPI mode 3; a transfer in another mode raises ValueError (the model does not
 garble bits as a wrong mode would): ``--probe``'s check of the bus belongs to the layer.
-``transfers`` records every transfer (bytes out, bytes in), the transcript tests judge.
+``transfers`` records the last ``keep`` transfers (bytes out, bytes in), the transcript
+tests judge, and ``count`` counts them all: a mock daemon runs for months, and its poller
+transfers hundreds of times a second (``keep=None`` keeps everything, for tests).
 
 Owned by the thread that drives the mock world; not thread-safe.
 """
 
 from __future__ import annotations
 
+from collections import deque
 from collections.abc import Sequence
 
 from motorctl.hal.backends.mock.dspin_chip import DspinChip
@@ -31,7 +34,7 @@ SPI_MODE_3 = 3
 class DspinChain:
     """``chips[0]`` is the chip whose SDI is the host's MOSI."""
 
-    def __init__(self, chips: Sequence[DspinChip]) -> None:
+    def __init__(self, chips: Sequence[DspinChip], keep: int | None = 100_000) -> None:
         if not chips:
             raise ValueError("a chain has at least one chip")
         self.chips = tuple(chips)
@@ -39,7 +42,8 @@ class DspinChain:
         self.max_speed_hz = 1_000_000
         self.bits_per_word = 8
         self.opened: tuple[int, int] | None = None
-        self.transfers: list[tuple[bytes, bytes]] = []
+        self.transfers: deque[tuple[bytes, bytes]] = deque(maxlen=keep)
+        self.count = 0
 
     # py-spidev's SpiDev
     def open(self, bus: int, device: int) -> None:
@@ -62,6 +66,7 @@ class DspinChain:
         for chip, byte in zip(self.chips, shift, strict=True):  # chip select rises
             chip.receive(byte)
         self.transfers.append((bytes(values), bytes(back)))
+        self.count += 1
         for chip in self.chips:  # the command may have raised or cleared BUSY and FLAG
             chip.changed()
         return back

@@ -84,3 +84,16 @@ def test_mode_and_bytes() -> None:
     assert bus.opened is None
     with pytest.raises(ValueError, match="at least one chip"):
         DspinChain([])
+
+
+def test_the_transcript_keeps_the_last_transfers_and_counts_them_all() -> None:
+    """A mock daemon's poller transfers hundreds of times a second for months: the record
+    is bounded, the count is not."""
+    bus = DspinChain([DspinChip(L6470)], keep=3)
+    xfer(bus, "00", "00", "D0", "00", "00")
+    assert bus.count == 5
+    assert list(bus.transfers) == [
+        (bytes.fromhex("D0"), bytes(1)),
+        (bytes.fromhex("00"), bytes([0x7C])),  # STATUS MSB, as in the chain of three
+        (bytes.fromhex("00"), bytes([0x13])),
+    ]

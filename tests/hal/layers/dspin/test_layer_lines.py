@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from motorctl.daemon.assemble import hardware_spec
 from motorctl.daemon.config import parse_config
+from motorctl.daemon.start.assemble import hardware_spec
 from motorctl.hal import registry
 from motorctl.hal.backends.mock.dspin_chain import DspinChain
 from motorctl.hal.backends.mock.dspin_chip import DspinChip
@@ -92,9 +92,9 @@ def test_a_fault_reaches_the_hosts_next_command_at_once_with_flag_else_at_the_po
 
 
 def idle_transfers(rig: SessionRig, chain: DspinChain, seconds: float) -> int:
-    start = len(chain.transfers)
+    start = chain.count
     rig.run(seconds)
-    return len(chain.transfers) - start
+    return chain.count - start
 
 
 @pytest.mark.parametrize("wired", [True, False])
