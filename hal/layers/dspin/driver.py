@@ -230,9 +230,12 @@ class DspinDriver(StepperDriver, RampDriver):
 
     # -- the ramp (RampDriver) -------------------------------------------------------------
     def _read(self) -> tuple[int, int, Status]:
+        """ABS_POS, SPEED and STATUS (GetParam: clears nothing), one transfer each, STATUS
+        first: a motor it finds standing stands at the ABS_POS read after it (read first, the
+        position could be from before a stop that STATUS then shows)."""
         regs = self.chip.registers
         got = {}
-        for name in ("ABS_POS", "SPEED", "STATUS"):
+        for name in ("STATUS", "ABS_POS", "SPEED"):
             got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
         return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
 

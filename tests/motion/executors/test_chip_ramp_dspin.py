@@ -35,9 +35,23 @@ name = "x"
 """
 
 
+class SlowBus(VirtualClock):
+    """A virtual clock that moves on by ``tick`` seconds at every reading: each SPI transfer
+    finds the chips later than the one before (the separate reads of a poll, as on a loaded
+    machine)."""
+
+    def __init__(self, tick: float) -> None:
+        super().__init__()
+        self.tick = tick
+
+    def now(self) -> float:
+        self.advance(self.tick)
+        return super().now()
+
+
 class DspinRig:
-    def __init__(self) -> None:
-        self.clock = VirtualClock()
+    def __init__(self, clock: VirtualClock | None = None) -> None:
+        self.clock = clock or VirtualClock()
         self.hw: Hardware = registry.open_hardware(
             "mock", hardware_spec(parse_config(CONFIG, "t.toml")), self.clock
         )
@@ -82,6 +96,16 @@ def test_a_move_to_is_go_to_dir_and_ends_exactly_there(rig: DspinRig) -> None:
     assert 0x69 in rig.sent()[start:]  # GoTo_DIR forward
     rig.run(lambda: K.DONE in rig.kinds(), 5.0)
     assert rig.seen[-1].position == 6000 == rig.chip.abs_pos == rig.axis.position
+
+
+def test_an_end_stop_hit_is_reported_where_the_chip_stands_though_its_reads_are_apart() -> None:
+    # the poll's reads of ABS_POS, SPEED and STATUS are separate transfers: STATUS first,
+    # so a motor it finds standing is reported where it stood, not where it was a read ago
+    rig = DspinRig(SlowBus(0.0005))
+    traj = plan_move_to(rig.clock.now(), 0.0, 0.0, -5000.0, 4000.0, 1e5, 1e5)
+    rig.ex.follow(0, traj, Ramp(4000.0, 1e5, 1e5), gen=1)
+    rig.run(lambda: K.ENDSTOP in rig.kinds(), 5.0)
+    assert rig.seen[-1].position == -1500 == rig.chip.abs_pos
 
 
 def test_a_stop_while_the_chip_ramps_is_a_soft_stop_and_settles_where_it_stands(
