@@ -110,7 +110,8 @@ def test_without_the_status_socket_the_codes_meaning(daemon: DaemonProcess, tmp_
         (("dc", "forward", "100"), "E2 invalid address: no DC motor configured"),
         (
             ("moveto", "0", "6000"),
-            "E1 invalid command: target 6000 is outside motor 0's soft limits",
+            "E1 invalid command: target 6000 is outside motor 0's soft limits or its driver "
+            "chip's range",
         ),
     ]
     for args, text in cases:
