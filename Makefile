@@ -1,6 +1,8 @@
 # Two commands do all set-up on a fresh Debian machine:
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
 #   make test   the test suite (what .ci/run calls first)
+#   make test-dspin  the conformance suite against motorctld on docs/examples/dspin.toml's mock
+#               dSPIN chips instead of the embedded default's STEP/DIR motors (.ci/run: after make test)
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
 #               builds its VM on first use, as root, into $XDG_CACHE_HOME/motorctl-gpio-sim,
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
@@ -29,7 +31,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
+.PHONY: run test test-dspin test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
   test-root stepcore test-asan
 
 venv: $(VENV)/.installed
@@ -124,6 +126,19 @@ test: venv stepcore test-deps
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 	$(BIN)/pytest -q -n $(JOBS)
+
+# The conformance suite on dSPIN chips: the end-to-end tests of the protocol (every command and
+# error code, held frames, hard stops, persistence, the service, the status document, the
+# client, replay and trace) against motorctld serving docs/examples/dspin.toml's chain of mock
+# chips; MOTORCTL_WORLD=dspin makes each test daemon's config that world's
+# (tests/support/daemon_proc.py) and leaves out the tests about the STEP/DIR step executor
+# itself (marked stepdir). Its own part of .ci/run: it would make make test half as long again.
+DSPIN_TESTS = tests/daemon/test_serve_e2e.py tests/daemon/test_dispatcher_hardstop_e2e.py \
+  tests/daemon/test_service_e2e.py tests/daemon/link/test_session_end_e2e.py \
+  tests/daemon/state/test_files_e2e.py tests/daemon/status/test_document_e2e.py \
+  tests/client/test_cli_e2e.py tests/client/test_replay_e2e.py tests/client/test_trace_e2e.py
+test-dspin: venv stepcore test-deps
+	MOTORCTL_WORLD=dspin $(BIN)/pytest -q -n $(JOBS) $(DSPIN_TESTS)
 
 test-hw: stepcore
 	hwtest/run all
