@@ -415,22 +415,12 @@ class Motor:
         return target - cur
 
     def _soft_limit_abs(self, direction: int, c: Committed) -> float | None:
-        """Where a Move in ``direction`` must stop (in the executor's counter): the soft
-        limit ahead, or the end of the driver's counter range (``counter_range``: a dSPIN's
-        22-bit ABS_POS would wrap past it) where that comes first; None: neither (a rotary
-        axis, or a linear one without either)."""
         p = self.params
-        if p.rotary:
+        if p.rotary or p.soft_min is None or p.soft_max is None:
             return None
-        ends: list[int] = []
-        if p.soft_min is not None and p.soft_max is not None:
-            limit = p.soft_max if direction > 0 else p.soft_min
-            ends.append(c.counter + (limit - self._host(c.counter)))
-        if p.counter_range is not None:
-            ends.append(p.counter_range[1] if direction > 0 else p.counter_range[0])
-        if not ends:
-            return None
-        return float(min(ends) if direction > 0 else max(ends))
+        limit = p.soft_max if direction > 0 else p.soft_min
+        counter = c.counter
+        return float(counter + (limit - self._host(counter)))
 
     def _dec_to_stop_in_limits(self, s: float, v: float, r: Ramp, c: Committed) -> Ramp:
         """``r`` with DEC raised just enough to stop short of the soft limit ahead of ``v``.

@@ -108,8 +108,7 @@ class MotorParams:
     # Motion does not know the protocol, so the wrap is passed in, not defined here.
     host_position: Callable[[int], int] | None = None
     # The driver's own position counter's range where the chip moves the motor itself (a
-    # dSPIN's ABS_POS): a target beyond it is refused, a Move stops at its end as at a soft
-    # limit (the counter would wrap). None: the steps are counted here.
+    # dSPIN's ABS_POS); a target beyond it is refused. None: the steps are counted here.
     counter_range: tuple[int, int] | None = None
 
     @property

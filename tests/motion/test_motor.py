@@ -976,23 +976,6 @@ def test_run_replanned_faster_still_stops_at_the_soft_limit() -> None:
     assert set(rig.dirs()) == {True}
 
 
-@pytest.mark.parametrize(("direction", "end"), [(1, 800), (-1, -500)])
-def test_run_stops_at_the_end_of_the_driver_s_counter_range(direction: int, end: int) -> None:
-    # a chip that counts the steps itself (a dSPIN's 22-bit ABS_POS, here -500..800 of its
-    # counter) would wrap past its range: a Move stops at the end as at a soft limit, wherever
-    # the host's zero is (the host's position 1000 is the counter's 0 here)
-    rig = engine_rig(
-        motor_params(counter_range=(-500, 800)),
-        axes=[mock_axis(endstop_min=-100_000, endstop_max=100_000)],
-    )
-    with rig.engine.lock:
-        rig.m.set_position(1000)
-    rig.submit(RunCmd(direction, RAMP))
-    rig.engine.run_until_idle()
-    assert rig.axis() == end and rig.m.position == 1000 + end and rig.m.idle
-    assert rig.m.counted_range() == (500, 1800)
-
-
 # ---------------------------------------------------------------- 24-bit position
 
 

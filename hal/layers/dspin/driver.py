@@ -29,8 +29,19 @@ import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from motorctl.hal.dspin import scales
 from motorctl.hal.dspin.chips import Chip
-from motorctl.hal.dspin.commands import COPY_TO_MARK, Command, Op, get_param, set_param, simple
+from motorctl.hal.dspin.commands import (
+    COPY_TO_MARK,
+    FORWARD,
+    REVERSE,
+    Command,
+    Op,
+    get_param,
+    go_to_dir,
+    set_param,
+    simple,
+)
 from motorctl.hal.dspin.spec import DspinSpec
 from motorctl.hal.dspin.status import MotorState, Status
 from motorctl.hal.interfaces import DriverStatus, HalError, RampDriver, RampStatus, StepperDriver
@@ -114,6 +125,8 @@ class DspinDriver(StepperDriver, RampDriver):
         self._until = False  # the motion is a GoUntil: MARK latches the switch's edge
         self._settled = False  # the chip ended the motion short of its target on purpose
         self._limit: int | None = None  # a ReleaseSW's farthest position
+        self._run = 0  # a Run (or GoUntil) under way, +1/-1: watched for ABS_POS's end
+        self._run_dec = 0.0  # its DEC register, step/s^2
         self.polls = 0
         self.spi_errors = 0
         self.clamped = 0
@@ -247,12 +260,9 @@ class DspinDriver(StepperDriver, RampDriver):
         with self._lock:
             event = self._kept.switch_event or st.switch_event
         standing = st.motor is MotorState.STOPPED
-        if self._limit is not None and st.switch_closed and not standing:
-            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
-            if beyond:  # ReleaseSW ran its whole way: the switch never opened
-                self._send(simple(Op.HARD_STOP))
-                self._settled, self._limit = True, None
         velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
+        if not standing:
+            self._bound(pos, abs(velocity), st)
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         stopped = bool(side and self._watch == side and event and standing)
         released = bool(side and self._release == side and not st.switch_closed and standing)
@@ -269,6 +279,32 @@ class DspinDriver(StepperDriver, RampDriver):
             settled=self._settled and standing,
         )
 
+    def _bound(self, pos: int, speed: float, st: Status) -> None:
+        """A moving chip's bounds: a ReleaseSW's farthest position, ABS_POS's ends."""
+        if self._limit is not None and st.switch_closed:
+            beyond = pos >= self._limit if self._release < 0 else pos <= self._limit
+            if beyond:  # ReleaseSW ran its whole way: the switch never opened
+                self._send(simple(Op.HARD_STOP))
+                self._settled, self._limit = True, None
+        if self._run:
+            self._keep_in_range(pos, speed, st.busy)
+
+    def _keep_in_range(self, pos: int, speed: float, busy: bool) -> None:
+        """A Run stops at the end of ABS_POS's range as at a soft limit (docs/dspin.md,
+        "Values the chip cannot take"): past it the counter would wrap. Within two polls of
+        where braking with DEC must start, a GoTo_DIR to the end (the chip takes it once
+        the Run has reached its speed and released BUSY: it brakes to stand exactly
+        there), or while the chip still ramps, a SoftStop short of it; either ends the run
+        as settled."""
+        end = convert.ABS_POS_MAX if self._run > 0 else convert.ABS_POS_MIN
+        braking = speed * speed / (2 * self._run_dec) if self._run_dec > 0 else 0.0
+        if abs(end - pos) > braking + speed * 2 * self.poll_s + 1:
+            return
+        forward = FORWARD if self._run > 0 else REVERSE
+        self._send(simple(Op.SOFT_STOP) if busy else go_to_dir(forward, end))
+        self._run, self._settled = 0, True
+        log.info("%s: a run stops at the end of ABS_POS's range, %d", self.name, end)
+
     def latched_position(self) -> int:
         return self._get("MARK")
 
@@ -284,6 +320,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._watch, self._release = direction, release
         self._until = self._settled = False
         self._limit = None
+        self._run = 0
 
     def _standing(self) -> tuple[int, bool, bool]:
         """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
@@ -315,6 +352,12 @@ class DspinDriver(StepperDriver, RampDriver):
 
     def run(self, direction: int, speed: float, acc: float) -> None:
         _, standing, _ = self._standing()
+        # watched for ABS_POS's end with the DEC the chip will have (written at rest only)
+        if standing:
+            self._run_dec = convert.ramp(acc, self.microsteps).value
+        else:
+            self._run_dec = float(scales.ACC.value(self._get("DEC")) * self.microsteps)
+        self._run = direction
         up = direction > 0
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         if side and self._watch == side == direction:  # to the switch: MARK at its edge
@@ -324,7 +367,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._do(program.move(self.chip, self.microsteps, up, speed, acc, acc, speed, standing))
 
     def stop(self, dec: float | None) -> None:
-        self._limit = None
+        self._limit, self._run = None, 0
         self._do(program.stop(hard=dec is None))
 
     def report_stall_stop(self) -> bool:
