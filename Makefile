@@ -130,15 +130,12 @@ test: venv stepcore test-deps
 # The conformance suite on dSPIN chips: the end-to-end tests of the protocol (every command and
 # error code, held frames, hard stops, persistence, the service, the status document, the
 # client, replay and trace) against motorctld serving docs/examples/dspin.toml's chain of mock
-# chips; MOTORCTL_WORLD=dspin makes each test daemon's config that world's
-# (tests/support/daemon_proc.py) and leaves out the tests about the STEP/DIR step executor
-# itself (marked stepdir). Its own part of .ci/run: it would make make test half as long again.
-DSPIN_TESTS = tests/daemon/test_serve_e2e.py tests/daemon/test_dispatcher_hardstop_e2e.py \
-  tests/daemon/test_service_e2e.py tests/daemon/link/test_session_end_e2e.py \
-  tests/daemon/state/test_files_e2e.py tests/daemon/status/test_document_e2e.py \
-  tests/client/test_cli_e2e.py tests/client/test_replay_e2e.py tests/client/test_trace_e2e.py
+# chips: the test modules marked conformance. MOTORCTL_WORLD=dspin makes each test daemon's
+# config that world's (tests/support/daemon_proc.py) and leaves out the tests about the STEP/DIR
+# step executor itself (marked stepdir). Its own part of .ci/run: in make test it would make
+# that half as long again.
 test-dspin: venv stepcore test-deps
-	MOTORCTL_WORLD=dspin $(BIN)/pytest -q -n $(JOBS) $(DSPIN_TESTS)
+	MOTORCTL_WORLD=dspin $(BIN)/pytest -q -n $(JOBS) -m conformance
 
 test-hw: stepcore
 	hwtest/run all

@@ -48,10 +48,11 @@ closed after the test, as gpiozero hands its mock factory to every test) and ``s
   package twice (the daemon and its executor process), a tenth of a second of CPU at every
   one of the suite's hundred-odd starts. The bytecode is the same either way.
 
-``MOTORCTL_WORLD=dspin`` (``make test-dspin``) runs the conformance suite's daemons on
-docs/examples/dspin.toml's dSPIN chips instead of the embedded default's STEP/DIR motors
-(tests/support/daemon_proc.py: ``world``, ``for_world``); the tests about the step
-executor itself (marked ``stepdir``) are deselected there.
+``MOTORCTL_WORLD=dspin`` (``make test-dspin``: the modules marked ``conformance``) runs
+the conformance suite's daemons on docs/examples/dspin.toml's dSPIN chips instead of the
+embedded default's STEP/DIR motors (tests/support/daemon_proc.py: ``world``,
+``for_world``); the tests about the step executor itself (marked ``stepdir``) are
+deselected there.
 
 Daemons started by the tests (tests/support/daemon_proc.py) log into a file of their test, shown
 with the test's output when it fails.

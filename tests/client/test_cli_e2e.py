@@ -28,6 +28,9 @@ from tests.support.frames import frame
 from tests.support.inprocess import Host
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 TIMEOUT_S = 60.0
 
 CONFIG = """

@@ -36,6 +36,9 @@ from tests.support.daemon_proc import DaemonProcess
 from tests.support.tamper import Tamper, position_off
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 DEVICE_TIMING_MS = "2000"
 SPEED = 62  # x 4 = 248 step/s
 

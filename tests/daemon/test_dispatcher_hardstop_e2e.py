@@ -33,6 +33,9 @@ from motorctl.protocol.codec import (
 from tests.support.daemon_proc import DaemonProcess, StartDaemon, world
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 OPTS = CodecOptions()
 
 #: three fast motors whose end stops are far away (they run back and forth near 0), so far

@@ -42,6 +42,9 @@ from tests.support.daemon_proc import (
 from tests.support.frames import frame, raw_frame
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 E = ErrorCode
 OPTS = CodecOptions()
 

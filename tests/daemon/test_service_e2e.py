@@ -23,6 +23,9 @@ from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.fsutil import fill, read_only, small_tmpfs
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 E = ErrorCode
 DEADLINE_S = 20.0
 

@@ -21,6 +21,9 @@ from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.wait import WAIT_S
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 ROOT = REPO
 
 
