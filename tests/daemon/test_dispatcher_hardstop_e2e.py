@@ -130,7 +130,8 @@ def test_hard_stop_then_is_ready_in_one_write_is_ready_at_once(fast: DaemonProce
         for m in range(3):
             c.stop(m, hard=True)
     status = fast.status()
-    assert status["steps"]["timing_lost"] == 0
+    if status["executor"]["kind"] != "none":  # steps timed here (not by dSPIN chips)
+        assert status["steps"]["timing_lost"] == 0
     # every hard stop of a moving motor waited for, and got, the executor's confirmation
     stops = status["hard_stops"]
     assert stops["confirmed"] == ROUNDS + 3, stops
