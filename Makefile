@@ -2,6 +2,8 @@
 #   make run    the daemon on its embedded default (mock hardware) on the PTY ./motorctl.pty
 #   make test   the test suite (what .ci/run calls first)
 #   make test-slow  the tests marked slow, which make test leaves out (.ci/run runs them next)
+#   make test-dspin  the conformance suite against motorctld on docs/examples/dspin.toml's mock
+#               dSPIN chips instead of the embedded default's STEP/DIR motors (.ci/run: after make test)
 #   make test-hw  the real-kernel tier: gpio-sim in QEMU guests, libgpiod v1 and v2 (hwtest/run;
 #               builds its VM on first use, as root, into $XDG_CACHE_HOME/motorctl-gpio-sim,
 #               ~/.cache/motorctl-gpio-sim without it, $MOTORCTL_GSIM_CACHE if set; the folder
@@ -30,7 +32,7 @@ STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 BIN     = $(VENV)/bin
 
-.PHONY: run test test-slow test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
+.PHONY: run test test-slow test-dspin test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
   test-root stepcore test-asan
 
 venv: $(VENV)/.installed
@@ -132,6 +134,16 @@ test: venv stepcore test-deps
 # checkout (tests/packaging/test_hwtest_run.py). .ci/run runs them, a part of its own.
 test-slow: venv stepcore test-deps
 	$(BIN)/pytest -q -n $(JOBS) -m slow
+
+# The conformance suite on dSPIN chips: the end-to-end tests of the protocol (every command and
+# error code, held frames, hard stops, persistence, the service, the status document, the
+# client, replay and trace) against motorctld serving docs/examples/dspin.toml's chain of mock
+# chips: the test modules marked conformance. MOTORCTL_WORLD=dspin makes each test daemon's
+# config that world's (tests/support/daemon_proc.py) and leaves out the tests about the STEP/DIR
+# step executor itself (marked stepdir). Its own part of .ci/run: in make test it would make
+# that half as long again.
+test-dspin: venv stepcore test-deps
+	MOTORCTL_WORLD=dspin $(BIN)/pytest -q -n $(JOBS) -m conformance
 
 test-hw: stepcore
 	hwtest/run all

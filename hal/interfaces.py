@@ -407,7 +407,8 @@ class RampStatus:
     (:meth:`RampDriver.latched_position`). ``stall_stopped``: stallGuard stopped the motor.
     ``settled``: the chip ended the last motion it was given where it stands, short of or
     past its target, on purpose (a dSPIN cannot take a new target while it ramps, so it
-    stops along DEC instead; a ReleaseSW that ran its whole way is stopped there): that
+    stops along DEC instead; a ReleaseSW that ran its whole way is stopped there; a run
+    is stopped at the end of the chip's position counter, which would wrap past it): that
     motion is done.
     """
 

@@ -150,7 +150,10 @@ class InitMove(Command):
     QUEUED,
     (
         NO_MOTOR,
-        Gives(E.INVALID_COMMAND, "target {position} is outside motor {motor}'s soft limits"),
+        Gives(
+            E.INVALID_COMMAND,
+            "target {position} is outside motor {motor}'s soft limits or its driver chip's range",
+        ),
         UNUSABLE,
         QUEUE_FULL,
     ),
@@ -324,7 +327,10 @@ class SaveHome(Command):
     QUEUED,
     (
         NO_MOTOR,
-        Gives(E.INVALID_COMMAND, "motor {motor}'s home is outside its soft limits"),
+        Gives(
+            E.INVALID_COMMAND,
+            "motor {motor}'s home is outside its soft limits or its driver chip's range",
+        ),
         UNUSABLE,
         QUEUE_FULL,
     ),
@@ -359,7 +365,10 @@ class SaveWayPoint(Command):
     QUEUED,
     (
         NO_MOTOR,
-        Gives(E.INVALID_COMMAND, "waypoint {waypoint} is outside motor {motor}'s soft limits"),
+        Gives(
+            E.INVALID_COMMAND,
+            "waypoint {waypoint} is outside motor {motor}'s soft limits or its driver chip's range",
+        ),
         Gives(E.INVALID_WAYPOINT, "no waypoint {waypoint} saved on motor {motor}"),
         UNUSABLE,
         QUEUE_FULL,

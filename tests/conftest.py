@@ -48,6 +48,12 @@ closed after the test, as gpiozero hands its mock factory to every test) and ``s
   package twice (the daemon and its executor process), a tenth of a second of CPU at every
   one of the suite's hundred-odd starts. The bytecode is the same either way.
 
+``MOTORCTL_WORLD=dspin`` (``make test-dspin``: the modules marked ``conformance``) runs
+the conformance suite's daemons on docs/examples/dspin.toml's dSPIN chips instead of the
+embedded default's STEP/DIR motors (tests/support/daemon_proc.py: ``world``,
+``for_world``); the tests about the step executor itself (marked ``stepdir``) are
+deselected there.
+
 Daemons started by the tests (tests/support/daemon_proc.py) log into a file of their test, shown
 with the test's output when it fails.
 """
@@ -75,6 +81,17 @@ def pytest_configure(config: pytest.Config) -> None:
         cache.mkdir(parents=True, exist_ok=True)
         os.environ["PYTHONPYCACHEPREFIX"] = str(cache)
         del os.environ["PYTHONDONTWRITEBYTECODE"]
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """In the dSPIN world (``MOTORCTL_WORLD=dspin``, ``make test-dspin``) the tests about
+    the STEP/DIR step executor (marked ``stepdir``) are deselected: its motors have none."""
+    if os.environ.get("MOTORCTL_WORLD") != "dspin":
+        return
+    kept = [i for i in items if i.get_closest_marker("stepdir") is None]
+    if len(kept) < len(items):
+        config.hook.pytest_deselected(items=[i for i in items if i not in kept])
+        items[:] = kept
 
 
 @pytest.fixture(autouse=True)

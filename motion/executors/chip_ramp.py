@@ -13,7 +13,8 @@ poll sees it released the executor stops the chip (its hard stop) and reports RE
 that latched position; stall homing (a plan without end stops) lets stallGuard stop the
 motor, and that stop is reported as the driver's stall flag. A finite plan is done when the
 chip stands at its end, or stands where it settled on purpose (``RampStatus.settled``: a
-dSPIN takes no new target while it ramps and stops along DEC instead).
+dSPIN takes no new target while it ramps and stops along DEC instead); an endless run is
+done where its chip settled it (a dSPIN's run at the end of ABS_POS's range).
 
 A machine that mixes such motors with STEP/DIR ones runs both executors behind one seam
 (``split.py``).
@@ -282,8 +283,9 @@ class RampExecutor(Executor):
         if ax.release and (st.latched(ax.release) or not st.switch_active(ax.release)):
             self._released(i, ax, chip, st, now)
             return
-        if ax.plan == "move" and st.velocity == 0 and (ax.position == ax.target or st.settled):
-            ax.plan = ""
+        done = ax.position == ax.target if ax.plan == "move" else False
+        if st.velocity == 0 and (done or st.settled):  # a run settles where its chip's
+            ax.plan = ""  # counter ends (a dSPIN's ABS_POS): done there, as at a soft limit
             self._emit(ExecEvent(K.DONE, i, ax.gen, ax.position, now))
 
     def _released(self, i: int, ax: _Axis, chip: RampDriver, st: RampStatus, now: float) -> None:

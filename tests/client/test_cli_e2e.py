@@ -28,6 +28,9 @@ from tests.support.frames import frame
 from tests.support.inprocess import Host
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 TIMEOUT_S = 60.0
 
 CONFIG = """
@@ -110,7 +113,8 @@ def test_without_the_status_socket_the_codes_meaning(daemon: DaemonProcess, tmp_
         (("dc", "forward", "100"), "E2 invalid address: no DC motor configured"),
         (
             ("moveto", "0", "6000"),
-            "E1 invalid command: target 6000 is outside motor 0's soft limits",
+            "E1 invalid command: target 6000 is outside motor 0's soft limits or its driver "
+            "chip's range",
         ),
     ]
     for args, text in cases:

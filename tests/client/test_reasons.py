@@ -192,7 +192,7 @@ def test_without_the_socket_the_codes_meaning_for_the_command(tmp_path: Path) ->
         "E2 invalid address: no motor 5"
     )
     assert explain(E.INVALID_COMMAND, MoveTo(0, True, 9, 0, 0, 0), "p", 0.0, env=env) == (
-        "E1 invalid command: target 9 is outside motor 0's soft limits"
+        "E1 invalid command: target 9 is outside motor 0's soft limits or its driver chip's range"
     )
     assert explain(0x42, None, "p", 0.0, env=env) == "unknown error code 0x42"
 

@@ -37,6 +37,9 @@ from motorctl.protocol.codec import (
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 OPTS = CodecOptions()
 CONFIG = """
 [dc]

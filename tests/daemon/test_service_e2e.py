@@ -23,6 +23,9 @@ from tests.support.daemon_proc import DaemonProcess, StartDaemon
 from tests.support.fsutil import fill, read_only, small_tmpfs
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 E = ErrorCode
 DEADLINE_S = 20.0
 
@@ -173,10 +176,12 @@ def test_whatever_stands_at_the_state_file_is_set_aside_under_a_free_name(
 
 
 def _state_file(state: Path, motors: list[dict[str, object]]) -> bytes:
-    from motorctl.daemon.config import default_config_text, parse_config
+    from motorctl.daemon.config import parse_config
     from motorctl.daemon.start.assemble import motor_identities
+    from tests.support.daemon_proc import world_config_text
 
-    idents = motor_identities(parse_config(default_config_text(), "default"))
+    # the motors of the world the test daemon serves (their fingerprints say their drivers)
+    idents = motor_identities(parse_config(world_config_text(), "default"))
     records = [
         {
             "name": i.name,

@@ -261,6 +261,13 @@ def test_ci_says_before_its_parts_which_kernel_and_whether_the_vm_was_built_now(
         assert lines[0] == "== .ci/run: hwtest/run vm", lines
         assert lines[1] == f"hwtest: kernel tuple (apt lists updated now): {tuple_line}"
         parts = lines.index("== .ci/run: make test")
+        # the tests make test leaves out and the conformance suite on dSPIN chips right after
+        # make test, each alone too
+        after = lines[parts + 1 :]
+        assert after[0].startswith("== .ci/run: make test: passed in "), lines
+        assert after[1] == "== .ci/run: make test-slow", lines
+        assert after[2].startswith("== .ci/run: make test-slow: passed in "), lines
+        assert after[3] == "== .ci/run: make test-dspin", lines
         vm_part = "== .ci/run: hwtest/run vm: passed in "
         assert lines[parts - 1].startswith(vm_part), lines
         said = lines[2 : parts - 1]

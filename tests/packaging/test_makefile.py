@@ -148,4 +148,4 @@ def test_what_make_test_leaves_out_make_test_slow_runs_and_ci_runs_both() -> Non
     assert " -m " not in pytest_line("test")
     assert pytest_line("test-slow").endswith(" -m slow")
     parts = re.findall(r"^\s*timed (make [\w-]+)", (REPO / ".ci" / "run").read_text(), re.M)
-    assert parts[:2] == ["make test", "make test-slow"], parts
+    assert parts[:3] == ["make test", "make test-slow", "make test-dspin"], parts

@@ -50,6 +50,75 @@ def run_probe(
     )
 
 
+#: The example config of each world a test daemon's default can be (``MOTORCTL_WORLD``):
+#: the embedded default (STEP/DIR motors on the mock), or docs/examples/dspin.toml (the same
+#: motors on a chain of mock dSPIN chips; ``make test-dspin`` runs the conformance suite there).
+WORLDS = ("default", "dspin")
+DSPIN_EXAMPLE = REPO / "docs" / "examples" / "dspin.toml"
+
+
+def world() -> str:
+    """The world a test daemon without a config of its own serves: ``MOTORCTL_WORLD``
+    (``default`` when unset); another value is an error, not a fallback."""
+    name = os.environ.get("MOTORCTL_WORLD", "default")
+    if name not in WORLDS:
+        raise ValueError(f"MOTORCTL_WORLD={name!r}: one of {', '.join(WORLDS)}")
+    return name
+
+
+def world_config_text() -> str:
+    """The config text of :func:`world`, written out (a test daemon's default)."""
+    if world() == "dspin":
+        return DSPIN_EXAMPLE.read_text()
+    from motorctl.daemon.config import default_config_text
+
+    return default_config_text()
+
+
+#: The chips :func:`for_world` puts motors on in the dSPIN world, in chain order (the example's)
+DSPIN_CHIPS = ("l6470", "l6480", "powerstep01")
+
+
+def for_world(text: str) -> str:
+    """``text`` as a config of :func:`world`: in the dSPIN world each motor without a driver
+    chip of its own gets one, on the example's chain (/dev/spidev0.0, 1/16 microsteps, its
+    SW input the end stop below the axis); in the default world ``text`` as it is."""
+    if world() != "dspin":
+        return text
+    lines, out, chip = text.splitlines(), [], 0
+
+    def close_motor(body: list[str]) -> None:
+        nonlocal chip
+        heads = {line.split("#")[0].strip() for line in body}
+        if not any(h.startswith(("[motors.dspin]", "[motors.tmc")) for h in heads):
+            body += [
+                "  [motors.dspin]",
+                f'  driver = "{DSPIN_CHIPS[chip % len(DSPIN_CHIPS)]}"',
+                '  spi = "/dev/spidev0.0"',
+                f"  position = {chip}",
+                "  microsteps = 16",
+                '  switch = "min"',
+            ]
+            chip += 1
+        out.extend(body)
+
+    motor: list[str] | None = None
+    for line in lines:
+        head = line.split("#")[0].strip()
+        if motor is not None and head.startswith("[") and not head.startswith("[motors."):
+            close_motor(motor)
+            motor = None
+        if head == "[[motors]]":
+            motor = [line]
+        elif motor is not None:
+            motor.append(line)
+        else:
+            out.append(line)
+    if motor is not None:
+        close_motor(motor)
+    return "\n".join(out) + "\n"
+
+
 #: The ``motorctld`` fixture (tests/conftest.py): ``start(config_text, **kw)``.
 StartDaemon = Callable[..., "DaemonProcess"]
 
@@ -100,6 +169,8 @@ class DaemonProcess:
     (the default) gets the test settings (``TEST_STEP_THREAD``) and, without
     ``config_text``, the embedded default written out; ``as_user``: started as a user starts
     it (the benchmarks): ``config_text`` as it is, or none at all (the embedded default).
+    A test daemon's default is that of the world ``MOTORCTL_WORLD`` names (:func:`world`),
+    and a test daemon's ``config_text`` is made that world's (:func:`for_world`).
     ``command``: what runs before the options (``python -m motorctl.daemon.start.launch``, the
     motorctld command's entry point); ``cwd``: the folder it starts in (the checkout)."""
 
@@ -131,11 +202,9 @@ class DaemonProcess:
             else:
                 self.config.write_text(config_text)
         elif config_text is None:
-            from motorctl.daemon.config import default_config_text
-
-            self.config.write_text(for_tests(default_config_text(), force=True))
+            self.config.write_text(for_tests(world_config_text(), force=True))
         else:
-            self.config.write_text(for_tests(config_text))
+            self.config.write_text(for_tests(for_world(config_text)))
         self.extra = extra or []
         self.env = env  # added to this process's environment (e.g. NOTIFY_SOCKET)
         self.prefix = prefix or []  # a command that runs motorctld (e.g. prlimit ... --)

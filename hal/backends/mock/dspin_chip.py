@@ -407,6 +407,38 @@ class DspinChip:
         return got
 
     # time
+    def _go(self, steps: int) -> None:
+        """The chip counts the microsteps it drives; the shaft follows them unless a hard
+        stop holds it (:meth:`_rotor`)."""
+        self.regs["ABS_POS"] = wrap22(self.abs_pos + steps)
+        self.shaft = self._rotor(self.shaft + steps)
+
+    def _travel(self, moved: int) -> None:
+        """The shaft on by ``moved`` microsteps, the switch watched at each one: the chip
+        samples SW all the time, so an edge acts at the microstep where the switch changed
+        (a hard stop there), not at the end of the sub-step that crossed it."""
+        if self._switch_fn is None or moved == 0:
+            self._go(moved)
+            return
+        done, switch = 0, self._switch_fn
+        while done != moved:
+            if switch(self.shaft + moved - done) == self._sw:
+                self._go(moved - done)  # no edge before the end (one edge per sub-step)
+                return
+            lo, hi = 0, moved - done  # the switch is as now at lo, changed at hi
+            while abs(hi - lo) > 1:
+                mid = (lo + hi) // 2 if hi > 0 else -((-lo - hi) // 2)
+                if switch(self.shaft + mid) == self._sw:
+                    lo = mid
+                else:
+                    hi = mid
+            self._go(hi)
+            done += hi
+            idle = self.motion.idle
+            self.set_switch(not self._sw)
+            if self.motion.idle and not idle:
+                return  # the edge stopped the motor there
+
     def advance(self, dt: float) -> None:
         """Let ``dt`` seconds pass: the motor moves, the switch is watched."""
         ramps = self.ramps()
@@ -416,11 +448,7 @@ class DspinChip:
                 break
             h = min(left, 0.0005)
             left -= h
-            moved = self.motion.advance(h, ramps)
-            self.regs["ABS_POS"] = wrap22(self.abs_pos + moved)
-            self.shaft = self._rotor(self.shaft + moved)
-            if self._switch_fn is not None:
-                self.set_switch(self._switch_fn(self.shaft))
+            self._travel(self.motion.advance(h, ramps))
             if self.motion.idle and self._hiz_after_stop:
                 self.hiz = True
                 self._hiz_after_stop = False

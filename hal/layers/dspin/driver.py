@@ -37,8 +37,19 @@ import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 
+from motorctl.hal.dspin import scales
 from motorctl.hal.dspin.chips import Chip
-from motorctl.hal.dspin.commands import COPY_TO_MARK, Command, Op, get_param, set_param, simple
+from motorctl.hal.dspin.commands import (
+    COPY_TO_MARK,
+    FORWARD,
+    REVERSE,
+    Command,
+    Op,
+    get_param,
+    go_to_dir,
+    set_param,
+    simple,
+)
 from motorctl.hal.dspin.spec import DspinSpec
 from motorctl.hal.dspin.status import MotorState, Status
 from motorctl.hal.interfaces import (
@@ -139,6 +150,8 @@ class DspinDriver(StepperDriver, RampDriver):
         self._stall = False  # STEP_LOSS is the motion's stall (stall homing), not a fault
         self._stall_stopped = False  # a ramp read found it and stopped the chip
         self._stall_told = False  # the executor saw it (report_stall_stop): a stall
+        self._run = 0  # a Run (or GoUntil) under way, +1/-1: watched for ABS_POS's end
+        self._run_dec = 0.0  # its DEC register, step/s^2
         self.polls = 0
         self.spi_errors = 0
         self.clamped = 0
@@ -270,9 +283,12 @@ class DspinDriver(StepperDriver, RampDriver):
 
     # -- the ramp (RampDriver) -------------------------------------------------------------
     def _read(self) -> tuple[int, int, Status]:
+        """ABS_POS, SPEED and STATUS (GetParam: clears nothing), one transfer each, STATUS
+        first: a motor it finds standing stands at the ABS_POS read after it (read first, the
+        position could be from before a stop that STATUS then shows)."""
         regs = self.chip.registers
         got = {}
-        for name in ("ABS_POS", "SPEED", "STATUS"):
+        for name in ("STATUS", "ABS_POS", "SPEED"):
             got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
         return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
 
@@ -311,9 +327,9 @@ class DspinDriver(StepperDriver, RampDriver):
         with self._lock:
             event = self._kept.switch_event or st.switch_event
         standing = st.motor is MotorState.STOPPED
-        if not standing:
-            self._stop_where_due(pos, st)
         velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
+        if not standing:
+            self._bound(pos, abs(velocity), st)
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         stopped = bool(side and self._watch == side and event and standing)
         released = bool(side and self._release == side and not st.switch_closed and standing)
@@ -331,9 +347,10 @@ class DspinDriver(StepperDriver, RampDriver):
             stall_stopped=self._stall_stopped,
         )
 
-    def _stop_where_due(self, pos: int, st: Status) -> None:
+    def _bound(self, pos: int, speed: float, st: Status) -> None:
         """A moving chip that the driver stops itself: on a stall that stall homing armed
-        (the chip runs on after one), and at the end of a ReleaseSW that found no edge."""
+        (the chip runs on after one), at the end of a ReleaseSW that found no edge, and at
+        ABS_POS's ends."""
         if self._stall and STALL & {*st.faults}:
             self._send(simple(Op.HARD_STOP))
             self._stall_stopped = True
@@ -342,6 +359,24 @@ class DspinDriver(StepperDriver, RampDriver):
             if beyond:  # ReleaseSW ran its whole way: the switch never opened
                 self._send(simple(Op.HARD_STOP))
                 self._settled, self._limit = True, None
+        if self._run:
+            self._keep_in_range(pos, speed, st.busy)
+
+    def _keep_in_range(self, pos: int, speed: float, busy: bool) -> None:
+        """A Run stops at the end of ABS_POS's range as at a soft limit (docs/dspin.md,
+        "Values the chip cannot take"): past it the counter would wrap. Within two polls of
+        where braking with DEC must start, a GoTo_DIR to the end (the chip takes it once
+        the Run has reached its speed and released BUSY: it brakes to stand exactly
+        there), or while the chip still ramps, a SoftStop short of it; either ends the run
+        as settled."""
+        end = convert.ABS_POS_MAX if self._run > 0 else convert.ABS_POS_MIN
+        braking = speed * speed / (2 * self._run_dec) if self._run_dec > 0 else 0.0
+        if abs(end - pos) > braking + speed * 2 * self.poll_s + 1:
+            return
+        forward = FORWARD if self._run > 0 else REVERSE
+        self._send(simple(Op.SOFT_STOP) if busy else go_to_dir(forward, end))
+        self._run, self._settled = 0, True
+        log.info("%s: a run stops at the end of ABS_POS's range, %d", self.name, end)
 
     def latched_position(self) -> int:
         return self._get("MARK")
@@ -357,6 +392,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._until = self._settled = False
         self._limit = None
         self._rest = None
+        self._run = 0
 
     def _standing(self) -> tuple[int, bool, bool]:
         """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
@@ -389,6 +425,12 @@ class DspinDriver(StepperDriver, RampDriver):
 
     def run(self, direction: int, speed: float, acc: float) -> None:
         _, standing, _ = self._standing()
+        # watched for ABS_POS's end with the DEC the chip will have (written at rest only)
+        if standing:
+            self._run_dec = convert.ramp(acc, self.microsteps).value
+        else:
+            self._run_dec = float(scales.ACC.value(self._get("DEC")) * self.microsteps)
+        self._run = direction
         up = direction > 0
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         if side and self._watch == side == direction:  # to the switch: MARK at its edge
@@ -398,7 +440,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._do(program.move(self.chip, self.microsteps, up, speed, acc, acc, speed, standing))
 
     def stop(self, dec: float | None) -> None:
-        self._limit = None
+        self._limit, self._run = None, 0
         self._do(program.stop(hard=dec is None))
 
     def report_stall_stop(self) -> bool:

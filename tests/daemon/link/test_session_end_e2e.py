@@ -24,6 +24,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import pytest
 import serial
 
 from motorctl.client.client import Client
@@ -32,6 +33,9 @@ from tests.support.daemon_proc import DaemonProcess
 from tests.support.frames import OPTS, frame
 from tests.support.socat import PtyPair, needs_socat
 from tests.support.wait import WAIT_S, until
+
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
 
 FRAMES = 8500
 #: motor 2's position: the old host's GetAbsPos(2) answers are told from the new host's

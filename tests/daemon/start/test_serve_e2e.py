@@ -42,6 +42,9 @@ from tests.support.daemon_proc import (
 from tests.support.frames import frame, raw_frame
 from tests.support.wait import until
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 E = ErrorCode
 OPTS = CodecOptions()
 
@@ -268,7 +271,9 @@ def test_e3_busy_and_wait_timeout(client: Client) -> None:
 
 
 def test_e4_end_stop_hit_latches_fault(client: Client) -> None:
-    client.move(0, True, speed=2)  # runs into the simulated end stop at +10000
+    # down into the simulated end stop at -10000: wired in both worlds (a dSPIN motor's one
+    # switch input, SW, is the end stop below the axis in docs/examples/dspin.toml)
+    client.move(0, False, speed=2)
     with pytest.raises(DeviceError) as exc:
         client.wait_moved(0, 20_000)
     assert code_of(exc) is E.MOTOR_ERROR
@@ -280,12 +285,12 @@ def test_e4_end_stop_hit_latches_fault(client: Client) -> None:
         with pytest.raises(DeviceError) as exc:
             call()
         assert code_of(exc) is E.MOTOR_ERROR
-    assert client.position(0) == 10_000  # GetAbsPos still answers
+    assert client.position(0) == -10_000  # GetAbsPos still answers
     client.stop(0)  # clears the fault
     assert client.is_ready(0)
-    client.move_to(0, 9000)
+    client.move_to(0, -9000)
     client.wait_moved(0, 10_000)
-    assert client.position(0) == 9000
+    assert client.position(0) == -9000
 
 
 def test_e4_failed_homing(small: DaemonProcess) -> None:
@@ -476,6 +481,7 @@ def test_sigterm_stops_motors_along_ramps(tmp_path: Path) -> None:
         d2.close()
 
 
+@pytest.mark.stepdir
 def test_sigterm_to_the_whole_service_stops_motors_along_ramps(tmp_path: Path) -> None:
     """systemd's stop sends SIGTERM to every process of the unit: the step executor process
     must leave the stop to the daemon, or every stop would lose every position."""
@@ -527,6 +533,7 @@ def test_killed_while_moving_loses_position(tmp_path: Path) -> None:
 
 
 # -- both step executors, and the executor's death ----------------------------------------
+@pytest.mark.stepdir
 def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
     from motorctl.daemon.config import default_config_text
     from tests.support.daemon_proc import for_tests
@@ -555,6 +562,7 @@ def test_the_thread_executor_end_to_end(tmp_path: Path) -> None:
         assert d.terminate() == 0
 
 
+@pytest.mark.stepdir
 def test_the_executor_process_dying_faults_every_motor_and_stops_the_daemon(
     daemon: DaemonProcess,
 ) -> None:
@@ -602,6 +610,7 @@ def code_of_error(exc: DeviceError) -> ErrorCode:
     return ErrorCode(exc.code)
 
 
+@pytest.mark.stepdir
 def test_status_has_the_step_lateness_histogram(daemon: DaemonProcess) -> None:
     """bench/steps.py reads the executor's 1 us lateness histogram from the status."""
     with daemon.client() as c:
@@ -648,6 +657,7 @@ def _stall_mid_move(d: DaemonProcess, c: Client) -> None:
         os.kill(pid, signal.SIGCONT)
 
 
+@pytest.mark.stepdir
 def test_the_embedded_default_slides_a_stalled_move_and_shows_it(daemon: DaemonProcess) -> None:
     """The simulated motors have no rotor: a 50 ms stall of the executor never answers E4;
     the move reaches its target late, and the status shows the step absorbed, how late and
@@ -665,6 +675,7 @@ def test_the_embedded_default_slides_a_stalled_move_and_shows_it(daemon: DaemonP
     assert (timing["microsteps"], timing["max_lag_full_steps"]) == (16, 0.5)
 
 
+@pytest.mark.stepdir
 def test_with_lose_steps_the_mock_faults_as_a_real_motor_would(tmp_path: Path) -> None:
     """[mock] lose_steps = true: the same stall is beyond 0.5 full steps of lag above the
     start speed: E4 "step timing lost", position lost (home again), one journal line with

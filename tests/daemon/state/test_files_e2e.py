@@ -21,6 +21,9 @@ from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess
 from tests.support.traps import KINDS, VICTIM_TEXT, Trap, place, shared_folder
 
+#: the conformance suite: make test-dspin runs it on docs/examples/dspin.toml's chips too
+pytestmark = pytest.mark.conformance
+
 #: What the daemon writes in its state directory and beside its PTY (besides state.json).
 WRITTEN = (
     "motorctld.lock",

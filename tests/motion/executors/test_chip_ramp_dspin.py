@@ -15,6 +15,7 @@ from motorctl.hal import registry
 from motorctl.hal.backends.mock.dspin_chip import DspinChip
 from motorctl.hal.backends.mock.world import MockAxis, world_of
 from motorctl.hal.interfaces import Hardware, VirtualClock
+from motorctl.hal.layers.dspin.convert import ABS_POS_MAX, ABS_POS_MIN
 from motorctl.hal.layers.dspin.driver import DspinDriver
 from motorctl.motion.executors.base import ExecEvent, ExecEventKind
 from motorctl.motion.executors.chip_ramp import RampExecutor
@@ -35,9 +36,23 @@ name = "x"
 """
 
 
+class SlowBus(VirtualClock):
+    """A virtual clock that moves on by ``tick`` seconds at every reading: each SPI transfer
+    finds the chips later than the one before (the separate reads of a poll, as on a loaded
+    machine)."""
+
+    def __init__(self, tick: float) -> None:
+        super().__init__()
+        self.tick = tick
+
+    def now(self) -> float:
+        self.advance(self.tick)
+        return super().now()
+
+
 class DspinRig:
-    def __init__(self) -> None:
-        self.clock = VirtualClock()
+    def __init__(self, clock: VirtualClock | None = None) -> None:
+        self.clock = clock or VirtualClock()
         self.hw: Hardware = registry.open_hardware(
             "mock", hardware_spec(parse_config(CONFIG, "t.toml")), self.clock
         )
@@ -82,6 +97,43 @@ def test_a_move_to_is_go_to_dir_and_ends_exactly_there(rig: DspinRig) -> None:
     assert 0x69 in rig.sent()[start:]  # GoTo_DIR forward
     rig.run(lambda: K.DONE in rig.kinds(), 5.0)
     assert rig.seen[-1].position == 6000 == rig.chip.abs_pos == rig.axis.position
+
+
+def test_an_end_stop_hit_is_reported_where_the_chip_stands_though_its_reads_are_apart() -> None:
+    # the poll's reads of ABS_POS, SPEED and STATUS are separate transfers: STATUS first,
+    # so a motor it finds standing is reported where it stood, not where it was a read ago
+    rig = DspinRig(SlowBus(0.0005))
+    traj = plan_move_to(rig.clock.now(), 0.0, 0.0, -5000.0, 4000.0, 1e5, 1e5)
+    rig.ex.follow(0, traj, Ramp(4000.0, 1e5, 1e5), gen=1)
+    rig.run(lambda: K.ENDSTOP in rig.kinds(), 5.0)
+    assert rig.seen[-1].position == -1500 == rig.chip.abs_pos
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_a_run_stops_exactly_at_the_end_of_abs_pos_and_is_done_there(
+    rig: DspinRig, direction: int
+) -> None:
+    # past ABS_POS's end the chip's counter would wrap: the run stays a Run (which the
+    # chip takes at any time, so a Move may still reverse it) until braking must start,
+    # then it is a GoTo_DIR to the end, where it is done as at a soft limit; towards the
+    # switch it is a GoUntil, which keeps BUSY low and takes no GoTo: a SoftStop just short
+    end = ABS_POS_MAX if direction > 0 else ABS_POS_MIN
+    rig.chip.regs["ABS_POS"] = end - direction * 3000
+    rig.axis.endstop_min = -(10**7)  # no switch on the way
+    rig.ex.start()
+    start = len(rig.chain.chain.transfers)
+    run = plan_run(rig.clock.now(), 0.0, 0.0, direction * 4000.0, 40_000.0, 40_000.0, None)
+    rig.ex.follow(0, run, RAMP, gen=1)
+    assert {0x51 if direction > 0 else 0x50, 0x8A} & set(rig.sent()[start:])  # Run, GoUntil
+    rig.run(lambda: K.DONE in rig.kinds(), 5.0)
+    done = rig.seen[-1]
+    assert done.gen == 1 and done.position == rig.chip.abs_pos == rig.ex.position(0)
+    assert rig.chip.motion.stopped
+    if direction > 0:
+        assert done.position == end
+    else:  # two polls' travel (driver poll_s 5 ms) at most, and never past the end
+        assert end <= done.position <= end + 4000 * 2 * 0.005 + 1
+    assert not rig.chip.latched & {"NOTPERF_CMD", "WRONG_CMD"}
 
 
 def test_a_stop_while_the_chip_ramps_is_a_soft_stop_and_settles_where_it_stands(

@@ -186,3 +186,18 @@ def test_releasesw_runs_at_min_speed_when_that_is_faster() -> None:
     assert speed(chip) == pytest.approx(float(scales.MIN_SPEED.value(84)), abs=0.02)
     chip.set_switch(False)
     assert not chip.busy and reg(chip, "ABS_POS") == 0
+
+
+@pytest.mark.parametrize("direction", [c.REVERSE, c.FORWARD])
+def test_a_fast_motion_stops_at_the_microstep_where_the_switch_closes(direction: int) -> None:
+    # 1/16 microsteps at 500 full step/s: 4 microsteps per 0.5 ms of the model's time; the
+    # chip samples SW all the time, so its hard stop is at the switch's first microstep
+    sign = -1 if direction == c.REVERSE else 1
+    chip = DspinChip(L6470, switch=lambda shaft: sign * shaft >= 1001)
+    configure(chip, 16)
+    send(chip, c.set_param(L6470.registers["MAX_SPEED"], 0x3FF).encode())
+    send(chip, c.set_param(L6470.registers["ACC"], 0xFFE).encode())
+    send(chip, c.run(direction, 500 * 2**28 // 4_000_000).encode())
+    chip.advance(1)
+    assert chip.shaft == sign * 1001 and chip.motion.stopped
+    assert state(chip).switch_event

@@ -5,12 +5,17 @@ outside homing (E4), and the chips in the status document."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 
 from motorctl.client.client import Client, DeviceError
 from motorctl.protocol.codec import ErrorCode
+from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess, StartDaemon, positions_until_ready
 
 CONFIG = """\
@@ -107,3 +112,24 @@ def test_moves_stops_and_homing_on_a_dspin_chain(daemon: DaemonProcess) -> None:
         ("powerSTEP01 (voltage mode)", "/dev/spidev0.0", 2),
     ]
     assert all(d["polls"] > 0 for d in drivers)
+
+
+def test_the_client_names_abs_pos_s_range_when_a_target_is_beyond_it(
+    motorctld: StartDaemon, tmp_path: Path
+) -> None:
+    # the daemon's reason, read by `motorctl` from the status socket beside the port (as
+    # `make run` lays it out), says what refused the target: not the soft limits
+    d = motorctld(CONFIG, state_dir=tmp_path / ".run" / "state")
+    out = subprocess.run(
+        [sys.executable, "-m", "motorctl.client.cli", "-p", str(d.pty), "moveto", "0", "2097152"],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=REPO,
+        env={**os.environ, "MOTORCTL_STATE_DIR": ""},
+    )
+    assert (out.returncode, out.stdout) == (1, "")
+    assert out.stderr.strip() == (
+        "error: E1 invalid command: target 2097152 is outside what the motor's driver chip "
+        "counts from its zero: -2097152..2097151 (motor 0)"
+    )
