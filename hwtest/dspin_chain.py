@@ -77,11 +77,12 @@ class Responder:
 
     def catch_up(self) -> None:
         now = time.monotonic()
-        self.chain.advance(now - self.last)
-        self.last = now
         for chip in self.chips:
-            if chip.motion.idle:
+            if chip.motion.idle:  # (advance() would only work out its ramps, at a cost)
                 chip.set_switch(chip.shaft <= self.switch_at)
+            else:
+                chip.advance(now - self.last)
+        self.last = now
 
     def answer(self, head: bytes, tx: bytes) -> bytes:
         seq, length, speed, mode, bits, cs_off = HEADER.unpack(head)
@@ -131,6 +132,9 @@ def main() -> int:
             os.write(fd, responder.answer(head, tx))
     finally:
         os.close(fd)
+        cpu = time.process_time()
+        count = len(responder.transcript)
+        print(f"dspin_chain: {count} transfers, CPU {cpu:.1f} s", file=sys.stderr)
         lines = "".join(json.dumps(t) + "\n" for t in responder.transcript)
         args.transcript.write_text(lines)
 
