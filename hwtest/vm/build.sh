@@ -8,7 +8,7 @@
 #   Nothing fits: one line naming what is missing, exit 1, before anything is installed, downloaded or built.
 # Env knobs: GSIM_KVER=6.1.0-56-amd64 (this ABI or none; default: what linux-image-amd64 depends on, else the
 #   newest older ABI of its series whose five packages are all in the archive), GSIM_ROOTFS=0 (skip the
-#   debootstrap bookworm rootfs = libgpiod v1), GSIM_TRIXIE=0 (skip the debootstrap trixie root = Debian's
+#   debootstrap bookworm rootfs = libgpiod v1, python3-spidev), GSIM_TRIXIE=0 (skip the debootstrap trixie root = Debian's
 #   python3-libgpiod 2.x, the v2 API, python3-spidev, and gcc + python3-dev for the step core), GSIM_VENV=0 (skip the venv = PyPI gpiod v2 + spidev),
 #   GSIM_PIP="gpiod spidev" (pin e.g. "gpiod==2.5.0 spidev==3.8"), GSIM_KEEP=1 (keep debs + extracted trees),
 #   GSIM_PYTHON=/usr/bin/python3 (venv base), GSIM_MIRROR (debootstrap), GSIM_APT_UPDATE=0 (skip apt-get update).
@@ -85,9 +85,9 @@ cp "$C/mod"/*.ko "$I/lib/modules/"
 (cd "$I" && find . | cpio -o -H newc --quiet | gzip -1) > "$C/initrd.img"
 
 if [ "${GSIM_ROOTFS:-1}" = 1 ] && [ ! -x "$C/rootfs/usr/bin/python3" ]; then
-  step "debootstrap bookworm rootfs with python3-libgpiod (libgpiod v1 API)"
+  step "debootstrap bookworm rootfs with python3-libgpiod (libgpiod v1 API) and python3-spidev"
   rm -rf "$C/rootfs"
-  debootstrap --variant=minbase --include=python3-minimal,python3-libgpiod,gpiod,python3-serial,python3-pytest bookworm "$C/rootfs" "$MIRROR" > "$X/debootstrap.log"
+  debootstrap --variant=minbase --include=python3-minimal,python3-libgpiod,gpiod,python3-serial,python3-pytest,python3-spidev bookworm "$C/rootfs" "$MIRROR" > "$X/debootstrap.log"
   rm -f "$C/rootfs"/var/cache/apt/archives/*.deb
 fi
 if [ "${GSIM_TRIXIE:-1}" = 1 ] && [ ! -x "$C/trixie/usr/bin/python3" ]; then
@@ -107,7 +107,7 @@ step "record versions"
 { echo "kernel: ${K[*]}"
   echo "busybox-static: $(dpkg-deb -f "$C"/debs/busybox-static_*.deb Version)"
   echo "qemu: $(qemu-system-x86_64 --version | head -1)"
-  [ -d "$C/rootfs" ] && echo "rootfs: bookworm, $(dpkg-query --admindir="$C/rootfs/var/lib/dpkg" -W -f='${Package} ${Version}, ' python3-libgpiod python3.11 gpiod)"
+  [ -d "$C/rootfs" ] && echo "rootfs: bookworm, $(dpkg-query --admindir="$C/rootfs/var/lib/dpkg" -W -f='${Package} ${Version}, ' python3-libgpiod python3.11 gpiod python3-spidev)"
   [ -d "$C/trixie" ] && echo "trixie: $(dpkg-query --admindir="$C/trixie/var/lib/dpkg" -W -f='${Package} ${Version}, ' python3-libgpiod python3.13 gpiod python3-spidev)"
   [ -d "$C/venv" ] && echo "venv: $("$C/venv/bin/python" --version), $("$C/venv/bin/pip" list --format=freeze 2>/dev/null | grep -Ei '^(gpiod|spidev)=' | tr '\n' ' ')"
 } | tee "$C/VERSIONS"

@@ -28,6 +28,8 @@ echo 1 > $C/live || echo "gsim: gpio-sim chip0 failed to go live"
 fi
 # optional bit-banged SPI bus 1 on sim-bank0 lines 0..3 (sck mosi miso cs) -> /dev/spidev1.0
 [ "$GSIM_SPI" = 1 ] && for m in $(cat $M/spi.list); do insmod $M/$m || echo "gsim: insmod $m failed"; done
+# or SPI bus 0 answered by a program through /dev/spi-sim (spi-sim.c's user=1) -> /dev/spidev0.0
+[ "$GSIM_SPI" = user ] && { insmod $M/spi-sim.ko user=1 bus=0 || echo "gsim: insmod spi-sim.ko user=1 failed"; }
 R=/
 if [ "$GSIM_ROOT" != none ]; then
   # 9p root shared read-only by the host + tmpfs overlay: writable in the guest, changes are discarded

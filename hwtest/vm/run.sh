@@ -13,6 +13,7 @@
 #   GSIM_NAMES   line-name prefix per bank ("GPIO B1_" -> lines GPIO0.. on bank0, B1_0.. on bank1; "-" = no names;
 #                "RPI" = a Raspberry Pi's: ID_SDA ID_SCL GPIO2 GPIO3 ...)
 #   GSIM_SPI=1   spi-gpio on sim-bank0 lines 0..3 = sck,mosi,miso,cs -> /dev/spidev1.0
+#   GSIM_SPI=user  SPI bus 0 whose transfers a program answers through /dev/spi-sim (spi-sim.c) -> /dev/spidev0.0
 #   GSIM_MEM (MiB, 1024)  GSIM_SMP (vCPUs, 1: ~15% faster than 2 under TCG here)  GSIM_TIMEOUT (s, 600)  GSIM_APPEND (extra kernel cmdline)
 set -uo pipefail
 C=${GSIM_CACHE:-${XDG_CACHE_HOME:-$HOME/.cache}/gpio-sim-vm}

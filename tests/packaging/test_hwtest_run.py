@@ -43,7 +43,8 @@ mkdir -p "$1" && touch "$1/initrd.img"
 /usr/bin/python3 -I "$(dirname "$0")/kernel_tuple.py" > "$1/KERNEL"
 """
 FAKE_RUN = """#!/bin/sh
-echo "boot $GSIM_ROOT ${GSIM_BANKS:-}" >> "$FAKE_LOG"
+spi=; [ "${GSIM_SPI:-0}" = 0 ] || spi=" spi=$GSIM_SPI"
+echo "boot $GSIM_ROOT ${GSIM_BANKS:-}$spi" >> "$FAKE_LOG"
 [ -n "${FAKE_GUEST:-}" ] || exit 0
 cd "$FAKE_GUEST" && exec env -i PATH="$PATH" LANG=C.UTF-8 sh -c "$*"  # as bare as a guest's
 """
@@ -380,11 +381,16 @@ def test_a_guest_whose_tests_all_skip_fails(tier: Tier) -> None:
 
 def test_each_binding_boots_its_own_root(tier: Tier) -> None:
     """v2: Debian 13's python3-libgpiod in the trixie root; v1: Debian 12's in the bookworm
-    root; pypi: PyPI's gpiod in the venv on the host's root."""
-    for which, root in (("v2", "trixie"), ("v1", "rootfs"), ("pypi", "host")):
+    root; pypi: PyPI's gpiod in the venv on the host's root. v2 and v1 with the SPI bus a
+    program answers (the dSPIN chain, hwtest/test_dspin_daemon.py), pypi without."""
+    for which, root, spi in (
+        ("v2", "trixie", " spi=user"),
+        ("v1", "rootfs", " spi=user"),
+        ("pypi", "host", ""),
+    ):
         out = tier.run(which)
         assert out.returncode == 0, out.stdout + out.stderr
-        assert tier.log.read_text().splitlines()[-1] == f"boot {root} 32 16"
+        assert tier.log.read_text().splitlines()[-1] == f"boot {root} 32 16{spi}"
         assert f"GSIM_ROOT={root})" in out.stdout
 
 

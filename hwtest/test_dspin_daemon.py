@@ -1,0 +1,283 @@
+"""The Raspberry Pi example's dSPIN variant on a real spidev, inside the gpio-sim guest.
+
+The example's three motors are moved by a daisy chain of dSPIN chips on /dev/spidev0.0 (an
+L6470, an L6480, a powerSTEP01, as docs/examples/dspin.toml chains them) instead of STEP/DIR
+lines and TMC5160s; its DC motor and pins stay on gpio-sim's lines (both libgpiod APIs, as
+the tier runs them). The spidev is the kernel's: spi-sim.c's user bus (GSIM_SPI=user),
+whose transfers hwtest/dspin_chain.py answers with the mock backend's register-level chip
+models, so the daemon's py-spidev calls go through spidev's ioctls and the SPI core as on a
+Pi. Checked: the daemon starts on the chain (each chip identified by CONFIG's reset value,
+set up and read back), MoveTo moves each chip, InitMove homes on the SW
+input (zero where ReleaseSW leaves the switch), an overcurrent on one chip gives E4 with
+the flag named, and the whole byte transcript, decoded per chip, is the datasheets'
+framing (mode 3, one byte per chip per transfer, chip select raised after each) carrying
+the commands the daemon was asked for.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import select
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hwtest import gsim
+from hwtest.layout import GUEST_READY_TIMEOUT_S, in_the_guest
+from motorctl.hal.dspin.chips import L6470, L6480, POWERSTEP01_VOLTAGE, Chip
+from motorctl.hal.dspin.commands import Command, Op, decode
+from tests.support.daemon_proc import DaemonProcess
+from tests.support.stand_ins import until_cleared, until_e4
+
+pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
+
+REPO = Path(__file__).resolve().parent.parent
+EXAMPLE = REPO / "docs" / "examples" / "raspberry-pi.toml"
+API = os.environ.get("MOTORCTL_GPIOD_API", "auto")
+CHIPS: tuple[Chip, ...] = (L6470, L6480, POWERSTEP01_VOLTAGE)
+DRIVERS = ("l6470", "l6480", "powerstep01")
+#: each chip's SW closes at or below this shaft position (microsteps from power-up)
+SWITCH_AT = -400
+#: the tables of each motor that wire it to STEP/DIR lines and a TMC5160
+_STEP_DIR = re.compile(
+    r"  \[motors\.endstop\]\n(?:  \w+ = [^\n]*\n)*"
+    r"  \[motors\.gpiod\]\n(?:  \w+ = [^\n]*\n)*"
+    r"  \[motors\.tmc\][^\n]*\n(?:  \w+ = [^\n]*\n)*"
+)
+
+
+#: the variant's polls: each transfer is a round trip to a Python process under TCG
+POLLS = """[drivers]
+poll_ms = 100.0
+
+[dspin]
+ramp_poll_ms = 50.0
+ramp_idle_poll_ms = 250.0
+
+[dc]
+"""
+
+
+def dspin_variant() -> str:
+    """docs/examples/raspberry-pi.toml as the guest runs it (:func:`in_the_guest`), each
+    motor's end stop, STEP/DIR lines and TMC5160 replaced by its chip of one dSPIN chain on
+    /dev/spidev0.0 (SW: the end stop below the axis); the polls slowed for the emulated
+    guest, where each transfer is a round trip to a Python process."""
+    text = in_the_guest(EXAMPLE.read_text(), API)
+    text = text.replace('  source = "endstop"\n', "")
+    tables = iter(
+        f"""  [motors.dspin]
+  driver = "{driver}"
+  spi = "/dev/spidev0.0"
+  position = {i}
+  microsteps = 16
+  ocd_th = 8
+  switch = "min"
+"""
+        for i, driver in enumerate(DRIVERS)
+    )
+    text, n = _STEP_DIR.subn(lambda _: next(tables), text)
+    assert n == 3, "the example's motor tables changed"
+    text = text.replace("[dc]\n", POLLS)
+    assert not re.search(r"^\s*\[motors\.(tmc|gpiod)\]", text, re.M) and "[drivers]" in text
+    return text
+
+
+@dataclass
+class Chain:
+    """The responder (hwtest/dspin_chain.py) and its files."""
+
+    proc: subprocess.Popen[str]
+    control: Path
+    transcript: Path
+
+    def inject(self, faults: dict[int, list[str]]) -> None:
+        part = self.control.with_suffix(".part")
+        part.write_text(json.dumps({str(k): v for k, v in faults.items()}))
+        os.replace(part, self.control)
+
+    def stop(self) -> list[dict[str, Any]]:
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            self.proc.wait(timeout=60)
+        assert self.proc.returncode == 0, f"the chain's responder exited {self.proc.returncode}"
+        return [json.loads(line) for line in self.transcript.read_text().splitlines()]
+
+
+def start_chain(tmp: Path) -> Chain:
+    control, transcript = tmp / "control.json", tmp / "transcript.jsonl"
+    cmd = [sys.executable, str(REPO / "hwtest" / "dspin_chain.py"), "--control", str(control)]
+    cmd += ["--transcript", str(transcript), "--switch-at", str(SWITCH_AT)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
+    assert proc.stdout is not None
+    ready, _, _ = select.select([proc.stdout], [], [], 120.0)
+    line = proc.stdout.readline() if ready else ""
+    if line != "ready\n":
+        proc.kill()
+        proc.wait()
+        raise AssertionError(
+            f"the chain's responder did not open /dev/spi-sim ({line!r}): is spi-sim loaded "
+            "with user=1 (GSIM_SPI=user)?"
+        )
+    return Chain(proc, control, transcript)
+
+
+@dataclass(frozen=True)
+class Seen:
+    """One command as one chip read it: the transfers it came in (their seq), and for
+    GetParam/GetStatus the bytes the chip sent back after it."""
+
+    seq: tuple[int, ...]
+    command: Command
+    answer: bytes
+
+
+def per_chip(transfers: list[dict[str, Any]], chip: int) -> list[Seen]:
+    """Chip ``chip``'s byte stream out of the transcript, parsed as the chip parses it:
+    byte ``len - 1 - chip`` of each transfer (docs/dspin.md "On the wire")."""
+    slot = len(CHIPS) - 1 - chip
+    seen: list[Seen] = []
+    i = 0
+    while i < len(transfers):
+        t = transfers[i]
+        d = decode(CHIPS[chip], bytes.fromhex(t["tx"])[slot])
+        assert not d.wrong, f"transfer {t['seq']}: chip {chip} gets a byte it has no command for"
+        n = d.argument
+        if d.op is Op.GET_PARAM and d.register is not None:
+            n = d.register.nbytes
+        elif d.op is Op.GET_STATUS:
+            n = 2
+        part = transfers[i + 1 : i + 1 + n]
+        tx = bytes(bytes.fromhex(x["tx"])[slot] for x in part)
+        rx = bytes(bytes.fromhex(x["rx"])[slot] for x in part)
+        reads = d.op in (Op.GET_PARAM, Op.GET_STATUS)
+        if reads:
+            assert tx == bytes(len(tx)), f"transfer {t['seq']}: NOPs must clock an answer out"
+        seen.append(
+            Seen(
+                tuple(x["seq"] for x in [t, *part]),
+                d.command(b"" if reads else tx),
+                rx if reads else b"",
+            )
+        )
+        i += 1 + n
+    return seen
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[DaemonProcess, Chain]]:
+    tmp = tmp_path_factory.mktemp("dspin")
+    config = tmp / "pi-dspin.toml"
+    config.write_text(dspin_variant())
+    t0 = time.monotonic()
+    chain = start_chain(tmp)
+    print(f"chain ready, s: {time.monotonic() - t0:.1f}")
+    try:
+        d = DaemonProcess(tmp, config.read_text(), ready_timeout=GUEST_READY_TIMEOUT_S).start()
+        print(f"daemon ready, s: {time.monotonic() - t0:.1f}")
+        try:
+            yield d, chain
+        finally:
+            d.close()
+    finally:
+        if chain.proc.poll() is None:
+            chain.proc.kill()
+            chain.proc.wait()
+
+
+def test_the_example_runs_its_motors_on_a_dspin_chain_over_spidev(
+    rig: tuple[DaemonProcess, Chain],
+) -> None:
+    d, chain = rig
+    t0 = time.monotonic()
+    assert "gpiod hardware" in d.ready_line
+    drivers = d.status()["drivers"]
+    assert [(x["chip"], x["device"], x["chain_position"]) for x in drivers] == [
+        ("L6470", "/dev/spidev0.0", 0),
+        ("L6480", "/dev/spidev0.0", 1),
+        ("powerSTEP01 (voltage mode)", "/dev/spidev0.0", 2),
+    ]
+    assert all(x["polls"] > 0 and x["spi_errors"] == 0 for x in drivers)
+    with d.client(timeout=30.0) as c:  # an answer under TCG on a busy machine: seconds
+        print(f"status read, s: {time.monotonic() - t0:.1f}")
+        c.move_to(0, 320, speed=250)  # MoveTo: GoTo_DIR on chip 0 (x)
+        print(f"moveto answered, s: {time.monotonic() - t0:.1f}")
+        c.move_to(2, 160, speed=250)  # and on chip 2 (z), meanwhile
+        c.wait_moved(0, timeout_ms=20_000)
+        c.wait_moved(2, timeout_ms=20_000)
+        assert (c.position(0), c.position(2)) == (320, 160)
+        print(f"moved, s: {time.monotonic() - t0:.1f}")
+        c.init_move(0, False, speed=250)  # down to SW (shaft -400), back off: zero there
+        c.wait_moved(0, timeout_ms=30_000)
+        assert c.position(0) == 0
+        c.move_to(0, 80, speed=250)
+        c.wait_moved(0, timeout_ms=20_000)
+        assert c.position(0) == 80
+        print(f"homed, s: {time.monotonic() - t0:.1f}")
+        chain.inject({1: ["OCD"]})  # y's bridges: overcurrent
+        until_e4(c, 1, 100, timeout_ms=20_000)
+        chain.inject({})
+        until_cleared(c, 1)
+        c.move_to(1, 100, speed=250)
+        c.wait_moved(1, timeout_ms=20_000)
+        assert c.position(1) == 100
+    assert d.status()["drivers"][1]["fault_counts"].get("OCD", 0) >= 1
+    assert "driver fault: L6480: OCD" in d.stderr(), "the journal does not name the fault"
+    assert d.terminate() == 0
+    transfers = chain.stop()
+    print(f"{len(transfers)} transfers, s: {time.monotonic() - t0:.1f}")
+    check_transcript(transfers)
+
+
+def check_transcript(transfers: list[dict[str, Any]]) -> None:
+    assert transfers, "no transfer reached the chain"
+    for t in transfers:  # the framing: mode 3, 8 bits, one byte per chip, CS up after each
+        assert t["error"] is None, t
+        assert (t["mode"], t["bits"], len(t["tx"]) // 2, t["cs_off"]) == (3, 8, 3, 1), t
+        assert 0 < t["speed_hz"] <= 5_000_000, t
+    assert [t["seq"] for t in transfers] == list(range(1, len(transfers) + 1))
+    x, y, z = (per_chip(transfers, i) for i in range(3))
+    # MoveTo: GoTo_DIR forward to 320 on x, to 160 on z, NOPs to the others in its transfers
+    for seen, target, others in ((x, 320, (1, 2)), (z, 160, (0, 1))):
+        goto = [s for s in seen if s.command == Command(Op.GO_TO_DIR, dir=1, value=target)]
+        assert len(goto) == 1, [s.command for s in seen if s.command.op is Op.GO_TO_DIR]
+        for o in others:
+            slot = len(CHIPS) - 1 - o
+            bytes_o = [bytes.fromhex(transfers[q - 1]["tx"])[slot] for q in goto[0].seq]
+            assert bytes_o == [0, 0, 0, 0], f"chip {o} got {bytes_o} during a MoveTo not its own"
+    # InitMove: towards the switch (reverse), stopped by SW; ReleaseSW forward, MARK where
+    # the switch opened (the zero: ABS_POS runs on, docs/dspin.md); then the move to 80
+    # from that zero, the chip's ABS_POS MARK + 80
+    moves = [
+        s
+        for s in x
+        if s.command.op in (Op.GO_TO_DIR, Op.GO_UNTIL, Op.RUN, Op.RELEASE_SW)
+        or s.command == Command(Op.GET_PARAM, register=L6470.registers["MARK"])
+    ]
+    release = next(i for i, s in enumerate(moves) if s.command.op is Op.RELEASE_SW)
+    down = moves[release - 1].command
+    assert down.op in (Op.GO_TO_DIR, Op.GO_UNTIL) and down.dir == 0, down
+    assert moves[release].command.dir == 1, moves[release]
+    rest = moves[release + 1 :]
+    nxt = next(i for i, s in enumerate(rest) if s.command.op is not Op.GET_PARAM)
+    assert nxt > 0, f"MARK not read after the release: {rest[:3]}"
+    mark_read, after = rest[nxt - 1], rest[nxt].command
+    mark = L6470.registers["MARK"].value(int.from_bytes(mark_read.answer, "big"))
+    assert SWITCH_AT < mark <= SWITCH_AT + 16, f"MARK {mark}: not where SW opens"
+    assert after == Command(Op.GO_TO_DIR, dir=1, value=mark + 80), after
+
+    # the fault: y's GetStatus answers, as the L6480 lays them out, report OCD; x's never
+    def faults(chip: int, seen: list[Seen]) -> set[str]:
+        words = [int.from_bytes(s.answer, "big") for s in seen if s.command.op is Op.GET_STATUS]
+        return {f for w in words for f in CHIPS[chip].status.decode(w).faults}
+
+    assert "OCD" in faults(1, y)
+    assert "OCD" not in faults(0, x) | faults(2, z)
