@@ -121,21 +121,27 @@ def until_taken(c: Client, give_up: float) -> None:
             time.sleep(0.002)
 
 
+def seconds_to_e4(c: Client, motor: int, name: str, t0: float, interval_s: float) -> float:
+    """IsReady(``motor``) every ``interval_s`` until E4; the seconds since ``t0`` (the fault
+    set). bench/dspin.py measures its chips' faults with it too."""
+    while True:
+        try:
+            c.is_ready(motor)
+        except DeviceError as exc:
+            if exc.code is not ErrorCode.MOTOR_ERROR:
+                raise
+            return time.monotonic() - t0
+        if time.monotonic() - t0 > GIVE_UP_S:
+            raise RuntimeError(f"{name}: no E4 within {GIVE_UP_S} s of the fault")
+        time.sleep(interval_s)
+
+
 def one_run(s: Subject, interval_s: float) -> float:
     """Set the fault, IsReady(0) until E4; the seconds in between. Then clear it."""
     set_chips(s.control, {"0.0": {"faults": [OT]}})
     t0 = time.monotonic()
     try:
-        while True:
-            try:
-                s.client.is_ready(0)
-            except DeviceError as exc:
-                if exc.code is not ErrorCode.MOTOR_ERROR:
-                    raise
-                return time.monotonic() - t0
-            if time.monotonic() - t0 > GIVE_UP_S:
-                raise RuntimeError(f"{s.name}: no E4 within {GIVE_UP_S} s of the fault")
-            time.sleep(interval_s)
+        return seconds_to_e4(s.client, 0, s.name, t0, interval_s)
     finally:
         set_chips(s.control, {"0.0": {"faults": []}})
         until_taken(s.client, time.monotonic() + GIVE_UP_S)

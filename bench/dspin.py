@@ -52,11 +52,11 @@ from typing import Any
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench.driver_fault import quantile, seconds_to_e4  # noqa: E402
 from motorctl.client.client import Client, DeviceError  # noqa: E402
 from motorctl.hal.backends.mock.dspin_chain import DspinChain  # noqa: E402
 from motorctl.hal.backends.mock.dspin_chip import DspinChip  # noqa: E402
 from motorctl.hal.layers.dspin.driver import DspinDriver  # noqa: E402
-from motorctl.protocol.codec import ErrorCode  # noqa: E402
 from tests.support.daemon_proc import TEST_STEP_THREAD  # noqa: E402
 from tests.support.inprocess import LiveDaemon  # noqa: E402
 
@@ -159,16 +159,7 @@ def one_fault(s: Subject, interval_s: float) -> float:
     inject(s, True)
     t0 = time.monotonic()
     try:
-        while True:
-            try:
-                s.client.is_ready(2)
-            except DeviceError as exc:
-                if exc.code is not ErrorCode.MOTOR_ERROR:
-                    raise
-                return time.monotonic() - t0
-            if time.monotonic() - t0 > GIVE_UP_S:
-                raise RuntimeError(f"{s.name}: no E4 within {GIVE_UP_S} s of the fault")
-            time.sleep(interval_s)
+        return seconds_to_e4(s.client, 2, s.name, t0, interval_s)
     finally:
         inject(s, False)
         end = time.monotonic() + GIVE_UP_S
@@ -180,11 +171,6 @@ def one_fault(s: Subject, interval_s: float) -> float:
                 if time.monotonic() > end:
                     raise RuntimeError("the fault did not clear") from None
                 time.sleep(0.002)
-
-
-def quantile(values: list[float], q: float) -> float:
-    v = sorted(values)
-    return v[min(len(v) - 1, int(q * len(v)))] if v else 0.0
 
 
 def stats(prefix: str, seconds: list[float]) -> dict[str, float]:
