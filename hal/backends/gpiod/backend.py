@@ -88,18 +88,13 @@ class GpiodHardware(Hardware):
                 )
         api.check_free(found)
         settings = LineSettings(bias="pull-up", edges=True)
-        groups: dict[str, list[tuple[int, ResolvedLine]]] = {}
-        for i, line in enumerate(found):
-            key = line.chip_path if api.name == "v2" else f"{line.chip_path}:{line.offset}"
-            groups.setdefault(key, []).append((i, line))
-        reqs: list[LineRequest] = []
-        index: dict[tuple[int, int], int] = {}
         try:
-            for group in groups.values():
-                req = api.request(self.consumer, [(line, settings) for _, line in group])
-                self.closers.append(req.release)
-                index.update({(len(reqs), line.offset): i for i, line in group})
-                reqs.append(req)
+            reqs, index = _edge_requests(
+                api,
+                self.consumer,
+                [(i, line, settings) for i, line in enumerate(found)],
+                self.closers,
+            )
             inputs = GpiodEdgeInputs([u for u, _ in uses], reqs, index, [True] * len(found))
         except OSError as exc:
             raise HalError(f"{', '.join(u for u, _ in uses)}: {exc}") from exc
@@ -260,7 +255,7 @@ def _open_step_io(
     names: list[str] = []
     lows: list[bool] = []
     ends: list[tuple[int | None, int | None]] = []
-    inputs_by_chip: dict[str, list[tuple[int, ResolvedLine, LineSettings]]] = {}
+    edge_lines: list[tuple[int, ResolvedLine, LineSettings]] = []
     for i in stepped:
         m, axis = wiring.motors[i], spec.axes[i]
         pair: list[int | None] = []
@@ -273,21 +268,38 @@ def _open_step_io(
             lows.append(axis.endstop_active_low)
             debounce = axis.endstop_debounce_s
             settings = LineSettings(bias=es.bias, edges=True, debounce_us=round(debounce * 1e6))
-            line = found[f"motors[{i}].{which}"]
-            key = line.chip_path if api.name == "v2" else f"{line.chip_path}:{line.offset}"
-            inputs_by_chip.setdefault(key, []).append((line_no, line, settings))
+            edge_lines.append((line_no, found[f"motors[{i}].{which}"], settings))
             pair.append(line_no)
         ends.append((pair[0], pair[1]))
-    in_reqs: list[LineRequest] = []
-    index: dict[tuple[int, int], int] = {}
-    for group in inputs_by_chip.values():
-        req = api.request(consumer, [(line, settings) for _, line, settings in group])
-        closers.append(req.release)
-        for line_no, line, _ in group:
-            index[(len(in_reqs), line.offset)] = line_no
-        in_reqs.append(req)
+    in_reqs, index = _edge_requests(api, consumer, edge_lines, closers)
     inputs = GpiodEdgeInputs(names, in_reqs, index, lows)
     return StepIO(clock, outputs, inputs, tuple(ends), closers=closers)
+
+
+def _edge_requests(
+    api: GpioApi,
+    consumer: str,
+    lines: Sequence[tuple[int, ResolvedLine, LineSettings]],
+    closers: list[Callable[[], None]],
+) -> tuple[list[LineRequest], dict[tuple[int, int], int]]:
+    """Edge-event requests for ``lines`` (each its number among the inputs, the line, its
+    settings): one request per chip on v2, one per line on v1; each request's release added
+    to ``closers`` as it is made. Returns the requests and, for GpiodEdgeInputs, each
+    (request, offset)'s input number. The end stops and the alert lines are requested here."""
+    groups: dict[str, list[tuple[int, ResolvedLine, LineSettings]]] = {}
+    for entry in lines:
+        line = entry[1]
+        key = line.chip_path if api.name == "v2" else f"{line.chip_path}:{line.offset}"
+        groups.setdefault(key, []).append(entry)
+    reqs: list[LineRequest] = []
+    index: dict[tuple[int, int], int] = {}
+    for group in groups.values():
+        req = api.request(consumer, [(line, settings) for _, line, settings in group])
+        closers.append(req.release)
+        for number, line, _ in group:
+            index[(len(reqs), line.offset)] = number
+        reqs.append(req)
+    return reqs, index
 
 
 def _chardev_lines(outputs: GpiodStepOutputs, inputs: GpiodEdgeInputs) -> ChardevLines | str:
