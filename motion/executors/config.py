@@ -2,7 +2,7 @@
 
 The section's keys are the executors' own settings, and their defaults are the constants
 motion declares for the executors (`SPIN_S` in step_core.py, `LATE_THRESHOLD_S` in latency.py,
-`AHEAD_S` in planner.py, `STEP_CORES` in process/rings.py, :class:`RealtimeOptions`,
+`AHEAD_S` and `LEAD_S` in planner.py, `STEP_CORES` in process/rings.py, :class:`RealtimeOptions`,
 `STOP_CONFIRM_S` in base.py, the DIR setup time of :class:`AxisSpec`): each written once,
 in seconds where motion keeps it, shown here in the key's unit. The daemon's model
 (daemon/config/model.py) takes the table into its `Config`; docs/config.md is generated from
@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 from motorctl.hal.spec import AxisSpec
 from motorctl.motion.executors.base import STOP_CONFIRM_S
-from motorctl.motion.executors.planner import AHEAD_S
+from motorctl.motion.executors.planner import AHEAD_S, LEAD_S
 from motorctl.motion.executors.process.rings import STEP_CORES
 from motorctl.motion.executors.step_core import SPIN_S
 from motorctl.motion.latency import LATE_THRESHOLD_S
@@ -98,6 +98,16 @@ class StepThreadConfig:
         "(every half of it when shorter); a soft stop or a new speed still takes over within "
         "a few ms (the handed-over plan is cut at the first "
         "segment boundary after the executor's lead time; docs/timing.md).",
+    )
+    lead_ms: float = number(
+        _ms(LEAD_S),
+        1,
+        1000,
+        "A soft stop, a new speed or any re-plan of a moving motor takes over at the first "
+        "segment boundary this long after the command; the re-plan must reach the executor "
+        "before then, or the motor stops with E4 'step timing lost (re-plan came N us late)'. "
+        "Raise it on a board so loaded that this happens (a stop then takes a little longer "
+        "to begin; docs/timing.md).",
     )
     stop_confirm_ms: float = number(
         _ms(STOP_CONFIRM_S),

@@ -65,6 +65,11 @@ REFILL_S = 0.020
 #: REFILL_S, 30 ms of such lateness are covered, and a soft stop or a new speed still takes
 #: over within lead_s + span_s, as the handed-over plan is cut (docs/timing.md)
 AHEAD_S: Final = 0.05
+#: how soon after a re-plan's command the running plan may be cut ([step_thread] lead_ms
+#: declares it with this value): the re-plan must reach the core before the segment at the
+#: cut begins, or the motor stops with "step timing lost (re-plan came N us late)"; 3 ms
+#: covers the planner's pass and the hand-over on a loaded board (docs/timing.md)
+LEAD_S: Final = 0.003
 _SELF_STOPS = (K.ENDSTOP, K.RELEASED, K.TIMING_LOST, K.FAULT)
 
 
@@ -134,7 +139,7 @@ class StepExecutor(Executor):
         limits: Sequence[AxisLimits],
         *,
         ahead_s: float = AHEAD_S,
-        lead_s: float = 0.002,
+        lead_s: float = LEAD_S,
         max_error_s: float = 5e-6,
         span_s: float = 0.002,
     ) -> None:

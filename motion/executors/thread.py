@@ -34,7 +34,7 @@ from motorctl.motion.executors.base import (
     to_ticks,
 )
 from motorctl.motion.executors.core_cells import COUNTER_NAMES, CoreInbox
-from motorctl.motion.executors.planner import AHEAD_S, StepExecutor
+from motorctl.motion.executors.planner import AHEAD_S, LEAD_S, StepExecutor
 from motorctl.motion.executors.segments import StepSegment
 from motorctl.motion.executors.step_core import SPIN_S, StepCore
 from motorctl.motion.latency import CELLS, LATE_THRESHOLD_S, LatencyStats
@@ -73,7 +73,7 @@ class ThreadStepExecutor(StepExecutor):
             hw.clock,
             limits,
             ahead_s=(0.0 if virtual else AHEAD_S) if ahead_s is None else ahead_s,
-            lead_s=(0.0 if virtual else 0.002) if lead_s is None else lead_s,
+            lead_s=(0.0 if virtual else LEAD_S) if lead_s is None else lead_s,
             max_error_s=max_error_s,
         )
         self.io = open_step_io(backend, spec, hw.clock, parent=hw)

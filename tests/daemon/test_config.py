@@ -164,7 +164,7 @@ def test_minimal_file_fills_defaults(tmp_path: Path) -> None:
     assert config.units == UnitsConfig(4096.0, 4.0, 16.0)
     assert config.hal == HalConfig("mock")
     assert config.step_thread == StepThreadConfig(
-        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, -1, "process", 50.0, 50.0, "auto"
+        5.0, 2.0, 100.0, 200.0, 50, True, 100.0, -1, "process", 50.0, 3.0, 50.0, "auto"
     )
     assert load_config(str(path)) == config
 

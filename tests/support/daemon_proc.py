@@ -136,10 +136,26 @@ def positions_until_ready(c: Client, motor: int, timeout: float = 10.0) -> list[
     return seen
 
 
+def step_thread_from_env(text: str) -> dict[str, str]:
+    """``MOTORCTL_TEST_STEP_THREAD``'s [step_thread] keys for every test daemon, as
+    ``key=value`` pairs separated by commas (``lead_ms=25``: the emulated lane of make
+    test-root, tests/deb/suite-in-root.sh); a pair without ``=`` is an error, not skipped."""
+    pairs = [p.strip() for p in text.split(",") if p.strip()]
+    bad = [p for p in pairs if "=" not in p or not p.split("=")[0].strip()]
+    if bad:
+        raise ValueError(f"MOTORCTL_TEST_STEP_THREAD={text!r}: key=value pairs, not {bad}")
+    return {k.strip(): v.strip() for k, v in (p.split("=", 1) for p in pairs)}
+
+
 #: Test daemons run without real-time priority (and lock no memory) on a shared machine.
 #: Their lateness rule is the one users get: the mock's simulated motors never lose steps
 #: (late steps slide); tests about the fail-safe set ``[mock] lose_steps = true``.
-TEST_STEP_THREAD = {"priority": "0", "lock_memory": "false"}
+#: ``MOTORCTL_TEST_STEP_THREAD`` adds keys (:func:`step_thread_from_env`).
+TEST_STEP_THREAD = {
+    "priority": "0",
+    "lock_memory": "false",
+    **step_thread_from_env(os.environ.get("MOTORCTL_TEST_STEP_THREAD", "")),
+}
 
 
 def for_tests(text: str, force: bool = False) -> str:

@@ -40,7 +40,7 @@ from motorctl.hal.shm import SharedBlock
 from motorctl.hal.spec import HardwareSpec
 from motorctl.motion.executors.base import AxisLimits, ExecEvent, ExecEventKind, ExecutorHealth
 from motorctl.motion.executors.core_cells import COUNTER_NAMES
-from motorctl.motion.executors.planner import AHEAD_S, StepExecutor
+from motorctl.motion.executors.planner import AHEAD_S, LEAD_S, StepExecutor
 from motorctl.motion.executors.process.rings import (
     CORE_CELL,
     CORES,
@@ -73,7 +73,7 @@ class ProcessStepExecutor(StepExecutor):
         limits: Sequence[AxisLimits],
         *,
         ahead_s: float = AHEAD_S,
-        lead_s: float = 0.003,
+        lead_s: float = LEAD_S,
         max_error_s: float = 5e-6,
         spin_s: float = SPIN_S,
         late_threshold_s: float = LATE_THRESHOLD_S,

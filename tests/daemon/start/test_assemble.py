@@ -19,7 +19,7 @@ from motorctl.daemon.start import assemble
 from motorctl.daemon.start.assemble import Daemon, ServeOptions, build_served, motor_identities
 from motorctl.daemon.start.serve import shutdown
 from motorctl.motion.executors.base import Executor
-from tests.support.daemon_proc import memfd_holders
+from tests.support.daemon_proc import memfd_holders, step_thread_from_env
 from tests.support.inprocess import IN_PROCESS_CONFIG
 
 #: the process executor (its own process and shared memory), without real-time rights
@@ -215,3 +215,32 @@ def test_the_status_lines_turn_says_what_the_error_journal_held_back(
         shutdown(daemon)
         served.close()
         owned.cleanup()
+
+
+@pytest.mark.parametrize("kind", ["thread", "process"])
+def test_lead_ms_and_ahead_ms_reach_either_step_executor(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, kind: str
+) -> None:
+    """[step_thread] lead_ms (how soon a re-plan may cut the running plan) and ahead_ms are
+    the executor's, whichever kind the config asks for (an emulated or loaded board raises
+    lead_ms: docs/timing.md)."""
+    made = spy_executors(monkeypatch)
+    text = CONFIG.replace(
+        'executor = "process"', f'executor = "{kind}"\nlead_ms = 25\nahead_ms = 40'
+    )
+    daemon = Daemon.build(parse_config(text, "t.toml"), tmp_path)
+    try:
+        (executor,) = made
+        assert (executor.lead_s, executor.ahead_s) == (0.025, 0.04)  # type: ignore[attr-defined]
+    finally:
+        daemon.engine.executor.close()
+        daemon.hw.close()
+
+
+def test_the_test_daemons_step_thread_keys_from_the_environment() -> None:
+    """MOTORCTL_TEST_STEP_THREAD (the emulated lane's lead_ms = 25) parses into keys, and a
+    pair without '=' is refused rather than skipped."""
+    assert step_thread_from_env("") == {}
+    assert step_thread_from_env("lead_ms=25, ahead_ms = 40") == {"lead_ms": "25", "ahead_ms": "40"}
+    with pytest.raises(ValueError, match="lead_ms"):
+        step_thread_from_env("lead_ms")
