@@ -2,7 +2,9 @@
 world, on each step core: a host's first program after InitMove -- home, move away, MoveTo 0,
 WaitMoved, GetAbsPos 0 -- gets no E4, for each homing kind (the end stop, with and without the
 second approach; the stall, on an axis without switches) and both directions. Zero is the
-first position off the switch: one step further toward it is still an end stop hit (E4)."""
+first position off the switch: one step further toward it is still an end stop hit (E4).
+The same program runs on dSPIN chips (a chain of six mock chips: the switch on each chip's
+SW input, the stall from its STEP_LOSS flags), where the chip homes the motor itself."""
 
 from __future__ import annotations
 
@@ -11,6 +13,9 @@ import pytest
 from motorctl.client.client import Client, DeviceError
 from motorctl.protocol.codec import ErrorCode
 from tests.support.daemon_proc import StartDaemon
+
+#: make test-dspin runs the dSPIN chips' test here (the STEP/DIR one is marked stepdir)
+pytestmark = pytest.mark.conformance
 
 #: (name, [motors.homing] lines, homed by its switch) per kind; each homes both ways
 KINDS = (
@@ -27,10 +32,29 @@ def motors() -> list[tuple[str, int, bool]]:
     return [(name, d, switch) for name, _, switch in KINDS for d in (1, -1)]
 
 
-def config() -> str:
+#: the dSPIN chips the motors of :func:`config` get with ``dspin``, in chain order
+DSPIN_CHIPS = ("l6470", "l6480", "powerstep01")
+
+
+def dspin_table(chip: int, d: int, switch: bool) -> str:
+    """Motor ``chip``'s [motors.dspin] table: a chip of the chain on /dev/spidev0.0, its SW
+    input the switch the motor homes towards (none for a stall homing)."""
+    sw = ("max" if d > 0 else "min") if switch else "none"
+    return f"""  [motors.dspin]
+  driver = "{DSPIN_CHIPS[chip % len(DSPIN_CHIPS)]}"
+  spi = "/dev/spidev0.0"
+  position = {chip}
+  microsteps = 16
+  switch = "{sw}"
+"""
+
+
+def config(dspin: bool = False) -> str:
+    """The machine: one motor per homing kind and direction; ``dspin``: each on a chip of
+    one chain of dSPIN chips (else STEP/DIR motors)."""
     homing = {name: lines for name, lines, _ in KINDS}
     out = []
-    for name, d, switch in motors():
+    for chip, (name, d, switch) in enumerate(motors()):
         out.append(f"""
 [[motors]]
 name = "{name}_{"up" if d > 0 else "down"}"
@@ -46,39 +70,60 @@ default_decel = 60000.0
   endstop_max = {ENDSTOP}
   switches = {"true" if switch else "false"}
 """)
+        if dspin:
+            out.append(dspin_table(chip, d, switch))
     return "".join(out) + "\n[mock]\nwires = []\n"
 
 
+@pytest.mark.stepdir
 @pytest.mark.parametrize("core", ["compiled", "python"])
 def test_after_homing_moveto_0_and_back_gives_no_e4(motorctld: StartDaemon, core: str) -> None:
     daemon = motorctld(f'{config()}\n[step_thread]\ncore = "{core}"\n')
     assert daemon.status()["executor"]["core"] == core
-    every = list(enumerate(motors()))
     with daemon.client() as c:
-        for i, (_, d, _) in every:  # every motor at once, each step for all of them
-            c.init_move(i, d > 0)
-        wait_all(c, every)
-        assert [c.position(i) for i, _ in every] == [0] * len(every)
-        for i, (_, d, _) in every:
-            c.move_to(i, -d * 800)  # away
-        wait_all(c, every)
-        for i, _ in every:
-            c.move_to(i, 0)  # and back to where it homed
-        wait_all(c, every)  # no E4: no switch touched, no stall
-        assert [c.position(i) for i, _ in every] == [0] * len(every)
-        assert all(c.is_ready(i) for i, _ in every)
-        hits = [(i, d) for i, (_, d, switch) in every if switch]
-        for i, d in hits:  # one step beyond 0 is on the switch: an end stop hit
-            c.move_to(i, d)
-        for i, d in hits:
-            with pytest.raises(DeviceError) as hit:
-                c.wait_moved(i, timeout_ms=10_000)
-            assert hit.value.code is ErrorCode.MOTOR_ERROR, f"motor {i}"
-            assert c.position(i) == d  # it stopped on the switch
-            c.stop(i)  # clears it (the switch is no driver fault)
-            c.move_to(i, 0)
+        home_away_and_back(c)
+
+
+def test_after_homing_on_dspin_chips_moveto_0_and_back_gives_no_e4(motorctld: StartDaemon) -> None:
+    """The chip ramps every motor (the chip-ramp executor, no step executor): GoUntil and
+    ReleaseSW on SW, or a run ended by STEP_LOSS, then GoTo_DIR away and back to 0."""
+    daemon = motorctld(config(dspin=True))
+    chips = [
+        (d["chip"].split()[0].lower(), d["chain_position"]) for d in daemon.status()["drivers"]
+    ]
+    assert chips == [(DSPIN_CHIPS[i % 3], i) for i in range(len(motors()))]
+    with daemon.client() as c:
+        home_away_and_back(c)
+
+
+def home_away_and_back(c: Client) -> None:
+    """Home every motor, MoveTo away and back to 0 (no E4), then one step onto the switch
+    of each motor homed by one (E4, an end stop hit, cleared by StopMove)."""
+    every = list(enumerate(motors()))
+    for i, (_, d, _) in every:  # every motor at once, each step for all of them
+        c.init_move(i, d > 0)
+    wait_all(c, every)
+    assert [c.position(i) for i, _ in every] == [0] * len(every)
+    for i, (_, d, _) in every:
+        c.move_to(i, -d * 800)  # away
+    wait_all(c, every)
+    for i, _ in every:
+        c.move_to(i, 0)  # and back to where it homed
+    wait_all(c, every)  # no E4: no switch touched, no stall
+    assert [c.position(i) for i, _ in every] == [0] * len(every)
+    assert all(c.is_ready(i) for i, _ in every)
+    hits = [(i, d) for i, (_, d, switch) in every if switch]
+    for i, d in hits:  # one step beyond 0 is on the switch: an end stop hit
+        c.move_to(i, d)
+    for i, d in hits:
+        with pytest.raises(DeviceError) as hit:
             c.wait_moved(i, timeout_ms=10_000)
-            assert c.position(i) == 0
+        assert hit.value.code is ErrorCode.MOTOR_ERROR, f"motor {i}"
+        assert c.position(i) == d  # it stopped on the switch
+        c.stop(i)  # clears it (the switch is no driver fault)
+        c.move_to(i, 0)
+        c.wait_moved(i, timeout_ms=10_000)
+        assert c.position(i) == 0
 
 
 def wait_all(c: Client, every: list[tuple[int, tuple[str, int, bool]]]) -> None:

@@ -327,7 +327,11 @@ class DspinDriver(StepperDriver, RampDriver):
         with self._lock:
             event = self._kept.switch_event or st.switch_event
         standing = st.motor is MotorState.STOPPED
-        velocity = convert.speed_of(speed, self.microsteps) * (1 if st.forward else -1)
+        # STATUS, read first, says it moves: then it is not at rest, even where SPEED, read
+        # after it, is 0 (it stopped in between, maybe on a switch whose event STATUS did not
+        # show yet): the next read decides, or a move would end without its end stop
+        magnitude = max(convert.speed_of(speed, self.microsteps), convert.speed_of(1, 1))
+        velocity = magnitude * (1 if st.forward else -1)
         if not standing:
             self._bound(pos, abs(velocity), st)
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)

@@ -216,3 +216,35 @@ def test_probe_on_the_mock_finds_its_simulated_chain() -> None:
     found = dict(report.sections)["dSPIN drivers"]
     assert [line.split(":")[0] for line in found] == ["x", "y", "z"]
     assert "configured L6480, CONFIG 0x2C88 (L6480)" in found[1]
+
+
+def test_a_chip_that_stops_between_the_reads_of_one_ramp_status_is_not_yet_at_rest(
+    hw: Hardware, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """STATUS is read first, then ABS_POS and SPEED: a chip that reaches its target (and
+    a switch there) between those reads shows the target and SPEED 0 while its STATUS said
+    it moves. Reported at rest, the executor would end the move there (DONE) without
+    the switch's event, which only the next read shows: an end stop hit went unanswered
+    (E4) in tests/motion/test_motor_e2e.py one run in three. It is reported moving, so the
+    next read decides."""
+    driver = hw.steppers[0].driver
+    assert isinstance(driver, DspinDriver) and isinstance(hw.clock, VirtualClock)
+    driver.watch(1)
+    driver.move_to(4, 200.0, 2000.0, 2000.0)
+    hw.clock.advance(0.001)
+    real = driver.chain.exchange
+    reads: list[int] = []
+
+    def slow_bus(commands: dict[int, object]) -> dict[int, int]:
+        got = real(commands)  # type: ignore[arg-type]
+        reads.append(1)
+        if len(reads) == 1:  # after the STATUS read: the chip ends its motion meanwhile
+            hw.clock.advance(1.0)  # type: ignore[attr-defined]
+        return got
+
+    monkeypatch.setattr(driver.chain, "exchange", slow_bus)
+    st = driver.ramp_status()
+    assert len(reads) == 3 and st.position == 4
+    assert st.velocity > 0  # not at rest: its STATUS said it moves
+    monkeypatch.setattr(driver.chain, "exchange", real)
+    assert driver.ramp_status().velocity == 0  # the next read: at rest at the target
