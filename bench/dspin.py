@@ -28,8 +28,13 @@ the chip models drive), daemon ``poll`` has neither. The host is pyserial on the
    interleaved in a shuffled order, so each sees the same machine.
 
 The daemons and the host share one Python interpreter (the GIL): a figure includes the
-time a thread waits for another's bytecode, alike for both daemons; the machine's load
-average is printed and written. ``--json FILE`` writes the figures (flat keys).
+time a thread waits for another's bytecode, alike for both daemons. The interpreter's
+switch interval is the daemon's (``[step_thread] switch_interval_us``, which motorctld sets
+for its process, ``prepare_process``) unless ``--switch-interval-us`` says another: at
+Python's default of 5 ms a thread woken by the host's bytes, or the host itself, waits up
+to that long while another runs Python. The process's CPU time over the idle window is
+printed (both daemons and the idle host: one process), with the machine's load average.
+``--json FILE`` writes the figures (flat keys).
 """
 
 from __future__ import annotations
@@ -54,6 +59,7 @@ sys.path.insert(0, str(ROOT))
 
 from bench.driver_fault import quantile, seconds_to_e4  # noqa: E402
 from motorctl.client.client import Client, DeviceError  # noqa: E402
+from motorctl.daemon.config import parse_config  # noqa: E402
 from motorctl.hal.backends.mock.dspin_chain import DspinChain  # noqa: E402
 from motorctl.hal.backends.mock.dspin_chip import DspinChip  # noqa: E402
 from motorctl.hal.layers.dspin.driver import DspinDriver  # noqa: E402
@@ -141,12 +147,15 @@ def round_trips(s: Subject, runs: int, rng: random.Random) -> dict[int, list[flo
 
 
 def idle_transfers(subjects: list[Subject], seconds: float) -> dict[str, float]:
-    """Each daemon's chain transfers per second over one window, every motor at rest."""
+    """Each daemon's chain transfers per second over one window, every motor at rest, and
+    the process's CPU time over it (``cpu_percent``, of one CPU: both daemons)."""
     before = {s.name: s.chain.count for s in subjects}
-    t0 = time.monotonic()
+    t0, cpu0 = time.monotonic(), time.process_time()
     time.sleep(seconds)
     elapsed = time.monotonic() - t0
-    return {s.name: (s.chain.count - before[s.name]) / elapsed for s in subjects}
+    out = {s.name: (s.chain.count - before[s.name]) / elapsed for s in subjects}
+    out["cpu_percent"] = (time.process_time() - cpu0) / elapsed * 100
+    return out
 
 
 def inject(s: Subject, present: bool) -> None:
@@ -189,6 +198,13 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     tmp = Path(tempfile.mkdtemp(prefix="motorctl-dspin-"))
     subjects: list[Subject] = []
     fig: dict[str, Any] = {"poll_ms": args.poll_ms, "loadavg_start": list(os.getloadavg())}
+    interval_us = args.switch_interval_us
+    if interval_us is None:  # as motorctld sets it for its process
+        interval_us = parse_config(
+            config(True, args.poll_ms), "bench"
+        ).step_thread.switch_interval_us
+    sys.setswitchinterval(interval_us / 1e6)
+    fig["switch_interval_us"] = interval_us
     try:
         subjects = [start("poll", False, tmp, args.poll_ms), start("flag", True, tmp, args.poll_ms)]
         time.sleep(0.5)  # imports, first polls
@@ -197,7 +213,9 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         fig.update(stats("moveto_stepdir", trips[1]))
         fig["moves"] = args.moves
         time.sleep(0.2)
-        for name, rate in idle_transfers(subjects, args.idle_s).items():
+        idle = idle_transfers(subjects, args.idle_s)
+        fig["idle_cpu_percent"] = round(idle.pop("cpu_percent"), 2)
+        for name, rate in idle.items():
             fig[f"idle_transfers_per_s_{name}"] = round(rate, 1)
         for s in subjects:  # one run each, not counted
             one_fault(s, args.interval_ms / 1e3)
@@ -231,6 +249,11 @@ def main() -> int:
     ap.add_argument("--spread-ms", type=float, default=50.0, help="random wait before a fault")
     ap.add_argument("--idle-s", type=float, default=5.0, help="the idle window")
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument(
+        "--switch-interval-us",
+        type=float,
+        help="the interpreter's switch interval (default: the daemon's, as motorctld sets it)",
+    )
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON (flat keys)")
     ap.add_argument("--log", action="store_true", help="the daemons' journal on stderr")
     args = ap.parse_args()
@@ -241,7 +264,10 @@ def main() -> int:
         f"load average {[round(x, 2) for x in fig['loadavg_start']]} -> "
         f"{[round(x, 2) for x in fig['loadavg_end']]}"
     )
-    print(f"dSPIN on the mock's chip models, [drivers] poll_ms = {args.poll_ms}, {la}")
+    print(
+        f"dSPIN on the mock's chip models, [drivers] poll_ms = {args.poll_ms}, switch "
+        f"interval {fig['switch_interval_us']} us, {la}"
+    )
 
     def line(prefix: str) -> str:
         return (
@@ -256,6 +282,7 @@ def main() -> int:
     print(f"SPI transfers per second on the chain of 2, all at rest ({args.idle_s} s):")
     print(f"  without FLAG/BUSY: {fig['idle_transfers_per_s_poll']}")
     print(f"  with FLAG/BUSY:    {fig['idle_transfers_per_s_flag']}")
+    print(f"  the process's CPU (both daemons): {fig['idle_cpu_percent']} % of one CPU")
     print(f"fault (OCD) to E4, IsReady every {args.interval_ms} ms, {fig['runs']} runs each:")
     print(f"  STATUS poll only: {line('fault_poll')}")
     print(f"  FLAG line:        {line('fault_flag')} ({fig['alerts_flag']} FLAG edges)")

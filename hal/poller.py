@@ -162,9 +162,10 @@ class DriverPoller:
         self.alerts.append(found)
         return found
 
-    def _take_alerts(self) -> None:
+    def _take_alerts(self, now: float) -> None:
         """The alert lines' edges since the last look (no bus transfer): a falling one
-        makes its poll due at the edge's time."""
+        makes its poll due at the edge's time, or ``now`` if the edge is stamped later (a
+        real clock read before the edges were): the pass that takes an edge polls."""
         done: set[int] = set()
         for a in self.alerts:
             if id(a.inputs) in done:
@@ -178,7 +179,7 @@ class DriverPoller:
             for e in edges:
                 for b in self.alerts:
                     if b.inputs is a.inputs and b.line == e.line and e.active:
-                        b.entry.due = min(b.entry.due, e.t)
+                        b.entry.due = min(b.entry.due, e.t, now)
                         b.entry.alerts += 1
 
     def remove(self, entry: Polled) -> None:
@@ -201,7 +202,10 @@ class DriverPoller:
         """When the next poll is due (``inf``: nothing to poll); an alert line that fell
         makes its poll due now."""
         if self.alerts:
-            self._take_alerts()
+            self._take_alerts(self.clock.now())
+        return self._earliest()
+
+    def _earliest(self) -> float:
         return min((e.due for e in self.entries), default=math.inf)
 
     def is_due(self, now: float) -> bool:
@@ -209,12 +213,14 @@ class DriverPoller:
         return self.next_due() <= now + SLACK_S
 
     def poll_due(self, now: float) -> float:
-        """Poll every entry due at ``now``, push what needs acting on; the next due time."""
+        """Poll every entry due at ``now``, push what needs acting on; the next due time.
+        The alert lines are read once, first (an edge read later wakes the thread's wait on
+        their descriptors, or is taken by the next :meth:`next_due`)."""
         news: list[Reading] = []
         if self.alerts:
-            self._take_alerts()
+            self._take_alerts(now)
         before = self._before
-        if before is not None and self.is_due(now):
+        if before is not None and self._earliest() <= now + SLACK_S:
             before()
         for e in self.entries:
             if e.due > now + SLACK_S:
@@ -225,7 +231,7 @@ class DriverPoller:
         sink = self._sink
         if news and sink is not None:
             sink(news)
-        return self.next_due()
+        return self._earliest()
 
     def _poll(self, e: Polled) -> Sequence[Reading]:
         e.polls += 1

@@ -21,6 +21,7 @@ from __future__ import annotations
 import enum
 from collections.abc import Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from types import MappingProxyType
 from typing import Final
 
@@ -88,8 +89,9 @@ class StatusLayout:
     name: str
     flags: tuple[Flag, ...]
 
-    @property
+    @cached_property
     def by_name(self) -> Mapping[str, Flag]:
+        """Built once per layout (every STATUS decode and the mock's chips look flags up)."""
         return MappingProxyType({f.name: f for f in self.flags})
 
     @property

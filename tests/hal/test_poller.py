@@ -13,7 +13,14 @@ from collections.abc import Sequence
 
 import pytest
 
-from motorctl.hal.interfaces import DriverStatus, MonotonicClock, StepperDriver, VirtualClock
+from motorctl.hal.interfaces import (
+    DriverStatus,
+    Edge,
+    EdgeInputs,
+    MonotonicClock,
+    StepperDriver,
+    VirtualClock,
+)
 from motorctl.hal.poller import DEFAULT_PERIOD_S, SLACK_S, DriverPoller, DriversConfig, Reading
 from motorctl.schema import table_of
 from tests.support.spi_bench import S2130, SpiBench
@@ -203,3 +210,42 @@ def test_before_is_called_once_before_each_pass_that_reads() -> None:
     poller.poll_due(0.005)  # nothing due
     poller.poll_due(0.01)
     assert order == ["before", "read", "before", "read"]
+
+
+class Line(EdgeInputs):
+    """An alert line whose edges a test hands over (stamped as the test says); counts how
+    often the poller looks at it."""
+
+    def __init__(self) -> None:
+        super().__init__(["FLAG"])
+        self.pending: list[Edge] = []
+        self.reads = 0
+
+    def read_edges(self) -> list[Edge]:
+        self.reads += 1
+        out, self.pending = self.pending, []
+        return out
+
+    def level(self, line: int) -> bool:
+        return False
+
+
+def test_an_alert_edge_is_polled_by_the_pass_that_reads_it() -> None:
+    """FLAG falls: the pass that reads the edge reads the chip, even when the edge is stamped
+    after the ``now`` the pass was given (a real clock is read before the lines are: the
+    mock's lines stamp an edge when it is read, a kernel's edge may come in between), and the
+    lines are read once per pass, not once for each look at what is due."""
+    clock = VirtualClock(0.0)
+    poller = DriverPoller(clock, period_s=0.02)
+    chip = Chip()
+    entry = poller.watch(chip, "chain")
+    line = Line()
+    poller.alert(entry, line, 0)
+    poller.connect(Sink())
+    poller.poll_due(0.0)
+    assert chip.reads == 1 and line.reads == 1
+    chip.now = DriverStatus(fault="OCD")
+    line.pending = [Edge(0, True, 0.0051)]  # the fault, stamped just after the pass's now
+    assert poller.poll_due(0.005) == pytest.approx(0.025)
+    assert chip.reads == 2 and entry.alerts == 1  # read at once, not at the next pass
+    assert line.reads == 2

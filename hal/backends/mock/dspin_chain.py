@@ -73,7 +73,11 @@ class DspinChain:
 
     # the world's time
     def advance(self, dt: float) -> None:
-        """Let ``dt`` seconds pass for every chip."""
+        """Let ``dt`` seconds pass for every chip; a moving one may have stopped (BUSY) or
+        met a hard stop (FLAG): its listeners hear of it. Time changes nothing on a chip at
+        rest (a transfer tells of anything else: ``xfer2``)."""
         for chip in self.chips:
+            if chip.motion.idle:
+                continue
             chip.advance(dt)
             chip.changed()

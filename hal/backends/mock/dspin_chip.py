@@ -440,7 +440,10 @@ class DspinChip:
                 return  # the edge stopped the motor there
 
     def advance(self, dt: float) -> None:
-        """Let ``dt`` seconds pass: the motor moves, the switch is watched."""
+        """Let ``dt`` seconds pass: the motor moves, the switch is watched. A chip at rest
+        stays as it is (its ramp registers are not even read)."""
+        if self.motion.idle:
+            return
         ramps = self.ramps()
         left = dt
         while left > 1e-12:
