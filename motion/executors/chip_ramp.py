@@ -182,7 +182,9 @@ class RampExecutor(Executor):
         except HalError as exc:
             self._fault(motor, now, exc)
             return True
-        ax.next_poll = now
+        # the first read a poll period on: the chip has only just been given the motion (a
+        # read at once would find nothing new, and only contend with the command's answer)
+        ax.next_poll = now + self.poll_s
         return True
 
     def stop(self, motor: int, gen: int) -> int | None:
