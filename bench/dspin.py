@@ -15,7 +15,9 @@ the chip models drive), daemon ``poll`` has neither. The host is pyserial on the
 1. **MoveTo round trip**: the host's time from writing a MoveTo to reading its answer, on
    motor 0 (the dSPIN: SetParam MAX_SPEED, ACC, DEC and GoTo_DIR over SPI before the
    answer) and on motor 1 (step/dir) in the same run, alternated, each from rest (IsReady
-   until ready between runs), on daemon ``poll``.
+   until ready between runs), on daemon ``poll``; and the chain's SPI transfers between
+   writing each dSPIN MoveTo and reading its answer (the mock's count; a poll of the driver
+   poller that falls in between adds its 3).
 2. **SPI transfers per second while idle**: each daemon's chain transfers (the mock's
    transfer log) over ``--idle-s`` seconds with every motor at rest: the driver poller's
    GetStatus and the chip-ramp executor's reads at ``ramp_idle_poll_ms``; issue 34 allows
@@ -130,20 +132,28 @@ def ready(client: Client, motor: int) -> Callable[[], bool]:
     return lambda: client.is_ready(motor)
 
 
-def round_trips(s: Subject, runs: int, rng: random.Random) -> dict[int, list[float]]:
-    """MoveTo on motor 0 (dSPIN) and motor 1 (step/dir), alternated in a shuffled order."""
+def round_trips(
+    s: Subject, runs: int, rng: random.Random
+) -> tuple[dict[int, list[float]], list[int]]:
+    """MoveTo on motor 0 (dSPIN) and motor 1 (step/dir), alternated in a shuffled order;
+    the round trips, and the chain's transfers during each dSPIN MoveTo's (the driver
+    poller's GetStatus of the chain, 3 transfers, included when it came in between)."""
     out: dict[int, list[float]] = {0: [], 1: []}
+    transfers: list[int] = []
     target = {0: 0, 1: 0}
     for _ in range(runs):
         order = [0, 1]
         rng.shuffle(order)
         for motor in order:
             target[motor] = 100 if target[motor] <= 0 else -100
+            before = s.chain.count
             t0 = time.perf_counter()
             s.client.move_to(motor, target[motor], speed=100, acc=100, dec=100)
             out[motor].append(time.perf_counter() - t0)
+            if motor == 0:
+                transfers.append(s.chain.count - before)
             until(f"motor {motor} at rest", ready(s.client, motor), REST_S)
-    return out
+    return out, transfers
 
 
 def idle_transfers(subjects: list[Subject], seconds: float) -> dict[str, float]:
@@ -208,9 +218,12 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
     try:
         subjects = [start("poll", False, tmp, args.poll_ms), start("flag", True, tmp, args.poll_ms)]
         time.sleep(0.5)  # imports, first polls
-        trips = round_trips(subjects[0], args.moves, rng)
+        trips, transfers = round_trips(subjects[0], args.moves, rng)
         fig.update(stats("moveto_dspin", trips[0]))
         fig.update(stats("moveto_stepdir", trips[1]))
+        fig["moveto_dspin_transfers_p50"] = quantile([float(n) for n in transfers], 0.5)
+        fig["moveto_dspin_transfers_min"] = min(transfers, default=0)
+        fig["moveto_dspin_transfers_max"] = max(transfers, default=0)
         fig["moves"] = args.moves
         time.sleep(0.2)
         idle = idle_transfers(subjects, args.idle_s)
@@ -279,6 +292,11 @@ def main() -> int:
     print(f"MoveTo round trip, {fig['moves']} each, same run:")
     print(f"  dSPIN motor:    {line('moveto_dspin')}")
     print(f"  step/dir motor: {line('moveto_stepdir')}")
+    print(
+        f"  SPI transfers on the chain during a dSPIN MoveTo: min "
+        f"{fig['moveto_dspin_transfers_min']}, p50 {fig['moveto_dspin_transfers_p50']}, max "
+        f"{fig['moveto_dspin_transfers_max']}"
+    )
     print(f"SPI transfers per second on the chain of 2, all at rest ({args.idle_s} s):")
     print(f"  without FLAG/BUSY: {fig['idle_transfers_per_s_poll']}")
     print(f"  with FLAG/BUSY:    {fig['idle_transfers_per_s_flag']}")

@@ -459,6 +459,16 @@ class RampDriver(ABC):
     def ramp_status(self) -> RampStatus:
         """Where the motor is and how fast it goes, the switches and stops: one read."""
 
+    def command_status(self) -> RampStatus:
+        """:meth:`ramp_status` read for a command: the executor asks it where the engine
+        plans the motor's next motion from (``committed()``), and :meth:`watch` and the
+        command follow at once, with no other call to this driver in between (unless the
+        plan turns out to be no motion). A driver whose :meth:`watch` or command has to
+        read the chip anyway may make this one read serve them (a dSPIN: the GetStatus that
+        clears the old motion's latched switch event, and STATUS and ABS_POS for GoTo_DIR);
+        by default, :meth:`ramp_status`."""
+        return self.ramp_status()
+
     @abstractmethod
     def latched_position(self) -> int:
         """The position the reference switch latched at the edge :meth:`watch` armed."""

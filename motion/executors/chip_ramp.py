@@ -15,6 +15,10 @@ motor, and that stop is reported as the driver's stall flag. A finite plan is do
 chip stands at its end, or stands where it settled on purpose (``RampStatus.settled``: a
 dSPIN takes no new target while it ramps and stops along DEC instead); an endless run is
 done where its chip settled it (a dSPIN's run at the end of ABS_POS's range).
+:meth:`RampExecutor.committed`, which the engine plans a motion from just before it hands
+it to :meth:`RampExecutor.follow`, reads the chip with ``command_status``: the one read
+that the ``watch`` and the command after it may build on (a dSPIN's MoveTo then reads
+STATUS and ABS_POS once, not three and two times).
 
 A machine that mixes such motors with STEP/DIR ones runs both executors behind one seam
 (``split.py``).
@@ -178,7 +182,9 @@ class RampExecutor(Executor):
         except HalError as exc:
             self._fault(motor, now, exc)
             return True
-        ax.next_poll = now
+        # the first read a poll period on: the chip has only just been given the motion (a
+        # read at once would find nothing new, and only contend with the command's answer)
+        ax.next_poll = now + self.poll_s
         return True
 
     def stop(self, motor: int, gen: int) -> int | None:
@@ -201,7 +207,8 @@ class RampExecutor(Executor):
     def committed(self, motor: int, now: float) -> Committed:
         ax = self._axes[motor]
         with suppress(HalError):  # the snapshot will do; the next poll reports the failure
-            self._refresh(motor, self.chips[motor].ramp_status())
+            # the read that the follow() after it (the engine's next plan) builds on
+            self._refresh(motor, self.chips[motor].command_status())
         return Committed(now, float(ax.position), ax.velocity, ax.position)
 
     def planned(self, motor: int) -> bool:

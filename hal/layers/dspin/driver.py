@@ -8,8 +8,20 @@ errors), so every GetStatus of a chip goes through :meth:`DspinDriver.took`, whi
 what it read until its reader takes it: the faults until the driver poller's next reading
 reports them (E4), SW_EVN until the ramp's next read (an end stop). The poller reads every
 chip of a chain in one exchange (:meth:`Chain.poll`); the executor's reads use GetParam,
-which clears nothing, except :meth:`DspinDriver.watch`, which starts a motion with the
-switch's old event gone (a GetStatus, its faults kept for the poller).
+which clears nothing, except the one a motion starts from, which clears the switch's old
+event (a GetStatus, its faults kept for the poller): :meth:`DspinDriver.command_status`,
+or :meth:`DspinDriver.watch` where none came before it.
+
+**One read per command**: a motion command costs one GetStatus and one ABS_POS (SPEED too
+where the motor moves) before the chip's commands: :meth:`DspinDriver.command_status` (the
+executor's ``committed()``, which the engine plans from) reads them, and the
+:meth:`~DspinDriver.watch` and :meth:`~DspinDriver.move_to` or :meth:`~DspinDriver.run`
+that follow at once go by what it found (``_Seen``) instead of reading again: what STATUS
+says of a motor at rest stays true until a command reaches the chip (it neither starts nor
+raises BUSY on its own), and of a moving one it is as fresh as a read in between would be
+(a BUSY found low may have gone high since: the GoTo then becomes a SoftStop, as for a
+read just before); only GoTo_DIR's direction towards a target reads ABS_POS again where the
+motor moves. Any other call, and any command sent, forgets it.
 
 **Stall homing** (``homing.source = "stall"``): :meth:`DspinDriver.watch` with ``stall``
 arms the chip's stall detection for the motion: STEP_LOSS_A/B (STALL_TH) is then the
@@ -117,6 +129,21 @@ class Chain:
             return [(d, d.took(Status(d.chip.status, words[d.position]))) for d in self.drivers]
 
 
+@dataclass(frozen=True)
+class _Seen:
+    """The chip as the read a command builds on found it: its STATUS, and ``position``,
+    ABS_POS read after that STATUS (None: not read); ``cleared``: the STATUS came from a
+    GetStatus (the old motion's latched events gone from the chip)."""
+
+    status: Status
+    position: int | None = None
+    cleared: bool = False
+
+    @property
+    def standing(self) -> bool:
+        return self.status.motor is MotorState.STOPPED
+
+
 @dataclass
 class _Kept:
     """What a GetStatus read that its readers have not taken yet."""
@@ -163,6 +190,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._rest: RampStatus | None = None  # the last read: standing, BUSY high
         self._rest_reads = 0  # answered from it since
         self.busy_answers = 0  # ramp reads answered from BUSY, without SPI
+        self._seen: _Seen | None = None  # the read the next command builds on (_Seen)
 
     # -- the bus ---------------------------------------------------------------------------
     def _get(self, register: str) -> int:
@@ -170,6 +198,7 @@ class DspinDriver(StepperDriver, RampDriver):
         return self.chain.exchange({self.position: get_param(reg)})[self.position]
 
     def _send(self, *commands: Command) -> None:
+        self._seen = None  # the chip is no longer what the last read found
         self.chain.send(self.position, commands)
 
     def _set(self, values: Mapping[str, int]) -> list[Command]:
@@ -307,6 +336,7 @@ class DspinDriver(StepperDriver, RampDriver):
         """One read of the ramp: ABS_POS, SPEED and STATUS (GetParam). With BUSY wired, a
         motor that stood at the last read and whose BUSY is still high (no command since)
         is answered from that read, without SPI (one read in ``REST_READ_EVERY``)."""
+        self._seen = None
         rest = self._rest
         if rest is not None and self._rest_reads < REST_READ_EVERY and not self._busy():
             self._rest_reads += 1
@@ -382,13 +412,40 @@ class DspinDriver(StepperDriver, RampDriver):
         self._run, self._settled = 0, True
         log.info("%s: a run stops at the end of ABS_POS's range, %d", self.name, end)
 
+    def command_status(self) -> RampStatus:
+        """The read a command builds on (the executor's ``committed()``; :meth:`watch` and
+        the command follow at once): GetStatus, whose clearing of the latched flags is the
+        one :meth:`watch` needs (its news kept: the faults for the poller, SW_EVN for the
+        ramp's next read), then ABS_POS, and SPEED only where STATUS finds the motor moving
+        (standing, its speed is 0); STATUS first, so a motor it finds standing stands at
+        the ABS_POS read after it. The bus is held throughout: no poll comes between."""
+        self._seen = self._rest = None
+        try:
+            with self.chain.bus.session():
+                word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+                st = Status(self.chip.status, word)
+                self._keep(st)
+                pos = self._get("ABS_POS")
+                speed = 0 if st.motor is MotorState.STOPPED else self._get("SPEED")
+        except SpiError as exc:
+            raise DspinError(f"{self.name}: {exc}") from exc
+        self._seen = _Seen(st, pos, cleared=True)
+        return self._ramp(pos, speed, st)  # a command it sends forgets _seen
+
     def latched_position(self) -> int:
+        self._seen = None
         return self._get("MARK")
 
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
+        """The stops of the next motion armed, the last motion's switch event and stall
+        gone: the chip's latches cleared by a GetStatus, :meth:`command_status`'s where it
+        came just before, else one read here (its faults stay for the poller)."""
+        seen, self._seen = self._seen, None
         with self.chain.bus.session():  # no poll between the read and the clearing
-            word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
-            self._keep(Status(self.chip.status, word))  # its faults stay for the poller
+            if seen is None or not seen.cleared:
+                word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+                seen = _Seen(Status(self.chip.status, word), cleared=True)
+                self._keep(seen.status)
             with self._lock:  # the last motion's switch and stall are gone with it
                 self._kept.switch_event = self._kept.stall = False
             self._stall, self._stall_stopped, self._stall_told = stall, False, False
@@ -397,12 +454,15 @@ class DspinDriver(StepperDriver, RampDriver):
         self._limit = None
         self._rest = None
         self._run = 0
+        self._seen = seen  # what the command that follows goes by
 
-    def _standing(self) -> tuple[int, bool, bool]:
-        """ABS_POS, whether the motor stands and whether BUSY is low (GetParam: clears
-        nothing)."""
-        st = Status(self.chip.status, self._get("STATUS"))
-        return self._get("ABS_POS"), st.motor is MotorState.STOPPED, st.busy
+    def _take(self) -> _Seen:
+        """What the read before this command found (forgotten here), or a read of STATUS
+        now (GetParam: clears nothing) where none came before."""
+        seen, self._seen = self._seen, None
+        if seen is None:
+            seen = _Seen(Status(self.chip.status, self._get("STATUS")))
+        return seen
 
     def _do(self, p: program.Program) -> None:
         self.clamped += len(p.clamped)
@@ -410,15 +470,18 @@ class DspinDriver(StepperDriver, RampDriver):
         self._send(*p.commands)
 
     def move_to(self, target: int, speed: float, acc: float, dec: float) -> None:
-        pos, standing, busy = self._standing()
+        seen = self._take()
         if self._release:  # homing's back-off: ReleaseSW at MIN_SPEED to where it opens
             self._limit = target
             self._do(program.release(self.chip, self.microsteps, self._release > 0, speed, MARK))
             return
-        if busy and not standing:  # GoTo while BUSY is refused: a stop along DEC
+        standing = seen.standing
+        if seen.status.busy and not standing:  # GoTo while BUSY is refused: a stop along DEC
             self._settled = True
             self._do(program.stop(hard=False))
             return
+        # GoTo_DIR's direction: from where a standing motor stands, a moving one is now
+        pos = seen.position if standing and seen.position is not None else self._get("ABS_POS")
         try:
             p = program.move_to(
                 self.chip, self.microsteps, pos, target, speed, acc, dec, at_rest=standing
@@ -428,7 +491,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._do(p)
 
     def run(self, direction: int, speed: float, acc: float) -> None:
-        _, standing, _ = self._standing()
+        standing = self._take().standing
         # watched for ABS_POS's end with the DEC the chip will have (written at rest only)
         if standing:
             self._run_dec = convert.ramp(acc, self.microsteps).value
@@ -444,7 +507,7 @@ class DspinDriver(StepperDriver, RampDriver):
         self._do(program.move(self.chip, self.microsteps, up, speed, acc, acc, speed, standing))
 
     def stop(self, dec: float | None) -> None:
-        self._limit, self._run = None, 0
+        self._limit, self._run, self._seen = None, 0, None
         self._do(program.stop(hard=dec is None))
 
     def report_stall_stop(self) -> bool:
