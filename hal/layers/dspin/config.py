@@ -238,23 +238,6 @@ def _soft_limits(v: Mapping[str, Any]) -> Violation | None:
     return None
 
 
-def _linear(v: Mapping[str, Any]) -> Violation | None:
-    """A dSPIN motor is a linear axis: a turning one would reach the end of ABS_POS's 22
-    bits (a Move stops there, a MoveTo beyond it is refused) after so many turns, in hours
-    of running; refused here rather than then."""
-    d, spr = v["dspin"], v["steps_per_rev"]
-    if d is None or not spr:
-        return None
-    lo, hi = DspinSpec(d.spi, d.position, d.driver, d.microsteps).counter_range or (0, 0)
-    return (
-        "steps_per_rev",
-        spr,
-        f"a rotary axis is not driven on a dSPIN chip: its ABS_POS counts {lo}..{hi}, so a "
-        f"turning axis would stop about {(hi + 1) // spr} turns from its zero; "
-        "set steps_per_rev = 0 (a linear axis) or drive it with STEP/DIR",
-    )
-
-
 def _stall_homing(v: Mapping[str, Any]) -> Violation | None:
     """Stall homing needs the chip's stall detection and no switch on its SW input (which
     would hard-stop the run before the motor stalls)."""
@@ -400,7 +383,6 @@ class DspinDeclaration(LayerDeclaration):
                         "stall only on a chip with stall detection and no switch on SW",
                         _stall_homing,
                     ),
-                    Rule(("steps_per_rev", "dspin"), "0 (a linear axis) on a dSPIN motor", _linear),
                     Rule(
                         ("soft_limit_min", "soft_limit_max", "dspin"),
                         "within ABS_POS's -2097152..2097151 on a dSPIN motor",

@@ -96,16 +96,6 @@ def test_stall_homing_needs_the_chips_stall_detection() -> None:
     parse_config(text.replace('"l6472"', '"l6470"'), "t.toml")  # an L6470 has it
 
 
-def test_a_rotary_axis_is_refused_on_a_dspin_chip() -> None:
-    """ABS_POS's 22 bits would stop a turning axis after about 655 turns of 3200 steps."""
-    text = CHAIN.replace('name = "y"\n', 'name = "y"\nsteps_per_rev = 3200\n', 1)
-    assert (
-        "motors[1].steps_per_rev = 3200: a rotary axis is not driven on a dSPIN chip: its "
-        "ABS_POS counts -2097152..2097151, so a turning axis would stop about 655 turns"
-    ) in error_of(text)
-    parse_config(text.replace("steps_per_rev = 3200", "steps_per_rev = 0"), "t.toml")
-
-
 def test_a_motor_has_one_driver_chip() -> None:
     text = CHAIN.replace("  kval_run = 60\n", '  [motors.tmc]\n  spi = "/dev/spidev0.0"\n', 1)
     assert "motors[0].dspin" in error_of(text) and "[motors.tmc]" in error_of(text)
