@@ -243,6 +243,11 @@ def test_the_example_runs_its_motors_on_a_dspin_chain_over_spidev(
         print(f"homed, s: {time.monotonic() - t0:.1f}")
         rest = answered_from_busy(d, 2)  # z stands since its move: BUSY answers its reads
         print(f"rested, s: {time.monotonic() - t0:.1f}")
+        c.move_to(2, 4160, speed=60)  # 4000 steps at 240 step/s: its BUSY line falls
+        until_low(BUSY[2], 20.0)
+        c.stop(2, hard=True)
+        c.wait_moved(2, timeout_ms=20_000)
+        assert high(BUSY[2]), "z stopped: its BUSY line still low"
         before = [x["flag_alerts"] for x in d.status()["drivers"]]
         chain.inject({1: ["OCD"]})  # y's bridges: overcurrent (FLAG falls between transfers)
         until_e4(c, 1, 100, timeout_ms=20_000)
@@ -273,6 +278,14 @@ def high(line: str) -> bool:
     """The level of a gpio-sim line as the daemon's request reads it."""
     chip, offset = where(line)
     return gsim.sim_value(offset, chip)
+
+
+def until_low(line: str, timeout_s: float) -> None:
+    """Wait (``timeout_s`` at most) until ``line`` reads low."""
+    deadline = time.monotonic() + timeout_s
+    while high(line):
+        assert time.monotonic() < deadline, f"{line} not low within {timeout_s} s"
+        time.sleep(0.05)
 
 
 def answered_from_busy(d: DaemonProcess, chip: int) -> tuple[float, float, int]:
