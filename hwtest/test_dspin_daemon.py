@@ -16,7 +16,8 @@ lines the responder drives (``[motors.dspin] flag``/``busy``, the lines the vari
 dropped STEP and DIR leave free): the overcurrent reaches E4 through the FLAG line's edge
 (the chip's ``flag_alerts`` in the status), and a motor at rest is answered from its BUSY
 line (``busy_answers`` grows while the transcript shows no read of that chip over SPI but
-one in REST_READ_EVERY).
+one in REST_READ_EVERY; the line falls while the chip runs). In the v2 guest, ``motorctld
+--probe`` then finds each chip over the same spidev.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from hwtest.layout import GUEST_READY_TIMEOUT_S, in_the_guest, where
 from motorctl.hal.dspin.chips import L6470, L6480, POWERSTEP01_VOLTAGE, Chip
 from motorctl.hal.dspin.commands import Command, Op, decode
 from motorctl.hal.layers.dspin.driver import REST_READ_EVERY
-from tests.support.daemon_proc import DaemonProcess
+from tests.support.daemon_proc import DaemonProcess, run_probe
 from tests.support.stand_ins import until_cleared, until_e4
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
@@ -268,10 +269,25 @@ def test_the_example_runs_its_motors_on_a_dspin_chain_over_spidev(
     named = r"driver fault: L6480: (CMD_ERROR \(the chip refused a command\), )?OCD[;:]"
     assert re.search(named, d.stderr()), "the journal does not name the fault"
     assert d.terminate() == 0
+    if API == "v2":  # once, in one guest: another motorctld under TCG costs 40-60 s
+        assert d.config is not None
+        probe_finds_the_chain(d.config)
+        print(f"probed, s: {time.monotonic() - t0:.1f}")
     transfers = chain.stop()
     print(f"{len(transfers)} transfers, s: {time.monotonic() - t0:.1f}")
     check_transcript(transfers)
     check_rest(transfers, 2, *rest)
+
+
+def probe_finds_the_chain(config: Path) -> None:
+    """``motorctld --probe`` over the spidev: each chip's CONFIG read and named, STATUS
+    decoded, no problem (the daemon has let go of the lines)."""
+    out = run_probe(config)
+    assert out.returncode == 0, out.stdout + out.stderr
+    for i, (name, chip) in enumerate(zip("xyz", CHIPS, strict=True)):
+        said = f"{name}: #{i} on /dev/spidev0.0: configured {chip.name}, CONFIG 0x"
+        said += f"{chip.config.reset:04X} ({chip.name}); STATUS "
+        assert said in out.stdout, out.stdout
 
 
 def high(line: str) -> bool:
