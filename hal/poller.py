@@ -114,6 +114,7 @@ class Alert:
     inputs: EdgeInputs
     line: int
     entry: Polled
+    falls: int = 0  # its falling edges that made the poll due at once (the entry's alerts)
 
 
 @dataclass(eq=False)
@@ -181,6 +182,7 @@ class DriverPoller:
                     if b.inputs is a.inputs and b.line == e.line and e.active:
                         b.entry.due = min(b.entry.due, e.t, now)
                         b.entry.alerts += 1
+                        b.falls += 1
 
     def remove(self, entry: Polled) -> None:
         self.entries = [e for e in self.entries if e is not entry]

@@ -11,7 +11,13 @@ set up and read back), MoveTo moves each chip, InitMove homes on the SW
 input (zero where ReleaseSW leaves the switch), an overcurrent on one chip gives E4 with
 the flag named, and the whole byte transcript, decoded per chip, is the datasheets'
 framing (mode 3, one byte per chip per transfer, chip select raised after each) carrying
-the commands the daemon was asked for.
+the commands the daemon was asked for. Each chip's FLAG and BUSY outputs are gpio-sim
+lines the responder drives (``[motors.dspin] flag``/``busy``, the lines the variant's
+dropped STEP and DIR leave free): the overcurrent reaches E4 through the FLAG line's edge
+(the chip's ``flag_alerts`` in the status), and a motor at rest is answered from its BUSY
+line (``busy_answers`` grows while the transcript shows no read of that chip over SPI but
+one in REST_READ_EVERY; the line falls while the chip runs). In the v2 guest, ``motorctld
+--probe`` then finds each chip over the same spidev.
 """
 
 from __future__ import annotations
@@ -31,10 +37,11 @@ from typing import Any
 import pytest
 
 from hwtest import gsim
-from hwtest.layout import GUEST_READY_TIMEOUT_S, in_the_guest
+from hwtest.layout import GUEST_READY_TIMEOUT_S, in_the_guest, where
 from motorctl.hal.dspin.chips import L6470, L6480, POWERSTEP01_VOLTAGE, Chip
 from motorctl.hal.dspin.commands import Command, Op, decode
-from tests.support.daemon_proc import DaemonProcess
+from motorctl.hal.layers.dspin.driver import REST_READ_EVERY
+from tests.support.daemon_proc import DaemonProcess, run_probe
 from tests.support.stand_ins import until_cleared, until_e4
 
 pytestmark = pytest.mark.skipif(not gsim.available(), reason="needs gpio-sim (make test-hw)")
@@ -46,6 +53,11 @@ CHIPS: tuple[Chip, ...] = (L6470, L6480, POWERSTEP01_VOLTAGE)
 DRIVERS = ("l6470", "l6480", "powerstep01")
 #: each chip's SW closes at or below this shaft position (microsteps from power-up)
 SWITCH_AT = -400
+#: each chip's FLAG and BUSY line: the STEP and DIR lines of its motor in the example
+FLAG = ("GPIO17", "GPIO22", "GPIO5")
+BUSY = ("GPIO27", "GPIO23", "GPIO6")
+#: the idle reads the BUSY check waits for (the executor's at rest: [dspin] ramp_idle_poll_ms)
+IDLE_READS = 12
 #: the tables of each motor that wire it to STEP/DIR lines and a TMC5160
 _STEP_DIR = re.compile(
     r"  \[motors\.endstop\]\n(?:  \w+ = [^\n]*\n)*"
@@ -69,8 +81,9 @@ ramp_idle_poll_ms = 250.0
 def dspin_variant() -> str:
     """docs/examples/raspberry-pi.toml as the guest runs it (:func:`in_the_guest`), each
     motor's end stop, STEP/DIR lines and TMC5160 replaced by its chip of one dSPIN chain on
-    /dev/spidev0.0 (SW: the end stop below the axis); the polls slowed for the emulated
-    guest, where each transfer is a round trip to a Python process."""
+    /dev/spidev0.0 (SW: the end stop below the axis; FLAG and BUSY on the lines STEP and DIR
+    leave free); the polls slowed for the emulated guest, where each transfer is a round
+    trip to a Python process."""
     text = in_the_guest(EXAMPLE.read_text(), API)
     text = text.replace('  source = "endstop"\n', "")
     tables = iter(
@@ -81,6 +94,8 @@ def dspin_variant() -> str:
   microsteps = 16
   ocd_th = 8
   switch = "min"
+  flag = "{FLAG[i]}"
+  busy = "{BUSY[i]}"
 """
         for i, driver in enumerate(DRIVERS)
     )
@@ -116,6 +131,8 @@ def start_chain(tmp: Path) -> Chain:
     control, transcript = tmp / "control.json", tmp / "transcript.jsonl"
     cmd = [sys.executable, str(REPO / "hwtest" / "dspin_chain.py"), "--control", str(control)]
     cmd += ["--transcript", str(transcript), "--switch-at", str(SWITCH_AT)]
+    for option, lines in (("--flag", FLAG), ("--busy", BUSY)):
+        cmd += [option, ",".join("{}:{}".format(*where(line)) for line in lines)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True)
     assert proc.stdout is not None
     ready, _, _ = select.select([proc.stdout], [], [], 120.0)
@@ -206,6 +223,9 @@ def test_the_example_runs_its_motors_on_a_dspin_chain_over_spidev(
         ("powerSTEP01 (voltage mode)", "/dev/spidev0.0", 2),
     ]
     assert all(x["polls"] > 0 and x["spi_errors"] == 0 for x in drivers)
+    wired = [(x["flag_line"], x["busy_line"], x["flag_alerts"]) for x in drivers]
+    assert wired == [(f, b, 0) for f, b in zip(FLAG, BUSY, strict=True)]
+    assert all(high(line) for line in FLAG + BUSY), "a chip signals at rest (the lines read low)"
     with d.client(timeout=30.0) as c:  # an answer under TCG on a busy machine: seconds
         print(f"status read, s: {time.monotonic() - t0:.1f}")
         c.move_to(0, 320, speed=250)  # MoveTo: GoTo_DIR on chip 0 (x)
@@ -222,13 +242,26 @@ def test_the_example_runs_its_motors_on_a_dspin_chain_over_spidev(
         c.wait_moved(0, timeout_ms=20_000)
         assert c.position(0) == 80
         print(f"homed, s: {time.monotonic() - t0:.1f}")
-        chain.inject({1: ["OCD"]})  # y's bridges: overcurrent
+        rest = answered_from_busy(d, 2)  # z stands since its move: BUSY answers its reads
+        print(f"rested, s: {time.monotonic() - t0:.1f}")
+        c.move_to(2, 4160, speed=60)  # 4000 steps at 240 step/s: its BUSY line falls
+        until_low(BUSY[2], 20.0)
+        c.stop(2, hard=True)
+        c.wait_moved(2, timeout_ms=20_000)
+        assert high(BUSY[2]), "z stopped: its BUSY line still low"
+        before = [x["flag_alerts"] for x in d.status()["drivers"]]
+        chain.inject({1: ["OCD"]})  # y's bridges: overcurrent (FLAG falls between transfers)
         until_e4(c, 1, 100, timeout_ms=20_000)
+        # the poller took FLAG's falling edge and read the chain at once: E4 came through it
+        after = [x["flag_alerts"] for x in d.status()["drivers"]]
+        assert after[1] > before[1] and after[::2] == before[::2], (before, after)
+        assert [high(line) for line in FLAG] == [True, False, True]  # OCD lasts: y's low
         chain.inject({})
         until_cleared(c, 1)
         c.move_to(1, 100, speed=250)
         c.wait_moved(1, timeout_ms=20_000)
         assert c.position(1) == 100
+        assert all(high(line) for line in FLAG + BUSY), "cleared and at rest: every line high"
     assert d.status()["drivers"][1]["fault_counts"].get("OCD", 0) >= 1
     # a MoveTo of until_e4's that reaches the chip after the fault and before the poll reads
     # it is refused by the chip (bridges off: NOTPERF_CMD, the L6480's CMD_ERROR), and the
@@ -236,9 +269,69 @@ def test_the_example_runs_its_motors_on_a_dspin_chain_over_spidev(
     named = r"driver fault: L6480: (CMD_ERROR \(the chip refused a command\), )?OCD[;:]"
     assert re.search(named, d.stderr()), "the journal does not name the fault"
     assert d.terminate() == 0
+    if API == "v2":  # once, in one guest: another motorctld under TCG costs 40-60 s
+        assert d.config is not None
+        probe_finds_the_chain(d.config)
+        print(f"probed, s: {time.monotonic() - t0:.1f}")
     transfers = chain.stop()
     print(f"{len(transfers)} transfers, s: {time.monotonic() - t0:.1f}")
     check_transcript(transfers)
+    check_rest(transfers, 2, *rest)
+
+
+def probe_finds_the_chain(config: Path) -> None:
+    """``motorctld --probe`` over the spidev: each chip's CONFIG read and named, STATUS
+    decoded, no problem (the daemon has let go of the lines)."""
+    out = run_probe(config)
+    assert out.returncode == 0, out.stdout + out.stderr
+    for i, (name, chip) in enumerate(zip("xyz", CHIPS, strict=True)):
+        said = f"{name}: #{i} on /dev/spidev0.0: configured {chip.name}, CONFIG 0x"
+        said += f"{chip.config.reset:04X} ({chip.name}); STATUS "
+        assert said in out.stdout, out.stdout
+
+
+def high(line: str) -> bool:
+    """The level of a gpio-sim line as the daemon's request reads it."""
+    chip, offset = where(line)
+    return gsim.sim_value(offset, chip)
+
+
+def until_low(line: str, timeout_s: float) -> None:
+    """Wait (``timeout_s`` at most) until ``line`` reads low."""
+    deadline = time.monotonic() + timeout_s
+    while high(line):
+        assert time.monotonic() < deadline, f"{line} not low within {timeout_s} s"
+        time.sleep(0.05)
+
+
+def answered_from_busy(d: DaemonProcess, chip: int) -> tuple[float, float, int]:
+    """Wait (60 s at most) until ``IDLE_READS`` of the executor's reads of ``chip``, at rest,
+    have been answered from its BUSY line: the window (CLOCK_MONOTONIC, as the responder's
+    transcript) and how many were answered from the line in it or just after."""
+    first = d.status()["drivers"][chip]["busy_answers"]
+    start = time.monotonic()
+    while True:
+        end = time.monotonic()
+        answered = d.status()["drivers"][chip]["busy_answers"] - first
+        if answered >= IDLE_READS:
+            return start, end, answered
+        assert end < start + 60.0, f"{answered} reads of chip {chip} answered from BUSY in 60 s"
+        time.sleep(0.25)
+
+
+def check_rest(transfers: list[dict[str, Any]], chip: int, t0: float, t1: float, n: int) -> None:
+    """While ``n`` reads of ``chip`` were answered from BUSY (from ``t0`` to just after
+    ``t1``), its ramp reads over SPI (GetParam STATUS, ABS_POS, SPEED) were one in
+    ``REST_READ_EVERY`` at most: without the line every one of the ``n`` is three GetParams.
+    The chain's GetStatus polls ([drivers] poll_ms) address every chip whatever BUSY says."""
+    at = {t["seq"]: t["t"] for t in transfers}
+    reads = [
+        s.command.register
+        for s in per_chip(transfers, chip)
+        if s.command.op is Op.GET_PARAM and t0 <= at[s.seq[0]] <= t1
+    ]
+    spi_reads = n // REST_READ_EVERY + 2  # a read at each end of the window
+    assert len(reads) <= 3 * spi_reads, f"{len(reads)} GetParams of chip {chip} at rest: {reads}"
 
 
 def check_transcript(transfers: list[dict[str, Any]]) -> None:

@@ -74,6 +74,7 @@ from motorctl.hal.interfaces import (
 )
 from motorctl.hal.layers.dspin import chain as framing
 from motorctl.hal.layers.dspin import convert, program
+from motorctl.hal.poller import Alert
 from motorctl.hal.spi import SpiBus, SpiError
 
 log = logging.getLogger("motorctl.dspin")
@@ -191,6 +192,8 @@ class DspinDriver(StepperDriver, RampDriver):
         self._rest_reads = 0  # answered from it since
         self.busy_answers = 0  # ramp reads answered from BUSY, without SPI
         self._seen: _Seen | None = None  # the read the next command builds on (_Seen)
+        #: the chip's FLAG line as the driver poller's alert, where wired
+        self.flag_alert: Alert | None = None
 
     # -- the bus ---------------------------------------------------------------------------
     def _get(self, register: str) -> int:
@@ -308,6 +311,7 @@ class DspinDriver(StepperDriver, RampDriver):
             "flag_line": self.spec.flag or None,
             "busy_line": self.spec.busy or None,
             "busy_answers": self.busy_answers,
+            "flag_alerts": None if self.flag_alert is None else self.flag_alert.falls,
         }
 
     # -- the ramp (RampDriver) -------------------------------------------------------------

@@ -105,8 +105,11 @@ def attach_chains(
             hw.poller.forget(hw.steppers[i].driver)  # a backend's stand-in: not read now
             hw.steppers[i].driver = driver
         entry = hw.poller.add(f"dSPIN chain on {node}", chain.poll, chain.drivers)
-        for inputs, _ in wire_lines(hw, members, "flag"):
-            hw.poller.alert(entry, inputs, 0)  # FLAG falls: GetStatus of the chain at once
+        for inputs, on in wire_lines(hw, members, "flag"):
+            alert = hw.poller.alert(entry, inputs, 0)  # FLAG falls: the chain read at once
+            for driver in chain.drivers:
+                if driver.position in on:
+                    driver.flag_alert = alert
         for inputs, on in wire_lines(hw, members, "busy"):
             for driver in chain.drivers:
                 if driver.position in on:

@@ -81,11 +81,17 @@ def test_a_fault_reaches_the_hosts_next_command_at_once_with_flag_else_at_the_po
     y.inject("OCD")
     rig.run(0.001)  # a millisecond later, well inside the poll period of 20 ms
     answer = rig.call(IsReady(1)).error_code
+    # the status's count of them: each chip on the FLAG line (wired-OR: both), null unwired
+    said = [
+        (d.stats() or {}).get("flag_alerts") for d in (s.driver for s in rig.daemon.hw.steppers)
+    ]
     if wired:  # FLAG fell: the chain was read at once, the motor faulted
         assert answer is ErrorCode.MOTOR_ERROR
         assert entry.polls == polls + 1 and entry.alerts == 1
+        assert said == [1, 1]
     else:  # the poll has not come yet: the host still hears a healthy motor
         assert answer is None and entry.polls == polls and entry.alerts == 0
+        assert said == [None, None]
         rig.run(0.020)  # the next poll reads it
         assert rig.call(IsReady(1)).error_code is ErrorCode.MOTOR_ERROR
     assert rig.call(IsReady(0)).error_code is None  # the other chip of the wired-OR: fine
