@@ -167,11 +167,7 @@ def per_chip(transfers: list[dict[str, Any]], chip: int) -> list[Seen]:
         t = transfers[i]
         d = decode(CHIPS[chip], bytes.fromhex(t["tx"])[slot])
         assert not d.wrong, f"transfer {t['seq']}: chip {chip} gets a byte it has no command for"
-        n = d.argument
-        if d.op is Op.GET_PARAM and d.register is not None:
-            n = d.register.nbytes
-        elif d.op is Op.GET_STATUS:
-            n = 2
+        n = d.follows
         part = transfers[i + 1 : i + 1 + n]
         tx = bytes(bytes.fromhex(x["tx"])[slot] for x in part)
         rx = bytes(bytes.fromhex(x["rx"])[slot] for x in part)

@@ -242,6 +242,16 @@ class Decoded:
     argument: int = 0
     wrong: bool = False
 
+    @property
+    def follows(self) -> int:
+        """How many bytes follow the command byte in its slot of the chain: its argument's
+        (written), or its answer's (GetParam: the register's; GetStatus: 2, read)."""
+        if self.op is Op.GET_PARAM and self.register is not None:
+            return self.register.nbytes
+        if self.op is Op.GET_STATUS:
+            return 2
+        return self.argument
+
     def command(self, argument: bytes = b"") -> Command:
         """The command, with its argument bytes (their unused high bits ignored, as the
         chip ignores them)."""

@@ -57,6 +57,17 @@ def test_each_command_is_its_datasheet_bytes(cmd: c.Command, expected: str) -> N
     assert decoded.command(data[1:]) == cmd
 
 
+def test_what_follows_a_command_byte_in_its_slot() -> None:
+    """An argument written after it, or an answer clocked out after it: a transcript's
+    reader steps over that many bytes (tests/hal/layers/dspin, hwtest/test_dspin_daemon.py)."""
+    assert c.decode(L6470, c.get_param(L6470.registers["ABS_POS"]).encode()[0]).follows == 3
+    assert c.decode(L6480, c.get_param(L6480.status_register).encode()[0]).follows == 2
+    assert c.decode(L6470, c.simple(Op.GET_STATUS).encode()[0]).follows == 2
+    assert c.decode(L6470, c.go_to_dir(1, 5).encode()[0]).follows == 3
+    assert c.decode(L6470, c.set_param(L6470.registers["ACC"], 1).encode()[0]).follows == 2
+    assert c.decode(L6470, c.simple(Op.SOFT_STOP).encode()[0]).follows == 0
+
+
 def test_the_l6480_s_config_and_status_addresses() -> None:
     assert c.get_param(L6480.config).encode() == bytes([0x3A])
     assert c.get_param(L6480.status_register).encode() == bytes([0x3B])

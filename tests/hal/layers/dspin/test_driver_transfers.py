@@ -65,11 +65,7 @@ def per_chip(chips: list[Chip], transfers: list[tuple[bytes, bytes]], chip: int)
     while i < len(transfers):
         d = decode(chips[chip], transfers[i][0][slot])
         assert not d.wrong, f"transfer {i}: chip {chip} gets a byte it has no command for"
-        n = d.argument
-        if d.op is Op.GET_PARAM and d.register is not None:
-            n = d.register.nbytes
-        elif d.op is Op.GET_STATUS:
-            n = 2
+        n = d.follows
         tail = transfers[i + 1 : i + 1 + n]
         reads = d.op in (Op.GET_PARAM, Op.GET_STATUS)
         arg = bytes(t[0][slot] for t in tail)
