@@ -426,15 +426,21 @@ class DspinDriver(StepperDriver, RampDriver):
         self._seen = self._rest = None
         try:
             with self.chain.bus.session():
-                word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
-                st = Status(self.chip.status, word)
-                self._keep(st)
+                st = self._take_status()
                 pos = self._get("ABS_POS")
                 speed = 0 if st.motor is MotorState.STOPPED else self._get("SPEED")
         except SpiError as exc:
             raise DspinError(f"{self.name}: {exc}") from exc
         self._seen = _Seen(st, pos, cleared=True)
         return self._ramp(pos, speed, st)  # a command it sends forgets _seen
+
+    def _take_status(self) -> Status:
+        """A GetStatus (it clears the chip's latches), its news kept for their readers (the
+        faults for the poller, SW_EVN for the ramp's next read)."""
+        word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
+        st = Status(self.chip.status, word)
+        self._keep(st)
+        return st
 
     def latched_position(self) -> int:
         self._seen = None
@@ -447,9 +453,7 @@ class DspinDriver(StepperDriver, RampDriver):
         seen, self._seen = self._seen, None
         with self.chain.bus.session():  # no poll between the read and the clearing
             if seen is None or not seen.cleared:
-                word = self.chain.exchange({self.position: simple(Op.GET_STATUS)})[self.position]
-                seen = _Seen(Status(self.chip.status, word), cleared=True)
-                self._keep(seen.status)
+                seen = _Seen(self._take_status(), cleared=True)
             with self._lock:  # the last motion's switch and stall are gone with it
                 self._kept.switch_event = self._kept.stall = False
             self._stall, self._stall_stopped, self._stall_told = stall, False, False
