@@ -174,6 +174,7 @@ class Link:
         os.set_blocking(self._wake_w, False)
         self._stopped = False
         self.turns = 0
+        self.waits = 0  # counted before each poll(): a turn's changes so far are done
         if self.away is not None and fd < 0:  # not there at start: served when it appears
             self.peer_gone = True
             self.away.awaited(self.clock())
@@ -298,6 +299,7 @@ class Link:
         parts = self.parts
         if parts is not None:
             parts.mark("bookkeeping")
+        self.waits += 1  # after what this turn changed before its wait (a reader's moment)
         ready_list = poller.poll(timeout)
         if parts is not None:
             parts.mark("poll")
@@ -325,14 +327,10 @@ class Link:
         if session.wait is None and not self._watching and not session.framer.pending:
             return None  # the usual turn: nothing due, nothing partial
         deadline = self._deadline()
-        gap = self.session.gap_left() if reading else None
-        if gap is None:
-            if deadline is None:
-                return None
-            left = deadline - now
-        else:
-            left = gap if deadline is None else min(gap, deadline - now)
-        return max(0.0, left) * 1000.0
+        lefts = [] if deadline is None else [deadline - now]
+        if reading and (gap := session.gap_left()) is not None:
+            lefts.append(gap)
+        return max(0.0, min(lefts)) * 1000.0 if lefts else None
 
     def _read(self, watched_since: float | None) -> None:
         """Read what is there. With ``watched_since`` the poll saw no input: a read that finds

@@ -107,7 +107,7 @@ class StatusDocument:
     def __init__(self, parts: Parts, clock: Callable[[], float] = time.monotonic) -> None:
         self.parts = parts
         self.clock = clock
-        self._link: tuple[tuple[int, int], dict[str, Any]] | None = None
+        self._link: tuple[tuple[int, int, int], dict[str, Any]] | None = None
         self._realtime: tuple[RealtimeReport, dict[str, Any]] | None = None
         self._last: tuple[float, tuple[Any, ...], dict[str, Any]] | None = None
 
@@ -150,10 +150,12 @@ class StatusDocument:
         return self._realtime[1]
 
 
-def link_moment(link: Link) -> tuple[int, int]:
+def link_moment(link: Link) -> tuple[int, int, int]:
     """What moves on when the link's status may have changed: its loop's turns (counted
-    when one is over, daemon/link/loop.py) and the answers taken for the host."""
-    return link.turns, link.session.outputs
+    when one is over, daemon/link/loop.py), its waits (counted before each ``poll()``: what
+    a turn changed before it waits, such as back pressure counted, is not left unseen for
+    as long as the host keeps it waiting) and the answers taken for the host."""
+    return link.turns, link.waits, link.session.outputs
 
 
 def status_document(

@@ -8,6 +8,8 @@ executor, link on a real PTY), read through its socket."""
 
 from __future__ import annotations
 
+import select
+import threading
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
@@ -17,7 +19,8 @@ import pytest
 from motorctl.daemon.status.document import StatusDocument
 from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.server import StatusServer
-from motorctl.protocol.codec import GetAbsPos, MoveTo, SetPin, WaitMoved
+from motorctl.protocol.codec import GetAbsPos, IsReady, MoveTo, SetPin, WaitMoved
+from tests.support.frames import frame
 from tests.support.inprocess import LIVE_CONFIG, LiveDaemon
 from tests.support.wait import until
 
@@ -68,3 +71,40 @@ def test_a_moves_end_is_seen_by_a_reader_of_the_status_alone(
     assert live.code(MoveTo(1, True, 200, 0, 0, 0)) is None
     until("motor 1 at rest at 200", lambda: read(path)["motors"][1]["state"] == "idle")
     assert read(path)["motors"][1]["position"] == 200
+
+
+def test_back_pressure_is_seen_while_the_host_keeps_the_link_waiting(tmp_path: Path) -> None:
+    """A reader's link part is kept until the link's moment moves on. A status read that
+    comes between a turn's end and the next turn's count of back pressure (the race of the
+    e2e test that hung, made certain here: the read is made right there, on the link's
+    thread) must not be the answer while the link then waits in ``poll()`` for a host that
+    never reads its answers: waiting moves the moment on."""
+    live = LiveDaemon(tmp_path, backlog_limit=64, start=False)
+    reader = StatusDocument(live.daemon)
+    link = live.link
+    listen = link._listen
+
+    def read_then_listen(poller: select.poll) -> bool:
+        reader.link(link)  # the status thread's read, just before back pressure is counted
+        return listen(poller)
+
+    link._listen = read_then_listen  # type: ignore[method-assign]
+    live.thread.start()
+    stop = threading.Event()
+    host = live.host()
+    writer = threading.Thread(
+        target=host.write, args=(frame(*[IsReady(0)] * 20_000), stop), daemon=True
+    )
+    try:
+        writer.start()
+        live.until("back pressure", lambda: live.counters()["backpressure"] > 0)
+        until(
+            "the reader to see the back pressure",
+            lambda: reader.link(link)["counters"]["backpressure"] > 0,
+            READ_DEADLINE_S,
+        )
+    finally:
+        stop.set()
+        writer.join(READ_DEADLINE_S)
+        host.close()
+        live.close()
