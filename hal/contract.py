@@ -49,13 +49,17 @@ T = TypeVar("T")
 
 class MotorEntry(Protocol):
     """What a declaration reads of a loaded ``[[motors]]`` entry (the daemon's MotorConfig):
-    its name, its direction and its sections (``[motors.<name>]``)."""
+    its name, its direction, its steps per revolution (0: a linear axis) and its sections
+    (``[motors.<name>]``)."""
 
     @property
     def name(self) -> str: ...
 
     @property
     def invert_dir(self) -> bool: ...
+
+    @property
+    def steps_per_rev(self) -> int: ...
 
     def section(self, cls: type[T]) -> T: ...
 

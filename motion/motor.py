@@ -129,10 +129,11 @@ class Motor:
 
     def counted_range(self) -> tuple[int, int] | None:
         """The targets (host positions) the driver's own counter can reach from where the
-        motor's zero is now (``MotorParams.counter_range``); None: any (a rotary axis's
-        counter wraps as it turns)."""
+        motor's zero is now (``MotorParams.counter_range``); None: any (the steps are counted
+        here, or the driver counts on past its counter's range, as a dSPIN's on a rotary
+        axis)."""
         r = self.params.counter_range
-        if r is None or self.params.rotary:
+        if r is None:
             return None
         return r[0] - self.offset, r[1] - self.offset
 

@@ -27,7 +27,9 @@ class DspinSpec(DriverSpec):
     derived from ``step_mode`` (STEP_MODE, from ``microsteps``); ``switch``: the end stop
     wired to the chip's SW input (``min``, ``max``, ``none``); ``flag``, ``busy``: the
     GPIO lines the chip's FLAG and BUSY outputs are wired to (a backend's line text; ""
-    not wired; chips of one chain may share one, wired-OR)."""
+    not wired; chips of one chain may share one, wired-OR); ``rotary``: the motor's axis
+    turns without end (``steps_per_rev`` > 0): its positions go on past ABS_POS's 22 bits,
+    which the chip wraps as it turns, and the driver counts them on (no ``counter_range``)."""
 
     spi: str
     position: int
@@ -39,6 +41,7 @@ class DspinSpec(DriverSpec):
     hiz_at_exit: bool = True
     flag: str = ""
     busy: str = ""
+    rotary: bool = False
 
     @property
     def own_ramp(self) -> bool:
@@ -50,7 +53,10 @@ class DspinSpec(DriverSpec):
 
     @property
     def counter_range(self) -> tuple[int, int] | None:
-        """ABS_POS: 22 bits of microsteps, two's complement."""
+        """ABS_POS: 22 bits of microsteps, two's complement; None on a rotary axis (the
+        driver counts on past them)."""
+        if self.rotary:
+            return None
         return -(1 << (ABS_POS_BITS - 1)), (1 << (ABS_POS_BITS - 1)) - 1
 
     @property

@@ -21,6 +21,7 @@ from typing import Any
 from motorctl.hal.contract import LayerDeclaration, MotorEntry
 from motorctl.hal.dspin.chips import CHIPS, Chip
 from motorctl.hal.dspin.spec import SWITCH_SIDES, DspinSpec
+from motorctl.hal.layers.dspin.convert import ABS_POS_SPAN
 from motorctl.hal.spec import HardwareSpec
 from motorctl.hal.spi import DEFAULT_DEVICE, DEVICE_PATTERN
 from motorctl.schema import (
@@ -52,9 +53,11 @@ def _line(value: str) -> str | None:
     "itself (absent: no dSPIN chip).",
     notes="""\
 The chip runs its own ramps: the motor has no STEP/DIR lines, positions are the chip's
-ABS_POS (22 bits of microsteps: -2097152..2097151), homing is the chip's GoUntil on its SW
-input and ReleaseSW back off it, or with `homing.source = "stall"` (a chip with STALL_TH,
-`switch = "none"`) a run that the chip's stall detection ends (docs/dspin.md). Chips on one
+ABS_POS (22 bits of microsteps: -2097152..2097151; a rotary axis counts on past them as the
+chip's counter wraps, and its `steps_per_rev` is at most 4194304), homing is the chip's
+GoUntil on its SW input and ReleaseSW back off it, or with `homing.source = "stall"` (a
+chip with STALL_TH, `switch = "none"`) a run that the chip's stall detection ends
+(docs/dspin.md). Chips on one
 chip select form a daisy chain: `position` 0 is the chip whose SDI is wired to the host's
 MOSI, the others follow in the order of the wiring; every chip of a chain is configured
 (positions 0..N-1) and all of a chain's motors give the same `spi_speed_hz`. At start each
@@ -182,6 +185,7 @@ def driver_spec(motor: MotorEntry) -> DspinSpec | None:
         hiz_at_exit=v.hiz_at_exit,
         flag=v.flag,
         busy=v.busy,
+        rotary=motor.steps_per_rev > 0,
     )
 
 
@@ -235,6 +239,20 @@ def _soft_limits(v: Mapping[str, Any]) -> Violation | None:
                 f"beyond the dSPIN's ABS_POS ({lo}..{hi}, 22 bits of microsteps): the chip "
                 "cannot count to it",
             )
+    return None
+
+
+def _one_turn(v: Mapping[str, Any]) -> Violation | None:
+    """A rotary axis's MoveTo goes less than one revolution: one GoTo_DIR of the chip goes
+    less than one turn of its counter (2^22 microsteps)."""
+    spr = v["steps_per_rev"]
+    if v["dspin"] is not None and spr > ABS_POS_SPAN:
+        return (
+            "steps_per_rev",
+            spr,
+            f"more than a dSPIN's GoTo_DIR goes in one command ({ABS_POS_SPAN} microsteps, "
+            "once round ABS_POS's 22 bits): fewer microsteps or a smaller revolution",
+        )
     return None
 
 
@@ -378,6 +396,11 @@ class DspinDeclaration(LayerDeclaration):
                         _widths,
                     ),
                     Rule(("dspin",), "not with [motors.tmc] on the same motor", _not_tmc_too),
+                    Rule(
+                        ("steps_per_rev", "dspin"),
+                        f"at most {ABS_POS_SPAN} (ABS_POS's 22 bits) on a dSPIN motor",
+                        _one_turn,
+                    ),
                     Rule(
                         ("homing.source", "dspin"),
                         "stall only on a chip with stall detection and no switch on SW",

@@ -19,7 +19,10 @@ The rule (docs/dspin.md, "Values the chip cannot take"), written once here:
   round down too; MIN_SPEED may be 0.
 - **Positions outside ABS_POS's 22 bits are refused** (E1): -2,097,152..2,097,151
   microsteps, a quarter of the protocol's 24-bit range; config refuses soft limits, home
-  and waypoints beyond it (:func:`check_position`).
+  and waypoints beyond it (:func:`check_position`). A rotary axis has no such range: its
+  positions go on past ABS_POS's 22 bits, which the chip wraps as it turns
+  (:func:`abs_pos`, :func:`unwrap`); a GoTo_DIR goes less than one turn of the counter
+  (:func:`check_turn`).
 
 Pure: any thread.
 """
@@ -37,6 +40,8 @@ from motorctl.hal.dspin.scales import Scale
 ABS_POS_MIN: Final = -(1 << (ABS_POS_BITS - 1))
 ABS_POS_MAX: Final = (1 << (ABS_POS_BITS - 1)) - 1
 N_STEP_MAX: Final = (1 << ABS_POS_BITS) - 1
+#: the counter's span: ABS_POS wraps by it (2,097,151 + 1 = -2,097,152)
+ABS_POS_SPAN: Final = 1 << ABS_POS_BITS
 
 
 class OutOfRange(ValueError):
@@ -119,3 +124,29 @@ def check_distance(steps: int) -> int:
     if not 0 <= steps <= N_STEP_MAX:
         raise OutOfRange(f"a move of {steps} steps is outside Move's N_STEP 0..{N_STEP_MAX}")
     return steps
+
+
+def abs_pos(position: int) -> int:
+    """``position`` (a rotary axis's, past ABS_POS's range) as ABS_POS holds it: wrapped
+    to 22 bits of two's complement, as the chip's counter wraps when it turns on."""
+    return (position - ABS_POS_MIN) % ABS_POS_SPAN + ABS_POS_MIN
+
+
+def unwrap(value: int, near: int) -> int:
+    """The position an ABS_POS read of ``value`` stands for: of those the counter shows as
+    ``value``, the one nearest ``near`` (the position the read before found). Unambiguous
+    while the motor moved less than half of ABS_POS's span (2,097,152 microsteps) between
+    the two reads."""
+    return near + abs_pos(value - near)
+
+
+def check_turn(position: int, target: int) -> int:
+    """``target`` as GoTo_DIR's ABS_POS for a motion from ``position`` (a rotary axis's
+    positions), if the chip can go that far in one GoTo_DIR: less than a whole turn of its
+    counter (at most 2^22 - 1 microsteps), else :class:`OutOfRange`."""
+    if abs(target - position) > N_STEP_MAX:
+        raise OutOfRange(
+            f"a move of {abs(target - position)} steps is more than the dSPIN's GoTo_DIR "
+            f"goes ({N_STEP_MAX}: once round ABS_POS's 22 bits)"
+        )
+    return abs_pos(target)

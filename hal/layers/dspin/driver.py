@@ -31,6 +31,18 @@ motor's stall, not a fault: the ramp's read that finds it stops the chip at once
 the homing's run there and zeroes, docs/protocol.md's homing rule); a GetStatus that finds
 it first (the poller's, at once with FLAG wired) reports it the same way.
 
+**A rotary axis** (``DspinSpec.rotary``) has no ends: a Run goes on past ABS_POS's 22
+bits, which the chip wraps (2,097,151 + 1 = -2,097,152), and the driver counts on: each
+ABS_POS read is taken as the position nearest the one read before (``convert.unwrap``), so
+the executor sees positions without end, as a STEP/DIR motor's step count, and motion's
+rotary rule (position modulo ``steps_per_rev``) holds across the wrap; a GoTo_DIR goes to
+the target wrapped to 22 bits (``convert.check_turn``). This is unambiguous while the motor
+moves less than half the counter's span (2,097,152 microsteps) between two reads: the
+executor reads a moving motor every ``ramp_poll_ms`` (at most 1 s) and a motor goes at most
+``max_speed`` (at most 200,000 step/s), so at most 200,000 microsteps a period, a tenth of
+that (tests/hal/layers/dspin/test_driver_rotary.py checks the config's bounds say so). A
+linear axis keeps ABS_POS's range: a Run stops at its end (``_keep_in_range``).
+
 Units: positions are ABS_POS (microsteps, one protocol step each), speeds step/s and
 ramps step/s^2 of the protocol, converted to the registers by ``convert.py`` (clamped,
 never refused; the clamps are counted in ``clamped``).
@@ -178,8 +190,11 @@ class DspinDriver(StepperDriver, RampDriver):
         self._stall = False  # STEP_LOSS is the motion's stall (stall homing), not a fault
         self._stall_stopped = False  # a ramp read found it and stopped the chip
         self._stall_told = False  # the executor saw it (report_stall_stop): a stall
-        self._run = 0  # a Run (or GoUntil) under way, +1/-1: watched for ABS_POS's end
+        self._run = 0  # a linear axis's Run (or GoUntil), +1/-1: watched for ABS_POS's end
         self._run_dec = 0.0  # its DEC register, step/s^2
+        #: a rotary axis: the position the last ABS_POS read stood for (counted on past
+        #: ABS_POS's 22 bits, ``convert.unwrap``); None before the first read
+        self._at: int | None = None
         self.polls = 0
         self.spi_errors = 0
         self.clamped = 0
@@ -206,6 +221,15 @@ class DspinDriver(StepperDriver, RampDriver):
 
     def _set(self, values: Mapping[str, int]) -> list[Command]:
         return [set_param(self.chip.registers[n], v) for n, v in values.items()]
+
+    def _position(self, value: int) -> int:
+        """The position an ABS_POS read of ``value`` stands for: the value itself on a
+        linear axis; on a rotary one, counted on past the wrap from the read before."""
+        if not self.spec.rotary:
+            return value
+        at = self._at
+        self._at = value if at is None else convert.unwrap(value, at)
+        return self._at
 
     # -- start-up --------------------------------------------------------------------------
     def start(self) -> None:
@@ -323,7 +347,8 @@ class DspinDriver(StepperDriver, RampDriver):
         got = {}
         for name in ("STATUS", "ABS_POS", "SPEED"):
             got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
-        return got["ABS_POS"], got["SPEED"], Status(self.chip.status, got["STATUS"])
+        st = Status(self.chip.status, got["STATUS"])
+        return self._position(got["ABS_POS"]), got["SPEED"], st
 
     def _busy(self) -> bool:
         """BUSY's level on its line (the line read, no SPI); True without a line."""
@@ -401,12 +426,12 @@ class DspinDriver(StepperDriver, RampDriver):
             self._keep_in_range(pos, speed, st.busy)
 
     def _keep_in_range(self, pos: int, speed: float, busy: bool) -> None:
-        """A Run stops at the end of ABS_POS's range as at a soft limit (docs/dspin.md,
-        "Values the chip cannot take"): past it the counter would wrap. Within two polls of
-        where braking with DEC must start, a GoTo_DIR to the end (the chip takes it once
-        the Run has reached its speed and released BUSY: it brakes to stand exactly
-        there), or while the chip still ramps, a SoftStop short of it; either ends the run
-        as settled."""
+        """A linear axis's Run stops at the end of ABS_POS's range as at a soft limit
+        (docs/dspin.md, "Values the chip cannot take"): past it the counter would wrap.
+        Within two polls of where braking with DEC must start, a GoTo_DIR to the end (the
+        chip takes it once the Run has reached its speed and released BUSY: it brakes to
+        stand exactly there), or while the chip still ramps, a SoftStop short of it; either
+        ends the run as settled."""
         end = convert.ABS_POS_MAX if self._run > 0 else convert.ABS_POS_MIN
         braking = speed * speed / (2 * self._run_dec) if self._run_dec > 0 else 0.0
         if abs(end - pos) > braking + speed * 2 * self.poll_s + 1:
@@ -427,7 +452,7 @@ class DspinDriver(StepperDriver, RampDriver):
         try:
             with self.chain.bus.session():
                 st = self._take_status()
-                pos = self._get("ABS_POS")
+                pos = self._position(self._get("ABS_POS"))
                 speed = 0 if st.motor is MotorState.STOPPED else self._get("SPEED")
         except SpiError as exc:
             raise DspinError(f"{self.name}: {exc}") from exc
@@ -443,8 +468,11 @@ class DspinDriver(StepperDriver, RampDriver):
         return st
 
     def latched_position(self) -> int:
+        """MARK (where the switch's edge was, moments ago): on a rotary axis the position
+        nearest the last read that it stands for."""
         self._seen = None
-        return self._get("MARK")
+        mark = self._get("MARK")
+        return mark if self._at is None else convert.unwrap(mark, self._at)
 
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
         """The stops of the next motion armed, the last motion's switch event and stall
@@ -489,10 +517,21 @@ class DspinDriver(StepperDriver, RampDriver):
             self._do(program.stop(hard=False))
             return
         # GoTo_DIR's direction: from where a standing motor stands, a moving one is now
-        pos = seen.position if standing and seen.position is not None else self._get("ABS_POS")
+        if standing and seen.position is not None:
+            pos = seen.position
+        else:
+            pos = self._position(self._get("ABS_POS"))
         try:
             p = program.move_to(
-                self.chip, self.microsteps, pos, target, speed, acc, dec, at_rest=standing
+                self.chip,
+                self.microsteps,
+                pos,
+                target,
+                speed,
+                acc,
+                dec,
+                at_rest=standing,
+                rotary=self.spec.rotary,
             )
         except convert.OutOfRange as exc:
             raise DspinError(f"{self.name}: {exc}") from exc
@@ -500,12 +539,15 @@ class DspinDriver(StepperDriver, RampDriver):
 
     def run(self, direction: int, speed: float, acc: float) -> None:
         standing = self._take().standing
-        # watched for ABS_POS's end with the DEC the chip will have (written at rest only)
-        if standing:
-            self._run_dec = convert.ramp(acc, self.microsteps).value
+        # a linear axis's run is watched for ABS_POS's end with the DEC the chip will have
+        # (written at rest only); a rotary axis's runs on past it (the counter wraps)
+        if self.spec.rotary:
+            self._run = 0
+        elif standing:
+            self._run, self._run_dec = direction, convert.ramp(acc, self.microsteps).value
         else:
-            self._run_dec = float(scales.ACC.value(self._get("DEC")) * self.microsteps)
-        self._run = direction
+            dec = float(scales.ACC.value(self._get("DEC")) * self.microsteps)
+            self._run, self._run_dec = direction, dec
         up = direction > 0
         side = {"min": -1, "max": 1}.get(self.spec.switch, 0)
         if side and self._watch == side == direction:  # to the switch: MARK at its edge

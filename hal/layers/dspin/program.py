@@ -4,7 +4,8 @@ order, with the registers they need (docs/dspin.md, "The protocol's commands on 
 - MoveTo (and GoHome, MoveToWayPoint with the saved position): MAX_SPEED, ACC and DEC
   when the motor stands, then GoTo_DIR towards the target, never GoTo: GoTo takes the
   shortest way round ABS_POS's 22 bits, which for a distance of 2^21 or more is the wrong
-  way on a linear axis.
+  way on a linear axis. On a rotary axis the positions go on past ABS_POS's 22 bits: the
+  target is wrapped to them and reached in the direction of travel.
 - Move: MAX_SPEED (the motor's maximum: Run runs at min(SPD, MAX_SPEED)), ACC and DEC when
   the motor stands (they are writable only then: a Move that changes a running Move keeps
   the ramps it has), then Run.
@@ -66,19 +67,25 @@ def move_to(
     acc: float,
     dec: float,
     at_rest: bool = True,
+    rotary: bool = False,
 ) -> Program:
     """MoveTo ``target`` from ``position`` at ``speed`` step/s with ramps ``acc``, ``dec``
     step/s^2, the ramps written only ``at_rest`` (a GoTo given while the chip runs at its
     speed keeps the ramps it has); :class:`~convert.OutOfRange` for a target ABS_POS cannot
-    hold (E1)."""
-    convert.check_position(target, "target")
+    hold (E1). ``rotary``: the positions go past ABS_POS's range (the chip's counter wraps
+    as the axis turns): GoTo_DIR to the target wrapped to 22 bits, in the direction of
+    travel; :class:`~convert.OutOfRange` for a move of a whole turn of the counter or more."""
+    if rotary:
+        register = convert.check_turn(position, target)
+    else:
+        register = convert.check_position(target, "target")
     wanted = {"MAX_SPEED": convert.max_speed(speed, microsteps)}
     if at_rest:
         wanted["ACC"] = convert.ramp(acc, microsteps)
         wanted["DEC"] = convert.ramp(dec, microsteps)
     setup = _settings(chip, wanted)
     direction = FORWARD if target >= position else REVERSE
-    return Program((*setup.commands, go_to_dir(direction, target)), setup.clamped)
+    return Program((*setup.commands, go_to_dir(direction, register)), setup.clamped)
 
 
 def move(

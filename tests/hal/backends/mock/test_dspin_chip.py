@@ -216,3 +216,14 @@ def test_abs_pos_wraps_at_22_bits() -> None:
     send(chip, c.move(c.FORWARD, 5).encode())
     chip.advance(1)
     assert reg(chip, "ABS_POS") == 0x200002  # -2^21 + 2, as the chip sends it
+    # a Run wraps as it goes (down, back across), and GoTo_DIR goes in its DIR to a target
+    # across the wrap
+    send(chip, c.run(c.REVERSE, 0x1000).encode())  # 0x1000 * 2^-28 / 250 ns: 61 step/s
+    chip.advance(0.1)
+    send(chip, c.simple(Op.HARD_STOP).encode())
+    back = chip.abs_pos
+    assert 2**21 - 100 < back < 2**21  # wrapped back to the top
+    before = chip.shaft
+    send(chip, c.go_to_dir(c.FORWARD, -(2**21) + 3).encode())  # up through the wrap
+    chip.advance(1)
+    assert reg(chip, "ABS_POS") == 0x200003 and chip.shaft - before == 2**21 - back + 3

@@ -33,6 +33,19 @@ def test_move_to_never_takes_the_short_way_round_on_a_linear_axis() -> None:
         program.move_to(L6480, 128, position=0, target=2**21, speed=1, acc=1, dec=1)
 
 
+def test_move_to_on_a_rotary_axis_goes_to_the_wrapped_target_in_its_direction() -> None:
+    # from 2,097,000 up 500 steps, past ABS_POS's end: GoTo_DIR forward to -2,096,804 (the
+    # counter wraps on the way); down from there to before the end again
+    up = program.move_to(L6470, 16, 2_097_000, 2_097_500, 1000, 1600, 1600, rotary=True)
+    assert hexes(up)[-1] == "69 20 01 5C"  # 0x20015C: -2,096,804 in 22 bits
+    down = program.move_to(L6470, 16, 2_097_500, 2_097_000, 1000, 1600, 1600, rotary=True)
+    assert hexes(down)[-1] == "68 1F FF 68"  # 2,097,000
+    # at most once round the counter less a step: a whole turn would not move at all
+    program.move_to(L6470, 16, 0, 2**22 - 1, 1, 1, 1, rotary=True)
+    with pytest.raises(OutOfRange, match="more than the dSPIN's GoTo_DIR goes"):
+        program.move_to(L6470, 16, 0, -(2**22), 1, 1, 1, rotary=True)
+
+
 def test_clamped_values_are_named() -> None:
     p = program.move_to(L6470, 128, position=0, target=10, speed=4, acc=16, dec=16)
     assert p.clamped == ("MAX_SPEED", "ACC", "DEC")
