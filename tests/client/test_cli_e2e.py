@@ -141,6 +141,14 @@ def test_a_latched_fault_says_what_latched_it_and_how_to_clear_it(
     assert motorctl(*port, "ready", "0").stdout == "motor 0 ready\n"
 
 
+def sigint_as_in_a_terminal() -> None:
+    """In the child, before its exec: SIGINT's default disposition, as a terminal's
+    foreground program has it. A test run started in the background (``make test &``)
+    has SIGINT ignored, the child would inherit that, and Python leaves an ignored SIGINT
+    ignored: Ctrl-C could not be what the test is about."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def test_ctrl_c_during_wait_says_the_motor_keeps_moving(daemon: DaemonProcess) -> None:
     port = ("-p", str(daemon.pty))
     assert motorctl(*port, "moveto", "0", "1000", "--speed", "25").returncode == 0  # 100 step/s
@@ -150,6 +158,7 @@ def test_ctrl_c_during_wait_says_the_motor_keeps_moving(daemon: DaemonProcess) -
         stderr=subprocess.PIPE,
         text=True,
         cwd=REPO,
+        preexec_fn=sigint_as_in_a_terminal,
     )
     try:
         until("the WaitMoved held by the daemon", lambda: daemon.status()["link"]["waiting"])
