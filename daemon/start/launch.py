@@ -14,8 +14,9 @@ until READY: the imports build thousands of objects (every dataclass's methods, 
 table, the config schema) and the collector would look at all of them again and again, a
 tenth of the start's CPU for no garbage worth it (docs/timing.md). The daemon collects
 once, after READY (``rt.GcPolicy.ready``, daemon/start/serve.py), freezes what lives on
-and turns automatic collection back on; the executor's process does the same in its own
-interpreter (``motion/executors/process/start.py``).
+and turns automatic collection back on. The executor's bootstrap turns it off on its first
+line too (``motion/executors/process/start.py``): that process collects while it waits
+and runs without automatic collection once ready, as it did before.
 
 ``motorctld --status --watch`` (the live monitor) ends on SIGINT and SIGTERM from this
 command's first instruction on (``daemon/status/monitor.py``, ``end_on_signals``): they are
