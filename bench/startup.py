@@ -13,7 +13,9 @@ whether anything is mapped from /dev/shm; then SIGTERM, and the next run.
 
 Its ratio to a bare interpreter (``python -c pass``, started the same way, one before each
 run: the same load for both) is the figure to judge: the median READY over the median bare
-start, in the same run.
+start, in the same run. Beside it, the CPU ratio: the daemon's CPU time by READY over the
+bare interpreter's (medians), steadier than the wall clock on a shared machine, where the
+executor's interpreter and other work take the second CPU from the daemon.
 
 The breakdown comes from the daemon's own start-up timeline (daemon/start/timeline.py: run with
 ``--log-level debug``, it logs when each step of its start ended, on the monotonic clock this
@@ -250,6 +252,9 @@ def figures(runs_of: list[dict[str, Any]], bare: dict[str, list[float]]) -> dict
         "ready_ms": spread(ready),
         "ratio_to_bare": round(statistics.median(ready) / statistics.median(bare["wall"]), 2),
         "ratio_to_bare_min": round(min(ready) / min(bare["wall"]), 2),
+        "cpu_ratio_to_bare": round(
+            statistics.median(cpu["daemon"]) / statistics.median(bare["cpu"]), 2
+        ),
         "cpu_ms_at_ready": {k: spread(v) for k, v in cpu.items()},
         "steps_ms": {
             step: round(statistics.median(r["steps_ms"].get(step, 0.0) for r in timed), 1)
@@ -358,7 +363,8 @@ def report(result: dict[str, Any]) -> None:
                 f"    {entry:9s} READY median {r['median']:6.1f} ms (min {r['min']:.1f}, "
                 f"max {r['max']:.1f}): {f['ratio_to_bare']:.2f}x the bare interpreter "
                 f"(min to min {f['ratio_to_bare_min']:.2f}x); CPU by READY: daemon "
-                f"{cpu['daemon']['median']:.0f} ms, executor {cpu['executor']['median']:.0f} ms"
+                f"{cpu['daemon']['median']:.0f} ms ({f['cpu_ratio_to_bare']:.2f}x the bare "
+                f"interpreter's), executor {cpu['executor']['median']:.0f} ms"
             )
             steps = f["steps_ms"]
             print(

@@ -345,8 +345,12 @@ class GcPolicy:
     """Automatic GC off while anything moves; objects alive at ready are frozen."""
 
     def ready(self) -> None:
+        """The start's garbage collected, what lives on frozen, automatic collection on (a
+        start that serves runs without it: daemon/start/launch.py). Before the link serves:
+        nothing moves yet."""
         gc.collect()
         gc.freeze()
+        gc.enable()
 
     def motion(self, active: bool) -> None:
         if active:

@@ -9,6 +9,15 @@ second CPU can run it; the daemon takes it over once it has read its config, or 
 once when the config has no use for it (the thread executor, no stepped motor) or the start
 fails. ``python -m motorctl.daemon.start.main`` runs the same daemon without this head start.
 
+A start that serves runs without the garbage collector's automatic collections from here
+until READY: the imports build thousands of objects (every dataclass's methods, the command
+table, the config schema) and the collector would look at all of them again and again, a
+tenth of the start's CPU for no garbage worth it (docs/timing.md). The daemon collects
+once, after READY (``rt.GcPolicy.ready``, daemon/start/serve.py), freezes what lives on
+and turns automatic collection back on. The executor's bootstrap turns it off on its first
+line too (``motion/executors/process/start.py``): that process collects while it waits
+and runs without automatic collection once ready, as it did before.
+
 ``motorctld --status --watch`` (the live monitor) ends on SIGINT and SIGTERM from this
 command's first instruction on (``daemon/status/monitor.py``, ``end_on_signals``): they are
 taken over before anything else is imported, and an end while the daemon's modules are
@@ -19,6 +28,7 @@ Owners: the main thread, before anything else runs.
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 from collections.abc import Sequence
@@ -58,10 +68,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         from motorctl.daemon.start.main import main as watch_main
 
         return watch_main(args)
+    serving = serves(args)
+    if serving:
+        gc.disable()  # until the collection after READY (rt.GcPolicy.ready)
     from motorctl.motion.executors.process.start import WaitingInterpreter
 
     early = None
-    if serves(args) and len(os.sched_getaffinity(0)) > 1:
+    if serving and len(os.sched_getaffinity(0)) > 1:
         try:
             early = WaitingInterpreter.start()
         except OSError:

@@ -14,6 +14,10 @@ The chips' FLAG and BUSY outputs are the mock's lines where ``[motors.dspin] fla
 mock): low while any chip wired to the line signals (open drain, wired-OR), each change
 made known on a pipe as a kernel line request's descriptor makes an edge known.
 
+The chip models are imported when a world's chains are built (:func:`factory_of`, for the
+daemon's hardware and ``--probe``): the executor's process, which opens only the world's
+step IO (``world.py``), never needs them.
+
 Owned by the daemon's process; transfers come under the SPI bus's lock (hal/spi.py), so
 one thread at a time touches a chain; a line's level is read from the chips' state
 (a read of Python attributes, from the thread that reads the line).
@@ -27,13 +31,12 @@ import os
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
-from motorctl.hal.backends.mock.dspin_chain import DspinChain
-from motorctl.hal.backends.mock.dspin_chip import DspinChip
 from motorctl.hal.dspin.spec import DspinSpec, chains
 from motorctl.hal.interfaces import Clock, Edge, EdgeInputs, HalError
 from motorctl.hal.spec import HardwareSpec
 
 if TYPE_CHECKING:
+    from motorctl.hal.backends.mock.dspin_chip import DspinChip
     from motorctl.hal.backends.mock.world import MockAxis
 
 
@@ -45,6 +48,8 @@ class _Moved:
         self.spec = spec
         self.side = spec.switch
         self.synced = 0  # the chip's shaft when the axis was last moved to it
+        from motorctl.hal.backends.mock.dspin_chip import DspinChip
+
         self.chip = DspinChip(spec.model, switch=self.switch, stops=self.stops)
 
     def switch(self, shaft: int) -> bool:
@@ -69,6 +74,8 @@ class MockChain:
 
     def __init__(self, members: list[_Moved], clock: Clock) -> None:
         self.members = members
+        from motorctl.hal.backends.mock.dspin_chain import DspinChain
+
         self.chain = DspinChain([m.chip for m in members])
         self.clock = clock
         self.last = clock.now()

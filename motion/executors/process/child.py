@@ -163,8 +163,9 @@ def child_main(channel: socket.socket, parent: int, title_note: str = "") -> Non
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
     config_sections()
-    # and the collector's look at all of it, while waiting too: the collection before READY
-    # (_ready) then looks only at what came after (the parameters, the lines, the core)
+    # and the collector's look at all of it, while waiting too (no automatic collection
+    # since the bootstrap's first line, start.py): the collection before READY (_ready)
+    # then looks only at what came after (the parameters, the lines, the core)
     import gc
 
     gc.collect()

@@ -16,7 +16,9 @@ nor anything ``PYTHON*`` variables or the user's site add. The first message is 
 daemon's PID (the child dies with it), the daemon's import path without the entries that
 name where it was started (:func:`import_path`) and where the daemon's ``motorctl`` package
 is: the child imports that very package, whatever its path holds. It then names itself
-for ``ps`` (:func:`name_process`), imports the step core and waits for the second: its
+for ``ps`` (:func:`name_process`), imports the step core (no automatic garbage collection
+from the first line on: ``child.py`` collects once while it waits, then runs without it)
+and waits for the second: its
 parameters, pickled, with its descriptors (``SCM_RIGHTS``: the shared block, its pipe ends,
 the step IO's). The end of the socket without a message (the daemon did not need it, or is
 gone) ends it quietly.
@@ -49,6 +51,8 @@ COMM = "motorctld-step"
 #: :func:`import_path`) before this interpreter's own, and ``motorctl`` the daemon's package.
 BOOTSTRAP = """\
 # motorctld step executor
+import gc
+gc.disable()  # child.py collects and freezes while it waits, then runs without it
 import pickle, signal, socket, sys
 for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
     signal.signal(s, signal.SIG_IGN)

@@ -5,7 +5,11 @@ live monitor, the metrics, the status reader and its summary, the platform probe
 compiled core's probe, the trace recorder and its format, and the standard library modules
 only those need (a process for ``ldconfig``, temporary files, archives). And its start-up
 timeline (daemon/start/timeline.py), logged at debug level, names every step of the start in order,
-as bench/startup.py reads it. A real daemon on a real PTY, the embedded default."""
+as bench/startup.py reads it. The start runs without the garbage collector's automatic
+collections until READY (daemon/start/launch.py), and the executor's process from its
+bootstrap's first line on, and that process opens its step IO on the mock without the
+simulated driver chips (imported where the daemon's hardware builds them). A real daemon on a
+real PTY, the embedded default."""
 
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ import time
 from pathlib import Path
 
 from motorctl.daemon.start.timeline import parse
+from motorctl.motion.executors.process.start import BOOTSTRAP
 from tests.support import REPO
 from tests.support.daemon_proc import READY_TIMEOUT_S
 
@@ -147,3 +152,103 @@ def test_a_start_imports_only_what_serving_needs_and_times_its_steps(tmp_path: P
     assert first == "imported"
     assert [step for step, _ in steps] == STEPS
     assert all(ms >= 0 for _, ms in steps)
+
+
+#: run before motorctld's own code (``python -c``): every collection the collector starts
+#: once launch.py has decided to serve (it imports process.start right after), on stdout
+#: before the READY line: "gc GENERATION"
+COUNT_COLLECTIONS = """\
+import gc, runpy, sys
+def seen(phase, info):
+    if phase == "start" and "motorctl.motion.executors.process.start" in sys.modules:
+        sys.stdout.write(f"gc {info['generation']}\\n")
+gc.callbacks.append(seen)
+runpy.run_module("motorctl.daemon.start.launch", run_name="__main__", alter_sys=True)
+"""
+
+
+def output_around_ready(cmd: list[str]) -> tuple[list[str], list[str]]:
+    """Start ``cmd`` (a serving motorctld), stop it once its READY line came (SIGTERM: it
+    exits 0): its stdout's lines before READY and after."""
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, env=os.environ.copy()
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    try:
+        with selectors.DefaultSelector() as sel:
+            sel.register(proc.stdout, selectors.EVENT_READ)
+            deadline = time.monotonic() + READY_TIMEOUT_S
+            out = b""
+            while b"motorctld ready" not in out:
+                left = deadline - time.monotonic()
+                assert left > 0, f"no READY: {out.decode(errors='replace')[-2000:]}"
+                if sel.select(left):
+                    chunk = os.read(proc.stdout.fileno(), 65536)
+                    assert chunk, f"motorctld exited: {proc.stderr.read().decode()[-2000:]}"
+                    out += chunk
+        proc.send_signal(signal.SIGTERM)
+        out += proc.stdout.read()  # what it wrote after READY, flushed at its exit
+        assert proc.wait(20) == 0, proc.stderr.read().decode()[-2000:]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+    before, _, after = out.decode().partition("motorctld ready")
+    return before.splitlines(), after.splitlines()[1:]
+
+
+def test_a_start_runs_without_automatic_collections_until_ready(tmp_path: Path) -> None:
+    cmd = [sys.executable, "-c", COUNT_COLLECTIONS, "--pty", str(tmp_path / "pty")]
+    before, after = output_around_ready([*cmd, "--state-dir", str(tmp_path / "state")])
+    assert "gc 2" in after  # the collection after READY (rt.GcPolicy.ready): counted
+    # with the collector on: dozens, while the daemon imports its modules
+    assert [line for line in before if line.startswith("gc ")] == []
+
+
+def test_the_executors_bootstrap_turns_automatic_collection_off_first() -> None:
+    code = BOOTSTRAP.splitlines()
+    statements = [line for line in code if line.strip() and not line.startswith("#")]
+    assert statements[:2] == ["import gc", "gc.disable()  # " + statements[1].split("# ")[1]]
+
+
+#: the simulated driver chips (hal/backends/mock/dspin_world.py imports them when it builds
+#: a world's chains): the daemon's hardware has them, the executor's step IO not
+DSPIN_SIMULATION = (
+    "motorctl.hal.backends.mock.dspin_chain",
+    "motorctl.hal.backends.mock.dspin_chip",
+    "motorctl.hal.backends.mock.dspin_motion",
+    "fractions",
+)
+
+#: in a fresh interpreter: the default config's spec, then the executor process's step IO
+#: opened on it as child.py opens it; the modules that opening imported
+STEP_IO_IMPORTS = """\
+import sys
+from motorctl.daemon.config import load_config
+from motorctl.daemon.start.assemble import hardware_spec
+from motorctl.hal.interfaces import MonotonicClock
+from motorctl.hal.registry import open_step_io
+spec = hardware_spec(load_config(None))
+before = set(sys.modules)
+io = open_step_io("mock", spec, MonotonicClock(), None)
+print(len(io.endstops))
+io.close()
+print(" ".join(sorted(set(sys.modules) - before)))
+"""
+
+
+def test_the_executors_step_io_on_the_mock_imports_no_simulated_chips() -> None:
+    out = subprocess.run(
+        [sys.executable, "-c", STEP_IO_IMPORTS],
+        capture_output=True,
+        text=True,
+        check=True,
+        cwd=REPO,
+        timeout=60,
+    ).stdout.splitlines()
+    assert out[0] == "3"  # the default's three motors' step IO, read as meant
+    imported = out[1].split()
+    assert "motorctl.hal.backends.mock.world" in imported
+    assert [m for m in imported if m in DSPIN_SIMULATION] == []

@@ -155,6 +155,21 @@ def test_gc_policy_switches_automatic_collection() -> None:
             gc.disable()
 
 
+def test_gc_policy_ready_collects_freezes_and_turns_automatic_collection_on() -> None:
+    """A serving start runs with automatic collection off (daemon/start/launch.py): ready()
+    turns it on again after its collection."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        GcPolicy().ready()
+        assert gc.isenabled()
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()
+        if not was:
+            gc.disable()
+
+
 # ---------------------------------------------------------------- the engine's side
 
 
