@@ -340,15 +340,15 @@ class DspinDriver(StepperDriver, RampDriver):
 
     # -- the ramp (RampDriver) -------------------------------------------------------------
     def _read(self) -> tuple[int, int, Status]:
-        """ABS_POS, SPEED and STATUS (GetParam: clears nothing), one transfer each, STATUS
+        """ABS_POS, SPEED and STATUS (GetParam: clears nothing), one exchange each, STATUS
         first: a motor it finds standing stands at the ABS_POS read after it (read first, the
-        position could be from before a stop that STATUS then shows)."""
-        regs = self.chip.registers
-        got = {}
-        for name in ("STATUS", "ABS_POS", "SPEED"):
-            got[name] = self.chain.exchange({self.position: get_param(regs[name])})[self.position]
-        st = Status(self.chip.status, got["STATUS"])
-        return self._position(got["ABS_POS"]), got["SPEED"], st
+        position could be from before a stop that STATUS then shows), and its SPEED is 0,
+        not read (as :meth:`command_status`): a standing chip, the read after a stop
+        included, costs GetParam STATUS and ABS_POS, 7 transfers, not 11."""
+        st = Status(self.chip.status, self._get("STATUS"))
+        pos = self._position(self._get("ABS_POS"))
+        speed = 0 if st.motor is MotorState.STOPPED else self._get("SPEED")
+        return pos, speed, st
 
     def _busy(self) -> bool:
         """BUSY's level on its line (the line read, no SPI); True without a line."""

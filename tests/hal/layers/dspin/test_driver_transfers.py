@@ -210,10 +210,11 @@ def test_a_hard_stop_is_a_hard_stop_then_the_read_of_where_it_stopped(chain: Cha
     assert names(sent) == [
         "HardStop",
         "GetParam(STATUS)",  # the executor's poll, due at once: the stop's position
-        "GetParam(ABS_POS)",
-        "GetParam(SPEED)",
+        "GetParam(ABS_POS)",  # (standing: no SPEED read, it is 0)
     ]
-    assert n == 12 == documented("StopMove hard")
+    assert n == 8 == documented("StopMove hard")
+    chain.rig.run(0.2)
+    assert chain.rig.call(GetAbsPos(0)).as_position == chain.chips[0].abs_pos
 
 
 def test_a_fault_the_commands_get_status_clears_still_reaches_the_host(chain: Chain) -> None:
