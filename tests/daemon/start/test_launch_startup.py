@@ -74,6 +74,29 @@ def never(name: str) -> bool:
     )
 
 
+def until_ready(proc: subprocess.Popen[bytes]) -> tuple[bytes, bytes]:
+    """Read a starting motorctld's stdout and stderr (left non-blocking) until its READY
+    line: what each had by then."""
+    assert proc.stdout is not None and proc.stderr is not None
+    os.set_blocking(proc.stderr.fileno(), False)
+    out, err = b"", b""
+    with selectors.DefaultSelector() as sel:
+        sel.register(proc.stdout, selectors.EVENT_READ)
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        deadline = time.monotonic() + READY_TIMEOUT_S
+        while b"\n" not in out.partition(b"motorctld ready")[2]:
+            left = deadline - time.monotonic()
+            assert left > 0, f"no READY: {err.decode(errors='replace')[-2000:]}"
+            for key, _ in sel.select(left):
+                chunk = os.read(key.fd, 65536)
+                if key.fileobj is proc.stdout:
+                    assert chunk, f"motorctld exited: {err.decode(errors='replace')[-2000:]}"
+                    out += chunk
+                else:
+                    err += chunk
+    return out, err
+
+
 def start_until_ready(work: Path) -> tuple[list[str], str]:
     """Start motorctld under ``-X importtime`` at debug level; at its READY line, the
     modules it has imported; then stop it: (those modules, its whole log)."""
@@ -94,34 +117,17 @@ def start_until_ready(work: Path) -> tuple[list[str], str]:
         cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, env=os.environ.copy()
     )
     assert proc.stdout is not None and proc.stderr is not None
-    err = b""
     try:
-        os.set_blocking(proc.stderr.fileno(), False)
-        with selectors.DefaultSelector() as sel:
-            sel.register(proc.stdout, selectors.EVENT_READ)
-            sel.register(proc.stderr, selectors.EVENT_READ)
-            deadline = time.monotonic() + READY_TIMEOUT_S
-            out = b""
-            while b"\n" not in out:
-                left = deadline - time.monotonic()
-                assert left > 0, f"no READY: {err.decode(errors='replace')[-2000:]}"
-                for key, _ in sel.select(left):
-                    chunk = os.read(key.fd, 65536)
-                    if key.fileobj is proc.stdout:
-                        assert chunk, f"motorctld exited: {err.decode(errors='replace')[-2000:]}"
-                        out += chunk
-                    else:
-                        err += chunk
-            assert b"motorctld ready" in out, out
-            # what the daemon wrote before READY is in the pipe already
-            while True:
-                try:
-                    chunk = os.read(proc.stderr.fileno(), 65536)
-                except BlockingIOError:
-                    break
-                if not chunk:
-                    break
-                err += chunk
+        _, err = until_ready(proc)
+        # what the daemon wrote before READY is in the pipe already
+        while True:
+            try:
+                chunk = os.read(proc.stderr.fileno(), 65536)
+            except BlockingIOError:
+                break
+            if not chunk:
+                break
+            err += chunk
         at_ready = err.decode()
         proc.send_signal(signal.SIGTERM)
         os.set_blocking(proc.stderr.fileno(), True)
@@ -175,17 +181,8 @@ def output_around_ready(cmd: list[str]) -> tuple[list[str], list[str]]:
     )
     assert proc.stdout is not None and proc.stderr is not None
     try:
-        with selectors.DefaultSelector() as sel:
-            sel.register(proc.stdout, selectors.EVENT_READ)
-            deadline = time.monotonic() + READY_TIMEOUT_S
-            out = b""
-            while b"motorctld ready" not in out:
-                left = deadline - time.monotonic()
-                assert left > 0, f"no READY: {out.decode(errors='replace')[-2000:]}"
-                if sel.select(left):
-                    chunk = os.read(proc.stdout.fileno(), 65536)
-                    assert chunk, f"motorctld exited: {proc.stderr.read().decode()[-2000:]}"
-                    out += chunk
+        out, _ = until_ready(proc)
+        os.set_blocking(proc.stderr.fileno(), True)
         proc.send_signal(signal.SIGTERM)
         out += proc.stdout.read()  # what it wrote after READY, flushed at its exit
         assert proc.wait(20) == 0, proc.stderr.read().decode()[-2000:]
