@@ -131,7 +131,9 @@ test: venv stepcore test-deps
 # The tests marked slow (pyproject.toml's addopts leaves them out of make test, to keep it near
 # 90 s on 2 cores): the wheel built and installed beside python-daemon from PyPI
 # (tests/packaging/test_wheel.py), hwtest/run's stand-in guests that run pytest on the
-# checkout (tests/packaging/test_hwtest_run.py). .ci/run runs them, a part of its own.
+# checkout (tests/packaging/test_hwtest_run.py), the longer halves of two long runs (the status
+# monitor's signal moments, tests/daemon/status/test_monitor_e2e.py; the rings between two
+# processes, tests/motion/executors/process/test_rings.py). .ci/run runs them, a part of its own.
 test-slow: venv stepcore test-deps
 	$(BIN)/pytest -q -n $(JOBS) -m slow
 
