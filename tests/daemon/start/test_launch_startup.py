@@ -13,12 +13,14 @@ real PTY, the embedded default."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 import selectors
 import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 from motorctl.daemon.start.timeline import parse
@@ -97,6 +99,27 @@ def until_ready(proc: subprocess.Popen[bytes]) -> tuple[bytes, bytes]:
     return out, err
 
 
+@contextlib.contextmanager
+def started_until_ready(
+    cmd: list[str],
+) -> Iterator[tuple[subprocess.Popen[bytes], bytes, bytes]]:
+    """Start ``cmd`` (a serving motorctld) with its stdout and stderr piped, and read both
+    to its READY line: the process, what each had by then; killed if still running and its
+    pipes closed at the end."""
+    proc = subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, env=os.environ.copy()
+    )
+    assert proc.stdout is not None and proc.stderr is not None
+    try:
+        yield (proc, *until_ready(proc))
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
 def start_until_ready(work: Path) -> tuple[list[str], str]:
     """Start motorctld under ``-X importtime`` at debug level; at its READY line, the
     modules it has imported; then stop it: (those modules, its whole log)."""
@@ -113,12 +136,8 @@ def start_until_ready(work: Path) -> tuple[list[str], str]:
         "--log-level",
         "debug",
     ]
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, env=os.environ.copy()
-    )
-    assert proc.stdout is not None and proc.stderr is not None
-    try:
-        _, err = until_ready(proc)
+    with started_until_ready(cmd) as (proc, _, err):
+        assert proc.stderr is not None
         # what the daemon wrote before READY is in the pipe already
         while True:
             try:
@@ -133,12 +152,6 @@ def start_until_ready(work: Path) -> tuple[list[str], str]:
         os.set_blocking(proc.stderr.fileno(), True)
         err += proc.stderr.read()
         assert proc.wait(20) == 0
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
     modules = [
         line.split("|")[2].strip()
         for line in at_ready.splitlines()
@@ -176,22 +189,12 @@ runpy.run_module("motorctl.daemon.start.launch", run_name="__main__", alter_sys=
 def output_around_ready(cmd: list[str]) -> tuple[list[str], list[str]]:
     """Start ``cmd`` (a serving motorctld), stop it once its READY line came (SIGTERM: it
     exits 0): its stdout's lines before READY and after."""
-    proc = subprocess.Popen(
-        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, cwd=REPO, env=os.environ.copy()
-    )
-    assert proc.stdout is not None and proc.stderr is not None
-    try:
-        out, _ = until_ready(proc)
+    with started_until_ready(cmd) as (proc, out, _):
+        assert proc.stdout is not None and proc.stderr is not None
         os.set_blocking(proc.stderr.fileno(), True)
         proc.send_signal(signal.SIGTERM)
         out += proc.stdout.read()  # what it wrote after READY, flushed at its exit
         assert proc.wait(20) == 0, proc.stderr.read().decode()[-2000:]
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-            proc.wait()
-        proc.stdout.close()
-        proc.stderr.close()
     before, _, after = out.decode().partition("motorctld ready")
     return before.splitlines(), after.splitlines()[1:]
 
