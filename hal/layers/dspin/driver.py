@@ -472,7 +472,9 @@ class DspinDriver(StepperDriver, RampDriver):
         nearest the last read that it stands for."""
         self._seen = None
         mark = self._get("MARK")
-        return mark if self._at is None else convert.unwrap(mark, self._at)
+        if not self.spec.rotary or self._at is None:  # linear, or no ABS_POS read yet
+            return mark
+        return convert.unwrap(mark, self._at)
 
     def watch(self, direction: int, stall: bool = False, release: int = 0) -> None:
         """The stops of the next motion armed, the last motion's switch event and stall
