@@ -4,7 +4,7 @@ One loop that every byte crosses, whose states (reading, holding back, no host, 
 session ending, a device away) decide together what each turn waits for; what could stand
 apart does: the session, the silence watch (silence.py), the device's return (devwatch.py),
 the PTY's slave (ports.py), the ends of sessions in the counters and the log
-(session_end.py), all in daemon/link/.
+(session_end.py), what a status reader gets (report.py), all in daemon/link/.
 
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
 on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
