@@ -4,7 +4,7 @@ One loop that every byte crosses, whose states (reading, holding back, no host, 
 session ending, a device away) decide together what each turn waits for; what could stand
 apart does: the session, the silence watch (silence.py), the device's return (devwatch.py),
 the PTY's slave (ports.py), the ends of sessions in the counters and the log
-(session_end.py), all in daemon/link/.
+(session_end.py), what a status reader gets (report.py), all in daemon/link/.
 
 One thread (the link thread) owns this object and its session; it blocks only in ``poll()``
 on the serial/PTY file descriptor and a wake-up pipe, in the dispatcher's engine lock, and
@@ -83,6 +83,7 @@ from collections.abc import Callable
 from motorctl.daemon.config.model import LinkConfig
 from motorctl.daemon.link.cpu_parts import CpuParts, TimedPort
 from motorctl.daemon.link.devwatch import Device, DeviceReturn, Notice
+from motorctl.daemon.link.report import report
 from motorctl.daemon.link.seams import ByteRecorder, Slave
 from motorctl.daemon.link.serialport import Backoff
 from motorctl.daemon.link.session import CommandPort, LinkSession
@@ -232,25 +233,34 @@ class Link:
     def turn(self, poller: select.poll) -> None:
         """One turn of the loop: answer what is due, write, wait, read, watch the silence."""
         session = self.session
-        waiting = session.wait is not None
-        if waiting:
-            session.poll(self.clock())
-        if self._watching:
-            self.watch.hold(session.wait is not None, self.clock())
-        if waiting or self._out:  # answers only come from a read (written then) or a wait
-            self._flush()
-        if self.peer_gone and not (self.pty is not None and self.pty.held):
-            if self.device is not None:
-                self._look_for_device()
-            else:
-                self._look_for_peer()
+        if (
+            self._mask == POLLIN  # reading, nothing was left to write
+            and session.wait is None  # so nothing is held or owed: no back pressure
+            and not (self._out or self.peer_gone or self._watching or session.framer.pending)
+        ):  # the usual turn: nothing due, owed or partial; what _listen and _timeout_ms say
+            reading = True
+            t_enter = self.clock()
+            events, opened = self._wait(poller, self.ends.bound(t_enter, None))
+        else:
+            waiting = session.wait is not None
+            if waiting:
+                session.poll(self.clock())
             if self._watching:
-                self.watch.check(self.clock())
-            return
-        reading = self._listen(poller)
-        t_enter = self.clock()
-        timeout = self.ends.bound(t_enter, self._timeout_ms(t_enter, reading))
-        events, opened = self._wait(poller, timeout)
+                self.watch.hold(session.wait is not None, self.clock())
+            if waiting or self._out:  # answers only come from a read (written then) or a wait
+                self._flush()
+            if self.peer_gone and not (self.pty is not None and self.pty.held):
+                if self.device is not None:
+                    self._look_for_device()
+                else:
+                    self._look_for_peer()
+                if self._watching:
+                    self.watch.check(self.clock())
+                return
+            reading = self._listen(poller)
+            t_enter = self.clock()
+            timeout = self.ends.bound(t_enter, self._timeout_ms(t_enter, reading))
+            events, opened = self._wait(poller, timeout)
         # The slave's opens and closes first: a host that closed the port and opened it
         # again before this poll (no POLLHUP seen) has ended its session all the same, and
         # the bytes it sends since are the next session's. What is there to read now is
@@ -379,8 +389,20 @@ class Link:
             self._answered = False
             if self.pty is not None:
                 self.pty.release()  # before its answers (PtySlave.release)
-        self._received(data, now)
-        if self._flush():
+        self.counters["reads"] += 1  # they keep the link alive, the trace records them
+        if self._watching:
+            self.watch.heard(now)
+        if self.recorder is not None:
+            self.recorder.received(data, now)
+        answer = self.session.answer(data, now)  # the usual read: one frame, its answer
+        if answer is None:
+            self.session.receive(data, now)
+            answered = self._flush()
+        else:
+            self._out += answer
+            self._send("encode")
+            answered = True
+        if answered:
             self.processing.record_ns(round((self.clock() - now) * 1e9))
         if opening:  # the rest of its session's start, after its first answers
             self._open_session()
@@ -393,10 +415,17 @@ class Link:
                 self.ends.drop("unsent", len(data) // RESPONSE_LEN)
                 return False
             self._out += data
+        if self._out:
+            self._send("encode" if data else None)
+        return bool(data)
+
+    def _send(self, taken: str | None) -> None:
+        """Write what the descriptor takes of the output, without blocking; the CPU count's
+        part ``taken`` ends first (answers just taken: "encode"), then ``write``."""
         out = self._out
         parts = self.parts
-        if parts is not None and out:
-            parts.mark("encode")
+        if parts is not None and taken is not None:
+            parts.mark(taken)
         while out:
             try:  # a bytearray is written as it is, without a copy, when it is not too long
                 n = os.write(self.fd, out if len(out) <= WRITE_MAX else out[:WRITE_MAX])
@@ -412,9 +441,8 @@ class Link:
             if self.recorder is not None:
                 self.recorder.sent(bytes(out[:n]), self.clock())
             del out[:n]
-        if parts is not None and data:
+        if parts is not None and taken is not None:
             parts.mark("write")
-        return bool(data)
 
     def _hangup(self, why: str, reopened: bool = False) -> None:
         """The host's side is gone (``why``: "closed", or the error): its session ends.
@@ -505,16 +533,6 @@ class Link:
         else:
             self._open_session()
 
-    def _received(self, data: bytes, now: float) -> None:
-        """A run of bytes read at ``now``: it keeps the link alive, the trace records it,
-        the session takes it."""
-        self.counters["reads"] += 1
-        if self._watching:
-            self.watch.heard(now)
-        if self.recorder is not None:
-            self.recorder.received(data, now)
-        self.session.receive(data, now)
-
     # -- a serial device that went away (or is not there yet) ------------------------------
     def _lose_device(self, why: str) -> None:
         """Close the dead descriptor; open the path again when it is back."""
@@ -567,27 +585,8 @@ class Link:
             self._flush()
 
     def status(self) -> dict[str, object]:
-        session = self.session
-        counts: dict[str, object] = dict(session.counters)
-        counts.update(self.counters)
-        counts.update(self.watch.counters)
-        peer = "open"
-        if self.peer_gone:
-            peer = "closed" if self.away is None else "gone" if self.away.ever_open else "waiting"
-        out: dict[str, object] = {
-            "counters": counts,
-            "processing": self.processing.summary(),
-            "held": session.held,
-            "waiting": session.waiting,
-            "peer": peer,
-            "unsent_bytes": len(self._out),
-            "recent": session.describe_recent(),
-        }
-        if self.device is not None:
-            out["device"] = self.device.path
-        if self.parts is not None:
-            out["cpu_parts"] = self.parts.summary()
-        return out
+        """What a status reader gets (any thread: it only copies; report.py)."""
+        return report(self, len(self._out))
 
     def close(self) -> None:
         os.close(self._wake_r)

@@ -182,7 +182,7 @@ class LinkSession:
     def wants_input(self) -> bool:
         """False while too many responses are owed: the shell stops reading (back pressure on
         the host) rather than let memory grow without bound."""
-        return self.owed < self.backlog_limit
+        return len(self._held) + len(self._out) // RESPONSE_LEN < self.backlog_limit
 
     def deadline(self) -> float | None:
         """When :meth:`poll` must run at the latest (a held WaitMoved's timeout)."""
@@ -256,27 +256,53 @@ class LinkSession:
         """Bytes read at ``now``, contiguous with any partial frame."""
         if not data:
             return
-        counters = self.counters
-        counters["bytes_in"] += len(data)
+        self.counters["bytes_in"] += len(data)
         if self.wait is None and not self.framer.pending:
             cmd = self._decoded.get(data)
             if cmd is not None and not isinstance(cmd, WaitMoved):
-                # The usual read of a host that waits for each answer: one whole frame it
-                # sent before, nothing partial, nothing held. What _on_frame and _execute
-                # do for it, without the framer and their calls: every microsecond this
-                # process spends per command shows in the host's round trip
-                # (docs/timing.md). Tests hold both paths to the same answers and counts.
-                counters["frames"] += 1
-                counters["frames_good"] += 1
-                self._frames_seen.append((counters["frames"], now, data))
-                try:
-                    resp = self.port.handle(cmd)
-                except Exception:
-                    resp = self._failed(cmd)
-                self._emit_encoded(self._encode(resp))
+                self._out += self._one_frame(cmd, data, now)
                 return
         for frame in self.framer.feed(data):
             self._on_frame(frame, now)
+
+    def answer(self, data: bytes, now: float) -> bytes | None:
+        """:meth:`receive` and :meth:`take_output` in one, for the usual read of a host that
+        waits for each answer: ``data`` one whole frame it sent before (no WaitMoved),
+        nothing partial, nothing held, nothing untaken. Its answer, taken for writing; None
+        for any other read, and then nothing was done (:meth:`receive` it). Every
+        microsecond this process spends per command shows in the host's round trip
+        (docs/timing.md); tests hold this path and the framer's to the same answers and
+        counts."""
+        if self.wait is not None or self._out or self.framer.pending:
+            return None
+        cmd = self._decoded.get(data)
+        if cmd is None or isinstance(cmd, WaitMoved):
+            return None
+        self.counters["bytes_in"] += len(data)
+        out = self._one_frame(cmd, data, now)
+        self.outputs += 1  # as take_output(): everything the frame changed is done
+        return out
+
+    def _one_frame(self, cmd: Command, data: bytes, now: float) -> bytes:
+        """What _on_frame, _execute and _emit do for a whole frame decoded before (no
+        WaitMoved, nothing held), without the framer and their calls: its answer, counted
+        as emitted (not put in the output)."""
+        counters = self.counters
+        frames = counters["frames"] + 1
+        counters["frames"] = frames
+        counters["frames_good"] += 1
+        self._frames_seen.append((frames, now, data))
+        try:
+            resp = self.port.handle(cmd)
+        except Exception:
+            resp = self._failed(cmd)
+        out = self._encoded.get((resp.ack, resp.payload)) or self._encode(resp)
+        counters["responses"] += 1
+        self._answer_no += 1
+        self._answers_seen.append((self._answer_no, out))
+        if out[0] == 0x00:
+            counters[_SENT[out[1]]] += 1
+        return out
 
     def idle(self, seconds: float) -> None:
         """The shell watched the line, ready to read, and no byte came for ``seconds``."""

@@ -271,6 +271,84 @@ def test_whole_frames_read_alone_answer_and_count_as_split_ones(
         ]
 
 
+def taken(rig: SessionRig, data: bytes) -> bytes:
+    """``data`` read as the link reads it: :meth:`LinkSession.answer` for the usual read,
+    :meth:`LinkSession.receive` and :meth:`LinkSession.take_output` for any other."""
+    out = rig.session.answer(data, rig.now)
+    if out is None:
+        rig.session.receive(data, rig.now)
+        return rig.session.take_output()
+    return out
+
+
+@settings(max_examples=60, deadline=None)
+@example([(0, -1, 0.0), (0, -1, 0.0), (10, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0)])
+@example([(0, -1, 0.0), (-1, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0)])
+@example([(1, -1, 0.0), (1, 3, 0.0), (1, 3, 0.0), (16, -1, 0.0), (16, -1, 0.0)])
+@given(
+    st.lists(
+        st.tuples(
+            st.integers(-1, len(_POOL) - 1),
+            st.integers(-240, 79),  # 1/4 bad
+            st.sampled_from([0.0, 0.001, 0.02]),
+        ),
+        min_size=1,
+        max_size=80,
+    )
+)
+def test_a_read_answered_at_once_is_a_read_received_and_taken(
+    steps: list[tuple[int, int, float]],
+) -> None:
+    """The link hands each read to :meth:`LinkSession.answer` first: the usual read (a whole
+    frame seen before, no WaitMoved, nothing partial or held) is answered there, any other
+    is left untouched for :meth:`LinkSession.receive`. Both worlds give the same answers,
+    counts, outputs and last frames at every step, WaitMoved holding included."""
+    with tempfile.TemporaryDirectory() as ta, tempfile.TemporaryDirectory() as tb:
+        fast, plain = SessionRig(Path(ta), CONFIG), SessionRig(Path(tb), CONFIG)
+        for index, bad_bit, dt in steps:
+            if index < 0:  # a stray partial frame: never answered at once, nor what follows
+                assert fast.session.answer(b"\x01\x02\x03", fast.now) is None
+                fast.session.receive(b"\x01\x02\x03", fast.now)
+                plain.session.receive(b"\x01\x02\x03", plain.now)
+                continue
+            data = frame(_POOL[index])
+            if bad_bit >= 0:  # one bit flipped
+                data = corrupt(data, bad_bit)
+            out = taken(fast, data)
+            plain.session.receive(data, plain.now)
+            assert out == plain.session.take_output()
+            for w in (fast, plain):
+                w.run(dt)
+                w.session.idle(dt)
+            assert fast.session.take_output() == plain.session.take_output()
+            assert fast.session.counters == plain.session.counters
+            assert fast.session.outputs == plain.session.outputs
+            assert fast.session.held == plain.session.held
+            assert fast.session.recent() == plain.session.recent()
+        assert [m.position for m in fast.engine.motors] == [m.position for m in plain.engine.motors]
+
+
+def test_only_the_usual_read_is_answered_at_once(w: SessionRig) -> None:
+    """:meth:`LinkSession.answer`: a frame not seen before, a WaitMoved, a read while a
+    WaitMoved holds, a partial frame: None, and nothing counted or run."""
+    first = frame(GetAbsPos(0))
+    assert w.session.answer(first, w.now) is None  # not seen before: the framer decodes it
+    assert w.session.counters["bytes_in"] == 0 and w.session.outputs == 0
+    assert taken(w, first) == taken(w, first)  # now seen: answered at once, the same
+    assert w.session.outputs == 2 and w.session.counters["frames"] == 2
+    w.send(MoveTo(0, True, 400, 250, 0, 0), WaitMoved(0, 10_000))
+    assert w.session.waiting
+    counters = w.session.counters.copy()
+    assert w.session.answer(first, w.now) is None  # held behind the wait
+    assert w.session.answer(frame(WaitMoved(0, 10_000)), w.now) is None
+    assert w.session.counters == counters and w.session.held == 0
+    w.run(5.0)
+    assert [r.ack for r in w.responses()] == [True, True]  # the MoveTo's, the wait's
+    w.session.receive(first[:3], w.now)
+    assert w.session.answer(first, w.now) is None  # a partial frame before it
+    assert w.session.counters["frames"] == 4
+
+
 # -- WaitMoved ------------------------------------------------------------------------------
 def test_wait_idle_motor_answers_at_once(w: SessionRig) -> None:
     w.send(WaitMoved(0, 100))
