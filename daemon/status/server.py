@@ -16,15 +16,15 @@ PERIOD_MS (default ``SUBSCRIBE_PERIOD_S``) and at once when a motor starts, stop
 client that sends nothing gets the plain status after ``REQUEST_WAIT_S`` (``socat -
 UNIX-CONNECT:status.sock`` works).
 
-Threads: :class:`StatusServer` owns one thread that serves every client with non-blocking
-sockets from one selector: it blocks only in ``select()``, so a client that is slow to ask
-or to read holds up nobody (it is dropped after ``SEND_TIMEOUT_S``); at most
-``MAX_CLIENTS`` at once, the rest wait in the listen backlog; of these at most
-``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot; when they are all
-taken, a new subscriber takes the place of the oldest one that does not read its updates
-(:meth:`StatusServer._evict_one`). A subscriber that has not taken an update within
-``SEND_TIMEOUT_S`` is dropped; while one is still being
-sent, newer ones are not queued behind it (it gets the state of its next turn). An
+Threads: :class:`StatusServer` owns one thread that serves every client from one epoll
+set, never waiting on a client (each is asked with ``MSG_DONTWAIT``): it blocks only in
+``epoll_wait()``, so a client that is slow to ask or to read holds up nobody (it is
+dropped after ``SEND_TIMEOUT_S``); at most ``MAX_CLIENTS`` at once, the rest wait in the
+listen backlog; of these at most ``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always
+find a slot; when they are all taken, a new subscriber takes the place of the oldest one
+that does not read its updates (:meth:`StatusServer._evict_one`). A subscriber that has
+not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being sent,
+newer ones are not queued behind it (it gets the state of its next turn). An
 ``accept()`` error other than the socket being closed is logged and retried after a pause,
 never the end of the server. ``status()`` is called on that thread and takes no lock of the
 motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
@@ -281,7 +281,8 @@ class StatusServer:
         self._accepting = on
 
     def _accept(self) -> None:
-        """One client (more pending: the selector says so again at once)."""
+        """One client (more pending: the epoll says so again at once); a plain request
+        already whole is answered here, the client never registered."""
         try:
             conn, _ = self._sock.accept()
         except (BlockingIOError, InterruptedError):
