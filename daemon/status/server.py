@@ -115,7 +115,7 @@ class _Listener(socket.socket):
 
 
 #: ``recv``/``send`` flags on a client's socket: never wait (the server's thread serves all)
-NOWAIT = socket.MSG_DONTWAIT | socket.MSG_NOSIGNAL
+NOWAIT = socket.MSG_DONTWAIT
 
 
 class _Client:

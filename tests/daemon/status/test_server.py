@@ -94,12 +94,14 @@ def test_status_server_builds_the_histogram_only_when_asked(tmp_path: Path) -> N
         server.close()
 
 
-def test_status_server_answers_requests_waiting_whole_at_accept(tmp_path: Path) -> None:
-    """Requests already whole when the server accepts (answered straight from accept()):
-    the plain status, one larger than the socket's buffer (the rest sent as the client
-    reads), the histogram and a bad request, each whole; nothing is left registered."""
+@pytest.mark.parametrize("size", [10, 4_000_000])
+def test_status_server_answers_requests_waiting_whole_at_accept(tmp_path: Path, size: int) -> None:
+    """Requests already whole when the server accepts (a plain one is answered straight
+    from accept()): the plain status, small (sent at once) or larger than the socket's
+    buffer (the rest sent as the client reads), the histogram and a bad request, each
+    whole; nothing is left registered."""
     path = tmp_path / "status.sock"
-    blob = "x" * 4_000_000
+    blob = "x" * size
     asked: list[bool] = []
     server = StatusServer(path, source({"blob": blob}, asked))
     requests = [b"\n", b"\n", b"histogram\n", b"what\n"]
