@@ -16,15 +16,15 @@ PERIOD_MS (default ``SUBSCRIBE_PERIOD_S``) and at once when a motor starts, stop
 client that sends nothing gets the plain status after ``REQUEST_WAIT_S`` (``socat -
 UNIX-CONNECT:status.sock`` works).
 
-Threads: :class:`StatusServer` owns one thread that serves every client with non-blocking
-sockets from one selector: it blocks only in ``select()``, so a client that is slow to ask
-or to read holds up nobody (it is dropped after ``SEND_TIMEOUT_S``); at most
-``MAX_CLIENTS`` at once, the rest wait in the listen backlog; of these at most
-``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always find a slot; when they are all
-taken, a new subscriber takes the place of the oldest one that does not read its updates
-(:meth:`StatusServer._evict_one`). A subscriber that has not taken an update within
-``SEND_TIMEOUT_S`` is dropped; while one is still being
-sent, newer ones are not queued behind it (it gets the state of its next turn). An
+Threads: :class:`StatusServer` owns one thread that serves every client from one epoll
+set, never waiting on a client (each is asked with ``MSG_DONTWAIT``): it blocks only in
+``epoll_wait()``, so a client that is slow to ask or to read holds up nobody (it is
+dropped after ``SEND_TIMEOUT_S``); at most ``MAX_CLIENTS`` at once, the rest wait in the
+listen backlog; of these at most ``MAX_SUBSCRIBERS`` subscribers, so one-shot reads always
+find a slot; when they are all taken, a new subscriber takes the place of the oldest one
+that does not read its updates (:meth:`StatusServer._evict_one`). A subscriber that has
+not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being sent,
+newer ones are not queued behind it (it gets the state of its next turn). An
 ``accept()`` error other than the socket being closed is logged and retried after a pause,
 never the end of the server. ``status()`` is called on that thread and takes no lock of the
 motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
@@ -38,7 +38,7 @@ import json
 import logging
 import math
 import os
-import selectors
+import select
 import socket
 import struct
 import termios
@@ -97,15 +97,37 @@ def unread_bytes(sock: socket.socket) -> int:
     return value
 
 
+class _Listener(socket.socket):
+    """The status socket's listening socket: :meth:`accept` gives each connection in
+    blocking mode (the server asks it with ``MSG_DONTWAIT``: no ``ioctl`` to make it
+    non-blocking), without ``socket.socket.accept``'s work in Python (its enums): a status
+    read is mostly this work per connection (docs/timing.md)."""
+
+    __slots__ = ()
+
+    def accept(self) -> tuple[socket.socket, Any]:
+        fd, addr = self._accept()  # type: ignore[attr-defined]  # (socket.py's own way)
+        try:
+            return socket.socket(socket.AF_UNIX, socket.SOCK_STREAM, 0, fd), addr
+        except OSError:
+            os.close(fd)
+            raise
+
+
+#: ``recv``/``send`` flags on a client's socket: never wait (the server's thread serves all)
+NOWAIT = socket.MSG_DONTWAIT
+
+
 class _Client:
-    __slots__ = ("deadline", "events", "out", "request", "sock", "sub")
+    __slots__ = ("deadline", "events", "fd", "out", "request", "sock", "sub")
 
     def __init__(self, sock: socket.socket, deadline: float) -> None:
         self.sock = sock
+        self.fd = sock.fileno()
         self.request = b""
         self.out: memoryview | None = None  # the answer, once the request is in
         self.deadline = deadline
-        self.events = 0  # what the selector watches for it (0: not registered)
+        self.events = 0  # what the epoll watches for it (0: not registered)
         self.sub: _Subscription | None = None  # a subscriber's stream
 
 
@@ -122,8 +144,15 @@ class _Request:
         self.error = error
 
 
+#: the plain status's request (an empty line): its meaning, not parsed again at each read
+#: (never changed: a request is read, not written, once parsed)
+PLAIN = _Request()
+
+
 def parse_request(request: bytes) -> _Request:
     """The request line's meaning (docs/status.md)."""
+    if request == b"\n":
+        return PLAIN
     if len(request) > MAX_REQUEST:
         return _Request(
             error=f"unknown status request: a request line too long; known: {', '.join(REQUESTS)}"
@@ -172,7 +201,8 @@ class StatusServer:
         self.served = 0
         self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
         # 0660: the service's group may ask (connecting needs write)
-        self._sock = bind_socket(path, 0o660)
+        bound = bind_socket(path, 0o660)
+        self._sock = _Listener(socket.AF_UNIX, socket.SOCK_STREAM, 0, bound.detach())
         st = os.lstat(path)
         self.identity = (st.st_dev, st.st_ino, st.st_ctime_ns)
         self._sock.listen(MAX_CLIENTS)
@@ -181,8 +211,8 @@ class StatusServer:
         self._wake_w.setblocking(False)  # poke() from the step thread never blocks
         self.subscribers = 0
         self._closed = threading.Event()
-        self._clients: dict[int, _Client] = {}
-        self._sel = selectors.DefaultSelector()
+        self._clients: dict[int, _Client] = {}  # by descriptor
+        self._ep = select.epoll()  # the wake-up socket, the listener (while accepting), clients
         self._accepting = False
         self._resume_accept = 0.0
         self._thread = threading.Thread(target=self._run, name="motorctl-status", daemon=True)
@@ -198,46 +228,61 @@ class StatusServer:
                 self._wake_w.send(b"p")
 
     # -- the server's thread -----------------------------------------------------------
-    # Few system calls per read: each one lets the step thread (thread executor) take the
-    # GIL, and getting it back costs up to a switch interval. A client that asked at once
-    # is answered straight from accept(), without the selector.
+    # Few system calls and little Python per read (a read is mostly this work, not the
+    # document: docs/timing.md), and each system call lets the step thread (thread
+    # executor) take the GIL, getting it back costing up to a switch interval. A client
+    # that asked at once is answered straight from accept(), never registered; a client's
+    # socket is a bare one asked with MSG_DONTWAIT (no ioctl to make it non-blocking); a
+    # client's descriptor leaves the epoll set with its close (no EPOLL_CTL_DEL). An event
+    # for a descriptor closed and reused in the same turn reaches the new client, whose
+    # MSG_DONTWAIT call finds nothing to do: harmless.
     def _run(self) -> None:
-        self._sel.register(self._wake_r, selectors.EVENT_READ, None)
+        wake = self._wake_r.fileno()
+        listener = self._sock.fileno()
+        clients = self._clients
+        self._ep.register(wake, select.EPOLLIN)
         self._accept_on(True)
         try:
             while not self._closed.is_set():
-                now = time.monotonic()
-                due = [
-                    c.sub.due if c.sub is not None and c.out is None else c.deadline
-                    for c in self._clients.values()
-                ]
-                if not self._accepting and len(self._clients) < MAX_CLIENTS:
-                    due.append(self._resume_accept)
-                timeout = max(0.0, min(due) - now) if due else None
-                for key, _ in self._sel.select(timeout):
-                    if key.fileobj is self._wake_r:
+                if clients or not self._accepting:
+                    now = time.monotonic()
+                    due = [
+                        c.sub.due if c.sub is not None and c.out is None else c.deadline
+                        for c in clients.values()
+                    ]
+                    if not self._accepting and len(clients) < MAX_CLIENTS:
+                        due.append(self._resume_accept)
+                    timeout = max(0.0, min(due) - now) if due else -1.0
+                else:
+                    timeout = -1.0  # nobody connected: only a connection or a poke wakes it
+                for fd, _ in self._ep.poll(timeout):
+                    if fd == listener:
+                        self._accept()
+                    elif fd == wake:
                         if self._closed.is_set():
                             return
                         self._poked()
-                    elif key.fileobj is self._sock:
-                        self._accept()
-                    elif isinstance(key.data, _Client):
-                        self._serve(key.data)
-                self._expire(time.monotonic())
+                    else:
+                        client = clients.get(fd)
+                        if client is not None:
+                            self._serve(client)
+                if clients or not self._accepting:
+                    self._expire(time.monotonic())
         finally:
-            for client in list(self._clients.values()):
+            for client in list(clients.values()):
                 self._drop(client)
-            self._sel.close()
+            self._ep.close()
 
     def _accept_on(self, on: bool) -> None:
         if on and not self._accepting:
-            self._sel.register(self._sock, selectors.EVENT_READ, None)
+            self._ep.register(self._sock.fileno(), select.EPOLLIN)
         elif not on and self._accepting:
-            self._sel.unregister(self._sock)
+            self._ep.unregister(self._sock.fileno())
         self._accepting = on
 
     def _accept(self) -> None:
-        """One client (more pending: the selector says so again at once)."""
+        """One client (more pending: the epoll says so again at once); a plain request
+        already whole is answered here, the client never registered."""
         try:
             conn, _ = self._sock.accept()
         except (BlockingIOError, InterruptedError):
@@ -250,12 +295,40 @@ class StatusServer:
             self._accept_on(False)  # e.g. EMFILE: the listener stays readable
             self._resume_accept = time.monotonic() + ACCEPT_RETRY_S
             return
-        conn.setblocking(False)
+        try:
+            chunk: bytes | None = conn.recv(MAX_REQUEST, NOWAIT)
+        except (BlockingIOError, InterruptedError):
+            chunk = None  # not asked yet
+        except OSError:
+            conn.close()
+            return
+        sent = 0
+        if chunk == b"\n":  # the plain status, asked at once: most reads end here
+            answer = self._encode(PLAIN)
+            try:
+                sent = conn.send(answer, NOWAIT)
+            except (BlockingIOError, InterruptedError):
+                pass
+            except OSError:
+                conn.close()
+                return
+            if sent == len(answer):
+                self.served += 1
+                conn.close()
+                return
         client = _Client(conn, time.monotonic() + REQUEST_WAIT_S)
-        self._clients[conn.fileno()] = client
+        self._clients[client.fd] = client
         if len(self._clients) >= MAX_CLIENTS:
             self._accept_on(False)  # full: the rest wait in the backlog
-        self._serve(client)
+        if chunk is None:
+            self._watch(client, select.EPOLLIN)
+        elif chunk == b"\n":  # the rest of the answer once the client reads
+            client.request = chunk
+            client.out = memoryview(answer)[sent:]
+            client.deadline = time.monotonic() + SEND_TIMEOUT_S
+            self._watch(client, select.EPOLLOUT)
+        else:
+            self._took(client, chunk)
 
     def _poked(self) -> None:
         """Subscribers look for a change now (at most every ``SUBSCRIBE_MIN_GAP_S``)."""
@@ -269,41 +342,47 @@ class StatusServer:
 
     def _serve(self, client: _Client) -> None:
         """Take the request, answer it, as far as it goes without blocking; then let the
-        selector watch for what it waits for."""
+        epoll watch for what it waits for."""
         if client.sub is not None:
             self._serve_subscriber(client)
             return
-        if client.out is None:
-            try:
-                chunk = client.sock.recv(MAX_REQUEST)
-            except (BlockingIOError, InterruptedError):
-                self._watch(client, selectors.EVENT_READ)
-                return
-            except OSError:
-                self._drop(client)
-                return
-            client.request += chunk
-            if chunk and b"\n" not in client.request and len(client.request) <= MAX_REQUEST:
-                self._watch(client, selectors.EVENT_READ)
-                return
-            self._answer(client)  # a line, the end of input, or too long
-            if client.sub is not None or client.out is None:
-                return  # a subscriber (its first update is on its way), or dropped
-        self._send(client)
+        if client.out is not None:
+            self._send(client)
+            return
+        try:
+            chunk = client.sock.recv(MAX_REQUEST, NOWAIT)
+        except (BlockingIOError, InterruptedError):
+            self._watch(client, select.EPOLLIN)
+            return
+        except OSError:
+            self._drop(client)
+            return
+        self._took(client, chunk)
+
+    def _took(self, client: _Client, chunk: bytes) -> None:
+        """``chunk`` of the request came (empty: the end of input): answer once it is in."""
+        client.request += chunk
+        if chunk and b"\n" not in client.request and len(client.request) <= MAX_REQUEST:
+            self._watch(client, select.EPOLLIN)
+            return
+        self._answer(client)  # a line, the end of input, or too long
+        if client.sub is None and client.out is not None:
+            self._send(client)  # (a subscriber's first update is on its way; or dropped)
 
     def _answer(self, client: _Client) -> None:
         request = parse_request(client.request)
-        if request.period is not None and request.error is None:
+        period = request.period
+        if period is not None and request.error is None:
             if self.subscribers >= MAX_SUBSCRIBERS:
                 self._evict_one()
             if self.subscribers >= MAX_SUBSCRIBERS:
-                request.error = (
-                    f"too many subscribers ({MAX_SUBSCRIBERS}), each reading its updates: the "
-                    "daemon is full; close one, or read the status once"
+                request = _Request(
+                    error=f"too many subscribers ({MAX_SUBSCRIBERS}), each reading its updates: "
+                    "the daemon is full; close one, or read the status once"
                 )
             else:
                 self.subscribers += 1
-                client.sub = _Subscription(request.period, time.monotonic())
+                client.sub = _Subscription(period, time.monotonic())
                 self._update(client, time.monotonic(), None)
                 return
         client.out = memoryview(self._encode(request))
@@ -340,7 +419,7 @@ class StatusServer:
         writable: the rest of its update."""
         try:
             while True:
-                chunk = client.sock.recv(4096)
+                chunk = client.sock.recv(4096, NOWAIT)
                 if not chunk:
                     self._drop(client)
                     return
@@ -394,19 +473,16 @@ class StatusServer:
     def _send(self, client: _Client) -> None:
         assert client.out is not None
         try:
-            sent = client.sock.send(client.out)
+            sent = client.sock.send(client.out, NOWAIT)
         except (BlockingIOError, InterruptedError):
-            self._watch(client, selectors.EVENT_WRITE)
+            self._watch(client, select.EPOLLOUT)
             return
         except OSError:
             self._drop(client)
             return
         client.out = client.out[sent:]
         if client.out:
-            self._watch(
-                client,
-                selectors.EVENT_WRITE | (selectors.EVENT_READ if client.sub is not None else 0),
-            )
+            self._watch(client, select.EPOLLOUT | (select.EPOLLIN if client.sub is not None else 0))
             return
         self.served += 1
         if client.sub is None:
@@ -414,15 +490,15 @@ class StatusServer:
             return
         client.out = None
         client.deadline = math.inf
-        self._watch(client, selectors.EVENT_READ)
+        self._watch(client, select.EPOLLIN)
 
     def _watch(self, client: _Client, events: int) -> None:
         if client.events == events:
             return
         if client.events:
-            self._sel.modify(client.sock, events, client)
+            self._ep.modify(client.fd, events)
         else:
-            self._sel.register(client.sock, events, client)
+            self._ep.register(client.fd, events)
         client.events = events
 
     def _expire(self, now: float) -> None:
@@ -446,10 +522,9 @@ class StatusServer:
         if client.sub is not None:
             client.sub = None
             self.subscribers -= 1
-        self._clients.pop(client.sock.fileno(), None)
-        if client.events:
-            self._sel.unregister(client.sock)
-            client.events = 0
+        if self._clients.get(client.fd) is client:
+            del self._clients[client.fd]
+        client.events = 0  # its close takes it out of the epoll set (the only descriptor)
         client.sock.close()
 
     def document(self, request: bytes) -> bytes:

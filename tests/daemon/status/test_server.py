@@ -18,6 +18,7 @@ from motorctl.daemon.status import server as status_module
 from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.server import StatusServer, StatusSource
 from tests.support.fsutil import read_only
+from tests.support.wait import until
 
 DEADLINE_S = 5.0
 
@@ -90,6 +91,43 @@ def test_status_server_builds_the_histogram_only_when_asked(tmp_path: Path) -> N
         assert "error" in json.loads(raw_request(path, b"x" * 300))  # no line end in sight
         assert asked == [False, True, False] and server.served == 5
     finally:
+        server.close()
+
+
+@pytest.mark.parametrize("size", [10, 4_000_000])
+def test_status_server_answers_requests_waiting_whole_at_accept(tmp_path: Path, size: int) -> None:
+    """Requests already whole when the server accepts (a plain one is answered straight
+    from accept()): the plain status, small (sent at once) or larger than the socket's
+    buffer (the rest sent as the client reads), the histogram and a bad request, each
+    whole; nothing is left registered."""
+    path = tmp_path / "status.sock"
+    blob = "x" * size
+    asked: list[bool] = []
+    server = StatusServer(path, source({"blob": blob}, asked))
+    requests = [b"\n", b"\n", b"histogram\n", b"what\n"]
+    socks = []
+    try:
+        for request in requests:  # connected and asked before the server's thread runs
+            sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            sock.settimeout(DEADLINE_S)
+            sock.connect(str(path))
+            sock.sendall(request)
+            socks.append(sock)
+        server.start()
+        answers = []
+        for sock in socks:
+            chunks = []
+            while chunk := sock.recv(1 << 20):
+                chunks.append(chunk)
+            answers.append(json.loads(b"".join(chunks)))
+        assert answers[:2] == [{"blob": blob}, {"blob": blob}]
+        assert answers[2] == {"blob": blob, "histogram_us": {"0": 1}}
+        assert "unknown status request: what" in answers[3]["error"]
+        assert asked == [False, False, True] and server.served == 4
+        until("no client left registered", lambda: not server._clients)
+    finally:
+        for sock in socks:
+            sock.close()
         server.close()
 
 
