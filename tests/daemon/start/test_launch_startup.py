@@ -43,6 +43,14 @@ NEVER = (
     "motorctl.daemon.link.recorder",
     "motorctl.protocol.capture.",
     "motorctl.motion.executors.compiled_core",  # the executor's process loads the core
+    # the dSPIN chips' tables: the default config names no dSPIN motor (its declaration,
+    # hal/layers/dspin/config.py, checks [motors.dspin] without them)
+    "motorctl.hal.dspin.chips",
+    "motorctl.hal.dspin.registers",
+    "motorctl.hal.dspin.status",
+    "motorctl.hal.dspin.scales",
+    "motorctl.hal.layers.dspin.convert",
+    "fractions",
     "rich.",
     "prometheus_client.",
     "ctypes.util",
