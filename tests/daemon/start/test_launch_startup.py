@@ -51,6 +51,11 @@ NEVER = (
     "motorctl.hal.dspin.scales",
     "motorctl.hal.layers.dspin.convert",
     "fractions",
+    # the TMC5160's ramp generator and the TMC driver: no motor names a TMC chip (the TMC
+    # layer's declaration, hal/layers/tmc/config.py, imports a chip's module when asked)
+    "motorctl.hal.layers.tmc.tmc5160",
+    "motorctl.hal.layers.tmc.driver",
+    "motorctl.hal.layers.tmc.link",
     "rich.",
     "prometheus_client.",
     "ctypes.util",
