@@ -51,6 +51,7 @@ NEVER = (
     "motorctl.hal.dspin.scales",
     "motorctl.hal.layers.dspin.convert",
     "fractions",
+    "decimal",
     # the TMC5160's ramp generator and the TMC driver: no motor names a TMC chip (the TMC
     # layer's declaration, hal/layers/tmc/config.py, imports a chip's module when asked)
     "motorctl.hal.layers.tmc.tmc5160",
