@@ -77,6 +77,9 @@ class Frame:
 
 @dataclass
 class Conversation:
+    """A capture read back: its rows and frames, an incomplete frame or answer at the end,
+    and how many runs of bytes were lost."""
+
     rows: list[Row] = field(default_factory=list)
     frames: list[Frame] = field(default_factory=list)
     partial_in: bytes = b""  # an incomplete frame at the end

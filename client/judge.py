@@ -57,6 +57,9 @@ POSITION_TOLERANCE = 2
 
 @dataclass
 class Tolerances:
+    """How far a replay may differ from its recording and still pass: in time, in position,
+    and the slide of a long motion behind its plan."""
+
     time_s: float = TIME_TOLERANCE_S
     position: int = POSITION_TOLERANCE
     #: how far a motion may slide behind its plan, as a share of its time so far: a
@@ -79,6 +82,9 @@ class Tolerances:
 
 @dataclass
 class Verdict:
+    """One replayed command judged against its recording: what each said, the result and
+    why, and for positions how far off and what was allowed."""
+
     frame: int
     t_s: float
     command: str

@@ -75,6 +75,9 @@ class AxisSpec(Sectioned):
 
 @dataclass(frozen=True)
 class PinSpec(Sectioned):
+    """One user GPIO pin: its number, direction and initial level, and its backend's
+    section ([pins.<backend>])."""
+
     number: int
     output: bool
     initial: bool = False
@@ -83,6 +86,9 @@ class PinSpec(Sectioned):
 
 @dataclass(frozen=True)
 class HardwareSpec(Sectioned):
+    """The machine a backend builds: its stepper axes, user pins, whether it has the DC
+    motor, the backend's options and its sections ([<backend>])."""
+
     axes: tuple[AxisSpec, ...]
     pins: tuple[PinSpec, ...] = ()
     dc: bool = False

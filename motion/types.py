@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 @dataclass(frozen=True)
 class Ramp:
+    """A move's speed limit and its acceleration and deceleration."""
+
     speed: float  # step/s
     acc: float  # step/s^2
     dec: float  # step/s^2
@@ -71,6 +73,9 @@ class HomingPhase(enum.Enum):
 
 @dataclass(frozen=True)
 class HomingParams:
+    """How a motor homes: what it seeks (end stop or stall), how far at most, how far it
+    backs off again."""
+
     source: HomingSource = HomingSource.ENDSTOP
     max_travel: int = 40_000
     pull_off: int = 0  # 0 = one-phase homing
@@ -80,6 +85,9 @@ class HomingParams:
 
 @dataclass(frozen=True)
 class MotorParams:
+    """One motor as motion sees it: its geometry, soft limits, queue, homing, timing, speed
+    limits and how its position is counted (on the host, on a driver chip)."""
+
     name: str = "motor"
     # The motor's config: the config model declares the defaults ([[motors]]), so these
     # are always given (the daemon: daemon/start/assemble.py's motor_params)

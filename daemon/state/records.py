@@ -73,6 +73,9 @@ class MotorIdentity:
 
 @dataclass
 class SavedMotor:
+    """One motor's record in a state file: who it is (name and fingerprint), where it was,
+    its home and waypoints, and whether it was moving or had lost its position."""
+
     name: str
     fingerprint: str
     position: int
@@ -104,6 +107,8 @@ class BadRecord:
 
 @dataclass
 class SavedState:
+    """A state file as read: its good motor records, what else it held, the bad records."""
+
     motors: list[SavedMotor]  # the good records, in file order
     extra: dict[str, Any] = field(default_factory=dict)  # e.g. the mock world's axes
     bad: list[BadRecord] = field(default_factory=list)  # the records that are not

@@ -18,6 +18,8 @@ from dataclasses import dataclass, field
 from types import MappingProxyType
 from typing import Final
 
+from motorctl.hal.dspin.counter import ABS_POS_BITS as ABS_POS_BITS  # its length
+
 
 class Access(enum.Enum):
     """When SetParam may write a register (the datasheets' "Remarks" column).
@@ -143,7 +145,6 @@ class RegisterMap:
 
 R, WR, WS, WH = Access.READ_ONLY, Access.ALWAYS, Access.STOPPED, Access.HIZ
 
-ABS_POS_BITS: Final = 22
 
 #: the registers every model has, at the same address, with the same length and reset value
 _POSITION = (

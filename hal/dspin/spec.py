@@ -9,14 +9,17 @@ Pure, picklable data: any thread.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from motorctl.hal.dspin.chips import CHIPS, Chip
-from motorctl.hal.dspin.registers import ABS_POS_BITS
+from motorctl.hal.dspin.counter import ABS_POS_MAX, ABS_POS_MIN
 from motorctl.hal.spec import DriverSpec, HardwareSpec
 from motorctl.hal.spi import DEFAULT_SPEED_HZ
 
 #: the sides the chip's SW input can be wired to (``none``: no switch on SW)
 SWITCH_SIDES = ("min", "max", "none")
+
+if TYPE_CHECKING:  # the chips' tables are imported where a model is asked for (light config)
+    from motorctl.hal.dspin.chips import Chip
 
 
 @dataclass(frozen=True)
@@ -57,10 +60,12 @@ class DspinSpec(DriverSpec):
         driver counts on past them)."""
         if self.rotary:
             return None
-        return -(1 << (ABS_POS_BITS - 1)), (1 << (ABS_POS_BITS - 1)) - 1
+        return ABS_POS_MIN, ABS_POS_MAX
 
     @property
     def model(self) -> Chip:
+        from motorctl.hal.dspin.chips import CHIPS
+
         return CHIPS[self.chip]
 
 

@@ -58,6 +58,9 @@ K = ExecEventKind
 
 @dataclass
 class _Axis:
+    """One axis on its chip's ramp generator: the plan asked of it, the switch armed to stop
+    it, and what the chip said last."""
+
     gen: int = 0
     plan: str = ""  # "move", "run", "stop" or "" (nothing planned)
     target: int = 0

@@ -50,6 +50,8 @@ class Edge:
 
 @dataclass(frozen=True)
 class ChipInfo:
+    """A GPIO chip as the kernel names it: its device path, name, label and line count."""
+
     path: str
     name: str
     label: str
@@ -58,6 +60,9 @@ class ChipInfo:
 
 @dataclass(frozen=True)
 class LineInfo:
+    """One line of a chip as the kernel reports it: offset, name, whether (and by whom)
+    it is used, and its direction."""
+
     offset: int
     name: str
     used: bool

@@ -16,12 +16,11 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motorctl.hal.contract import LayerDeclaration, MotorEntry
-from motorctl.hal.dspin.chips import CHIPS, Chip
+from motorctl.hal.dspin.counter import ABS_POS_SPAN
 from motorctl.hal.dspin.spec import SWITCH_SIDES, DspinSpec
-from motorctl.hal.layers.dspin.convert import ABS_POS_SPAN
 from motorctl.hal.spec import HardwareSpec
 from motorctl.hal.spi import DEFAULT_DEVICE, DEVICE_PATTERN
 from motorctl.schema import (
@@ -36,8 +35,13 @@ from motorctl.schema import (
     text,
 )
 
-#: the chips ``[motors.dspin] driver`` takes (hal/dspin/chips.py's names)
-DRIVERS = tuple(CHIPS)
+if TYPE_CHECKING:
+    from motorctl.hal.dspin.chips import Chip
+
+#: the chips ``[motors.dspin] driver`` takes: hal/dspin/chips.py's names (``CHIPS``, the
+#: tables themselves, imported when a motor's chip is asked for: a config without a dSPIN
+#: motor imports none of them; tests/hal/dspin/ check that the two name the same chips)
+DRIVERS = ("l6470", "l6472", "l6480", "powerstep01", "powerstep01-current")
 
 #: a GPIO line as a backend names it (the gpiod backend parses it, and finds it, at start)
 LINE_TEXT = '"" (not wired) or a GPIO line: "chip:offset" (gpiochip0:25) or a line name (GPIO25)'
@@ -149,6 +153,8 @@ class DspinAxisConfig:
 
 
 def _chip(v: DspinAxisConfig) -> Chip:
+    from motorctl.hal.dspin.chips import CHIPS
+
     return CHIPS[v.driver]
 
 

@@ -34,14 +34,13 @@ from fractions import Fraction
 from typing import Final
 
 from motorctl.hal.dspin import scales
-from motorctl.hal.dspin.registers import ABS_POS_BITS
+from motorctl.hal.dspin.counter import ABS_POS_BITS
+from motorctl.hal.dspin.counter import ABS_POS_MAX as ABS_POS_MAX
+from motorctl.hal.dspin.counter import ABS_POS_MIN as ABS_POS_MIN
+from motorctl.hal.dspin.counter import ABS_POS_SPAN as ABS_POS_SPAN  # wraps by it
 from motorctl.hal.dspin.scales import Scale
 
-ABS_POS_MIN: Final = -(1 << (ABS_POS_BITS - 1))
-ABS_POS_MAX: Final = (1 << (ABS_POS_BITS - 1)) - 1
 N_STEP_MAX: Final = (1 << ABS_POS_BITS) - 1
-#: the counter's span: ABS_POS wraps by it (2,097,151 + 1 = -2,097,152)
-ABS_POS_SPAN: Final = 1 << ABS_POS_BITS
 
 
 class OutOfRange(ValueError):

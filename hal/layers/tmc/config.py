@@ -17,7 +17,7 @@ Pure declarations and conversions: no state, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, fields
 from typing import Any, Final
 
@@ -25,8 +25,6 @@ from motorctl.hal.contract import LayerDeclaration, MotorEntry
 from motorctl.hal.interfaces import RampDriver
 from motorctl.hal.layers.tmc.fields import Chip, mres_of
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
-from motorctl.hal.layers.tmc.tmc2130 import TMC2130
-from motorctl.hal.layers.tmc.tmc5160 import TMC5160
 from motorctl.hal.spec import HardwareSpec
 from motorctl.hal.spi import DEFAULT_DEVICE, DEVICE_PATTERN
 from motorctl.schema import (
@@ -41,8 +39,34 @@ from motorctl.schema import (
     text,
 )
 
+
+class _Chips(Mapping[str, Chip]):
+    """The chips by name, each one's module imported when it is first asked for: a config
+    without a TMC5160 motor imports none of its ramp generator and driver (a start on the
+    default config: tests/daemon/start/test_launch_startup.py)."""
+
+    NAMES: Final = ("tmc2130", "tmc5160")
+
+    def __getitem__(self, name: str) -> Chip:
+        if name == "tmc2130":
+            from motorctl.hal.layers.tmc.tmc2130 import TMC2130
+
+            return TMC2130
+        if name == "tmc5160":
+            from motorctl.hal.layers.tmc.tmc5160 import TMC5160
+
+            return TMC5160
+        raise KeyError(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self.NAMES)
+
+    def __len__(self) -> int:
+        return len(self.NAMES)
+
+
 #: the chips the layer knows, by the name ``[motors.tmc] driver`` takes
-CHIPS: Final[Mapping[str, Chip]] = {"tmc2130": TMC2130, "tmc5160": TMC5160}
+CHIPS: Final[Mapping[str, Chip]] = _Chips()
 
 
 @section(

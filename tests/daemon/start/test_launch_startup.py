@@ -43,6 +43,20 @@ NEVER = (
     "motorctl.daemon.link.recorder",
     "motorctl.protocol.capture.",
     "motorctl.motion.executors.compiled_core",  # the executor's process loads the core
+    # the dSPIN chips' tables: the default config names no dSPIN motor (its declaration,
+    # hal/layers/dspin/config.py, checks [motors.dspin] without them)
+    "motorctl.hal.dspin.chips",
+    "motorctl.hal.dspin.registers",
+    "motorctl.hal.dspin.status",
+    "motorctl.hal.dspin.scales",
+    "motorctl.hal.layers.dspin.convert",
+    "fractions",
+    "decimal",
+    # the TMC5160's ramp generator and the TMC driver: no motor names a TMC chip (the TMC
+    # layer's declaration, hal/layers/tmc/config.py, imports a chip's module when asked)
+    "motorctl.hal.layers.tmc.tmc5160",
+    "motorctl.hal.layers.tmc.driver",
+    "motorctl.hal.layers.tmc.link",
     "rich.",
     "prometheus_client.",
     "ctypes.util",

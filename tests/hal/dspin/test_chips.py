@@ -42,3 +42,16 @@ def test_names_and_features() -> None:
     assert all(c.has_stall_detection for c in (L6470, L6480, POWERSTEP01_CURRENT))
     assert L6470.alarms[4] == "STEP_LOSS_A" and L6472.alarms[4] is None
     assert L6480.alarms[4] == "UVLO_ADC" and L6480.alarms[7] == "CMD_ERROR"
+
+
+def test_the_config_names_every_chip_and_the_counter_is_abs_pos() -> None:
+    # the declaration names the chips without importing their tables (a light config)
+    from motorctl.hal.dspin.chips import Chip
+    from motorctl.hal.dspin.counter import ABS_POS_BITS, ABS_POS_SPAN
+    from motorctl.hal.dspin.spec import DspinSpec
+    from motorctl.hal.layers.dspin.config import DRIVERS
+
+    assert tuple(CHIPS) == DRIVERS
+    assert all(isinstance(DspinSpec("/dev/spidev0.0", 0, k, 16).model, Chip) for k in DRIVERS)
+    assert {c.registers["ABS_POS"].bits for c in CHIPS.values()} == {ABS_POS_BITS}
+    assert ABS_POS_SPAN == 1 << 22
