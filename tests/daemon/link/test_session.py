@@ -211,6 +211,18 @@ _POOL: list[Command] = [
     WaitMoved(1, 200),
 ]
 
+#: reads for the two worlds to take: a frame of _POOL (-1: a stray partial frame), a bit to
+#: flip in it (negative: none), the time that passes after it
+STEPS = st.lists(
+    st.tuples(
+        st.integers(-1, len(_POOL) - 1),
+        st.integers(-240, 79),  # 1/4 bad
+        st.sampled_from([0.0, 0.001, 0.02]),
+    ),
+    min_size=1,
+    max_size=80,
+)
+
 
 @settings(max_examples=60, deadline=None)
 # held behind a WaitMoved (the motor is on its way), then behind a stray partial frame
@@ -228,17 +240,7 @@ _POOL: list[Command] = [
         (3, -1, 0.0),
     ]
 )
-@given(
-    st.lists(
-        st.tuples(
-            st.integers(-1, len(_POOL) - 1),
-            st.integers(-240, 79),  # 1/4 bad
-            st.sampled_from([0.0, 0.001, 0.02]),
-        ),
-        min_size=1,
-        max_size=80,
-    )
-)
+@given(STEPS)
 def test_whole_frames_read_alone_answer_and_count_as_split_ones(
     steps: list[tuple[int, int, float]],
 ) -> None:
@@ -285,17 +287,7 @@ def taken(rig: SessionRig, data: bytes) -> bytes:
 @example([(0, -1, 0.0), (0, -1, 0.0), (10, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0)])
 @example([(0, -1, 0.0), (-1, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0), (0, -1, 0.0)])
 @example([(1, -1, 0.0), (1, 3, 0.0), (1, 3, 0.0), (16, -1, 0.0), (16, -1, 0.0)])
-@given(
-    st.lists(
-        st.tuples(
-            st.integers(-1, len(_POOL) - 1),
-            st.integers(-240, 79),  # 1/4 bad
-            st.sampled_from([0.0, 0.001, 0.02]),
-        ),
-        min_size=1,
-        max_size=80,
-    )
-)
+@given(STEPS)
 def test_a_read_answered_at_once_is_a_read_received_and_taken(
     steps: list[tuple[int, int, float]],
 ) -> None:
