@@ -182,7 +182,7 @@ class LinkSession:
     def wants_input(self) -> bool:
         """False while too many responses are owed: the shell stops reading (back pressure on
         the host) rather than let memory grow without bound."""
-        return len(self._held) + len(self._out) // RESPONSE_LEN < self.backlog_limit
+        return self.owed < self.backlog_limit
 
     def deadline(self) -> float | None:
         """When :meth:`poll` must run at the latest (a held WaitMoved's timeout)."""
@@ -296,12 +296,8 @@ class LinkSession:
             resp = self.port.handle(cmd)
         except Exception:
             resp = self._failed(cmd)
-        out = self._encoded.get((resp.ack, resp.payload)) or self._encode(resp)
-        counters["responses"] += 1
-        self._answer_no += 1
-        self._answers_seen.append((self._answer_no, out))
-        if out[0] == 0x00:
-            counters[_SENT[out[1]]] += 1
+        out = self._encode(resp)
+        self._count_answer(out)
         return out
 
     def idle(self, seconds: float) -> None:
@@ -471,6 +467,10 @@ class LinkSession:
 
     def _emit_encoded(self, data: bytes) -> None:
         self._out += data
+        self._count_answer(data)
+
+    def _count_answer(self, data: bytes) -> None:
+        """An answer emitted: counted, and kept among the last answers."""
         counters = self.counters
         counters["responses"] += 1
         self._answer_no += 1
