@@ -223,6 +223,15 @@ STEPS = st.lists(
     max_size=80,
 )
 
+#: a stray partial frame (STEPS' index -1): what follows it is misaligned
+STRAY = b"\x01\x02\x03"
+
+
+def step_frame(index: int, bad_bit: int) -> bytes:
+    """The frame of STEPS' ``index`` in _POOL, with ``bad_bit`` flipped (negative: none)."""
+    data = frame(_POOL[index])
+    return corrupt(data, bad_bit) if bad_bit >= 0 else data
+
 
 @settings(max_examples=60, deadline=None)
 # held behind a WaitMoved (the motor is on its way), then behind a stray partial frame
@@ -251,12 +260,10 @@ def test_whole_frames_read_alone_answer_and_count_as_split_ones(
         whole, split = SessionRig(Path(ta), CONFIG), SessionRig(Path(tb), CONFIG)
         for index, bad_bit, dt in steps:
             if index < 0:  # a stray partial frame: what follows is misaligned in both
-                whole.session.receive(b"\x01\x02\x03", whole.now)
-                split.session.receive(b"\x01\x02\x03", split.now)
+                whole.session.receive(STRAY, whole.now)
+                split.session.receive(STRAY, split.now)
                 continue
-            data = frame(_POOL[index])
-            if bad_bit >= 0:  # one bit flipped
-                data = corrupt(data, bad_bit)
+            data = step_frame(index, bad_bit)
             whole.session.receive(data, whole.now)
             split.session.receive(data[:4], split.now)
             split.session.receive(data[4:], split.now)
@@ -299,13 +306,11 @@ def test_a_read_answered_at_once_is_a_read_received_and_taken(
         fast, plain = SessionRig(Path(ta), CONFIG), SessionRig(Path(tb), CONFIG)
         for index, bad_bit, dt in steps:
             if index < 0:  # a stray partial frame: never answered at once, nor what follows
-                assert fast.session.answer(b"\x01\x02\x03", fast.now) is None
-                fast.session.receive(b"\x01\x02\x03", fast.now)
-                plain.session.receive(b"\x01\x02\x03", plain.now)
+                assert fast.session.answer(STRAY, fast.now) is None
+                fast.session.receive(STRAY, fast.now)
+                plain.session.receive(STRAY, plain.now)
                 continue
-            data = frame(_POOL[index])
-            if bad_bit >= 0:  # one bit flipped
-                data = corrupt(data, bad_bit)
+            data = step_frame(index, bad_bit)
             out = taken(fast, data)
             plain.session.receive(data, plain.now)
             assert out == plain.session.take_output()
