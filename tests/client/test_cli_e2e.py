@@ -25,6 +25,7 @@ from motorctl.protocol.codec import IsReady
 from tests.support import REPO
 from tests.support.daemon_proc import DaemonProcess
 from tests.support.frames import frame
+from tests.support.fsutil import need_checkout_open_to_others
 from tests.support.inprocess import Host
 from tests.support.wait import until
 
@@ -230,6 +231,7 @@ def root() -> None:
     """Permissions and TIOCEXCL bind every user but root: the CLI runs as user nobody."""
     if os.geteuid() != 0 or shutil.which("setpriv") is None:
         pytest.fail("these tests run as root with setpriv (util-linux), as the suite does")
+    need_checkout_open_to_others()
 
 
 def as_nobody(*args: str) -> subprocess.CompletedProcess[str]:

@@ -1,17 +1,21 @@
 """File-system helpers for tests: a directory made read-only for real (EROFS or EACCES), a
-small tmpfs that can be filled up for real (ENOSPC)."""
+small tmpfs that can be filled up for real (ENOSPC), the checkout's reach for another user."""
 
 from __future__ import annotations
 
 import contextlib
 import errno
+import functools
 import os
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+
+from tests.support import REPO
 
 
 @contextlib.contextmanager
@@ -94,3 +98,32 @@ def fill(directory: Path, limit: int = 16 << 20) -> Path:
     finally:
         os.close(fd)
     raise AssertionError(f"{directory} still has room after {limit} bytes: not a small tmpfs")
+
+
+#: this checkout's motorctl imported by this interpreter
+IMPORT = (sys.executable, "-c", "import motorctl")
+
+
+@functools.cache
+def _nobody_cannot_import() -> str:
+    """Why user nobody cannot import this checkout's motorctl ("" when it can)."""
+    done = subprocess.run(
+        ["setpriv", "--reuid=65534", "--regid=65534", "--clear-groups", *IMPORT],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd="/",
+    )
+    return "" if done.returncode == 0 else done.stderr.strip().splitlines()[-1]
+
+
+def need_checkout_open_to_others() -> None:
+    """Skip, saying why, when user nobody (as whom these tests run motorctl) cannot import
+    this checkout's motorctl: a clone in a private folder (``mktemp -d``'s 0700) would
+    otherwise fail such a test with ``No module named 'motorctl'``, saying nothing of why."""
+    why = _nobody_cannot_import()
+    if why:
+        pytest.skip(
+            f"user nobody cannot import motorctl from {REPO} ({why}): a folder above it is "
+            "closed to other users; clone into a folder others may enter"
+        )

@@ -42,6 +42,7 @@ from motorctl.protocol.codec import (
 )
 from tests.support.daemon_proc import DaemonProcess
 from tests.support.frames import OPTS, answers, frame
+from tests.support.fsutil import need_checkout_open_to_others
 from tests.support.inprocess import TWO_MOTORS, build_daemon
 from tests.support.wait import until
 
@@ -487,6 +488,7 @@ def test_a_device_that_cannot_be_used_stops_the_start_before_the_state(
     as_nobody = what == "no permission" and os.geteuid() == 0
     if as_nobody:  # root opens anything: the daemon runs as user nobody, in a folder it
         # can reach (pytest's are its owner's only)
+        need_checkout_open_to_others()
         tmp_path = Path(tempfile.mkdtemp(prefix="motorctl-test-"))
         tmp_path.chmod(0o755)
         request.addfinalizer(lambda: shutil.rmtree(tmp_path))
