@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import enum
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, ClassVar, Protocol, TypeVar
 
@@ -66,6 +66,38 @@ class MotorEntry(Protocol):
 
 #: a loaded [[motors]] entry's driver chip, as the layers read it (``registry.driver_spec``)
 DriverLookup = Callable[[MotorEntry], DriverSpec | None]
+
+
+class ChipTable(Mapping[str, T]):
+    """A layer's chips by the names its config takes: the names written here, in the
+    declaration, the chips themselves (register tables, ramp generators) imported by ``load``
+    when one is first asked for, so that a config without such a chip imports none of them
+    (a start on the default config: tests/daemon/start/test_launch_startup.py).
+
+    ``load`` returns every chip by name; a table that names other chips than it loads is a
+    programming error, raised (RuntimeError) at the first chip asked for, never a chip
+    silently missing from a config's choices."""
+
+    def __init__(self, names: tuple[str, ...], load: Callable[[], Mapping[str, T]]) -> None:
+        self._names = names
+        self._load = load
+
+    def __getitem__(self, name: str) -> T:
+        if name not in self._names:
+            raise KeyError(name)
+        chips = self._load()
+        if tuple(chips) != self._names:
+            raise RuntimeError(f"the chips are {tuple(chips)}, the table names {self._names}")
+        return chips[name]
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._names
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._names)
+
+    def __len__(self) -> int:
+        return len(self._names)
 
 
 class ProblemKind(enum.StrEnum):

@@ -13,6 +13,7 @@ from motorctl.hal.compiled_lines import NO_COMPILED_LINES, CompiledLines
 from motorctl.hal.contract import (
     Backend,
     BackendDeclaration,
+    ChipTable,
     DriverLookup,
     LayerDeclaration,
     ProbeReport,
@@ -109,3 +110,24 @@ def test_the_report_prints_its_sections_then_its_problems() -> None:
         Problem("/dev/spidev0.0 does not exist", ProblemKind.DEVICE),
     ]
     assert str(report.problems[0]) == "line GPIO3 is used twice"
+
+
+def test_a_chip_table_names_its_chips_without_loading_them_and_loads_on_the_first_asked() -> None:
+    loads: list[int] = []
+
+    def load() -> dict[str, int]:
+        loads.append(1)
+        return {"a": 1, "b": 2}
+
+    table = ChipTable(("a", "b"), load)
+    assert (tuple(table), len(table), "a" in table, "c" in table) == (("a", "b"), 2, True, False)
+    assert not loads  # names, membership and length load nothing
+    assert table["b"] == 2 and loads
+    with pytest.raises(KeyError):
+        table["c"]
+
+
+def test_a_chip_table_that_names_other_chips_than_it_loads_says_so() -> None:
+    table = ChipTable(("a", "c"), lambda: {"a": 1, "b": 2})
+    with pytest.raises(RuntimeError, match=r"the chips are \('a', 'b'\), the table names"):
+        table["a"]

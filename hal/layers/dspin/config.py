@@ -16,9 +16,9 @@ from __future__ import annotations
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
-from motorctl.hal.contract import LayerDeclaration, MotorEntry
+from motorctl.hal.contract import ChipTable, LayerDeclaration, MotorEntry
 from motorctl.hal.dspin.counter import ABS_POS_SPAN
 from motorctl.hal.dspin.spec import SWITCH_SIDES, DspinSpec
 from motorctl.hal.spec import HardwareSpec
@@ -38,10 +38,18 @@ from motorctl.schema import (
 if TYPE_CHECKING:
     from motorctl.hal.dspin.chips import Chip
 
-#: the chips ``[motors.dspin] driver`` takes: hal/dspin/chips.py's names (``CHIPS``, the
-#: tables themselves, imported when a motor's chip is asked for: a config without a dSPIN
-#: motor imports none of them; tests/hal/dspin/ check that the two name the same chips)
-DRIVERS = ("l6470", "l6472", "l6480", "powerstep01", "powerstep01-current")
+
+def _chips() -> Mapping[str, Chip]:
+    from motorctl.hal.dspin.chips import CHIPS as chips
+
+    return chips
+
+
+#: the chips ``[motors.dspin] driver`` takes, by that name (hal/dspin/chips.py's tables,
+#: imported when a motor's chip is asked for: a config without a dSPIN motor imports none)
+CHIPS: Final[Mapping[str, Chip]] = ChipTable(
+    ("l6470", "l6472", "l6480", "powerstep01", "powerstep01-current"), _chips
+)
 
 #: a GPIO line as a backend names it (the gpiod backend parses it, and finds it, at start)
 LINE_TEXT = '"" (not wired) or a GPIO line: "chip:offset" (gpiochip0:25) or a line name (GPIO25)'
@@ -81,7 +89,7 @@ class DspinAxisConfig:
 
     driver: str = choice(
         "l6470",
-        DRIVERS,
+        tuple(CHIPS),
         "The chip (powerstep01: voltage mode, powerstep01-current: current mode); its "
         "CONFIG reset value is checked at start.",
     )
@@ -153,8 +161,6 @@ class DspinAxisConfig:
 
 
 def _chip(v: DspinAxisConfig) -> Chip:
-    from motorctl.hal.dspin.chips import CHIPS
-
     return CHIPS[v.driver]
 
 

@@ -17,11 +17,11 @@ Pure declarations and conversions: no state, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any, Final
 
-from motorctl.hal.contract import LayerDeclaration, MotorEntry
+from motorctl.hal.contract import ChipTable, LayerDeclaration, MotorEntry
 from motorctl.hal.interfaces import RampDriver
 from motorctl.hal.layers.tmc.fields import Chip, mres_of
 from motorctl.hal.layers.tmc.settings import TmcSettings, TmcSpec
@@ -40,33 +40,16 @@ from motorctl.schema import (
 )
 
 
-class _Chips(Mapping[str, Chip]):
-    """The chips by name, each one's module imported when it is first asked for: a config
-    without a TMC5160 motor imports none of its ramp generator and driver (a start on the
-    default config: tests/daemon/start/test_launch_startup.py)."""
+def _chips() -> dict[str, Chip]:
+    from motorctl.hal.layers.tmc.tmc2130 import TMC2130
+    from motorctl.hal.layers.tmc.tmc5160 import TMC5160
 
-    NAMES: Final = ("tmc2130", "tmc5160")
-
-    def __getitem__(self, name: str) -> Chip:
-        if name == "tmc2130":
-            from motorctl.hal.layers.tmc.tmc2130 import TMC2130
-
-            return TMC2130
-        if name == "tmc5160":
-            from motorctl.hal.layers.tmc.tmc5160 import TMC5160
-
-            return TMC5160
-        raise KeyError(name)
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self.NAMES)
-
-    def __len__(self) -> int:
-        return len(self.NAMES)
+    return {c.name.lower(): c for c in (TMC2130, TMC5160)}
 
 
-#: the chips the layer knows, by the name ``[motors.tmc] driver`` takes
-CHIPS: Final[Mapping[str, Chip]] = _Chips()
+#: the chips the layer knows, by the name ``[motors.tmc] driver`` takes (their modules
+#: imported when one is asked for: a config without a TMC motor imports none of them)
+CHIPS: Final[Mapping[str, Chip]] = ChipTable(("tmc2130", "tmc5160"), _chips)
 
 
 @section(

@@ -49,9 +49,9 @@ def test_the_config_names_every_chip_and_the_counter_is_abs_pos() -> None:
     from motorctl.hal.dspin.chips import Chip
     from motorctl.hal.dspin.counter import ABS_POS_BITS, ABS_POS_SPAN
     from motorctl.hal.dspin.spec import DspinSpec
-    from motorctl.hal.layers.dspin.config import DRIVERS
+    from motorctl.hal.layers.dspin.config import CHIPS as DECLARED
 
-    assert tuple(CHIPS) == DRIVERS
-    assert all(isinstance(DspinSpec("/dev/spidev0.0", 0, k, 16).model, Chip) for k in DRIVERS)
+    assert DECLARED == CHIPS and tuple(DECLARED) == tuple(CHIPS)
+    assert all(isinstance(DspinSpec("/dev/spidev0.0", 0, k, 16).model, Chip) for k in DECLARED)
     assert {c.registers["ABS_POS"].bits for c in CHIPS.values()} == {ABS_POS_BITS}
     assert ABS_POS_SPAN == 1 << 22
