@@ -84,7 +84,7 @@ class ChangeLock:
         self._lock.acquire()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: object, exc: object, tb: object) -> None:
         self.releases += 1
         self._lock.release()
 
