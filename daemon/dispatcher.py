@@ -196,7 +196,7 @@ class Dispatcher:
                 journalled = index
         try:
             with engine.lock:
-                engine.process_events(engine.clock.now())
+                engine.catch_up()  # every event reported before the command, first
                 resp = handler(cmd)
         except Reject as r:
             resp = self._refuse(cmd, r)

@@ -8,9 +8,9 @@ Threads on a real clock (:meth:`start`): the planner thread (events from the exe
 the drivers, refilling step segments, DC run ends; normal priority), and the HAL's driver
 poller's (``Hardware.poller``, hal/poller.py: it reads the driver chips outside the lock
 and pushes a fault or a stall here, :meth:`_on_driver_news`: queued, the planner woken, and
-acted on under the lock by :meth:`process_events` at once, or by the dispatcher's call of it
-before it answers a command). Tests on a virtual clock call :meth:`run_until` instead:
-executor steps, planner, DC and driver polls in time order.
+acted on under the lock by :meth:`process_events` at once, or by the dispatcher's
+:meth:`catch_up` before it answers a command). Tests on a virtual clock call
+:meth:`run_until` instead: executor steps, planner, DC and driver polls in time order.
 
 :meth:`settle_stop` is called by the link thread WITHOUT the lock: it waits, bounded by
 ``stop_confirm_s``, for the executor to confirm a hard stop, taking the lock only to process
@@ -84,7 +84,7 @@ class ChangeLock:
         self._lock.acquire()
         return self
 
-    def __exit__(self, *exc: object) -> None:
+    def __exit__(self, kind: object, exc: object, tb: object) -> None:
         self.releases += 1
         self._lock.release()
 
@@ -306,6 +306,16 @@ class MotionEngine:
                     m.on_driver_status(status, now, steps[m.index] if steps else None)
         for ev in self.executor.events():
             self._dispatch(ev, now)
+
+    def catch_up(self) -> None:
+        """Lock held: :meth:`process_events`, when anything was reported (the dispatcher,
+        before each command). A cheap look first, for the usual command meets nothing: the
+        driver poller's queue (a deque: its append is atomic) and the executor's
+        (:meth:`~motorctl.motion.executors.base.Executor.events_waiting`, the same stores
+        ``events`` reads). What was published before the look is processed before the
+        command, as it was when every command asked for the events themselves."""
+        if self._driver_news or self.executor.events_waiting():
+            self.process_events(self.clock.now())
 
     def _dispatch(self, ev: ExecEvent, now: float) -> None:
         if ev.kind is ExecEventKind.DIED:

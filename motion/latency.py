@@ -45,6 +45,8 @@ LATE_THRESHOLD_S: Final = 100e-6
 
 class LatencyStats:
     def __init__(self, threshold_s: float = LATE_THRESHOLD_S, cells: Cells | None = None) -> None:
+        if not threshold_s >= 0:
+            raise ValueError(f"a lateness threshold of {threshold_s} s: it cannot be negative")
         self.threshold_s = threshold_s
         self._threshold_ns = int(threshold_s * 1e9)
         self._c: Cells = cells if cells is not None else [0] * CELLS
@@ -90,19 +92,26 @@ class LatencyStats:
         self.record_ns(round(lateness_s * 1e9))
 
     def record_ns(self, ns: int) -> None:
+        """One edge (or command) ``ns`` late; early or on time (``ns`` <= 0) counts in the
+        first bin and adds nothing to the sum. The maximum starts at 0 and the threshold is
+        not negative, so neither can move for an edge that was not late at all: they are
+        looked at only for one that was (the link records every command here)."""
         c = self._c
         c[_COUNT] += 1
-        if ns > c[_MAX]:
-            c[_MAX] = ns
-        if ns > self._threshold_ns:
-            c[_LATE] += 1
         if ns > 0:
             c[_SUM] += ns
-        us = ns // 1000 if ns >= 0 else 0
-        if us > BINS:
-            us = BINS
-        c[_BINS + us] += 1
-        c[_BLOCKS + (us >> BLOCK_SHIFT)] += 1
+            if ns > c[_MAX]:
+                c[_MAX] = ns
+            if ns > self._threshold_ns:
+                c[_LATE] += 1
+            us = ns // 1000
+            if us > BINS:
+                us = BINS
+            c[_BINS + us] += 1
+            c[_BLOCKS + (us >> BLOCK_SHIFT)] += 1
+        else:
+            c[_BINS] += 1
+            c[_BLOCKS] += 1
 
     def histogram(self) -> dict[int, int]:
         """Non-empty bins, in order: lateness in whole microseconds -> count (the last bin,

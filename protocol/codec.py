@@ -209,8 +209,9 @@ class Response:
 
     @classmethod
     def position(cls, pos: int) -> Response:
-        """ACK with R1..R3 = position; out-of-range ints wrap modulo 2^24."""
-        return cls.ok(pos24_to_bytes(wrap24(pos)))
+        """ACK with R1..R3 = position; out-of-range ints wrap modulo 2^24 (the bytes of
+        ``pos24_to_bytes(wrap24(pos))``, made at once: answered at every GetAbsPos)."""
+        return cls(True, (pos % _POS_MOD).to_bytes(3, "big"))
 
     @property
     def error_code(self) -> ErrorCode | None:

@@ -236,6 +236,9 @@ class Executor(ABC):
     - ``on_event`` is called, from any thread, when events are pending; it must be cheap.
     - If the executor itself dies, :meth:`events` reports DIED (motor -1) once and
       :meth:`health` says why; every motor is then to be treated as faulted, position lost.
+    - :meth:`events_waiting` says, without taking anything, whether :meth:`events` has
+      something: the dispatcher looks before each command instead of asking for events
+      that are almost never there.
     """
 
     def __init__(self, motors: int) -> None:
@@ -273,6 +276,15 @@ class Executor(ABC):
 
     @abstractmethod
     def events(self) -> list[ExecEvent]: ...
+
+    @abstractmethod
+    def events_waiting(self) -> bool:
+        """A cheap look, by the events' consumer (the engine lock held): False only when
+        :meth:`events` would return nothing now. What the executor reports is published
+        with one atomic store (a deque's or a list's append, a ring's head cell), and this
+        look reads that same store: an event published before it is seen by it, one
+        published after it by the next look (the caller's next command, the planner's next
+        pass). True when in doubt: :meth:`events` is then asked, as it always was."""
 
     @abstractmethod
     def planned(self, motor: int) -> bool:

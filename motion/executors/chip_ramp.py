@@ -134,6 +134,10 @@ class RampExecutor(Executor):
             out, self._events = self._events, []
         return out
 
+    def events_waiting(self) -> bool:
+        """The list holds an event (appended under ``_lock``; its length is read whole)."""
+        return bool(self._events)
+
     def _fault(self, motor: int, now: float, exc: BaseException) -> None:
         ax = self._axes[motor]
         self.counters["spi_errors"] += 1

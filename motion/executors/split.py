@@ -115,6 +115,9 @@ class SplitExecutor(Executor):
                     out.append(replace(ev, motor=m))
         return out
 
+    def events_waiting(self) -> bool:
+        return any(ex.events_waiting() for ex in self.parts)
+
     def position(self, motor: int) -> int:
         ex, local = self.routes[motor]
         return ex.position(local)

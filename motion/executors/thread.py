@@ -121,6 +121,11 @@ class ThreadStepExecutor(StepExecutor):
             out.append(events.popleft())
         return out
 
+    def events_waiting(self) -> bool:
+        """The core's deque holds an event (its thread appends; a deque's append is atomic,
+        its death's DIED included)."""
+        return bool(self._events)
+
     # -- the transport: the core's inbox deques ------------------------------------------
     def _push(self, motor: int, segments: list[StepSegment]) -> None:
         self.inbox.queues[motor].extend(segments)

@@ -18,6 +18,7 @@ from motorctl.hal.backends.mock.world import EventKind, mock_axis
 from motorctl.hal.interfaces import BridgeState, MonotonicClock, VirtualClock
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.motion.engine import ChangeLock, MotionEngine
+from motorctl.motion.executors.base import ExecEvent
 from motorctl.motion.executors.planner import axis_limits
 from motorctl.motion.executors.thread import ThreadStepExecutor
 from motorctl.motion.types import MotorState, MoveToCmd, Ramp, RunCmd
@@ -345,3 +346,34 @@ def test_the_motion_lock_counts_its_releases_once_the_holder_is_done() -> None:
     assert lock.releases == 2
     assert lock._lock.acquire(blocking=False)  # let go: free again
     lock._lock.release()
+
+
+def test_the_executors_look_says_whether_events_wait_at_every_request_for_them() -> None:
+    """``events_waiting`` (what the dispatcher's ``catch_up`` looks at before each command)
+    is True exactly when ``events`` has something, at every request for them during a
+    move's DONE, a hard stop's STOPPED, an end stop's ENDSTOP (a fault: not homing) and the
+    quiet between."""
+    rig = engine_rig()
+    ex = rig.executor
+    looks: list[tuple[bool, int]] = []
+    take = ex.events
+
+    def events() -> list[ExecEvent]:
+        waiting = ex.events_waiting()
+        out = take()
+        looks.append((waiting, len(out)))
+        return out
+
+    ex.events = events  # type: ignore[method-assign]
+    ramp = Ramp(4000.0, 40_000.0, 40_000.0)
+    rig.submit(MoveToCmd(300, ramp))
+    rig.engine.run_until_idle()
+    rig.submit(RunCmd(1, ramp))
+    rig.advance(0.05)
+    assert rig.stop(hard=True)
+    rig.engine.run_until_idle()
+    rig.submit(RunCmd(-1, ramp))  # into the end stop at -1000
+    rig.engine.run_until_idle()
+    assert [e for _, _, e in rig.events][-1] == "fault", rig.events  # the end stop's
+    assert all(waiting == bool(n) for waiting, n in looks), looks
+    assert sum(1 for waiting, _ in looks if waiting) >= 3 and (False, 0) in looks

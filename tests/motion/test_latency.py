@@ -89,3 +89,39 @@ def test_latency_blocks_agree_with_a_full_scan(lateness_us: list[int], shared: b
     assert [summary["p50_us"], summary["p99_us"], summary["p999_us"]] == [
         stats.percentile_us(q) for q in (50, 99, 99.9)
     ]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(
+        st.one_of(
+            st.integers(-(10**7), 10**5), st.integers(10**5, 3 * 10**10), st.sampled_from([0, 1])
+        ),
+        max_size=60,
+    ),
+    st.sampled_from([0.0, 1e-9, 108e-6, 1.0]),
+)
+def test_latency_every_cell_as_each_edge_says(lateness_ns: list[int], threshold_s: float) -> None:
+    """Every cell after any lateness in ns, early and exact ones included, as the rule says it
+    cell by cell: counted; the maximum and the late count moved by what exceeds them; the sum
+    of what was late; its microsecond's bin (early ones in the first, beyond BINS in the
+    last) and that bin's block."""
+    from motorctl.motion.latency import _BINS, _BLOCKS, BINS, BLOCK_SHIFT, CELLS
+
+    stats = LatencyStats(threshold_s)
+    want = [0] * CELLS
+    for ns in lateness_ns:
+        stats.record_ns(ns)
+        want[0] += 1
+        want[1] += ns > int(threshold_s * 1e9)
+        want[2] = max(want[2], ns)
+        want[3] += max(ns, 0)
+        us = min(max(ns, 0) // 1000, BINS)
+        want[_BINS + us] += 1
+        want[_BLOCKS + (us >> BLOCK_SHIFT)] += 1
+    assert stats._c == want
+
+
+def test_a_negative_lateness_threshold_is_refused() -> None:
+    with pytest.raises(ValueError, match="cannot be negative"):
+        LatencyStats(-1e-6)

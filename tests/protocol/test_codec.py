@@ -461,6 +461,13 @@ def test_position_response_wraps() -> None:
     assert Response.position((1 << 24) + 5).as_position == 5
 
 
+@given(st.integers(min_value=-(1 << 40), max_value=1 << 40))
+def test_a_position_response_is_its_wrapped_positions_bytes(value: int) -> None:
+    """Any int: the payload of its 24-bit wrap (what ``Response.position`` makes at once)."""
+    assert Response.position(value) == Response.ok(pos24_to_bytes(wrap24(value)))
+    assert Response.position(value).as_position == wrap24(value)
+
+
 def test_crc_covers_ack() -> None:
     covers = CodecOptions(crc_covers_ack=True)
     for resp in (Response.ok(), Response.boolean(True), Response.error(ErrorCode.MOTOR_ERROR)):

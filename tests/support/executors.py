@@ -93,6 +93,9 @@ class RecordingExecutor(Executor):
         out, self.pending = self.pending, []
         return out
 
+    def events_waiting(self) -> bool:
+        return bool(self.pending)
+
     def report(
         self,
         kind: ExecEventKind,

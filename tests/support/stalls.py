@@ -104,6 +104,13 @@ class SlowToConfirm(Executor):
             out.append(ExecEvent(ExecEventKind.DIED, -1, -1, 0, now, detail="test: executor died"))
         return out
 
+    def events_waiting(self) -> bool:
+        """Anything held back (due or not: events() decides), a death not reported yet, or
+        the inner executor's."""
+        with self._lock:
+            held = bool(self._held)
+        return held or (self.dead and not self._died_reported) or self.inner.events_waiting()
+
     def next_deadline(self) -> float | None:
         times = [due for due, _ in self._held]
         if self.dies_at is not None and not self.dead:
