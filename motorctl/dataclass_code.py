@@ -141,6 +141,11 @@ class CodeCache:
         self.misses += 1
         return None
 
+    def release(self) -> None:
+        """The start's imports are done: let the table go (about a MiB, which the step
+        executor would otherwise keep locked in memory); a later :meth:`use` compiles."""
+        self._codes = {}
+
     def summary(self) -> str:
         """One line on what a start took from the file."""
         said = f"{self.hits} methods from {self.path}, {self.misses} compiled"

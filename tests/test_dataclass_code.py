@@ -113,6 +113,19 @@ def test_a_class_gets_the_recorded_code_and_behaves_the_same(built: Path) -> Non
     assert "exec" not in vars(dataclasses)  # as it was
 
 
+def test_a_released_table_is_not_used_again(built: Path) -> None:
+    codes = CodeCache.load(built)
+    with codes.use():
+        define()
+    hits = codes.hits
+    codes.release()
+    assert len(codes) == 0 and codes.problem is None
+    with codes.use():
+        classes = define()
+    assert codes.hits == hits and codes.misses == hits  # compiled, as without the file
+    assert behaviour(classes) == behaviour(define())
+
+
 def test_a_text_not_in_the_file_is_compiled(built: Path) -> None:
     codes = CodeCache.load(built)
     with codes.use():

@@ -78,6 +78,7 @@ def serve(
         config = load_config(config_path)
     timeline.mark("config")
     if dataclass_code is not None:
+        dataclass_code.release()  # the start's imports are done
         log.debug("dataclass code: %s", dataclass_code.summary())
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
     with contextlib.ExitStack() as cleanup:

@@ -168,7 +168,11 @@ def child_main(
     _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
-    with contextlib.nullcontext() if codes is None else codes.use():
+    if codes is not None:
+        with codes.use():
+            config_sections()
+        codes.release()  # before the memory is locked (run_child)
+    else:
         config_sections()
     # and the collector's look at all of it, while waiting too (no automatic collection
     # since the bootstrap's first line, start.py): the collection before READY (_ready)
