@@ -49,7 +49,9 @@ import os
 import stat
 import sys
 import zlib
-from collections.abc import Callable, Iterator, Mapping
+from array import array
+from bisect import bisect_left
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 from types import CodeType
@@ -63,7 +65,7 @@ MAX_BYTES = 16 << 20
 STEM = "dataclass_code"
 
 
-def header(payload: bytes) -> bytes:
+def header(payload: bytes | bytearray | memoryview) -> bytes:
     """The file's header for ``payload``, for this interpreter: the format, the bytecode's
     magic number, the optimisation level (``-O``), the payload's CRC-32."""
     return (
@@ -72,6 +74,12 @@ def header(payload: bytes) -> bytes:
         + bytes([sys.flags.optimize])
         + zlib.crc32(payload).to_bytes(4, "little")
     )
+
+
+#: the header's length: :func:`header`'s parts
+HEADER = len(FORMAT) + len(importlib.util.MAGIC_NUMBER) + 1 + 4
+#: per method, in the index: its text's offset and length, its code's offset and length
+FIELDS = 4
 
 
 def default_path() -> Path | None:
@@ -86,17 +94,60 @@ def compile_method(text: str) -> CodeType:
     return compile(text, "<string>", "exec", dont_inherit=True)
 
 
-class CodeCache:
-    """The recorded code of one file, and what a start took from it."""
+def words(view: memoryview) -> array[int]:
+    """``view``'s unsigned 32-bit little-endian integers."""
+    found = array("I")
+    if found.itemsize != 4:
+        raise ValueError("this machine's unsigned int is not 32 bits")
+    found.frombytes(view)
+    if sys.byteorder == "big":
+        found.byteswap()
+    return found
 
-    def __init__(self, path: Path | None, codes: Mapping[str, bytes], problem: str | None):
+
+class CodeCache:
+    """The recorded code of one file, and what a start took from it.
+
+    The file after its header: the number of methods ``n``, the CRC-32 of each method's
+    text (UTF-8) in ascending order, then per method :data:`FIELDS` offsets and lengths
+    (its text's, its marshalled code's; from the file's start), all unsigned 32-bit little
+    endian, then the texts and codes. A method is found by its text's CRC and then compared
+    whole; nothing but the file's bytes and that index is held (no text, no code object is
+    made before it is asked for), and :meth:`release` lets all of it go."""
+
+    def __init__(self, path: Path | None, data: bytes = b"", problem: str | None = None) -> None:
         self.path = path
-        self._codes = codes
         #: why the file is not used (absent, stale, corrupt); None when it is
         self.problem = problem
         #: the methods whose code came from the file, and those compiled (not in it)
         self.hits = 0
         self.misses = 0
+        self._view = memoryview(data)
+        self._crcs: array[int] = array("I")
+        self._index: array[int] = array("I")
+        if data:
+            self._read_index()
+
+    def _read_index(self) -> None:
+        view = self._view
+        try:
+            (n,) = words(view[HEADER : HEADER + 4])
+            crcs_end = HEADER + 4 + 4 * n
+            index_end = crcs_end + 4 * FIELDS * n
+            if index_end > len(view):
+                raise ValueError(f"an index of {n} methods does not fit in {len(view)} bytes")
+            self._crcs = words(view[HEADER + 4 : crcs_end])
+            self._index = words(view[crcs_end:index_end])
+            if any(self._crcs[i] > self._crcs[i + 1] for i in range(n - 1)):
+                raise ValueError("its index is not in order")
+            if any(
+                offset < index_end or offset + length > len(view)
+                for offset, length in zip(self._index[::2], self._index[1::2], strict=True)
+            ):
+                raise ValueError("a method's place is outside the file")
+        except ValueError as exc:
+            self.problem = f"{self.path} is corrupt: {exc}"
+            self.release()
 
     @classmethod
     def load(cls, path: Path | None = None) -> CodeCache:
@@ -104,47 +155,67 @@ class CodeCache:
         that cannot be used is empty, with its :attr:`problem`. Never raises for the file."""
         path = default_path() if path is None else path
         if path is None:
-            return cls(None, {}, "this interpreter caches no bytecode (no cache tag)")
+            return cls(None, problem="this interpreter caches no bytecode (no cache tag)")
         try:
             data = read_regular(path)
         except FileNotFoundError:
-            return cls(path, {}, f"{path} is absent (built by setup.py or make)")
+            return cls(path, problem=f"{path} is absent (built by setup.py or make)")
         except OSError as exc:
-            return cls(path, {}, f"{path} cannot be read: {exc.strerror or exc}")
-        size = len(FORMAT) + len(importlib.util.MAGIC_NUMBER) + 5
-        head, payload = data[:size], data[size:]
-        if not head.startswith(FORMAT):
-            return cls(path, {}, f"{path} is corrupt: not a {FORMAT.decode().strip()!r} file")
-        if head[: size - 4] != header(payload)[: size - 4]:
-            return cls(path, {}, f"{path} is stale: made by another interpreter or -O level")
-        if head != header(payload):
-            return cls(path, {}, f"{path} is corrupt: its CRC does not match its contents")
-        try:
-            codes = marshal.loads(payload)
-        except (EOFError, ValueError, TypeError) as exc:
-            return cls(path, {}, f"{path} is corrupt: {exc}")
-        if not isinstance(codes, dict):
-            return cls(path, {}, f"{path} is corrupt: it holds no table of methods")
-        return cls(path, codes, None)
+            return cls(path, problem=f"{path} cannot be read: {exc.strerror or exc}")
+        head, payload = data[:HEADER], memoryview(data)[HEADER:]
+        if not head.startswith(FORMAT) or len(data) < HEADER + 4:
+            return cls(path, problem=f"{path} is corrupt: not a {FORMAT.decode().strip()!r} file")
+        expected = header(payload)
+        if head[: HEADER - 4] != expected[: HEADER - 4]:
+            return cls(path, problem=f"{path} is stale: made by another interpreter or -O level")
+        if head != expected:
+            return cls(path, problem=f"{path} is corrupt: its CRC does not match its contents")
+        return cls(path, data)
 
     def __len__(self) -> int:
-        return len(self._codes)
+        return len(self._crcs)
 
     def code(self, text: str) -> CodeType | None:
         """The recorded code of ``text``, None when the file has none (counted either way)."""
-        found = self._codes.get(text)
-        if found is not None:
-            code = marshal.loads(found)
-            if isinstance(code, CodeType):
+        key = text.encode()
+        crc, crcs, index, view = zlib.crc32(key), self._crcs, self._index, self._view
+        i = bisect_left(crcs, crc)
+        while i < len(crcs) and crcs[i] == crc:
+            at, size, code_at, code_size = index[FIELDS * i : FIELDS * (i + 1)]
+            if view[at : at + size] == key:
+                try:
+                    code = marshal.loads(view[code_at : code_at + code_size])
+                except (EOFError, ValueError, TypeError) as exc:
+                    code = exc
+                if not isinstance(code, CodeType):
+                    self.problem = f"{self.path} is corrupt: a method's code: {code}"
+                    self.release()
+                    break
                 self.hits += 1
                 return code
+            i += 1
         self.misses += 1
         return None
 
+    def methods(self) -> dict[str, CodeType]:
+        """Every text the file holds and its code (to compare two files: marshal's bytes
+        for the same code may differ, as it writes an object as shared or not by its
+        reference count)."""
+        view, index = self._view, self._index
+        found = {}
+        for i in range(len(self)):
+            at, size, code_at, code_size = index[FIELDS * i : FIELDS * (i + 1)]
+            found[bytes(view[at : at + size]).decode()] = marshal.loads(
+                view[code_at : code_at + code_size]
+            )
+        return found
+
     def release(self) -> None:
-        """The start's imports are done: let the table go (about a MiB, which the step
-        executor would otherwise keep locked in memory); a later :meth:`use` compiles."""
-        self._codes = {}
+        """The start's imports are done (or the file is found bad): let the file's bytes
+        and index go (about a MiB, which the step executor would otherwise keep locked in
+        memory); a later :meth:`use` compiles."""
+        self._view = memoryview(b"")
+        self._crcs, self._index = array("I"), array("I")
 
     def summary(self) -> str:
         """One line on what a start took from the file."""
@@ -211,9 +282,21 @@ class Recorder:
             yield self
 
     def payload(self) -> bytes:
-        """What the file holds after its header (texts in order: the same build, the same
-        bytes)."""
-        return marshal.dumps({text: marshal.dumps(self.codes[text]) for text in sorted(self.codes)})
+        """What the file holds after its header (:class:`CodeCache`'s layout; the methods
+        by their texts' CRC, then their texts)."""
+        keys = sorted((zlib.crc32(text.encode()), text.encode(), text) for text in self.codes)
+        n = len(keys)
+        at = HEADER + 4 + 4 * n + 4 * FIELDS * n
+        index, blob = array("I"), bytearray()
+        for _, key, text in keys:
+            code = marshal.dumps(self.codes[text])
+            index.extend([at + len(blob), len(key), at + len(blob) + len(key), len(code)])
+            blob += key + code
+        crcs = array("I", [crc for crc, _, _ in keys])
+        if sys.byteorder == "big":
+            index.byteswap()
+            crcs.byteswap()
+        return n.to_bytes(4, "little") + crcs.tobytes() + index.tobytes() + bytes(blob)
 
 
 def record_package() -> tuple[Recorder, list[str]]:
