@@ -45,6 +45,7 @@ import builtins
 import dataclasses
 import importlib.util
 import marshal
+import mmap
 import os
 import stat
 import sys
@@ -115,7 +116,9 @@ class CodeCache:
     whole; nothing but the file's bytes and that index is held (no text, no code object is
     made before it is asked for), and :meth:`release` lets all of it go."""
 
-    def __init__(self, path: Path | None, data: bytes = b"", problem: str | None = None) -> None:
+    def __init__(
+        self, path: Path | None, data: mmap.mmap | bytes = b"", problem: str | None = None
+    ) -> None:
         self.path = path
         #: why the file is not used (absent, stale, corrupt); None when it is
         self.problem = problem
@@ -125,7 +128,7 @@ class CodeCache:
         self._view = memoryview(data)
         self._crcs: array[int] = array("I")
         self._index: array[int] = array("I")
-        if data:
+        if len(data):
             self._read_index()
 
     def _read_index(self) -> None:
@@ -157,12 +160,12 @@ class CodeCache:
         if path is None:
             return cls(None, problem="this interpreter caches no bytecode (no cache tag)")
         try:
-            data = read_regular(path)
+            data = map_regular(path)
         except FileNotFoundError:
             return cls(path, problem=f"{path} is absent (built by setup.py or make)")
         except OSError as exc:
             return cls(path, problem=f"{path} cannot be read: {exc.strerror or exc}")
-        head, payload = data[:HEADER], memoryview(data)[HEADER:]
+        head, payload = bytes(data[:HEADER]), memoryview(data)[HEADER:]
         if not head.startswith(FORMAT) or len(data) < HEADER + 4:
             return cls(path, problem=f"{path} is corrupt: not a {FORMAT.decode().strip()!r} file")
         expected = header(payload)
@@ -249,16 +252,20 @@ def dataclasses_exec(hook: Callable[..., None]) -> Iterator[None]:
         del names["exec"]
 
 
-def read_regular(path: Path) -> bytes:
-    """The contents of the regular file ``path``: OSError for anything else (a FIFO is not
-    waited on) or one over :data:`MAX_BYTES`."""
+def map_regular(path: Path) -> mmap.mmap | bytes:
+    """The regular file ``path``, mapped read-only (empty: ``b""``): OSError for anything
+    else (a FIFO is not waited on) or one over :data:`MAX_BYTES`. Mapped, not read: a
+    buffer of a MiB from malloc, once freed, would raise glibc's threshold for mapping
+    large blocks and leave the step executor's later ones (its parameters' receive buffer)
+    on the heap, which it then locks."""
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
     try:
         info = os.fstat(fd)
         if not stat.S_ISREG(info.st_mode) or info.st_size > MAX_BYTES:
             raise OSError(0, f"not a regular file of at most {MAX_BYTES} bytes")
-        with os.fdopen(os.dup(fd), "rb") as f:
-            return f.read(MAX_BYTES + 1)
+        if info.st_size == 0:
+            return b""
+        return mmap.mmap(fd, 0, access=mmap.ACCESS_READ)
     finally:
         os.close(fd)
 

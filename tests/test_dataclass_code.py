@@ -222,9 +222,10 @@ def test_a_method_whose_code_is_not_code_is_corrupt(tmp_path: Path) -> None:
     assert len(codes) == 0 and codes.misses == 1
 
 
-def test_a_file_of_another_format_is_corrupt(tmp_path: Path) -> None:
+@pytest.mark.parametrize("data", [b"\x7fELF" + bytes(100), b"", dataclass_code.FORMAT])
+def test_a_file_of_another_format_or_empty_is_corrupt(tmp_path: Path, data: bytes) -> None:
     path = tmp_path / "other.bin"
-    path.write_bytes(b"\x7fELF" + bytes(100))
+    path.write_bytes(data)
     unusable(path, CodeCache.load(path), "corrupt")
 
 
