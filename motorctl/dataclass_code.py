@@ -23,7 +23,8 @@ optimisation level it was compiled for and a CRC of its contents. A text it does
 (a class changed since the build) is compiled, as without it. A file that is absent, made
 by another interpreter or for another level (stale), or unreadable or damaged (corrupt) is
 not used at all: :attr:`CodeCache.problem` says which, and the daemon logs it as a warning
-(daemon/start/main.py); every method is then compiled, as without it.
+(daemon/start/main.py; daemon/start/serve.py when it was found in use); every method is then
+compiled, as without it.
 
 While :meth:`CodeCache.use` runs, and only then, the ``dataclasses`` module's global name
 ``exec`` is this module's hook (module globals come before builtins: every other module's
@@ -125,6 +126,8 @@ class CodeCache:
         #: the methods whose code came from the file, and those compiled (not in it)
         self.hits = 0
         self.misses = 0
+        #: the file was found corrupt while in use (a method's code), not when loaded
+        self.failed_in_use = False
         self._view = memoryview(data)
         self._crcs: array[int] = array("I")
         self._index: array[int] = array("I")
@@ -192,6 +195,7 @@ class CodeCache:
                     code = exc
                 if not isinstance(code, CodeType):
                     self.problem = f"{self.path} is corrupt: a method's code: {code}"
+                    self.failed_in_use = True
                     self.release()
                     break
                 self.hits += 1

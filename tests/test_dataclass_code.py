@@ -144,6 +144,7 @@ def unusable(path: Path, codes: CodeCache, says: str) -> None:
     """``codes`` is not used, says ``says``, and a class is compiled as without it."""
     assert codes.problem is not None and says in codes.problem, codes.problem
     assert str(path) in codes.problem and "not used" in codes.summary()
+    assert not codes.failed_in_use  # found when loaded (daemon/start/main.py warns)
     assert len(codes) == 0
     with codes.use():
         classes = define()
@@ -219,6 +220,7 @@ def test_a_method_whose_code_is_not_code_is_corrupt(tmp_path: Path) -> None:
     assert codes.problem is None and len(codes) == 1
     assert codes.code(text) is None
     assert codes.problem is not None and "corrupt: a method's code" in codes.problem
+    assert codes.failed_in_use
     assert len(codes) == 0 and codes.misses == 1
 
 

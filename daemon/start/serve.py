@@ -79,7 +79,9 @@ def serve(
     timeline.mark("config")
     if dataclass_code is not None:
         dataclass_code.release()  # the start's imports are done
-        log.debug("dataclass code: %s", dataclass_code.summary())
+        # a file found bad when loaded was told already (main.py); one found bad in use not
+        report = log.warning if dataclass_code.failed_in_use else log.debug
+        report("dataclass code: %s", dataclass_code.summary())
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
     with contextlib.ExitStack() as cleanup:
         owned = Owned()
