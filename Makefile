@@ -33,7 +33,7 @@ JOBS   ?= 2
 BIN     = $(VENV)/bin
 
 .PHONY: run test test-slow test-dspin test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
-  test-root stepcore test-asan
+  test-root stepcore test-asan dataclass-code
 
 venv: $(VENV)/.installed
 
@@ -92,7 +92,17 @@ test-asan: venv
 	    assert c.load().__file__ == \"$$MOTORCTL_STEPCORE\""; \
 	    $(BIN)/pytest -q -n $(JOBS) -p no:cacheprovider -k "compiled or both_cores" $(ASAN_TESTS)'
 
-run: venv stepcore
+# The compiled code of the dataclasses' methods (motorctl/dataclass_code.py), in place, again
+# after a change to any module of the package (setup.py's build_py writes it for the editable
+# install, the wheel and the Debian package).
+rwildcard = $(foreach d,$(wildcard $(1:=/*)),$(call rwildcard,$d,$2) $(filter $(subst *,%,$2),$d))
+PACKAGE_SRC = $(call rwildcard,protocol client daemon motion hal,*.py) $(wildcard motorctl/*.py motorctl/schema/*.py)
+dataclass-code: $(VENV)/.dataclass_code
+$(VENV)/.dataclass_code: $(VENV)/.installed $(PACKAGE_SRC)
+	$(BIN)/python -m motorctl.dataclass_code --write motorctl
+	touch $@
+
+run: venv stepcore dataclass-code
 	$(BIN)/motorctld --pty $(PTY) --state-dir $(STATE) $(ARGS)
 
 # What the tests need from Debian besides the venv: socat (tests/daemon/link/test_serialport_e2e.py);
@@ -122,7 +132,7 @@ test-deps:
 	@$(NEED_TOOL); command -v dtc >/dev/null || need_tool dtc device-tree-compiler \
 	  "the SPI0 overlay's test compiles it" "the SPI0 overlay's test is SKIPPED"
 
-test: venv stepcore test-deps
+test: venv stepcore dataclass-code test-deps
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy

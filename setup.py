@@ -1,4 +1,5 @@
-"""The compiled step core, the one C extension of motorctl (everything else: pyproject.toml).
+"""The compiled step core, the one C extension of motorctl, and the compiled code of the
+dataclasses' methods (everything else: pyproject.toml).
 
 ``motorctl.motion.executors._stepcore`` from motion/executors/csrc/
 (motion/executors/compiled_core.py loads and drives it). Built by the package's own build,
@@ -7,6 +8,15 @@ executors' modules), ``make stepcore`` after a change to
 its sources, the wheel and the Debian package (dh-python, python3-all-dev). Warnings are
 errors. ``CFLAGS``/``LDFLAGS`` from the environment are added (``make test-asan`` builds it
 with the address and undefined-behaviour sanitizers).
+
+The dataclasses' methods: ``build_py`` (:class:`BuildPy`), once it has copied the modules,
+writes ``motorctl/dataclass_code.<cache tag>.bin`` beside them, the code the building
+interpreter compiles for every method ``@dataclass`` adds to motorctl's classes
+(motorctl/dataclass_code.py: a start uses it instead of compiling them again). So the wheel
+and the Debian package hold it for the interpreter they are built for, as the step core; the
+editable install (``make venv``) writes it in place, and ``make`` again after a change to the
+modules. A module that cannot be imported at build time (a library missing) is named on
+stderr; its classes' methods are compiled at run time, as without the file.
 
 And the licence, MIT, the one part of the metadata pyproject.toml cannot declare for every
 setuptools the project builds with: ``license = "MIT"`` there (an SPDX expression, PEP 639)
@@ -21,8 +31,14 @@ license-files patterns). tests/packaging/test_debian.py checks both with the set
 hand and Debian's.
 """
 
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import setuptools
 from setuptools import Extension, setup
+from setuptools.command.build_py import build_py
 
 LICENSE = "MIT"
 #: the first setuptools that takes an SPDX expression (``license_expression``, PEP 639)
@@ -34,6 +50,23 @@ def license_metadata() -> dict[str, str]:
     if int(setuptools.__version__.split(".")[0]) >= EXPRESSIONS_FROM:
         return {"license_expression": LICENSE}
     return {"license": LICENSE}
+
+
+class BuildPy(build_py):
+    """build_py, then the dataclasses' compiled methods beside the built modules (in place
+    for an editable install): ``python -m motorctl.dataclass_code --write``, run by the
+    building interpreter on the modules it has just built."""
+
+    def run(self) -> None:
+        super().run()
+        editable = getattr(self, "editable_mode", False)
+        tree = Path(__file__).resolve().parent if editable else Path(self.build_lib).resolve()
+        subprocess.run(
+            [sys.executable, "-m", "motorctl.dataclass_code", "--write", str(tree / "motorctl")],
+            cwd=tree,
+            env={**os.environ, "PYTHONDONTWRITEBYTECODE": "1"},  # no __pycache__ in a wheel
+            check=True,
+        )
 
 
 SOURCES = [
@@ -48,6 +81,7 @@ SOURCES = [
 
 setup(
     **license_metadata(),
+    cmdclass={"build_py": BuildPy},
     ext_modules=[
         Extension(
             "motorctl.motion.executors._stepcore",

@@ -31,8 +31,8 @@ import pytest
 
 REPO = Path(__file__).resolve().parent.parent
 ROOMS = ("protocol", "client", "daemon", "motion", "hal")
-#: what each room may import besides itself ("root": motorctl/__init__.py, "schema":
-#: motorctl/schema/)
+#: what each room may import besides itself ("root": motorctl/__init__.py and the modules
+#: beside it, such as dataclass_code.py, "schema": motorctl/schema/)
 ALLOWED = {
     "root": set(),
     "schema": set(),
@@ -126,6 +126,9 @@ OPTIONAL = {
 def package_modules() -> dict[str, Path]:
     """Every module of the package by its name (the rooms as installed: motorctl.<room>)."""
     found = {"motorctl": REPO / "motorctl" / "__init__.py"}
+    for path in sorted((REPO / "motorctl").glob("*.py")):  # the root's modules beside it
+        if path.stem != "__init__":
+            found[f"motorctl.{path.stem}"] = path
     for folder in (*(REPO / room for room in ROOMS), REPO / "motorctl" / "schema"):
         for path in sorted(folder.rglob("*.py")):
             parts = path.relative_to(folder.parent).with_suffix("").parts

@@ -18,6 +18,10 @@ and turns automatic collection back on. The executor's bootstrap turns it off on
 line too (``motion/executors/process/start.py``): that process collects while it waits
 and runs without automatic collection once ready, as it did before.
 
+The daemon's modules are imported with the compiled code of their dataclasses' methods
+that the package's build recorded (``motorctl/dataclass_code.py``), instead of compiling
+each method again: the largest part of those imports before (docs/timing.md).
+
 ``motorctld --status --watch`` (the live monitor) ends on SIGINT and SIGTERM from this
 command's first instruction on (``daemon/status/monitor.py``, ``end_on_signals``): they are
 taken over before anything else is imported, and an end while the daemon's modules are
@@ -79,9 +83,13 @@ def main(argv: Sequence[str] | None = None) -> int:
             early = WaitingInterpreter.start()
         except OSError:
             early = None  # the daemon starts it itself, and reports what is wrong then
-    from motorctl.daemon.start.main import main as daemon_main
+    from motorctl.dataclass_code import CodeCache
 
-    return daemon_main(args, executor_process=early)
+    codes = CodeCache.load()  # the build's file; main() logs what it gave, or why not
+    with codes.use():
+        from motorctl.daemon.start.main import main as daemon_main
+
+    return daemon_main(args, executor_process=early, dataclass_code=codes)
 
 
 if __name__ == "__main__":

@@ -42,6 +42,7 @@ from motorctl.protocol.line import parse_baud
 
 if TYPE_CHECKING:
     from motorctl.daemon.start import platform_check
+    from motorctl.dataclass_code import CodeCache
 
 log = logging.getLogger("motorctl")
 
@@ -238,16 +239,22 @@ def pty_folder_problem(pty: Path) -> str | None:
 
 
 def main(
-    argv: Sequence[str] | None = None, executor_process: WaitingInterpreter | None = None
+    argv: Sequence[str] | None = None,
+    executor_process: WaitingInterpreter | None = None,
+    dataclass_code: CodeCache | None = None,
 ) -> int:
     """motorctld. ``executor_process``: the step executor's process, started before this
     module was imported (``daemon/start/launch.py``, the ``motorctld`` command): the process
     executor takes it over; ended unused otherwise (another executor, another command, an
-    error). Output into a pipe whose reader went away (``motorctld --status | head``) ends
-    the command quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
+    error). ``dataclass_code``: the compiled dataclass methods the daemon's modules were
+    imported with (the ``motorctld`` command too; motorctl/dataclass_code.py), logged once
+    logging is set up: as a warning why it was not used; what it gave, at debug level once
+    the config is read (daemon/start/serve.py, which uses it for the config too). Output
+    into a pipe whose reader went away (``motorctld --status | head``) ends the command
+    quietly, as it ends ``cat``, with the status of a program SIGPIPE ended."""
     timeline = StartTimeline("imported")  # a serving start's steps (daemon/start/timeline.py)
     try:
-        code = _main(argv, executor_process, timeline)
+        code = _main(argv, executor_process, timeline, dataclass_code)
         sys.stdout.flush()  # here, not at exit: a reader gone is a broken pipe caught below
         return code
     except BrokenPipeError:
@@ -265,9 +272,12 @@ def _main(
     argv: Sequence[str] | None,
     executor_process: WaitingInterpreter | None,
     timeline: StartTimeline,
+    dataclass_code: CodeCache | None = None,
 ) -> int:
     args = parse_args(argv)
     logs_to = setup_logging(args.log_level)
+    if dataclass_code is not None and dataclass_code.problem is not None:
+        log.warning("dataclass code: %s", dataclass_code.summary())
     timeline.mark("arguments")
     if args.print_default_config:
         from motorctl.daemon.config import default_config_text
@@ -316,7 +326,7 @@ def _main(
     log.debug("logging to %s", logs_to)
     options = ServeOptions(args.state_dir, args.pty, args.port, args.baud, args.trace)
     try:
-        return serve(args.config, options, executor_process, timeline)
+        return serve(args.config, options, executor_process, timeline, dataclass_code)
     except (ConfigError, StartupError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

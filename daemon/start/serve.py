@@ -24,6 +24,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 from motorctl.daemon.config import Config, load_config
 from motorctl.daemon.errors import StartupError
@@ -43,6 +44,9 @@ from motorctl.hal.interfaces import HalError
 from motorctl.motion.engine import MotionEngine
 from motorctl.motion.executors.process.start import WaitingInterpreter
 
+if TYPE_CHECKING:
+    from motorctl.dataclass_code import CodeCache
+
 log = logging.getLogger("motorctl")
 
 SHUTDOWN_LIMIT_S = 10.0
@@ -61,13 +65,23 @@ def serve(
     options: ServeOptions,
     executor_process: WaitingInterpreter | None = None,
     timeline: StartTimeline | None = None,
+    dataclass_code: CodeCache | None = None,
 ) -> int:
     """Serve until stopped; the exit status. ConfigError or StartupError when the daemon
     cannot start (the message says what to fix). ``timeline``: the start's steps, marked
-    as they end and logged at READY (daemon/start/timeline.py)."""
+    as they end and logged at READY (daemon/start/timeline.py). ``dataclass_code``: the
+    compiled dataclass methods the daemon was imported with (motorctl/dataclass_code.py),
+    used for the config's declarations too (the config step imports the HAL's), and what
+    it gave logged at debug level then."""
     timeline = timeline or StartTimeline("serve")
-    config = load_config(config_path)
+    with contextlib.nullcontext() if dataclass_code is None else dataclass_code.use():
+        config = load_config(config_path)
     timeline.mark("config")
+    if dataclass_code is not None:
+        dataclass_code.release()  # the start's imports are done
+        # a file found bad when loaded was told already (main.py); one found bad in use not
+        report = log.warning if dataclass_code.failed_in_use else log.debug
+        report("dataclass code: %s", dataclass_code.summary())
     stop = StopSignals()  # SIGTERM, SIGINT and SIGHUP: a clean shutdown, from now on
     with contextlib.ExitStack() as cleanup:
         owned = Owned()

@@ -180,6 +180,12 @@ def test_wheel_has_one_top_level_package_and_coexists_with_python_daemon(tmp_pat
     assert "motorctl/hal/layers/tmc/tmc5160.py" in modules
     assert "motorctl/daemon/config/model.py" in names and "motorctl/schema/__init__.py" in names
     assert not any(name.endswith((".pyc", "/tests/__init__.py")) for name in names)
+    # the compiled dataclass methods, written by the wheel's build_py (setup.py) for its
+    # interpreter (motorctl/dataclass_code.py)
+    assert sorted(n for n in names if n.startswith("motorctl/dataclass_code.")) == [
+        f"motorctl/dataclass_code.{sys.implementation.cache_tag}.bin",
+        "motorctl/dataclass_code.py",
+    ]
     # the compiled step core, built by the wheel's build; its sources stay out
     assert (
         [n for n in names if n.startswith("motorctl/motion/executors/_stepcore")]

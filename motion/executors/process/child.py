@@ -31,7 +31,7 @@ import select
 import socket
 from collections.abc import Sequence
 from dataclasses import replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from motorctl.hal.compiled_lines import ChardevLines
 from motorctl.hal.interfaces import Clock, HalError, MonotonicClock, StepIO
@@ -65,6 +65,9 @@ from motorctl.motion.executors.process.rings import (
 from motorctl.motion.executors.step_core import StepCore
 from motorctl.motion.latency import LatencyStats
 from motorctl.motion.rt import RealtimeOptions, enter_realtime
+
+if TYPE_CHECKING:
+    from motorctl.dataclass_code import CodeCache
 
 
 class RingInbox(CoreInbox):
@@ -153,16 +156,24 @@ def _die_with_parent(parent: int) -> None:
         raise SystemExit("motorctld executor: the daemon is gone")
 
 
-def child_main(channel: socket.socket, parent: int, title_note: str = "") -> None:
+def child_main(
+    channel: socket.socket, parent: int, title_note: str = "", codes: CodeCache | None = None
+) -> None:
     """The executor process's entry (``start.py``'s bootstrap, once this module is
     imported; ``parent``: the daemon's PID; ``title_note``: what naming the process for
     ``ps`` could not do, logged once it runs): wait for the parameters of :func:`run_child`
     and the descriptors named in them (``fds``: their names, in the order they came), then
-    run. Dismissed (the socket ended without them): exit quietly."""
+    run. Dismissed (the socket ended without them): exit quietly. ``codes``: the compiled
+    dataclass methods the bootstrap imported this module with, used for those modules too."""
     _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
-    config_sections()
+    if codes is not None:
+        with codes.use():
+            config_sections()
+        codes.release()  # before the memory is locked (run_child)
+    else:
+        config_sections()
     # and the collector's look at all of it, while waiting too (no automatic collection
     # since the bootstrap's first line, start.py): the collection before READY (_ready)
     # then looks only at what came after (the parameters, the lines, the core)

@@ -17,8 +17,9 @@ daemon's PID (the child dies with it), the daemon's import path without the entr
 name where it was started (:func:`import_path`) and where the daemon's ``motorctl`` package
 is: the child imports that very package, whatever its path holds. It then names itself
 for ``ps`` (:func:`name_process`), imports the step core (no automatic garbage collection
-from the first line on: ``child.py`` collects once while it waits, then runs without it)
-and waits for the second: its
+from the first line on: ``child.py`` collects once while it waits, then runs without it;
+with the compiled code of its dataclasses' methods that the package's build recorded, as
+the daemon: ``motorctl/dataclass_code.py``) and waits for the second: its
 parameters, pickled, with its descriptors (``SCM_RIGHTS``: the shared block, its pipe ends,
 the step IO's). The end of the socket without a message (the daemon did not need it, or is
 gone) ends it quietly.
@@ -68,8 +69,11 @@ sys.modules["motorctl"] = package = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(package)
 from motorctl.motion.executors.process.start import name_process
 title_note = name_process()
-from motorctl.motion.executors.process.child import child_main
-child_main(channel, daemon, title_note)
+from motorctl.dataclass_code import CodeCache
+codes = CodeCache.load()  # the build's compiled dataclass methods (the daemon logs a problem)
+with codes.use():
+    from motorctl.motion.executors.process.child import child_main
+child_main(channel, daemon, title_note, codes)
 """
 
 #: The largest parameter message and the most descriptors it may carry.

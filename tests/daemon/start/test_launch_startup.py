@@ -5,16 +5,19 @@ live monitor, the metrics, the status reader and its summary, the platform probe
 compiled core's probe, the trace recorder and its format, and the standard library modules
 only those need (a process for ``ldconfig``, temporary files, archives). And its start-up
 timeline (daemon/start/timeline.py), logged at debug level, names every step of the start in order,
-as bench/startup.py reads it. The start runs without the garbage collector's automatic
-collections until READY (daemon/start/launch.py), and the executor's process from its
-bootstrap's first line on, and that process opens its step IO on the mock without the
-simulated driver chips (imported where the daemon's hardware builds them). A real daemon on a
-real PTY, the embedded default."""
+as bench/startup.py reads it; every dataclass method its imports and its config step create
+comes compiled from the build's file (motorctl/dataclass_code.py), as it logs. The start
+runs without the garbage collector's automatic collections until READY
+(daemon/start/launch.py), and the executor's process from its bootstrap's first line on,
+and that process opens its step IO on the mock without the simulated driver chips
+(imported where the daemon's hardware builds them). A real daemon on a real PTY, the
+embedded default."""
 
 from __future__ import annotations
 
 import contextlib
 import os
+import re
 import selectors
 import signal
 import subprocess
@@ -23,6 +26,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from motorctl import dataclass_code
 from motorctl.daemon.start.timeline import parse
 from motorctl.motion.executors.process.start import BOOTSTRAP
 from tests.support import REPO
@@ -185,6 +189,14 @@ def test_a_start_imports_only_what_serving_needs_and_times_its_steps(tmp_path: P
     assert first == "imported"
     assert [step for step, _ in steps] == STEPS
     assert all(ms >= 0 for _, ms in steps)
+    # its modules and its config's declarations took every dataclass method's code from the
+    # build's file (motorctl/dataclass_code.py): none compiled
+    said = [line for line in log.splitlines() if "dataclass code: " in line]
+    assert len(said) == 1 and "WARNING" not in said[0], said
+    counts = re.search(r"dataclass code: (\d+) methods from (\S+), (\d+) compiled$", said[0])
+    assert counts is not None, said
+    assert int(counts[1]) > 300 and counts[2] == str(dataclass_code.default_path())
+    assert counts[3] == "0", f"{said[0]}: run make dataclass-code"
 
 
 #: run before motorctld's own code (``python -c``): every collection the collector starts

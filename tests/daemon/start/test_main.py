@@ -19,6 +19,7 @@ import pytest
 
 from motorctl.daemon.config import default_config_text
 from motorctl.daemon.start.main import main
+from motorctl.dataclass_code import CodeCache, Recorder, header
 from tests.support import REPO
 from tests.support.daemon_proc import StartDaemon, for_tests, run_on_pty
 
@@ -38,6 +39,27 @@ def test_motorctld_prints_and_checks_the_default_config(
     path.write_text(text.replace("max_travel = 40000", "max_travel = 0", 1), encoding="utf-8")
     assert main(["--check-config", str(path)]) == 1
     assert "motors[0].homing.max_travel = 0: out of range" in capsys.readouterr().err
+
+
+def test_a_dataclass_code_file_not_used_is_a_warning(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """The compiled dataclass methods motorctld's launch imported with (motorctl/
+    dataclass_code.py): a file it could not use is said, whatever the command; one it used
+    is not (its counts are logged at debug level once a serving start has read its config:
+    tests/daemon/start/test_launch_startup.py)."""
+    absent = CodeCache.load(tmp_path / "none.bin")
+    assert main(["--print-default-config"], dataclass_code=absent) == 0
+    err = capsys.readouterr().err
+    assert "WARNING" in err and "dataclass code: 0 methods from" in err
+    assert f"not used, {tmp_path / 'none.bin'} is absent" in err
+    recorded = Recorder()
+    payload = recorded.payload()  # a good file, of no method
+    (tmp_path / "good.bin").write_bytes(header(payload) + payload)
+    assert (
+        main(["--print-default-config"], dataclass_code=CodeCache.load(tmp_path / "good.bin")) == 0
+    )
+    assert "dataclass code" not in capsys.readouterr().err
 
 
 LAT0 = ("--latency-seconds", "0")
