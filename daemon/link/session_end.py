@@ -15,7 +15,11 @@ too: read out at its end and dropped, never executed for the next host
 (``unread_stops_executed``). A session that left something is logged at INFO, not at once
 but once the line has been quiet for ``SAY_AFTER_S`` (the log costs more than a command: a
 new host's first command, maybe on its way, is answered first); one that left nothing at
-DEBUG.
+DEBUG. Sessions that ended less than ``SAY_AFTER_S`` apart (a host that reconnects over and
+over) are said in one line, their count and what they left in all: the link thread's cost
+of the saying is one line however many ended (one line each made it wait 35-87 ms for
+600-1,200 of them, inside a new host's first round trip: docs/timing.md), and what waits to
+be said is a few numbers, not a list that grows with every reconnect.
 
 Threads: the link thread's, like the loop that owns it; it blocks on nothing (the PTY's
 master is non-blocking).
@@ -94,8 +98,11 @@ class SessionEnds:
     def __init__(self, counters: Counter[str], clock: Callable[[], float]) -> None:
         self.counters = counters
         self.clock = clock
-        self._later: list[tuple[str, Ended, int]] = []  # session ends to log, a moment later
-        self._later_at = 0.0
+        # the session ends not said yet: how each ended, and what they left, in all
+        self._hows: Counter[str] = Counter()
+        self._left = NOTHING
+        self._unsent = 0
+        self._later_at = 0.0  # the last of them
 
     def drop(self, cause: str, answers: int) -> None:
         """``answers`` owed to a host dropped, for ``cause`` (one of :data:`CAUSES`)."""
@@ -116,7 +123,9 @@ class SessionEnds:
             # said a moment later (the log costs more than a command): a new host's first
             # command, maybe on its way, is answered first
             self._later_at = self.clock()
-            self._later.append((how, ended, unsent))
+            self._hows[how] += 1
+            self._left = added(self._left, ended)
+            self._unsent += unsent
         else:
             log.debug("%s; serving the next host", how)
 
@@ -124,7 +133,7 @@ class SessionEnds:
         """Say what is due by ``now``; ``timeout_ms`` (a poll's, None: none) shortened to
         when the next saying is due. Said once the line has been quiet a moment, not before
         a new host's first command."""
-        if not self._later:
+        if not self._hows:
             return timeout_ms
         left = (self._later_at + SAY_AFTER_S - now) * 1000.0
         if left <= 0:
@@ -134,15 +143,45 @@ class SessionEnds:
         return timeout_ms
 
     def say(self) -> None:
-        """Log every session end not said yet."""
-        for how, ended, unsent in self._later:
+        """Log the session ends not said yet: one line, however many they are."""
+        sessions = self._hows.total()
+        if sessions == 1:
             log.info(
                 "%s: dropped what its host did not read (%s); serving the next host",
-                how,
-                describe_ended(ended, unsent),
+                next(iter(self._hows)),
+                describe_ended(self._left, self._unsent),
                 extra={"EVENT": "session_ended"},
             )
-        self._later.clear()
+        elif sessions:
+            log.info(
+                "%d sessions ended less than %.0f ms apart (%s): dropped what their hosts "
+                "did not read (in all: %s); serving the next host",
+                sessions,
+                SAY_AFTER_S * 1000,
+                ", ".join(f"{how}: {n}" for how, n in self._hows.items()),
+                describe_ended(self._left, self._unsent),
+                extra={"EVENT": "session_ended", "SESSIONS": sessions},
+            )
+        self._hows.clear()
+        self._left = NOTHING
+        self._unsent = 0
+
+
+#: what a session that left nothing left
+NOTHING = Ended(0, 0, 0, 0, 0)
+
+
+def added(a: Ended, b: Ended) -> Ended:
+    """What two ended sessions left, in all."""
+    return Ended(
+        a.partial_bytes + b.partial_bytes,
+        a.unsent + b.unsent,
+        a.wait + b.wait,
+        a.held + b.held,
+        a.discarded + b.discarded,
+        a.unread_frames + b.unread_frames,
+        a.unread_stops + b.unread_stops,
+    )
 
 
 def describe_ended(ended: Ended, unsent: int) -> str:
@@ -150,10 +189,12 @@ def describe_ended(ended: Ended, unsent: int) -> str:
     parts = []
     if unsent:
         parts.append(f"{unsent} answers written or due")
-    if ended.wait:
+    if ended.wait == 1:
         parts.append("a held WaitMoved's answer")
+    elif ended.wait:
+        parts.append(f"{ended.wait} held WaitMoveds' answers")
     if ended.held:
-        kept = f"{ended.held} frames kept behind it"
+        kept = f"{ended.held} frames kept behind {'it' if ended.wait <= 1 else 'them'}"
         if ended.discarded:
             kept += f" ({ended.discarded} commands not executed)"
         parts.append(kept)
