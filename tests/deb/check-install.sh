@@ -109,6 +109,15 @@ in_root motorctld --probe --latency-seconds 0 > "$build/deb-probe.txt" \
 grep -qx '  runs: compiled' "$build/deb-probe.txt" \
   || { cat "$build/deb-probe.txt"; fail "motorctld --probe: the compiled step core would not run"; }
 echo "the compiled step core: installed, and --probe says it runs"
+in_root dpkg -L motorctl | grep '/motorctl/dataclass_code\.cpython-.*\.bin$' >/dev/null \
+  || fail "the dataclasses' compiled methods (motorctl/dataclass_code.py) are not in the package"
+methods=$(in_root python3 -c 'from motorctl.dataclass_code import CodeCache
+c = CodeCache.load()
+print(c.problem or len(c))') || fail "the dataclasses' compiled methods cannot be loaded"
+# Python 3.11 compiles each method alone (some 900 texts), 3.13 a class's together (some 170)
+[[ $methods =~ ^[0-9]+$ ]] && [ "$methods" -gt 100 ] \
+  || fail "the dataclasses' compiled methods are not usable by the root's python3: $methods"
+echo "the dataclasses' compiled methods: installed, $methods of them, for the root's python3"
 in_root motorctl --help >/dev/null
 # the Wireshark dissector, linked into the Lua plugin folder of this machine's architecture
 triplet=$(in_root python3 -c 'import sysconfig; print(sysconfig.get_config_var("MULTIARCH"))')
@@ -228,6 +237,7 @@ expect "client: motor 0 at 0"
 expect "status-socket: 1"
 expect "step-core: compiled"
 grep -q 'step core: compiled' "$report" || fail "the journal does not say the compiled core runs"
+grep 'dataclass code:' "$report" && fail "the journal warns about the dataclasses' compiled methods"
 expect "after-stop: inactive success"
 expect "left-in-run: state.json state.moving "
 expect "journal-fields: 2"
