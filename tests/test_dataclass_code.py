@@ -28,6 +28,10 @@ from motorctl import dataclass_code
 from motorctl.dataclass_code import CodeCache, Recorder, header
 from tests.support import REPO
 
+#: the package's methods a file holds at least: Python 3.11 and 3.12 compile each method
+#: alone (some 900 texts), 3.13 all of a class's together (one text a class, some 170)
+AT_LEAST = 300 if sys.version_info < (3, 13) else 100
+
 
 def define() -> dict[str, type]:
     """Dataclasses of every kind motorctl declares: frozen with equality and hashing,
@@ -137,7 +141,8 @@ def test_a_text_not_in_the_file_is_compiled(built: Path) -> None:
             unheard_of: int
 
     assert Other(1) == Other(1) and repr(Other(2)).endswith("<locals>.Other(unheard_of=2)")
-    assert codes.misses >= 4 and codes.hits == 0
+    # each method (3.11, 3.12) or the class's methods together (3.13) compiled, none found
+    assert codes.misses >= (4 if sys.version_info < (3, 13) else 1) and codes.hits == 0
 
 
 def unusable(path: Path, codes: CodeCache, says: str) -> None:
@@ -275,7 +280,7 @@ def test_the_built_file_holds_every_method_of_the_package(tmp_path: Path) -> Non
     written = tmp_path / Path(str(dataclass_code.default_path())).name
     assert run.stdout.startswith(f"{written}: ")
     codes = CodeCache.load(written)
-    assert codes.problem is None and len(codes) > 300
+    assert codes.problem is None and len(codes) > AT_LEAST
     assert not list(tmp_path.glob(".*.new"))  # written whole, under its name
 
 
@@ -293,4 +298,4 @@ def test_the_checkouts_file_is_the_one_the_build_writes(tmp_path: Path) -> None:
     )
     fresh = CodeCache.load(tmp_path / installed.name)
     assert CodeCache.load(installed).methods() == fresh.methods(), "stale: make dataclass-code"
-    assert len(fresh) > 300  # read as meant
+    assert len(fresh) > AT_LEAST  # read as meant

@@ -87,6 +87,12 @@ echo "== the compiled step core for the root's $(debroot_run "$root" python3 --v
 debroot_run "$root" sh -c "cd /src && python3 setup.py -q build_ext --inplace --build-temp /tmp/stepcore" \
   > "$out/stepcore.log" 2>&1 || { tail -20 "$out/stepcore.log"; debroot_fail "building the compiled step core (log: $out/stepcore.log)"; }
 echo "   built in $((SECONDS - t1)) s: $(cd "$root/src/motion/executors" && ls _stepcore*.so)"
+# and the dataclasses' compiled methods for the root's Python, as make and the package's build
+# write them (motorctl/dataclass_code.py): a start without them warns that they are absent
+t1=$SECONDS
+debroot_run "$root" sh -c "cd /src && PYTHONDONTWRITEBYTECODE=1 python3 -m motorctl.dataclass_code --write motorctl" \
+  > "$out/dataclass-code.log" 2>&1 || { tail -20 "$out/dataclass-code.log"; debroot_fail "writing the dataclasses' compiled methods (log: $out/dataclass-code.log)"; }
+echo "   the dataclasses' compiled methods in $((SECONDS - t1)) s: $(tail -1 "$out/dataclass-code.log")"
 # The step core the suite runs, as the daemon chooses it (--probe, [step_thread] core =
 # "auto"): the compiled one, built above. Any other answer fails the run here, before the
 # tests: a suite on the Python core would pass with the compiled core untested (as it once

@@ -195,7 +195,9 @@ def test_a_start_imports_only_what_serving_needs_and_times_its_steps(tmp_path: P
     assert len(said) == 1 and "WARNING" not in said[0], said
     counts = re.search(r"dataclass code: (\d+) methods from (\S+), (\d+) compiled$", said[0])
     assert counts is not None, said
-    assert int(counts[1]) > 300 and counts[2] == str(dataclass_code.default_path())
+    # Python 3.11 and 3.12 compile each method alone, 3.13 all of a class's together
+    least = 300 if sys.version_info < (3, 13) else 100
+    assert int(counts[1]) > least and counts[2] == str(dataclass_code.default_path())
     assert counts[3] == "0", f"{said[0]}: run make dataclass-code"
 
 
