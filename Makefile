@@ -144,7 +144,7 @@ test: venv stepcore dataclass-code test-deps
 # checkout (tests/packaging/test_hwtest_run.py), the longer halves of two long runs (the status
 # monitor's signal moments, tests/daemon/status/test_monitor_e2e.py; the rings between two
 # processes, tests/motion/executors/process/test_rings.py). .ci/run runs them, a part of its own.
-test-slow: venv stepcore test-deps
+test-slow: venv stepcore dataclass-code test-deps
 	$(BIN)/pytest -q -n $(JOBS) -m slow
 
 # The conformance suite on dSPIN chips: the end-to-end tests of the protocol (every command and
@@ -154,10 +154,10 @@ test-slow: venv stepcore test-deps
 # config that world's (tests/support/daemon_proc.py) and leaves out the tests about the STEP/DIR
 # step executor itself (marked stepdir). Its own part of .ci/run: in make test it would make
 # that half as long again.
-test-dspin: venv stepcore test-deps
+test-dspin: venv stepcore dataclass-code test-deps
 	MOTORCTL_WORLD=dspin $(BIN)/pytest -q -n $(JOBS) -m conformance
 
-test-hw: stepcore
+test-hw: stepcore dataclass-code
 	hwtest/run all
 
 # Unit coverage of the daemon's modules (the link, its session, state, service, status).
