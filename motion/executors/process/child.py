@@ -156,9 +156,7 @@ def _die_with_parent(parent: int) -> None:
         raise SystemExit("motorctld executor: the daemon is gone")
 
 
-def child_main(
-    channel: socket.socket, parent: int, title_note: str = "", codes: CodeCache | None = None
-) -> None:
+def child_main(channel: socket.socket, parent: int, title_note: str, codes: CodeCache) -> None:
     """The executor process's entry (``start.py``'s bootstrap, once this module is
     imported; ``parent``: the daemon's PID; ``title_note``: what naming the process for
     ``ps`` could not do, logged once it runs): wait for the parameters of :func:`run_child`
@@ -168,12 +166,9 @@ def child_main(
     _die_with_parent(parent)  # from now on, however the daemon ends (gone already: exit)
     # while the daemon is still starting: the modules of the config sections that the
     # parameters carry (in the hardware spec; none imports a hardware library)
-    if codes is not None:
-        with codes.use():
-            config_sections()
-        codes.release()  # before the memory is locked (run_child)
-    else:
+    with codes.use():
         config_sections()
+    codes.release()  # before the memory is locked (run_child)
     # and the collector's look at all of it, while waiting too (no automatic collection
     # since the bootstrap's first line, start.py): the collection before READY (_ready)
     # then looks only at what came after (the parameters, the lines, the core)

@@ -358,16 +358,16 @@ class ProcessStepExecutor(StepExecutor):
         return out
 
     def events_waiting(self) -> bool:
-        """The event ring's head past its tail (a record announced, whole or not yet: the
-        same test as the first of :meth:`~motorctl.motion.executors.process.rings.Ring.get`,
-        on the same cells), or the child's death not reported yet. The tail is this side's,
-        written only under the engine lock the caller holds; the head is one aligned 8-byte
-        cell the child writes with one store (rings.py): this look loads it once, as
-        ``get`` would, so a record it misses is one ``get`` would have missed too."""
+        """The event ring's head past its tail (``Ring.pending``: a record announced, whole
+        or not yet, the same test as the first of
+        :meth:`~motorctl.motion.executors.process.rings.Ring.get`, on the same cells), or the
+        child's death not reported yet. The tail is this side's, written only under the
+        engine lock the caller holds; the head is one aligned 8-byte cell the child writes
+        with one store (rings.py): this look loads it once, as ``get`` would, so a record it
+        misses is one ``get`` would have missed too."""
         if self._closed is not None:
             return False
-        cells = self.shared.events.cells  # [head, tail, retries]: Ring.pending, inline
-        return cells[1] < cells[0] or (self.died is not None and not self._died_reported)
+        return self.shared.events.pending() or (self.died is not None and not self._died_reported)
 
     def service(self, now: float) -> float:
         """Top-ups of every motor, then one wake-up byte (a syscall) for all of them."""
