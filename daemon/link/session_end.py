@@ -19,7 +19,9 @@ DEBUG. Sessions that ended less than ``SAY_AFTER_S`` apart (a host that reconnec
 over) are said in one line, their count and what they left in all: the link thread's cost
 of the saying is one line however many ended (one line each made it wait 35-87 ms for
 600-1,200 of them, inside a new host's first round trip: docs/timing.md), and what waits to
-be said is a few numbers, not a list that grows with every reconnect.
+be said is a few numbers, not a list that grows with every reconnect. A line that is never
+quiet (a host reconnecting more often than every ``SAY_AFTER_S``, for minutes) still gets its
+ends said, at the latest ``SAY_WITHIN_S`` after the first of them: one line a second at most.
 
 Threads: the link thread's, like the loop that owns it; it blocks on nothing (the PTY's
 master is non-blocking).
@@ -38,6 +40,7 @@ from motorctl.daemon.link.session import Ended
 log = logging.getLogger("motorctl.link")
 
 SAY_AFTER_S = 0.02  # a session's end is logged this long after it
+SAY_WITHIN_S = 1.0  # ... or this long after the first end not said yet, quiet line or not
 
 #: why an answer owed to a host was dropped: responses_dropped_<cause>
 CAUSES = ("unsent", "wait", "held", "shutdown")
@@ -102,6 +105,7 @@ class SessionEnds:
         self._hows: Counter[str] = Counter()
         self._left = NOTHING
         self._unsent = 0
+        self._first_at = 0.0  # the first of them
         self._later_at = 0.0  # the last of them
 
     def drop(self, cause: str, answers: int) -> None:
@@ -123,6 +127,8 @@ class SessionEnds:
             # said a moment later (the log costs more than a command): a new host's first
             # command, maybe on its way, is answered first
             self._later_at = self.clock()
+            if not self._hows:
+                self._first_at = self._later_at
             self._hows[how] += 1
             self._left = added(self._left, ended)
             self._unsent += unsent
@@ -132,10 +138,12 @@ class SessionEnds:
     def bound(self, now: float, timeout_ms: float | None) -> float | None:
         """Say what is due by ``now``; ``timeout_ms`` (a poll's, None: none) shortened to
         when the next saying is due. Said once the line has been quiet a moment, not before
-        a new host's first command."""
+        a new host's first command; at the latest ``SAY_WITHIN_S`` after the first end not
+        said yet."""
         if not self._hows:
             return timeout_ms
-        left = (self._later_at + SAY_AFTER_S - now) * 1000.0
+        due = min(self._later_at + SAY_AFTER_S, self._first_at + SAY_WITHIN_S)
+        left = (due - now) * 1000.0
         if left <= 0:
             self.say()
         elif timeout_ms is None or left < timeout_ms:

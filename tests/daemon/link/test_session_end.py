@@ -21,6 +21,7 @@ from motorctl.daemon.link.session import Ended
 from motorctl.daemon.link.session_end import (
     NOTHING,
     SAY_AFTER_S,
+    SAY_WITHIN_S,
     UNREAD_MAX,
     SessionEnds,
     added,
@@ -124,6 +125,30 @@ def test_sessions_that_ended_moments_apart_are_said_in_one_line(
         "a: dropped what its host did not read (1 bytes of an incomplete frame); serving "
         "the next host"
     )
+
+
+def test_a_line_that_is_never_quiet_still_has_its_ends_said_within_a_second(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """A host that reconnects every 10 ms for minutes: the line is never quiet for
+    SAY_AFTER_S, yet what the ended sessions left is said at the latest SAY_WITHIN_S after
+    the first of them (the poll's timeout shortened to that moment), one line each time."""
+    counters: Counter[str] = Counter()
+    clock = Clock()
+    ends = SessionEnds(counters, clock)
+    caplog.set_level(logging.INFO, "motorctl.link")
+    gap = SAY_AFTER_S / 2
+    per_line = round(SAY_WITHIN_S / gap)
+    timeouts = []
+    for _ in range(3 * per_line):
+        ends.ended("the host closed the port", Ended(0, 1, 0, 0, 0), unsent=1)
+        clock.t += gap
+        timeouts.append(ends.bound(clock.t, 500.0))
+    said = [r for r in caplog.records if r.__dict__.get("EVENT") == "session_ended"]
+    assert [r.__dict__["SESSIONS"] for r in said] == [per_line] * 3
+    # never a wait longer than to the next saying: within SAY_WITHIN_S of the first end
+    assert all(t is not None and t <= SAY_WITHIN_S * 1000 for t in timeouts)
+    assert counters["responses_dropped_unsent"] == 3 * per_line
 
 
 def test_what_sessions_left_is_added_field_by_field() -> None:
