@@ -102,7 +102,7 @@ def _update_of(line: bytes, path: Path) -> dict[str, Any]:
 
 class _Closed(Exception):
     """The daemon closed a kept connection (it stopped, or closed it: idle, or another
-    reader took its place)."""
+    reader took its place); ``args[0]``: what came after the last whole line."""
 
 
 class StatusReader:
@@ -112,7 +112,8 @@ class StatusReader:
     one that asked nothing for ``KEEP_IDLE_S``, or another reader took its place) the next
     read connects again on its own, once. OSError naming the path and the fix when no
     daemon answers there; TimeoutError naming the path when one connects but does not
-    answer within ``timeout``."""
+    answer within ``timeout``; StatusError when a daemon refuses to keep the connection
+    (one older than the ``keep`` request)."""
 
     def __init__(self, path: Path, timeout: float = 5.0) -> None:
         self.path = path
@@ -134,6 +135,11 @@ class StatusReader:
             return self._ask(sock, b"keep\n" + request)
         except (ConnectionError, _Closed) as exc:
             self.close()
+            refusal = _refusal(exc)
+            if refusal is not None:  # a daemon older than 'keep' says so and closes
+                raise StatusError(
+                    f"{self.path}: the daemon refused a kept connection: {refusal}"
+                ) from None
             raise ConnectionError(
                 errno.ECONNRESET,
                 f"{self.path}: the daemon closed a new status connection without an answer "
@@ -168,7 +174,7 @@ class StatusReader:
             while (end := buffered.find(b"\n")) < 0:
                 chunk = sock.recv(65536)
                 if not chunk:
-                    raise _Closed()
+                    raise _Closed(buffered)
                 buffered += chunk
         except TimeoutError:
             self.close()  # what came late would be taken for the next read's answer
@@ -192,3 +198,13 @@ class StatusReader:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def _refusal(exc: Exception) -> str | None:
+    """The error document that came without a line end before the close, if any."""
+    rest = exc.args[0] if isinstance(exc, _Closed) and exc.args else b""
+    try:
+        data = json.loads(rest) if rest.strip() else None
+    except ValueError:
+        return None
+    return str(data["error"]) if isinstance(data, dict) and "error" in data else None
