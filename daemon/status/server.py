@@ -237,7 +237,8 @@ class StatusServer:
         self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
         self.kept = 0  # kept connections now
         self.kept_evicted = 0  # kept connections closed to let a new one in
-        self._sent_line: tuple[dict[str, Any], bytes] | None = None  # the same, a line
+        # the last plain status as a line (a kept connection's answer), kept as _sent is
+        self._sent_line: tuple[dict[str, Any], bytes] | None = None
         # 0660: the service's group may ask (connecting needs write)
         bound = bind_socket(path, 0o660)
         self._sock = _Listener(socket.AF_UNIX, socket.SOCK_STREAM, 0, bound.detach())
@@ -442,7 +443,7 @@ class StatusServer:
         self.kept += 1
         client.kept = True
         client.asked = time.monotonic()
-        client.ending = not client.request.endswith(b"\n") and b"\n" not in client.request
+        client.ending = b"\n" not in client.request  # ``keep`` at its end of input, unended
         client.request = client.request.partition(b"\n")[2]
         self._kept_turn(client)
 
