@@ -2,7 +2,7 @@
 rate a reader reaches, and what a live monitor costs.
 
 A real daemon (bench/steps.py's, without real-time priority or a pinned CPU) runs 3 motors
-at --rate step/s each. Three windows of --seconds each, on that one daemon:
+at --rate step/s each. Four windows of --seconds each, on that one daemon:
 
   idle     nobody reads: the daemon's own CPU with the motors stepping (the baseline)
   reads    this process reads the status socket with ``read_status``, paced at --per-s
@@ -11,6 +11,9 @@ at --rate step/s each. Three windows of --seconds each, on that one daemon:
            (connect to JSON parsed) p50/p99/max, and the daemon's CPU per read, "gross"
            (its CPU over the window over the reads) and "net" (less the idle window's rate:
            what the reads themselves cost)
+  kept     the same, over one kept connection (``StatusReader``, the ``keep`` request:
+           docs/status.md): a frequent reader's cheaper form, beside the per-connection
+           figures (``kept_*`` in --json; ``--no-kept`` leaves it out)
   monitor  ``motorctl monitor --period 100`` (10 updates a second while the motors move) on
            a terminal of its own (a PTY of 120 x 50, drained as a terminal would): the
            daemon's CPU above the idle window, and the monitor process's own
@@ -46,7 +49,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from bench.steps import config_text  # noqa: E402  (the daemon of its status scenario)
-from motorctl.daemon.status.reader import read_status  # noqa: E402
+from motorctl.daemon.status.reader import StatusReader, read_status  # noqa: E402
 from tests.support.daemon_proc import DaemonProcess  # noqa: E402
 
 READ_TARGET_MS = 0.1
@@ -66,8 +69,16 @@ def cpu_s(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def read_paced(sock: Path, seconds: float, per_s: int) -> tuple[int, float, list[float], int]:
-    """(reads, elapsed s, per-read latencies in s, bytes of the last document)."""
+def read_paced(
+    sock: Path, seconds: float, per_s: int, kept: bool = False
+) -> tuple[int, float, list[float], int]:
+    """(reads, elapsed s, per-read latencies in s, bytes of the last document); ``kept``:
+    over one kept connection (the first read connects)."""
+    reader = StatusReader(sock) if kept else None
+
+    def read() -> dict[str, Any]:
+        return reader.read() if reader is not None else read_status(sock)
+
     period = 1.0 / per_s if per_s else 0.0
     lat: list[float] = []
     size = 0
@@ -76,7 +87,7 @@ def read_paced(sock: Path, seconds: float, per_s: int) -> tuple[int, float, list
     nxt = t0
     while time.monotonic() < end:
         a = time.perf_counter()
-        doc = read_status(sock)
+        doc = read()
         lat.append(time.perf_counter() - a)
         if not size:
             size = len(json.dumps(doc, sort_keys=True))
@@ -85,7 +96,11 @@ def read_paced(sock: Path, seconds: float, per_s: int) -> tuple[int, float, list
             d = nxt - time.monotonic()
             if d > 0:
                 time.sleep(d)
-    return len(lat), time.monotonic() - t0, lat, size
+    elapsed = time.monotonic() - t0
+    if reader is not None:
+        assert reader.connects == 1, f"the kept connection was made {reader.connects} times"
+        reader.close()
+    return len(lat), elapsed, lat, size
 
 
 def idle_window(pid: int, seconds: float) -> float:
@@ -179,6 +194,13 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                     d.state_dir / "status.sock", args.seconds, args.per_s
                 )
                 cpu = cpu_s(pid) - cpu0
+                kept = None
+                if not args.no_kept:
+                    kcpu0 = cpu_s(pid)
+                    kn, kelapsed, klat, _ = read_paced(
+                        d.state_dir / "status.sock", args.seconds, args.per_s, kept=True
+                    )
+                    kept = (kn, kelapsed, klat, cpu_s(pid) - kcpu0)
                 monitor = (
                     None if args.no_monitor else monitor_window(d.state_dir, args.seconds, pid)
                 )
@@ -207,6 +229,19 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
         "steps_in_window": after["steps"]["steps"] - before["steps"],
         "motor_states_at_end": ",".join(moving),
     }
+    if kept is not None:
+        kn, kelapsed, klat, kcpu = kept
+        klat.sort()
+        fig.update(
+            kept_reads=kn,
+            kept_reads_per_s=round(kn / kelapsed, 1),
+            kept_read_p50_ms=round(quantile(klat, 0.5) * 1e3, 3),
+            kept_read_p99_ms=round(quantile(klat, 0.99) * 1e3, 3),
+            kept_read_max_ms=round(klat[-1] * 1e3, 3) if klat else 0.0,
+            kept_daemon_cpu_percent=round(100 * kcpu / kelapsed, 1),
+            kept_cpu_ms_per_read=round(1e3 * kcpu / max(1, kn), 4),
+            kept_net_cpu_ms_per_read=round(1e3 * (kcpu - idle * kelapsed) / max(1, kn), 4),
+        )
     if monitor is not None:
         fig.update(
             monitor_period_ms=MONITOR_PERIOD_MS,
@@ -226,6 +261,7 @@ def main() -> int:
     ap.add_argument("--rate", type=int, default=10000, help="step/s per motor")
     ap.add_argument("--executor", default="process", choices=("process", "thread"))
     ap.add_argument("--no-monitor", action="store_true", help="leave out the monitor's window")
+    ap.add_argument("--no-kept", action="store_true", help="leave out the kept connection's window")
     ap.add_argument("--json", metavar="FILE", help="write the figures as JSON (flat keys)")
     args = ap.parse_args()
     fig = measure(args)
@@ -245,6 +281,14 @@ def main() -> int:
         f"{fig['net_cpu_ms_per_read']} ms a read above the motors' own (target <= "
         f"{READ_TARGET_MS} ms; the process executor's own process not counted)"
     )
+    if "kept_reads" in fig:
+        print(
+            f"  over one kept connection ('keep'): {fig['kept_reads_per_s']} reads/s, per read "
+            f"p50 {fig['kept_read_p50_ms']} ms, p99 {fig['kept_read_p99_ms']} ms; the daemon's "
+            f"CPU {fig['kept_daemon_cpu_percent']} %: {fig['kept_cpu_ms_per_read']} ms a read, "
+            f"{fig['kept_net_cpu_ms_per_read']} ms above the motors' own (one connection a "
+            f"read: {fig['net_cpu_ms_per_read']} ms)"
+        )
     if "monitor_daemon_cpu_percent" in fig:
         print(
             f"  motorctl monitor --period {MONITOR_PERIOD_MS} on a terminal: the daemon "

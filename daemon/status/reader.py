@@ -1,16 +1,19 @@
-"""The status socket's clients: the status once (:func:`read_status`), or its updates as they
-come (:func:`subscribe`; docs/status.md). ``motorctld --status``, the live monitor, the
-benchmarks and the tests read the daemon through these.
+"""The status socket's clients: the status once (:func:`read_status`), its updates as they
+come (:func:`subscribe`; docs/status.md), or the status again and again over one kept
+connection (:class:`StatusReader`: for a reader that reads often; a read costs the daemon
+less than half of a one-shot read: docs/timing.md). ``motorctld --status``, the live
+monitor, the benchmarks and the tests read the daemon through these.
 
 The protocol (request words, one JSON document per line, the heartbeat) is the server's
 (daemon/status/server.py); these follow it.
 
 Threads: the caller's; each call has its own connection and blocks on it (bounded by
-``timeout``).
+``timeout``); a :class:`StatusReader` holds one connection for one thread at a time.
 """
 
 from __future__ import annotations
 
+import errno
 import json
 import socket
 import time
@@ -95,3 +98,113 @@ def _update_of(line: bytes, path: Path) -> dict[str, Any]:
     if set(data) == {"error"}:
         raise StatusError(str(data["error"]))
     return data
+
+
+class _Closed(Exception):
+    """The daemon closed a kept connection (it stopped, or closed it: idle, or another
+    reader took its place); ``args[0]``: what came after the last whole line."""
+
+
+class StatusReader:
+    """The daemon's status, read as often as asked over one kept connection (the ``keep``
+    request, docs/status.md): :meth:`read` answers as :func:`read_status` does, without a
+    connection per read. When the daemon closed the connection (it restarted, or closed
+    one that asked nothing for ``KEEP_IDLE_S``, or another reader took its place) the next
+    read connects again on its own, once. OSError naming the path and the fix when no
+    daemon answers there; TimeoutError naming the path when one connects but does not
+    answer within ``timeout``; StatusError when a daemon refuses to keep the connection
+    (one older than the ``keep`` request)."""
+
+    def __init__(self, path: Path, timeout: float = 5.0) -> None:
+        self.path = path
+        self.timeout = timeout
+        self.connects = 0  # connections made (the first, and one per reconnect)
+        self._sock: socket.socket | None = None
+        self._buffered = b""
+
+    def read(self, histogram: bool = False) -> dict[str, Any]:
+        """The status; ``histogram``: with ``steps.histogram_us`` (costlier)."""
+        request = b"histogram\n" if histogram else b"\n"
+        if self._sock is not None:
+            try:
+                return self._ask(self._sock, request)
+            except (ConnectionError, _Closed):
+                self.close()  # closed by the daemon: once more on a new connection
+        sock = self._connect()
+        try:
+            return self._ask(sock, b"keep\n" + request)
+        except (ConnectionError, _Closed) as exc:
+            self.close()
+            refusal = _refusal(exc)
+            if refusal is not None:  # a daemon older than 'keep' says so and closes
+                raise StatusError(
+                    f"{self.path}: the daemon refused a kept connection: {refusal}"
+                ) from None
+            raise ConnectionError(
+                errno.ECONNRESET,
+                f"{self.path}: the daemon closed a new status connection without an answer "
+                f"({exc or 'closed'}): it is stopping, or older than the 'keep' request; "
+                "read_status() reads once per connection",
+            ) from None
+
+    def _connect(self) -> socket.socket:
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        sock.settimeout(self.timeout)
+        try:
+            _connect(sock, self.path, self.timeout)
+        except (FileNotFoundError, ConnectionRefusedError) as exc:
+            sock.close()
+            raise type(exc)(
+                exc.errno,
+                f"{self.path}: no motorctld serves its status there ({exc.strerror}): start "
+                "it, or give the state directory it runs with (--state-dir)",
+            ) from None
+        except BaseException:
+            sock.close()
+            raise
+        self._sock = sock
+        self._buffered = b""
+        self.connects += 1
+        return sock
+
+    def _ask(self, sock: socket.socket, request: bytes) -> dict[str, Any]:
+        try:
+            sock.sendall(request)
+            buffered = self._buffered
+            while (end := buffered.find(b"\n")) < 0:
+                chunk = sock.recv(65536)
+                if not chunk:
+                    raise _Closed(buffered)
+                buffered += chunk
+        except TimeoutError:
+            self.close()  # what came late would be taken for the next read's answer
+            raise TimeoutError(
+                f"{self.path}: the status did not come within {self.timeout:g} s"
+            ) from None
+        self._buffered = buffered[end + 1 :]
+        data = json.loads(buffered[:end])
+        if not isinstance(data, dict):
+            raise ValueError(f"{self.path}: the status is not a JSON object")
+        return data
+
+    def close(self) -> None:
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+        self._buffered = b""
+
+    def __enter__(self) -> StatusReader:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def _refusal(exc: Exception) -> str | None:
+    """The error document that came without a line end before the close, if any."""
+    rest = exc.args[0] if isinstance(exc, _Closed) and exc.args else b""
+    try:
+        data = json.loads(rest) if rest.strip() else None
+    except ValueError:
+        return None
+    return str(data["error"]) if isinstance(data, dict) and "error" in data else None

@@ -1,5 +1,6 @@
 """The status socket's server: connect, send a request line, receive one JSON document,
-done; or subscribe and receive one JSON document per line for as long as you stay.
+done; or subscribe and receive one JSON document per line for as long as you stay; or keep
+the connection and ask again and again, one JSON document per line for each request line.
 
 Its clients are daemon/status/reader.py (the same protocol: request words, one JSON
 document per line; the constants here are theirs too); the document itself is built by
@@ -12,9 +13,12 @@ the status with the full step-lateness histogram (``steps.histogram_us``, up to 
 built and encoded only when asked), ``subscribe [PERIOD_MS]`` for a stream of updates
 (docs/status.md): the status at once, then again whenever it changed, looked at every
 PERIOD_MS (default ``SUBSCRIBE_PERIOD_S``) and at once when a motor starts, stops or faults
-(:meth:`StatusServer.poke`), at least every ``HEARTBEAT_S`` even when nothing changed. A
-client that sends nothing gets the plain status after ``REQUEST_WAIT_S`` (``socat -
-UNIX-CONNECT:status.sock`` works).
+(:meth:`StatusServer.poke`), at least every ``HEARTBEAT_S`` even when nothing changed;
+``keep`` for a kept connection (docs/status.md): ``keep`` itself is not answered, then each
+request line after it (empty or ``histogram``; anything else an error document) gets one
+document on one line, in order, until the client closes (a frequent reader: the accept and
+the close, most of a one-shot read's cost, are paid once). A client that sends nothing gets
+the plain status after ``REQUEST_WAIT_S`` (``socat - UNIX-CONNECT:status.sock`` works).
 
 Threads: :class:`StatusServer` owns one thread that serves every client from one epoll
 set, never waiting on a client (each is asked with ``MSG_DONTWAIT``): it blocks only in
@@ -24,7 +28,12 @@ listen backlog; of these at most ``MAX_SUBSCRIBERS`` subscribers, so one-shot re
 find a slot; when they are all taken, a new subscriber takes the place of the oldest one
 that does not read its updates (:meth:`StatusServer._evict_one`). A subscriber that has
 not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being sent,
-newer ones are not queued behind it (it gets the state of its next turn). An
+newer ones are not queued behind it (it gets the state of its next turn). Of the rest at
+most ``MAX_KEPT`` kept connections: a new one takes the place of the one that asked
+longest ago (its reader connects again when it asks next); a kept client that asks
+nothing for ``KEEP_IDLE_S`` is closed, one that does not take an answer within
+``SEND_TIMEOUT_S`` dropped, and while an answer is being sent its next requests wait
+unread in its socket (what it may ask ahead is bounded by its socket's buffer). An
 ``accept()`` error other than the socket being closed is logged and retried after a pause,
 never the end of the server. ``status()`` is called on that thread and takes no lock of the
 motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
@@ -57,8 +66,11 @@ REQUEST_WAIT_S = 0.5
 ACCEPT_RETRY_S = 0.2
 MAX_CLIENTS = 16
 MAX_REQUEST = 256
-REQUESTS = ("histogram", "subscribe [PERIOD_MS]")
+REQUESTS = ("histogram", "subscribe [PERIOD_MS]", "keep")
 MAX_SUBSCRIBERS = 8
+MAX_KEPT = 4  # kept connections: with the subscribers, one-shot reads still find a slot
+KEEP_IDLE_S = 10.0  # a kept connection that asks nothing this long is closed
+KEPT_REQUESTS = ("an empty line", "histogram")
 SUBSCRIBE_PERIOD_S = 0.25
 SUBSCRIBE_MIN_GAP_S = 0.02  # motor events make updates no more often than this
 PERIOD_MS_RANGE = (20, 60_000)
@@ -119,7 +131,18 @@ NOWAIT = socket.MSG_DONTWAIT
 
 
 class _Client:
-    __slots__ = ("deadline", "events", "fd", "out", "request", "sock", "sub")
+    __slots__ = (
+        "asked",
+        "deadline",
+        "ending",
+        "events",
+        "fd",
+        "kept",
+        "out",
+        "request",
+        "sock",
+        "sub",
+    )
 
     def __init__(self, sock: socket.socket, deadline: float) -> None:
         self.sock = sock
@@ -129,19 +152,27 @@ class _Client:
         self.deadline = deadline
         self.events = 0  # what the epoll watches for it (0: not registered)
         self.sub: _Subscription | None = None  # a subscriber's stream
+        self.kept = False  # a kept connection: one answer per request line
+        self.asked = 0.0  # a kept one's last request (the one that asked longest ago goes first)
+        self.ending = False  # a kept one: closed once the answers to its whole lines are sent
 
 
 class _Request:
     """A parsed request line: what to answer, or the error to answer with."""
 
-    __slots__ = ("error", "histogram", "period")
+    __slots__ = ("error", "histogram", "keep", "period")
 
     def __init__(
-        self, histogram: bool = False, period: float | None = None, error: str | None = None
+        self,
+        histogram: bool = False,
+        period: float | None = None,
+        error: str | None = None,
+        keep: bool = False,
     ) -> None:
         self.histogram = histogram
         self.period = period  # a subscription's period in seconds; None: one document
         self.error = error
+        self.keep = keep  # keep the connection: one document per request line after this
 
 
 #: the plain status's request (an empty line): its meaning, not parsed again at each read
@@ -168,6 +199,10 @@ def parse_request(request: bytes) -> _Request:
             error=f"subscribe: PERIOD_MS must be a whole number of milliseconds "
             f"from {lo} to {hi}, got {' '.join(words[1:])!r}"
         )
+    if words[:1] == ["keep"]:
+        if len(words) == 1:
+            return _Request(keep=True)
+        return _Request(error=f"keep takes no words, got {' '.join(words[1:])!r}")
     unknown = [w for w in words if w != "histogram"]
     if unknown:
         return _Request(
@@ -200,6 +235,10 @@ class StatusServer:
         self.errors = 0
         self.served = 0
         self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
+        self.kept = 0  # kept connections now
+        self.kept_evicted = 0  # kept connections closed to let a new one in
+        # the last plain status as a line (a kept connection's answer), kept as _sent is
+        self._sent_line: tuple[dict[str, Any], bytes] | None = None
         # 0660: the service's group may ask (connecting needs write)
         bound = bind_socket(path, 0o660)
         self._sock = _Listener(socket.AF_UNIX, socket.SOCK_STREAM, 0, bound.detach())
@@ -346,6 +385,9 @@ class StatusServer:
         if client.sub is not None:
             self._serve_subscriber(client)
             return
+        if client.kept:
+            self._serve_kept(client)
+            return
         if client.out is not None:
             self._send(client)
             return
@@ -366,11 +408,15 @@ class StatusServer:
             self._watch(client, select.EPOLLIN)
             return
         self._answer(client)  # a line, the end of input, or too long
-        if client.sub is None and client.out is not None:
-            self._send(client)  # (a subscriber's first update is on its way; or dropped)
+        if client.sub is None and not client.kept and client.out is not None:
+            self._send(client)  # (a subscriber's first update is on its way; or dropped;
+            # a kept connection's answers too)
 
     def _answer(self, client: _Client) -> None:
         request = parse_request(client.request)
+        if request.keep:
+            self._keep(client)
+            return
         period = request.period
         if period is not None and request.error is None:
             if self.subscribers >= MAX_SUBSCRIBERS:
@@ -387,6 +433,121 @@ class StatusServer:
                 return
         client.out = memoryview(self._encode(request))
         client.deadline = time.monotonic() + SEND_TIMEOUT_S
+
+    # -- kept connections ---------------------------------------------------------------
+    def _keep(self, client: _Client) -> None:
+        """``keep`` came: from now on one answer per request line (those after it in the
+        same write too), the first of them at once."""
+        if self.kept >= MAX_KEPT:
+            self._evict_kept()
+        self.kept += 1
+        client.kept = True
+        client.asked = time.monotonic()
+        client.ending = b"\n" not in client.request  # ``keep`` at its end of input, unended
+        client.request = client.request.partition(b"\n")[2]
+        self._kept_turn(client)
+
+    def _evict_kept(self) -> None:
+        """Full, and another asks to keep its connection: the kept one that asked longest
+        ago goes (one whose answer is still being sent first); its reader connects again
+        when it next asks (daemon/status/reader.py's StatusReader does so on its own)."""
+        kept = [c for c in self._clients.values() if c.kept]
+        if not kept:
+            return
+        gone = min(kept, key=lambda c: (c.out is None, c.asked))
+        self.kept_evicted += 1
+        log.info(
+            "status socket %s: %d kept connections, the most there may be: closed the one "
+            "that asked longest ago to let a new one in (%d so far)",
+            self.path,
+            MAX_KEPT,
+            self.kept_evicted,
+        )
+        self._drop(gone)
+
+    def _serve_kept(self, client: _Client) -> None:
+        """Readable: its next request lines (or its end); writable: the rest of an answer."""
+        if client.out is None:
+            try:
+                chunk = client.sock.recv(MAX_REQUEST, NOWAIT)
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError:
+                self._drop(client)
+                return
+            if chunk:
+                client.request += chunk
+            else:
+                client.ending = True  # it sent all it will: answer its whole lines, then close
+        self._kept_turn(client)
+
+    def _kept_turn(self, client: _Client) -> None:
+        """Answer the kept client's whole request lines in order, as far as its socket
+        takes them without blocking; then let the epoll watch for what it waits for."""
+        while True:
+            out = client.out
+            if out is not None:
+                try:
+                    sent = client.sock.send(out, NOWAIT)
+                except (BlockingIOError, InterruptedError):
+                    sent = 0
+                except OSError:
+                    self._drop(client)
+                    return
+                if sent < len(out):
+                    client.out = out[sent:]
+                    self._watch(client, select.EPOLLOUT)
+                    return
+                client.out = None
+                self.served += 1
+            request = client.request
+            end = request.find(b"\n") + 1
+            if not end:
+                break
+            client.request = request[end:]
+            client.out = memoryview(self._kept_answer(request[:end]))
+            now = time.monotonic()
+            client.asked = now
+            client.deadline = now + SEND_TIMEOUT_S
+        if client.ending:
+            self._drop(client)
+            return
+        if len(client.request) > MAX_REQUEST:  # no line end in sight: say so, then close
+            client.out = memoryview(self._encode(parse_request(client.request)) + b"\n")
+            client.request = b""
+            client.ending = True
+            client.deadline = time.monotonic() + SEND_TIMEOUT_S
+            self._kept_turn(client)
+            return
+        client.deadline = time.monotonic() + KEEP_IDLE_S
+        self._watch(client, select.EPOLLIN)
+
+    def _kept_answer(self, line: bytes) -> bytes:
+        """The answer to one request line of a kept connection, a line of JSON."""
+        if line == b"\n":
+            return self._status_line()
+        request = parse_request(line)
+        if request.error is None and (request.keep or request.period is not None):
+            request = _Request(
+                error=f"on a kept connection ask for {' or '.join(KEPT_REQUESTS)}; "
+                "subscribe on a connection of its own"
+            )
+        return self._encode(request) + b"\n"
+
+    def _status_line(self) -> bytes:
+        """The plain status as a line of JSON; the last one's bytes when it is that
+        document again."""
+        try:
+            doc = self.status()
+        except Exception:
+            log.exception("cannot build the status document")
+            return json.dumps({"error": "status unavailable, see the log"}).encode() + b"\n"
+        sent = self._sent_line
+        if sent is not None and sent[0] is doc:
+            return sent[1]
+        line = self._encoded(doc) + b"\n"
+        self._sent_line = (doc, line)
+        return line
 
     # -- subscribers --------------------------------------------------------------------
     def _evict_one(self) -> None:
@@ -508,10 +669,15 @@ class StatusServer:
                 if client.sub.due <= now:
                     self._update(client, now, built)
                 continue
+            if client.kept:
+                if client.deadline <= now:
+                    self._drop(client)  # asked nothing for KEEP_IDLE_S, or not reading
+                continue
             if client.deadline <= now:
                 if client.out is None:
                     self._answer(client)  # asked nothing: the plain status
-                    self._send(client)
+                    if not client.kept:  # (or ``keep`` without its line end: kept)
+                        self._send(client)
                 else:
                     self._drop(client)  # not reading its answer
         if not self._accepting and len(self._clients) < MAX_CLIENTS and now >= self._resume_accept:
@@ -522,6 +688,9 @@ class StatusServer:
         if client.sub is not None:
             client.sub = None
             self.subscribers -= 1
+        if client.kept:
+            client.kept = False
+            self.kept -= 1
         if self._clients.get(client.fd) is client:
             del self._clients[client.fd]
         client.events = 0  # its close takes it out of the epoll set (the only descriptor)

@@ -295,7 +295,7 @@ QUOTES = [
     ),
     Quote(
         "docs/status.md",
-        '{"error": "unknown status request: ...; known: histogram, subscribe [PERIOD_MS]"}',
+        '{"error": "unknown status request: ...; known: histogram, subscribe [PERIOD_MS], keep"}',
         "served",
     ),
     Quote(

@@ -14,13 +14,14 @@ import selectors
 import signal
 import subprocess
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from motorctl.client.client import Client
-from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.status.reader import StatusReader
 from tests.support import REPO
 
 READY_TIMEOUT_S = 30.0
@@ -229,6 +230,10 @@ class DaemonProcess:
         self.stderr_path = workdir / "motorctld.stderr"
         self._log_from = 0  # this daemon's part of the file (a restart appends to it)
         self._log_shown = as_user  # a user's daemon: its log is the caller's to read
+        # status() reads over one kept connection (tests poll it every millisecond), any
+        # thread's reads one at a time; it connects again by itself across restarts
+        self._status_reader: StatusReader | None = None
+        self._status_lock = threading.Lock()
 
     def start(self) -> DaemonProcess:
         where = ["--port", self.port] if self.port is not None else ["--pty", str(self.pty)]
@@ -278,8 +283,18 @@ class DaemonProcess:
         return Client(str(self.pty), timeout=timeout, **kw)
 
     def status(self, histogram: bool = False) -> dict[str, Any]:
-        """The daemon's status; ``histogram``: with ``steps.histogram_us``."""
-        return read_status(self.state_dir / "status.sock", histogram=histogram)
+        """The daemon's status; ``histogram``: with ``steps.histogram_us``. Over one kept
+        connection (StatusReader), as a frequent reader should."""
+        with self._status_lock:
+            if self._status_reader is None:
+                self._status_reader = StatusReader(self.state_dir / "status.sock")
+            return self._status_reader.read(histogram)
+
+    def _close_status(self) -> None:
+        with self._status_lock:
+            if self._status_reader is not None:
+                self._status_reader.close()
+                self._status_reader = None
 
     def terminate(self, timeout: float = 20.0) -> int:
         assert self.proc is not None
@@ -287,12 +302,14 @@ class DaemonProcess:
         return self.proc.wait(timeout)
 
     def kill(self) -> None:
+        self._close_status()
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(10)
         self.show_log()
 
     def close(self) -> None:
+        self._close_status()
         if self.proc is not None and self.proc.poll() is None:
             try:
                 self.terminate()
