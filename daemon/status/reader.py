@@ -21,7 +21,7 @@ from collections.abc import Generator
 from pathlib import Path
 from typing import Any
 
-from motorctl.daemon.status.server import HEARTBEAT_S
+from motorctl.daemon.status.requests import HEARTBEAT_S
 
 
 def _connect(sock: socket.socket, path: Path, timeout: float) -> None:

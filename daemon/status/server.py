@@ -2,23 +2,14 @@
 done; or subscribe and receive one JSON document per line for as long as you stay; or keep
 the connection and ask again and again, one JSON document per line for each request line.
 
-Its clients are daemon/status/reader.py (the same protocol: request words, one JSON
-document per line; the constants here are theirs too); the document itself is built by
-daemon/status/document.py (the assembler hands it a ``StatusDocument``: each read builds
+The requests and what is kept of each connection are daemon/status/requests.py's (its
+clients, daemon/status/reader.py, follow the same protocol); the document itself is built
+by daemon/status/document.py (the assembler hands it a ``StatusDocument``: each read builds
 again only what may have changed) and encoded by daemon/status/encoder.py (only what
-changed is encoded again).
-
-The request is one line of words, ``\n``-terminated: empty for the status, ``histogram`` for
-the status with the full step-lateness histogram (``steps.histogram_us``, up to 20,001 bins:
-built and encoded only when asked), ``subscribe [PERIOD_MS]`` for a stream of updates
-(docs/status.md): the status at once, then again whenever it changed, looked at every
-PERIOD_MS (default ``SUBSCRIBE_PERIOD_S``) and at once when a motor starts, stops or faults
-(:meth:`StatusServer.poke`), at least every ``HEARTBEAT_S`` even when nothing changed;
-``keep`` for a kept connection (docs/status.md): ``keep`` itself is not answered, then each
-request line after it (empty or ``histogram``; anything else an error document) gets one
-document on one line, in order, until the client closes (a frequent reader: the accept and
-the close, most of a one-shot read's cost, are paid once). A client that sends nothing gets
-the plain status after ``REQUEST_WAIT_S`` (``socat - UNIX-CONNECT:status.sock`` works).
+changed is encoded again). A subscriber's updates are looked for every PERIOD_MS and at
+once when a motor starts, stops or faults (:meth:`StatusServer.poke`). A client that sends
+nothing gets the plain status after ``REQUEST_WAIT_S`` (``socat - UNIX-CONNECT:status.sock``
+works).
 
 Threads: :class:`StatusServer` owns one thread that serves every client from one epoll
 set, never waiting on a client (each is asked with ``MSG_DONTWAIT``): it blocks only in
@@ -28,12 +19,10 @@ listen backlog; of these at most ``MAX_SUBSCRIBERS`` subscribers, so one-shot re
 find a slot; when they are all taken, a new subscriber takes the place of the oldest one
 that does not read its updates (:meth:`StatusServer._evict_one`). A subscriber that has
 not taken an update within ``SEND_TIMEOUT_S`` is dropped; while one is still being sent,
-newer ones are not queued behind it (it gets the state of its next turn). Of the rest at
-most ``MAX_KEPT`` kept connections: a new one takes the place of the one that asked
-longest ago (its reader connects again when it asks next); a kept client that asks
-nothing for ``KEEP_IDLE_S`` is closed, one that does not take an answer within
-``SEND_TIMEOUT_S`` dropped, and while an answer is being sent its next requests wait
-unread in its socket (what it may ask ahead is bounded by its socket's buffer). An
+newer ones are not queued behind it (it gets the state of its next turn). At most
+``MAX_KEPT`` kept connections (a new one replaces the one that asked longest ago), each
+closed after ``KEEP_IDLE_S`` without a request or ``SEND_TIMEOUT_S`` with an answer
+unread; its requests wait unread in its socket while an answer is being sent. An
 ``accept()`` error other than the socket being closed is logged and retried after a pause,
 never the end of the server. ``status()`` is called on that thread and takes no lock of the
 motion engine: a read of its own snapshots, bounded in cost (docs/service.md).
@@ -58,6 +47,17 @@ from typing import Any, Protocol
 
 from motorctl.daemon.state.files import bind_socket
 from motorctl.daemon.status.encoder import DocumentEncoder
+from motorctl.daemon.status.requests import (
+    HEARTBEAT_S,
+    MAX_REQUEST,
+    PLAIN,
+    Client,
+    Request,
+    Subscription,
+    kept_request,
+    parse_request,
+    stable_view,
+)
 
 log = logging.getLogger("motorctl.status")
 
@@ -65,37 +65,16 @@ SEND_TIMEOUT_S = 2.0
 REQUEST_WAIT_S = 0.5
 ACCEPT_RETRY_S = 0.2
 MAX_CLIENTS = 16
-MAX_REQUEST = 256
-REQUESTS = ("histogram", "subscribe [PERIOD_MS]", "keep")
 MAX_SUBSCRIBERS = 8
 MAX_KEPT = 4  # kept connections: with the subscribers, one-shot reads still find a slot
 KEEP_IDLE_S = 10.0  # a kept connection that asks nothing this long is closed
-KEPT_REQUESTS = ("an empty line", "histogram")
-SUBSCRIBE_PERIOD_S = 0.25
 SUBSCRIBE_MIN_GAP_S = 0.02  # motor events make updates no more often than this
-PERIOD_MS_RANGE = (20, 60_000)
-HEARTBEAT_S = 5.0
-#: fields that change at every look without anything happening: not a reason for an update
-VOLATILE = ("monotonic_s", "uptime_s", "unix_s")
-VOLATILE_STEPS = ("progress",)
 
 
 class StatusSource(Protocol):
     """Builds the status document; ``histogram``: with ``steps.histogram_us``."""
 
     def __call__(self, histogram: bool = False) -> dict[str, Any]: ...
-
-
-class _Subscription:
-    __slots__ = ("due", "key", "last_len", "period", "sent_at", "since")
-
-    def __init__(self, period: float, since: float) -> None:
-        self.period = period
-        self.since = since  # when it subscribed: the oldest is evicted first
-        self.due = 0.0  # when to look for a change next
-        self.key: bytes | None = None  # the last update sent, volatile fields left out
-        self.sent_at = -math.inf
-        self.last_len = 0  # the last update's length
 
 
 def unread_bytes(sock: socket.socket) -> int:
@@ -130,97 +109,6 @@ class _Listener(socket.socket):
 NOWAIT = socket.MSG_DONTWAIT
 
 
-class _Client:
-    __slots__ = (
-        "asked",
-        "deadline",
-        "ending",
-        "events",
-        "fd",
-        "kept",
-        "out",
-        "request",
-        "sock",
-        "sub",
-    )
-
-    def __init__(self, sock: socket.socket, deadline: float) -> None:
-        self.sock = sock
-        self.fd = sock.fileno()
-        self.request = b""
-        self.out: memoryview | None = None  # the answer, once the request is in
-        self.deadline = deadline
-        self.events = 0  # what the epoll watches for it (0: not registered)
-        self.sub: _Subscription | None = None  # a subscriber's stream
-        self.kept = False  # a kept connection: one answer per request line
-        self.asked = 0.0  # a kept one's last request (the one that asked longest ago goes first)
-        self.ending = False  # a kept one: closed once the answers to its whole lines are sent
-
-
-class _Request:
-    """A parsed request line: what to answer, or the error to answer with."""
-
-    __slots__ = ("error", "histogram", "keep", "period")
-
-    def __init__(
-        self,
-        histogram: bool = False,
-        period: float | None = None,
-        error: str | None = None,
-        keep: bool = False,
-    ) -> None:
-        self.histogram = histogram
-        self.period = period  # a subscription's period in seconds; None: one document
-        self.error = error
-        self.keep = keep  # keep the connection: one document per request line after this
-
-
-#: the plain status's request (an empty line): its meaning, not parsed again at each read
-#: (never changed: a request is read, not written, once parsed)
-PLAIN = _Request()
-
-
-def parse_request(request: bytes) -> _Request:
-    """The request line's meaning (docs/status.md)."""
-    if request == b"\n":
-        return PLAIN
-    if len(request) > MAX_REQUEST:
-        return _Request(
-            error=f"unknown status request: a request line too long; known: {', '.join(REQUESTS)}"
-        )
-    words = request.split(b"\n", 1)[0].decode("ascii", "replace").split()
-    if words[:1] == ["subscribe"]:
-        lo, hi = PERIOD_MS_RANGE
-        if len(words) == 1:
-            return _Request(period=SUBSCRIBE_PERIOD_S)
-        if len(words) == 2 and words[1].isdigit() and lo <= int(words[1]) <= hi:
-            return _Request(period=int(words[1]) / 1000.0)
-        return _Request(
-            error=f"subscribe: PERIOD_MS must be a whole number of milliseconds "
-            f"from {lo} to {hi}, got {' '.join(words[1:])!r}"
-        )
-    if words[:1] == ["keep"]:
-        if len(words) == 1:
-            return _Request(keep=True)
-        return _Request(error=f"keep takes no words, got {' '.join(words[1:])!r}")
-    unknown = [w for w in words if w != "histogram"]
-    if unknown:
-        return _Request(
-            error=f"unknown status request: {' '.join(unknown)}; known: {', '.join(REQUESTS)}"
-        )
-    return _Request(histogram="histogram" in words)
-
-
-def stable_view(doc: dict[str, Any]) -> dict[str, Any]:
-    """``doc`` without the fields that change at every look (the clock, the executor's
-    turns): what decides whether a subscriber gets an update."""
-    view = {k: v for k, v in doc.items() if k not in VOLATILE}
-    steps = view.get("steps")
-    if isinstance(steps, dict):
-        view["steps"] = {k: v for k, v in steps.items() if k not in VOLATILE_STEPS}
-    return view
-
-
 class StatusServer:
     def __init__(self, path: Path, status: StatusSource) -> None:
         """Bind ``path`` (the caller holds the instance lock: a socket there is stale;
@@ -237,8 +125,6 @@ class StatusServer:
         self.evicted = 0  # subscribers closed to let a new one in (not reading theirs)
         self.kept = 0  # kept connections now
         self.kept_evicted = 0  # kept connections closed to let a new one in
-        # the last plain status as a line (a kept connection's answer), kept as _sent is
-        self._sent_line: tuple[dict[str, Any], bytes] | None = None
         # 0660: the service's group may ask (connecting needs write)
         bound = bind_socket(path, 0o660)
         self._sock = _Listener(socket.AF_UNIX, socket.SOCK_STREAM, 0, bound.detach())
@@ -250,7 +136,7 @@ class StatusServer:
         self._wake_w.setblocking(False)  # poke() from the step thread never blocks
         self.subscribers = 0
         self._closed = threading.Event()
-        self._clients: dict[int, _Client] = {}  # by descriptor
+        self._clients: dict[int, Client] = {}  # by descriptor
         self._ep = select.epoll()  # the wake-up socket, the listener (while accepting), clients
         self._accepting = False
         self._resume_accept = 0.0
@@ -355,7 +241,7 @@ class StatusServer:
                 self.served += 1
                 conn.close()
                 return
-        client = _Client(conn, time.monotonic() + REQUEST_WAIT_S)
+        client = Client(conn, time.monotonic() + REQUEST_WAIT_S)
         self._clients[client.fd] = client
         if len(self._clients) >= MAX_CLIENTS:
             self._accept_on(False)  # full: the rest wait in the backlog
@@ -379,7 +265,7 @@ class StatusServer:
             if sub is not None:
                 sub.due = min(sub.due, max(now, sub.sent_at + SUBSCRIBE_MIN_GAP_S))
 
-    def _serve(self, client: _Client) -> None:
+    def _serve(self, client: Client) -> None:
         """Take the request, answer it, as far as it goes without blocking; then let the
         epoll watch for what it waits for."""
         if client.sub is not None:
@@ -401,7 +287,7 @@ class StatusServer:
             return
         self._took(client, chunk)
 
-    def _took(self, client: _Client, chunk: bytes) -> None:
+    def _took(self, client: Client, chunk: bytes) -> None:
         """``chunk`` of the request came (empty: the end of input): answer once it is in."""
         client.request += chunk
         if chunk and b"\n" not in client.request and len(client.request) <= MAX_REQUEST:
@@ -412,7 +298,7 @@ class StatusServer:
             self._send(client)  # (a subscriber's first update is on its way; or dropped;
             # a kept connection's answers too)
 
-    def _answer(self, client: _Client) -> None:
+    def _answer(self, client: Client) -> None:
         request = parse_request(client.request)
         if request.keep:
             self._keep(client)
@@ -422,20 +308,20 @@ class StatusServer:
             if self.subscribers >= MAX_SUBSCRIBERS:
                 self._evict_one()
             if self.subscribers >= MAX_SUBSCRIBERS:
-                request = _Request(
+                request = Request(
                     error=f"too many subscribers ({MAX_SUBSCRIBERS}), each reading its updates: "
                     "the daemon is full; close one, or read the status once"
                 )
             else:
                 self.subscribers += 1
-                client.sub = _Subscription(period, time.monotonic())
+                client.sub = Subscription(period, time.monotonic())
                 self._update(client, time.monotonic(), None)
                 return
         client.out = memoryview(self._encode(request))
         client.deadline = time.monotonic() + SEND_TIMEOUT_S
 
     # -- kept connections ---------------------------------------------------------------
-    def _keep(self, client: _Client) -> None:
+    def _keep(self, client: Client) -> None:
         """``keep`` came: from now on one answer per request line (those after it in the
         same write too), the first of them at once."""
         if self.kept >= MAX_KEPT:
@@ -465,7 +351,7 @@ class StatusServer:
         )
         self._drop(gone)
 
-    def _serve_kept(self, client: _Client) -> None:
+    def _serve_kept(self, client: Client) -> None:
         """Readable: its next request lines (or its end); writable: the rest of an answer."""
         if client.out is None:
             try:
@@ -481,7 +367,7 @@ class StatusServer:
                 client.ending = True  # it sent all it will: answer its whole lines, then close
         self._kept_turn(client)
 
-    def _kept_turn(self, client: _Client) -> None:
+    def _kept_turn(self, client: Client) -> None:
         """Answer the kept client's whole request lines in order, as far as its socket
         takes them without blocking; then let the epoll watch for what it waits for."""
         while True:
@@ -524,30 +410,7 @@ class StatusServer:
 
     def _kept_answer(self, line: bytes) -> bytes:
         """The answer to one request line of a kept connection, a line of JSON."""
-        if line == b"\n":
-            return self._status_line()
-        request = parse_request(line)
-        if request.error is None and (request.keep or request.period is not None):
-            request = _Request(
-                error=f"on a kept connection ask for {' or '.join(KEPT_REQUESTS)}; "
-                "subscribe on a connection of its own"
-            )
-        return self._encode(request) + b"\n"
-
-    def _status_line(self) -> bytes:
-        """The plain status as a line of JSON; the last one's bytes when it is that
-        document again."""
-        try:
-            doc = self.status()
-        except Exception:
-            log.exception("cannot build the status document")
-            return json.dumps({"error": "status unavailable, see the log"}).encode() + b"\n"
-        sent = self._sent_line
-        if sent is not None and sent[0] is doc:
-            return sent[1]
-        line = self._encoded(doc) + b"\n"
-        self._sent_line = (doc, line)
-        return line
+        return self._encode(kept_request(line)) + b"\n"
 
     # -- subscribers --------------------------------------------------------------------
     def _evict_one(self) -> None:
@@ -575,7 +438,7 @@ class StatusServer:
         )
         self._drop(oldest)
 
-    def _serve_subscriber(self, client: _Client) -> None:
+    def _serve_subscriber(self, client: Client) -> None:
         """Readable: the subscriber closed (or says something, which is ignored);
         writable: the rest of its update."""
         try:
@@ -592,7 +455,7 @@ class StatusServer:
         if client.out is not None:
             self._send(client)
 
-    def _update(self, client: _Client, now: float, built: list[tuple[bytes, bytes]] | None) -> None:
+    def _update(self, client: Client, now: float, built: list[tuple[bytes, bytes]] | None) -> None:
         """Look for a change for subscriber ``client`` (not sending one now): send the
         status when it changed or the heartbeat is due. ``built``: the document of this
         turn, shared by the subscribers due in it (empty: not built yet)."""
@@ -631,7 +494,7 @@ class StatusServer:
         self._sent = (doc, data)
         return data
 
-    def _send(self, client: _Client) -> None:
+    def _send(self, client: Client) -> None:
         assert client.out is not None
         try:
             sent = client.sock.send(client.out, NOWAIT)
@@ -653,7 +516,7 @@ class StatusServer:
         client.deadline = math.inf
         self._watch(client, select.EPOLLIN)
 
-    def _watch(self, client: _Client, events: int) -> None:
+    def _watch(self, client: Client, events: int) -> None:
         if client.events == events:
             return
         if client.events:
@@ -683,7 +546,7 @@ class StatusServer:
         if not self._accepting and len(self._clients) < MAX_CLIENTS and now >= self._resume_accept:
             self._accept_on(True)
 
-    def _drop(self, client: _Client) -> None:
+    def _drop(self, client: Client) -> None:
         client.out = None
         if client.sub is not None:
             client.sub = None
@@ -696,12 +559,7 @@ class StatusServer:
         client.events = 0  # its close takes it out of the epoll set (the only descriptor)
         client.sock.close()
 
-    def document(self, request: bytes) -> bytes:
-        """The answer to one request line that is not a subscription: the status as JSON,
-        or an error document."""
-        return self._encode(parse_request(request))
-
-    def _encode(self, request: _Request) -> bytes:
+    def _encode(self, request: Request) -> bytes:
         if request.error is not None:
             return json.dumps({"error": request.error}).encode()
         if request.period is not None:

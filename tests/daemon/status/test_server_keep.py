@@ -18,6 +18,7 @@ import pytest
 
 from motorctl.daemon.status import server as status_module
 from motorctl.daemon.status.reader import read_status
+from motorctl.daemon.status.requests import MAX_REQUEST
 from motorctl.daemon.status.server import StatusServer
 from tests.support.wait import until
 
@@ -140,7 +141,7 @@ def test_a_bad_request_in_the_middle(served: tuple[StatusServer, Source]) -> Non
         assert "on a kept connection" in answers[4]["error"]
         assert "unknown status request: please" in answers[5]["error"]
         assert server.kept == 1
-        sock.sendall(b"x" * (status_module.MAX_REQUEST + 10))
+        sock.sendall(b"x" * (MAX_REQUEST + 10))
         assert "a request line too long" in read_line(sock, buf)["error"]
         assert closed(sock)
     until("dropped", lambda: server.kept == 0 and not server._clients)

@@ -20,7 +20,8 @@ import pytest
 
 from motorctl.daemon.status import server as status_module
 from motorctl.daemon.status.reader import StatusError, read_status, subscribe
-from motorctl.daemon.status.server import StatusServer, parse_request, stable_view
+from motorctl.daemon.status.requests import parse_request, stable_view
+from motorctl.daemon.status.server import StatusServer
 from tests.support.wait import until
 
 DEADLINE_S = 30.0
