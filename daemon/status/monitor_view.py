@@ -1,14 +1,27 @@
-"""The live monitor's view: a status document drawn with ``rich`` (only this module imports
-it; :mod:`motorctl.daemon.status.monitor` is the entry point and says what to install without it).
+"""The live monitor's view: a status document drawn as lines of styled text (``rich``
+prints them and knows the terminal; only this module imports it:
+:mod:`motorctl.daemon.status.monitor` is the entry point and says what to install without it).
 
-:func:`render` is pure: a document (and the one before it, for rates) in, a renderable out,
-so tests draw a known state into a string. :func:`watch` follows the subscription
-(docs/status.md) on a reader thread and redraws on each update and every half period (the
-frames' ages move; no update within a period means nothing changed, so frames/s is 0), and
-reconnects when the daemon restarts; while the daemon is gone the whole view is marked as
-the last state seen (a banner, dimmed, nothing read as live). Off a terminal lines are not
-wrapped at 80 columns. Every field is read defensively: an older or newer
-daemon, or one without per-motor timing figures, draws what it has.
+:func:`render` is pure: a document (and the one before it, for rates) in, a :class:`View`
+out, so tests draw a known state into a string. The view is laid out here, for a width, as
+lines of (text, style) spans (:meth:`View.lines`): rich prints those lines (``--once``, off
+a terminal, the tests), and on a terminal :class:`Screen` writes only the lines that changed
+since its last drawing. One layout, two ways out; rich's own tables and its live display
+cost some 10-20 ms of CPU a drawing, which at 10 drawings a second was a fifth of a CPU.
+
+:func:`watch` follows the subscription (docs/status.md) on a reader thread and draws again
+only when what it shows changes (:class:`Watched`): an update (the daemon sends one only
+when something changed), the daemon gone or back, the frames/s falling to 0, or another
+whole second since the last update (the ages shown move in whole seconds; at rest that is
+one drawing a second of the few lines that changed). It reconnects when the daemon
+restarts; while the daemon is gone the whole view is marked as the last state seen (a
+banner, dimmed, nothing read as live). Off a terminal lines are not wrapped at 80 columns.
+Every field is read defensively: an older or newer daemon, or one without per-motor timing
+figures, draws what it has.
+
+Threads: the caller's thread draws and owns every object here (:class:`Watched`,
+:class:`Screen`, the views); :func:`_follow` runs on the reader thread and hands updates
+over through a queue.
 """
 
 from __future__ import annotations
@@ -18,16 +31,14 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rich import box
-from rich.console import Console, Group, RenderableType
-from rich.live import Live
-from rich.styled import Styled
-from rich.table import Table
+from rich.cells import cell_len
+from rich.console import COLOR_SYSTEMS, Console, ConsoleOptions
+from rich.segment import Segment
 from rich.text import Text
 
 from motorctl.daemon.status.monitor import Ending
@@ -88,18 +99,242 @@ def frames_per_second(
     return (frames - frames0) / (t - t0) if t > t0 else None
 
 
+# -- the layout: lines of (text, style) spans ------------------------------------------------
+Span = tuple[str, str]  # text, a rich style definition ("" plain)
+Line = tuple[Span, ...]
+
+
+def _style(base: str, style: str) -> str:
+    return f"{base} {style}" if base and style else base or style
+
+
+def _cells(text: str) -> int:
+    """The columns ``text`` takes on a terminal."""
+    return len(text) if text.isascii() else cell_len(text)
+
+
+def _width(line: Line) -> int:
+    return _cells("".join(text for text, _ in line))
+
+
+def _fit(text: str, start: int, width: int) -> int:
+    """Where the part of ``text`` from ``start`` that fits in ``width`` cells ends."""
+    if text.isascii():
+        return min(len(text), start + width)
+    end, used = start, 0
+    while end < len(text) and used + _cells(text[end]) <= width:
+        used += _cells(text[end])
+        end += 1
+    return end
+
+
+def _slice(line: Line, start: int, end: int) -> Line:
+    """The characters ``start`` to ``end`` of ``line``, each in its style."""
+    out: list[Span] = []
+    at = 0
+    for text, style in line:
+        after = at + len(text)
+        if after > start and at < end:
+            out.append((text[max(0, start - at) : end - at], style))
+        at = after
+    return tuple(out)
+
+
+def _wrap(line: Line, width: int) -> list[Line]:
+    """``line`` in lines of at most ``width`` cells, broken at a space where there is one
+    (the space dropped), else within a word (as rich wraps a text)."""
+    text = "".join(part for part, _ in line)
+    if _cells(text) <= width:
+        return [line]
+    out: list[Line] = []
+    start = 0
+    while start < len(text):
+        end = _fit(text, start, width)
+        if end < len(text):
+            space = text.rfind(" ", start + 1, end + 1)
+            if space > start:
+                end = space
+        end = max(end, start + 1)
+        out.append(_slice(line, start, end))
+        start = end
+        while start < len(text) and text[start] == " ":
+            start += 1
+    return out
+
+
+class Para:
+    """Styled text of one or more lines (``\\n`` in it breaks a line), as rich's ``Text``
+    with a base style: ``style`` applies to the whole text, an appended span's own style
+    over it."""
+
+    __slots__ = ("base", "spans")
+
+    def __init__(self, text: str = "", style: str = "") -> None:
+        self.base = style
+        self.spans: list[list[Span]] = [[]]
+        if text:
+            self.append(text)
+
+    def append(self, text: str, style: str = "") -> None:
+        style = _style(self.base, style)
+        for i, part in enumerate(text.split("\n")):
+            if i:
+                self.spans.append([])
+            if part:
+                self.spans[-1].append((part, style))
+
+    def lines(self, width: int | None = None) -> list[Line]:
+        """Its lines, wrapped at ``width`` cells (None: as they are)."""
+        if width is None:
+            return [tuple(spans) for spans in self.spans]
+        return [wrapped for spans in self.spans for wrapped in _wrap(tuple(spans), width)]
+
+
+@dataclass
+class _Column:
+    name: str
+    justify: str
+    no_wrap: bool
+
+
+class Grid:
+    """A table drawn as rich's ``box.SIMPLE_HEAD`` table with a cell padding of one: its
+    title (left, italic), the header (bold) ruled off, the rows, a blank line; each column
+    as wide as its widest cell. Too wide for the width: the widest columns that may wrap
+    are narrowed and their cells wrapped (what is left over is cut at the edge)."""
+
+    __slots__ = ("columns", "rows", "title")
+
+    def __init__(self, title: str) -> None:
+        self.title = title
+        self.columns: list[_Column] = []
+        self.rows: list[list[Para]] = []
+
+    def add_column(self, name: str, justify: str = "left", no_wrap: bool = False) -> None:
+        self.columns.append(_Column(name, justify, no_wrap))
+
+    def add_row(self, *cells: Para) -> None:
+        self.rows.append(list(cells))
+
+    def lines(self, width: int) -> list[Line]:
+        cols = self.columns
+        # each cell's lines as they are, and its width: the columns' natural widths
+        cells = [[cell.lines() for cell in row] for row in [[Para(c.name, "bold") for c in cols]]]
+        cells += [[cell.lines() for cell in row] for row in self.rows]
+        widths = [
+            max(max(map(_width, lines)) for lines in column) for column in zip(*cells, strict=True)
+        ]
+        inner = sum(widths) + 3 * len(cols) - 1  # each cell padded by 1, a space between
+        excess = inner + 2 - width
+        while excess > 0:
+            wrappable = [i for i, c in enumerate(cols) if not c.no_wrap and widths[i] > 4]
+            if not wrappable:
+                break
+            widest = max(wrappable, key=lambda i: widths[i])
+            second = max((widths[i] for i in wrappable if i != widest), default=4)
+            cut = min(excess, widths[widest] - max(4, min(second, widths[widest] - 1)))
+            widths[widest] -= cut
+            excess -= cut
+        total = sum(widths) + 3 * len(cols) + 1
+        out: list[Line] = [((self.title.ljust(total), "italic"),), ((" " * total, ""),)]
+        out += self._row(cells[0], widths, bottom=True)
+        out.append(((" " + "\u2500" * (total - 2) + " ", ""),))
+        for row in cells[1:]:
+            out += self._row(row, widths, bottom=False)
+        out.append(((" " * total, ""),))
+        return [_crop(line, width) for line in out]
+
+    def _row(self, cells: list[list[Line]], widths: list[int], bottom: bool) -> list[Line]:
+        wrapped: list[list[tuple[Line, int]]] = []
+        for lines, w in zip(cells, widths, strict=True):
+            if len(lines) == 1 and (used := _width(lines[0])) <= w:
+                wrapped.append([(lines[0], used)])  # most cells: one line that fits
+            else:
+                wrapped.append([(p, _width(p)) for line in lines for p in _wrap(line, w)])
+        height = max(len(parts) for parts in wrapped)
+        out = []
+        for n in range(height):
+            spans: list[Span] = [(" ", "")]
+            for i, (parts, w) in enumerate(zip(wrapped, widths, strict=True)):
+                at = n - (height - len(parts)) if bottom else n
+                line, used = parts[at] if 0 <= at < len(parts) else ((), 0)
+                pad = " " * (w - used)
+                if self.columns[i].justify == "right":
+                    spans.append(("  " + pad if i else " " + pad, ""))
+                    spans += line
+                    spans.append((" ", ""))
+                else:
+                    spans.append(("  " if i else " ", ""))
+                    spans += line
+                    spans.append((pad + " ", ""))
+            spans.append((" ", ""))
+            out.append(_join(spans))
+        return out
+
+
+def _join(spans: list[Span]) -> Line:
+    """Spans of one style one after another as one span; empty ones left out."""
+    out: list[Span] = []
+    for text, style in spans:
+        if not text:
+            continue
+        if out and out[-1][1] == style:
+            out[-1] = (out[-1][0] + text, style)
+        else:
+            out.append((text, style))
+    return tuple(out)
+
+
+def _crop(line: Line, width: int) -> Line:
+    """``line`` cut at ``width`` cells."""
+    text = "".join(part for part, _ in line)
+    return line if _cells(text) <= width else _slice(line, 0, _fit(text, 0, width))
+
+
+class View:
+    """What the monitor shows, laid out for a width on demand (:meth:`lines`): printable by
+    rich (``console.print(view)``) and by :class:`Screen`."""
+
+    def __init__(
+        self, blocks: Sequence[Para | Grid], dim: bool = False, banner: Para | None = None
+    ) -> None:
+        self.blocks = blocks
+        self.dim = dim
+        self.banner = banner
+        self.notes: list[Para] = []
+        self._laid: tuple[int, list[Line]] | None = None
+
+    def lines(self, width: int) -> list[Line]:
+        """The view's lines at ``width`` (none wider)."""
+        if self._laid is None or self._laid[0] != width:
+            width = max(width, 1)
+            body = [line for block in self.blocks for line in block.lines(width)]
+            if self.dim:
+                body = [tuple((t, _style("dim", s)) for t, s in line) for line in body]
+            banner = self.banner.lines(width) if self.banner else []
+            notes = [line for note in self.notes for line in note.lines(width)]
+            self._laid = (width, banner + body + notes)
+        return self._laid[1]
+
+    def __rich_console__(self, console: Console, options: ConsoleOptions) -> Iterator[Segment]:
+        for line in self.lines(options.max_width):
+            for text, style in line:
+                yield Segment(text, console.get_style(style) if style else None)
+            yield Segment.line()
+
+
 def render(
     doc: Mapping[str, Any],
     rate: float | None = None,
     since_s: float = 0.0,
     note: str = "",
     stale: str = "",
-) -> RenderableType:
+) -> View:
     """The whole view of ``doc``; ``rate``: frames/s; ``since_s``: how long ago it came
     (frames' ages grow by it); ``note``: a line on the connection; ``stale``: why no update
     comes any more (the daemon stopped, cannot be reached): the whole view is then marked as
     the last state seen, dimmed, with nothing in it read as live (no "alive", no frames/s)."""
-    parts: list[RenderableType] = [_header(doc, stale=bool(stale))]
+    parts: list[Para | Grid] = [_header(doc, stale=bool(stale))]
     parts.append(_motors(doc))
     timing = _timing(doc)
     if timing is not None:
@@ -114,26 +349,26 @@ def render(
     drivers = _drivers(doc)
     if drivers is not None:
         parts.append(drivers)
-    view: list[RenderableType] = parts
+    view = View(parts)
     if stale:
-        banner = Text(
+        banner = Para(
             f"NOT LIVE: {stale}. Everything below is the last state motorctld reported, "
             f"{_ago(since_s)} ago.",
             style="bold white on red",
         )
-        view = [banner, Styled(Group(*parts), "dim")]
+        view = View(parts, dim=True, banner=banner)
     if note:
-        view.append(Text(note, style="yellow"))
-    return Group(*view)
+        view.notes.append(Para(note, style="yellow"))
+    return view
 
 
 def _ago(seconds: float) -> str:
     return f"{seconds:.1f} s" if seconds < 60 else _duration(seconds)
 
 
-def _header(doc: Mapping[str, Any], stale: bool = False) -> Text:
+def _header(doc: Mapping[str, Any], stale: bool = False) -> Para:
     ex = _d(doc.get("executor"))
-    text = Text("motorctld", style="bold")
+    text = Para("motorctld", style="bold")
     if stale:
         text.append(" (last seen)", style="bold red")
     text.append(f"  up {_duration(doc.get('uptime_s'))}" + (" then" if stale else ""))
@@ -159,10 +394,8 @@ def _header(doc: Mapping[str, Any], stale: bool = False) -> Text:
     return text
 
 
-def _motors(doc: Mapping[str, Any]) -> Table:
-    table = Table(
-        title="motors", title_justify="left", box=box.SIMPLE_HEAD, expand=False, padding=(0, 1)
-    )
+def _motors(doc: Mapping[str, Any]) -> Grid:
+    table = Grid("motors")
     for name, justify in (
         ("#", "right"),
         ("name", "left"),
@@ -173,38 +406,36 @@ def _motors(doc: Mapping[str, Any]) -> Table:
         ("waypoints", "right"),
         ("fault", "left"),
     ):
-        table.add_column(name, justify=justify)  # type: ignore[arg-type]
+        table.add_column(name, justify=justify)
     for m in _l(doc.get("motors")):
         m = _d(m)
         state = str(m.get("state", "?"))
         style = {"idle": "", "fault": "bold red"}.get(state, "bold green")
         fault = m.get("fault")
-        fault_text = Text(str(fault), style="red") if fault else Text("")
+        fault_text = Para(str(fault), style="red") if fault else Para("")
         if m.get("position_lost"):
             fault_text.append(
                 " (position lost: home it)" if fault else "position lost: home it", style="yellow"
             )
         table.add_row(
-            Text(str(m.get("index", "?"))),
-            Text(str(m.get("name", ""))),
-            Text(state, style=style),
-            Text(_num(m.get("position"))),
-            Text(_num(m.get("speed"), "{:,.0f}")),
-            Text(_num(m.get("queued"))),
-            Text(_num(m.get("waypoints"))),
+            Para(str(m.get("index", "?"))),
+            Para(str(m.get("name", ""))),
+            Para(state, style=style),
+            Para(_num(m.get("position"))),
+            Para(_num(m.get("speed"), "{:,.0f}")),
+            Para(_num(m.get("queued"))),
+            Para(_num(m.get("waypoints"))),
             fault_text,
         )
     return table
 
 
-def _timing(doc: Mapping[str, Any]) -> Table | None:
+def _timing(doc: Mapping[str, Any]) -> Grid | None:
     """Per-motor step timing and faults by cause (issue 15), when the daemon reports them."""
     motors = [_d(m) for m in _l(doc.get("motors"))]
     if not any("timing" in m or "faults" in m for m in motors):
         return None
-    table = Table(
-        title="step timing per motor", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1)
-    )
+    table = Grid("step timing per motor")
     for name in (
         "#",
         "late absorbed",
@@ -224,22 +455,22 @@ def _timing(doc: Mapping[str, Any]) -> Table | None:
             or "none"
         )
         table.add_row(
-            Text(str(m.get("index", "?"))),
-            Text(_num(t.get("late_absorbed"))),
-            Text(_num(t.get("slid_ms"), "{:,.1f}")),
-            Text(_num(t.get("worst_late_us"), "{:,.0f}")),
-            Text(_num(t.get("worst_lag_full_steps"), "{:,.2f}")),
-            Text(_num(t.get("max_lag_full_steps"), "{:,.2f}")),
-            Text(_num(t.get("microsteps"))),
-            Text(_num(t.get("lag_faults"))),
-            Text(faults),
+            Para(str(m.get("index", "?"))),
+            Para(_num(t.get("late_absorbed"))),
+            Para(_num(t.get("slid_ms"), "{:,.1f}")),
+            Para(_num(t.get("worst_late_us"), "{:,.0f}")),
+            Para(_num(t.get("worst_lag_full_steps"), "{:,.2f}")),
+            Para(_num(t.get("max_lag_full_steps"), "{:,.2f}")),
+            Para(_num(t.get("microsteps"))),
+            Para(_num(t.get("lag_faults"))),
+            Para(faults),
         )
     return table
 
 
-def _steps(doc: Mapping[str, Any]) -> Text:
+def _steps(doc: Mapping[str, Any]) -> Para:
     s = _d(doc.get("steps"))
-    text = Text("step edges ", style="bold")
+    text = Para("step edges ", style="bold")
     text.append(_num(s.get("steps")))
     text.append(
         f"  lateness p50 {_num(s.get('p50_us'), '{:.0f}')}"
@@ -269,8 +500,8 @@ def _steps(doc: Mapping[str, Any]) -> Text:
     return text
 
 
-def _io(doc: Mapping[str, Any]) -> Text:
-    text = Text("pins ", style="bold")
+def _io(doc: Mapping[str, Any]) -> Para:
+    text = Para("pins ", style="bold")
     pins = [_d(p) for p in _l(doc.get("pins"))]
     if not pins:
         text.append("none configured" if "pins" in doc else "not reported")
@@ -292,9 +523,9 @@ def _io(doc: Mapping[str, Any]) -> Text:
     return text
 
 
-def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
+def _link(doc: Mapping[str, Any], rate: float | None) -> Para:
     link = _d(doc.get("link"))
-    text = Text("link ", style="bold")
+    text = Para("link ", style="bold")
     if not link:
         text.append("not serving")
         return text
@@ -333,12 +564,12 @@ def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
     return text
 
 
-def _trace(doc: Mapping[str, Any]) -> Text | None:
+def _trace(doc: Mapping[str, Any]) -> Para | None:
     """The link's trace (motorctld --trace), when it records one."""
     t = _d(doc.get("trace"))
     if not t:
         return None
-    text = Text("trace ", style="bold")
+    text = Para("trace ", style="bold")
     text.append(f"{t.get('file', '?')}")
     if t.get("part"):
         text.append(f" (part {t.get('part')} of session {t.get('session', '?')})")
@@ -354,8 +585,8 @@ def _trace(doc: Mapping[str, Any]) -> Text | None:
     return text
 
 
-def _recent(doc: Mapping[str, Any], since_s: float) -> Table:
-    table = Table(title="last frames", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1))
+def _recent(doc: Mapping[str, Any], since_s: float) -> Grid:
+    table = Grid("last frames")
     table.add_column("age s", justify="right", no_wrap=True)
     table.add_column("frame", no_wrap=True)
     table.add_column("command")
@@ -372,19 +603,19 @@ def _recent(doc: Mapping[str, Any], since_s: float) -> Table:
         result = r.get("result")
         style = "red" if isinstance(result, str) and result.startswith("E") else ""
         table.add_row(
-            Text(_num(age, "{:.1f}", "?")),
-            Text(str(r.get("frame", ""))),
-            Text(str(r.get("command", ""))),
-            Text("(owed)" if result is None else str(result), style=style),
+            Para(_num(age, "{:.1f}", "?")),
+            Para(str(r.get("frame", ""))),
+            Para(str(r.get("command", ""))),
+            Para("(owed)" if result is None else str(result), style=style),
         )
     return table
 
 
-def _drivers(doc: Mapping[str, Any]) -> Text | None:
+def _drivers(doc: Mapping[str, Any]) -> Para | None:
     drivers = [_d(d) for d in _l(doc.get("drivers"))]
     if not drivers:
         return None
-    text = Text("drivers", style="bold")
+    text = Para("drivers", style="bold")
     for d in drivers:
         text.append(
             f"\n  {d.get('chip')} {d.get('device')}: polls {_num(d.get('polls'))}"
@@ -462,6 +693,145 @@ def _follow(
         stop.wait(RETRY_S)
 
 
+class Watched:
+    """What the monitor shows, from the updates taken so far (:meth:`take`), and what a
+    drawing at a moment depends on (:meth:`shown`): a drawing is due only when that
+    changes. Ages are shown in whole seconds since the last update, so at rest (no update)
+    the view changes once a second, not at every look. ``now`` is given to every method (a
+    clock reading, time.monotonic's as :class:`Seen`'s): tests choose it."""
+
+    def __init__(self, period_s: float, path: Path) -> None:
+        self.period_s = period_s
+        self.path = path
+        self.last: Seen | None = None
+        self.before: Seen | None = None
+        self.stale = ""
+        self.taken = 0
+
+    def take(self, item: Seen | str) -> None:
+        """An update, or why none come (the view is then stale until the next update)."""
+        self.taken += 1
+        if isinstance(item, Seen):
+            self.before, self.last, self.stale = self.last, item, ""
+        else:
+            self.stale, self.before = item, None
+
+    def since(self, now: float) -> float:
+        """Whole seconds since the last update: what the footer and the ages show."""
+        return float(int(max(0.0, now - self.last.at))) if self.last is not None else 0.0
+
+    def rate(self, now: float) -> float | None:
+        """Frames per second (None while stale: nothing is read as live)."""
+        if self.last is None or self.stale:
+            return None
+        return frames_per_second(self.last, self.before, now, self.period_s)
+
+    def shown(self, now: float) -> tuple[object, ...]:
+        """What a drawing at ``now`` depends on: the same at two moments, the same view."""
+        return (self.taken, self.since(now), self.rate(now))
+
+    def view(self, now: float) -> View:
+        if self.last is None:
+            return View(
+                [
+                    Para(
+                        f"{self.stale}; retrying every {RETRY_S:.0f} s"
+                        if self.stale
+                        else f"connecting to {self.path} ...",
+                        style="yellow",
+                    )
+                ]
+            )
+        since = self.since(now)
+        if self.stale:
+            return render(
+                self.last.doc,
+                since_s=since,
+                note=f"retrying every {RETRY_S:.0f} s; the view comes back with the daemon; "
+                "Ctrl-C quits",
+                stale=self.stale,
+            )
+        footer = (
+            f"updated {since:.0f} s ago; the daemon sends a change as it comes, looking "
+            f"every {self.period_s * 1000:.0f} ms; Ctrl-C quits"
+        )
+        return render(self.last.doc, self.rate(now), since_s=since, note=footer)
+
+
+#: the terminal's control sequences :class:`Screen` writes itself
+HOME_CLEAR = "\x1b[H\x1b[2J"
+CLEAR_TO_END = "\x1b[K"
+
+
+class Screen:
+    """The terminal while the monitor runs: the alternate screen, the cursor hidden (as
+    rich's live display with ``screen=True`` had it; :data:`~motorctl.daemon.status.monitor.
+    SCREEN_OFF` puts it back as well). :meth:`draw` writes only the lines that differ from
+    the ones on the screen (each where it goes), all of them once the size changed; lines
+    below the screen's height are left out."""
+
+    def __init__(self, console: Console) -> None:
+        self.console = console
+        self.shown: list[Line] = []
+        self.size: tuple[int, int] | None = None
+        self._color_system = COLOR_SYSTEMS.get(console.color_system or "")
+        self._codes: dict[str, tuple[str, str]] = {}
+
+    def __enter__(self) -> Screen:
+        self.console.set_alt_screen(True)
+        self.console.show_cursor(False)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.console.show_cursor(True)
+        self.console.set_alt_screen(False)
+
+    def draw(self, view: View, size: tuple[int, int]) -> str:
+        """Bring the screen (``size``: columns, lines) to ``view``; what was written."""
+        width, height = size
+        lines = view.lines(width)[:height]
+        out = []
+        if size != self.size:
+            self.size, self.shown = size, []
+            out.append(HOME_CLEAR)
+        for i, line in enumerate(lines):
+            if i >= len(self.shown) or self.shown[i] != line:
+                out.append(f"\x1b[{i + 1};1H{self._ansi(line, width)}")
+        out += [f"\x1b[{i + 1};1H{CLEAR_TO_END}" for i in range(len(lines), len(self.shown))]
+        self.shown = lines
+        text = "".join(out)
+        if text:
+            self.console.file.write(text)
+            self.console.file.flush()
+        return text
+
+    def _ansi(self, line: Line, width: int) -> str:
+        """A line as the terminal's characters: its trailing plain spaces left out, the rest
+        of the line cleared (unless the line fills it: the cursor then waits at its last
+        column, where clearing would take that column's character)."""
+        spans = list(line)
+        while spans and not spans[-1][1] and not spans[-1][0].strip():
+            spans.pop()
+        if spans and not spans[-1][1]:
+            spans[-1] = (spans[-1][0].rstrip(), "")
+        out = []
+        for text, style in spans:
+            if style:
+                start, end = self._sgr(style)
+                out.append(f"{start}{text}{end}")
+            else:
+                out.append(text)
+        return "".join(out) + (CLEAR_TO_END if _width(tuple(spans)) < width else "")
+
+    def _sgr(self, style: str) -> tuple[str, str]:
+        codes = self._codes.get(style)
+        if codes is None:
+            marked = self.console.get_style(style).render("\0", color_system=self._color_system)
+            start, _, end = marked.partition("\0")
+            codes = self._codes[style] = (start, end)
+        return codes
+
+
 def watch(
     path: Path,
     period_ms: int,
@@ -469,14 +839,14 @@ def watch(
     ending: Ending | None = None,
 ) -> int:
     """Refresh in the terminal until ``ending`` is requested (SIGINT, SIGTERM: exit 0; it
-    is looked at every ``STOP_POLL_S``; it is told while the monitor's screen is on). Not
-    on a terminal: one drawing per update, one after another. Once the daemon is gone (or
-    cannot be reached), the whole view is marked as the last state seen until updates come
-    again."""
+    is looked at every ``STOP_POLL_S``; it is told while the monitor's screen is on): a
+    drawing whenever what is shown changes (:class:`Watched`), of the lines that changed
+    (:class:`Screen`). Not on a terminal: one drawing per update, one after another. Once
+    the daemon is gone (or cannot be reached), the whole view is marked as the last state
+    seen until updates come again."""
     console = _console(console)
     ending = ending or Ending()
     period_s = max(20, min(60_000, period_ms)) / 1000.0
-    redraw_s = max(0.1, period_s / 2)  # a terminal's "updated N s ago" without an update
     updates: queue.Queue[Seen | str] = queue.Queue()
     reader_stop = threading.Event()
     reader = threading.Thread(
@@ -486,62 +856,31 @@ def watch(
         daemon=True,
     )
     reader.start()
-    last: Seen | None = None
-    before: Seen | None = None
-    stale = ""
-    live = (
-        Live(console=console, screen=console.is_terminal, auto_refresh=False, transient=False)
-        if console.is_terminal
-        else None
-    )
-    redraw_at = time.monotonic() + redraw_s
+    watched = Watched(period_s, path)
+    screen = Screen(console) if console.is_terminal else None
+    drawn: tuple[object, ...] | None = None
     try:
-        with live if live is not None else contextlib.nullcontext():
-            ending.screen = live is not None
+        with screen if screen is not None else contextlib.nullcontext():
+            ending.screen = screen is not None
             while not ending.requested:
                 try:
-                    item = updates.get(timeout=STOP_POLL_S)
+                    item: Seen | str | None = updates.get(timeout=STOP_POLL_S)
                 except queue.Empty:
-                    if live is None or time.monotonic() < redraw_at:
-                        continue
                     item = None
-                redraw_at = time.monotonic() + redraw_s
-                if isinstance(item, Seen):
-                    before, last, stale = last, item, ""
-                elif isinstance(item, str):
-                    stale, before = item, None
-                view = _view(last, before, stale, period_s, path)
-                if live is not None:
-                    live.update(view, refresh=True)
-                elif item is not None:
-                    console.print(view)
-                    console.print(RULE)
+                if item is not None:
+                    watched.take(item)
+                now = time.monotonic()
+                if screen is None:
+                    if item is not None:
+                        console.print(watched.view(now))
+                        console.print(RULE)
+                    continue
+                size = console.size
+                shown = (watched.shown(now), size.width, size.height)
+                if shown != drawn:
+                    drawn = shown
+                    screen.draw(watched.view(now), (size.width, size.height))
     finally:
         ending.screen = False
         reader_stop.set()
     return 0
-
-
-def _view(
-    last: Seen | None, before: Seen | None, stale: str, period_s: float, path: Path
-) -> RenderableType:
-    if last is None:
-        return Text(
-            f"{stale}; retrying every {RETRY_S:.0f} s" if stale else f"connecting to {path} ...",
-            style="yellow",
-        )
-    now = time.monotonic()
-    if stale:
-        return render(
-            last.doc,
-            since_s=now - last.at,
-            note=f"retrying every {RETRY_S:.0f} s; the view comes back with the daemon; "
-            "Ctrl-C quits",
-            stale=stale,
-        )
-    rate = frames_per_second(last, before, now, period_s)
-    footer = (
-        f"updated {now - last.at:.1f} s ago; the daemon sends a change as it "
-        f"comes, looking every {period_s * 1000:.0f} ms; Ctrl-C quits"
-    )
-    return render(last.doc, rate, since_s=now - last.at, note=footer)
