@@ -31,7 +31,7 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -114,7 +114,8 @@ def _cells(text: str) -> int:
 
 
 def _width(line: Line) -> int:
-    return _cells("".join(text for text, _ in line))
+    text = line[0][0] if len(line) == 1 else "".join(text for text, _ in line)
+    return len(text) if text.isascii() else cell_len(text)
 
 
 def _fit(text: str, start: int, width: int) -> int:
@@ -167,16 +168,21 @@ class Para:
     with a base style: ``style`` applies to the whole text, an appended span's own style
     over it."""
 
-    __slots__ = ("base", "spans")
+    __slots__ = ("_laid", "base", "spans")
 
     def __init__(self, text: str = "", style: str = "") -> None:
         self.base = style
         self.spans: list[list[Span]] = [[]]
+        self._laid: tuple[int, list[Line]] | None = None  # its lines at a width
         if text:
             self.append(text)
 
     def append(self, text: str, style: str = "") -> None:
         style = _style(self.base, style)
+        if "\n" not in text:  # most: no new line
+            if text:
+                self.spans[-1].append((text, style))
+            return
         for i, part in enumerate(text.split("\n")):
             if i:
                 self.spans.append([])
@@ -187,7 +193,10 @@ class Para:
         """Its lines, wrapped at ``width`` cells (None: as they are)."""
         if width is None:
             return [tuple(spans) for spans in self.spans]
-        return [wrapped for spans in self.spans for wrapped in _wrap(tuple(spans), width)]
+        if self._laid is None or self._laid[0] != width:
+            lines = [wrapped for spans in self.spans for wrapped in _wrap(tuple(spans), width)]
+            self._laid = (width, lines)
+        return self._laid[1]
 
 
 @dataclass
@@ -203,27 +212,44 @@ class Grid:
     as wide as its widest cell. Too wide for the width: the widest columns that may wrap
     are narrowed and their cells wrapped (what is left over is cut at the edge)."""
 
-    __slots__ = ("columns", "rows", "title")
+    __slots__ = ("_laid", "columns", "rows", "title")
 
     def __init__(self, title: str) -> None:
         self.title = title
         self.columns: list[_Column] = []
-        self.rows: list[list[Para]] = []
+        self.rows: list[list[Para | str]] = []
+        self._laid: tuple[int, list[Line]] | None = None  # its lines at a width
 
     def add_column(self, name: str, justify: str = "left", no_wrap: bool = False) -> None:
         self.columns.append(_Column(name, justify, no_wrap))
 
-    def add_row(self, *cells: Para) -> None:
+    def add_row(self, *cells: Para | str) -> None:
+        """A row of cells: styled text, or plain text (most cells)."""
         self.rows.append(list(cells))
 
     def lines(self, width: int) -> list[Line]:
+        """Its lines for ``width`` cells (none wider)."""
+        if self._laid is None or self._laid[0] != width:
+            self._laid = (width, self._lay(width))
+        return self._laid[1]
+
+    def _lay(self, width: int) -> list[Line]:
         cols = self.columns
         # each cell's lines as they are, and its width: the columns' natural widths
-        cells = [[cell.lines() for cell in row] for row in [[Para(c.name, "bold") for c in cols]]]
-        cells += [[cell.lines() for cell in row] for row in self.rows]
-        widths = [
-            max(max(map(_width, lines)) for lines in column) for column in zip(*cells, strict=True)
-        ]
+        cells: list[list[tuple[Line, ...]]] = [[(((c.name, "bold"),),) for c in cols]]
+        used = [[_cells(c.name) for c in cols]]
+        for given in self.rows:
+            cells.append([])
+            used.append([])
+            for cell in given:
+                if isinstance(cell, str) and "\n" not in cell:  # most cells: plain, one line
+                    cells[-1].append((((cell, ""),),))
+                    used[-1].append(len(cell) if cell.isascii() else cell_len(cell))
+                else:
+                    lines = tuple(map(tuple, (Para(cell) if isinstance(cell, str) else cell).spans))
+                    cells[-1].append(lines)
+                    used[-1].append(max(map(_width, lines)))
+        widths = list(map(max, zip(*used, strict=True)))
         inner = sum(widths) + 3 * len(cols) - 1  # each cell padded by 1, a space between
         excess = inner + 2 - width
         while excess > 0:
@@ -237,39 +263,77 @@ class Grid:
             excess -= cut
         total = sum(widths) + 3 * len(cols) + 1
         out: list[Line] = [((self.title.ljust(total), "italic"),), ((" " * total, ""),)]
-        out += self._row(cells[0], widths, bottom=True)
-        out.append(((" " + "\u2500" * (total - 2) + " ", ""),))
-        for row in cells[1:]:
-            out += self._row(row, widths, bottom=False)
-        out.append(((" " * total, ""),))
-        return [_crop(line, width) for line in out]
-
-    def _row(self, cells: list[list[Line]], widths: list[int], bottom: bool) -> list[Line]:
-        wrapped: list[list[tuple[Line, int]]] = []
-        for lines, w in zip(cells, widths, strict=True):
-            if len(lines) == 1 and (used := _width(lines[0])) <= w:
-                wrapped.append([(lines[0], used)])  # most cells: one line that fits
+        right = [c.justify == "right" for c in cols]
+        for n, (row, sizes) in enumerate(zip(cells, used, strict=True)):
+            if max(map(len, row)) == 1 and all(map(int.__le__, sizes, widths)):
+                out.append(_one_line(row, sizes, widths, right))  # most rows: no cell wraps
             else:
-                wrapped.append([(p, _width(p)) for line in lines for p in _wrap(line, w)])
-        height = max(len(parts) for parts in wrapped)
-        out = []
-        for n in range(height):
-            spans: list[Span] = [(" ", "")]
-            for i, (parts, w) in enumerate(zip(wrapped, widths, strict=True)):
-                at = n - (height - len(parts)) if bottom else n
-                line, used = parts[at] if 0 <= at < len(parts) else ((), 0)
-                pad = " " * (w - used)
-                if self.columns[i].justify == "right":
-                    spans.append(("  " + pad if i else " " + pad, ""))
-                    spans += line
-                    spans.append((" ", ""))
-                else:
-                    spans.append(("  " if i else " ", ""))
-                    spans += line
-                    spans.append((pad + " ", ""))
-            spans.append((" ", ""))
-            out.append(_join(spans))
-        return out
+                out += _lines(row, widths, right, bottom=not n)
+            if not n:  # the header's rule
+                out.append(((" " + "\u2500" * (total - 2) + " ", ""),))
+        out.append(((" " * total, ""),))
+        return out if total <= width else [_crop(line, width) for line in out]
+
+
+def _one_line(
+    row: list[tuple[Line, ...]], sizes: list[int], widths: list[int], right: list[bool]
+) -> Line:
+    """A table's row of cells of one line each, each within its column's width."""
+    spans: list[Span] = []
+    plain = [" "]  # the table's edge; then plain text up to the next styled span
+    for i, (lines, size, w, r) in enumerate(zip(row, sizes, widths, right, strict=True)):
+        plain.append("  " if i else " ")  # a space between columns, the cell's padding
+        pad = " " * (w - size)
+        line = lines[0]
+        if len(line) == 1 and not line[0][1]:  # most cells: plain text
+            plain.append(pad + line[0][0] if r else line[0][0] + pad)
+        else:
+            if r:
+                plain.append(pad)
+            for text, style in line:
+                if not style:
+                    plain.append(text)
+                    continue
+                if any(plain):
+                    spans.append(("".join(plain), ""))
+                plain = []
+                spans.append((text, style))
+            if not r:
+                plain.append(pad)
+        plain.append(" ")
+    plain.append(" ")
+    spans.append(("".join(plain), ""))
+    return tuple(spans)
+
+
+def _lines(
+    row: list[tuple[Line, ...]], widths: list[int], right: list[bool], bottom: bool
+) -> list[Line]:
+    """A table's row of cells of any lines, each wrapped at its column's width; the header's
+    cells at the bottom of the row, the others at its top."""
+    wrapped = [
+        [(p, _width(p)) for line in lines for p in _wrap(line, w)]
+        for lines, w in zip(row, widths, strict=True)
+    ]
+    height = max(len(parts) for parts in wrapped)
+    out = []
+    for n in range(height):
+        spans: list[Span] = [(" ", "")]
+        for i, (parts, w, r) in enumerate(zip(wrapped, widths, right, strict=True)):
+            at = n - (height - len(parts)) if bottom else n
+            line, used = parts[at] if 0 <= at < len(parts) else ((), 0)
+            pad = " " * (w - used)
+            if r:
+                spans.append(("  " + pad if i else " " + pad, ""))
+                spans += line
+                spans.append((" ", ""))
+            else:
+                spans.append(("  " if i else " ", ""))
+                spans += line
+                spans.append((pad + " ", ""))
+        spans.append((" ", ""))
+        out.append(_join(spans))
+    return out
 
 
 def _join(spans: list[Span]) -> Line:
@@ -296,12 +360,18 @@ class View:
     rich (``console.print(view)``) and by :class:`Screen`."""
 
     def __init__(
-        self, blocks: Sequence[Para | Grid], dim: bool = False, banner: Para | None = None
+        self,
+        blocks: Sequence[Para | Grid],
+        dim: bool = False,
+        banner: Para | None = None,
+        parts: Mapping[str, tuple[object, Para | Grid | None]] | None = None,
     ) -> None:
         self.blocks = blocks
         self.dim = dim
         self.banner = banner
         self.notes: list[Para] = []
+        #: each part of the view by name: what it was built from, and the part (see render)
+        self.parts = parts or {}
         self._laid: tuple[int, list[Line]] | None = None
 
     def lines(self, width: int) -> list[Line]:
@@ -329,34 +399,55 @@ def render(
     since_s: float = 0.0,
     note: str = "",
     stale: str = "",
+    before: View | None = None,
 ) -> View:
     """The whole view of ``doc``; ``rate``: frames/s; ``since_s``: how long ago it came
     (frames' ages grow by it); ``note``: a line on the connection; ``stale``: why no update
     comes any more (the daemon stopped, cannot be reached): the whole view is then marked as
-    the last state seen, dimmed, with nothing in it read as live (no "alive", no frames/s)."""
-    parts: list[Para | Grid] = [_header(doc, stale=bool(stale))]
-    parts.append(_motors(doc))
-    timing = _timing(doc)
-    if timing is not None:
-        parts.append(timing)
-    parts.append(_steps(doc))
-    parts.append(_io(doc))
-    parts.append(_link(doc, None if stale else rate))
-    trace = _trace(doc)
-    if trace is not None:
-        parts.append(trace)
-    parts.append(_recent(doc, since_s))
-    drivers = _drivers(doc)
-    if drivers is not None:
-        parts.append(drivers)
-    view = View(parts)
+    the last state seen, dimmed, with nothing in it read as live (no "alive", no frames/s).
+
+    ``before``: the view drawn last, if any: each of its parts built from the same inputs
+    (the parts of the document it reads, compared by value) is taken over as it is, laid
+    out already; the view is the same as without it."""
+    rate = None if stale else rate
+    motors = [_d(m) for m in _l(doc.get("motors"))]
+    recent = _l(_d(doc.get("link")).get("recent"))[-RECENT_SHOWN:]
+    inputs: dict[str, tuple[object, Callable[[], Para | Grid | None]]] = {
+        "header": (
+            (doc.get("executor"), doc.get("uptime_s"), doc.get("state"), bool(stale)),
+            lambda: _header(doc, stale=bool(stale)),
+        ),
+        "motors": (doc.get("motors"), lambda: _motors(doc)),
+        "timing": (
+            [
+                (m.get("index"), m.get("timing"), m.get("faults"), "timing" in m, "faults" in m)
+                for m in motors
+            ],
+            lambda: _timing(doc),
+        ),
+        "steps": (
+            (doc.get("steps"), doc.get("hard_stops"), doc.get("clamped")),
+            lambda: _steps(doc),
+        ),
+        "io": ((doc.get("pins"), doc.get("dc"), "pins" in doc, "dc" in doc), lambda: _io(doc)),
+        "link": ((doc.get("link"), rate), lambda: _link(doc, rate)),
+        "trace": (doc.get("trace"), lambda: _trace(doc)),
+        "recent": ((recent, doc.get("monotonic_s"), since_s), lambda: _recent(doc, since_s)),
+        "drivers": (doc.get("drivers"), lambda: _drivers(doc)),
+    }
+    built: dict[str, tuple[object, Para | Grid | None]] = {}
+    for name, (key, build) in inputs.items():
+        old = before.parts.get(name) if before is not None else None
+        built[name] = old if old is not None and old[0] == key else (key, build())
+    parts = [part for _, part in built.values() if part is not None]
+    view = View(parts, parts=built)
     if stale:
         banner = Para(
             f"NOT LIVE: {stale}. Everything below is the last state motorctld reported, "
             f"{_ago(since_s)} ago.",
             style="bold white on red",
         )
-        view = View(parts, dim=True, banner=banner)
+        view = View(parts, dim=True, banner=banner, parts=built)
     if note:
         view.notes.append(Para(note, style="yellow"))
     return view
@@ -418,13 +509,13 @@ def _motors(doc: Mapping[str, Any]) -> Grid:
                 " (position lost: home it)" if fault else "position lost: home it", style="yellow"
             )
         table.add_row(
-            Para(str(m.get("index", "?"))),
-            Para(str(m.get("name", ""))),
+            str(m.get("index", "?")),
+            str(m.get("name", "")),
             Para(state, style=style),
-            Para(_num(m.get("position"))),
-            Para(_num(m.get("speed"), "{:,.0f}")),
-            Para(_num(m.get("queued"))),
-            Para(_num(m.get("waypoints"))),
+            _num(m.get("position")),
+            _num(m.get("speed"), "{:,.0f}"),
+            _num(m.get("queued")),
+            _num(m.get("waypoints")),
             fault_text,
         )
     return table
@@ -455,15 +546,15 @@ def _timing(doc: Mapping[str, Any]) -> Grid | None:
             or "none"
         )
         table.add_row(
-            Para(str(m.get("index", "?"))),
-            Para(_num(t.get("late_absorbed"))),
-            Para(_num(t.get("slid_ms"), "{:,.1f}")),
-            Para(_num(t.get("worst_late_us"), "{:,.0f}")),
-            Para(_num(t.get("worst_lag_full_steps"), "{:,.2f}")),
-            Para(_num(t.get("max_lag_full_steps"), "{:,.2f}")),
-            Para(_num(t.get("microsteps"))),
-            Para(_num(t.get("lag_faults"))),
-            Para(faults),
+            str(m.get("index", "?")),
+            _num(t.get("late_absorbed")),
+            _num(t.get("slid_ms"), "{:,.1f}"),
+            _num(t.get("worst_late_us"), "{:,.0f}"),
+            _num(t.get("worst_lag_full_steps"), "{:,.2f}"),
+            _num(t.get("max_lag_full_steps"), "{:,.2f}"),
+            _num(t.get("microsteps")),
+            _num(t.get("lag_faults")),
+            faults,
         )
     return table
 
@@ -603,9 +694,9 @@ def _recent(doc: Mapping[str, Any], since_s: float) -> Grid:
         result = r.get("result")
         style = "red" if isinstance(result, str) and result.startswith("E") else ""
         table.add_row(
-            Para(_num(age, "{:.1f}", "?")),
-            Para(str(r.get("frame", ""))),
-            Para(str(r.get("command", ""))),
+            _num(age, "{:.1f}", "?"),
+            str(r.get("frame", "")),
+            str(r.get("command", "")),
             Para("(owed)" if result is None else str(result), style=style),
         )
     return table
@@ -707,6 +798,7 @@ class Watched:
         self.before: Seen | None = None
         self.stale = ""
         self.taken = 0
+        self.drawn: View | None = None  # the last view built: its unchanged parts are reused
 
     def take(self, item: Seen | str) -> None:
         """An update, or why none come (the view is then stale until the next update)."""
@@ -744,18 +836,23 @@ class Watched:
             )
         since = self.since(now)
         if self.stale:
-            return render(
+            self.drawn = render(
                 self.last.doc,
                 since_s=since,
                 note=f"retrying every {RETRY_S:.0f} s; the view comes back with the daemon; "
                 "Ctrl-C quits",
                 stale=self.stale,
+                before=self.drawn,
             )
-        footer = (
-            f"updated {since:.0f} s ago; the daemon sends a change as it comes, looking "
-            f"every {self.period_s * 1000:.0f} ms; Ctrl-C quits"
-        )
-        return render(self.last.doc, self.rate(now), since_s=since, note=footer)
+        else:
+            footer = (
+                f"updated {since:.0f} s ago; the daemon sends a change as it comes, looking "
+                f"every {self.period_s * 1000:.0f} ms; Ctrl-C quits"
+            )
+            self.drawn = render(
+                self.last.doc, self.rate(now), since_s=since, note=footer, before=self.drawn
+            )
+        return self.drawn
 
 
 #: the terminal's control sequences :class:`Screen` writes itself
