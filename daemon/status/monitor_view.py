@@ -180,8 +180,11 @@ class Para:
     def append(self, text: str, style: str = "") -> None:
         style = _style(self.base, style)
         if "\n" not in text:  # most: no new line
-            if text:
-                self.spans[-1].append((text, style))
+            line = self.spans[-1]
+            if line and line[-1][1] == style:  # one span for text of one style
+                line[-1] = (line[-1][0] + text, style)
+            elif text:
+                line.append((text, style))
             return
         for i, part in enumerate(text.split("\n")):
             if i:
@@ -262,7 +265,8 @@ class Grid:
             widths[widest] -= cut
             excess -= cut
         total = sum(widths) + 3 * len(cols) + 1
-        out: list[Line] = [((self.title.ljust(total), "italic"),), ((" " * total, ""),)]
+        title = ((self.title, "italic"), (" " * (total - _cells(self.title)), ""))
+        out: list[Line] = [title, ((" " * total, ""),)]
         right = [c.justify == "right" for c in cols]
         for n, (row, sizes) in enumerate(zip(cells, used, strict=True)):
             if max(map(len, row)) == 1 and all(map(int.__le__, sizes, widths)):
