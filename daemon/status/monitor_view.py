@@ -380,8 +380,8 @@ class View:
 
     def lines(self, width: int) -> list[Line]:
         """The view's lines at ``width`` (none wider)."""
+        width = max(width, 1)
         if self._laid is None or self._laid[0] != width:
-            width = max(width, 1)
             body = [line for block in self.blocks for line in block.lines(width)]
             if self.dim:
                 body = [tuple((t, _style("dim", s)) for t, s in line) for line in body]
