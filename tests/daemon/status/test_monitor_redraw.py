@@ -21,15 +21,9 @@ import pytest
 from rich.console import Console
 
 from motorctl.daemon.status.monitor import Ending
-from motorctl.daemon.status.monitor_view import (
-    HOME_CLEAR,
-    Screen,
-    Seen,
-    View,
-    Watched,
-    render,
-    watch,
-)
+from motorctl.daemon.status.monitor_layout import View
+from motorctl.daemon.status.monitor_screen import HOME_CLEAR, Screen
+from motorctl.daemon.status.monitor_view import Seen, Watched, render, watch
 from motorctl.daemon.status.server import StatusServer
 from tests.daemon.status.test_metrics import DOC
 from tests.support.wait import until
