@@ -16,10 +16,14 @@ at --rate step/s each. Four windows of --seconds each, on that one daemon:
            figures (``kept_*`` in --json; ``--no-kept`` leaves it out)
   monitor  ``motorctl monitor --period 100`` (10 updates a second while the motors move) on
            a terminal of its own (a PTY of 120 x 50, drained as a terminal would): the
-           daemon's CPU above the idle window, and the monitor process's own
+           daemon's CPU above the idle window, the monitor process's own, and the bytes a
+           second it writes to its terminal; then once more with the motors stopped (at
+           rest: the daemon sends an update only when something changed)
 
 The daemon's CPU is its user + system time from /proc/PID/stat (every thread of it; the
-process executor's own process not counted: it steps the same with or without readers).
+process executor's own process not counted: it steps the same with or without readers);
+the monitor's is the time its threads ran (/proc/PID/task/*/schedstat, in ns: a tick of
+/proc/PID/stat is 10 ms, 0.2 % of a CPU over a 5 s window).
 Targets (issue 36): at most 0.1 ms of the daemon's CPU per read at 1,000 reads a second;
 the monitor at 10 Hz under 1 % of a CPU.
 
@@ -30,6 +34,7 @@ quiet machine, with real-time priority). ``--json FILE`` writes the figures (fla
 from __future__ import annotations
 
 import argparse
+import contextlib
 import fcntl
 import json
 import os
@@ -67,6 +72,17 @@ def cpu_s(pid: int) -> float:
     """User + system CPU time of process ``pid`` (its threads; not its children)."""
     fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def run_s(pid: int) -> float:
+    """The time process ``pid``'s threads have run (/proc/PID/task/*/schedstat: in ns,
+    where /proc/PID/stat counts in clock ticks of 10 ms: too coarse for a process that
+    takes under 1 % of a CPU)."""
+    total = 0
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):
+            total += int((task / "schedstat").read_text().split()[0])
+    return total / 1e9
 
 
 def read_paced(
@@ -110,20 +126,24 @@ def idle_window(pid: int, seconds: float) -> float:
     return (cpu_s(pid) - cpu0) / (time.monotonic() - t0)
 
 
-def drain(fd: int, stop: threading.Event) -> None:
-    """Read what the monitor draws, as its terminal would, until it is gone."""
+def drain(fd: int, stop: threading.Event, count: list[int]) -> None:
+    """Read what the monitor draws, as its terminal would, until it is gone; ``count[0]``:
+    the bytes read so far."""
     while not stop.is_set():
         try:
-            if not os.read(fd, 65536):
-                return
+            data = os.read(fd, 65536)
         except OSError:
             return
+        if not data:
+            return
+        count[0] += len(data)
 
 
 def monitor_window(state_dir: Path, seconds: float, daemon_pid: int) -> dict[str, float]:
-    """``motorctl monitor --period 100`` on a PTY for ``seconds``: (the daemon's CPU in the
-    window, the monitor's, both in % of a CPU). The monitor's start-up is left out: the
-    window begins once it has drawn its first view."""
+    """``motorctl monitor --period 100`` on a PTY for ``seconds``: the daemon's CPU in the
+    window and the monitor's (s of CPU a second), the bytes a second the monitor wrote to
+    its terminal. The monitor's start-up is left out: the window begins once it has drawn
+    its first view."""
     master, slave = pty.openpty()
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 50, 120, 0, 0))
     env = {**os.environ, "TERM": "xterm-256color", "COLUMNS": "120", "LINES": "50"}
@@ -143,6 +163,7 @@ def monitor_window(state_dir: Path, seconds: float, daemon_pid: int) -> dict[str
     os.close(slave)
     stop = threading.Event()
     first = threading.Event()
+    written = [0]
 
     def follow() -> None:
         # the first bytes: it is up and drawing; then drain until it is gone
@@ -151,7 +172,7 @@ def monitor_window(state_dir: Path, seconds: float, daemon_pid: int) -> dict[str
                 first.set()
         except OSError:
             return
-        drain(master, stop)
+        drain(master, stop, written)
 
     reader = threading.Thread(target=follow, daemon=True)
     reader.start()
@@ -159,9 +180,9 @@ def monitor_window(state_dir: Path, seconds: float, daemon_pid: int) -> dict[str
         if not first.wait(30):
             raise RuntimeError("motorctl monitor drew nothing within 30 s")
         time.sleep(1.0)  # past its imports and its first full drawings
-        d0, m0, t0 = cpu_s(daemon_pid), cpu_s(proc.pid), time.monotonic()
+        d0, m0, t0, w0 = cpu_s(daemon_pid), run_s(proc.pid), time.monotonic(), written[0]
         time.sleep(seconds)
-        d1, m1, t1 = cpu_s(daemon_pid), cpu_s(proc.pid), time.monotonic()
+        d1, m1, t1, w1 = cpu_s(daemon_pid), run_s(proc.pid), time.monotonic(), written[0]
     finally:
         proc.terminate()
         try:
@@ -172,7 +193,11 @@ def monitor_window(state_dir: Path, seconds: float, daemon_pid: int) -> dict[str
         stop.set()
         os.close(master)
         reader.join(5)
-    return {"daemon": (d1 - d0) / (t1 - t0), "monitor": (m1 - m0) / (t1 - t0)}
+    return {
+        "daemon": (d1 - d0) / (t1 - t0),
+        "monitor": (m1 - m0) / (t1 - t0),
+        "bytes": (w1 - w0) / (t1 - t0),
+    }
 
 
 def measure(args: argparse.Namespace) -> dict[str, Any]:
@@ -207,6 +232,7 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
                 after = d.status()
                 for m in range(3):
                     c.stop(m, hard=True)
+                rest = None if args.no_monitor else monitor_window(d.state_dir, args.seconds, pid)
         finally:
             d.close()
             shutil.rmtree(work / "state", ignore_errors=True)
@@ -247,7 +273,13 @@ def measure(args: argparse.Namespace) -> dict[str, Any]:
             monitor_period_ms=MONITOR_PERIOD_MS,
             monitor_daemon_cpu_percent=round(100 * (monitor["daemon"] - idle), 2),
             monitor_own_cpu_percent=round(100 * monitor["monitor"], 2),
+            monitor_bytes_per_s=round(monitor["bytes"]),
             monitor_target_percent=MONITOR_TARGET_PERCENT,
+        )
+    if rest is not None:
+        fig.update(
+            monitor_at_rest_own_cpu_percent=round(100 * rest["monitor"], 2),
+            monitor_at_rest_bytes_per_s=round(rest["bytes"]),
         )
     return fig
 
@@ -294,7 +326,13 @@ def main() -> int:
             f"  motorctl monitor --period {MONITOR_PERIOD_MS} on a terminal: the daemon "
             f"{fig['monitor_daemon_cpu_percent']} % of a CPU above the motors' own, the "
             f"monitor itself {fig['monitor_own_cpu_percent']} % (target < "
-            f"{MONITOR_TARGET_PERCENT:.0f} %)"
+            f"{MONITOR_TARGET_PERCENT:.0f} %), writing {fig['monitor_bytes_per_s']:,} bytes/s"
+        )
+    if "monitor_at_rest_own_cpu_percent" in fig:
+        print(
+            f"  the same with every motor at rest: the monitor itself "
+            f"{fig['monitor_at_rest_own_cpu_percent']} % of a CPU, writing "
+            f"{fig['monitor_at_rest_bytes_per_s']:,} bytes/s"
         )
     if args.json:
         Path(args.json).write_text(json.dumps(fig, indent=1))

@@ -34,7 +34,7 @@ RICH_MISSING = (
 #: after SIGINT or SIGTERM, how long the monitor has to end in order before it is cut short
 GRACE_S = 0.3
 #: what puts a terminal back as the monitor's screen found it: the cursor shown, the main
-#: screen back (rich's Live leaves the same way)
+#: screen back (monitor_screen.Screen leaves the same way)
 SCREEN_OFF = b"\x1b[?25h\x1b[?1049l"
 
 

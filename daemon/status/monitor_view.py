@@ -1,14 +1,25 @@
-"""The live monitor's view: a status document drawn with ``rich`` (only this module imports
-it; :mod:`motorctl.daemon.status.monitor` is the entry point and says what to install without it).
+"""The live monitor's view: a status document drawn for a terminal or a log, and when to
+draw it. :mod:`motorctl.daemon.status.monitor` is the entry point and says what to install
+without ``rich``; this module and the ones it draws with (monitor_layout.py: styled lines
+and tables; monitor_parts.py: each part of a document; monitor_screen.py: the terminal)
+are the only ones that import it.
 
-:func:`render` is pure: a document (and the one before it, for rates) in, a renderable out,
-so tests draw a known state into a string. :func:`watch` follows the subscription
-(docs/status.md) on a reader thread and redraws on each update and every half period (the
-frames' ages move; no update within a period means nothing changed, so frames/s is 0), and
-reconnects when the daemon restarts; while the daemon is gone the whole view is marked as
-the last state seen (a banner, dimmed, nothing read as live). Off a terminal lines are not
-wrapped at 80 columns. Every field is read defensively: an older or newer
-daemon, or one without per-motor timing figures, draws what it has.
+:func:`render` is pure: a document (and the one before it, for rates) in, a
+:class:`~motorctl.daemon.status.monitor_layout.View` out, so tests draw a known state into a
+string. rich prints a view (``--once``, off a terminal, the tests); on a terminal
+:class:`~motorctl.daemon.status.monitor_screen.Screen` writes only the lines that changed.
+
+:func:`watch` follows the subscription (docs/status.md) on a reader thread and draws again
+only when what it shows changes (:class:`Watched`): an update (the daemon sends one only
+when something changed), the daemon gone or back, the frames/s falling to 0, or another
+whole second since the last update (the ages shown move in whole seconds; at rest that is
+one drawing a second of the few lines that changed). It reconnects when the daemon
+restarts; while the daemon is gone the whole view is marked as the last state seen (a
+banner, dimmed, nothing read as live). Off a terminal lines are not wrapped at 80 columns.
+
+Threads: the caller's thread draws and owns every object here (:class:`Watched`, the
+screen, the views); :func:`_follow` runs on the reader thread and hands updates over
+through a queue.
 """
 
 from __future__ import annotations
@@ -18,22 +29,34 @@ import os
 import queue
 import threading
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from rich import box
-from rich.console import Console, Group, RenderableType
-from rich.live import Live
-from rich.styled import Styled
-from rich.table import Table
+from rich.console import Console
 from rich.text import Text
 
 from motorctl.daemon.status.monitor import Ending
+from motorctl.daemon.status.monitor_layout import Grid, Para, View
+from motorctl.daemon.status.monitor_parts import (
+    RECENT_SHOWN,
+    as_list,
+    as_map,
+    drivers_para,
+    duration,
+    header_para,
+    io_para,
+    link_para,
+    motors_grid,
+    recent_grid,
+    steps_para,
+    timing_grid,
+    trace_para,
+)
+from motorctl.daemon.status.monitor_screen import Screen
 from motorctl.daemon.status.reader import StatusError, read_status, subscribe
 
-RECENT_SHOWN = 8
 RETRY_S = 1.0
 STOP_POLL_S = 0.1  # how often the drawing loop looks whether it is to end (SIGINT, SIGTERM)
 
@@ -46,28 +69,6 @@ class Seen:
     at: float
 
 
-def _d(value: object) -> Mapping[str, Any]:
-    return value if isinstance(value, Mapping) else {}
-
-
-def _l(value: object) -> Sequence[Any]:
-    return value if isinstance(value, list) else []
-
-
-def _num(value: object, fmt: str = "{:,}", none: str = "-") -> str:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return none
-    return fmt.format(value)
-
-
-def _duration(seconds: object) -> str:
-    if not isinstance(seconds, int | float):
-        return "?"
-    s = int(seconds)
-    h, rest = divmod(s, 3600)
-    return f"{h}:{rest // 60:02d}:{rest % 60:02d}"
-
-
 def frames_per_second(
     now: Seen, before: Seen | None, local_now: float, period_s: float
 ) -> float | None:
@@ -78,8 +79,8 @@ def frames_per_second(
         return None
     if local_now - now.at > 1.5 * period_s + 0.5:
         return 0.0
-    frames = _d(_d(now.doc.get("link")).get("counters")).get("frames")
-    frames0 = _d(_d(before.doc.get("link")).get("counters")).get("frames")
+    frames = as_map(as_map(now.doc.get("link")).get("counters")).get("frames")
+    frames0 = as_map(as_map(before.doc.get("link")).get("counters")).get("frames")
     t, t0 = now.doc.get("monotonic_s"), before.doc.get("monotonic_s")
     if not all(isinstance(v, int | float) for v in (frames, frames0, t, t0)):
         return None
@@ -94,313 +95,65 @@ def render(
     since_s: float = 0.0,
     note: str = "",
     stale: str = "",
-) -> RenderableType:
+    before: View | None = None,
+) -> View:
     """The whole view of ``doc``; ``rate``: frames/s; ``since_s``: how long ago it came
     (frames' ages grow by it); ``note``: a line on the connection; ``stale``: why no update
     comes any more (the daemon stopped, cannot be reached): the whole view is then marked as
-    the last state seen, dimmed, with nothing in it read as live (no "alive", no frames/s)."""
-    parts: list[RenderableType] = [_header(doc, stale=bool(stale))]
-    parts.append(_motors(doc))
-    timing = _timing(doc)
-    if timing is not None:
-        parts.append(timing)
-    parts.append(_steps(doc))
-    parts.append(_io(doc))
-    parts.append(_link(doc, None if stale else rate))
-    trace = _trace(doc)
-    if trace is not None:
-        parts.append(trace)
-    parts.append(_recent(doc, since_s))
-    drivers = _drivers(doc)
-    if drivers is not None:
-        parts.append(drivers)
-    view: list[RenderableType] = parts
+    the last state seen, dimmed, with nothing in it read as live (no "alive", no frames/s).
+
+    ``before``: the view drawn last, if any: each of its parts built from the same inputs
+    (the parts of the document it reads, compared by value) is taken over as it is, laid
+    out already; the view is the same as without it."""
+    rate = None if stale else rate
+    motors = [as_map(m) for m in as_list(doc.get("motors"))]
+    recent = as_list(as_map(doc.get("link")).get("recent"))[-RECENT_SHOWN:]
+    inputs: dict[str, tuple[object, Callable[[], Para | Grid | None]]] = {
+        "header": (
+            (doc.get("executor"), doc.get("uptime_s"), doc.get("state"), bool(stale)),
+            lambda: header_para(doc, stale=bool(stale)),
+        ),
+        "motors": (doc.get("motors"), lambda: motors_grid(doc)),
+        "timing": (
+            [
+                (m.get("index"), m.get("timing"), m.get("faults"), "timing" in m, "faults" in m)
+                for m in motors
+            ],
+            lambda: timing_grid(doc),
+        ),
+        "steps": (
+            (doc.get("steps"), doc.get("hard_stops"), doc.get("clamped")),
+            lambda: steps_para(doc),
+        ),
+        "io": ((doc.get("pins"), doc.get("dc"), "pins" in doc, "dc" in doc), lambda: io_para(doc)),
+        "link": ((doc.get("link"), rate), lambda: link_para(doc, rate)),
+        "trace": (doc.get("trace"), lambda: trace_para(doc)),
+        "recent": ((recent, doc.get("monotonic_s"), since_s), lambda: recent_grid(doc, since_s)),
+        "drivers": (doc.get("drivers"), lambda: drivers_para(doc)),
+    }
+    built: dict[str, tuple[object, Para | Grid | None]] = {}
+    for name, (key, build) in inputs.items():
+        old = before.parts.get(name) if before is not None else None
+        built[name] = old if old is not None and old[0] == key else (key, build())
+    parts = [part for _, part in built.values() if part is not None]
+    view = View(parts, parts=built)
     if stale:
-        banner = Text(
+        banner = Para(
             f"NOT LIVE: {stale}. Everything below is the last state motorctld reported, "
             f"{_ago(since_s)} ago.",
             style="bold white on red",
         )
-        view = [banner, Styled(Group(*parts), "dim")]
+        view = View(parts, dim=True, banner=banner, parts=built)
     if note:
-        view.append(Text(note, style="yellow"))
-    return Group(*view)
+        view.notes.append(Para(note, style="yellow"))
+    return view
 
 
 def _ago(seconds: float) -> str:
-    return f"{seconds:.1f} s" if seconds < 60 else _duration(seconds)
+    return f"{seconds:.1f} s" if seconds < 60 else duration(seconds)
 
 
-def _header(doc: Mapping[str, Any], stale: bool = False) -> Text:
-    ex = _d(doc.get("executor"))
-    text = Text("motorctld", style="bold")
-    if stale:
-        text.append(" (last seen)", style="bold red")
-    text.append(f"  up {_duration(doc.get('uptime_s'))}" + (" then" if stale else ""))
-    alive = ex.get("alive")
-    text.append("  executor ")
-    text.append(f"{ex.get('kind', '?')}", style="bold")
-    if ex.get("core"):  # the step core (a daemon before issue 24 does not say)
-        text.append(f", {ex.get('core')} core")
-    if ex.get("pid"):
-        text.append(f" (pid {ex.get('pid')})")
-    if alive is False:
-        text.append(f" DEAD: {ex.get('reason')}", style="bold red")
-    elif alive and stale:
-        text.append(" state unknown")
-    elif alive:
-        text.append(" alive", style="green")
-    state = _d(doc.get("state"))
-    if state:
-        if state.get("ok", True):
-            text.append(f"  state file ok ({_num(state.get('writes'))} writes)")
-        else:
-            text.append(f"  STATE NOT SAVED: {state.get('last_error')}", style="bold red")
-    return text
-
-
-def _motors(doc: Mapping[str, Any]) -> Table:
-    table = Table(
-        title="motors", title_justify="left", box=box.SIMPLE_HEAD, expand=False, padding=(0, 1)
-    )
-    for name, justify in (
-        ("#", "right"),
-        ("name", "left"),
-        ("state", "left"),
-        ("position", "right"),
-        ("speed step/s", "right"),
-        ("queued", "right"),
-        ("waypoints", "right"),
-        ("fault", "left"),
-    ):
-        table.add_column(name, justify=justify)  # type: ignore[arg-type]
-    for m in _l(doc.get("motors")):
-        m = _d(m)
-        state = str(m.get("state", "?"))
-        style = {"idle": "", "fault": "bold red"}.get(state, "bold green")
-        fault = m.get("fault")
-        fault_text = Text(str(fault), style="red") if fault else Text("")
-        if m.get("position_lost"):
-            fault_text.append(
-                " (position lost: home it)" if fault else "position lost: home it", style="yellow"
-            )
-        table.add_row(
-            Text(str(m.get("index", "?"))),
-            Text(str(m.get("name", ""))),
-            Text(state, style=style),
-            Text(_num(m.get("position"))),
-            Text(_num(m.get("speed"), "{:,.0f}")),
-            Text(_num(m.get("queued"))),
-            Text(_num(m.get("waypoints"))),
-            fault_text,
-        )
-    return table
-
-
-def _timing(doc: Mapping[str, Any]) -> Table | None:
-    """Per-motor step timing and faults by cause (issue 15), when the daemon reports them."""
-    motors = [_d(m) for m in _l(doc.get("motors"))]
-    if not any("timing" in m or "faults" in m for m in motors):
-        return None
-    table = Table(
-        title="step timing per motor", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1)
-    )
-    for name in (
-        "#",
-        "late absorbed",
-        "slid ms",
-        "worst late us",
-        "worst lag fs",
-        "lag limit fs",
-        "microsteps",
-        "lag faults",
-        "faults by cause",
-    ):
-        table.add_column(name, justify="left" if name == "faults by cause" else "right")
-    for m in motors:
-        t = _d(m.get("timing"))
-        faults = (
-            ", ".join(f"{cause} {count}" for cause, count in sorted(_d(m.get("faults")).items()))
-            or "none"
-        )
-        table.add_row(
-            Text(str(m.get("index", "?"))),
-            Text(_num(t.get("late_absorbed"))),
-            Text(_num(t.get("slid_ms"), "{:,.1f}")),
-            Text(_num(t.get("worst_late_us"), "{:,.0f}")),
-            Text(_num(t.get("worst_lag_full_steps"), "{:,.2f}")),
-            Text(_num(t.get("max_lag_full_steps"), "{:,.2f}")),
-            Text(_num(t.get("microsteps"))),
-            Text(_num(t.get("lag_faults"))),
-            Text(faults),
-        )
-    return table
-
-
-def _steps(doc: Mapping[str, Any]) -> Text:
-    s = _d(doc.get("steps"))
-    text = Text("step edges ", style="bold")
-    text.append(_num(s.get("steps")))
-    text.append(
-        f"  lateness p50 {_num(s.get('p50_us'), '{:.0f}')}"
-        f" p99 {_num(s.get('p99_us'), '{:.0f}')}"
-        f" p99.9 {_num(s.get('p999_us'), '{:.0f}')}"
-        f" max {_num(s.get('max_us'), '{:.0f}')} us"
-    )
-    late = s.get("late")
-    text.append(f"  late (>{_num(s.get('late_threshold_us'), '{:.0f}')} us) ")
-    text.append(_num(late), style="yellow" if late else "")
-    for key, label in (("timing_lost", "timing lost"), ("io_errors", "io errors")):
-        value = s.get(key)
-        text.append(f"  {label} ")
-        text.append(_num(value), style="bold red" if value else "")
-    # planned segments a re-plan or stop replaced before they ran: normal, no alarm
-    text.append(f"  segments discarded {_num(s.get('segments_discarded'))}")
-    stops = _d(doc.get("hard_stops"))
-    if stops:
-        text.append(
-            f"\nhard stops confirmed {_num(stops.get('confirmed'))}"
-            f" timed out {_num(stops.get('timed_out'))}"
-            f"  wait p99 {_num(stops.get('wait_p99_us'), '{:.0f}')} us"
-        )
-    clamped = _d(doc.get("clamped"))
-    if clamped:
-        text.append("  clamped " + ", ".join(f"{k} {v}" for k, v in sorted(clamped.items())))
-    return text
-
-
-def _io(doc: Mapping[str, Any]) -> Text:
-    text = Text("pins ", style="bold")
-    pins = [_d(p) for p in _l(doc.get("pins"))]
-    if not pins:
-        text.append("none configured" if "pins" in doc else "not reported")
-    for i, p in enumerate(pins):
-        if i:
-            text.append("  ")
-        level = p.get("level")
-        word = "?" if level is None else ("H" if level else "L")
-        text.append(f"{p.get('number')}:{'out' if p.get('output') else 'in'} ")
-        text.append(word, style="bold green" if level else "")
-    text.append("\nDC motor ", style="bold")
-    dc = doc.get("dc")
-    if isinstance(dc, Mapping):
-        text.append(str(dc.get("state", "?")), style="bold green" if dc.get("running") else "")
-        if dc.get("running"):
-            text.append(f", {_num(dc.get('left_s'), '{:.1f}')} s left")
-    else:
-        text.append("none configured" if "dc" in doc else "not reported")
-    return text
-
-
-def _link(doc: Mapping[str, Any], rate: float | None) -> Text:
-    link = _d(doc.get("link"))
-    text = Text("link ", style="bold")
-    if not link:
-        text.append("not serving")
-        return text
-    c = _d(link.get("counters"))
-    text.append(f"host port {link.get('peer', '?')}  frames {_num(c.get('frames'))}")
-    if rate is not None:  # none from a single document (--once) or a stale view
-        text.append(f" ({rate:,.1f}/s)")
-    bad = {
-        k.removesuffix("_errors"): v
-        for k, v in c.items()
-        if k.endswith("_errors") and k not in ("link_errors", "internal_errors") and v
-    }
-    text.append("  bad frames ")
-    text.append(
-        ", ".join(f"{k} {v}" for k, v in sorted(bad.items())) or "0", style="yellow" if bad else ""
-    )
-    sent = {k.removeprefix("sent_"): v for k, v in c.items() if k.startswith("sent_") and v}
-    text.append("  errors sent ")
-    text.append(
-        ", ".join(f"{k}x{v}" for k, v in sorted(sent.items())) or "none",
-        style="yellow" if sent else "",
-    )
-    text.append(
-        f"\n     held {_num(link.get('held'))} (max {_num(c.get('held_max'))})"
-        f"  waiting {'yes' if link.get('waiting') else 'no'}"
-        f"  gap discards {_num(c.get('gap_discards'))}"
-    )
-    p = _d(link.get("processing"))
-    text.append(
-        f"  processing p50 {_num(p.get('p50_us'), '{:.0f}')}"
-        f" p99 {_num(p.get('p99_us'), '{:.0f}')} max {_num(p.get('max_us'), '{:.0f}')} us"
-    )
-    for key in ("link_errors", "internal_errors", "responses_dropped"):
-        if c.get(key):
-            text.append(f"  {key.replace('_', ' ')} {c[key]}", style="bold red")
-    return text
-
-
-def _trace(doc: Mapping[str, Any]) -> Text | None:
-    """The link's trace (motorctld --trace), when it records one."""
-    t = _d(doc.get("trace"))
-    if not t:
-        return None
-    text = Text("trace ", style="bold")
-    text.append(f"{t.get('file', '?')}")
-    if t.get("part"):
-        text.append(f" (part {t.get('part')} of session {t.get('session', '?')})")
-    text.append(f"  runs {_num(t.get('runs'))}  written {_num(t.get('bytes_written'))} bytes")
-    for key, label in (
-        ("dropped_runs", "runs left out"),
-        ("write_errors", "write errors"),
-        ("lost_bytes", "bytes lost"),
-    ):
-        value = t.get(key)
-        text.append(f"  {label} ")
-        text.append(_num(value), style="bold red" if value else "")
-    return text
-
-
-def _recent(doc: Mapping[str, Any], since_s: float) -> Table:
-    table = Table(title="last frames", title_justify="left", box=box.SIMPLE_HEAD, padding=(0, 1))
-    table.add_column("age s", justify="right", no_wrap=True)
-    table.add_column("frame", no_wrap=True)
-    table.add_column("command")
-    table.add_column("answer", no_wrap=True)
-    now = doc.get("monotonic_s")
-    recent = [_d(r) for r in _l(_d(doc.get("link")).get("recent"))]
-    for r in reversed(recent[-RECENT_SHOWN:]):
-        at = r.get("at_s")
-        age = (
-            (now - at + since_s)
-            if isinstance(now, int | float) and isinstance(at, int | float)
-            else None
-        )
-        result = r.get("result")
-        style = "red" if isinstance(result, str) and result.startswith("E") else ""
-        table.add_row(
-            Text(_num(age, "{:.1f}", "?")),
-            Text(str(r.get("frame", ""))),
-            Text(str(r.get("command", ""))),
-            Text("(owed)" if result is None else str(result), style=style),
-        )
-    return table
-
-
-def _drivers(doc: Mapping[str, Any]) -> Text | None:
-    drivers = [_d(d) for d in _l(doc.get("drivers"))]
-    if not drivers:
-        return None
-    text = Text("drivers", style="bold")
-    for d in drivers:
-        text.append(
-            f"\n  {d.get('chip')} {d.get('device')}: polls {_num(d.get('polls'))}"
-            f"  spi errors {_num(d.get('spi_errors'))}  "
-            + (f"DRV_STATUS {d.get('drv_status')}" if "drv_status" in d else "")
-            + (f"#{d.get('chain_position')} STATUS {d.get('status')}" if "status" in d else "")
-        )
-        faults = _d(d.get("fault_counts"))
-        if faults:
-            text.append(
-                "  faults " + ", ".join(f"{k} {v}" for k, v in sorted(faults.items())), style="red"
-            )
-    return text
-
-
-# -- the terminal ---------------------------------------------------------------------------
+# -- drawing: once, or watching ---------------------------------------------------------------
 NO_WRAP = 1000  # columns off a terminal: each line as long as it is (COLUMNS still wins)
 RULE = "-" * 72  # between drawings off a terminal
 
@@ -462,6 +215,77 @@ def _follow(
         stop.wait(RETRY_S)
 
 
+class Watched:
+    """What the monitor shows, from the updates taken so far (:meth:`take`), and what a
+    drawing at a moment depends on (:meth:`shown`): a drawing is due only when that
+    changes. Ages are shown in whole seconds since the last update, so at rest (no update)
+    the view changes once a second, not at every look. ``now`` is given to every method (a
+    clock reading, time.monotonic's as :class:`Seen`'s): tests choose it."""
+
+    def __init__(self, period_s: float, path: Path) -> None:
+        self.period_s = period_s
+        self.path = path
+        self.last: Seen | None = None
+        self.before: Seen | None = None
+        self.stale = ""
+        self.taken = 0
+        self.drawn: View | None = None  # the last view built: its unchanged parts are reused
+
+    def take(self, item: Seen | str) -> None:
+        """An update, or why none come (the view is then stale until the next update)."""
+        self.taken += 1
+        if isinstance(item, Seen):
+            self.before, self.last, self.stale = self.last, item, ""
+        else:
+            self.stale, self.before = item, None
+
+    def since(self, now: float) -> float:
+        """Whole seconds since the last update: what the footer and the ages show."""
+        return float(int(max(0.0, now - self.last.at))) if self.last is not None else 0.0
+
+    def rate(self, now: float) -> float | None:
+        """Frames per second (None while stale: nothing is read as live)."""
+        if self.last is None or self.stale:
+            return None
+        return frames_per_second(self.last, self.before, now, self.period_s)
+
+    def shown(self, now: float) -> tuple[object, ...]:
+        """What a drawing at ``now`` depends on: the same at two moments, the same view."""
+        return (self.taken, self.since(now), self.rate(now))
+
+    def view(self, now: float) -> View:
+        if self.last is None:
+            return View(
+                [
+                    Para(
+                        f"{self.stale}; retrying every {RETRY_S:.0f} s"
+                        if self.stale
+                        else f"connecting to {self.path} ...",
+                        style="yellow",
+                    )
+                ]
+            )
+        since = self.since(now)
+        if self.stale:
+            self.drawn = render(
+                self.last.doc,
+                since_s=since,
+                note=f"retrying every {RETRY_S:.0f} s; the view comes back with the daemon; "
+                "Ctrl-C quits",
+                stale=self.stale,
+                before=self.drawn,
+            )
+        else:
+            footer = (
+                f"updated {since:.0f} s ago; the daemon sends a change as it comes, looking "
+                f"every {self.period_s * 1000:.0f} ms; Ctrl-C quits"
+            )
+            self.drawn = render(
+                self.last.doc, self.rate(now), since_s=since, note=footer, before=self.drawn
+            )
+        return self.drawn
+
+
 def watch(
     path: Path,
     period_ms: int,
@@ -469,14 +293,14 @@ def watch(
     ending: Ending | None = None,
 ) -> int:
     """Refresh in the terminal until ``ending`` is requested (SIGINT, SIGTERM: exit 0; it
-    is looked at every ``STOP_POLL_S``; it is told while the monitor's screen is on). Not
-    on a terminal: one drawing per update, one after another. Once the daemon is gone (or
-    cannot be reached), the whole view is marked as the last state seen until updates come
-    again."""
+    is looked at every ``STOP_POLL_S``; it is told while the monitor's screen is on): a
+    drawing whenever what is shown changes (:class:`Watched`), of the lines that changed
+    (:class:`Screen`). Not on a terminal: one drawing per update, one after another. Once
+    the daemon is gone (or cannot be reached), the whole view is marked as the last state
+    seen until updates come again."""
     console = _console(console)
     ending = ending or Ending()
     period_s = max(20, min(60_000, period_ms)) / 1000.0
-    redraw_s = max(0.1, period_s / 2)  # a terminal's "updated N s ago" without an update
     updates: queue.Queue[Seen | str] = queue.Queue()
     reader_stop = threading.Event()
     reader = threading.Thread(
@@ -486,62 +310,31 @@ def watch(
         daemon=True,
     )
     reader.start()
-    last: Seen | None = None
-    before: Seen | None = None
-    stale = ""
-    live = (
-        Live(console=console, screen=console.is_terminal, auto_refresh=False, transient=False)
-        if console.is_terminal
-        else None
-    )
-    redraw_at = time.monotonic() + redraw_s
+    watched = Watched(period_s, path)
+    screen = Screen(console) if console.is_terminal else None
+    drawn: tuple[object, ...] | None = None
     try:
-        with live if live is not None else contextlib.nullcontext():
-            ending.screen = live is not None
+        with screen if screen is not None else contextlib.nullcontext():
+            ending.screen = screen is not None
             while not ending.requested:
                 try:
-                    item = updates.get(timeout=STOP_POLL_S)
+                    item: Seen | str | None = updates.get(timeout=STOP_POLL_S)
                 except queue.Empty:
-                    if live is None or time.monotonic() < redraw_at:
-                        continue
                     item = None
-                redraw_at = time.monotonic() + redraw_s
-                if isinstance(item, Seen):
-                    before, last, stale = last, item, ""
-                elif isinstance(item, str):
-                    stale, before = item, None
-                view = _view(last, before, stale, period_s, path)
-                if live is not None:
-                    live.update(view, refresh=True)
-                elif item is not None:
-                    console.print(view)
-                    console.print(RULE)
+                if item is not None:
+                    watched.take(item)
+                now = time.monotonic()
+                if screen is None:
+                    if item is not None:
+                        console.print(watched.view(now))
+                        console.print(RULE)
+                    continue
+                size = console.size
+                shown = (watched.shown(now), size.width, size.height)
+                if shown != drawn:
+                    drawn = shown
+                    screen.draw(watched.view(now), (size.width, size.height))
     finally:
         ending.screen = False
         reader_stop.set()
     return 0
-
-
-def _view(
-    last: Seen | None, before: Seen | None, stale: str, period_s: float, path: Path
-) -> RenderableType:
-    if last is None:
-        return Text(
-            f"{stale}; retrying every {RETRY_S:.0f} s" if stale else f"connecting to {path} ...",
-            style="yellow",
-        )
-    now = time.monotonic()
-    if stale:
-        return render(
-            last.doc,
-            since_s=now - last.at,
-            note=f"retrying every {RETRY_S:.0f} s; the view comes back with the daemon; "
-            "Ctrl-C quits",
-            stale=stale,
-        )
-    rate = frames_per_second(last, before, now, period_s)
-    footer = (
-        f"updated {now - last.at:.1f} s ago; the daemon sends a change as it "
-        f"comes, looking every {period_s * 1000:.0f} ms; Ctrl-C quits"
-    )
-    return render(last.doc, rate, since_s=now - last.at, note=footer)
