@@ -126,6 +126,9 @@ class Para:
 
 @dataclass
 class _Column:
+    """A column of a :class:`Grid`: its header, how its cells are justified, and whether
+    they may wrap."""
+
     name: str
     justify: str
     no_wrap: bool
