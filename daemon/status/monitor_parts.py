@@ -16,6 +16,7 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from motorctl.daemon.status.monitor_layout import Grid, Para
+from motorctl.daemon.status.summary import duration
 
 RECENT_SHOWN = 8
 
@@ -32,14 +33,6 @@ def num(value: object, fmt: str = "{:,}", none: str = "-") -> str:
     if isinstance(value, bool) or not isinstance(value, int | float):
         return none
     return fmt.format(value)
-
-
-def duration(seconds: object) -> str:
-    if not isinstance(seconds, int | float):
-        return "?"
-    s = int(seconds)
-    h, rest = divmod(s, 3600)
-    return f"{h}:{rest // 60:02d}:{rest % 60:02d}"
 
 
 def header_para(doc: Mapping[str, Any], stale: bool = False) -> Para:

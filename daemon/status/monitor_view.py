@@ -44,7 +44,6 @@ from motorctl.daemon.status.monitor_parts import (
     as_list,
     as_map,
     drivers_para,
-    duration,
     header_para,
     io_para,
     link_para,
@@ -56,6 +55,7 @@ from motorctl.daemon.status.monitor_parts import (
 )
 from motorctl.daemon.status.monitor_screen import Screen
 from motorctl.daemon.status.reader import StatusError, read_status, subscribe
+from motorctl.daemon.status.summary import duration
 
 RETRY_S = 1.0
 STOP_POLL_S = 0.1  # how often the drawing loop looks whether it is to end (SIGINT, SIGTERM)

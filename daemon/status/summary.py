@@ -39,7 +39,8 @@ def _num(value: object, fmt: str = "{:,}") -> str:
     return fmt.format(value)
 
 
-def _duration(seconds: object) -> str:
+def duration(seconds: object) -> str:
+    """``seconds`` as H:MM:SS (the monitor shows uptime and ages so too); ``?`` for no number."""
     if not isinstance(seconds, int | float):
         return "?"
     s = int(seconds)
@@ -64,7 +65,7 @@ def _head(doc: Mapping[str, Any]) -> list[str]:
         pid = f" (pid {ex['pid']})" if isinstance(ex.get("pid"), int) else ""
         alive = "alive" if ex.get("alive") else f"DEAD: {ex.get('reason') or 'not running'}"
         executor = f"step executor {kind}{pid}, step core {ex.get('core') or '?'}, {alive}"
-    return [f"motorctld {doc.get('version', '?')}, up {_duration(doc.get('uptime_s'))}: {executor}"]
+    return [f"motorctld {doc.get('version', '?')}, up {duration(doc.get('uptime_s'))}: {executor}"]
 
 
 def _wrap(text: str, width: int, indent: str) -> list[str]:

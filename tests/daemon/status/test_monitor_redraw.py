@@ -10,14 +10,11 @@ from __future__ import annotations
 
 import copy
 import io
-import json
 import re
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-import pytest
 from rich.console import Console
 
 from motorctl.daemon.status.monitor import Ending
@@ -177,24 +174,14 @@ def test_the_screen_redraws_all_of_a_resized_terminal_and_clears_what_is_gone() 
     assert full > 20 and all(cleared[n] == "" for n in range(len(short.lines(100)) + 1, 21))
 
 
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[StatusServer]:
-    server = StatusServer(
-        tmp_path / "status.sock", lambda histogram=False: json.loads(json.dumps(DOC))
-    )
-    server.start()
-    try:
-        yield server
-    finally:
-        server.close()
-
-
 def test_watch_on_a_terminal_draws_on_its_own_screen_and_gives_it_back(
-    served: StatusServer,
+    doc_server: StatusServer,
 ) -> None:
     console, out = terminal(width=140, height=60)
     ending = Ending()
-    thread = threading.Thread(target=watch, args=(served.path, 50, console, ending), daemon=True)
+    thread = threading.Thread(
+        target=watch, args=(doc_server.path, 50, console, ending), daemon=True
+    )
     thread.start()
     try:
         until("the first drawing", lambda: "compiled core (pid 12)" in plain(out.getvalue()))

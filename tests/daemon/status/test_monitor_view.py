@@ -8,12 +8,10 @@ tests/daemon/status/test_document_e2e.py."""
 from __future__ import annotations
 
 import io
-import json
 import queue
 import subprocess
 import sys
 import threading
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -178,60 +176,50 @@ def test_a_stale_view_is_marked_as_such_throughout() -> None:
     assert " alive" not in text and "frames 10  bad" in text  # no rate read as live
 
 
-@pytest.fixture
-def served(tmp_path: Path) -> Iterator[StatusServer]:
-    server = StatusServer(
-        tmp_path / "status.sock", lambda histogram=False: json.loads(json.dumps(DOC))
-    )
-    server.start()
-    try:
-        yield server
-    finally:
-        server.close()
-
-
 def test_once_off_a_terminal_keeps_each_line_whole(
-    served: StatusServer, monkeypatch: pytest.MonkeyPatch
+    doc_server: StatusServer, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     monkeypatch.delenv("COLUMNS", raising=False)
     out = io.StringIO()
     monkeypatch.setattr(sys, "stdout", out)
-    assert once(served.path) == 0
+    assert once(doc_server.path) == 0
     text = out.getvalue()
     assert max(map(len, text.splitlines())) > 100  # not wrapped at rich's 80 columns
     assert "link host port open  frames 10  bad frames checksum 1  errors sent E2x4" in text
 
 
-def test_watch_marks_the_whole_view_stale_once_the_daemon_is_gone(served: StatusServer) -> None:
+def test_watch_marks_the_whole_view_stale_once_the_daemon_is_gone(doc_server: StatusServer) -> None:
     out = io.StringIO()
     console = Console(file=out, width=200, color_system=None)
     ending = Ending()
-    thread = threading.Thread(target=watch, args=(served.path, 50, console, ending), daemon=True)
+    thread = threading.Thread(
+        target=watch, args=(doc_server.path, 50, console, ending), daemon=True
+    )
     thread.start()
     try:
         until(
             "the first drawing",
             lambda: "executor process, compiled core (pid 12) alive" in out.getvalue(),
         )
-        served.close()
+        doc_server.close()
         until("the stale drawing", lambda: "NOT LIVE" in out.getvalue())
     finally:
         ending.request()
         thread.join(10)
     assert not thread.is_alive()
     stale = out.getvalue().split("NOT LIVE", 1)[1]
-    assert stale.startswith(f": motorctld at {served.path} stopped. Everything below")
+    assert stale.startswith(f": motorctld at {doc_server.path} stopped. Everything below")
     assert "(last seen)" in stale and "state unknown" in stale and " alive" not in stale
     assert "retrying every 1 s" in stale
 
 
-def test_a_full_daemon_is_not_called_absent(served: StatusServer) -> None:
-    streams = [subscribe(served.path, period_s=0.02) for _ in range(MAX_SUBSCRIBERS)]
+def test_a_full_daemon_is_not_called_absent(doc_server: StatusServer) -> None:
+    streams = [subscribe(doc_server.path, period_s=0.02) for _ in range(MAX_SUBSCRIBERS)]
     for stream in streams:
         next(stream)  # each reads its update: none can be evicted
     updates: queue.Queue[Seen | str] = queue.Queue()
     stop = threading.Event()
-    thread = threading.Thread(target=_follow, args=(served.path, 0.02, updates, stop))
+    thread = threading.Thread(target=_follow, args=(doc_server.path, 0.02, updates, stop))
     thread.start()
     try:
         note = updates.get(timeout=30)
@@ -241,5 +229,7 @@ def test_a_full_daemon_is_not_called_absent(served: StatusServer) -> None:
         for stream in streams:
             stream.close()
     assert isinstance(note, str) and "no motorctld" not in note
-    assert note.startswith(f"motorctld at {served.path} is running but refused the subscription")
+    assert note.startswith(
+        f"motorctld at {doc_server.path} is running but refused the subscription"
+    )
     assert "too many subscribers (8)" in note and "the daemon is full" in note

@@ -7,7 +7,6 @@ closes in the middle of an answer, one that asks nothing, the limit of kept conn
 
 from __future__ import annotations
 
-import json
 import socket
 import threading
 from collections.abc import Iterator
@@ -20,6 +19,7 @@ from motorctl.daemon.status import server as status_module
 from motorctl.daemon.status.reader import read_status
 from motorctl.daemon.status.requests import MAX_REQUEST
 from motorctl.daemon.status.server import StatusServer
+from tests.daemon.status.test_server_subscribe import read_line
 from tests.support.wait import until
 
 DEADLINE_S = 30.0
@@ -60,18 +60,6 @@ def kept(path: Path, first: bytes = b"keep\n") -> socket.socket:
     sock.connect(str(path))
     sock.sendall(first)
     return sock
-
-
-def read_line(sock: socket.socket, buffered: bytearray) -> dict[str, Any]:
-    while b"\n" not in buffered:
-        chunk = sock.recv(1 << 20)
-        assert chunk, "the connection closed"
-        buffered += chunk
-    line, _, rest = bytes(buffered).partition(b"\n")
-    buffered[:] = rest
-    doc = json.loads(line)
-    assert isinstance(doc, dict)
-    return doc
 
 
 def nothing_waiting(sock: socket.socket) -> bool:
