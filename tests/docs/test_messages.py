@@ -565,6 +565,12 @@ class Session:
         os.replace(link, self.port)
 
     def unplug(self) -> None:
+        """The device goes, and its name with it (udev removes a USB adapter's node and its
+        by-id link): the link first, then the PTY. A link left to a /dev/pts/N that is gone
+        names the next PTY made with that number, anyone's: the daemon, opening its port's
+        path again every so often, took another test's daemon's PTY for its device and read
+        that daemon's answers before its host could (its first GetAbsPos unanswered)."""
+        self.port.unlink()
         os.close(self.master)
         self.master = -1
 
@@ -591,7 +597,7 @@ class Session:
 
     def close(self) -> None:
         if self.master >= 0:
-            os.close(self.master)
+            self.unplug()
         if self.proc is not None and self.proc.poll() is None:
             self.proc.kill()
             self.proc.wait(30)
@@ -803,3 +809,16 @@ def test_what_the_pages_quote_is_what_the_code_prints(
         + "\n".join(f"  {q.page}: {q.text}" for q in wrong)
         + f"\n---- what {run!r} printed ----\n{output}"
     )
+
+
+def test_an_unplugged_device_leaves_no_name_for_the_next_pty(tmp_path: Path) -> None:
+    """``Session.unplug`` removes the port's link with the PTY (see there): nothing at the
+    port's path names the /dev/pts/N that the next PTY, anyone's, gets."""
+    s = Session(tmp_path)
+    try:
+        s.plug()
+        pts = os.readlink(s.port)
+        s.unplug()
+        assert not os.path.lexists(s.port), f"{s.port} -> {pts} left behind"
+    finally:
+        s.close()

@@ -20,8 +20,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from motorctl.client.client import Client
+from motorctl.client.client import Client, LinkError
 from motorctl.daemon.status.reader import StatusReader
+from motorctl.protocol.codec import Response
 from tests.support import REPO
 
 READY_TIMEOUT_S = 30.0
@@ -280,7 +281,27 @@ class DaemonProcess:
         return self.stderr_path.read_text() if self.stderr_path.exists() else ""
 
     def client(self, timeout: float = 5.0, **kw: Any) -> Client:
-        return Client(str(self.pty), timeout=timeout, **kw)
+        """A host on the daemon's PTY; a response it does not get says what the daemon
+        saw and who else has the PTY open (:class:`DaemonClient`)."""
+        return DaemonClient(self, str(self.pty), timeout=timeout, **kw)
+
+    def link_report(self) -> str:
+        """What the daemon's link saw (its counters), and every process that has its PTY's
+        slave open: what to look at when a host got no answer."""
+        parts = []
+        try:
+            pts = os.readlink(self.pty)
+            parts.append(f"{self.pty} -> {pts}, open in: {', '.join(holders(pts)) or 'nobody'}")
+        except OSError as exc:
+            parts.append(f"{self.pty}: {exc}")
+        try:
+            counters = self.status()["link"]["counters"]
+            parts.append(
+                f"link counters: {', '.join(f'{k} {v}' for k, v in counters.items() if v)}"
+            )
+        except Exception as exc:  # a daemon that does not answer says so
+            parts.append(f"no status: {exc!r}")
+        return "; ".join(parts)
 
     def status(self, histogram: bool = False) -> dict[str, Any]:
         """The daemon's status; ``histogram``: with ``steps.histogram_us``. Over one kept
@@ -331,6 +352,36 @@ class DaemonProcess:
             f"---- motorctld (PID {self.proc.pid}) log, {self.stderr_path} "
             f"----\n{text}---- end of the motorctld log ----\n"
         )
+
+
+class DaemonClient(Client):
+    """A :class:`Client` of a :class:`DaemonProcess`: a LinkError (no answer, a short one,
+    the port failed) adds :meth:`DaemonProcess.link_report`."""
+
+    def __init__(self, daemon: DaemonProcess, port: str, **kw: Any) -> None:
+        super().__init__(port, **kw)
+        self.daemon = daemon
+
+    def read_response(self, timeout: float | None = None) -> Response:
+        try:
+            return super().read_response(timeout)
+        except LinkError as exc:
+            raise LinkError(f"{exc} [{self.daemon.link_report()}]") from exc
+
+
+def holders(path: str) -> list[str]:
+    """Every process with ``path`` open, as "PID (its command line)" (this one's too)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            if any(os.readlink(fd) == path for fd in (entry / "fd").iterdir()):
+                cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+                out.append(f"{entry.name} ({cmd.strip()[:120]})")
+        except OSError:  # gone meanwhile, or not ours to read
+            continue
+    return out
 
 
 def children_of(pid: int) -> list[int]:

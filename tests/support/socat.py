@@ -39,10 +39,13 @@ class PtyPair:
         return self
 
     def stop(self) -> None:
-        """Tear the pair down, as a USB adapter is pulled out: its PTYs are gone."""
+        """Tear the pair down, as a USB adapter is pulled out: its PTYs are gone, and their
+        names first (socat closes a PTY before it removes its link: a daemon opening the
+        path again in between would open the next PTY made with that number, anyone's;
+        tests/docs/test_messages.py, ``Session.unplug``)."""
+        for link in (self.device, self.host):
+            link.unlink(missing_ok=True)
         if self.proc is not None and self.proc.poll() is None:
             self.proc.send_signal(signal.SIGTERM)
             self.proc.wait(10)
         self.proc = None
-        for link in (self.device, self.host):  # socat removes them; a SIGKILLed one would not
-            link.unlink(missing_ok=True)

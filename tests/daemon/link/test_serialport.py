@@ -78,8 +78,10 @@ class Adapter:
         return not select.select([self.master], [], [], seconds)[0]
 
     def unplug(self) -> None:
-        os.close(self.master)
+        """Its name first, then its PTY: a name left to a gone /dev/pts/N names the next
+        PTY made with that number (tests/docs/test_messages.py, ``Session.unplug``)."""
         self.path.unlink()
+        os.close(self.master)
 
 
 class FailsFirst(SerialDevice):

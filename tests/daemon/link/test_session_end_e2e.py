@@ -27,7 +27,7 @@ from typing import Any
 import pytest
 import serial
 
-from motorctl.client.client import Client
+from motorctl.client.client import Client, LinkError
 from motorctl.protocol.codec import GetAbsPos, IsReady, Response, StopMove, encode_response
 from tests.support.daemon_proc import DaemonProcess
 from tests.support.frames import OPTS, frame
@@ -232,3 +232,20 @@ def test_what_a_host_left_on_its_way_behind_back_pressure_goes_with_its_serial_d
     finally:
         d.close()
         pair.stop()
+
+
+def test_a_host_without_an_answer_is_told_what_the_link_saw(tmp_path: Path) -> None:
+    """A test's host that gets no answer (here: half a frame, never answered) says what the
+    daemon's link counted and who has the PTY open (tests/support/daemon_proc.py): a stolen
+    answer and a frame never read look alike from the host's side."""
+    d = DaemonProcess(tmp_path).start()
+    try:
+        with d.client(timeout=0.2) as c:
+            c.send_bytes(frame(GetAbsPos(0))[:4])
+            with pytest.raises(LinkError) as info:
+                c.read_response()
+            pts = os.readlink(d.pty)
+            assert f"{d.pty} -> {pts}, open in: {os.getpid()} (" in str(info.value)
+            assert "reads 1" in str(info.value)
+    finally:
+        d.close()
