@@ -3,7 +3,7 @@
 table (:class:`~motorctl.daemon.status.monitor_layout.Grid`): the header, the motors, their
 step timing, the step edges, the pins and the DC motor, the link, the trace, the last
 frames, the drivers. :func:`~motorctl.daemon.status.monitor_view.render` puts them
-together. Every field is read defensively (:func:`as_map`, :func:`as_list`, :func:`num`): an
+together. Every field is read defensively (summary.py's ``as_map``, ``as_list``, ``num``): an
 older or newer daemon, or one without per-motor timing figures, draws what it has.
 
 Pure functions of a document: no state, no thread of their own (the monitor's drawing
@@ -12,27 +12,19 @@ thread calls them).
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from typing import Any
 
+from motorctl.daemon.status import summary
 from motorctl.daemon.status.monitor_layout import Grid, Para
-from motorctl.daemon.status.summary import duration
+from motorctl.daemon.status.summary import as_list, as_map, duration
 
 RECENT_SHOWN = 8
 
 
-def as_map(value: object) -> Mapping[str, Any]:
-    return value if isinstance(value, Mapping) else {}
-
-
-def as_list(value: object) -> Sequence[Any]:
-    return value if isinstance(value, list) else []
-
-
 def num(value: object, fmt: str = "{:,}", none: str = "-") -> str:
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        return none
-    return fmt.format(value)
+    """:func:`~motorctl.daemon.status.summary.num` with the monitor's mark for no number."""
+    return summary.num(value, fmt, none)
 
 
 def header_para(doc: Mapping[str, Any], stale: bool = False) -> Para:

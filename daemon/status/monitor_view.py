@@ -41,8 +41,6 @@ from motorctl.daemon.status.monitor import Ending
 from motorctl.daemon.status.monitor_layout import Grid, Para, View
 from motorctl.daemon.status.monitor_parts import (
     RECENT_SHOWN,
-    as_list,
-    as_map,
     drivers_para,
     header_para,
     io_para,
@@ -55,7 +53,7 @@ from motorctl.daemon.status.monitor_parts import (
 )
 from motorctl.daemon.status.monitor_screen import Screen
 from motorctl.daemon.status.reader import StatusError, read_status, subscribe
-from motorctl.daemon.status.summary import duration
+from motorctl.daemon.status.summary import as_list, as_map, duration
 
 RETRY_S = 1.0
 STOP_POLL_S = 0.1  # how often the drawing loop looks whether it is to end (SIGINT, SIGTERM)

@@ -25,17 +25,21 @@ REALTIME_ITEMS = (
 )
 
 
-def _d(value: object) -> Mapping[str, Any]:
+def as_map(value: object) -> Mapping[str, Any]:
+    """A document's field read as a table: ``{}`` when it is anything else (an older or
+    newer daemon's document; the live monitor reads so too)."""
     return value if isinstance(value, Mapping) else {}
 
 
-def _l(value: object) -> Sequence[Any]:
+def as_list(value: object) -> Sequence[Any]:
+    """A document's field read as a list: ``[]`` when it is anything else."""
     return value if isinstance(value, list) else []
 
 
-def _num(value: object, fmt: str = "{:,}") -> str:
+def num(value: object, fmt: str = "{:,}", none: str = "?") -> str:
+    """A number as ``fmt`` says; ``none`` for anything else (a bool is not a number)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
-        return "?"
+        return none
     return fmt.format(value)
 
 
@@ -57,7 +61,7 @@ def summary(doc: Mapping[str, Any], width: int = 100) -> str:
 
 
 def _head(doc: Mapping[str, Any]) -> list[str]:
-    ex = _d(doc.get("executor"))
+    ex = as_map(doc.get("executor"))
     kind = ex.get("kind", "?")
     if kind == "none":
         executor = "no step executor (every motor runs its driver's own ramp)"
@@ -83,8 +87,8 @@ def _wrap(text: str, width: int, indent: str) -> list[str]:
 
 
 def _realtime(doc: Mapping[str, Any], width: int) -> list[str]:
-    ex = _d(doc.get("executor"))
-    rt = _d(ex.get("realtime"))
+    ex = as_map(doc.get("executor"))
+    rt = as_map(ex.get("realtime"))
     if not rt:
         why = "no step executor" if ex.get("kind") == "none" else "not reported by this daemon"
         return [f"real time: {why}"]
@@ -100,7 +104,7 @@ def realtime_lines(
     refused: list[str] = []
     rest: list[str] = []
     for key, name in REALTIME_ITEMS:
-        o = _d(rt.get(key))
+        o = as_map(rt.get(key))
         state, what = o.get("state"), str(o.get("what", name))
         if state == "granted":
             rest.append(f"{what} granted")
@@ -109,7 +113,7 @@ def realtime_lines(
             refused += _wrap(f"fix: {o.get('fix') or '?'}", width, "    ")
         else:
             rest.append(f"{name} not asked ({what})")
-    kernel = _d(rt.get("kernel"))
+    kernel = as_map(rt.get("kernel"))
     preempt = "PREEMPT_RT" if kernel.get("preempt_rt") else "not PREEMPT_RT (docs/timing.md)"
     rest.append(f"kernel {kernel.get('release', '?')} {preempt}")
     if refused:
@@ -149,19 +153,19 @@ def _last_error(m: Mapping[str, Any]) -> str | None:
 
 
 def _motors(doc: Mapping[str, Any], width: int) -> list[str]:
-    motors = [_d(m) for m in _l(doc.get("motors"))]
+    motors = [as_map(m) for m in as_list(doc.get("motors"))]
     if not motors:
         return ["motors: none reported"]
     lines = ["motors:"]
     for m in motors:
         state = str(m.get("state", "?"))
         state = state.upper() if state == "fault" else state
-        where = f"position {_num(m.get('position'), '{}')}"
+        where = f"position {num(m.get('position'), '{}')}"
         if m.get("position_lost"):
             where += " (lost: home it)"
         line = (
             f"  {m.get('index', '?')} {m.get('name', '?')}: {state}, "
-            f"{where}, speed {_num(m.get('speed'), '{:.0f}')} step/s"
+            f"{where}, speed {num(m.get('speed'), '{:.0f}')} step/s"
         )
         if m.get("queued"):
             line += f", {m['queued']} queued"
@@ -175,23 +179,23 @@ def _motors(doc: Mapping[str, Any], width: int) -> list[str]:
 
 
 def _link(doc: Mapping[str, Any]) -> list[str]:
-    link = _d(doc.get("link"))
+    link = as_map(doc.get("link"))
     if not link:
         return ["link: not serving"]
-    c = _d(link.get("counters"))
+    c = as_map(link.get("counters"))
     bad = sum(v for k, v in c.items() if k.endswith("_errors") and k in _FRAME_ERRORS)
     sent = {k.removeprefix("sent_"): v for k, v in c.items() if k.startswith("sent_") and v}
     errors = ", ".join(f"{k} x{v}" for k, v in sorted(sent.items())) or "none"
-    p = _d(link.get("processing"))
+    p = as_map(link.get("processing"))
     device = f" {link['device']}" if link.get("device") else ""
     line = (
-        f"link: host port{device} {link.get('peer', '?')}; {_num(c.get('frames'))} frames, "
-        f"{_num(bad)} bad; error answers {errors}; answer time p99 "
-        f"{_num(p.get('p99_us'), '{:,.0f}')} us"
+        f"link: host port{device} {link.get('peer', '?')}; {num(c.get('frames'))} frames, "
+        f"{num(bad)} bad; error answers {errors}; answer time p99 "
+        f"{num(p.get('p99_us'), '{:,.0f}')} us"
     )
     if p.get("over_target"):
-        target = _num(p.get("target_us"), "{:,.0f}")
-        line += f" ({_num(p['over_target'])} reads over the {target} us target)"
+        target = num(p.get("target_us"), "{:,.0f}")
+        line += f" ({num(p['over_target'])} reads over the {target} us target)"
     # the last error answer not of a motor (a bad frame, say), when the daemon reports one
     other = _last_error({k: v for k, v in doc.items() if k in ("errors", "last_error")})
     return [line, f"  last error of no motor: {other}"] if other else [line]
@@ -202,37 +206,37 @@ _FRAME_ERRORS = ("checksum_errors", "unknown_errors", "padding_errors", "length_
 
 
 def _steps(doc: Mapping[str, Any]) -> list[str]:
-    s = _d(doc.get("steps"))
+    s = as_map(doc.get("steps"))
     if not s:
         return ["step timing: not reported"]
     us = "{:,.0f}"
     return [
-        f"step timing: {_num(s.get('steps'))} step edges, late by p50 {_num(s.get('p50_us'), us)}"
-        f" p99 {_num(s.get('p99_us'), us)} max {_num(s.get('max_us'), us)} us; "
-        f"{_num(s.get('late'))} later than {_num(s.get('late_threshold_us'), us)} us; "
-        f"{_num(s.get('timing_lost'))} timing lost",
-        f"  planned segments discarded by re-plans and stops: {_num(s.get('segments_discarded'))}"
+        f"step timing: {num(s.get('steps'))} step edges, late by p50 {num(s.get('p50_us'), us)}"
+        f" p99 {num(s.get('p99_us'), us)} max {num(s.get('max_us'), us)} us; "
+        f"{num(s.get('late'))} later than {num(s.get('late_threshold_us'), us)} us; "
+        f"{num(s.get('timing_lost'))} timing lost",
+        f"  planned segments discarded by re-plans and stops: {num(s.get('segments_discarded'))}"
         " (normal; no step lost)",
     ]
 
 
 def _rest(doc: Mapping[str, Any]) -> list[str]:
     lines = []
-    state = _d(doc.get("state"))
+    state = as_map(doc.get("state"))
     if state:
         ok = "ok" if state.get("ok") else f"NOT SAVED: {state.get('last_error')}"
-        lines.append(f"state file: {ok}, {_num(state.get('writes'))} writes")
-    pins = [_d(p) for p in _l(doc.get("pins"))]
+        lines.append(f"state file: {ok}, {num(state.get('writes'))} writes")
+    pins = [as_map(p) for p in as_list(doc.get("pins"))]
     words = [
         f"{p.get('number')} {'out' if p.get('output') else 'in'} "
         f"{'?' if p.get('level') is None else 'high' if p.get('level') else 'low'}"
         for p in pins
     ]
-    dc = _d(doc.get("dc"))
+    dc = as_map(doc.get("dc"))
     motor = f"{dc.get('state', '?')}{', running' if dc.get('running') else ''}" if dc else "none"
     lines.append(f"pins: {', '.join(words) or 'none'}; DC motor: {motor}")
-    trace = _d(doc.get("trace"))
+    trace = as_map(doc.get("trace"))
     if trace:
-        lines.append(f"trace: {trace.get('file')}, {_num(trace.get('runs'))} runs")
+        lines.append(f"trace: {trace.get('file')}, {num(trace.get('runs'))} runs")
     lines.append("everything: motorctld --status --json (docs/status.md)")
     return lines
