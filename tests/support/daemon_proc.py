@@ -16,7 +16,7 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Container, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -369,14 +369,23 @@ class DaemonClient(Client):
             raise LinkError(f"{exc} [{self.daemon.link_report()}]") from exc
 
 
+def processes() -> Iterator[Path]:
+    """Every process's folder in /proc (one may be gone by the time it is read)."""
+    return (entry for entry in Path("/proc").iterdir() if entry.name.isdigit())
+
+
+def has_open(process: Path, paths: Container[str]) -> bool:
+    """Whether ``process`` (its /proc folder) holds a descriptor of one of ``paths``;
+    OSError when it is gone or not ours to read."""
+    return any(os.readlink(fd) in paths for fd in (process / "fd").iterdir())
+
+
 def holders(path: str) -> list[str]:
     """Every process with ``path`` open, as "PID (its command line)" (this one's too)."""
     out = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
+    for entry in processes():
         try:
-            if any(os.readlink(fd) == path for fd in (entry / "fd").iterdir()):
+            if has_open(entry, (path,)):
                 cmd = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
                 out.append(f"{entry.name} ({cmd.strip()[:120]})")
         except OSError:  # gone meanwhile, or not ours to read
@@ -387,9 +396,7 @@ def holders(path: str) -> list[str]:
 def children_of(pid: int) -> list[int]:
     """The PIDs whose parent is ``pid`` (zombies included)."""
     out = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
+    for entry in processes():
         try:
             stat = (entry / "stat").read_text()
         except OSError:
@@ -414,17 +421,13 @@ def memfd_holders(labels: set[str]) -> list[int]:
     labelled one of ``labels`` (a memfd lives exactly as long as one of those)."""
     wanted = {f"/memfd:{label} (deleted)" for label in labels}
     holders = []
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
+    for entry in processes():
         try:
             held = any(
                 line.split(None, 5)[-1] in wanted
                 for line in (entry / "maps").read_text().splitlines()
                 if "/memfd:" in line
-            )
-            if not held:
-                held = any(os.readlink(fd) in wanted for fd in (entry / "fd").iterdir())
+            ) or has_open(entry, wanted)
         except OSError:  # gone meanwhile, or not ours to read
             continue
         if held:
