@@ -16,6 +16,11 @@ daemon's figures then: compare the total without ``--parts``.
 to a pcapng file), takes its turns too; its round trips against the untraced daemon's give
 the cost of the trace (issue 18: p99 <= 1.1x).
 
+The floor: a third peer (``echo_peer.py --as-link``) that makes the link's system calls a
+turn in Python and does nothing else; its CPU per round trip against the echo peer's is what
+a link thread in Python cannot go below, and what is left of the 2x target beside it is what
+decoding, dispatching, encoding and the bookkeeping may spend.
+
 The peers take turns in short rounds (``--rounds`` of ``-n``), so the machine's drifts
 (another tenant, a busy spell) hit both alike; with motion, both run beside the stepping
 daemon (its step process spinning on one CPU, its planner on the other).
@@ -132,8 +137,14 @@ def main() -> int:
             [sys.executable, str(ROOT / "bench" / "echo_peer.py"), str(echo_link)],
             stdout=subprocess.PIPE,
         )
-        assert echo.stdout is not None
-        echo.stdout.readline()
+        floor_link = work / "floor.pty"
+        floor = subprocess.Popen(
+            [sys.executable, str(ROOT / "bench" / "echo_peer.py"), str(floor_link), "--as-link"],
+            stdout=subprocess.PIPE,
+        )
+        for peer in (echo, floor):
+            assert peer.stdout is not None
+            peer.stdout.readline()
         config = None
         if args.motion:
             from bench.steps import config_text
@@ -162,12 +173,14 @@ def main() -> int:
             if args.motion:
                 time.sleep(0.5)
             echo_t: list[float] = []
+            floor_t: list[float] = []
             daemon_t: list[float] = []
             traced_t: list[float] = []
             assert daemon.proc is not None
-            cpu = {"echo": 0.0, "daemon": 0.0, "traced": 0.0}
+            cpu = {"echo": 0.0, "floor": 0.0, "daemon": 0.0, "traced": 0.0}
             peers: list[tuple[str, int, Path, list[float]]] = [
                 ("echo", echo.pid, echo_link, echo_t),
+                ("floor", floor.pid, floor_link, floor_t),
                 ("daemon", daemon.proc.pid, daemon.pty, daemon_t),
             ]
             if traced is not None:
@@ -186,8 +199,9 @@ def main() -> int:
             daemon.close()
             if traced is not None:
                 traced.close()
-            echo.kill()
-            echo.wait()
+            for peer in (echo, floor):
+                peer.kill()
+                peer.wait()
     result: dict[str, Any] = {
         "echo_peer": summary(echo_t),
         "daemon": summary(daemon_t),
@@ -200,6 +214,9 @@ def main() -> int:
     result["echo_cpu_per_round_trip_us"] = round(cpu["echo"] / made * 1e6, 1)
     result["daemon_cpu_per_round_trip_us"] = round(cpu["daemon"] / made * 1e6, 1)
     result["cpu_ratio"] = round(cpu["daemon"] / cpu["echo"], 2) if cpu["echo"] else None
+    result["floor"] = summary(floor_t)
+    result["floor_cpu_per_round_trip_us"] = round(cpu["floor"] / made * 1e6, 1)
+    result["floor_cpu_ratio"] = round(cpu["floor"] / cpu["echo"], 2) if cpu["echo"] else None
     if parts_before is not None and parts_after is not None:
         result["daemon_cpu_parts_us"] = {
             part: round((parts_after[part] - parts_before[part]) / made / 1000, 2)
@@ -225,6 +242,12 @@ def main() -> int:
         f"  CPU per round trip: echo peer {result['echo_cpu_per_round_trip_us']} us, "
         f"motorctld's link thread {result['daemon_cpu_per_round_trip_us']} us "
         f"(ratio {result['cpu_ratio']}, target <= 2)"
+    )
+    print(
+        f"  floor: the link's system calls alone, in Python (echo_peer.py --as-link) "
+        f"{result['floor_cpu_per_round_trip_us']} us ({result['floor_cpu_ratio']}x the echo "
+        f"peer): what is left of 2x for decoding, dispatching, encoding and the bookkeeping "
+        f"{2 * result['echo_cpu_per_round_trip_us'] - result['floor_cpu_per_round_trip_us']:.1f} us"
     )
     if "daemon_cpu_parts_us" in result:
         parts = result["daemon_cpu_parts_us"]

@@ -61,6 +61,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +76,26 @@ RATIO_TARGET = 2.0
 RSS_TARGET_MIB = 60.0
 SETTLE_S = 0.5
 TIMEOUT_S = 30.0
+
+#: The least a daemon of this design imports, whatever its own code: its records
+#: (``dataclasses``, which brings ``inspect``, ``enum`` and ``re``), its interfaces
+#: (``typing``'s Protocol), the journal (``logging``), the status socket and systemd's
+#: notification (``socket``), the status documents and the state file (``json``), the
+#: config (``tomllib``), its threads, the link's ``poll``, signals, and the frames'
+#: ``struct``. A start cannot come nearer a bare interpreter's than these imports do.
+LEAST = (
+    "dataclasses",
+    "enum",
+    "typing",
+    "logging",
+    "socket",
+    "json",
+    "tomllib",
+    "threading",
+    "select",
+    "signal",
+    "struct",
+)
 
 
 def status_kib(pid: int, key: str) -> int:
@@ -137,11 +158,15 @@ def breakdown(stderr: str, t0: float, ready: float) -> dict[str, float]:
     return out
 
 
-def one_start(module: str, env: dict[str, str], work: Path, state: Path) -> dict[str, Any]:
-    """Start motorctld, time READY, look at its processes, stop it (state in ``state``)."""
+def one_start(
+    module: str, env: dict[str, str], work: Path, state: Path, xopts: Sequence[str] = ()
+) -> dict[str, Any]:
+    """Start motorctld, time READY, look at its processes, stop it (state in ``state``;
+    ``xopts``: the interpreter's options, before ``-m``)."""
     work.mkdir()
     cmd = [
         sys.executable,
+        *xopts,
         "-m",
         module,
         "--pty",
@@ -209,17 +234,41 @@ def one_start(module: str, env: dict[str, str], work: Path, state: Path) -> dict
     return out
 
 
-def bare_interpreter(env: dict[str, str]) -> tuple[float, float]:
+def bare_interpreter(env: dict[str, str], code: str = "pass") -> tuple[float, float]:
     """A bare interpreter's start, ``python -c pass`` as motorctld is started (the same
-    interpreter, folder and environment): (wall ms, CPU ms)."""
+    interpreter, folder and environment), or one that runs ``code`` (a floor's imports):
+    (wall ms, CPU ms)."""
     t0 = time.monotonic()
-    proc = subprocess.Popen([sys.executable, "-c", "pass"], env=env, cwd=ROOT)
+    proc = subprocess.Popen([sys.executable, "-c", code], env=env, cwd=ROOT)
     _, status, usage = os.wait4(proc.pid, 0)
     wall = (time.monotonic() - t0) * 1000
     proc.returncode = os.waitstatus_to_exitcode(status)
     if proc.returncode != 0:
-        raise RuntimeError(f"python -c pass exited {proc.returncode}")
+        raise RuntimeError(f"python -c {code[:60]!r} exited {proc.returncode}")
     return wall, (usage.ru_utime + usage.ru_stime) * 1000
+
+
+def imports_code(modules: Sequence[str]) -> str:
+    """A program that imports ``modules`` (each that this interpreter has: a start tries
+    some that only another platform has, ``_winapi``, and goes on without them)."""
+    lines = ["import importlib", "for name in ("]
+    lines += [f"    {name!r}," for name in modules]
+    lines += ["):", "    try:", "        importlib.import_module(name)", "    except ImportError:"]
+    return "\n".join([*lines, "        pass"])
+
+
+def imported_outside(env: dict[str, str], work: Path, state: Path) -> list[str]:
+    """The modules from outside motorctl that motorctld's start imports by READY (the
+    standard library's, pyserial's, ...): one start, not counted, under ``-X importtime``
+    (which lists every import the daemon's interpreter made, the executor's not)."""
+    one_start(ENTRIES["motorctld"], env, work, state, xopts=("-X", "importtime"))
+    names: list[str] = []
+    for line in (work / "stderr").read_text().splitlines():
+        if line.startswith("import time:") and "[us]" not in line:
+            name = line.rsplit("|", 1)[1].strip()
+            if name.split(".")[0] != "motorctl" and not name.startswith("__editable__"):
+                names.append(name)
+    return list(dict.fromkeys(names))
 
 
 def spread(values: list[float]) -> dict[str, float]:
@@ -299,6 +348,7 @@ def measure(runs: int, modes: list[str], entries: list[str], state_on: str) -> d
         tmpdir = Path(tmp)
         states = state_folder(state_on, tmpdir)
         result["state_dirs_in"] = str(states.parent if state_on == "tmpfs" else states)
+        outside: list[str] = []
         try:
             for mode in modes:
                 env = dict(base)
@@ -309,12 +359,19 @@ def measure(runs: int, modes: list[str], entries: list[str], state_on: str) -> d
                     bare_interpreter(env)
                 else:
                     env["PYTHONDONTWRITEBYTECODE"] = "1"
+                if not outside:
+                    outside = imported_outside(env, tmpdir / "importtime", states / "importtime")
+                    result["imported_outside"] = outside
+                floors = {"least": imports_code(LEAST), "outside": imports_code(outside)}
                 samples: dict[str, list[dict[str, Any]]] = {e: [] for e in entries}
                 bare: dict[str, list[float]] = {"wall": [], "cpu": []}
+                floor: dict[str, list[float]] = {name: [] for name in floors}
                 for i in range(runs):
                     wall, cpu = bare_interpreter(env)  # interleaved: the same load for all
                     bare["wall"].append(wall)
                     bare["cpu"].append(cpu)
+                    for name, code in floors.items():
+                        floor[name].append(bare_interpreter(env, code)[0])
                     for entry in entries:
                         name = f"{mode}-{entry}-{i}"
                         samples[entry].append(
@@ -323,6 +380,15 @@ def measure(runs: int, modes: list[str], entries: list[str], state_on: str) -> d
                 fig: dict[str, Any] = {
                     "bare_interpreter_ms": spread(bare["wall"]),
                     "bare_interpreter_cpu_ms": spread(bare["cpu"]),
+                    "floors": {
+                        name: {
+                            "ms": spread(walls),
+                            "ratio_to_bare": round(
+                                statistics.median(walls) / statistics.median(bare["wall"]), 2
+                            ),
+                        }
+                        for name, walls in floor.items()
+                    },
                 }
                 if mode == "sources":
                     fig["checkout_has_bytecode"] = checkout_has_bytecode()
@@ -353,6 +419,13 @@ def report(result: dict[str, Any]) -> None:
                 if fig.get("checkout_has_bytecode")
                 else ""
             )
+        )
+        least, outside = fig["floors"]["least"], fig["floors"]["outside"]
+        print(
+            f"    floors: the least a daemon like this imports ({', '.join(LEAST)}) "
+            f"{least['ms']['median']} ms, {least['ratio_to_bare']:.2f}x the bare interpreter; "
+            f"the {len(result['imported_outside'])} modules from outside motorctl that a start "
+            f"imports {outside['ms']['median']} ms, {outside['ratio_to_bare']:.2f}x"
         )
         for entry in ENTRIES:
             if entry not in fig:
