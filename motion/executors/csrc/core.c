@@ -15,9 +15,10 @@
  * account while they are high, lower them after the pulse width, read end-stop edges,
  * look at the end stop ahead of each motor that stepped (and, in a plan that watches for
  * it, whether the end stop behind has released: RELEASED); a segment taken while the end
- * stop ahead of it is active already makes no step (ENDSTOP, "already active"). A line that fails is a FAULT of
- * the motors concerned, a record that is not whole or not sane a FAULT of its motor
- * (every motor for a stop record whose motor is unknown); the loop never dies of either.
+ * stop ahead of it is active already makes no step (ENDSTOP, "already active"). A line that
+ * fails is a FAULT of the motors concerned, a record that is not whole or not sane a FAULT
+ * of its motor (every motor for a stop record whose motor is unknown); the loop never dies
+ * of either.
  *
  * Time: integer ns of CLOCK_MONOTONIC (Python's time.perf_counter_ns, the kernel's edge
  * timestamps), or a virtual clock that only the caller moves (tests). */
