@@ -24,7 +24,13 @@ from collections.abc import Callable
 from functools import partial
 
 from motorctl.hal.interfaces import DriverStatus, StepperDriver
-from motorctl.motion.executors.base import Committed, ExecEvent, ExecEventKind, Executor
+from motorctl.motion.executors.base import (
+    ENDSTOP_ALREADY_ACTIVE,
+    Committed,
+    ExecEvent,
+    ExecEventKind,
+    Executor,
+)
 from motorctl.motion.profile import Trajectory, plan_move_to, plan_run, plan_stop
 from motorctl.motion.types import (
     HomeCmd,
@@ -288,7 +294,9 @@ class Motor:
                 self._homing_triggered(max(ev.t, now))
             else:
                 when = "while homing" if self.state is MotorState.HOMING else "outside homing"
-                reason = f"end stop hit at {self.position} {when}"
+                # on it before the first step toward it (no step made), or reached by one
+                what = "already active" if ev.detail == ENDSTOP_ALREADY_ACTIVE else "hit"
+                reason = f"end stop {what} at {self.position} {when}"
                 self.latch_fault(reason, now, stopped=True, cause="endstop")
         elif k is K.TIMING_LOST:
             lost = ev.speed > self.params.start_speed

@@ -66,6 +66,11 @@ class ExecEventKind(enum.Enum):
     RELEASED = "released"
 
 
+#: an ENDSTOP's ``detail`` when the end stop ahead was active before the motion's first step
+#: toward it: the executor made no step (docs/protocol.md, "Faults and lost positions")
+ENDSTOP_ALREADY_ACTIVE = "already active"
+
+
 @dataclass(frozen=True)
 class ExecEvent:
     """Something the executor did on its own or finished.
@@ -225,9 +230,11 @@ class Executor(ABC):
       commits that far; a soft stop or a re-plan starts there.
     - End stops: the executor watches the end stop ahead of each step and stops the axis
       itself when it has been active for ``debounce_s``; it reports ENDSTOP with the position
-      and time of the trigger. Whether that ends a homing run or is a fault is the caller's
-      business. A plan followed with ``release`` ends the same way where the end stop behind
-      releases (RELEASED).
+      and time of the trigger. It looks before the first step too: a motion that starts
+      toward an end stop active already makes no step; ENDSTOP says so (its ``detail``
+      :data:`ENDSTOP_ALREADY_ACTIVE`, the position where it stands). Whether that ends a
+      homing run or is a fault is the caller's business. A plan followed with ``release``
+      ends the same way where the end stop behind releases (RELEASED).
     - Fail safe: steps are never closer than ``min_interval_s``; a late step slides the rest
       of the motor's schedule, unless the lag it causes is one a real motor may not survive
       (:class:`AxisLimits`): then the motor stops (TIMING_LOST, with the speed it had).

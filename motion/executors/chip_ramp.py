@@ -7,14 +7,18 @@ a soft limit) becomes a trapezoid to the plan's end at the plan's peak speed wit
 (``move_to``); an endless run becomes ``run`` at its speed. A hard stop is ``stop(None)``:
 the chip's largest deceleration. Positions are the chip's step counter. End stops are the
 chip's reference switches: the one ahead stops the motor in the chip and latches the
-position, reported as ENDSTOP at the latched position; homing's back-off (a plan followed
-with ``release``) has the switch behind latch the position where it releases, and once a
-poll sees it released the executor stops the chip (its hard stop) and reports RELEASED with
-that latched position; stall homing (a plan without end stops) lets stallGuard stop the
-motor, and that stop is reported as the driver's stall flag. A finite plan is done when the
-chip stands at its end, or stands where it settled on purpose (``RampStatus.settled``: a
-dSPIN takes no new target while it ramps and stops along DEC instead); an endless run is
-done where its chip settled it (a dSPIN's run at the end of ABS_POS's range).
+position, reported as ENDSTOP at the latched position; a motion toward a switch that the
+read it starts from (``committed()``) finds active already is not handed to the chip at all:
+ENDSTOP at once where the motor stands, "already active" (a dSPIN's SW stops the motor only
+as it closes: one closed already would let a GoTo_DIR run on into the machine's end);
+homing's back-off (a plan followed with ``release``) has the switch behind latch the
+position where it releases, and once a poll sees it released the executor stops the chip
+(its hard stop) and reports RELEASED with that latched position; stall homing (a plan
+without end stops) lets stallGuard stop the motor, and that stop is reported as the
+driver's stall flag. A finite plan is done when the chip stands at its end, or stands where
+it settled on purpose (``RampStatus.settled``: a dSPIN takes no new target while it ramps
+and stops along DEC instead); an endless run is done where its chip settled it (a dSPIN's
+run at the end of ABS_POS's range).
 :meth:`RampExecutor.committed`, which the engine plans a motion from just before it hands
 it to :meth:`RampExecutor.follow`, reads the chip with ``command_status``: the one read
 that the ``watch`` and the command after it may build on (a dSPIN's MoveTo then reads
@@ -42,6 +46,7 @@ from dataclasses import dataclass
 
 from motorctl.hal.interfaces import Clock, HalError, RampDriver, RampStatus
 from motorctl.motion.executors.base import (
+    ENDSTOP_ALREADY_ACTIVE,
     Committed,
     ExecEvent,
     ExecEventKind,
@@ -166,22 +171,23 @@ class RampExecutor(Executor):
             return True  # made before the caller saw our event: dropped, as the seam says
         now = self.clock.now()
         ax.gen = gen
+        run = math.isinf(traj.end_time)
+        v = traj.segments[-1].v0 if run else 0.0
+        target = 0 if run else round(traj.end_position)
+        if not run and target == ax.position and ax.velocity == 0:
+            ax.plan = ""
+            return False
+        direction = (1 if v > 0 else -1) if run else (1 if target > ax.position else -1)
+        ahead, behind = direction if endstops else 0, -direction if release else 0
+        if ahead and ax.status is not None and ax.status.switch_active(ahead):
+            self._on_switch(motor, ax, ahead, now)  # committed()'s read: on it already
+            return True
         try:
-            if math.isinf(traj.end_time):
-                v = traj.segments[-1].v0
-                direction = 1 if v > 0 else -1
-                ahead, behind = direction if endstops else 0, -direction if release else 0
-                chip.watch(ahead, stall=not endstops, release=behind)
+            chip.watch(ahead, stall=not endstops, release=behind)
+            if run:
                 chip.run(direction, abs(v), ramp.acc)
                 ax.plan = "run"
             else:
-                target = round(traj.end_position)
-                if target == ax.position and ax.velocity == 0:
-                    ax.plan = ""
-                    return False
-                direction = 1 if target > ax.position else -1
-                ahead, behind = direction if endstops else 0, -direction if release else 0
-                chip.watch(ahead, stall=not endstops, release=behind)
                 speed = max(peak_speed(traj), abs(ax.velocity), 1.0)
                 chip.move_to(target, speed, ramp.acc, ramp.dec)
                 ax.plan, ax.target = "move", target
@@ -193,6 +199,26 @@ class RampExecutor(Executor):
         # read at once would find nothing new, and only contend with the command's answer)
         ax.next_poll = now + self.poll_s
         return True
+
+    def _on_switch(self, motor: int, ax: _Axis, ahead: int, now: float) -> None:
+        """A motion toward a reference switch that is active already: not handed to the chip
+        (a dSPIN's switch stops a motor only as it closes, and one closed already would let
+        it run on into the machine's end), ENDSTOP at once where the motor stands, as the
+        step cores do (``detail`` :data:`ENDSTOP_ALREADY_ACTIVE`)."""
+        self.counters["endstops"] += 1
+        ax.plan, ax.blocked = "", True
+        self._emit(
+            ExecEvent(
+                K.ENDSTOP,
+                motor,
+                ax.gen,
+                ax.position,
+                now,
+                direction=ahead,
+                speed=abs(ax.velocity),
+                detail=ENDSTOP_ALREADY_ACTIVE,
+            )
+        )
 
     def stop(self, motor: int, gen: int) -> int | None:
         ax = self._axes[motor]

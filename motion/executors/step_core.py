@@ -48,12 +48,13 @@ motor may not survive (:class:`~motorctl.motion.executors.base.AxisLimits`): the
 DIR has settled, raise the STEP lines of every due motor in one call, account while they are
 high, lower them, then look at the end stop ahead of each motor that stepped (and, in a plan
 that watches for it, whether the end stop behind has released: homing's back-off stops
-there, RELEASED). Each motor's next due time is kept up to date as its state changes, so
-finding the next edge is one ``min`` over the motors. Times are integer ns (ticks); a
-segment's ticks are plan ticks, made at plan tick + the motor's shift. A motor whose step is
-planned within ``coalesce_s`` after the edge being made (and that nothing else holds back)
-shares its pulse: up to ``coalesce_s`` early, within the planner's own step error bound,
-instead of queueing a few microseconds behind it.
+there, RELEASED); and before a segment's first (already active: no step). Each motor's
+next due time is kept up to date as its state changes, so finding the next edge is one
+``min`` over the motors. Times are integer ns (ticks); a segment's ticks are plan ticks,
+made at plan tick + the motor's shift. A motor whose step is planned within ``coalesce_s``
+after the edge being made (and that nothing else holds back) shares its pulse: up to
+``coalesce_s`` early, within the planner's own step error bound, instead of queueing a few
+microseconds behind it.
 
 Stops from the planner: ``(motor, gen, -1)`` drops every segment of ``gen`` and older and
 reports STOPPED (a hard stop); ``(motor, gen, cut)`` drops only those of ``gen`` and older
@@ -68,6 +69,7 @@ from typing import Final
 
 from motorctl.hal.interfaces import HalError, StepIO
 from motorctl.motion.executors.base import (
+    ENDSTOP_ALREADY_ACTIVE,
     TICKS_PER_S,
     AxisLimits,
     ExecEvent,
@@ -262,6 +264,8 @@ class StepCore:
                 if seg.last:
                     self.emit(ExecEvent(K.DONE, m, gen, self.pos[m], self._now_s()))
                 continue
+            if seg.watch and self._on_end_ahead(m, gen, seg.direction):
+                return False  # the end stop ahead is active already: no step toward it
             first = seg.first
             self.next_t[m] = first = first + self.mcells[m * MOTOR_CELLS + SHIFT]
             self.iv[m] = seg.interval
@@ -374,8 +378,7 @@ class StepCore:
         left, iv, add, min_iv = self.left, self.iv, self.add, self.min_iv
         next_t, due_t, last_edge, prev_t = self.next_t, self.due_t, self.last_edge, self.prev_t
         widths, lateness, due = self.width, self.slid, self._due
-        width = 0
-        done = self._done
+        width, done = 0, self._done
         done.clear()
         for m in due:
             planned = next_t[m]
@@ -440,17 +443,32 @@ class StepCore:
             self.levels[e.line] = int(e.active)
             self.since[e.line] = to_ticks(e.t)
 
-    def _check_endstop(self, m: int, line: int) -> bool:
-        """Motor m stepped toward ``line``, which is active: stop once it is debounced
-        (True: stopped)."""
+    def _check_endstop(self, m: int, line: int, gen: int = -1, d: int = 0, why: str = "") -> bool:
+        """Motor m stepped toward ``line`` (or, ``why``, is about to in direction ``d`` in
+        plan ``gen``), which is active: stop once it is debounced (True: stopped)."""
         since = self.since[line]
         if self.clock.now_ns() - since < self.debounce[m]:
             return False
-        gen = self.gen[m]
+        if gen < 0:  # a hit: by the step just made, in its plan and direction
+            gen, d = self.gen[m], self.dir[m]
         self._halt(m)
         self.counters[ENDSTOPS] += 1
-        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], from_ticks(max(since, 0)), self.dir[m]))
+        t = from_ticks(max(since, 0))
+        self.emit(ExecEvent(K.ENDSTOP, m, gen, self.pos[m], t, d, 0.0, why))
         return True
+
+    def _on_end_ahead(self, m: int, gen: int, d: int) -> bool:
+        """Before a segment's first step, the end stop ahead (``d``) active: stop, no step
+        (ENDSTOP, :data:`ENDSTOP_ALREADY_ACTIVE`; True). A new plan reads the edges first."""
+        line = self.ends[m][1 if d > 0 else 0]
+        if line is None:
+            return False
+        if gen != self.gen[m]:
+            self._edges()
+            if self.stopped_gen[m] == BLOCKED:
+                return True  # the read failed: faulted (every motor)
+        on = self.levels[line] and self._check_endstop(m, line, gen, d, ENDSTOP_ALREADY_ACTIVE)
+        return bool(on)
 
     def _check_release(self, m: int) -> None:
         """Motor m stepped away from the end stop behind it (homing's back-off): stop once
@@ -471,9 +489,8 @@ class StepCore:
         gen = self.gen[m]
         self._halt(m)
         t = from_ticks(max(since, 0))
-        self.emit(
-            ExecEvent(K.RELEASED, m, gen, self.pos[m], t, -self.dir[m], 0.0, "", self.rel_at[m])
-        )
+        ev = ExecEvent(K.RELEASED, m, gen, self.pos[m], t, -self.dir[m], 0.0, "", self.rel_at[m])
+        self.emit(ev)
 
     def _speed(self, m: int, planned: int) -> float:
         gap = planned - self.prev_t[m]
@@ -518,11 +535,8 @@ class StepCore:
         speed = self._speed(m, self.next_t[m] if planned is None else planned)
         self._halt(m)
         self.counters[TIMING_LOST] += 1
-        self.emit(
-            ExecEvent(
-                K.TIMING_LOST, m, gen, self.pos[m], from_ticks(now), self.dir[m], speed, detail
-            )
-        )
+        t = from_ticks(now)
+        self.emit(ExecEvent(K.TIMING_LOST, m, gen, self.pos[m], t, self.dir[m], speed, detail))
 
     def _io_fault(self, motors: Sequence[int], exc: Exception) -> None:
         self.counters[IO_ERRORS] += 1
@@ -538,22 +552,11 @@ class StepCore:
 
     def _fault(self, motors: Sequence[int], detail: str) -> None:
         for m in motors:
-            gen = self.gen[m]
-            t = self.next_t[m]
+            gen, t = self.gen[m], self.next_t[m]
             speed = 0.0 if t == NEVER else self._speed(m, t)
             self._halt(m)
-            self.emit(
-                ExecEvent(
-                    K.FAULT,
-                    m,
-                    gen,
-                    self.pos[m],
-                    self._now_s(),
-                    self.dir[m],
-                    speed,
-                    detail,
-                )
-            )
+            ev = ExecEvent(K.FAULT, m, gen, self.pos[m], self._now_s(), self.dir[m], speed, detail)
+            self.emit(ev)
 
     def halt_all(self) -> None:
         for m in self.motors:
@@ -569,10 +572,8 @@ class StepCore:
     def run(
         self, running: Callable[[], bool], wait: Callable[[float], None], idle_s: float = 0.05
     ) -> None:
-        """Real clock: the loop, until ``running()`` is False.
-
-        End-stop edges are read after each step (and before each wait), not per turn.
-        """
+        """Real clock: the loop, until ``running()`` is False. End-stop edges are read after
+        each step, before each wait and before a new plan's first step, not per turn."""
         now_ns = self.clock.now_ns
         counters = self.counters
         stops = self.inbox.stops

@@ -464,6 +464,37 @@ def test_hard_stop_stops_at_once(cmd: MotionCmd) -> None:
     assert abs(rig.m.position) == n and rig.m.position == rig.axis()
 
 
+@pytest.mark.parametrize("debounce_s", [0.0, 0.02])
+def test_a_motion_toward_an_end_stop_pressed_already_faults_without_a_step(
+    debounce_s: float,
+) -> None:
+    """A run up until the max switch closes (a hit), StopMove clears it; each Move or
+    MoveTo toward it again latches the fault at once, no step made ("already active"); a
+    MoveTo away works."""
+    far = mock_axis(endstop_min=-100_000, endstop_max=100_000)
+    rig = engine_rig(motor_params(debounce_s=debounce_s), axes=[far])
+    rig.submit(RunCmd(1, RAMP))
+    rig.advance(0.2)
+    rig.world.force_endstop(0, "max", True)  # closed from now on
+    rig.engine.run_until_idle()
+    on_it = rig.axis()
+    assert rig.m.fault == f"end stop hit at {on_it} outside homing" and on_it > 0
+    steps = len(rig.times())
+    cmds: list[MotionCmd] = [RunCmd(1, RAMP), MoveToCmd(on_it + 500, RAMP), RunCmd(1, RAMP)]
+    for cmd in cmds:
+        assert rig.stop(hard=False) and rig.m.idle
+        rig.submit(cmd)
+        rig.engine.run_until_idle()
+        assert rig.state() is MotorState.FAULT
+        assert rig.m.fault == f"end stop already active at {on_it} outside homing"
+        assert len(rig.times()) == steps and rig.axis() == on_it == rig.m.position
+    assert rig.m.faults == {"endstop": 4} and not rig.m.position_lost
+    assert rig.stop(hard=False)
+    rig.submit(MoveToCmd(on_it - 500, RAMP))  # backing off: the switch behind is no fault
+    rig.engine.run_until_idle()
+    assert rig.m.fault is None and rig.m.idle and rig.axis() == on_it - 500 == rig.m.position
+
+
 # ---------------------------------------------------------------- homing
 
 
@@ -636,6 +667,20 @@ def test_two_phase_homing_that_starts_on_the_switch_backs_off_first() -> None:
     rig.engine.run_until_idle()
     assert direction_runs(rig.dirs()) == [(False, 25), (True, 25), (False, 1)]
     assert rig.axis() == 999 and rig.m.position == 0 and rig.m.fault is None
+
+
+def test_homing_with_debounce_that_starts_on_the_switch_only_backs_off_it() -> None:
+    """With a debounce the motor cannot tell the switch from a glitch before its run: the
+    executor does, before the first step, and the run goes straight to the back-off."""
+    rig = engine_rig(motor_params(debounce_s=0.02))
+    rig.world.axes[0].position = -1002  # resting on the min switch, 3 steps from its edge
+    rig.advance(0.05)  # for longer than the debounce
+    rig.submit(HomeCmd(-1, RAMP))
+    rig.engine.run_until_idle()
+    assert direction_runs(rig.dirs())[0][0] is True  # never a step toward it
+    assert rig.m.fault is None and rig.m.idle and len(rig.event_times("homed")) == 1
+    # zero where it released (-999), the steps of the debounce on top
+    assert rig.m.position == rig.axis() + 999 and rig.axis() > -999
 
 
 def test_homing_with_debounce_ignores_short_glitches() -> None:
@@ -823,9 +868,10 @@ def test_leaving_an_active_endstop_is_fine() -> None:
     rig.submit(MoveToCmd(-300, RAMP))
     rig.engine.run_until_idle()
     assert rig.m.fault is None and rig.axis() == -300
-    rig.submit(MoveToCmd(-299, RAMP))  # one step towards it: that hits it
+    rig.submit(MoveToCmd(-299, RAMP))  # towards it, active all along: not even one step
     rig.engine.run_until_idle()
-    assert rig.m.fault == f"end stop hit at {rig.m.position} outside homing"
+    assert rig.m.fault == "end stop already active at -300 outside homing"
+    assert rig.axis() == -300 == rig.m.position
 
 
 def test_driver_fault_while_moving_stops_at_once_and_latches() -> None:

@@ -12,7 +12,7 @@ import pytest
 
 from motorctl.client.client import Client, DeviceError
 from motorctl.protocol.codec import ErrorCode
-from tests.support.daemon_proc import StartDaemon
+from tests.support.daemon_proc import DaemonProcess, StartDaemon
 
 #: make test-dspin runs the dSPIN chips' test here (the STEP/DIR one is marked stepdir)
 pytestmark = pytest.mark.conformance
@@ -132,3 +132,88 @@ def wait_all(c: Client, every: list[tuple[int, tuple[str, int, bool]]]) -> None:
             c.wait_moved(i, timeout_ms=10_000)
         except DeviceError as exc:
             raise AssertionError(f"motor {i} ({kind}, {'up' if d > 0 else 'down'}): {exc}") from exc
+
+
+# ---------------------------------------------------------------- an end stop pressed already
+
+#: one motor over the mock's end stops at -ENDSTOP and ENDSTOP (the switch active at and
+#: beyond them, the hard stop there); on dSPIN chips: moved by an L6470 whose SW input is the
+#: switch below (a dSPIN chip has one)
+PRESSED = """
+[[motors]]
+name = "x"
+default_speed = 6000.0
+default_accel = 60000.0
+default_decel = 60000.0
+  [motors.homing]
+  speed = 6000.0
+  max_travel = 5000
+  [motors.mock]
+  endstop_min = -{ENDSTOP}
+  endstop_max = {ENDSTOP}
+"""
+
+
+@pytest.mark.stepdir
+@pytest.mark.parametrize(
+    ("executor", "core"), [("process", "compiled"), ("process", "python"), ("thread", "python")]
+)
+def test_a_move_into_an_end_stop_pressed_already_takes_no_step(
+    motorctld: StartDaemon, executor: str, core: str
+) -> None:
+    text = PRESSED.format(ENDSTOP=ENDSTOP)
+    daemon = motorctld(f'{text}\n[step_thread]\nexecutor = "{executor}"\ncore = "{core}"\n')
+    assert daemon.status()["executor"]["core"] == core
+    into_the_pressed_stop_and_away(daemon)
+
+
+def test_a_move_into_a_dspin_switch_closed_already_is_not_sent_to_the_chip(
+    motorctld: StartDaemon,
+) -> None:
+    """The chip's SW stops it only as it closes: the executor keeps the motion from the chip."""
+    text = PRESSED.format(ENDSTOP=ENDSTOP) + dspin_table(0, -1, True) + "\n[mock]\nwires = []\n"
+    daemon = motorctld(text)
+    into_the_pressed_stop_and_away(daemon)
+
+
+def into_the_pressed_stop_and_away(daemon: DaemonProcess) -> None:
+    """Move down into the switch below (E4, a hit), StopMove; then three times a Move or a
+    MoveTo beyond it: E4 at once, "already active", the position unchanged (no creep); a
+    MoveTo away works; back on the switch, InitMove toward it goes straight to the back-off
+    and a MoveTo 0 after it gets no E4."""
+
+    def reason() -> str:
+        return str(daemon.status()["motors"][0]["last_error"]["reason"])
+
+    with daemon.client() as c:
+        c.move(0, False)
+        with pytest.raises(DeviceError) as hit:
+            c.wait_moved(0, timeout_ms=10_000)
+        assert hit.value.code is ErrorCode.MOTOR_ERROR
+        on_it = c.position(0)
+        assert reason() == f"end stop hit at {on_it} outside homing" and on_it <= -ENDSTOP
+        for again in range(3):
+            c.stop(0)  # clears it
+            if again == 1:
+                c.move_to(0, on_it - 1000)
+            else:
+                c.move(0, False)
+            with pytest.raises(DeviceError) as pressed:
+                c.wait_moved(0, timeout_ms=10_000)
+            assert pressed.value.code is ErrorCode.MOTOR_ERROR
+            assert c.position(0) == on_it, f"attempt {again}: a step into the pressed stop"
+            assert reason() == f"end stop already active at {on_it} outside homing"
+        c.stop(0)
+        c.move_to(0, on_it + 500)  # away: how a user backs off
+        c.wait_moved(0, timeout_ms=10_000)
+        assert c.position(0) == on_it + 500
+        c.move(0, False)  # onto the switch again
+        with pytest.raises(DeviceError):
+            c.wait_moved(0, timeout_ms=10_000)
+        c.stop(0)
+        c.init_move(0, False)  # homing from the pressed switch: the back-off only
+        c.wait_moved(0, timeout_ms=10_000)
+        assert 0 <= c.position(0) <= 3  # zero where it released (a chip brakes a little on)
+        c.move_to(0, 0)
+        c.wait_moved(0, timeout_ms=10_000)  # no E4: 0 is off the switch
+        assert c.position(0) == 0

@@ -14,9 +14,11 @@
  * survive; raise the STEP lines of every due motor in one call per GPIO request,
  * account while they are high, lower them after the pulse width, read end-stop edges,
  * look at the end stop ahead of each motor that stepped (and, in a plan that watches for
- * it, whether the end stop behind has released: RELEASED). A line that fails is a FAULT of
- * the motors concerned, a record that is not whole or not sane a FAULT of its motor
- * (every motor for a stop record whose motor is unknown); the loop never dies of either.
+ * it, whether the end stop behind has released: RELEASED); a segment taken while the end
+ * stop ahead of it is active already makes no step (ENDSTOP, "already active"). A line that
+ * fails is a FAULT of the motors concerned, a record that is not whole or not sane a FAULT
+ * of its motor (every motor for a stop record whose motor is unknown); the loop never dies
+ * of either.
  *
  * Time: integer ns of CLOCK_MONOTONIC (Python's time.perf_counter_ns, the kernel's edge
  * timestamps), or a virtual clock that only the caller moves (tests). */
@@ -157,6 +159,32 @@ static void lost(struct core *c, int m, int64_t now, const char *text, int64_t p
 
 static int load(struct core *c, int m);
 
+/* before a segment's first step (step_core.py's _on_end_ahead): the end stop ahead in
+ * direction d is active already (debounced), the motor stands on it: stopped there without a
+ * step toward it, ENDSTOP as for a hit with the text ENDSTOP_ALREADY_ACTIVE; 1: stopped. A
+ * new plan reads the edges first (at rest they were read only before the last wait). */
+static int on_end_ahead(struct core *c, int m, int64_t gen, int d) {
+    struct motor *mo = &c->m[m];
+    int line = mo->end[d > 0 ? 1 : 0];
+    if (line < 0)
+        return 0;
+    if (gen != mo->gen) {
+        core_edges(c);
+        if (mo->stopped_gen == BLOCKED)
+            return 1; /* the read failed: faulted (every motor) */
+    }
+    if (!c->levels[line])
+        return 0;
+    int64_t since = c->since[line];
+    if (core_now(c) - since < mo->debounce)
+        return 0;
+    core_halt(c, m);
+    CELL_ADD(&c->counters[C_ENDSTOPS], 1);
+    emit(c, EV_ENDSTOP, m, gen, c->positions[m], since > 0 ? since : 0, d, 0.0,
+         ENDSTOP_ALREADY_ACTIVE);
+    return 1;
+}
+
 static void cut(struct core *c, int m, int64_t gen, int64_t tick) {
     struct motor *mo = &c->m[m];
     if (mo->stopped_gen == BLOCKED)
@@ -295,6 +323,8 @@ static int load(struct core *c, int m) {
                 emit(c, EV_DONE, m, gen, c->positions[m], core_now(c), 0, 0.0, NULL);
             continue;
         }
+        if ((f[7] & SEG_WATCH) && on_end_ahead(c, m, gen, (int)f[5]))
+            return 0; /* the end stop ahead is active already: no step toward it */
         int64_t at = first + c->mcells[m * N_MOTOR_CELLS + M_SHIFT];
         mo->next_t = at;
         mo->iv = f[2];

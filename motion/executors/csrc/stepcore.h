@@ -34,6 +34,8 @@
 #define BLOCKED (INT64_C(1) << 62) /* stopped_gen after the core stopped a motor itself */
 #define GAP_WINDOW (TICKS_PER_S / 10)
 #define TEXT_LEN 120 /* an event's text field */
+/* an ENDSTOP's text when the end stop ahead was active before the first step (base.py's) */
+#define ENDSTOP_ALREADY_ACTIVE "already active"
 
 /* counters cells (core_cells.COUNTER_NAMES) */
 enum { C_PROGRESS, C_STEPS, C_TIMING_LOST, C_IO_ERRORS, C_ENDSTOPS, C_DROPPED, C_MIN_GAP,

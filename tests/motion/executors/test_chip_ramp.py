@@ -14,7 +14,7 @@ from motorctl.hal.layers.tmc.tmc5160 import RefSwitches, Tmc5160
 from motorctl.hal.spec import AxisSpec, HardwareSpec
 from motorctl.hal.spi import SpiAddress, SpiBus, SpiSettings
 from motorctl.motion.engine import MotionEngine
-from motorctl.motion.executors.base import ExecEventKind
+from motorctl.motion.executors.base import ENDSTOP_ALREADY_ACTIVE, ExecEventKind
 from motorctl.motion.executors.chip_ramp import RampExecutor, peak_speed
 from motorctl.motion.profile import plan_move_to, plan_run
 from motorctl.motion.types import (
@@ -91,6 +91,34 @@ def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped(
     rig.ex.follow(0, away, RAMP, gen=4)  # leaving the switch upward is allowed
     rig.run(lambda: rig.seen[-1].kind is K.DONE, 5.0)
     assert rig.ex.position(0) == 0
+
+
+@pytest.mark.parametrize("side", [-1, 1])
+def test_a_motion_toward_a_switch_active_already_is_not_sent_to_the_chip(side: int) -> None:
+    """On the switch (the read the motion starts from, ``committed()``, says it is active):
+    ENDSTOP at once where it stands, "already active", and no datagram written to the chip;
+    the other way the chip moves as ever."""
+    rig = RampRig()
+    model = rig.models[0]
+    if side < 0:
+        model.ref_l_at = 5.0  # REFL active at and below 5: the chip is on it, at 0
+    else:
+        model.ref_r_at = -5.0
+    rig.ex.committed(0, rig.clock.now())
+    writes = sum(1 for tx, _ in model.log if tx[0] & 0x80)
+    toward = plan_run(rig.clock.now(), 0.0, 0.0, 3000.0 * side, 3e4, 3e4, None)
+    assert rig.ex.follow(0, toward, RAMP, gen=1)
+    rig.run(lambda: K.ENDSTOP in rig.kinds(), 1.0)
+    ev = rig.seen[-1]
+    assert (ev.gen, ev.position, ev.direction, ev.detail) == (1, 0, side, ENDSTOP_ALREADY_ACTIVE)
+    assert sum(1 for tx, _ in model.log if tx[0] & 0x80) == writes
+    rig.ex.stop(0, gen=2)
+    rig.run(lambda: rig.seen[-1].kind is K.STOPPED, 1.0)
+    rig.ex.committed(0, rig.clock.now())
+    away = plan_move_to(rig.clock.now(), 0.0, 0.0, -2000.0 * side, 4000.0, 4e4, 4e4)
+    assert rig.ex.follow(0, away, RAMP, gen=3)
+    rig.run(lambda: rig.seen[-1].kind is K.DONE, 5.0)
+    assert rig.ex.position(0) == -2000 * side
 
 
 @pytest.mark.parametrize("side", [-1, 1])

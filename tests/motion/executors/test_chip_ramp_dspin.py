@@ -17,7 +17,7 @@ from motorctl.hal.backends.mock.world import MockAxis, world_of
 from motorctl.hal.interfaces import Hardware, VirtualClock
 from motorctl.hal.layers.dspin.convert import ABS_POS_MAX, ABS_POS_MIN
 from motorctl.hal.layers.dspin.driver import DspinDriver
-from motorctl.motion.executors.base import ExecEvent, ExecEventKind
+from motorctl.motion.executors.base import ENDSTOP_ALREADY_ACTIVE, ExecEvent, ExecEventKind
 from motorctl.motion.executors.chip_ramp import RampExecutor
 from motorctl.motion.profile import plan_move_to, plan_run
 from motorctl.motion.types import Ramp
@@ -150,6 +150,45 @@ def test_a_stop_while_the_chip_ramps_is_a_soft_stop_and_settles_where_it_stands(
     rig.run(lambda: K.DONE in rig.kinds(), 5.0)  # settled: DONE where it stands
     assert rig.seen[-1].gen == 2 and rig.seen[-1].position == rig.chip.abs_pos
     assert not rig.chip.latched & {"NOTPERF_CMD", "WRONG_CMD"}
+
+
+def test_a_motion_toward_the_switch_closed_already_is_not_sent_to_the_chip(
+    rig: DspinRig,
+) -> None:
+    """SW stops the chip as it closes (SW_EVN, SW_MODE 0), not while it is closed: a GoTo_DIR
+    or Run toward a switch closed already would run on into the machine's end. The executor
+    sees it closed in the read each motion starts from (``committed()``) and reports ENDSTOP
+    at once, nothing sent to the chip; a move away goes to the chip as ever."""
+    speed, acc, dec = RAMP.speed, RAMP.acc, RAMP.dec
+    rig.ex.follow(0, plan_move_to(rig.clock.now(), 0.0, 0.0, -5000.0, speed, acc, dec), RAMP, 1)
+    rig.run(lambda: K.ENDSTOP in rig.kinds(), 5.0)
+    hit = rig.seen[-1]
+    assert (
+        (hit.position, hit.detail) == (-1500, "reference switch") == (rig.chip.abs_pos, hit.detail)
+    )
+    for gen in (2, 4, 6):  # StopMove, then a MoveTo or Move down again: the chip is not moved
+        rig.ex.stop(0, gen)
+        rig.run(lambda: rig.seen[-1].kind is K.STOPPED, 1.0)
+        here = float(rig.ex.committed(0, rig.clock.now()).counter)
+        start = len(rig.sent())
+        if gen == 4:
+            down = plan_run(rig.clock.now(), here, 0.0, -2000.0, acc, dec, None)
+        else:
+            down = plan_move_to(rig.clock.now(), here, 0.0, -5000.0, speed, acc, dec)
+        assert rig.ex.follow(0, down, RAMP, gen + 1)
+        rig.run(lambda: rig.seen[-1].kind is K.ENDSTOP, 1.0)
+        ev = rig.seen[-1]
+        assert (ev.gen, ev.position, ev.direction) == (gen + 1, -1500, -1)
+        assert ev.detail == ENDSTOP_ALREADY_ACTIVE and rig.sent()[start:] == []
+    rig.ex.stop(0, 8)
+    rig.run(lambda: rig.seen[-1].kind is K.STOPPED, 1.0)
+    assert rig.chip.abs_pos == -1500 == rig.axis.position
+    here = float(rig.ex.committed(0, rig.clock.now()).counter)
+    assert rig.ex.follow(
+        0, plan_move_to(rig.clock.now(), here, 0.0, -500.0, speed, acc, dec), RAMP, 9
+    )
+    rig.run(lambda: rig.seen[-1].kind is K.DONE, 5.0)
+    assert rig.ex.position(0) == -500 == rig.axis.position
 
 
 def test_a_run_to_the_switch_is_go_until_and_the_back_off_release_sw_both_mark_it(

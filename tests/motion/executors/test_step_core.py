@@ -19,7 +19,12 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from motorctl.hal.backends.mock.world import EventKind, mock_axis
-from motorctl.motion.executors.base import ExecEvent, ExecEventKind, to_ticks
+from motorctl.motion.executors.base import (
+    ENDSTOP_ALREADY_ACTIVE,
+    ExecEvent,
+    ExecEventKind,
+    to_ticks,
+)
 from motorctl.motion.executors.core_cells import (
     ABSORBED,
     LAG_FAULTS,
@@ -311,6 +316,34 @@ def test_a_last_step_onto_the_switch_is_an_end_stop_hit_not_a_move_done(core_rig
     assert [e.kind for e in c.events] == [K.ENDSTOP]  # no DONE before it: E4 for WaitMoved
     ev = c.events[0]
     assert (ev.gen, ev.position, ev.direction) == (1, 40, 1) and len(c.times()) == 40
+
+
+def test_a_segment_toward_an_end_stop_active_already_makes_no_step(core_rig: Rig) -> None:
+    """On the switch after a hit, each plan toward it again (the caller's answer, then a new
+    generation) stops before its first step: ENDSTOP at the same position, "already active",
+    no pulse; a plan away from it steps at once."""
+    c = core_rig(axes=[mock_axis(endstop_min=-1000, endstop_max=40)])
+    c.cruise(0, 2000.0, 100, c.clock.now() + 0.001)
+    c.run_until(c.clock.now() + 1.0)
+    assert [(e.kind, e.position, e.detail) for e in c.events] == [(K.ENDSTOP, 40, "")]
+    gen = 1
+    for _ in range(3):  # the host clears the fault and moves up again: not one step
+        c.stop(0, gen + 1)
+        gen += 2
+        c.push(0, StepSegment(to_ticks(c.clock.now() + 0.001), 500_000, 10, 0, 1, gen, True))
+        c.run_until(c.clock.now() + 0.1)
+        ev = c.events[-1]
+        assert (ev.kind, ev.gen, ev.position, ev.direction) == (K.ENDSTOP, gen, 40, 1)
+        assert ev.detail == ENDSTOP_ALREADY_ACTIVE
+        assert len(c.times()) == 40 == c.positions[0] == c.world.axes[0].position
+    assert c.counter("endstops") == 4
+    assert [e.kind for e in c.events] == [K.ENDSTOP, K.STOPPED] * 3 + [K.ENDSTOP]
+    # the way back steps at once; the end stop behind is none of its business
+    c.stop(0, gen + 1)
+    c.push(0, StepSegment(to_ticks(c.clock.now() + 0.001), 500_000, 10, 0, -1, gen + 2, True))
+    c.run_until(c.clock.now() + 0.1)
+    assert [e.kind for e in c.events[-2:]] == [K.STOPPED, K.DONE]
+    assert c.positions[0] == 30 == c.world.axes[0].position and c.shared.levels[1] == 0
 
 
 def test_backing_off_an_end_stop_the_core_stops_where_it_releases(core_rig: Rig) -> None:
