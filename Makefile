@@ -31,7 +31,7 @@ PTY    ?= $(CURDIR)/motorctl.pty
 STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
 # make test's pytest workers: one more than the 2 cores, as its tests wait on real-time motion
-# and on their daemons much of the time (at -n 2 the machine's 2 cores were 55 % busy);
+# and on their daemons much of the time (at -n 2 the machine's 2 cores were 55-65 % busy);
 # docs/timing.md, "make test's time". TEST_JOBS=2 for the earlier count.
 TEST_JOBS ?= 3
 BIN     = $(VENV)/bin
