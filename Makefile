@@ -30,6 +30,10 @@ VENV   ?= .venv
 PTY    ?= $(CURDIR)/motorctl.pty
 STATE  ?= $(CURDIR)/.run/state
 JOBS   ?= 2
+# make test's pytest workers: one more than the 2 cores, as its tests wait on real-time motion
+# and on their daemons much of the time (at -n 2 the machine's 2 cores were 55-65 % busy);
+# docs/timing.md, "make test's time". TEST_JOBS=2 for the earlier count.
+TEST_JOBS ?= 3
 BIN     = $(VENV)/bin
 
 .PHONY: run test test-slow test-dspin test-hw lint bench coverage robustness clean venv deb deb-deps test-deb test-deps \
@@ -136,7 +140,7 @@ test: venv stepcore dataclass-code test-deps
 	$(BIN)/ruff check .
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
-	$(BIN)/pytest -q -n $(JOBS)
+	$(BIN)/pytest -q -n $(TEST_JOBS)
 
 # The tests marked slow (pyproject.toml's addopts leaves them out of make test, to keep it near
 # 90 s on 2 cores): the wheel built and installed beside python-daemon from PyPI

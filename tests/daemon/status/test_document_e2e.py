@@ -45,23 +45,23 @@ def test_the_subscribe_stream_follows_a_move(daemon: DaemonProcess) -> None:
     first = next(stream)
     assert first["motors"][0]["state"] == "idle" and first["motors"][0]["position"] == 0
     with daemon.client() as c:
-        c.move_to(0, 1500, 250)  # 1000 step/s: 1.5 s
+        c.move_to(0, 600, 250)  # 1000 step/s: 0.6 s, a dozen updates at 50 ms
         states: list[tuple[str, int, float]] = []
         deadline = time.monotonic() + WAIT_S
         for doc in stream:  # an update at least every heartbeat: the loop is bounded
             m = doc["motors"][0]
             states.append((m["state"], m["position"], m["speed"]))
-            if m["state"] == "idle" and m["position"] == 1500:
+            if m["state"] == "idle" and m["position"] == 600:
                 break
             assert time.monotonic() < deadline, states
         stream.close()
     moving = [s for s in states if s[0] == "moving"]
     assert len(moving) >= 3, states  # seen on the way, not only before and after
     assert len({p for _, p, _ in moving}) >= 3 and max(v for *_, v in moving) > 0
-    assert states[-1] == ("idle", 1500, 0.0)
+    assert states[-1] == ("idle", 600, 0.0)
     recent = doc["link"]["recent"]
     assert (
-        recent[-1]["command"] == "MoveTo(motor=0, dir=up, pos=1500, speed=250, acc=0, dec=0)"
+        recent[-1]["command"] == "MoveTo(motor=0, dir=up, pos=600, speed=250, acc=0, dec=0)"
         and recent[-1]["result"] == "ok"
     )
 

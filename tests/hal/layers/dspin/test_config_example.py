@@ -34,10 +34,10 @@ def test_the_daemon_serves_the_example(motorctld: StartDaemon) -> None:
     daemon = motorctld(EXAMPLE.read_text())
     with daemon.client() as c:
         for motor in range(3):
-            c.move_to(motor, 1000 * (motor + 1), speed=250)
+            c.move_to(motor, 400 * (motor + 1), speed=250)
         for motor in range(3):
             c.wait_moved(motor, timeout_ms=20_000)
-            assert c.position(motor) == 1000 * (motor + 1)
+            assert c.position(motor) == 400 * (motor + 1)
             c.init_move(motor, False, speed=4)
         for motor in range(3):
             c.wait_moved(motor, timeout_ms=30_000)
