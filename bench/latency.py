@@ -21,6 +21,11 @@ turn in Python and does nothing else; its CPU per round trip against the echo pe
 a link thread in Python cannot go below, and what is left of the 2x target beside it is what
 decoding, dispatching, encoding and the bookkeeping may spend.
 
+``--cpus D,H``: every peer on CPU ``D``, the host on CPU ``H`` (as bench/reconnect.py's). Where
+the kernel wakes a peer decides much of its CPU per round trip (a wake-up on the host's CPU,
+a migration), differently for a one-thread peer and the daemon: pinned, the three are
+compared on equal terms.
+
 The peers take turns in short rounds (``--rounds`` of ``-n``), so the machine's drifts
 (another tenant, a busy spell) hit both alike; with motion, both run beside the stepping
 daemon (its step process spinning on one CPU, its planner on the other).
@@ -44,6 +49,7 @@ import serial
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from bench.reconnect import pin_tree  # noqa: E402
 from motorctl.daemon.start.link_parts import CPU_PARTS_ENV  # noqa: E402
 from motorctl.daemon.status.reader import read_status  # noqa: E402
 from motorctl.protocol.codec import CodecOptions, IsReady, encode_command  # noqa: E402
@@ -127,8 +133,22 @@ def main() -> int:
         help="the daemon's link thread's CPU per round trip, part by part (its clock readings "
         "add to it)",
     )
+    ap.add_argument(
+        "--cpus",
+        metavar="D,H",
+        help="every peer (the echo peer, the floor, each daemon with every thread of it and of "
+        "its step process) on CPU D, the host (this process) on CPU H; without it the kernel "
+        "places them, and where it wakes a peer decides much of its CPU per round trip",
+    )
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
+    cpus = None
+    if args.cpus:
+        try:
+            d_cpu, h_cpu = (int(c) for c in args.cpus.split(","))
+        except ValueError:
+            ap.error(f"--cpus wants two CPU numbers, D,H: not {args.cpus!r}")
+        cpus = (d_cpu, h_cpu)
     frame = encode_command(IsReady(0), CodecOptions())
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
@@ -186,6 +206,12 @@ def main() -> int:
             if traced is not None:
                 assert traced.proc is not None
                 peers.append(("traced", traced.proc.pid, traced.pty, traced_t))
+            if cpus is not None:
+                for peer_pid in (echo.pid, floor.pid, daemon.proc.pid):
+                    pin_tree(peer_pid, cpus[0])
+                if traced is not None and traced.proc is not None:
+                    pin_tree(traced.proc.pid, cpus[0])
+                os.sched_setaffinity(0, {cpus[1]})
             parts_before = link_parts(daemon) if args.parts else None
             for _ in range(args.rounds):  # interleaved rounds: drift hits all alike
                 for name, pid, port, into in peers:
@@ -222,6 +248,7 @@ def main() -> int:
             part: round((parts_after[part] - parts_before[part]) / made / 1000, 2)
             for part in parts_after
         }
+    result["cpus"] = None if cpus is None else {"peers": cpus[0], "host": cpus[1]}
     result["motion_steps_per_s_per_motor"] = args.motion
     result["executor"] = args.executor
     result["switch_interval_us"] = args.switch_interval_us
@@ -229,7 +256,8 @@ def main() -> int:
     result["echo_p99_us"] = result["echo_peer"]["p99_us"]
     result["p50_ratio"] = round(result["daemon"]["p50_us"] / result["echo_peer"]["p50_us"], 2)
     e, d, p = result["echo_peer"], result["daemon"], result["processing"]
-    print(f"IsReady round trip over a PTY, {len(daemon_t)} each:")
+    where = "" if cpus is None else f" (the peers on CPU {cpus[0]}, the host on CPU {cpus[1]})"
+    print(f"IsReady round trip over a PTY, {len(daemon_t)} each{where}:")
     for name, r in (("echo peer", e), ("motorctld", d)):
         print(
             f"  {name:<10} p50 {r['p50_us']:8.1f} us  p99 {r['p99_us']:8.1f} us  "
