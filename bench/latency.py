@@ -49,7 +49,7 @@ import serial
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from bench.reconnect import pin_tree  # noqa: E402
+from bench.reconnect import cpu_pair, pin_tree  # noqa: E402
 from motorctl.daemon.start.link_parts import CPU_PARTS_ENV  # noqa: E402
 from motorctl.daemon.status.reader import read_status  # noqa: E402
 from motorctl.protocol.codec import CodecOptions, IsReady, encode_command  # noqa: E402
@@ -142,13 +142,7 @@ def main() -> int:
     )
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args()
-    cpus = None
-    if args.cpus:
-        try:
-            d_cpu, h_cpu = (int(c) for c in args.cpus.split(","))
-        except ValueError:
-            ap.error(f"--cpus wants two CPU numbers, D,H: not {args.cpus!r}")
-        cpus = (d_cpu, h_cpu)
+    cpus = cpu_pair(ap, args.cpus)
     frame = encode_command(IsReady(0), CodecOptions())
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

@@ -202,6 +202,17 @@ def stalls(cpus: list[int], seconds: float) -> list[dict[str, Any]]:
     return [json.loads(p.communicate(timeout=seconds + TIMEOUT_S)[0]) for p in procs]
 
 
+def cpu_pair(ap: argparse.ArgumentParser, text: str | None) -> tuple[int, int] | None:
+    """``--cpus D,H`` as (D, H); None without it; a usage error for anything else."""
+    if not text:
+        return None
+    try:
+        d_cpu, h_cpu = (int(c) for c in text.split(","))
+    except ValueError:
+        ap.error(f"--cpus wants two CPU numbers, D,H: not {text!r}")
+    return d_cpu, h_cpu
+
+
 def pin_tree(pid: int, cpu: int) -> None:
     """Every thread of process ``pid`` and of its children, on ``cpu``."""
     for task in Path(f"/proc/{pid}/task").iterdir():
@@ -363,14 +374,9 @@ def main() -> int:
     first: dict[str, list[float]] = {k: [] for k in kinds}
     wrong: list[str] = []
     wrong_by_kind = dict.fromkeys(("ordinary", *kinds), 0)
-    cpus = None
-    if args.cpus:
-        try:
-            d_cpu, h_cpu = (int(c) for c in args.cpus.split(","))
-        except ValueError:
-            ap.error(f"--cpus wants two CPU numbers, D,H: not {args.cpus!r}")
-        cpus = (d_cpu, h_cpu)
-        os.sched_setaffinity(0, {h_cpu})
+    cpus = cpu_pair(ap, args.cpus)
+    if cpus is not None:
+        os.sched_setaffinity(0, {cpus[1]})
     with tempfile.TemporaryDirectory() as tmp:
         bench = Bench(Path(tmp), args.port)
         try:

@@ -25,8 +25,11 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from bench.echo_peer import echo  # noqa: E402  (the echo peer's loop: REPLY per 10 bytes)
+
 FRAME = bytes.fromhex("03 00 00 00 00 00 00 00 00 8b")
-REPLY = bytes.fromhex("01 01 00 00 6b")
 WARM_UP = 50
 
 
@@ -36,20 +39,14 @@ def pct(values: list[float], q: float) -> float:
 
 
 def echo_device() -> tuple[int, str]:
-    """A PTY whose master answers REPLY per 10 bytes (a child process); its slave's path."""
+    """A PTY whose master answers IsReady's TRUE per 10 bytes (a child process): its slave."""
     master, slave = os.openpty()
     tty.setraw(slave)
     tty.setraw(master)
     name = os.ttyname(slave)
     pid = os.fork()
     if pid == 0:  # the device; it keeps the slave open, so its reads never fail with EIO
-        pending = 0
-        while True:
-            data = os.read(master, 4096)
-            pending += len(data)
-            while pending >= 10:
-                pending -= 10
-                os.write(master, REPLY)
+        echo(master)
     os.close(master)
     os.close(slave)
     return pid, name

@@ -93,17 +93,24 @@ def test_the_reference_switch_ahead_stops_the_chip_and_reports_where_it_tripped(
     assert rig.ex.position(0) == 0
 
 
+def on_the_switch(rig: RampRig, side: int) -> TmcModel:
+    """Motor 0's chip model standing on its reference switch on ``side`` (-1: REFL, at and
+    below 5; 1: REFR, at and above -5), at 0."""
+    model = rig.models[0]
+    if side < 0:
+        model.ref_l_at = 5.0
+    else:
+        model.ref_r_at = -5.0
+    return model
+
+
 @pytest.mark.parametrize("side", [-1, 1])
 def test_a_motion_toward_a_switch_active_already_is_not_sent_to_the_chip(side: int) -> None:
     """On the switch (the read the motion starts from, ``committed()``, says it is active):
     ENDSTOP at once where it stands, "already active", and no datagram written to the chip;
     the other way the chip moves as ever."""
     rig = RampRig()
-    model = rig.models[0]
-    if side < 0:
-        model.ref_l_at = 5.0  # REFL active at and below 5: the chip is on it, at 0
-    else:
-        model.ref_r_at = -5.0
+    model = on_the_switch(rig, side)
     rig.ex.committed(0, rig.clock.now())
     writes = sum(1 for tx, _ in model.log if tx[0] & 0x80)
     toward = plan_run(rig.clock.now(), 0.0, 0.0, 3000.0 * side, 3e4, 3e4, None)
@@ -127,11 +134,7 @@ def test_a_back_off_stops_the_chip_where_the_switch_behind_releases(side: int) -
     inactive edge; once a poll sees it released the executor stops the chip and reports
     RELEASED with that position (``mark``), the chip standing a little further on."""
     rig = RampRig()
-    model = rig.models[0]
-    if side < 0:
-        model.ref_l_at = 5.0  # REFL active at and below 5: the chip is on it, at 0
-    else:
-        model.ref_r_at = -5.0
+    model = on_the_switch(rig, side)
     away = plan_run(rig.clock.now(), 0.0, 0.0, -250.0 * side, 4e4, 4e4, -5000.0 * side)
     assert rig.ex.follow(0, away, RAMP, gen=1, release=True)
     sw = model.regs[0x34]
