@@ -114,6 +114,14 @@ def parse_config(text: str, source: str) -> Config:
         else:  # "(at end of document)"
             line = max(1, text.count("\n") + (0 if text.endswith("\n") else 1))
         raise ConfigError(f"{source}: line {line}: TOML syntax error: {message}") from None
+    except RecursionError:  # arrays or inline tables nested thousands deep
+        raise ConfigError(
+            f"{source}: TOML nested too deeply to be read; accepted: a config's tables and "
+            "arrays, nested a few levels"
+        ) from None
+    except ValueError as exc:  # e.g. an integer of more digits than Python converts
+        why = str(exc).split(":")[0]  # without the advice to raise Python's own limit
+        raise ConfigError(f"{source}: TOML that cannot be read ({why})") from None
     parser = Parser(source)
     config = parser.build(schema(), document, source=source)
     assert isinstance(config, Config)

@@ -435,13 +435,25 @@ class PinConfig(Sectioned):
 
 
 def _check_state_dir(value: str) -> str | None:
-    """Problem with a state directory, or None: empty or an absolute path."""
-    return None if value == "" or value.startswith("/") else "not an absolute path"
+    """Problem with a state directory, or None: empty or an absolute path (one the system
+    can take: no NUL character)."""
+    if value == "":
+        return None
+    if not value.startswith("/"):
+        return "not an absolute path"
+    if "\0" in value:
+        return "holds a NUL character (\\u0000), which no path can"
+    return None
 
 
 def _check_trace_file(value: str) -> str | None:
-    """Problem with a trace file name, or None: empty or an absolute path."""
-    return None if value == "" or value.startswith("/") else "not an absolute path"
+    """Problem with a trace file name, or None: empty or an absolute path of a file (not
+    one that ends in a folder's name: ``/``, ``.``, ``..``; the daemon would set that folder
+    aside as in its way)."""
+    problem = _check_state_dir(value)
+    if problem is None and value and value.rsplit("/", 1)[-1] in ("", ".", ".."):
+        return "names a folder, not a file"
+    return problem
 
 
 @section(

@@ -528,6 +528,27 @@ ERRORS: list[tuple[str, str, list[str]]] = [
         MOTOR + 'name = "x axis"\n',
         ['motors[0].name = "x axis"', "letters, digits"],
     ),
+    # paths no system call takes, or that name no file: refused here, not a traceback at start
+    (
+        "state-directory-nul",
+        '[state]\ndirectory = "/run/a\\u0000b"\n' + MOTOR,
+        ['state.directory = "/run/a\\u0000b"', "holds a NUL character", "an absolute path"],
+    ),
+    (
+        "trace-file-nul",
+        '[trace]\nfile = "/run/a\\u0000.pcapng"\n' + MOTOR,
+        ['trace.file = "/run/a\\u0000.pcapng"', "holds a NUL character"],
+    ),
+    (
+        "trace-file-folder",
+        '[trace]\nfile = "/run/motorctl/"\n' + MOTOR,
+        ['trace.file = "/run/motorctl/": names a folder, not a file', "an absolute path"],
+    ),
+    (
+        "trace-file-dot-dot",
+        '[trace]\nfile = "/run/motorctl/.."\n' + MOTOR,
+        ['trace.file = "/run/motorctl/..": names a folder, not a file'],
+    ),
     ("no-motors", "[link]\n", ["motors: missing", "1..64 [[motors]] tables"]),
     ("zero-motors", "motors = []\n", ["motors: 0 entries", "1..64 [[motors]] tables"]),
     ("too-many-motors", MOTOR * 65, ["motors: 65 entries", "1..64 [[motors]] tables"]),
@@ -949,3 +970,25 @@ def test_only_the_mock_with_lose_steps_off_spares_its_motors_from_the_lag_rule()
             assert hw.motors_lose_steps is lose
         finally:
             hw.close()
+
+
+@pytest.mark.parametrize(
+    ("text", "says"),
+    [
+        ("x = " + "[" * 100_000 + "]" * 100_000 + "\n", "TOML nested too deeply to be read"),
+        ("x = " + "{a = " * 5000 + "1" + "}" * 5000 + "\n", "TOML nested too deeply to be read"),
+        (
+            MOTOR + "queue_depth = " + "9" * 5000 + "\n",
+            "TOML that cannot be read (Exceeds the limit (4300 digits) for integer string "
+            "conversion)",
+        ),
+    ],
+    ids=["arrays", "inline-tables", "digits"],
+)
+def test_toml_that_python_cannot_read_is_a_config_error_not_a_traceback(
+    text: str, says: str
+) -> None:
+    """What tomllib raises besides its TOMLDecodeError (a RecursionError, int()'s
+    ValueError) is a ConfigError naming the file and the problem, as a bad state file is."""
+    message = error_of(text)
+    assert message.startswith(f"{SOURCE}: ") and says in message

@@ -24,8 +24,9 @@ AS_IS: Final = "as-is"
 BIASES: Final = (AS_IS, "pull-up", "pull-down", "disabled")
 BRIDGE_STOPS: Final = ("coast", "brake")
 
-_CHIP_LINE = re.compile(r"^(?P<chip>[^:\s]+):(?P<offset>\d+)$")
-_NAME = re.compile(r"^[^:\s]+$")
+# no NUL either: no chip's path or line's name holds one (the kernel's are C strings)
+_CHIP_LINE = re.compile(r"^(?P<chip>[^:\s\x00]+):(?P<offset>\d+)$")
+_NAME = re.compile(r"^[^:\s\x00]+$")
 
 
 @dataclass(frozen=True, order=True)

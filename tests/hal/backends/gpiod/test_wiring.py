@@ -21,7 +21,9 @@ def test_line_refs_parse_as_the_kernel_names_lines(text: str, ref: LineRef) -> N
     assert LineRef.parse(text) == ref
 
 
-@pytest.mark.parametrize("bad", ["", "17", "gpio chip:1", "gpiochip0:x"])
+@pytest.mark.parametrize(
+    "bad", ["", "17", "gpio chip:1", "gpiochip0:x", "gpiochip\x000:1", "GPIO\x0017"]
+)
 def test_bad_line_refs_are_refused(bad: str) -> None:
     with pytest.raises(ValueError, match="not a GPIO line"):
         LineRef.parse(bad)
