@@ -216,8 +216,13 @@ class TraceRecorder:
         self._size = self._head_size = len(head)
 
     def _rotate_files(self) -> None:
+        """``FILE.N-2`` to ``FILE.N-1``, ..., ``FILE`` to ``FILE.1``; the oldest goes. Only
+        the daemon's own files are renamed or removed: anything else at one of these names
+        (another user's file, a hard link, a link, a folder, a FIFO, ...) is set aside as
+        at ``FILE`` (daemon/state/files.py), never deleted or renamed over."""
         oldest = rotated(self.path, self.files - 1)
-        if oldest.exists():
+        clear_the_way(oldest)
+        if os.path.lexists(oldest):
             log.info(
                 "trace %s: %s rotated away (the oldest of %d files; readers of the rest say "
                 "which part is missing)",
@@ -228,7 +233,8 @@ class TraceRecorder:
         oldest.unlink(missing_ok=True)
         for index in range(self.files - 2, -1, -1):
             src = rotated(self.path, index)
-            if src.exists():
+            clear_the_way(src)
+            if os.path.lexists(src):
                 os.replace(src, rotated(self.path, index + 1))
 
     def status(self) -> dict[str, object]:

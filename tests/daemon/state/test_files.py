@@ -20,7 +20,7 @@ from typing import Any
 import pytest
 
 from motorctl.daemon.instance import InstanceError, InstanceLock
-from motorctl.daemon.link.recorder import TraceRecorder
+from motorctl.daemon.link.recorder import TraceRecorder, rotated
 from motorctl.daemon.state import files
 from motorctl.daemon.state.files import write_all, write_atomic
 from motorctl.daemon.state.journal import MotionJournal
@@ -177,6 +177,28 @@ def test_a_trace_to_a_device_is_refused_and_the_device_left_alone(shared: Path) 
         with pytest.raises(OSError, match=f"{path} is a character device{through}, not a file"):
             write_trace(path)
     assert sorted(p.name for p in shared.iterdir()) == ["null", "stdout"]
+
+
+@pytest.mark.parametrize("kind", KINDS)
+@pytest.mark.parametrize("files", [2, 3], ids=["oldest-name", "middle-name"])
+def test_a_trap_at_a_rotated_trace_name_is_set_aside_never_removed_or_moved(
+    shared: Path, kind: str, files: int, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Rotation removes the oldest name (``FILE.1`` of 2 files) and renames the others
+    (``FILE.1`` to ``FILE.2`` of 3): only the daemon's own trace files. Another user's
+    thing at a rotated name is set aside as it would be at ``FILE`` (never deleted, never
+    renamed into the daemon's files, never a start that fails on a folder there)."""
+    path = shared / "trace.pcapng"
+    write_trace(path)  # the daemon's own FILE, which the next start rotates to FILE.1
+    trap = place(rotated(path, 1), kind)
+    info = CaptureInfo(role="daemon", frame_gap_ms=10.0, port="/dev/test")
+    rec = TraceRecorder(path, info, max_bytes=1 << 16, files=files, clock_origin=0.0)
+    rec.open()
+    rec.close()
+    trap.check()
+    assert len(moved_aside_lines(caplog, rotated(path, 1))) == 1
+    assert_ours(rotated(path, 1), 0o640 & ~_umask())  # the first run's FILE, rotated
+    assert_ours(path, 0o640 & ~_umask())
 
 
 # -- the daemon's own files are taken as they are -----------------------------------------------
