@@ -73,14 +73,22 @@ def _int_in(lo: int, hi: int, what: str) -> Callable[[str], int]:
     return parse
 
 
+#: the longest response timeout (a day): pyserial's waits cannot take ``inf`` or 1e300 s
+MAX_TIMEOUT_S = 86400.0
+
+
 def _seconds(text: str) -> float:
-    """argparse type: a positive number of seconds."""
+    """argparse type: a positive number of seconds, at most MAX_TIMEOUT_S."""
     try:
         value = float(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not a number of seconds") from None
     if not value > 0:
         raise argparse.ArgumentTypeError(f"timeout must be positive, got {text.strip()}")
+    if not value <= MAX_TIMEOUT_S:
+        raise argparse.ArgumentTypeError(
+            f"timeout must be at most {MAX_TIMEOUT_S:g} s (a day), got {text.strip()}"
+        )
     return value
 
 
@@ -208,7 +216,7 @@ def build_parser() -> argparse.ArgumentParser:
         type=_seconds,
         default=5.0,
         metavar="SECONDS",
-        help="response timeout in seconds (default 5; wait adds its TIMEOUT_MS)",
+        help="response timeout in seconds (default 5, at most 86400; wait adds its TIMEOUT_MS)",
     )
     parser.add_argument(
         "--checksum",

@@ -562,6 +562,8 @@ def test_cli_without_port_is_a_usage_error(
         ["send", "zz"],
         ["--checksum", "crc-9000", "ready", "0"],
         ["--timeout", "0", "ready", "0"],
+        ["--timeout", "inf", "ready", "0"],  # an OverflowError in pyserial's select, before
+        ["--timeout", "1e300", "ready", "0"],
         ["bogus"],
     ],
     ids=lambda a: " ".join(a),
