@@ -52,7 +52,7 @@ from motorctl.daemon.status.monitor_parts import (
     trace_para,
 )
 from motorctl.daemon.status.monitor_screen import Screen
-from motorctl.daemon.status.reader import StatusError, read_status, subscribe
+from motorctl.daemon.status.reader import StatusError, read_status, subscribe, unreachable
 from motorctl.daemon.status.summary import as_list, as_map, duration
 
 RETRY_S = 1.0
@@ -173,7 +173,7 @@ def once(path: Path, console: Console | None = None) -> int:
     try:
         doc = read_status(path)
     except (OSError, ValueError) as exc:
-        print_error(console, f"no daemon status at {path}: {exc}")
+        print_error(console, f"no daemon status at {path}: {unreachable(path, exc)}")
         return 1
     if set(doc) == {"error"}:
         print_error(console, f"{path}: {doc['error']}")

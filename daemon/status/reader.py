@@ -2,7 +2,8 @@
 come (:func:`subscribe`; docs/status.md), or the status again and again over one kept
 connection (:class:`StatusReader`: for a reader that reads often; a read costs the daemon
 less than half of a one-shot read: docs/timing.md). ``motorctld --status``, the live
-monitor, the benchmarks and the tests read the daemon through these.
+monitor, the benchmarks and the tests read the daemon through these; :func:`unreachable`
+says why none came, and what to do.
 
 The protocol (request words, one JSON document per line, the heartbeat) is the server's
 (daemon/status/server.py); these follow it.
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import errno
 import json
+import os
 import socket
 import time
 from collections.abc import Generator
@@ -36,6 +38,47 @@ def _connect(sock: socket.socket, path: Path, timeout: float) -> None:
                     f"{path}: every status slot stayed busy for {timeout:.0f} s"
                 ) from None
             time.sleep(0.005)
+
+
+#: what connecting to a status socket that nobody serves fails with: nothing there (or a
+#: state directory that is a file), a stale socket, something else at its path
+NOBODY_THERE = frozenset({errno.ENOENT, errno.ENOTDIR, errno.ECONNREFUSED, errno.ENOTSOCK})
+
+
+def unreachable(path: Path, exc: BaseException) -> str:
+    """Why :func:`read_status` found no status at ``path``, in words to put after it:
+    for a socket that nobody serves, what to do (start the daemon, or name the state
+    directory it runs with); for one that may not be opened, whose group to join."""
+    if isinstance(exc, OSError) and exc.errno in NOBODY_THERE:
+        return (
+            f"{exc.strerror}: no motorctld serves its status there; start it, or give "
+            "--state-dir the state directory it runs with (default /run/motorctl)"
+        )
+    if isinstance(exc, OSError) and exc.errno in (errno.EACCES, errno.EPERM):
+        return f"{exc.strerror}: {_group_fix(path)}"
+    if "AF_UNIX path too long" in str(exc):
+        return (
+            f"{exc}: a Unix socket's path holds at most 107 bytes, so no motorctld serves "
+            "one there; give --state-dir the shorter path it runs with"
+        )
+    if isinstance(exc, OSError) and exc.strerror and exc.errno is not None:
+        return exc.strerror
+    return str(exc)
+
+
+def _group_fix(path: Path) -> str:
+    """Whose group may read a status socket at ``path`` (0660), and how to join it."""
+    import grp
+
+    try:
+        gid = os.stat(path).st_gid
+        group = grp.getgrgid(gid).gr_name
+    except (OSError, KeyError):
+        return "the status socket is open to its owner and group only (ls -l it)"
+    return (
+        f"the status socket is open to its owner and group {group} only; join the group "
+        f"with 'sudo adduser $USER {group}' and log in again"
+    )
 
 
 def read_status(path: Path, timeout: float = 5.0, histogram: bool = False) -> dict[str, Any]:

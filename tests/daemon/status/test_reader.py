@@ -8,6 +8,9 @@ test_server_keep.py.)"""
 
 from __future__ import annotations
 
+import errno
+import grp
+import os
 import socket
 import threading
 from pathlib import Path
@@ -16,7 +19,7 @@ from typing import Any
 import pytest
 
 from motorctl.daemon.status import server as status_module
-from motorctl.daemon.status.reader import StatusError, StatusReader, read_status
+from motorctl.daemon.status.reader import StatusError, StatusReader, read_status, unreachable
 from motorctl.daemon.status.server import StatusServer
 from tests.support.wait import until
 
@@ -191,3 +194,24 @@ def test_status_reader_refused_by_an_older_daemon(tmp_path: Path) -> None:
         with pytest.raises(StatusError, match="refused a kept connection: unknown status request"):
             StatusReader(path, timeout=READ_DEADLINE_S).read()
         t.join(READ_DEADLINE_S)
+
+
+def test_a_status_socket_that_may_not_be_opened_names_the_group_to_join(tmp_path: Path) -> None:
+    """``motorctld --status`` as a user outside the socket's group (0660): whose group, and
+    how to join it; where its group cannot be looked at, what to look at."""
+    path = tmp_path / "status.sock"
+    path.write_text("")
+    group = grp.getgrgid(os.stat(path).st_gid).gr_name
+    denied = PermissionError(errno.EACCES, os.strerror(errno.EACCES))
+    assert unreachable(path, denied) == (
+        f"Permission denied: the status socket is open to its owner and group {group} only; "
+        f"join the group with 'sudo adduser $USER {group}' and log in again"
+    )
+    assert unreachable(tmp_path / "none", denied) == (
+        "Permission denied: the status socket is open to its owner and group only (ls -l it)"
+    )
+    long = OSError("AF_UNIX path too long")  # no errno: the limit, and the fix
+    assert unreachable(path, long) == (
+        "AF_UNIX path too long: a Unix socket's path holds at most 107 bytes, so no "
+        "motorctld serves one there; give --state-dir the shorter path it runs with"
+    )
