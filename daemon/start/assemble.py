@@ -248,7 +248,7 @@ class Daemon:
                 stop_confirm_s=config.step_thread.stop_confirm_ms / 1000.0,
             )
             files_dir = state_files_dir(config, state_dir)
-            make_state_dir(files_dir)
+            make_state_dir(files_dir, state_dir_option(config, state_dir))
             persistence = Persistence(
                 files_dir,
                 motor_identities(config),
@@ -459,16 +459,31 @@ def state_files_dir(config: Config, state_dir: Path) -> Path:
     return Path(config.state.directory) if config.state.directory else state_dir
 
 
-def make_state_dir(state_dir: Path) -> None:
+def state_dir_option(config: Config, state_dir: Path) -> str:
+    """What names the state files' directory (:func:`state_files_dir`), for a message's
+    fix: ``[state] directory`` and the config file, or ``--state-dir``."""
+    if state_files_dir(config, state_dir) == state_dir:
+        return "--state-dir"
+    return f"[state] directory in {config.source}"
+
+
+def make_state_dir(state_dir: Path, option: str = "--state-dir") -> None:
+    """The state directory made (with its parents) and found writable; StartupError
+    naming it, why not, and ``option`` (what named it) to change."""
+    fix = f"give {option} a writable directory"
     try:
         state_dir.mkdir(parents=True, exist_ok=True)
+    except FileExistsError:  # a file, a FIFO, a dangling link, ...: mkdir's word is wrong
+        raise StartupError(
+            f"cannot create state directory {state_dir}: something that is not a directory "
+            f"is there; {fix}"
+        ) from None
     except OSError as exc:
         raise StartupError(
-            f"cannot create state directory {state_dir}: {exc.strerror}; "
-            "pass --state-dir with a writable directory"
+            f"cannot create state directory {state_dir}: {exc.strerror}; {fix}"
         ) from exc
-    if not os.access(state_dir, os.W_OK):
-        raise StartupError(f"state directory {state_dir} is not writable; pass --state-dir")
+    if not os.access(state_dir, os.W_OK | os.X_OK):
+        raise StartupError(f"state directory {state_dir} is not writable; {fix}")
 
 
 def build_executor(

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import math
 import os
 import stat
 import sys
@@ -97,12 +98,13 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     where.add_argument(
         "--pty",
         metavar="PATH",
-        type=Path,
+        type=file_path,
         help="serve on a new pseudo-terminal; PATH becomes a symlink to it",
     )
     where.add_argument(
         "--port",
         metavar="DEVICE",
+        type=some_path,
         help="serve on a real UART, e.g. /dev/ttyAMA0 or a USB adapter's "
         "/dev/serial/by-id/usb-... name; a device not there yet at start is served "
         "as soon as it appears, one that goes away is opened again by this path "
@@ -120,9 +122,10 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--config",
         metavar="FILE",
+        type=some_path,
         help="TOML config (default: the embedded mock world, see docs/config.md)",
     )
-    p.add_argument("--check-config", metavar="FILE", help="check FILE and exit")
+    p.add_argument("--check-config", metavar="FILE", type=some_path, help="check FILE and exit")
     p.add_argument(
         "--print-default-config",
         action="store_true",
@@ -140,15 +143,15 @@ def parse_args(argv: Sequence[str] | None) -> argparse.Namespace:
     p.add_argument(
         "--latency-seconds",
         metavar="S",
-        type=float,
+        type=latency_seconds,
         default=3.0,
         help="with --probe: how long to measure timer wake-ups at the executor's "
-        "priority and CPU (default 3; 0: skip)",
+        "priority and CPU (default 3; 0: skip; at most 3600)",
     )
     p.add_argument(
         "--trace",
         metavar="FILE",
-        type=Path,
+        type=file_path,
         help="record every byte run on the link, timestamped, to FILE (pcapng, "
         "rotated as [trace] says; read it with 'motorctl trace FILE'; "
         "docs/trace.md); overrides [trace] file",
@@ -215,6 +218,65 @@ def baud_rate(text: str) -> int:
         return parse_baud(text)
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+#: the longest latency measurement ``--probe`` makes (an hour: longer is a mistake)
+LATENCY_LIMIT_S = 3600.0
+
+
+def latency_seconds(text: str) -> float:
+    """argparse type: ``--latency-seconds``, 0 (skip) to LATENCY_LIMIT_S, a finite number
+    (``inf`` would measure for ever, ``nan`` cannot be timed)."""
+    try:
+        value = float(text)
+    except ValueError:
+        value = math.nan
+    if not 0 <= value <= LATENCY_LIMIT_S:
+        raise argparse.ArgumentTypeError(
+            f"{text!r} is not a number of seconds in 0..{LATENCY_LIMIT_S:g} (0 skips it)"
+        )
+    return value
+
+
+def file_path(text: str) -> Path:
+    """argparse type of ``--pty`` and ``--trace``: the path of a file the daemon makes. One
+    written as a folder (``''``, ``.``, ``..``, a trailing ``/``: ``--trace /var/log/x/``)
+    is refused: the daemon would set that folder aside as in its way (the current one, or
+    a folder of the user's), and ``Path`` forgets a trailing ``/``."""
+    if text.endswith("/") or text.rsplit("/", 1)[-1] in ("", ".", ".."):
+        raise argparse.ArgumentTypeError(
+            f"{text!r} names a folder, not a file; give the path of the file to make in "
+            "it (e.g. ./motorctl.pty, /tmp/link.pcapng)"
+        )
+    return Path(text)
+
+
+def some_path(text: str) -> str:
+    """argparse type of ``--port``, ``--config`` and ``--check-config``: a path, not an
+    empty word (``--port ""`` waited for ever for a device of no name, ``--check-config ""``
+    was taken for no option at all)."""
+    if not text.strip():
+        raise argparse.ArgumentTypeError(f"{text!r} is no path; give one")
+    return text
+
+
+#: the bytes a Unix socket's path may hold (sun_path, less its NUL)
+SOCKET_PATH_MAX = 107
+#: what the status socket adds to the state directory's path while it is bound: its
+#: private folder's ``/.sXXXXXXXX/s`` (daemon/state/files.py, bind_socket), then ``/status.sock``
+SOCKET_SUFFIX = len("/.sXXXXXXXX/s")
+
+
+def state_dir_problem(state_dir: Path) -> str | None:
+    """Why the status socket cannot be bound in ``--state-dir``: its path would be too long
+    for a Unix socket (found before anything is made, not after the state was restored)."""
+    size = len(os.fsencode(state_dir)) + SOCKET_SUFFIX
+    if size <= SOCKET_PATH_MAX:
+        return None
+    return (
+        f"--state-dir {state_dir}: too long for the status socket in it (a Unix socket's path "
+        f"holds at most {SOCKET_PATH_MAX} bytes, {size} here); give a shorter path"
+    )
 
 
 def pty_folder_problem(pty: Path) -> str | None:
@@ -323,6 +385,9 @@ def _main(
     if args.pty is not None and (why := pty_folder_problem(args.pty)) is not None:
         print(f"error: {why}", file=sys.stderr)
         return 1
+    if (why := state_dir_problem(args.state_dir)) is not None:
+        print(f"error: {why}", file=sys.stderr)
+        return 1
     log.debug("logging to %s", logs_to)
     options = ServeOptions(args.state_dir, args.pty, args.port, args.baud, args.trace)
     try:
@@ -362,7 +427,7 @@ def status_command(args: argparse.Namespace) -> int:
         return 2
     import json
 
-    from motorctl.daemon.status.reader import read_status
+    from motorctl.daemon.status.reader import read_status, unreachable
 
     metrics: ModuleType | None = None
     if args.format != "json":
@@ -378,7 +443,7 @@ def status_command(args: argparse.Namespace) -> int:
         if set(doc) == {"error"}:
             raise ValueError(doc["error"])
     except (OSError, ValueError) as exc:
-        print(f"error: no daemon status at {path}: {exc}", file=sys.stderr)
+        print(f"error: no daemon status at {path}: {unreachable(path, exc)}", file=sys.stderr)
         if metrics is not None:
             sys.stdout.write(metrics.down(args.format))
         return 1

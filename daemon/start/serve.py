@@ -36,6 +36,7 @@ from motorctl.daemon.start.assemble import (
     ServeOptions,
     build_served,
     make_state_dir,
+    state_dir_option,
     state_files_dir,
 )
 from motorctl.daemon.start.signals import StopSignals
@@ -114,7 +115,7 @@ def claim(config: Config, options: ServeOptions, owned: Owned) -> None:
         owned.lock(options.state_dir / LOCK_NAME, f"state directory {options.state_dir}")
         files_dir = state_files_dir(config, options.state_dir)
         if files_dir != options.state_dir:
-            make_state_dir(files_dir)
+            make_state_dir(files_dir, state_dir_option(config, options.state_dir))
             owned.lock(files_dir / LOCK_NAME, f"state directory {files_dir}")
         if options.pty is not None:
             pty = options.pty

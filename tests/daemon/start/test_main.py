@@ -334,3 +334,143 @@ def test_the_help_is_as_wide_as_argparse_makes_it(
     ours, theirs = HelpFormatter("motorctld"), argparse.HelpFormatter("motorctld")
     assert ours._width == theirs._width and ours._max_help_position == theirs._max_help_position
     assert HelpFormatter("motorctld", width=50)._width == 50
+
+
+@pytest.mark.parametrize(
+    ("option", "given"),
+    [
+        ("--pty", ""),
+        ("--pty", "."),
+        ("--pty", "/"),
+        ("--pty", ".."),
+        ("--trace", ""),
+        ("--trace", "sub/.."),
+        ("--trace", "logs/"),
+    ],
+)
+def test_a_pty_or_trace_path_that_names_a_folder_is_refused_before_anything_is_made(
+    tmp_path: Path, option: str, given: str
+) -> None:
+    """``--pty ''`` or ``--trace logs/`` name no file: the PTY's lock name could not be
+    made from ``''`` (a ValueError traceback), and the folder they name (the current one,
+    ``logs``) was set aside as in the way of the daemon's file (``Path`` forgets the
+    ``/``). A usage error, nothing touched."""
+    work = tmp_path / "work"
+    (work / "logs").mkdir(parents=True)
+    (work / "sub").mkdir()
+    args = ["--state-dir", str(tmp_path / "state")]
+    if option == "--trace":
+        args += ["--pty", str(tmp_path / "x.pty")]
+    out = subprocess.run(
+        [sys.executable, "-m", "motorctl.daemon.start.main", *args, option, given],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=work,
+        env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert out.stderr.endswith(
+        f"motorctld: error: argument {option}: {given!r} names a folder, not a file; give "
+        "the path of the file to make in it (e.g. ./motorctl.pty, /tmp/link.pcapng)\n"
+    )
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["work"]  # no state, no PTY
+    assert sorted(p.name for p in work.iterdir()) == ["logs", "sub"]
+
+
+@pytest.mark.parametrize("option", ["--port", "--config", "--check-config"])
+def test_an_empty_path_is_a_usage_error(tmp_path: Path, option: str) -> None:
+    """``--port ''`` served a device of no name, waiting for ever for it to appear;
+    ``--check-config ''`` was taken for no option (``say where to serve``)."""
+    out = _motorctld(option, "", "--state-dir", str(tmp_path / "state"))
+    assert out.returncode == 2, out.stderr
+    assert f"motorctld: error: argument {option}: '' is no path; give one\n" in out.stderr
+    assert not (tmp_path / "state").exists()
+
+
+@pytest.mark.parametrize("seconds", ["inf", "nan", "-1", "1e9", "soon"])
+def test_a_latency_measurement_that_cannot_end_is_refused(seconds: str) -> None:
+    """``--probe --latency-seconds inf`` measured for ever, ``nan`` failed in a thread with
+    a traceback; out of 0..3600 (or no number) is a usage error, said before anything."""
+    out = _motorctld("--probe", "--latency-seconds", seconds)
+    assert out.returncode == 2 and "Traceback" not in out.stderr, out.stderr
+    assert (
+        f"motorctld: error: argument --latency-seconds: '{seconds}' is not a number of "
+        "seconds in 0..3600 (0 skips it)"
+    ) in out.stderr
+    assert out.stdout == ""
+
+
+def test_status_says_how_to_reach_a_daemon_that_does_not_answer(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """No socket, a state directory that is a file, something else at status.sock (a
+    stale socket nobody serves, a file): the path, why, and what to do."""
+    fix = (
+        "no motorctld serves its status there; start it, or give --state-dir the state "
+        "directory it runs with (default /run/motorctl)\n"
+    )
+    (tmp_path / "file").write_text("")
+    (tmp_path / "dir").mkdir()
+    (tmp_path / "dir" / "status.sock").write_text("")
+    stale = tmp_path / "stale"
+    stale.mkdir()
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as gone:
+        gone.bind(str(stale / "status.sock"))  # bound, never listening: refused
+        for state_dir, why in (
+            (tmp_path / "none", "No such file or directory"),
+            (tmp_path / "file", "Not a directory"),
+            (tmp_path / "dir", "Connection refused"),
+            (stale, "Connection refused"),
+        ):
+            assert main(["--status", "--state-dir", str(state_dir)]) == 1
+            err = capsys.readouterr().err
+            assert err == f"error: no daemon status at {state_dir / 'status.sock'}: {why}: {fix}"
+
+
+def test_a_state_directory_that_cannot_be_made_names_what_named_it(tmp_path: Path) -> None:
+    """A file where the state directory goes: said as such (not mkdir's "File exists"),
+    and the fix names what gave the path: --state-dir, or [state] directory in the
+    config (before, both said "pass --state-dir")."""
+    (tmp_path / "file").write_text("")
+    pty = str(tmp_path / "x.pty")
+    out = _motorctld("--pty", pty, "--state-dir", str(tmp_path / "file"))
+    assert out.returncode == 1, out.stderr
+    assert out.stderr == (
+        f"error: cannot create state directory {tmp_path / 'file'}: something that is not "
+        "a directory is there; give --state-dir a writable directory\n"
+    )
+    config = tmp_path / "m.toml"
+    text = f'[state]\ndirectory = "{tmp_path / "file"}"\n[[motors]]\nname = "a"\n'
+    config.write_text(for_tests(text))
+    out = _motorctld("--pty", pty, "--state-dir", str(tmp_path / "s"), "--config", str(config))
+    assert out.returncode == 1, out.stderr
+    assert out.stderr == (
+        f"error: cannot create state directory {tmp_path / 'file'}: something that is not "
+        f"a directory is there; give [state] directory in {config} a writable directory\n"
+    )
+    assert not os.path.lexists(pty)
+
+
+def test_a_state_directory_too_long_for_the_status_socket_is_said_before_anything(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A Unix socket's path holds 107 bytes: a longer --state-dir failed at the status
+    socket, after the state was restored and written, naming no fix."""
+    from motorctl.daemon.start.main import SOCKET_PATH_MAX, SOCKET_SUFFIX
+
+    fits = tmp_path / ("d" * (SOCKET_PATH_MAX - SOCKET_SUFFIX - len(str(tmp_path)) - 1))
+    assert len(str(fits)) + SOCKET_SUFFIX == SOCKET_PATH_MAX
+    long = Path(f"{fits}x")
+    pty = tmp_path / "x.pty"
+    assert main(["--pty", str(pty), "--state-dir", str(long)]) == 1
+    assert capsys.readouterr().err == (
+        f"error: --state-dir {long}: too long for the status socket in it (a Unix socket's "
+        f"path holds at most 107 bytes, 108 here); give a shorter path\n"
+    )
+    assert not long.exists() and not pty.exists()
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:  # the longest that fits
+        fits.mkdir()
+        private = fits / ".sabcdefgh"
+        private.mkdir()
+        sock.bind(str(private / "s"))
