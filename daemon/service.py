@@ -193,6 +193,13 @@ def watchdog_interval() -> float | None:
     pid = os.environ.get("WATCHDOG_PID")
     if not usec or (pid and pid != str(os.getpid())):
         return None
+    if not usec.isdigit() or int(usec) == 0:  # as sd_watchdog_enabled(): not a watchdog
+        log.warning(
+            "WATCHDOG_USEC=%r is not a number of microseconds > 0: no watchdog pings "
+            "(systemd sets it from WatchdogSec=; do not set it by hand)",
+            usec,
+        )
+        return None
     return int(usec) / 2e6
 
 

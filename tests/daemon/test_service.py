@@ -162,6 +162,18 @@ def test_watchdog_pings_only_while_healthy(
     assert service.watchdog_interval() is None
 
 
+@pytest.mark.parametrize("usec", ["abc", "-5", "0", "1.5"])
+def test_a_watchdog_usec_that_is_no_interval_is_no_watchdog(
+    usec: str, monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    """Set by hand (an environment file, a shell): 'abc' was int()'s ValueError at start, a
+    negative one a watchdog thread pinging without a pause. No watchdog, one warning."""
+    monkeypatch.setenv("WATCHDOG_USEC", usec)
+    monkeypatch.setenv("WATCHDOG_PID", str(os.getpid()))
+    assert service.watchdog_interval() is None
+    assert f"WATCHDOG_USEC={usec!r} is not a number of microseconds > 0" in caplog.text
+
+
 # -- logging ------------------------------------------------------------------------------------
 # setup_logging() configures the root logger: tests/conftest.py puts it back after each test.
 
