@@ -31,6 +31,7 @@ from typing import Any, BinaryIO
 import serial
 
 from motorctl import __version__
+from motorctl.client.port_errors import not_a_port
 from motorctl.protocol.capture.format import CaptureInfo, Direction
 from motorctl.protocol.capture.writer import RecordEncoder, header
 from motorctl.protocol.crc import CHECKSUM_DEFAULT
@@ -46,6 +47,11 @@ class TapError(Exception):
 
 
 def open_port(path: str, args: argparse.Namespace, what: str) -> Any:
+    """The ``what`` ("host", "device") port, open; TapError naming it and the fix. What is
+    no character device (a file, a folder, a FIFO) is refused unopened."""
+    problem = not_a_port(path)
+    if problem is not None:
+        raise TapError(f"the {what} port {problem}")
     try:
         return serial.Serial(
             path,
@@ -284,19 +290,17 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"error: --checksum: {exc}", file=sys.stderr)
         return 2
-    try:
-        out = open(args.out, "wb")  # noqa: SIM115 (closed below)
-    except OSError as exc:
-        print(f"error: cannot write {args.out}: {exc.strerror or exc}", file=sys.stderr)
-        return 2
     ports: list[Any] = []
-    try:
+    try:  # the ports first: a port that cannot be used leaves --out as it was (a recording)
         ports.append(open_port(args.host, args, "host"))
         ports.append(open_port(args.device, args, "device"))
+        try:
+            out = open(args.out, "wb")  # noqa: SIM115 (closed below)
+        except OSError as exc:
+            raise TapError(f"cannot write {args.out}: {exc.strerror or exc}") from None
     except TapError as exc:
         for port in ports:
             port.close()
-        out.close()
         print(f"error: {exc}", file=sys.stderr)
         return 2
     host, device = ports

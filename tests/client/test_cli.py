@@ -9,10 +9,11 @@ import re
 import subprocess
 import sys
 from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
-from motorctl.client.cli import _UNITS, build_parser
+from motorctl.client.cli import _UNITS, build_parser, main
 from tests.support import REPO
 
 
@@ -92,3 +93,24 @@ def test_tap_takes_the_same_rates(capsys: pytest.CaptureFixture[str]) -> None:
     assert exc.value.code == 2
     assert "motorctl tap: error: argument --baud: 0 is not a baud rate" in capsys.readouterr().err
     assert build_parser().parse_args(["tap", "--baud", "250000", *ports]).baud == 250000
+
+
+def test_a_tap_that_cannot_open_a_port_leaves_the_recording_it_would_write_as_it_was(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``motorctl tap --out session.pcapng`` with a port mistyped: the recording made
+    before (of the old microcontroller, perhaps) was truncated before the port failed.
+    The ports are opened first now; one that is no serial device is said as such."""
+    out = tmp_path / "session.pcapng"
+    out.write_bytes(b"the old microcontroller's session")
+    typo = tmp_path / "notes.txt"
+    typo.write_text("")
+    missing = tmp_path / "ttyNOPE"
+    for host, says in (
+        (typo, f"error: the host port {typo}: not a serial device (a regular file)\n"),
+        (missing, f"error: cannot open the host port {missing}: "),
+    ):
+        args = ["tap", "--host", str(host), "--device", str(host), "--out", str(out)]
+        assert main(args) == 2
+        assert capsys.readouterr().err.startswith(says)
+        assert out.read_bytes() == b"the old microcontroller's session"
