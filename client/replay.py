@@ -38,6 +38,7 @@ from motorctl.client.judge import (
     compare,
 )
 from motorctl.client.motions import windows
+from motorctl.client.port_errors import not_a_port, open_error
 from motorctl.client.recording import Recording, TraceFileError
 from motorctl.client.trace import add_settings_options, one_link, warn
 from motorctl.protocol.capture.format import CaptureInfo, Direction, Record
@@ -409,10 +410,13 @@ def _play(
         for f in recorded.frames
     ]
     expected = sum(1 for f in recorded.frames if f.answer is not None)
+    problem = not_a_port(args.port)  # a file, a folder, a FIFO: refused unopened
+    if problem is not None:
+        return problem
     try:
         port = serial.Serial(args.port, args.baud, timeout=0, exclusive=True)
     except (serial.SerialException, OSError, ValueError) as exc:
-        return f"cannot open {args.port}: {exc}"
+        return open_error(args.port, exc, args.baud)
     try:
         os.set_blocking(port.fileno(), False)
         player = Player(port.fileno(), args.fast, args.answer_timeout, rtts)
