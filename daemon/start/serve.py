@@ -24,6 +24,7 @@ import sys
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from motorctl.daemon.config import Config, load_config
@@ -116,12 +117,23 @@ def claim(config: Config, options: ServeOptions, owned: Owned) -> None:
         files_dir = state_files_dir(config, options.state_dir)
         if files_dir != options.state_dir:
             make_state_dir(files_dir, state_dir_option(config, options.state_dir))
-            owned.lock(files_dir / LOCK_NAME, f"state directory {files_dir}")
+            # the same folder by another name (relative, with '..', through a link): its
+            # lock is held already, by this daemon; a second flock would refuse it
+            if not same_folder(files_dir, options.state_dir):
+                owned.lock(files_dir / LOCK_NAME, f"state directory {files_dir}")
         if options.pty is not None:
             pty = options.pty
             owned.lock(pty.with_name(f".{pty.name}.lock"), f"PTY {pty}")
     except InstanceError as exc:
         raise StartupError(str(exc)) from exc
+
+
+def same_folder(a: Path, b: Path) -> bool:
+    """Whether ``a`` and ``b`` are the one folder (False when either cannot be looked at)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def run(served: Served, stop: StopSignals, timeline: StartTimeline | None = None) -> int:

@@ -57,6 +57,33 @@ def test_one_daemon_per_state_directory_and_pty_path(tmp_path: Path) -> None:
     second.cleanup()
 
 
+def test_a_state_directory_named_twice_is_locked_once(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """``--state-dir s`` and ``[state] directory = "/abs/s"`` (or ``/abs/x/../s``, or a link
+    to it): one folder, one lock. Its second flock, by this very daemon, refused the start
+    with 'another motorctld (PID <its own>) already serves the state directory'."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "x").mkdir()
+    (tmp_path / "link").symlink_to("state")
+    for named in ("state", "x/../state", "link"):
+        text = f'[state]\ndirectory = "{tmp_path / named}"\n{TWO_PINS}'
+        config = parse_config(text, "t.toml")
+        owned = Owned()
+        try:
+            serve.claim(config, ServeOptions(Path("state")), owned)
+            assert [lock.path for lock in owned.locks] == [Path("state/motorctld.lock")]
+        finally:
+            owned.cleanup()
+    other = parse_config(f'[state]\ndirectory = "{tmp_path / "x"}"\n{TWO_PINS}', "t.toml")
+    owned = Owned()
+    try:  # another folder: locked too
+        serve.claim(other, ServeOptions(Path("state")), owned)
+        assert len(owned.locks) == 2
+    finally:
+        owned.cleanup()
+
+
 def test_shutdown_sets_safe_outputs_and_writes_the_final_state(tmp_path: Path) -> None:
     d = build_daemon(TWO_PINS, tmp_path)
     assert d.dispatcher.handle(SetPin(0, True)).ack
