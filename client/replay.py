@@ -28,6 +28,7 @@ from typing import Any
 
 import serial
 
+from motorctl.client.arguments import number_in, whole_in
 from motorctl.client.conversation import Conversation, analyse
 from motorctl.client.judge import (
     POSITION_TOLERANCE,
@@ -350,7 +351,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--time-tolerance-ms",
-        type=float,
+        type=number_in(0, 86_400_000, "ms"),
         default=TIME_TOLERANCE_S * 1000,
         metavar="MS",
         help="how much the device's own timing may differ between the recording and the "
@@ -359,7 +360,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--slide-tolerance",
-        type=float,
+        type=number_in(0, 1000, "%"),
         default=SLIDE_TOLERANCE * 100,
         metavar="PERCENT",
         help="how much further a motion may slide behind its plan in one run than in the "
@@ -368,14 +369,14 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--position-tolerance",
-        type=int,
+        type=whole_in(0, 1 << 24, "steps"),
         default=POSITION_TOLERANCE,
         metavar="STEPS",
         help="added to every position range that timing decides (default 2)",
     )
     p.add_argument(
         "--answer-timeout",
-        type=float,
+        type=number_in(0, 86_400, "s", lo_open=True),
         default=ANSWER_TIMEOUT_S,
         metavar="S",
         help="an answer later than recorded by this much ends the replay (default 5)",

@@ -31,6 +31,7 @@ from typing import Any, BinaryIO
 import serial
 
 from motorctl import __version__
+from motorctl.client.arguments import number_in
 from motorctl.client.port_errors import not_a_port
 from motorctl.protocol.capture.format import CaptureInfo, Direction
 from motorctl.protocol.capture.writer import RecordEncoder, header
@@ -266,7 +267,7 @@ def add_parser(sub: Any) -> None:
     )
     p.add_argument(
         "--frame-gap-ms",
-        type=float,
+        type=number_in(0, 10_000, "ms"),
         default=10.0,
         metavar="MS",
         help="the device's frame gap, written into the recording (default 10)",

@@ -17,6 +17,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
+from motorctl.client.arguments import number_in
 from motorctl.client.conversation import (
     ANSWER,
     BAD_ANSWER,
@@ -263,7 +264,7 @@ def one_link(
 def add_settings_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--frame-gap-ms",
-        type=float,
+        type=number_in(0, 10_000, "ms"),
         metavar="MS",
         help="frame gap to cut frames with (default: the recording's)",
     )
