@@ -180,7 +180,10 @@ class RampExecutor(Executor):
         direction = (1 if v > 0 else -1) if run else (1 if target > ax.position else -1)
         ahead, behind = direction if endstops else 0, -direction if release else 0
         if ahead and ax.status is not None and ax.status.switch_active(ahead):
-            self._on_switch(motor, ax, ahead, now)  # committed()'s read: on it already
+            # committed()'s read: on it already. Not handed to the chip (a dSPIN's switch
+            # stops a motor only as it closes, and one closed already would let it run on
+            # into the machine's end): at once where it stands, as the step cores do
+            self._endstop(motor, ax, ahead, ax.position, now, ENDSTOP_ALREADY_ACTIVE)
             return True
         try:
             chip.watch(ahead, stall=not endstops, release=behind)
@@ -200,25 +203,16 @@ class RampExecutor(Executor):
         ax.next_poll = now + self.poll_s
         return True
 
-    def _on_switch(self, motor: int, ax: _Axis, ahead: int, now: float) -> None:
-        """A motion toward a reference switch that is active already: not handed to the chip
-        (a dSPIN's switch stops a motor only as it closes, and one closed already would let
-        it run on into the machine's end), ENDSTOP at once where the motor stands, as the
-        step cores do (``detail`` :data:`ENDSTOP_ALREADY_ACTIVE`)."""
+    def _endstop(
+        self, motor: int, ax: _Axis, ahead: int, where: int, now: float, detail: str
+    ) -> None:
+        """The reference switch ahead (``ahead``) stopped the motor at ``where``, or it stood
+        on it already (``detail`` :data:`ENDSTOP_ALREADY_ACTIVE`): ENDSTOP, the axis blocked
+        until its stop."""
         self.counters["endstops"] += 1
         ax.plan, ax.blocked = "", True
-        self._emit(
-            ExecEvent(
-                K.ENDSTOP,
-                motor,
-                ax.gen,
-                ax.position,
-                now,
-                direction=ahead,
-                speed=abs(ax.velocity),
-                detail=ENDSTOP_ALREADY_ACTIVE,
-            )
-        )
+        ev = ExecEvent(K.ENDSTOP, motor, ax.gen, where, now, ahead, abs(ax.velocity), detail=detail)
+        self._emit(ev)
 
     def stop(self, motor: int, gen: int) -> int | None:
         ax = self._axes[motor]
@@ -305,20 +299,7 @@ class RampExecutor(Executor):
                 except HalError as exc:
                     self._fault(i, now, exc)
                     return
-            self.counters["endstops"] += 1
-            ax.plan, ax.blocked = "", True
-            self._emit(
-                ExecEvent(
-                    K.ENDSTOP,
-                    i,
-                    ax.gen,
-                    where,
-                    now,
-                    direction=ax.watch,
-                    speed=abs(ax.velocity),
-                    detail="reference switch",
-                )
-            )
+            self._endstop(i, ax, ax.watch, where, now, "reference switch")
             return
         if ax.release and (st.latched(ax.release) or not st.switch_active(ax.release)):
             self._released(i, ax, chip, st, now)
