@@ -446,12 +446,18 @@ def _check_state_dir(value: str) -> str | None:
     return None
 
 
+def names_a_folder(path: str) -> bool:
+    """Whether ``path`` is written as a folder's: empty, or its last part ``''`` (a trailing
+    ``/``), ``.`` or ``..``. A file the daemon makes there would be that folder, which it
+    would set aside as in its way (and ``Path`` forgets a trailing ``/``)."""
+    return path.rsplit("/", 1)[-1] in ("", ".", "..")
+
+
 def _check_trace_file(value: str) -> str | None:
     """Problem with a trace file name, or None: empty or an absolute path of a file (not
-    one that ends in a folder's name: ``/``, ``.``, ``..``; the daemon would set that folder
-    aside as in its way)."""
+    one written as a folder's: :func:`names_a_folder`)."""
     problem = _check_state_dir(value)
-    if problem is None and value and value.rsplit("/", 1)[-1] in ("", ".", ".."):
+    if problem is None and value and names_a_folder(value):
         return "names a folder, not a file"
     return problem
 

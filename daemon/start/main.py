@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 
 from motorctl import __version__
 from motorctl.daemon.config import ConfigError, StepThreadConfig, load_config
+from motorctl.daemon.config.model import names_a_folder
 from motorctl.daemon.errors import StartupError
 from motorctl.daemon.link.silence import check_timeout
 from motorctl.daemon.service import setup_logging
@@ -241,9 +242,8 @@ def latency_seconds(text: str) -> float:
 def file_path(text: str) -> Path:
     """argparse type of ``--pty`` and ``--trace``: the path of a file the daemon makes. One
     written as a folder (``''``, ``.``, ``..``, a trailing ``/``: ``--trace /var/log/x/``)
-    is refused: the daemon would set that folder aside as in its way (the current one, or
-    a folder of the user's), and ``Path`` forgets a trailing ``/``."""
-    if text.endswith("/") or text.rsplit("/", 1)[-1] in ("", ".", ".."):
+    is refused, as ``[trace] file`` is (:func:`names_a_folder`)."""
+    if names_a_folder(text):
         raise argparse.ArgumentTypeError(
             f"{text!r} names a folder, not a file; give the path of the file to make in "
             "it (e.g. ./motorctl.pty, /tmp/link.pcapng)"
