@@ -35,6 +35,7 @@ from motorctl.daemon.service import setup_logging
 from motorctl.daemon.start.assemble import ServeOptions, hardware_spec, known_microsteps
 from motorctl.daemon.start.serve import serve
 from motorctl.daemon.start.timeline import StartTimeline
+from motorctl.daemon.state.files import BIND_SUFFIX, SOCKET_PATH_MAX
 from motorctl.hal.contract import ProbeReport, ProblemKind
 from motorctl.hal.interfaces import MonotonicClock
 from motorctl.hal.registry import motors_lose_steps, probe_hardware
@@ -260,17 +261,10 @@ def some_path(text: str) -> str:
     return text
 
 
-#: the bytes a Unix socket's path may hold (sun_path, less its NUL)
-SOCKET_PATH_MAX = 107
-#: what the status socket adds to the state directory's path while it is bound: its
-#: private folder's ``/.sXXXXXXXX/s`` (daemon/state/files.py, bind_socket), then ``/status.sock``
-SOCKET_SUFFIX = len("/.sXXXXXXXX/s")
-
-
 def state_dir_problem(state_dir: Path) -> str | None:
     """Why the status socket cannot be bound in ``--state-dir``: its path would be too long
     for a Unix socket (found before anything is made, not after the state was restored)."""
-    size = len(os.fsencode(state_dir)) + SOCKET_SUFFIX
+    size = len(os.fsencode(state_dir)) + BIND_SUFFIX
     if size <= SOCKET_PATH_MAX:
         return None
     return (

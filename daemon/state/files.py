@@ -229,8 +229,14 @@ def bind_socket(path: Path, mode: int) -> socket.socket:
     return sock
 
 
-#: the characters of a private folder's name (tempfile's own)
+#: the characters of a private folder's name (tempfile's own), and how many follow its ".s"
 _NAME_CHARS = "abcdefghijklmnopqrstuvwxyz0123456789_"
+_NAME_LEN = 8
+#: the bytes a Unix socket's path may hold (sun_path, less its NUL)
+SOCKET_PATH_MAX = 107
+#: what :func:`bind_socket` adds to the path of the folder it binds in, while it binds:
+#: ``/.sXXXXXXXX/s``, its private folder's socket (longer than ``/status.sock``)
+BIND_SUFFIX = len("/.s") + _NAME_LEN + len("/s")
 
 
 def private_folder(parent: Path) -> Path:
@@ -240,7 +246,7 @@ def private_folder(parent: Path) -> Path:
     tempfile, whose imports (random, shutil and its compressors) every start paid for this
     one folder. OSError when none can be made."""
     for _ in range(TRIES):
-        name = ".s" + "".join(_NAME_CHARS[b % len(_NAME_CHARS)] for b in os.urandom(8))
+        name = ".s" + "".join(_NAME_CHARS[b % len(_NAME_CHARS)] for b in os.urandom(_NAME_LEN))
         try:
             os.mkdir(parent / name, 0o700)
         except FileExistsError:

@@ -23,6 +23,7 @@ from collections.abc import Generator
 from pathlib import Path
 from typing import Any
 
+from motorctl.daemon.state.files import SOCKET_PATH_MAX
 from motorctl.daemon.status.requests import HEARTBEAT_S
 
 
@@ -58,8 +59,8 @@ def unreachable(path: Path, exc: BaseException) -> str:
         return f"{exc.strerror}: {_group_fix(path)}"
     if "AF_UNIX path too long" in str(exc):
         return (
-            f"{exc}: a Unix socket's path holds at most 107 bytes, so no motorctld serves "
-            "one there; give --state-dir the shorter path it runs with"
+            f"{exc}: a Unix socket's path holds at most {SOCKET_PATH_MAX} bytes, so no "
+            "motorctld serves one there; give --state-dir the shorter path it runs with"
         )
     if isinstance(exc, OSError) and exc.strerror and exc.errno is not None:
         return exc.strerror

@@ -457,10 +457,10 @@ def test_a_state_directory_too_long_for_the_status_socket_is_said_before_anythin
 ) -> None:
     """A Unix socket's path holds 107 bytes: a longer --state-dir failed at the status
     socket, after the state was restored and written, naming no fix."""
-    from motorctl.daemon.start.main import SOCKET_PATH_MAX, SOCKET_SUFFIX
+    from motorctl.daemon.state.files import BIND_SUFFIX, SOCKET_PATH_MAX
 
-    fits = tmp_path / ("d" * (SOCKET_PATH_MAX - SOCKET_SUFFIX - len(str(tmp_path)) - 1))
-    assert len(str(fits)) + SOCKET_SUFFIX == SOCKET_PATH_MAX
+    fits = tmp_path / ("d" * (SOCKET_PATH_MAX - BIND_SUFFIX - len(str(tmp_path)) - 1))
+    assert len(str(fits)) + BIND_SUFFIX == SOCKET_PATH_MAX
     long = Path(f"{fits}x")
     pty = tmp_path / "x.pty"
     assert main(["--pty", str(pty), "--state-dir", str(long)]) == 1
