@@ -49,27 +49,34 @@ def dspin_table(chip: int, d: int, switch: bool) -> str:
 """
 
 
-def config(dspin: bool = False) -> str:
-    """The machine: one motor per homing kind and direction; ``dspin``: each on a chip of
-    one chain of dSPIN chips (else STEP/DIR motors)."""
-    homing = {name: lines for name, lines, _ in KINDS}
-    out = []
-    for chip, (name, d, switch) in enumerate(motors()):
-        out.append(f"""
+def motor_table(name: str, homing: str = "", switch: bool = True) -> str:
+    """One motor over the mock's end stops at -ENDSTOP and ENDSTOP (the switch active at and
+    beyond them, the hard stop there; ``switch`` False: the hard stops only); ``homing``:
+    its [motors.homing] lines beyond speed and travel."""
+    return f"""
 [[motors]]
-name = "{name}_{"up" if d > 0 else "down"}"
+name = "{name}"
 default_speed = 6000.0
 default_accel = 60000.0
 default_decel = 60000.0
   [motors.homing]
   speed = 6000.0
   max_travel = 5000
-  {homing[name]}
+  {homing}
   [motors.mock]
   endstop_min = -{ENDSTOP}
   endstop_max = {ENDSTOP}
   switches = {"true" if switch else "false"}
-""")
+"""
+
+
+def config(dspin: bool = False) -> str:
+    """The machine: one motor per homing kind and direction; ``dspin``: each on a chip of
+    one chain of dSPIN chips (else STEP/DIR motors)."""
+    homing = {name: lines for name, lines, _ in KINDS}
+    out = []
+    for chip, (name, d, switch) in enumerate(motors()):
+        out.append(motor_table(f"{name}_{'up' if d > 0 else 'down'}", homing[name], switch))
         if dspin:
             out.append(dspin_table(chip, d, switch))
     return "".join(out) + "\n[mock]\nwires = []\n"
@@ -136,22 +143,9 @@ def wait_all(c: Client, every: list[tuple[int, tuple[str, int, bool]]]) -> None:
 
 # ---------------------------------------------------------------- an end stop pressed already
 
-#: one motor over the mock's end stops at -ENDSTOP and ENDSTOP (the switch active at and
-#: beyond them, the hard stop there); on dSPIN chips: moved by an L6470 whose SW input is the
-#: switch below (a dSPIN chip has one)
-PRESSED = """
-[[motors]]
-name = "x"
-default_speed = 6000.0
-default_accel = 60000.0
-default_decel = 60000.0
-  [motors.homing]
-  speed = 6000.0
-  max_travel = 5000
-  [motors.mock]
-  endstop_min = -{ENDSTOP}
-  endstop_max = {ENDSTOP}
-"""
+#: one motor with both switches (motor_table); on dSPIN chips: moved by an L6470 whose SW
+#: input is the switch below (a dSPIN chip has one)
+PRESSED = motor_table("x")
 
 
 @pytest.mark.stepdir
@@ -161,8 +155,7 @@ default_decel = 60000.0
 def test_a_move_into_an_end_stop_pressed_already_takes_no_step(
     motorctld: StartDaemon, executor: str, core: str
 ) -> None:
-    text = PRESSED.format(ENDSTOP=ENDSTOP)
-    daemon = motorctld(f'{text}\n[step_thread]\nexecutor = "{executor}"\ncore = "{core}"\n')
+    daemon = motorctld(f'{PRESSED}\n[step_thread]\nexecutor = "{executor}"\ncore = "{core}"\n')
     assert daemon.status()["executor"]["core"] == core
     into_the_pressed_stop_and_away(daemon)
 
@@ -171,8 +164,7 @@ def test_a_move_into_a_dspin_switch_closed_already_is_not_sent_to_the_chip(
     motorctld: StartDaemon,
 ) -> None:
     """The chip's SW stops it only as it closes: the executor keeps the motion from the chip."""
-    text = PRESSED.format(ENDSTOP=ENDSTOP) + dspin_table(0, -1, True) + "\n[mock]\nwires = []\n"
-    daemon = motorctld(text)
+    daemon = motorctld(PRESSED + dspin_table(0, -1, True) + "\n[mock]\nwires = []\n")
     into_the_pressed_stop_and_away(daemon)
 
 
